@@ -1,0 +1,14 @@
+#pragma once
+/// @file commands.h
+/// Each subcommand of the `voxelastic` command line registers itself on the app.
+/// A subcommand's callback throws vx::Error for bad input; main() turns it into a message
+/// and exit code 1 (CLI11 parse errors give CLI11's own codes).
+
+#include <CLI/CLI.hpp>
+
+namespace vx::cli {
+
+void add_phantom_command(CLI::App& app);  ///< voxelastic phantom NAME -o OUT
+void add_convert_command(CLI::App& app);  ///< voxelastic convert INPUT -o MODEL.vtu
+
+}  // namespace vx::cli

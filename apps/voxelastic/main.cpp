@@ -1,0 +1,27 @@
+// voxelastic: CT volumes to gradational-resolution elastic models, simulation, verification.
+#include <fmt/core.h>
+
+#include <exception>
+
+#include "commands.h"
+#include "error.h"
+
+int main(int argc, char** argv) {
+  CLI::App app{"voxelastic: CT volumes to gradational-resolution elastic models (units: mm, s, N, kPa, HU)"};
+  app.require_subcommand(1);
+  app.set_version_flag("--version", "voxelastic 0.1.0");
+  vx::cli::add_phantom_command(app);
+  vx::cli::add_convert_command(app);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  } catch (const vx::Error& e) {
+    fmt::print(stderr, "voxelastic: error: {}\n", e.what());
+    return 1;
+  } catch (const std::exception& e) {
+    fmt::print(stderr, "voxelastic: internal error: {}\n", e.what());
+    return 3;
+  }
+  return 0;
+}
