@@ -8,7 +8,7 @@ packages=(
   libeigen3-dev libvtk9-dev libdcmtk-dev libsdl2-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   libcli11-dev nlohmann-json3-dev libspdlog-dev libfmt-dev
-  xvfb xauth dicom3tools gnuplot-nox
+  xvfb xauth x11-utils dicom3tools gnuplot-nox
 )
 
 missing=()
