@@ -1,7 +1,7 @@
 #include "model_io.h"
 
+#include <vtkCellArray.h>
 #include <vtkCellData.h>
-#include <vtkCommand.h>
 #include <vtkDataArray.h>
 #include <vtkDoubleArray.h>
 #include <vtkFieldData.h>
@@ -25,6 +25,7 @@
 #include "atomic_file.h"
 #include "element_faces.h"
 #include "error.h"
+#include "vtk_messages.h"
 
 namespace vx {
 namespace fs = std::filesystem;
@@ -33,24 +34,6 @@ namespace {
 
 constexpr const char* kMagic = "voxelastic-model";  ///< field data `voxelastic` holds this
 constexpr int kFormatVersion = 1;
-
-/// Collects the error (and warning) messages VTK objects report, instead of printing them.
-class ErrorCollector : public vtkCommand {
- public:
-  static ErrorCollector* New() { return new ErrorCollector; }
-  void Execute(vtkObject*, unsigned long event, void* data) override {
-    const char* text = static_cast<const char*>(data);
-    std::string msg = text ? text : "(no message)";
-    while (!msg.empty() && (msg.back() == '\n' || msg.back() == ' ')) msg.pop_back();
-    // VTK prefixes "ERROR: In /path/file.cxx, line N\nvtkClass (0x..): ": keep the last line
-    const auto nl = msg.rfind('\n');
-    if (nl != std::string::npos) msg = msg.substr(nl + 1);
-    if (event == vtkCommand::ErrorEvent) errors.push_back(msg);
-    else warnings.push_back(msg);
-  }
-  std::vector<std::string> errors;
-  std::vector<std::string> warnings;
-};
 
 template <class ArrayT>
 vtkSmartPointer<ArrayT> make_array(const char* name, int components, vtkIdType tuples) {
@@ -183,10 +166,8 @@ void save_model(const Model& model, const fs::path& path) {
     throw Error("cannot save the model to '" + path.string() + "': it is inconsistent: " + problem);
   const vtkSmartPointer<vtkUnstructuredGrid> ug = to_vtk(model);
   write_atomically(path, [&](const fs::path& tmp) {
+    const VtkMessageCapture vtk_messages;
     vtkNew<vtkXMLUnstructuredGridWriter> writer;
-    vtkNew<ErrorCollector> errors;
-    writer->AddObserver(vtkCommand::ErrorEvent, errors);
-    writer->AddObserver(vtkCommand::WarningEvent, errors);
     writer->SetInputData(ug);
     writer->SetFileName(tmp.c_str());
     writer->SetDataModeToAppended();
@@ -195,9 +176,8 @@ void save_model(const Model& model, const fs::path& path) {
     writer->SetHeaderTypeToUInt64();  // blocks over 4 GiB
     writer->SetIdTypeToInt64();
     const int ok = writer->Write();
-    if (!ok || !errors->errors.empty())
-      throw Error("VTK could not write the file" +
-                  (errors->errors.empty() ? std::string(" (disk full or no permission?)") : ": " + errors->errors.front()));
+    if (!ok || !vtk_messages.errors().empty())
+      throw Error("VTK could not write the file: " + vtk_messages.first_error("disk full or no permission?"));
   });
 }
 
@@ -208,20 +188,17 @@ Model load_model(const fs::path& path) {
   if (fs::is_directory(path, ec)) throw Error("cannot load model '" + where + "': it is a folder, give a .vtu file");
   if (!fs::is_regular_file(path, ec)) throw Error("cannot load model '" + where + "': not a regular file");
 
+  const VtkMessageCapture vtk_messages;
   vtkNew<vtkXMLUnstructuredGridReader> reader;
-  vtkNew<ErrorCollector> errors;
-  reader->AddObserver(vtkCommand::ErrorEvent, errors);
-  reader->AddObserver(vtkCommand::WarningEvent, errors);
   if (!reader->CanReadFile(path.c_str()))
     throw Error("cannot load model '" + where +
                 "': it is not a VTK XML unstructured grid (.vtu); voxelastic models are written by `voxelastic convert`");
   reader->SetFileName(path.c_str());
   reader->Update();
   vtkUnstructuredGrid* ug = reader->GetOutput();
-  if (!errors->errors.empty() || reader->GetErrorCode() != 0 || !ug)
-    throw Error("cannot load model '" + where + "': the file is corrupt or truncated (" +
-                (errors->errors.empty() ? std::string("VTK reader failed") : errors->errors.front()) +
-                "); write it again with `voxelastic convert`");
+  if (!vtk_messages.errors().empty() || reader->GetErrorCode() != 0 || !ug)
+    throw Error("cannot load model '" + where + "': the file is corrupt or truncated (VTK: " +
+                vtk_messages.first_error("the reader failed") + "); write it again with `voxelastic convert`");
 
   // is this a voxelastic model?
   vtkFieldData* fd = ug->GetFieldData();
@@ -290,7 +267,7 @@ Model load_model(const fs::path& path) {
 
   // elements: the polyhedron's point list is the vertex list, in order
   m.element_offsets.assign(1, 0);
-  m.element_vertices.reserve(std::size_t(ug->GetNumberOfConnectivityIds()));
+  m.element_vertices.reserve(std::size_t(ug->GetCells()->GetNumberOfConnectivityIds()));
   m.element_level.resize(std::size_t(ne));
   m.element_cell_voxels.resize(std::size_t(ne));
   m.element_cells.resize(std::size_t(ne));

@@ -1,1 +1,268 @@
-// in progress
+// voxelastic convert INPUT -o MODEL.vtu: volume -> voxel grid -> gradational model -> files.
+#include <fmt/core.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <limits>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <system_error>
+#include <vector>
+
+#include "atomic_file.h"
+#include "commands.h"
+#include "error.h"
+#include "gradational_builder.h"
+#include "iso_surface.h"
+#include "model_io.h"
+#include "prepare.h"
+#include "progress.h"
+#include "render.h"
+#include "stats.h"
+#include "surface_io.h"
+#include "threshold.h"
+#include "volume_io.h"
+
+namespace vx::cli {
+namespace {
+namespace fs = std::filesystem;
+
+struct ConvertOptions {
+  std::string input;
+  std::string output;
+  std::string threshold;
+  std::string resolution{"gradational"};
+  int max_level{-1};
+  std::string stats;
+  std::string png;
+  std::string surface;
+  std::string surface_method{"iso"};
+  bool largest_component{false};
+  bool fill_holes{false};
+  bool no_crop{false};
+  double voxel_mm{0.0};
+  std::string series;
+  std::string modality{"ct"};
+  bool quiet{false};
+};
+
+/// Outputs are first written beside their targets under temporary names and renamed onto the
+/// targets only when every output is written: a failure leaves no new file and keeps old ones.
+class StagedOutputs {
+ public:
+  StagedOutputs() = default;
+  StagedOutputs(const StagedOutputs&) = delete;
+  StagedOutputs& operator=(const StagedOutputs&) = delete;
+  ~StagedOutputs() {
+    std::error_code ec;
+    for (const auto& [tmp, target] : staged_) fs::remove(tmp, ec);
+  }
+  /// A temporary path beside `target` with the same extension; remembered for commit().
+  fs::path stage(const fs::path& target) {
+    const fs::path tmp = target.parent_path() / ("." + target.stem().string() + ".part" + std::to_string(::getpid()) +
+                                                 target.extension().string());
+    staged_.emplace_back(tmp, target);
+    return tmp;
+  }
+  /// Renames every staged file onto its target.
+  void commit() {
+    for (std::size_t i = 0; i < staged_.size(); ++i) {
+      std::error_code ec;
+      fs::rename(staged_[i].first, staged_[i].second, ec);
+      if (ec) {
+        // undo the ones already in place, so the run leaves nothing half done
+        for (std::size_t k = 0; k < i; ++k) fs::remove(staged_[k].second, ec);
+        throw Error("could not move '" + staged_[i].first.string() + "' to '" + staged_[i].second.string() +
+                    "': " + ec.message());
+      }
+    }
+    staged_.clear();
+  }
+
+ private:
+  std::vector<std::pair<fs::path, fs::path>> staged_;
+};
+
+/// Throws unless `path` ends in `ext` and its folder exists and is writable.
+void check_output(const std::string& path, const char* ext, const char* option, const char* what) {
+  if (fs::path(path).extension() != ext)
+    throw Error(fmt::format("{} '{}': the {} must be a {} file (for example {}{})", option, path, what, ext,
+                            fs::path(path).stem().string().empty() ? "out" : fs::path(path).stem().string(), ext));
+  check_output_path(path);
+}
+
+/// "40 to 300" or ">= -200".
+std::string hu_window(const HuRange& r) {
+  return std::isfinite(r.hi) ? fmt::format("{:g} to {:g}", r.lo, r.hi) : fmt::format(">= {:g}", r.lo);
+}
+
+/// Checks every option before any work, so a mistake costs nothing.
+void validate(const ConvertOptions& o) {
+  std::error_code ec;
+  if (!fs::exists(o.input, ec))
+    throw Error("input '" + o.input + "' does not exist: give a volume file (.nrrd, .nii.gz, .mha, .vti) or a DICOM folder");
+  // the format itself is checked by read_volume, first thing (DICOM files may lack an extension)
+  check_output(o.output, ".vtu", "-o", "model");
+  if (!o.stats.empty()) check_output(o.stats, ".json", "--stats", "statistics file");
+  if (!o.png.empty()) check_output(o.png, ".png", "--png", "picture");
+  if (!o.surface.empty()) check_output(o.surface, ".vtp", "--surface", "surface");
+  if (o.max_level < -1) throw Error(fmt::format("--max-level {}: the level must be 0 or more", o.max_level));
+  if (o.max_level >= 0 && o.resolution != "gradational")
+    throw Error("--max-level applies to --resolution gradational only (the " + o.resolution +
+                " layout has a single level); leave it out");
+  if (!(o.voxel_mm >= 0.0) || !std::isfinite(o.voxel_mm))
+    throw Error(fmt::format("--voxel {}: the voxel size must be a positive number of mm", o.voxel_mm));
+  if (!o.png.empty() && !display_available())
+    throw Error("--png needs an X display for rendering and there is none (DISPLAY unset or not reachable): run "
+                "under xvfb-run, e.g. `xvfb-run -a -s \"-screen 0 1280x1024x24\" voxelastic convert ...`, or leave out --png");
+}
+
+void run_convert(const ConvertOptions& o) {
+  // everything the user typed, checked first
+  validate(o);
+  PrepareOptions prep;
+  if (!o.threshold.empty()) prep.range = parse_threshold(o.threshold);
+  prep.largest_component = o.largest_component;
+  prep.fill_holes = o.fill_holes;
+  prep.crop = !o.no_crop;
+  prep.voxel_mm = o.voxel_mm;
+  BuildSettings build;
+  build.resolution = parse_resolution(o.resolution);
+  build.max_level = o.max_level;
+  ReadOptions read;
+  read.series_uid = o.series;
+  read.any_modality = o.modality == "any";
+  const bool talk = !o.quiet;
+
+  // read the volume
+  Progress reading("reading " + fs::path(o.input).filename().string(), talk);
+  const Volume volume = read_volume(o.input, read);
+  reading.done();
+
+  // threshold, clean up, crop, resample
+  PrepareReport prepared;
+  Progress preparing("preparing the voxel grid", talk);
+  const VoxelGrid grid = prepare_grid(volume, prep, &prepared);
+  preparing.done();
+
+  // build the model
+  BuildReport built;
+  Progress building("building the " + o.resolution + " model", talk);
+  build.progress = [&building](double f) { building.update(f); };
+  const Model model = build_model(grid, build, &built);
+  building.done();
+  const ModelStats stats = model_stats(model);
+
+  // the smoothed surface, embedded in the model so a simulation can deform it
+  EmbeddedSurface surface;
+  if (!o.surface.empty()) {
+    Progress surfacing("extracting the " + o.surface_method + " surface", talk);
+    // contour the HU values where they sit on the model's voxels (no resampling) and the window
+    // is open above; otherwise the binary grid, which is exactly what the model holds
+    const bool use_hu = o.voxel_mm == 0.0 && !std::isfinite(prep.range.hi);
+    IsoSurfaceSettings iso;
+    if (use_hu) iso.iso_hu = prep.range.lo;
+    surface = make_surface(model, grid, use_hu ? &volume : nullptr, parse_surface_method(o.surface_method), iso);
+    surfacing.done();
+  }
+
+  // write every output under a temporary name, then move them all in place
+  StagedOutputs outputs;
+  {
+    Progress saving("writing " + fs::path(o.output).filename().string(), talk);
+    save_model(model, outputs.stage(o.output));
+    saving.done();
+  }
+  if (!o.surface.empty()) save_surface(surface, outputs.stage(o.surface));
+  if (!o.stats.empty()) {
+    nlohmann::json j;
+    to_json(j, stats);
+    j["input"] = o.input;
+    j["build_s"] = built.build_s;
+    j["max_level"] = o.max_level >= 0 ? nlohmann::json(o.max_level) : nlohmann::json(nullptr);  // null: no limit
+    const double hi = prep.range.hi;
+    j["threshold_hu"] = {prep.range.lo, std::isfinite(hi) ? nlohmann::json(hi) : nlohmann::json(nullptr)};
+    nlohmann::json pj;
+    prepared.to_json(pj);
+    j["prepare"] = pj;
+    const auto optional = [](const std::string& v) { return v.empty() ? nlohmann::json(nullptr) : nlohmann::json(v); };
+    j["outputs"] = {{"model", o.output}, {"stats", o.stats}, {"png", optional(o.png)}, {"surface", optional(o.surface)}};
+    if (!o.surface.empty())
+      j["surface"] = {{"method", o.surface_method}, {"vertices", surface.num_vertices()}, {"triangles", surface.num_triangles()}};
+    j["voxelastic_version"] = "0.1.0";
+    write_text_atomically(outputs.stage(o.stats), j.dump(2) + "\n");
+  }
+  if (!o.png.empty()) {
+    Progress drawing("drawing " + fs::path(o.png).filename().string(), talk);
+    RenderSettings r;
+    r.title = fmt::format("{}: tissue HU {}", fs::path(o.input).filename().string(), hu_window(prep.range));
+    render_model_png(model, outputs.stage(o.png), r);
+    drawing.done();
+  }
+  outputs.commit();
+
+  if (!talk) return;
+  fmt::print("source:         {}\n", o.input);
+  fmt::print("threshold:      HU {}\n", hu_window(prep.range));
+  fmt::print("{}\n", prepared.summary());
+  fmt::print("{}\n", summary(stats));
+  fmt::print("build time:     {:.3f} s\n", built.build_s);
+  fmt::print("wrote:          {}", o.output);
+  if (!o.stats.empty()) fmt::print(", {}", o.stats);
+  if (!o.png.empty()) fmt::print(", {}", o.png);
+  if (!o.surface.empty())
+    fmt::print(", {} ({} surface: {} vertices, {} triangles)", o.surface, o.surface_method, surface.num_vertices(),
+               surface.num_triangles());
+  fmt::print("\n");
+}
+
+}  // namespace
+
+void add_convert_command(CLI::App& app) {
+  auto opts = std::make_shared<ConvertOptions>();
+  CLI::App* sub = app.add_subcommand(
+      "convert",
+      "Convert a CT volume into a gradational-resolution elastic model (.vtu, LPS mm): threshold, clean up, "
+      "build the elements (level 0 at the surface, larger inside), save, report.");
+  sub->add_option("INPUT", opts->input, "volume: .nrrd/.nhdr, .nii/.nii.gz, .mha/.mhd, .vti, or a DICOM folder / .dcm file")
+      ->required();
+  sub->add_option("-o,--output", opts->output, "model file to write (.vtu: open in ParaView or 3D Slicer)")->required();
+  sub->add_option("--threshold", opts->threshold,
+                  "tissue HU window: LO (HU >= LO), LO:HI, or a preset name; default: HU >= -200");
+  sub->add_option("--resolution", opts->resolution,
+                  "element layout: gradational (the paper's shells), uniform (all 2x2x2-voxel elements), "
+                  "voxel (one element per voxel, the fine reference)")
+      ->check(CLI::IsMember({"gradational", "uniform", "voxel"}));
+  sub->add_option("--max-level", opts->max_level, "largest element level (cells of 2^L voxels); default: no limit")
+      ->check(CLI::Range(0, 30));
+  sub->add_option("--stats", opts->stats, "write the model statistics as JSON (.json)");
+  sub->add_option("--png", opts->png, "draw the model to a picture (.png; needs an X display, e.g. xvfb-run)");
+  sub->add_option("--surface", opts->surface,
+                  "also write the smoothed surface, embedded in the model so it follows the deformation (.vtp, LPS mm)");
+  sub->add_option("--surface-method", opts->surface_method,
+                  "iso: smoothed iso-surface embedded in the elements (accurate, default); paper: the voxel surface "
+                  "with concave steps bridged, vertices on the model nodes (the paper's); staircase: raw voxel faces")
+      ->check(CLI::IsMember({"iso", "paper", "staircase"}));
+  sub->add_flag("--largest-component", opts->largest_component, "keep only the largest connected piece of tissue");
+  sub->add_flag("--fill-holes", opts->fill_holes, "fill cavities inside the tissue");
+  sub->add_flag("--no-crop", opts->no_crop, "keep the whole volume instead of cropping to the tissue");
+  sub->add_option("--voxel", opts->voxel_mm, "resample to isotropic voxels of this size first, mm")
+      ->check(CLI::Validator(
+          [](std::string& text) {
+            double v = 0;
+            return CLI::detail::lexical_cast(text, v) && v > 0 && std::isfinite(v)
+                       ? std::string()
+                       : "the voxel size must be a positive number of mm, got '" + text + "'";
+          },
+          "MM>0"));
+  sub->add_option("--series", opts->series, "DICOM: SeriesInstanceUID to read (default: the largest CT series)");
+  sub->add_option("--modality", opts->modality, "DICOM: ct (CT images only) or any (also MR etc., with a warning)")
+      ->check(CLI::IsMember({"ct", "any"}));
+  sub->add_flag("-q,--quiet", opts->quiet, "print nothing but errors");
+  sub->callback([opts] { run_convert(*opts); });
+}
+
+}  // namespace vx::cli

@@ -10,5 +10,6 @@ namespace vx::cli {
 
 void add_phantom_command(CLI::App& app);  ///< voxelastic phantom NAME -o OUT
 void add_convert_command(CLI::App& app);  ///< voxelastic convert INPUT -o MODEL.vtu
+void add_simulate_command(CLI::App& app); ///< voxelastic simulate SCENE.json --out DIR
 
 }  // namespace vx::cli

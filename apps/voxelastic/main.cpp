@@ -12,6 +12,7 @@ int main(int argc, char** argv) {
   app.set_version_flag("--version", "voxelastic 0.1.0");
   vx::cli::add_phantom_command(app);
   vx::cli::add_convert_command(app);
+  vx::cli::add_simulate_command(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -1,0 +1,111 @@
+// voxelastic-probe: palpate a gradational-resolution elastic model with a joystick (or the
+// keyboard and mouse) and feel the tissue through force feedback. Units: mm, s, N, kPa.
+#include <CLI/CLI.hpp>
+#include <fmt/core.h>
+
+#include <exception>
+#include <string>
+
+#include "error.h"
+#include "probe_app.h"
+
+int main(int argc, char** argv) {
+  using namespace vx::probe;
+  AppOptions o;
+  std::string control = "rate", device = "auto", size = "1280x800", surface = "iso";
+
+  CLI::App app{
+      "voxelastic-probe: palpate an elastic tissue model with a joystick, keyboard or mouse and feel it through "
+      "force feedback (units: mm, s, N, kPa).\n"
+      "INPUT is a scene (.json), a volume (.vti .mha .nii .nii.gz .nrrd, DICOM folder) or a model (.vtu) with "
+      "default palpation settings."};
+  app.set_version_flag("--version", "voxelastic-probe 0.1.0");
+  app.add_option("INPUT", o.input, "scene .json, volume or model .vtu")->required();
+
+  auto* g_auto = app.add_option_group("automation", "scripted runs (CI)");
+  g_auto->add_option("--virtual-joystick", o.joystick_script,
+                     "play a joystick script (t_s stick axes...) through SDL virtual joysticks, in simulated time")
+      ->check(CLI::ExistingFile);
+  g_auto->add_flag("--exit-after-script", o.exit_after_script, "quit when the joystick script has ended");
+  g_auto->add_option("--frames", o.frames, "quit after N rendered frames")->check(CLI::PositiveNumber);
+  g_auto->add_option("--duration", o.duration_s, "quit at this simulated time, s")->check(CLI::PositiveNumber);
+  g_auto->add_option("--screenshot", o.screenshot, "write the last frame to this .png");
+  g_auto->add_option("--force-log", o.force_log, "record the device force of every device tick to this .csv");
+  g_auto->add_flag("--headless", o.headless, "no window: physics, input and force output only (needs --duration or "
+                                             "--exit-after-script)");
+  g_auto->add_flag("-q,--quiet", o.quiet, "print errors only");
+
+  auto* g_in = app.add_option_group("input", "joystick and keyboard");
+  auto* opt_control = g_in->add_option("--control", control, "rate (the paper: velocity follows the tilt) or position")
+      ->check(CLI::IsMember({"rate", "position"}));
+  auto* opt_speed = g_in->add_option("--speed", o.control.speed_mm_s, "probe speed at full tilt, mm/s")->check(CLI::PositiveNumber);
+  auto* opt_range = g_in->add_option("--range", o.control.position_range_mm, "position control: offset at full tilt, mm")
+      ->check(CLI::PositiveNumber);
+  auto* opt_deadzone = g_in->add_option("--deadzone", o.control.deadzone, "stick dead zone, fraction of full tilt")
+      ->check(CLI::Range(0.0, 0.9));
+  g_in->add_option("--z-axis", o.control.z_axis,
+                   "stick axis for the depth motion (e.g. 2 twist, 3 throttle); -1: buttons 0/1 and the hat only")
+      ->check(CLI::Range(-1, 5));
+  g_in->add_flag("--invert-z", o.control.invert_z_axis, "flip the depth axis");
+  g_in->add_flag("!--no-joystick", o.use_joysticks, "ignore connected joysticks (keyboard and mouse only)");
+
+  auto* g_out = app.add_option_group("force", "force output");
+  g_out->add_option("--force-output", device, "auto (haptic, else rumble), haptic, rumble or none")
+      ->check(CLI::IsMember({"auto", "haptic", "rumble", "none"}));
+  g_out->add_option("--max-force", o.max_force_N, "force at the device's full level, N")->check(CLI::PositiveNumber);
+  g_out->add_option("--device-update-rate", o.device_update_hz, "haptic/rumble commands per second at most")
+      ->check(CLI::Range(1.0, 1000.0));
+
+  auto* g_run = app.add_option_group("timing", "threads and rates");
+  g_run->add_option("--physics-rate", o.physics_hz, "physics thread ticks per second (steps per tick follow dt)")
+      ->check(CLI::Range(50.0, 10000.0));
+  g_run->add_option("--device-rate", o.device_hz, "device thread updates per second (1000 for haptics)")
+      ->check(CLI::Range(50.0, 10000.0));
+  g_run->add_option("--fps", o.fps, "display frame limit")->check(CLI::Range(1.0, 240.0));
+  g_run->add_option("--threads", o.threads, "physics threads (0: all cores)")->check(CLI::Range(0, 256));
+  g_run->add_option("--size", size, "window size WIDTHxHEIGHT");
+  g_run->add_flag("--levels", o.show_levels, "start with the element levels view");
+
+  auto* g_scene = app.add_option_group("defaults", "volumes and models (scene files set these themselves)");
+  g_scene->add_option("--threshold", o.scene.threshold, "tissue HU window LO[:HI] or preset (volumes)");
+  g_scene->add_option("--voxel", o.scene.voxel_mm, "resample volumes to this voxel size, mm")
+      ->check(CLI::NonNegativeNumber);
+  g_scene->add_option("--youngs-modulus", o.scene.youngs_modulus_kpa, "tissue stiffness, kPa")
+      ->check(CLI::PositiveNumber);
+  g_scene->add_option("--surface-method", surface,
+                       "displayed surface: iso (smoothed iso-surface in the elements) or paper (voxel surface with "
+                       "the concave steps hidden, paper 3.3)")
+      ->check(CLI::IsMember({"iso", "paper"}));
+  g_scene->add_option("--surface", o.scene.surface, "models: the surface .vtp written with the model")
+      ->check(CLI::ExistingFile);
+
+  try {
+    app.parse(argc, argv);
+    o.control.mode = parse_control_mode(control);
+    o.mode_set = opt_control->count() > 0;
+    o.speed_set = opt_speed->count() > 0;
+    o.range_set = opt_range->count() > 0;
+    o.deadzone_set = opt_deadzone->count() > 0;
+    o.surface_method = vx::parse_surface_method(surface);
+    o.device = parse_device_choice(device);
+    const auto x = size.find('x');
+    try {
+      if (x == std::string::npos) throw std::invalid_argument(size);
+      o.width = std::stoi(size.substr(0, x));
+      o.height = std::stoi(size.substr(x + 1));
+    } catch (const std::exception&) {
+      throw vx::Error("--size '" + size + "': give WIDTHxHEIGHT, e.g. 1280x800");
+    }
+    if (o.width < 320 || o.height < 240 || o.width > 8192 || o.height > 8192)
+      throw vx::Error("--size '" + size + "': between 320x240 and 8192x8192");
+    return run_probe_app(o);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  } catch (const vx::Error& e) {
+    fmt::print(stderr, "voxelastic-probe: error: {}\n", e.what());
+    return kExitError;
+  } catch (const std::exception& e) {
+    fmt::print(stderr, "voxelastic-probe: internal error: {}\n", e.what());
+    return kExitError;
+  }
+}

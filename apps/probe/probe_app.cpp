@@ -1,0 +1,625 @@
+#include "probe_app.h"
+
+#include <fmt/core.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <csignal>
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+#include <memory>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+#include "display.h"
+#include "error.h"
+#include "force_output.h"
+#include "joystick_script.h"
+#include "probe_view.h"
+#include "rate_thread.h"
+#include "sdl_input.h"
+#include "simulation.h"
+
+namespace vx::probe {
+
+DeviceChoice parse_device_choice(const std::string& s) {
+  if (s == "auto") return DeviceChoice::automatic;
+  if (s == "haptic") return DeviceChoice::haptic;
+  if (s == "rumble") return DeviceChoice::rumble;
+  if (s == "none") return DeviceChoice::none;
+  throw Error("unknown force output '" + s + "': use auto, haptic, rumble or none");
+}
+
+namespace {
+
+std::atomic<bool> g_interrupted{false};
+extern "C" void on_interrupt(int) { g_interrupted.store(true); }
+
+double seconds(SteadyClock::duration d) { return std::chrono::duration<double>(d).count(); }
+
+/// Where the physics is: simulated time at a wall instant.
+struct SimClock {
+  double sim_s{0.0};
+  SteadyClock::time_point wall{};
+  bool paused{false};
+};
+
+/// The forces the HUD shows.
+struct HudForces {
+  std::array<double, 2> force_N{};
+  std::array<int, 2> contacts{};
+};
+
+/// Per probe: the largest forces seen, for the summary.
+struct ForceStats {
+  double max_device_N{0.0};
+  double max_raw_N{0.0};
+  double sum_device_N{0.0};
+  std::int64_t samples{0};
+};
+
+class App {
+ public:
+  App(const AppOptions& options, ProbeScene scene) : options_(options), scene_(std::move(scene)) {}
+  int run();
+
+ private:
+  void say(const std::string& line) const {
+    if (!options_.quiet) fmt::print("{}\n", line);
+  }
+  void open_input();
+  void open_outputs();
+  void physics_tick();
+  void device_tick();
+  [[nodiscard]] SimClock clock() const {
+    std::lock_guard lock(clock_mutex_);
+    return clock_;
+  }
+  void set_clock(const SimClock& c) {
+    std::lock_guard lock(clock_mutex_);
+    clock_ = c;
+  }
+  [[nodiscard]] Eigen::Matrix3d basis() const {
+    std::lock_guard lock(basis_mutex_);
+    return basis_;
+  }
+  void request_quit(const std::string& why) {
+    std::lock_guard lock(quit_mutex_);
+    if (!quit_.exchange(true)) quit_reason_ = why;
+  }
+  void on_action(ViewAction a);
+  [[nodiscard]] HudInfo hud(double physics_rate, double rtf, double device_rate);
+  void summary(double wall_s);
+
+  const AppOptions& options_;
+  ProbeScene scene_;
+  std::unique_ptr<Simulation> sim_;
+  std::shared_ptr<const JoystickScript> script_;
+  std::unique_ptr<SdlInput> input_;
+  ForceOutputs outputs_;
+  std::vector<std::string> output_notes_;
+  KeyboardStick keyboard_;
+  ControlSettings control_;
+  ControlSettings keyboard_control_;
+  std::vector<ProbeCommander> commanders_;
+  int probes_{0};
+
+  SteadyClock::time_point start_{};
+  double physics_period_s_{0.001};
+  double device_period_s_{0.001};
+
+  // physics thread
+  SteadyClock::time_point physics_last_{};
+  bool physics_started_{false};
+  double sim_target_s_{0.0};
+  std::atomic<std::int64_t> steps_total_{0};
+  std::atomic<std::int64_t> sim_time_us_{0};
+  double lag_dropped_s_{0.0};                     // physics thread only
+  std::atomic<std::int64_t> lag_drops_{0};
+  std::atomic<bool> physics_failed_{false};
+  std::string physics_failure_;                   // written once before physics_failed_ is set
+
+  // shared
+  mutable std::mutex clock_mutex_;
+  SimClock clock_;
+  mutable std::mutex basis_mutex_;
+  Eigen::Matrix3d basis_{Eigen::Matrix3d::Identity()};
+  std::atomic<bool> paused_{false};
+  std::atomic<bool> reset_requested_{false};
+  std::atomic<int> reset_generation_{0};
+  std::atomic<bool> screenshot_requested_{false};
+  std::atomic<bool> quit_{false};
+  std::mutex quit_mutex_;
+  std::string quit_reason_;
+
+  // device thread -> GUI
+  std::mutex device_mutex_;
+  HudForces hud_forces_;
+  std::vector<PlotSample> plot_pending_;
+  std::vector<std::string> messages_;
+  std::array<ForceStats, 2> stats_{};
+  int device_reset_seen_{0};
+  std::int64_t device_ticks_{0};
+};
+
+// ---------------------------------------------------------------- set-up
+
+void App::open_input() {
+  InputSettings in;
+  in.max_sticks = std::min(kMaxSticks, std::max(1, probes_));
+  in.joysticks = options_.use_joysticks;
+  if (!options_.joystick_script.empty()) {
+    script_ = std::make_shared<const JoystickScript>(JoystickScript::load(options_.joystick_script));
+    in.script = script_;
+    if (script_->sticks() > probes_)
+      say(fmt::format("note: the script drives {} sticks but the scene has {} probe(s); extra sticks are ignored",
+                      script_->sticks(), probes_));
+  }
+  input_ = std::make_unique<SdlInput>(in);
+  for (const auto& m : input_->take_messages()) say("input: " + m);
+}
+
+void App::open_outputs() {
+  DeviceOutputSettings base;
+  base.max_force_N = options_.max_force_N;
+  base.max_update_hz = options_.device_update_hz;
+  if (options_.device != DeviceChoice::none) {
+    for (int i = 0; i < input_->count() && i < probes_; ++i) {
+      DeviceOutputSettings s = base;
+      s.probe = i;
+      std::string why_haptic, why_rumble;
+      if (options_.device == DeviceChoice::automatic || options_.device == DeviceChoice::haptic) {
+        if (auto h = HapticForceOutput::open(input_->joystick(i), input_->name(i), s, why_haptic)) {
+          output_notes_.push_back(h->describe());
+          outputs_.add(std::move(h));
+          continue;
+        }
+        if (options_.device == DeviceChoice::haptic)
+          throw Error(fmt::format("--force-output haptic: joystick '{}' has no usable force feedback: {}",
+                                  input_->name(i), why_haptic));
+      }
+      if (auto r = RumbleForceOutput::open(input_->joystick(i), input_->name(i), s, why_rumble)) {
+        if (options_.device == DeviceChoice::automatic)
+          say(fmt::format("note: joystick '{}': {}; using rumble instead", input_->name(i), why_haptic));
+        output_notes_.push_back(r->describe());
+        outputs_.add(std::move(r));
+        continue;
+      }
+      if (options_.device == DeviceChoice::rumble)
+        throw Error(fmt::format("--force-output rumble: joystick '{}' cannot rumble", input_->name(i)));
+      say(fmt::format("note: joystick '{}' has neither force feedback ({}) nor rumble: no force output on it",
+                      input_->name(i), why_haptic));
+    }
+  }
+  if (!options_.force_log.empty()) {
+    auto rec = std::make_unique<RecordingForceOutput>(options_.force_log);
+    output_notes_.push_back(rec->describe());
+    outputs_.add(std::move(rec));
+  }
+  if (outputs_.empty())
+    output_notes_.push_back("no force device: forces on the HUD and plot only (--force-log FILE.csv records them)");
+}
+
+// ---------------------------------------------------------------- physics thread
+
+void App::physics_tick() {
+  const auto now = SteadyClock::now();
+  double dt_wall = physics_started_ ? seconds(now - physics_last_) : 0.0;
+  physics_started_ = true;
+  physics_last_ = now;
+  dt_wall = std::min(dt_wall, 0.1);  // a long stall is not replayed
+  if (reset_requested_.exchange(false)) {
+    sim_->reset();
+    sim_target_s_ = 0.0;
+    reset_generation_.fetch_add(1);
+  }
+  const bool paused = paused_.load();
+  if (!paused && !sim_->failed()) {
+    sim_target_s_ += dt_wall;
+    // at most twice real time per tick: catch up a little, never burst
+    const int budget = std::max(1, int(std::ceil(2.0 * physics_period_s_ / sim_->dt_s())));
+    steps_total_.fetch_add(sim_->advance_to(sim_target_s_, budget), std::memory_order_relaxed);
+    const double lag = sim_target_s_ - sim_->time_s();
+    if (lag > 0.05) {
+      // cannot keep real time: drop the lag and go on in slow motion
+      lag_dropped_s_ += lag;
+      lag_drops_.fetch_add(1);
+      sim_target_s_ = sim_->time_s();
+    }
+    if (sim_->failed() && !physics_failed_.load()) {
+      physics_failure_ = fmt::format("physics stopped at t = {:.3f} s: {} ({}); press r to reset", sim_->time_s(),
+                                     to_string(sim_->state().status), sim_->state().message);
+      physics_failed_.store(true);
+    }
+  }
+  sim_time_us_.store(std::int64_t(std::llround(sim_->time_s() * 1e6)), std::memory_order_relaxed);
+  set_clock(SimClock{sim_->time_s(), now, paused || sim_->failed()});
+}
+
+// ---------------------------------------------------------------- device thread
+
+void App::device_tick() {
+  const auto now = SteadyClock::now();
+  const SimClock c = clock();
+  // the simulated time now, from the physics' last report; never ahead of the physics by more
+  // than one of its ticks (the half-sine pulse is evaluated within the step being computed)
+  double sim_now = c.sim_s + (c.paused ? 0.0 : std::min(seconds(now - c.wall), physics_period_s_));
+  const int gen = reset_generation_.load();
+  if (gen != device_reset_seen_) {
+    device_reset_seen_ = gen;
+    for (auto& pc : commanders_) pc.reset();
+  }
+  // sticks: the script runs in simulated time, so slow motion keeps the palpation the same
+  input_->play_script(sim_now);
+  input_->poll();
+  std::vector<std::string> msgs = input_->take_messages();
+
+  const Eigen::Matrix3d b = basis();
+  const bool paused = paused_.load();
+  DeviceTick tick;
+  tick.wall_s = seconds(now - start_);
+  tick.sim_s = sim_now;
+  tick.probes = std::min(probes_, kMaxSticks);
+  const int active = keyboard_.active_probe();
+  std::array<double, kMaxSticks> update_mean{};
+  for (int p = 0; p < tick.probes; ++p) {
+    const ProbeOutput snap = sim_->probe_snapshot(p);
+    // the stick of this probe plus, for the active probe, the keyboard and mouse
+    Eigen::Vector3d cmd = Eigen::Vector3d::Zero();
+    if (p < input_->count()) cmd = stick_command(input_->state(p), control_);
+    Eigen::Vector3d drag = Eigen::Vector3d::Zero();
+    if (p == active) {
+      cmd = (cmd + stick_command(keyboard_.state(), keyboard_control_)).cwiseMax(-1.0).cwiseMin(1.0);
+      drag = keyboard_.take_drag();
+    }
+    if (!paused)
+      sim_->set_live(p, commanders_[std::size_t(p)].update(cmd, drag, b, snap.pose.position_mm, device_period_s_));
+
+    // the device force: the paper's half sine, at the device's own clock
+    ProbeForce& f = tick.probe[std::size_t(p)];
+    if (!paused && !c.paused) {
+      f.device_N = sim_->has_device() ? snap.pulse.at(std::max(sim_now, snap.time_s)) : snap.raw_force_n;
+      f.raw_N = snap.raw_force_n;
+      update_mean[std::size_t(p)] = sim_->has_device() ? snap.pulse.mean_n.norm() : snap.raw_force_n.norm();
+    }
+    f.stick_N = b.transpose() * f.device_N;
+    f.tip_mm = snap.pose.position_mm;
+    f.contacts = snap.contacts;
+  }
+  outputs_.write(tick);
+  ++device_ticks_;
+
+  // what the GUI shows: forces now, a plot point every 4 ms of simulated time
+  std::lock_guard lock(device_mutex_);
+  for (int p = 0; p < tick.probes; ++p) {
+    const ProbeForce& f = tick.probe[std::size_t(p)];
+    hud_forces_.force_N[std::size_t(p)] = f.device_N.norm();
+    hud_forces_.contacts[std::size_t(p)] = f.contacts;
+    ForceStats& s = stats_[std::size_t(p)];
+    s.max_device_N = std::max(s.max_device_N, f.device_N.norm());
+    s.max_raw_N = std::max(s.max_raw_N, f.raw_N.norm());
+    s.sum_device_N += f.device_N.norm();
+    ++s.samples;
+  }
+  if (plot_pending_.empty() || sim_now >= plot_pending_.back().t_s + 0.004 || sim_now < plot_pending_.back().t_s) {
+    PlotSample ps;
+    ps.t_s = sim_now;
+    for (int p = 0; p < tick.probes; ++p) {
+      ps.device_N[std::size_t(p)] = float(tick.probe[std::size_t(p)].device_N.norm());
+      ps.mean_N[std::size_t(p)] = float(update_mean[std::size_t(p)]);
+      ps.raw_N[std::size_t(p)] = float(tick.probe[std::size_t(p)].raw_N.norm());
+    }
+    if (plot_pending_.size() > 20000) plot_pending_.clear();  // nobody is reading (headless)
+    plot_pending_.push_back(ps);
+  }
+  for (auto& m : msgs) messages_.push_back(std::move(m));
+
+  // stop conditions in simulated time
+  if (options_.exit_after_script && script_ && sim_now > script_->duration_s() + 0.25)
+    request_quit(fmt::format("the joystick script ended ({:.2f} s)", script_->duration_s()));
+  if (options_.duration_s > 0 && sim_now >= options_.duration_s)
+    request_quit(fmt::format("simulated {:.2f} s (--duration)", options_.duration_s));
+}
+
+// ---------------------------------------------------------------- GUI thread
+
+void App::on_action(ViewAction a) {
+  switch (a) {
+    case ViewAction::quit: request_quit("quit key"); break;
+    case ViewAction::pause: paused_.store(!paused_.load()); break;
+    case ViewAction::reset_scene: reset_requested_.store(true); break;
+    case ViewAction::screenshot: screenshot_requested_.store(true); break;
+    case ViewAction::next_probe: keyboard_.set_active_probe((keyboard_.active_probe() + 1) % std::max(1, probes_)); break;
+  }
+}
+
+HudInfo App::hud(double physics_rate, double rtf, double device_rate) {
+  HudInfo h;
+  h.sim_s = double(sim_time_us_.load()) * 1e-6;
+  h.physics_steps_per_s = physics_rate;
+  h.real_time_factor = rtf;
+  h.paused = paused_.load();
+  h.behind_real_time = !h.paused && !physics_failed_.load() && rtf < 0.95;
+  h.device_hz = device_rate;
+  h.probes = std::min(probes_, 2);
+  h.active_probe = keyboard_.active_probe();
+  std::lock_guard lock(device_mutex_);
+  h.force_N = hud_forces_.force_N;
+  h.contacts = hud_forces_.contacts;
+  if (physics_failed_.load()) h.status = physics_failure_;
+  return h;
+}
+
+void App::summary(double wall_s) {
+  const double sim_s = double(sim_time_us_.load()) * 1e-6;
+  const std::int64_t steps = steps_total_.load();
+  say(fmt::format("voxelastic-probe: {:.2f} s wall, {:.2f} s simulated ({:.2f}x real time{}); physics {} steps "
+                  "({:.0f} steps/s, dt {:.3g} ms)",
+                  wall_s, sim_s, wall_s > 0 ? sim_s / wall_s : 0.0,
+                  lag_drops_.load() > 0 ? ", could not keep real time" : "", steps,
+                  wall_s > 0 ? double(steps) / wall_s : 0.0, 1e3 * sim_->dt_s()));
+  std::lock_guard lock(device_mutex_);
+  for (int p = 0; p < std::min(probes_, 2); ++p) {
+    const ForceStats& s = stats_[std::size_t(p)];
+    say(fmt::format("probe {}: device force max {:.3f} N, mean {:.3f} N; raw reaction max {:.3f} N", p,
+                    s.max_device_N, s.samples ? s.sum_device_N / double(s.samples) : 0.0, s.max_raw_N));
+  }
+}
+
+int App::run() {
+  Simulation* sim = nullptr;
+  // the simulation, with the options that override the scene
+  scene_.simulation.integrator.threads = options_.threads;
+  sim_ = std::make_unique<Simulation>(scene_.physics, scene_.simulation);
+  sim = sim_.get();
+  probes_ = sim->num_probes();
+  if (probes_ == 0) throw Error("the scene has no probe to palpate with");
+  if (probes_ > kMaxSticks) say(fmt::format("note: the scene has {} probes; the app drives the first {}", probes_, kMaxSticks));
+  // the stick mapping: the command line over the scene over the defaults
+  control_ = options_.control;
+  if (scene_.control_from_scene) {
+    if (!options_.mode_set) control_.mode = scene_.control.mode;
+    if (!options_.speed_set) control_.speed_mm_s = scene_.control.speed_mm_s;
+    if (!options_.range_set) control_.position_range_mm = scene_.control.position_range_mm;
+    if (!options_.deadzone_set) control_.deadzone = scene_.control.deadzone;
+  }
+  for (int p = 0; p < std::min(probes_, kMaxSticks); ++p) {
+    const Box allowed = p < int(scene_.probe_allowed.size()) ? scene_.probe_allowed[std::size_t(p)] : Box{};
+    commanders_.emplace_back(sim->probe(p).pose.position_mm, allowed, control_);
+  }
+  keyboard_control_ = ControlSettings{};
+  keyboard_control_.mode = control_.mode;
+  keyboard_control_.speed_mm_s = control_.speed_mm_s;
+  keyboard_control_.position_range_mm = control_.position_range_mm;
+  keyboard_control_.deadzone = 0.0;
+
+  open_input();
+  open_outputs();
+  const std::string control = control_.mode == ControlMode::rate ? "rate control" : "position control";
+  std::string input_line;
+  if (script_)
+    input_line = fmt::format("{}: {} virtual joystick{} ({})", control, input_->count(), input_->count() > 1 ? "s" : "",
+                             options_.joystick_script.filename().string());
+  else if (input_->count() > 0)
+    input_line = fmt::format("{}: {} + keyboard/mouse", control,
+                             input_->count() > 1 ? "2 joysticks" : "joystick '" + input_->name(0) + "'");
+  else
+    input_line = fmt::format("{}: keyboard and mouse (no joystick)", control);
+  std::string output_line = "force out: ";
+  if (outputs_.empty()) output_line += "none (HUD and plot only)";
+  for (std::size_t i = 0; i < outputs_.all().size(); ++i) output_line += (i ? " + " : "") + outputs_.all()[i]->label();
+  say("input: " + (input_->count() > 0 ? input_->describe() : std::string("keyboard and mouse")) + ", " + control);
+  for (const auto& n : output_notes_) say("force: " + n);
+  for (const auto& m : input_->take_messages()) say("input: " + m);
+
+  // the start view: stick axes follow the camera
+  const Eigen::Matrix3d start_basis = start_view_basis(scene_.world_up);
+  {
+    std::lock_guard lock(basis_mutex_);
+    basis_ = start_basis;
+  }
+
+  // the window (after everything that can fail on bad input)
+  std::unique_ptr<ProbeView> view;
+  if (!options_.headless) {
+    ViewSetup setup;
+    setup.title = scene_.name;
+    setup.surface_vertices = scene_.surface->rest_vertices;
+    setup.surface_triangles = scene_.surface->triangles;
+    setup.levels = std::make_shared<const LevelCells>(make_level_cells(*scene_.model));
+    for (int p = 0; p < probes_; ++p) {
+      setup.probes.push_back(scene_.simulation.probes[std::size_t(p)].geometry);
+      setup.probe_names.push_back(scene_.simulation.probes[std::size_t(p)].name);
+      setup.probe_start_mm.push_back(sim->probe(p).pose.position_mm);
+    }
+    setup.walls = scene_.simulation.workspace.enabled;
+    setup.workspace = Box{scene_.simulation.workspace.min_mm, scene_.simulation.workspace.max_mm};
+    setup.world_up = scene_.world_up;
+    setup.width = options_.width;
+    setup.height = options_.height;
+    setup.input_line = input_line;
+    setup.output_line = output_line;
+    view = std::make_unique<ProbeView>(setup, &keyboard_, [this](ViewAction a) { on_action(a); });
+    if (options_.show_levels) view->toggle_levels();
+  }
+
+  // the threads
+  physics_period_s_ = 1.0 / options_.physics_hz;
+  device_period_s_ = 1.0 / options_.device_hz;
+  start_ = SteadyClock::now();
+  set_clock(SimClock{0.0, start_, false});
+  FixedRateThread physics("physics", options_.physics_hz, [this](std::int64_t) { physics_tick(); });
+  FixedRateThread device("device", options_.device_hz, [this](std::int64_t) { device_tick(); });
+  const auto old_int = std::signal(SIGINT, on_interrupt);
+  const auto old_term = std::signal(SIGTERM, on_interrupt);
+  physics.start();
+  device.start();
+  // the display yields to the physics and the device when the CPU is short (Linux: per thread)
+  if (view) (void)setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 5);
+
+  const bool automated =
+      options_.headless || options_.frames > 0 || options_.duration_s > 0 || options_.exit_after_script;
+  RateMeter physics_rate(0.5), device_rate(0.5), sim_rate(0.5);
+  SimulationFrame frame;
+  std::vector<Eigen::Vector3d> probe_pos(static_cast<std::size_t>(probes_), Eigen::Vector3d::Zero());
+  std::vector<int> probe_contacts(std::size_t(probes_), 0);
+  std::string error;
+  bool window_closed = false;
+  bool warned_behind = false;
+  const auto frame_period = std::chrono::duration_cast<SteadyClock::duration>(
+      std::chrono::duration<double>(1.0 / std::max(1.0, options_.fps)));
+  auto next_frame = SteadyClock::now();
+  auto next_report = SteadyClock::now() + std::chrono::seconds(2);
+  try {
+    while (!quit_.load()) {
+      if (g_interrupted.load()) request_quit("interrupted");
+      if (physics.failed() || device.failed()) {
+        error = physics.failed() ? physics.error() : device.error();
+        break;
+      }
+      // a scripted or timed run cannot go on without physics (an interactive user can reset)
+      if (automated && physics_failed_.load()) break;
+      const auto now = SteadyClock::now();
+      physics_rate.sample(steps_total_.load(), now);
+      device_rate.sample(device.ticks(), now);
+      const double rtf = sim_rate.sample(sim_time_us_.load(), now) * 1e-6;
+      {
+        std::lock_guard lock(device_mutex_);
+        for (const auto& m : messages_) say("input: " + m);
+        messages_.clear();
+      }
+      if (sim_rate.valid() && rtf < 0.9 && !paused_.load() && !physics_failed_.load() && !warned_behind) {
+        say(fmt::format("warning: physics cannot keep real time ({:.2f}x): the simulation runs in slow motion "
+                        "(a smaller model, fewer --threads competitors or a larger time step help)",
+                        rtf));
+        warned_behind = true;
+      }
+      if (view) {
+        if (!view->process_events()) {
+          window_closed = true;
+          request_quit("window closed");
+          break;
+        }
+        {
+          std::lock_guard lock(basis_mutex_);
+          basis_ = view->view_basis();
+        }
+        // the newest frame, if the physics made one since; never waited for
+        sim->request_frame();
+        if (sim->take_frame(frame)) {
+          for (int p = 0; p < probes_ && p < int(frame.probes.size()); ++p) {
+            probe_pos[std::size_t(p)] = frame.probes[std::size_t(p)].pose.position_mm;
+            probe_contacts[std::size_t(p)] = frame.probes[std::size_t(p)].contacts;
+          }
+          view->update_geometry(frame.surface_vertices, frame.surface_normals, frame.positions, probe_pos,
+                                probe_contacts);
+        }
+        std::vector<PlotSample> samples;
+        {
+          std::lock_guard lock(device_mutex_);
+          samples.swap(plot_pending_);
+        }
+        view->add_plot_samples(samples);
+        view->set_hud(hud(physics_rate.rate(), sim_rate.valid() ? rtf : 1.0, device_rate.rate()));
+        view->render();
+        if (screenshot_requested_.exchange(false)) {
+          const std::string name = fmt::format("voxelastic-probe-{:06d}.png", view->frames());
+          view->save_screenshot(name);
+          say("screenshot: " + name);
+        }
+        if (options_.frames > 0 && view->frames() >= options_.frames)
+          request_quit(fmt::format("{} frames (--frames)", options_.frames));
+        next_frame += frame_period;
+        const auto after = SteadyClock::now();
+        if (next_frame < after) next_frame = after;
+        std::this_thread::sleep_until(next_frame);
+      } else {
+        {
+          std::lock_guard lock(device_mutex_);
+          plot_pending_.clear();
+        }
+        if (now >= next_report) {
+          say(fmt::format("t = {:.2f} s simulated, physics {:.0f} steps/s ({:.2f}x real time), device {:.0f} updates/s",
+                          double(sim_time_us_.load()) * 1e-6, physics_rate.rate(), rtf, device_rate.rate()));
+          next_report = now + std::chrono::seconds(2);
+        }
+        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+      }
+    }
+  } catch (const std::exception& e) {
+    error = e.what();
+  }
+
+  // stop: device first (no more writes), then physics, then zero the force and close files
+  device.stop();
+  physics.stop();
+  std::signal(SIGINT, old_int);
+  std::signal(SIGTERM, old_term);
+  const double wall_s = seconds(SteadyClock::now() - start_);
+  if (error.empty() && device.failed()) error = device.error();
+  if (error.empty() && physics.failed()) error = physics.error();
+  try {
+    outputs_.stop();
+  } catch (const std::exception& e) {
+    if (error.empty()) error = e.what();
+  }
+  if (view && !window_closed && error.empty() && !options_.screenshot.empty()) {
+    try {
+      view->save_screenshot(options_.screenshot);
+      say("screenshot: " + options_.screenshot.string());
+    } catch (const std::exception& e) {
+      error = e.what();
+    }
+  }
+  {
+    std::lock_guard lock(quit_mutex_);
+    if (!quit_reason_.empty()) say("stopped: " + quit_reason_);
+  }
+  summary(wall_s);
+  if (view) say(fmt::format("display: {} frames, {:.1f} frames/s", view->frames(), view->frames_per_s()));
+  say(fmt::format("device: {} ticks ({:.0f} updates/s, {} late ticks skipped)", device_ticks_,
+                  wall_s > 0 ? double(device_ticks_) / wall_s : 0.0, device.missed()));
+  for (const auto& o : outputs_.all()) say(fmt::format("  {}: {} device commands", o->describe(), o->device_updates()));
+  if (!options_.force_log.empty() && error.empty()) say("force log: " + options_.force_log.string());
+  if (!error.empty()) {
+    fmt::print(stderr, "voxelastic-probe: error: {}\n", error);
+    return kExitError;
+  }
+  if (physics_failed_.load()) {
+    fmt::print(stderr, "voxelastic-probe: error: {}\n", physics_failure_);
+    return kExitError;
+  }
+  return 0;
+}
+
+}  // namespace
+
+int run_probe_app(const AppOptions& options) {
+  // the checks that need no loading come first
+  if (options.headless && options.duration_s <= 0 && !options.exit_after_script)
+    throw Error("--headless needs a stop condition: --duration SECONDS or --exit-after-script");
+  if (options.exit_after_script && options.joystick_script.empty())
+    throw Error("--exit-after-script needs --virtual-joystick SCRIPT");
+  if (!options.screenshot.empty() && options.headless) throw Error("--screenshot needs a window (not --headless)");
+  if (!options.headless) {
+    if (const std::string why = display_problem(); !why.empty()) {
+      fmt::print(stderr, "voxelastic-probe: {}\n  (or run without a window: --headless --duration SECONDS)\n", why);
+      return kExitNoDisplay;
+    }
+  }
+  if (!options.joystick_script.empty()) (void)JoystickScript::load(options.joystick_script);  // fail early
+  if (!options.quiet) fmt::print("voxelastic-probe: loading {} ...\n", options.input.string());
+  DefaultSceneOptions scene_options = options.scene;
+  scene_options.surface_method = options.surface_method;
+  ProbeScene scene = load_probe_scene(options.input, scene_options);
+  if (!options.quiet)
+    for (const auto& n : scene.notes) fmt::print("{}\n", n);
+  App app(options, std::move(scene));
+  return app.run();
+}
+
+}  // namespace vx::probe

@@ -1,0 +1,256 @@
+#include "probe_scene.h"
+
+#include <fmt/core.h>
+
+#include <algorithm>
+#include <cmath>
+
+#include "error.h"
+#include "gradational_builder.h"
+#include "iso_surface.h"
+#include "model_io.h"
+#include "prepare.h"
+#include "scene.h"
+#include "state.h"
+#include "surface_io.h"
+#include "threshold.h"
+#include "volume_io.h"
+
+namespace vx::probe {
+
+namespace {
+
+std::string lower_extension(const std::filesystem::path& p) {
+  std::string name = p.filename().string();
+  std::transform(name.begin(), name.end(), name.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  if (name.size() > 7 && name.ends_with(".nii.gz")) return ".nii.gz";
+  const auto dot = name.rfind('.');
+  return dot == std::string::npos ? std::string() : name.substr(dot);
+}
+
+// the face of the rest bounding box that is the bottom when `up` points up
+BoxFace bottom_face(const Eigen::Vector3d& up) {
+  int axis = 0;
+  up.cwiseAbs().maxCoeff(&axis);
+  const bool positive = up[axis] > 0;
+  switch (axis) {
+    case 0: return positive ? BoxFace::x_min : BoxFace::x_max;
+    case 1: return positive ? BoxFace::y_min : BoxFace::y_max;
+    default: return positive ? BoxFace::z_min : BoxFace::z_max;
+  }
+}
+
+// "up" for the view: against gravity, else along the first probe's tool axis (tip -> handle),
+// else anterior (LPS -y: a patient lying on the table)
+Eigen::Vector3d scene_up(const SimulationSettings& s) {
+  if (s.gravity_mm_s2.norm() > 0) return -s.gravity_mm_s2.normalized();
+  for (const auto& p : s.probes)
+    if (p.geometry.shape == ProbeShape::capsule || p.geometry.shape == ProbeShape::cylinder ||
+        p.geometry.shape == ProbeShape::plane)
+      return p.geometry.axis.normalized();
+  return Eigen::Vector3d(0, -1, 0);
+}
+
+ProbeScene load_scene_file(const std::filesystem::path& path, const DefaultSceneOptions& options) {
+  const Scene file = load_scene(path);
+  PrepareSceneOptions prep;
+  prep.surface = options.surface_method != SurfaceMethod::iso;  // the scene's own (paper) surface
+  PreparedScene built = prepare_scene(file, prep);
+  ProbeScene scene;
+  scene.name = path.stem().string();
+  scene.model = built.model;
+  scene.physics = built.physics;
+  scene.simulation = built.settings;
+  if (scene.simulation.probes.empty()) throw Error(path.string() + ": $.probes: the scene has no probe to palpate with");
+  if (options.surface_method == SurfaceMethod::iso) {
+    // a smoothed iso-surface of the model's voxels, embedded in its elements
+    scene.surface = std::make_shared<const EmbeddedSurface>(make_surface(*built.model, built.grid, nullptr, SurfaceMethod::iso));
+    scene.simulation.surface = scene.surface;
+  } else {
+    scene.surface = built.surface;
+  }
+  scene.world_up = scene_up(scene.simulation);
+  if (!file.description.empty()) scene.notes.push_back(file.description);
+  for (const auto& l : built.log) scene.notes.push_back(l);
+  scene.notes.push_back(fmt::format("surface: {} ({} triangles)", to_string(scene.surface->method),
+                                    scene.surface->num_triangles()));
+  scene.notes.push_back(fmt::format("integrator {} dt = {:.3g} ms{}", to_string(scene.simulation.integrator.kind),
+                                    1e3 * scene.simulation.integrator.time_step_s,
+                                    scene.simulation.device ? fmt::format(", device updates every {:g} ms (half sines)",
+                                                                          1e3 * scene.simulation.device->update_interval_s)
+                                                            : std::string(", no device shaping (raw force)")));
+  for (const auto& w : built.warnings) scene.notes.push_back("warning: " + w);
+  make_probes_live(scene);
+  return scene;
+}
+
+}  // namespace
+
+ProbeScene make_default_scene(std::shared_ptr<const Model> model, std::shared_ptr<const EmbeddedSurface> surface,
+                              const DefaultSceneOptions& options, const Eigen::Vector3d& up_in,
+                              const std::string& name) {
+  if (!model || model->num_elements() == 0) throw Error("the model has no elements");
+  const Eigen::Vector3d up = up_in.normalized();
+  ProbeScene scene;
+  scene.name = name;
+  scene.model = model;
+  scene.surface = surface;
+  scene.world_up = up;
+
+  // material
+  Material material;
+  material.youngs_modulus_kpa = options.youngs_modulus_kpa;
+  material.damping_ratio = options.damping_ratio;
+  if (const std::string bad = validate(material); !bad.empty()) throw Error("material: " + bad);
+  scene.physics = make_physics_model(model, material);
+
+  SimulationSettings& sim = scene.simulation;
+  sim.surface = surface;
+
+  // the tissue rests on a table: its bottom nodes are held
+  const Eigen::Vector3d lo = model->rest_positions.rowwise().minCoeff();
+  const Eigen::Vector3d hi = model->rest_positions.rowwise().maxCoeff();
+  const Eigen::Vector3d extent = hi - lo;
+  sim.fixed_nodes = nodes_on_face(*model, bottom_face(up));
+
+  // walls: the table under the tissue, room above and around it
+  int up_axis = 0;
+  up.cwiseAbs().maxCoeff(&up_axis);
+  sim.workspace.enabled = true;
+  sim.workspace.min_mm = lo - 0.35 * extent;
+  sim.workspace.max_mm = hi + 0.35 * extent;
+  if (up[up_axis] > 0) {
+    sim.workspace.min_mm[up_axis] = lo[up_axis];
+    sim.workspace.max_mm[up_axis] = hi[up_axis] + 1.2 * extent[up_axis] + 10.0;
+  } else {
+    sim.workspace.max_mm[up_axis] = hi[up_axis];
+    sim.workspace.min_mm[up_axis] = lo[up_axis] - 1.2 * extent[up_axis] - 10.0;
+  }
+
+  // one capsule tool above the top centre, pointing down
+  ProbeSettings probe;
+  probe.name = "probe0";
+  probe.geometry.shape = ProbeShape::capsule;
+  double lateral = 1e30;
+  for (int a = 0; a < 3; ++a)
+    if (a != up_axis) lateral = std::min(lateral, extent[a]);
+  probe.geometry.radius_mm = std::clamp(0.06 * lateral, 1.5, 4.0);
+  probe.geometry.length_mm = std::max(20.0, 0.9 * extent.maxCoeff());
+  probe.geometry.axis = up;
+  probe.drive = ProbeDrive::live;
+  const Eigen::Vector3d centre = 0.5 * (lo + hi);
+  const double top = up.dot(up[up_axis] > 0 ? hi : lo);
+  probe.start_mm = centre + (top - up.dot(centre) + probe.geometry.radius_mm + 0.1 * extent[up_axis] + 2.0) * up;
+  probe.max_speed_mm_s = 150.0;
+  sim.probes.push_back(probe);
+
+  // explicit-family integrator at half its stable step; the paper's device shaping
+  sim.integrator.kind = IntegratorKind::symplectic_euler;
+  sim.integrator.time_step_s = 0.5 * stable_time_step(*scene.physics, IntegratorKind::symplectic_euler);
+  sim.integrator.threads = 1;
+  sim.device = DeviceForceSettings{};
+
+  scene.notes.push_back(fmt::format("default palpation scene: E = {:g} kPa, damping ratio {:g}, {} bottom nodes held, "
+                                    "capsule probe r = {:.1f} mm, symplectic Euler dt = {:.3g} ms",
+                                    material.youngs_modulus_kpa, material.damping_ratio, sim.fixed_nodes.size(),
+                                    probe.geometry.radius_mm, 1e3 * sim.integrator.time_step_s));
+  make_probes_live(scene);
+  return scene;
+}
+
+void make_probes_live(ProbeScene& scene) {
+  SimulationSettings& sim = scene.simulation;
+  const Eigen::Vector3d lo = scene.model->rest_positions.rowwise().minCoeff();
+  const Eigen::Vector3d hi = scene.model->rest_positions.rowwise().maxCoeff();
+  const Eigen::Vector3d extent = hi - lo;
+  scene.probe_allowed.clear();
+  bool first_live = true;
+  for (auto& p : sim.probes) {
+    const Eigen::Vector3d start = p.initial_position();
+    if (p.drive == ProbeDrive::live && first_live) {
+      // the scene's stick mapping of its first live probe sets the app's defaults
+      first_live = false;
+      scene.control_from_scene = true;
+      scene.control.mode = p.mapping.mode == JoystickMode::rate ? ControlMode::rate : ControlMode::position;
+      scene.control.speed_mm_s = p.mapping.max_speed_mm_s;
+      scene.control.position_range_mm = p.mapping.range_mm;
+      scene.control.deadzone = p.mapping.dead_zone;
+    }
+    if (p.drive != ProbeDrive::live) {
+      p.drive = ProbeDrive::live;
+      p.start_mm = start;
+      p.path.clear();
+      p.joystick.clear();
+    }
+    if (!(p.max_speed_mm_s > 0)) p.max_speed_mm_s = 150.0;
+    Box allowed;
+    const double r = p.geometry.shape == ProbeShape::plane ? 0.0 : p.geometry.radius_mm;
+    if (sim.workspace.enabled) {
+      allowed.lo = sim.workspace.min_mm + Eigen::Vector3d::Constant(r);
+      allowed.hi = sim.workspace.max_mm - Eigen::Vector3d::Constant(r);
+      allowed.lo = allowed.lo.cwiseMin(start);
+      allowed.hi = allowed.hi.cwiseMax(start);
+    } else {
+      allowed.lo = (lo - 0.5 * extent).cwiseMin(start);
+      allowed.hi = (hi + 0.5 * extent).cwiseMax(start);
+    }
+    scene.probe_allowed.push_back(allowed);
+  }
+}
+
+ProbeScene load_probe_scene(const std::filesystem::path& input, const DefaultSceneOptions& options) {
+  namespace fs = std::filesystem;
+  if (!fs::exists(input)) throw Error("input '" + input.string() + "' does not exist");
+  const std::string ext = lower_extension(input);
+  const std::string name = input.filename().string();
+
+  if (ext == ".json") return load_scene_file(input, options);
+
+  if (ext == ".vtu") {
+    // a model written by `voxelastic convert`, with its surface if given
+    auto model = std::make_shared<const Model>(load_model(input));
+    std::shared_ptr<const EmbeddedSurface> surface;
+    std::string how;
+    if (!options.surface.empty()) {
+      surface = std::make_shared<const EmbeddedSurface>(load_surface(options.surface, model.get()));
+      how = "surface " + options.surface.string();
+    } else {
+      const VoxelGrid grid = grid_from_model(*model);
+      surface = std::make_shared<const EmbeddedSurface>(make_surface(*model, grid, nullptr, options.surface_method));
+      how = std::string(to_string(options.surface_method)) + " surface of the model's voxels";
+    }
+    ProbeScene scene = make_default_scene(model, surface, options, Eigen::Vector3d(0, -1, 0), name);
+    scene.notes.insert(scene.notes.begin(),
+                       fmt::format("model {}: {} nodes, {} elements in {} levels; {} ({} triangles)", input.string(),
+                                   model->num_nodes(), model->num_elements(), model->num_levels(), how,
+                                   surface->num_triangles()));
+    return scene;
+  }
+
+  if (fs::is_directory(input) || !volume_format(input).empty()) {
+    // a CT-like volume: threshold, largest component, fill holes, build the gradational model
+    const Volume volume = read_volume(input);
+    PrepareOptions prep;
+    prep.range = parse_threshold(options.threshold);
+    prep.largest_component = true;
+    prep.fill_holes = true;
+    prep.voxel_mm = options.voxel_mm;
+    PrepareReport report;
+    const VoxelGrid grid = prepare_grid(volume, prep, &report);
+    BuildReport build;
+    auto model = std::make_shared<const Model>(build_model(grid, BuildSettings{}, &build));
+    auto surface = std::make_shared<const EmbeddedSurface>(make_surface(*model, grid, nullptr, options.surface_method));
+    ProbeScene scene = make_default_scene(model, surface, options, Eigen::Vector3d(0, -1, 0), name);
+    scene.notes.insert(scene.notes.begin(),
+                       fmt::format("volume {}: {} tissue voxels -> {} nodes, {} elements in {} levels; "
+                                   "{} surface ({} triangles)",
+                                   input.string(), report.tissue_voxels, model->num_nodes(), model->num_elements(),
+                                   model->num_levels(), to_string(surface->method), surface->num_triangles()));
+    return scene;
+  }
+  throw Error("input '" + input.string() +
+              "': not a scene (.json), a volume (.vti .mha .mhd .nii .nii.gz .nrrd .nhdr, DICOM folder) "
+              "or a model (.vtu)");
+}
+
+}  // namespace vx::probe

@@ -1,0 +1,137 @@
+#pragma once
+/// @file probe_view.h
+/// The probe app's VTK window: the deforming smoothed tissue surface (Gouraud shading with
+/// the surface's own vertex normals), the probes, the workspace walls, an optional view of
+/// the elements coloured by level (the gradational structure, cut open facing the viewer),
+/// a heads-up display, a live force plot (vtkChartXY in a vtkContextActor) and screenshots.
+///
+/// Everything here runs on the GUI (main) thread. VTK headers stay in the .cpp.
+/// Create a ProbeView only after display_problem() returned empty (VTK crashes without X).
+
+#include <Eigen/Core>
+#include <array>
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "contact.h"
+#include "model.h"
+#include "stick_control.h"
+
+namespace vx::probe {
+
+/// The elements of a model as polygons for the level view: one point per element vertex
+/// entry (so each element can be shrunk on its own), polygons from the element faces.
+struct LevelCells {
+  std::vector<std::int32_t> point_node;       ///< points: model node id
+  std::vector<std::int32_t> element_offsets;  ///< elements + 1: points of element e
+  std::vector<std::int32_t> element_polys;    ///< elements + 1: polygons of element e
+  std::vector<std::int32_t> poly_offsets{0};  ///< polygons + 1
+  std::vector<std::int32_t> poly_points;      ///< point ids
+  std::vector<std::int8_t> poly_level;        ///< polygons: level of their element
+  Eigen::Matrix3Xd rest_centroids;            ///< 3 x elements, mm
+  Eigen::Matrix3Xd rest_nodes;                ///< 3 x nodes, the model's rest positions, mm
+  std::vector<double> level_size_mm;          ///< levels: element edge, mm
+  int levels{0};
+};
+/// Builds the level cells of `model`; throws vx::Error for an inconsistent model.
+[[nodiscard]] LevelCells make_level_cells(const Model& model);
+
+/// What the view shows that does not change during a run.
+struct ViewSetup {
+  std::string title;                          ///< shown in the HUD and the window title
+  Eigen::Matrix3Xd surface_vertices;          ///< 3 x V at rest, LPS mm
+  Eigen::Matrix3Xi surface_triangles;         ///< 3 x T, counter-clockwise seen from outside
+  std::shared_ptr<const LevelCells> levels;   ///< optional: the elements view
+  std::vector<ProbeGeometry> probes;          ///< one per probe
+  std::vector<std::string> probe_names;       ///< one per probe (HUD)
+  std::vector<Eigen::Vector3d> probe_start_mm;///< where each probe starts
+  bool walls{false};
+  Box workspace;                              ///< the walls (when `walls`)
+  Eigen::Vector3d world_up{0, -1, 0};         ///< "up" on screen (LPS; default anterior)
+  int width{1280};
+  int height{800};
+  double plot_window_s{5.0};                  ///< time shown by the force plot
+  std::string input_line;                     ///< HUD: e.g. "rate control: joystick 'X'"
+  std::string output_line;                    ///< HUD: e.g. "force out: haptic 'X' + log f.csv"
+};
+
+/// Numbers for the heads-up display.
+struct HudInfo {
+  double sim_s{0.0};
+  double physics_steps_per_s{0.0};
+  double real_time_factor{1.0};     ///< simulated seconds per wall second
+  bool behind_real_time{false};     ///< physics cannot keep up
+  double device_hz{0.0};
+  std::int64_t device_missed{0};    ///< device ticks skipped (late)
+  int probes{0};
+  std::array<double, 2> force_N{};  ///< device force magnitude per probe
+  std::array<int, 2> contacts{};
+  int active_probe{0};              ///< the keyboard's probe
+  bool paused{false};
+  std::string status;               ///< an extra line (errors, disconnects), shown in red
+};
+
+/// One point of the force plot (the paper's fig. 10: the raw reaction sum jitters from step to
+/// step; the device plays one half sine per update whose mean is the update's averaged force).
+struct PlotSample {
+  double t_s{0.0};                  ///< simulated time
+  std::array<float, 2> device_N{};  ///< |device force| played now (the half sine) per probe
+  std::array<float, 2> mean_N{};    ///< |averaged force of the current device update| per probe
+  std::array<float, 2> raw_N{};     ///< |raw reaction sum of the last physics step| per probe
+};
+
+/// The view basis of the start camera (columns right, up, away; world, unit) for `world_up`:
+/// the camera looks at the tissue from the front, 30 degrees above the horizon. Headless runs
+/// use it too, so a scripted palpation moves the probe the same way with or without a window.
+[[nodiscard]] Eigen::Matrix3d start_view_basis(const Eigen::Vector3d& world_up);
+
+/// What a key asks the app to do (view-only toggles are handled by the view itself).
+enum class ViewAction : std::uint8_t { quit, pause, reset_scene, screenshot, next_probe };
+
+class ProbeView {
+ public:
+  /// Opens the window. `keyboard` receives the motion keys and mouse drags (may be null);
+  /// `on_action` the keys for the app. Throws vx::Error when the window cannot be made.
+  ProbeView(const ViewSetup& setup, KeyboardStick* keyboard, std::function<void(ViewAction)> on_action);
+  ~ProbeView();
+  ProbeView(const ProbeView&) = delete;
+  ProbeView& operator=(const ProbeView&) = delete;
+
+  /// Handles pending window events (keys, mouse, resize, close). False once the window closed.
+  bool process_events();
+  /// New deformed surface (3 x V vertices and unit normals), node positions (3 x nodes, for
+  /// the elements view; may be empty) and probe positions.
+  void update_geometry(const Eigen::Matrix3Xd& surface_vertices, const Eigen::Matrix3Xd& surface_normals,
+                       const Eigen::Matrix3Xd& node_positions, const std::vector<Eigen::Vector3d>& probe_positions,
+                       const std::vector<int>& probe_contacts);
+  /// Appends samples to the force plot (times increasing; older than the window are dropped).
+  void add_plot_samples(const std::vector<PlotSample>& samples);
+  /// Clears the force plot (after a reset).
+  void clear_plot();
+  /// Sets the HUD numbers (frames/s is measured by the view).
+  void set_hud(const HudInfo& hud);
+  /// Draws one frame.
+  void render();
+  /// Writes the last frame as PNG (atomically); throws vx::Error on failure.
+  void save_screenshot(const std::filesystem::path& png);
+  /// Camera back to the start view.
+  void reset_camera();
+  /// Shows or hides the element levels view (the `l` key).
+  void toggle_levels();
+  /// The view basis for the sticks: columns right, up, away (world, unit).
+  [[nodiscard]] Eigen::Matrix3d view_basis() const;
+  /// Frames rendered so far and the measured rate.
+  [[nodiscard]] std::int64_t frames() const;
+  [[nodiscard]] double frames_per_s() const;
+
+  struct Impl;
+
+ private:
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace vx::probe

@@ -1,0 +1,177 @@
+#include "sdl_input.h"
+
+#include <fmt/core.h>
+
+#include <algorithm>
+#include <cmath>
+
+#include "error.h"
+
+namespace vx::probe {
+
+namespace {
+
+constexpr Uint32 kSubsystems = SDL_INIT_JOYSTICK | SDL_INIT_HAPTIC;
+
+int SDLCALL virtual_rumble_callback(void* userdata, Uint16 low, Uint16 high) {
+  auto* r = static_cast<VirtualRumble*>(userdata);
+  r->low.store(low);
+  r->high.store(high);
+  r->calls.fetch_add(1);
+  return 0;
+}
+
+double normalise_axis(Sint16 v) { return std::clamp(double(v) / 32767.0, -1.0, 1.0); }
+
+Sint16 to_axis(double v) { return Sint16(std::lround(std::clamp(v, -1.0, 1.0) * 32767.0)); }
+
+// drain SDL's event queue; report removed joysticks
+void drain_events(std::vector<SDL_JoystickID>* removed) {
+  SDL_Event e;
+  while (SDL_PollEvent(&e))
+    if (removed && e.type == SDL_JOYDEVICEREMOVED) removed->push_back(e.jdevice.which);
+}
+
+}  // namespace
+
+SdlInput::SdlInput(const InputSettings& settings) : script_(settings.script) {
+  // joystick input must keep flowing although SDL has no window of its own
+  SDL_SetHint(SDL_HINT_JOYSTICK_ALLOW_BACKGROUND_EVENTS, "1");
+  if (SDL_InitSubSystem(kSubsystems) != 0)
+    throw Error(std::string("cannot initialise SDL joystick/haptic support: ") + SDL_GetError());
+  const int max_sticks = std::clamp(settings.max_sticks, 1, kMaxSticks);
+
+  try {
+    if (script_) {
+      // one virtual joystick per scripted stick
+      const int n = std::min(script_->sticks(), max_sticks);
+      for (int s = 0; s < n; ++s) {
+        Stick stick;
+        stick.is_virtual = true;
+        stick.rumble = std::make_unique<VirtualRumble>();
+        stick.name = fmt::format("voxelastic virtual joystick {}", s);
+        SDL_VirtualJoystickDesc desc{};
+        desc.version = SDL_VIRTUAL_JOYSTICK_DESC_VERSION;
+        desc.type = SDL_JOYSTICK_TYPE_GAMECONTROLLER;
+        desc.naxes = kScriptAxes;
+        desc.nbuttons = kScriptButtons;
+        desc.nhats = 0;
+        desc.name = stick.name.c_str();
+        desc.userdata = stick.rumble.get();
+        desc.Rumble = &virtual_rumble_callback;
+        const int index = SDL_JoystickAttachVirtualEx(&desc);
+        if (index < 0)
+          throw Error(std::string("cannot attach an SDL virtual joystick: ") + SDL_GetError());
+        stick.device_index = index;
+        stick.js = SDL_JoystickOpen(index);
+        if (!stick.js)
+          throw Error(std::string("cannot open the SDL virtual joystick: ") + SDL_GetError());
+        stick.id = SDL_JoystickInstanceID(stick.js);
+        sticks_.push_back(std::move(stick));
+      }
+    } else if (settings.joysticks) {
+      // the first physical joysticks, in SDL's order
+      for (int i = 0; i < SDL_NumJoysticks() && int(sticks_.size()) < max_sticks; ++i) {
+        SDL_Joystick* js = SDL_JoystickOpen(i);
+        if (!js) {
+          messages_.push_back(fmt::format("joystick {} could not be opened ({}), skipped", i, SDL_GetError()));
+          continue;
+        }
+        Stick stick;
+        stick.js = js;
+        stick.id = SDL_JoystickInstanceID(js);
+        stick.device_index = i;
+        const char* name = SDL_JoystickName(js);
+        stick.name = name ? name : fmt::format("joystick {}", i);
+        sticks_.push_back(std::move(stick));
+      }
+    }
+  } catch (...) {
+    for (auto& s : sticks_)
+      if (s.js) SDL_JoystickClose(s.js);
+    SDL_QuitSubSystem(kSubsystems);
+    SDL_Quit();
+    throw;
+  }
+  // the attach/open events are of no interest
+  drain_events(nullptr);
+  // initial state
+  if (script_) play_script(0.0);
+  poll();
+}
+
+SdlInput::~SdlInput() {
+  for (auto& s : sticks_)
+    if (s.js) SDL_JoystickClose(s.js);
+  sticks_.clear();
+  // quitting the joystick subsystem also detaches the virtual joysticks
+  SDL_QuitSubSystem(kSubsystems);
+  SDL_Quit();
+}
+
+const VirtualRumble* SdlInput::virtual_rumble(int i) const {
+  return sticks_[std::size_t(i)].rumble.get();
+}
+
+std::string SdlInput::describe() const {
+  if (sticks_.empty()) return "no joystick";
+  std::string out;
+  for (std::size_t i = 0; i < sticks_.size(); ++i) {
+    const auto& s = sticks_[i];
+    if (!out.empty()) out += "; ";
+    const int axes = s.js ? SDL_JoystickNumAxes(s.js) : 0;
+    const int buttons = s.js ? SDL_JoystickNumButtons(s.js) : 0;
+    out += fmt::format("stick {}: '{}' ({}{} axes, {} buttons)", i, s.name,
+                       s.is_virtual ? "virtual, " : "", axes, buttons);
+  }
+  return out;
+}
+
+void SdlInput::play_script(double t_s) {
+  if (!script_) return;
+  for (std::size_t i = 0; i < sticks_.size(); ++i) {
+    auto& s = sticks_[i];
+    if (!s.is_virtual || !s.js) continue;
+    const ScriptSample v = script_->sample(int(i), t_s);
+    for (int a = 0; a < kScriptAxes; ++a) SDL_JoystickSetVirtualAxis(s.js, a, to_axis(v.axes[std::size_t(a)]));
+    for (int b = 0; b < kScriptButtons; ++b)
+      SDL_JoystickSetVirtualButton(s.js, b, (v.buttons >> b) & 1u ? SDL_PRESSED : SDL_RELEASED);
+  }
+}
+
+void SdlInput::poll() {
+  // pumping applies the virtual values and delivers hotplug events
+  std::vector<SDL_JoystickID> removed;
+  SDL_JoystickUpdate();
+  drain_events(&removed);
+  for (auto& s : sticks_) {
+    if (s.js && (std::find(removed.begin(), removed.end(), s.id) != removed.end() ||
+                 !SDL_JoystickGetAttached(s.js))) {
+      messages_.push_back(fmt::format("joystick '{}' was disconnected: its probe stops (keyboard still works)", s.name));
+      SDL_JoystickClose(s.js);
+      s.js = nullptr;
+    }
+    StickState& st = s.state;
+    if (!s.js) {
+      st = StickState{};
+      continue;
+    }
+    st.present = true;
+    st.num_axes = std::min(SDL_JoystickNumAxes(s.js), kStickAxes);
+    for (int a = 0; a < kStickAxes; ++a)
+      st.axes[std::size_t(a)] = a < st.num_axes ? normalise_axis(SDL_JoystickGetAxis(s.js, a)) : 0.0;
+    st.buttons = 0;
+    const int nb = std::min(SDL_JoystickNumButtons(s.js), 32);
+    for (int b = 0; b < nb; ++b)
+      if (SDL_JoystickGetButton(s.js, b)) st.buttons |= 1u << b;
+    st.hat = SDL_JoystickNumHats(s.js) > 0 ? SDL_JoystickGetHat(s.js, 0) : 0;
+  }
+}
+
+std::vector<std::string> SdlInput::take_messages() {
+  std::vector<std::string> out;
+  out.swap(messages_);
+  return out;
+}
+
+}  // namespace vx::probe

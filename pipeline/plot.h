@@ -1,0 +1,38 @@
+#pragma once
+/// @file plot.h
+/// PNG line plots without a display, drawn by gnuplot (pngcairo terminal) from a temporary
+/// script: the data travel inside the script as datablocks, so nothing else is written.
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace vx {
+
+/// One curve.
+struct PlotSeries {
+  std::string title;
+  std::vector<double> x, y;  ///< same length
+  bool points{false};        ///< draw points instead of lines
+  double line_width{1.5};
+};
+
+/// One panel (plots are stacked vertically).
+struct PlotPanel {
+  std::string title, xlabel, ylabel;
+  std::vector<PlotSeries> series;
+};
+
+/// The gnuplot executable found on PATH, or "" when there is none.
+[[nodiscard]] std::string find_gnuplot();
+
+/// Throws vx::Error unless gnuplot with the pngcairo terminal is available, saying how to
+/// install it (gnuplot-nox) or how to do without (`"plot": false` in the scene's outputs).
+void check_gnuplot();
+
+/// Draws the panels into one PNG (width x height pixels per panel), atomically.
+/// Throws vx::Error with gnuplot's message on failure.
+void plot_png(const std::vector<PlotPanel>& panels, const std::filesystem::path& png, int width = 900,
+              int panel_height = 420);
+
+}  // namespace vx

@@ -1,0 +1,273 @@
+#include "contact.h"
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+#include "error.h"
+
+namespace vx {
+
+const char* to_string(ProbeShape s) {
+  switch (s) {
+    case ProbeShape::sphere: return "sphere";
+    case ProbeShape::cylinder: return "cylinder";
+    case ProbeShape::capsule: return "capsule";
+    case ProbeShape::plane: return "plane";
+  }
+  return "?";
+}
+
+ProbeShape parse_probe_shape(const std::string& s) {
+  if (s == "sphere") return ProbeShape::sphere;
+  if (s == "cylinder") return ProbeShape::cylinder;
+  if (s == "capsule") return ProbeShape::capsule;
+  if (s == "plane") return ProbeShape::plane;
+  throw Error("unknown probe shape \"" + s + "\": use sphere, cylinder, capsule or plane");
+}
+
+std::string ProbeGeometry::validate() const {
+  std::ostringstream err;
+  const bool round = shape != ProbeShape::plane;
+  if (round && !(radius_mm > 0 && std::isfinite(radius_mm)))
+    err << "radius " << radius_mm << " mm must be > 0; ";
+  if (shape == ProbeShape::cylinder && !(length_mm > 0 && std::isfinite(length_mm)))
+    err << "cylinder length " << length_mm << " mm must be > 0; ";
+  if (shape == ProbeShape::capsule && !(length_mm >= 0 && std::isfinite(length_mm)))
+    err << "capsule length " << length_mm << " mm must be >= 0; ";
+  if (!axis.allFinite() || !(std::abs(axis.norm() - 1.0) < 1e-9))
+    err << (shape == ProbeShape::plane ? "normal" : "axis") << " must be a unit vector (got norm "
+        << axis.norm() << "); ";
+  return err.str();
+}
+
+std::string ContactSettings::validate() const {
+  std::ostringstream err;
+  if (!(restitution >= 0 && restitution <= 1)) err << "restitution " << restitution << " must be in [0, 1]; ";
+  if (!(friction >= 0 && std::isfinite(friction))) err << "friction " << friction << " must be >= 0; ";
+  if (!std::isfinite(skin_mm)) err << "broad-phase skin must be finite; ";
+  return err.str();
+}
+
+namespace {
+
+/// A unit vector perpendicular to unit `a`.
+Eigen::Vector3d any_perpendicular(const Eigen::Vector3d& a) {
+  const Eigen::Vector3d helper = std::abs(a.x()) < 0.9 ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitY();
+  return a.cross(helper).normalized();
+}
+
+/// Signed distance to a ball of radius r at c.
+double ball_distance(const Eigen::Vector3d& c, double r, const Eigen::Vector3d& x, const Eigen::Vector3d& fallback,
+                     Eigen::Vector3d* point, Eigen::Vector3d* normal) {
+  const Eigen::Vector3d d = x - c;
+  const double len = d.norm();
+  const Eigen::Vector3d n = len > 1e-12 ? Eigen::Vector3d(d / len) : fallback;
+  if (point) *point = c + r * n;
+  if (normal) *normal = n;
+  return len - r;
+}
+
+}  // namespace
+
+double probe_signed_distance(const ProbeGeometry& g, const Eigen::Vector3d& c, const Eigen::Vector3d& x,
+                             Eigen::Vector3d* point, Eigen::Vector3d* normal) {
+  switch (g.shape) {
+    case ProbeShape::sphere:
+      return ball_distance(c, g.radius_mm, x, -g.axis, point, normal);
+    case ProbeShape::capsule: {
+      // closest point of the segment tip -> tip + length * axis
+      const double t = std::clamp((x - c).dot(g.axis), 0.0, g.length_mm);
+      return ball_distance(c + t * g.axis, g.radius_mm, x, any_perpendicular(g.axis), point, normal);
+    }
+    case ProbeShape::plane: {
+      const double s = (x - c).dot(g.axis);
+      if (point) *point = x - s * g.axis;
+      if (normal) *normal = g.axis;
+      return s;
+    }
+    case ProbeShape::cylinder: {
+      const double h = 0.5 * g.length_mm;
+      const Eigen::Vector3d d = x - c;
+      const double t = d.dot(g.axis);
+      const Eigen::Vector3d rho = d - t * g.axis;
+      const double r = rho.norm();
+      const Eigen::Vector3d radial = r > 1e-12 ? Eigen::Vector3d(rho / r) : any_perpendicular(g.axis);
+      const Eigen::Vector3d cap = t >= 0 ? g.axis : Eigen::Vector3d(-g.axis);
+      const double dr = r - g.radius_mm;
+      const double dz = std::abs(t) - h;
+      if (dr < 0 && dz < 0) {
+        // inside: leave through the nearer of the side and the cap
+        if (dr > dz) {
+          if (point) *point = c + t * g.axis + g.radius_mm * radial;
+          if (normal) *normal = radial;
+          return dr;
+        }
+        if (point) *point = x + (-dz) * cap;
+        if (normal) *normal = cap;
+        return dz;
+      }
+      // outside: the closest point clamps the radial and axial coordinates
+      const Eigen::Vector3d q = c + std::clamp(t, -h, h) * g.axis + std::min(r, g.radius_mm) * radial;
+      const Eigen::Vector3d e = x - q;
+      const double len = e.norm();
+      if (point) *point = q;
+      if (normal) *normal = len > 1e-12 ? Eigen::Vector3d(e / len) : (dr >= dz ? radial : cap);
+      return len;
+    }
+  }
+  return 0.0;
+}
+
+void ContactSolver::init(std::vector<std::int32_t> nodes, int probes, const Workspace& workspace,
+                         const ContactSettings& settings, double spacing_mm) {
+  if (const std::string bad = settings.validate(); !bad.empty()) throw Error("contact settings: " + bad);
+  std::sort(nodes.begin(), nodes.end());
+  nodes_ = std::move(nodes);
+  probes_ = probes;
+  workspace_ = workspace;
+  settings_ = settings;
+  skin_mm_ = settings.skin_mm > 0 ? settings.skin_mm : 2.0 * std::max(spacing_mm, 1e-6);
+  lists_.assign(std::size_t(probes_ + 1), {});
+  for (auto& l : lists_) l.reserve(nodes_.size());
+  node_at_rebuild_.resize(3, Eigen::Index(nodes_.size()));
+  probe_at_rebuild_.assign(std::size_t(probes_), Eigen::Vector3d::Zero());
+  counters_ = {};
+  valid_ = false;
+}
+
+void ContactSolver::rebuild(const Eigen::Matrix3Xd& x, const std::vector<ProbeGeometry>& geometry,
+                            const std::vector<ProbeState>& probes) {
+  const std::size_t n = nodes_.size();
+  for (auto& l : lists_) l.clear();
+  for (std::size_t k = 0; k < n; ++k) {
+    const std::int32_t i = nodes_[k];
+    const Eigen::Vector3d p = x.col(i);
+    node_at_rebuild_.col(Eigen::Index(k)) = p;
+    if (!settings_.broad_phase) {
+      for (auto& l : lists_) l.push_back(i);
+      continue;
+    }
+    for (int q = 0; q < probes_; ++q)
+      if (probe_signed_distance(geometry[std::size_t(q)], probes[std::size_t(q)].position_mm, p) < skin_mm_)
+        lists_[std::size_t(q)].push_back(i);
+    if (workspace_.enabled) {
+      const double inside = std::min((p - workspace_.min_mm).minCoeff(), (workspace_.max_mm - p).minCoeff());
+      if (inside < skin_mm_) lists_[std::size_t(probes_)].push_back(i);
+    }
+  }
+  for (int q = 0; q < probes_; ++q) probe_at_rebuild_[std::size_t(q)] = probes[std::size_t(q)].position_mm;
+  if (settings_.broad_phase) {
+    counters_.broad_tests += std::int64_t(n) * (probes_ + (workspace_.enabled ? 1 : 0));
+    ++counters_.rebuilds;
+  }
+  valid_ = true;
+}
+
+double ContactSolver::node_move(const Eigen::Matrix3Xd& x) const {
+  // largest node displacement since the rebuild
+  double max_d2 = 0.0;
+  for (std::size_t k = 0; k < nodes_.size(); ++k)
+    max_d2 = std::max(max_d2, (x.col(nodes_[k]) - node_at_rebuild_.col(Eigen::Index(k))).squaredNorm());
+  return std::sqrt(max_d2);
+}
+
+void ContactSolver::resolve(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const std::vector<double>& mass,
+                            const std::vector<ProbeGeometry>& geometry, const std::vector<ProbeState>& probes,
+                            double dt, std::vector<Eigen::Vector3d>& probe_force, Eigen::Vector3d& wall_force,
+                            std::vector<int>* probe_contacts) {
+  probe_force.assign(std::size_t(probes_), Eigen::Vector3d::Zero());
+  if (probe_contacts) probe_contacts->assign(std::size_t(probes_), 0);
+  wall_force.setZero();
+  // the lists hold every node that can be inside its probe (walls) while the largest node
+  // displacement since the rebuild (moves this step's projections add to) plus the probe's
+  // own displacement stays below the skin; else rebuild from the current positions
+  double moved = valid_ && settings_.broad_phase ? node_move(x) : 0.0;
+  auto ensure_valid = [&](double probe_move) {
+    if (valid_ && (!settings_.broad_phase || moved + probe_move < skin_mm_)) return;  // NaN rebuilds
+    rebuild(x, geometry, probes);
+    moved = 0.0;
+  };
+
+  const double e = settings_.restitution;
+  const double mu = settings_.friction;
+  // response of node i, already put on a surface moving at vs with outward normal n, that
+  // was `depth` inside it: reflect the approaching normal part of the relative velocity;
+  // friction (position-level Coulomb, as in position-based dynamics): the node's tangential
+  // slip over the surface during this step, (v_t - vs_t) dt, is undone up to mu * depth
+  // (sticking when the tangential correction is inside the friction cone, sliding else),
+  // and the same fraction of its tangential relative velocity is removed.
+  // Returns the velocity change (the impulse per mass given to the node).
+  auto respond = [&](int i, const Eigen::Vector3d& n, const Eigen::Vector3d& vs, double depth) -> Eigen::Vector3d {
+    const Eigen::Vector3d rel = v.col(i) - vs;
+    const double vn = rel.dot(n);
+    Eigen::Vector3d dv = Eigen::Vector3d::Zero();
+    if (vn < 0) dv = -(1.0 + e) * vn * n;
+    if (mu > 0) {
+      const Eigen::Vector3d vt = rel - vn * n;
+      const double slip = vt.norm() * dt;
+      if (slip > 0) {
+        const double keep = std::min(1.0, mu * depth / slip);
+        x.col(i) -= (keep * dt) * vt;
+        dv -= keep * vt;
+      }
+    }
+    v.col(i) += dv;
+    return dv;
+  };
+
+  // probes, in order
+  Eigen::Vector3d surface_point, normal;
+  double shift = 0.0;  // largest projection this step, mm
+  for (int q = 0; q < probes_; ++q) {
+    const auto& list = lists_[std::size_t(q)];
+    const ProbeGeometry& g = geometry[std::size_t(q)];
+    const ProbeState& p = probes[std::size_t(q)];
+    ensure_valid((p.position_mm - probe_at_rebuild_[std::size_t(q)]).norm());
+    Eigen::Vector3d impulse = Eigen::Vector3d::Zero();  // given to the nodes, N*s
+    int contacts = 0;
+    for (const std::int32_t i : list) {
+      const Eigen::Vector3d xi = x.col(i);
+      const double depth = -probe_signed_distance(g, p.position_mm, xi, &surface_point, &normal);
+      if (!(depth > 0)) continue;
+      x.col(i) = surface_point;
+      shift = std::max(shift, depth * (1.0 + mu));
+      impulse += mass[std::size_t(i)] * respond(i, normal, p.velocity_mm_s, depth);
+      ++contacts;
+    }
+    counters_.narrow_tests += std::int64_t(list.size());
+    counters_.narrow_tests_skipped += std::int64_t(nodes_.size() - list.size());
+    counters_.contacts += contacts;
+    moved += shift;
+    shift = 0.0;
+    probe_force[std::size_t(q)] = -impulse / dt;
+    if (probe_contacts) (*probe_contacts)[std::size_t(q)] = contacts;
+  }
+
+  // walls: static, each violated axis in turn
+  if (workspace_.enabled) {
+    ensure_valid(0.0);
+    const auto& list = lists_[std::size_t(probes_)];
+    Eigen::Vector3d impulse = Eigen::Vector3d::Zero();
+    for (const std::int32_t i : list) {
+      for (int a = 0; a < 3; ++a) {
+        for (int side = 0; side < 2; ++side) {
+          const double wall = side == 0 ? workspace_.min_mm[a] : workspace_.max_mm[a];
+          const double out = side == 0 ? wall - x(a, i) : x(a, i) - wall;  // > 0: outside
+          if (!(out > 0)) continue;
+          x(a, i) = wall;
+          Eigen::Vector3d n = Eigen::Vector3d::Zero();
+          n[a] = side == 0 ? 1.0 : -1.0;
+          impulse += mass[std::size_t(i)] * respond(i, n, Eigen::Vector3d::Zero(), out);
+          ++counters_.wall_contacts;
+        }
+      }
+    }
+    counters_.narrow_tests += std::int64_t(list.size());
+    counters_.narrow_tests_skipped += std::int64_t(nodes_.size() - list.size());
+    wall_force = -impulse / dt;
+  }
+}
+
+}  // namespace vx

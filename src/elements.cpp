@@ -1,0 +1,413 @@
+#include "elements.h"
+
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+#include <Eigen/LU>
+#include <Eigen/SVD>
+#include <cmath>
+
+#include "parallel.h"
+
+namespace vx {
+
+void ElementPassStats::add(const ElementPassStats& o) {
+  inverted += o.inverted;
+  unconverged += o.unconverged;
+  rotation_iterations += o.rotation_iterations;
+  non_finite += o.non_finite;
+  elastic_energy += o.elastic_energy;
+}
+
+namespace {
+
+/// q rotated by the small rotation vector theta (applied after q), first order and normalised:
+/// exact direction, angle 2 atan(|theta|/2); no trigonometry.
+Eigen::Quaterniond rotate_by(const Eigen::Quaterniond& q, const Eigen::Vector3d& theta) {
+  const Eigen::Quaterniond dq(0.0, 0.5 * theta.x(), 0.5 * theta.y(), 0.5 * theta.z());
+  Eigen::Quaterniond r = dq * q;
+  r.coeffs() += q.coeffs();
+  r.normalize();
+  return r;
+}
+
+}  // namespace
+
+int fit_rotation(const Eigen::Matrix3d& a, Eigen::Quaterniond& q, const RotationFitSettings& settings,
+                 bool* converged, Eigen::Matrix3d* rotation) {
+  // scale out the size: thresholds are relative
+  const double scale2 = a.squaredNorm();
+  const auto finish = [&](bool ok, int it) {
+    if (converged) *converged = ok;
+    if (rotation) *rotation = q.toRotationMatrix();
+    return it;
+  };
+  if (!std::isfinite(scale2)) return finish(false, 0);
+  if (scale2 < 1e-300) return finish(true, 0);  // collapsed to a point: every rotation fits; keep the warm start
+  const Eigen::Matrix3d an = a * (1.0 / std::sqrt(scale2));
+  const double tol2 = settings.tolerance * settings.tolerance;
+  Eigen::Matrix3d r = q.toRotationMatrix();
+  Eigen::Matrix3d p = an * r.transpose();
+  double f = p.trace();
+  int it = 0;
+  for (; it < settings.max_iterations; ++it) {
+    // gradient of tr(Q^T A) over rotations applied after Q: the moment imbalance
+    const Eigen::Vector3d g(p(2, 1) - p(1, 2), p(0, 2) - p(2, 0), p(1, 0) - p(0, 1));
+    // Hessian (negated): h = tr(P) 1 - sym(P); its cofactors give the Sylvester test and the
+    // Newton step at once
+    const double h00 = f - p(0, 0), h11 = f - p(1, 1), h22 = f - p(2, 2);
+    const double h01 = -0.5 * (p(0, 1) + p(1, 0)), h02 = -0.5 * (p(0, 2) + p(2, 0)), h12 = -0.5 * (p(1, 2) + p(2, 1));
+    const double c00 = h11 * h22 - h12 * h12, c01 = h02 * h12 - h01 * h22, c02 = h01 * h12 - h02 * h11;
+    const double det = h00 * c00 + h01 * c01 + h02 * c02;
+    const bool pd = h00 > 1e-6 && h00 * h11 - h01 * h01 > 1e-12 && det > 1e-18;
+    if (g.squaredNorm() <= tol2) {
+      if (pd) return finish(true, it);  // a strict maximum
+      Eigen::Matrix3d h;
+      h << h00, h01, h02, h01, h11, h12, h02, h12, h22;
+      Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
+      eig.computeDirect(h);
+      if (eig.eigenvalues()(0) >= -1e-9) return finish(true, it);  // flat direction of a degenerate A: a maximum too
+      // a saddle or minimum of the trace: half a revolution about the worst axis gains
+      // 2 |u^T h u| exactly
+      const Eigen::Vector3d u = eig.eigenvectors().col(0).normalized();
+      q = Eigen::Quaterniond(0.0, u.x(), u.y(), u.z()) * q;
+      q.normalize();
+      r = q.toRotationMatrix();
+      p = an * r.transpose();
+      f = p.trace();
+      continue;
+    }
+    // Newton where the Hessian is positive definite (quadratic convergence near the optimum)
+    if (pd) {
+      const double c11 = h00 * h22 - h02 * h02, c12 = h01 * h02 - h00 * h12, c22 = h00 * h11 - h01 * h01;
+      Eigen::Vector3d theta(c00 * g.x() + c01 * g.y() + c02 * g.z(), c01 * g.x() + c11 * g.y() + c12 * g.z(),
+                            c02 * g.x() + c12 * g.y() + c22 * g.z());
+      theta *= 1.0 / det;
+      const double len2 = theta.squaredNorm();
+      if (len2 > 1.0) theta *= 1.0 / std::sqrt(len2);  // at most about one radian per iteration
+      const Eigen::Quaterniond qn = rotate_by(q, theta);
+      const Eigen::Matrix3d rn = qn.toRotationMatrix();
+      // a small Newton step leaves an error of order |theta|^2: done without re-evaluating
+      if (len2 <= settings.tolerance) {
+        q = qn;
+        if (rotation) *rotation = rn;
+        if (converged) *converged = true;
+        return it + 1;
+      }
+      const Eigen::Matrix3d pn = an * rn.transpose();
+      const double fn = pn.trace();
+      if (fn >= f - 1e-13) {  // an increase, up to rounding of the trace
+        q = qn;
+        r = rn;
+        p = pn;
+        f = fn;
+        continue;
+      }
+    }
+    // else the exact maximum along the gradient axis u: the trace is
+    // tr P + alpha sin(phi) - beta (1 - cos(phi)), alpha = |g|, beta = u^T h u,
+    // maximal at phi = atan2(alpha, beta) (a half turn or more where the curvature is negative)
+    const double alpha = g.norm();
+    const Eigen::Vector3d u = g / alpha;
+    const double beta = h00 * u.x() * u.x() + h11 * u.y() * u.y() + h22 * u.z() * u.z() +
+                        2.0 * (h01 * u.x() * u.y() + h02 * u.x() * u.z() + h12 * u.y() * u.z());
+    const double half = 0.5 * std::atan2(alpha, beta);
+    const double sh = std::sin(half);
+    q = Eigen::Quaterniond(std::cos(half), sh * u.x(), sh * u.y(), sh * u.z()) * q;
+    q.normalize();
+    r = q.toRotationMatrix();
+    p = an * r.transpose();
+    f = p.trace();
+  }
+  if (converged) *converged = false;
+  if (rotation) *rotation = r;
+  return it;
+}
+
+Eigen::Matrix3d optimal_rotation_svd(const Eigen::Matrix3d& a) {
+  Eigen::JacobiSVD<Eigen::Matrix3d> svd(a, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d u = svd.matrixU();
+  const Eigen::Matrix3d v = svd.matrixV();
+  if ((u * v.transpose()).determinant() < 0) u.col(2) *= -1.0;
+  return u * v.transpose();
+}
+
+Eigen::Matrix3d closest_with_determinant(const Eigen::Matrix3d& b, double det, Eigen::Quaterniond& q,
+                                         const RotationFitSettings& settings) {
+  // signed SVD b = U diag(s) V^T with U, V proper: polar rotation + symmetric eigen
+  fit_rotation(b, q, settings);
+  const Eigen::Matrix3d rot = q.toRotationMatrix();
+  Eigen::Matrix3d s = rot.transpose() * b;
+  s = 0.5 * (s + s.transpose());
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
+  eig.computeDirect(s);
+  const Eigen::Vector3d sig = eig.eigenvalues();
+  // closest point x to the singular values (in units where det = 1) on x1 x2 x3 = 1:
+  // Newton on the KKT system x_i - s_i = lambda prod_{j != i} x_j, prod x = 1, started from
+  // the scaled (or sign-repaired) values, which already satisfy the constraint
+  const double unit = std::cbrt(det);
+  const Eigen::Vector3d s0 = sig / unit;
+  const double top = std::max(s0.cwiseAbs().maxCoeff(), 1e-3);
+  Eigen::Vector3d start = s0.cwiseMax(0.1 * top);
+  start /= std::cbrt(start.prod());
+  Eigen::Vector3d x = start;
+  double lambda = 0;
+  bool ok = false;
+  for (int it = 0; it < 30; ++it) {
+    const Eigen::Vector3d pr(x.y() * x.z(), x.x() * x.z(), x.x() * x.y());
+    Eigen::Matrix<double, 4, 1> r;
+    r.head<3>() = x - s0 - lambda * pr;
+    r(3) = x.prod() - 1.0;
+    if (r.cwiseAbs().maxCoeff() < 1e-14) {
+      ok = true;
+      break;
+    }
+    Eigen::Matrix4d jac = Eigen::Matrix4d::Zero();
+    jac.topLeftCorner<3, 3>().setIdentity();
+    jac(0, 1) = jac(1, 0) = -lambda * x.z();
+    jac(0, 2) = jac(2, 0) = -lambda * x.y();
+    jac(1, 2) = jac(2, 1) = -lambda * x.x();
+    jac.block<3, 1>(0, 3) = -pr;
+    jac.block<1, 3>(3, 0) = pr.transpose();
+    const Eigen::Matrix<double, 4, 1> step = jac.fullPivLu().solve(-r);
+    if (!step.allFinite()) break;
+    x += step.head<3>();
+    lambda += step(3);
+  }
+  // a point on the positive branch that is a constrained minimum; else the scaled start
+  if (!ok || (x.array() <= 0).any() || (x - s0).squaredNorm() > (start - s0).squaredNorm()) x = start;
+  const Eigen::Vector3d d = x - s0;
+  const Eigen::Vector3d sp = (s0 + d) * unit;
+  return rot * eig.eigenvectors() * sp.asDiagonal() * eig.eigenvectors().transpose();
+}
+
+namespace {
+
+/// The element kernel for elements [e0, e1): writes 3 doubles per vertex entry.
+/// Vertex i has weight w_i and weighted rest offset R0'_i = w_i R0_i (material.h).
+/// Each loop over the vertices keeps at most ~16 values live, so that baseline x86-64 (16 SSE
+/// registers) does not spill: elastic and damping parts run as separate loops.
+template <bool kDamping, bool kEnergy, bool kVolume>
+void element_range(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot,
+                   double* ef, double* energy_out, std::int64_t e0, std::int64_t e1,
+                   const RotationFitSettings& fit, ElementPassStats& st) {
+  const Model& m = *phys.model;
+  const std::int32_t* off = m.element_offsets.data();
+  const std::int32_t* vert = m.element_vertices.data();
+  const double* r0s = phys.entry_rest_weighted.data();
+  const double* wts = phys.entry_weight.data();
+  const std::int32_t* slot = phys.entry_slot.data();
+  for (std::int64_t e = e0; e < e1; ++e) {
+    const int b = off[e], n = off[e + 1] - b;
+    // positions relative to the first vertex (keeps sums free of the absolute offset)
+    const double* x0 = xs + 3 * std::int64_t(vert[b]);
+    const double ox = x0[0], oy = x0[1], oz = x0[2];
+    // pass 1: weighted centroid and A = sum w y R0^T (sum w R0 = 0: no centring needed)
+    double sw = 0, sx = 0, sy = 0, sz = 0;
+    double a00 = 0, a01 = 0, a02 = 0, a10 = 0, a11 = 0, a12 = 0, a20 = 0, a21 = 0, a22 = 0;
+    for (int j = b; j < b + n; ++j) {
+      const double* xp = xs + 3 * std::int64_t(vert[j]);
+      const double* r0 = r0s + 3 * std::int64_t(j);
+      const double w = wts[j];
+      const double yx = xp[0] - ox, yy = xp[1] - oy, yz = xp[2] - oz;
+      sw += w;
+      sx += w * yx;
+      sy += w * yy;
+      sz += w * yz;
+      a00 += yx * r0[0]; a01 += yx * r0[1]; a02 += yx * r0[2];
+      a10 += yy * r0[0]; a11 += yy * r0[1]; a12 += yy * r0[2];
+      a20 += yz * r0[0]; a21 += yz * r0[1]; a22 += yz * r0[2];
+    }
+    const double inv_w = 1.0 / sw;
+    const Eigen::Vector3d c(sx * inv_w, sy * inv_w, sz * inv_w);  // relative to x0
+    Eigen::Matrix3d a;
+    a << a00, a01, a02, a10, a11, a12, a20, a21, a22;
+    if (!a.allFinite() || !c.allFinite()) {  // NaN/Inf in: no force out, counted
+      ++st.non_finite;
+      for (int j = b; j < b + n; ++j) ef[3 * slot[j]] = ef[3 * slot[j] + 1] = ef[3 * slot[j] + 2] = 0.0;
+      if constexpr (kEnergy) energy_out[e] = 0.0;
+      continue;
+    }
+    // rotation fit, warm-started
+    bool conv = true;
+    Eigen::Matrix3d q;
+    st.rotation_iterations += fit_rotation(a * phys.element_fit_scale[std::size_t(e)], rot[e], fit, &conv, &q);
+    st.unconverged += conv ? 0 : 1;
+    if (a.determinant() <= 0.0) ++st.inverted;
+    const double k = phys.element_stiffness[std::size_t(e)];
+    Eigen::Matrix3d mq = k * q;
+    double ktot = k;
+    Eigen::Matrix3d t;
+    double wv = 0;
+    if constexpr (kVolume) {
+      wv = phys.element_volume_stiffness[std::size_t(e)];
+      const Eigen::Matrix3d& ninv = phys.element_spread_inv_sqrt[std::size_t(e)];
+      Eigen::Quaterniond qv = rot[e];
+      t = closest_with_determinant(a * ninv, phys.element_spread_sqrt_det[std::size_t(e)], qv, fit) * ninv;
+      mq += wv * t;
+      ktot += wv;
+    }
+    // pass 2: elastic force f = M R0' - w ktot (x - c)   (M = k Q + k_v T)
+    {
+      const double m00 = mq(0, 0), m01 = mq(0, 1), m02 = mq(0, 2), m10 = mq(1, 0), m11 = mq(1, 1),
+                   m12 = mq(1, 2), m20 = mq(2, 0), m21 = mq(2, 1), m22 = mq(2, 2);
+      const double cx = ox + c.x(), cy = oy + c.y(), cz = oz + c.z();
+      for (int j = b; j < b + n; ++j) {
+        const double* xp = xs + 3 * std::int64_t(vert[j]);
+        const double* r0 = r0s + 3 * std::int64_t(j);
+        const double kw = ktot * wts[j];
+        double* out = ef + 3 * std::int64_t(slot[j]);
+        out[0] = m00 * r0[0] + m01 * r0[1] + m02 * r0[2] - kw * (xp[0] - cx);
+        out[1] = m10 * r0[0] + m11 * r0[1] + m12 * r0[2] - kw * (xp[1] - cy);
+        out[2] = m20 * r0[0] + m21 * r0[1] + m22 * r0[2] - kw * (xp[2] - cz);
+      }
+    }
+    if constexpr (kDamping) {
+      // pass 3: the weighted rigid velocity fit: v_c, angular momentum and inertia about c
+      double svx = 0, svy = 0, svz = 0, lx = 0, ly = 0, lz = 0;
+      double ixx = 0, ixy = 0, ixz = 0, iyy = 0, iyz = 0, izz = 0;
+      for (int j = b; j < b + n; ++j) {
+        const double* xp = xs + 3 * std::int64_t(vert[j]);
+        const double* vp = vs + 3 * std::int64_t(vert[j]);
+        const double w = wts[j];
+        const double yx = xp[0] - ox, yy = xp[1] - oy, yz = xp[2] - oz;
+        const double wx = w * yx, wy = w * yy, wz = w * yz;
+        svx += w * vp[0];
+        svy += w * vp[1];
+        svz += w * vp[2];
+        lx += wy * vp[2] - wz * vp[1];
+        ly += wz * vp[0] - wx * vp[2];
+        lz += wx * vp[1] - wy * vp[0];
+        ixx += wx * yx; ixy += wx * yy; ixz += wx * yz;
+        iyy += wy * yy; iyz += wy * yz; izz += wz * yz;
+      }
+      const double cd = phys.element_damping[std::size_t(e)];
+      const Eigen::Vector3d vc(svx * inv_w, svy * inv_w, svz * inv_w);
+      const Eigen::Vector3d ang = Eigen::Vector3d(lx, ly, lz) - sw * c.cross(vc);
+      Eigen::Matrix3d yy;
+      yy << ixx, ixy, ixz, ixy, iyy, iyz, ixz, iyz, izz;
+      yy -= sw * c * c.transpose();  // sum w r r^T about the centroid
+      Eigen::Matrix3d inertia = -yy;
+      const double tr = yy.trace();
+      inertia.diagonal().array() += tr * (1.0 + 1e-10);  // + tiny regularisation (collinear)
+      Eigen::Vector3d omega = Eigen::Vector3d::Zero();
+      if (tr > 0) omega = inertia.inverse() * ang;
+      if (!omega.allFinite()) omega.setZero();
+      // pass 4: f += c w (v_c + omega x r - v)
+      const double wx = omega.x(), wy = omega.y(), wz = omega.z();
+      const double cx = ox + c.x(), cy = oy + c.y(), cz = oz + c.z();
+      const double ux = vc.x(), uy = vc.y(), uz = vc.z();
+      for (int j = b; j < b + n; ++j) {
+        const double* xp = xs + 3 * std::int64_t(vert[j]);
+        const double* vp = vs + 3 * std::int64_t(vert[j]);
+        const double cw = cd * wts[j];
+        const double rx = xp[0] - cx, ry = xp[1] - cy, rz = xp[2] - cz;
+        double* out = ef + 3 * std::int64_t(slot[j]);
+        out[0] += cw * (ux + wy * rz - wz * ry - vp[0]);
+        out[1] += cw * (uy + wz * rx - wx * rz - vp[1]);
+        out[2] += cw * (uz + wx * ry - wy * rx - vp[2]);
+      }
+    }
+    if constexpr (kEnergy) {
+      double en = 0;
+      const Eigen::Vector3d ca = Eigen::Vector3d(ox, oy, oz) + c;
+      for (int j = b; j < b + n; ++j) {
+        const Eigen::Vector3d r = Eigen::Map<const Eigen::Vector3d>(xs + 3 * std::int64_t(vert[j])) - ca;
+        const Eigen::Vector3d rr = phys.entry_rest.col(j);
+        en += 0.5 * k * wts[j] * (q * rr - r).squaredNorm();
+        if constexpr (kVolume) en += 0.5 * wv * wts[j] * (t * rr - r).squaredNorm();
+      }
+      energy_out[e] = en;
+      st.elastic_energy += en;
+    }
+  }
+}
+
+using RangeFn = void (*)(const PhysicsModel&, const double*, const double*, Eigen::Quaterniond*, double*, double*,
+                         std::int64_t, std::int64_t, const RotationFitSettings&, ElementPassStats&);
+
+RangeFn pick_range(bool damping, bool energy, bool volume) {
+  const int key = (damping ? 1 : 0) | (energy ? 2 : 0) | (volume ? 4 : 0);
+  switch (key) {
+    case 0: return &element_range<false, false, false>;
+    case 1: return &element_range<true, false, false>;
+    case 2: return &element_range<false, true, false>;
+    case 3: return &element_range<true, true, false>;
+    case 4: return &element_range<false, false, true>;
+    case 5: return &element_range<true, false, true>;
+    case 6: return &element_range<false, true, true>;
+    default: return &element_range<true, true, true>;
+  }
+}
+
+}  // namespace
+
+ElementPassStats compute_element_forces(const PhysicsModel& phys, const Eigen::Matrix3Xd& positions,
+                                        const Eigen::Matrix3Xd* velocities,
+                                        std::vector<Eigen::Quaterniond>& rotations,
+                                        Eigen::Matrix3Xd& entry_forces, std::vector<double>* element_energy,
+                                        const ElementPassOptions& options, int threads,
+                                        ElementPassScratch& scratch) {
+  const std::int64_t ne = phys.num_elements();
+  const bool damping = options.damping && velocities != nullptr;
+  const bool energy = options.energy && element_energy != nullptr;
+  // sizes are set up once; these are no-ops in a running simulation
+  if (entry_forces.cols() != phys.num_vertex_entries()) entry_forces.resize(3, phys.num_vertex_entries());
+  if (energy && std::int64_t(element_energy->size()) != ne) element_energy->resize(std::size_t(ne));
+  const std::int64_t chunks = chunk_count(ne, kElementGrain);
+  if (std::int64_t(scratch.chunks.size()) != chunks) scratch.chunks.resize(std::size_t(chunks));
+  const RangeFn fn = pick_range(damping, energy, phys.has_volume_term());
+  const double* xs = positions.data();
+  const double* vs = damping ? velocities->data() : nullptr;
+  Eigen::Quaterniond* rot = rotations.data();
+  double* ef = entry_forces.data();
+  double* en = energy ? element_energy->data() : nullptr;
+  parallel_for_chunks(ne, kElementGrain, threads, [&](std::int64_t chunk, std::int64_t b, std::int64_t e) {
+    ElementPassStats st;
+    fn(phys, xs, vs, rot, ef, en, b, e, options.rotation, st);
+    scratch.chunks[std::size_t(chunk)] = st;
+  });
+  // reduce in chunk order: the same sums for any thread count
+  ElementPassStats total;
+  for (const auto& s : scratch.chunks) total.add(s);
+  return total;
+}
+
+void gather_node_forces(const PhysicsModel& phys, const Eigen::Matrix3Xd& entry_forces, Eigen::Matrix3Xd& node_forces,
+                        int threads) {
+  if (node_forces.cols() != phys.num_nodes()) node_forces.resize(3, phys.num_nodes());
+  parallel_for(phys.num_nodes(), kNodeGrain, threads, [&](std::int64_t b, std::int64_t e) {
+    for (std::int64_t i = b; i < e; ++i) node_forces.col(i) = gather_node_force(phys, entry_forces, int(i));
+  });
+}
+
+double element_energy(const PhysicsModel& phys, int e, const Eigen::Matrix3Xd& x, Eigen::Quaterniond& q,
+                      const RotationFitSettings& settings) {
+  const Model& m = *phys.model;
+  const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();
+  double sw = 0;
+  for (int j = b; j < b + n; ++j) {
+    c += phys.entry_weight[j] * x.col(m.element_vertices[j]);
+    sw += phys.entry_weight[j];
+  }
+  c /= sw;
+  Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
+  for (int j = b; j < b + n; ++j) a += (x.col(m.element_vertices[j]) - c) * phys.entry_rest_weighted.col(j).transpose();
+  fit_rotation(a * phys.element_fit_scale[e], q, settings);
+  const Eigen::Matrix3d rq = q.toRotationMatrix();
+  double en = 0;
+  for (int j = b; j < b + n; ++j)
+    en += 0.5 * phys.element_stiffness[e] * phys.entry_weight[j] *
+          (rq * phys.entry_rest.col(j) - (x.col(m.element_vertices[j]) - c)).squaredNorm();
+  if (phys.has_volume_term()) {
+    const Eigen::Matrix3d& ninv = phys.element_spread_inv_sqrt[e];
+    Eigen::Quaterniond qv = q;
+    const Eigen::Matrix3d t = closest_with_determinant(a * ninv, phys.element_spread_sqrt_det[e], qv, settings) * ninv;
+    for (int j = b; j < b + n; ++j)
+      en += 0.5 * phys.element_volume_stiffness[e] * phys.entry_weight[j] *
+            (t * phys.entry_rest.col(j) - (x.col(m.element_vertices[j]) - c)).squaredNorm();
+  }
+  return en;
+}
+
+}  // namespace vx

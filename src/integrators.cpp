@@ -1,0 +1,809 @@
+#include "integrators.h"
+
+#include <Eigen/SparseCholesky>
+#include <Eigen/SparseCore>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <numeric>
+#include <sstream>
+
+#include "error.h"
+#include "parallel.h"
+
+namespace vx {
+
+const char* to_string(IntegratorKind k) {
+  switch (k) {
+    case IntegratorKind::explicit_euler: return "explicit_euler";
+    case IntegratorKind::symplectic_euler: return "symplectic_euler";
+    case IntegratorKind::implicit: return "implicit";
+  }
+  return "?";
+}
+
+IntegratorKind parse_integrator(const std::string& s) {
+  if (s == "explicit_euler") return IntegratorKind::explicit_euler;
+  if (s == "symplectic_euler") return IntegratorKind::symplectic_euler;
+  if (s == "implicit") return IntegratorKind::implicit;
+  throw Error("unknown integrator '" + s + "': use explicit_euler, symplectic_euler or implicit");
+}
+
+StepReport Integrator::advance(SimState& state, int steps) {
+  StepReport r;
+  for (int i = 0; i < steps; ++i) {
+    r = step(state);
+    if (state.status == StepStatus::non_finite ||
+        (state.status == StepStatus::runaway && settings_.limits.stop_on_runaway))
+      break;
+  }
+  return r;
+}
+
+// ---------------------------------------------------------------------------------------------
+// time-step estimates
+
+TimeStepEstimate estimate_time_steps(const PhysicsModel& p) {
+  const Model& m = *p.model;
+  const int nn = p.num_nodes(), ne = p.num_elements();
+  std::vector<double> sk(std::size_t(nn), 0.0), sc(std::size_t(nn), 0.0);
+  TimeStepEstimate out;
+  double min_ratio = std::numeric_limits<double>::infinity();
+  double min_period = std::numeric_limits<double>::infinity();
+  bool damped = false;
+  for (int e = 0; e < ne; ++e) {
+    const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+    const double kappa = p.element_stiffness[e] + (p.has_volume_term() ? p.element_volume_stiffness[e] : 0.0);
+    const double c = p.element_damping[e];
+    double wsum = 0;
+    for (int j = b; j < b + n; ++j) wsum += p.entry_weight[std::size_t(j)];
+    for (int j = b; j < b + n; ++j) {
+      // Gershgorin row sum of kappa (diag(w) - w w^T / W): 2 kappa w_i (1 - w_i / W)
+      const double w = p.entry_weight[std::size_t(j)];
+      const double row = 2.0 * w * (1.0 - w / wsum);
+      sk[std::size_t(m.element_vertices[j])] += row * kappa;
+      sc[std::size_t(m.element_vertices[j])] += row * c;
+    }
+    if (c > 0) damped = true;
+    min_ratio = std::min(min_ratio, c / kappa);
+    const double m_unit = p.element_mass_kg[e] * kKgToNs2PerMm / wsum;
+    min_period = std::min(min_period, 2.0 * M_PI * std::sqrt(m_unit / kappa));
+  }
+  double w2 = 0, gamma = 0;
+  for (int i = 0; i < nn; ++i) {
+    w2 = std::max(w2, sk[std::size_t(i)] * p.node_inv_mass[std::size_t(i)]);
+    gamma = std::max(gamma, sc[std::size_t(i)] * p.node_inv_mass[std::size_t(i)]);
+  }
+  out.highest_frequency_hz = std::sqrt(w2) / (2.0 * M_PI);
+  out.element_period_s = min_period;
+  out.symplectic_euler_s = w2 > 0 ? (std::sqrt(4.0 * w2 + gamma * gamma) - gamma) / w2 : 0.0;
+  out.explicit_euler_s = damped ? std::min(min_ratio, gamma > 0 ? 2.0 / gamma : min_ratio) : 0.0;
+  return out;
+}
+
+double stable_time_step(const PhysicsModel& physics, IntegratorKind kind) {
+  const TimeStepEstimate e = estimate_time_steps(physics);
+  switch (kind) {
+    case IntegratorKind::explicit_euler: return e.explicit_euler_s;
+    case IntegratorKind::symplectic_euler: return e.symplectic_euler_s;
+    case IntegratorKind::implicit: return e.implicit_s;
+  }
+  return 0.0;
+}
+
+namespace {
+
+// ---------------------------------------------------------------------------------------------
+// shared: checking and applying a step
+
+constexpr std::uint8_t kFlagNonFinite = 1;
+constexpr std::uint8_t kFlagRunaway = 2;
+
+double max_displacement(const PhysicsModel& p, const StabilityLimits& l) {
+  if (l.max_displacement_mm > 0) return l.max_displacement_mm;
+  const Eigen::Matrix3Xd& r = p.model->rest_positions;
+  const double diag = (r.rowwise().maxCoeff() - r.rowwise().minCoeff()).norm();
+  return 10.0 * std::max(diag, 1.0);
+}
+
+/// Checks one node's new position and velocity.
+inline std::uint8_t check_node(const Eigen::Vector3d& xn, const Eigen::Vector3d& vn, const Eigen::Vector3d& rest,
+                               double max_v2, double max_d2) {
+  if (!xn.allFinite() || !vn.allFinite()) return kFlagNonFinite;
+  if (vn.squaredNorm() > max_v2 || (xn - rest).squaredNorm() > max_d2) return kFlagRunaway;
+  return 0;
+}
+
+/// Applies (or refuses) the step in state.scratch.next_*: on success swaps it in and advances
+/// time; on failure sets the state's status and a message saying what and where.
+void finish_step(SimState& s, const IntegratorSettings& set, std::uint8_t flags, StepReport& rep) {
+  const double dt = set.time_step_s;
+  if (flags) {
+    const PhysicsModel& p = *s.physics;
+    const double max_v = set.limits.max_speed_mm_s, max_d = max_displacement(p, set.limits);
+    // find the first offending node (failure path only: may allocate)
+    int node = -1;
+    const Eigen::Matrix3Xd& rest = p.model->rest_positions;
+    for (int i = 0; i < s.num_nodes() && node < 0; ++i)
+      if (check_node(s.scratch.next_positions.col(i), s.scratch.next_velocities.col(i), rest.col(i), max_v * max_v,
+                     max_d * max_d) != 0)
+        node = i;
+    const TimeStepEstimate est = estimate_time_steps(p);
+    const double limit = set.kind == IntegratorKind::explicit_euler     ? est.explicit_euler_s
+                         : set.kind == IntegratorKind::symplectic_euler ? est.symplectic_euler_s
+                                                                         : est.implicit_s;
+    std::ostringstream msg;
+    msg << to_string(set.kind) << " step " << s.steps << " (t = " << s.time_s << " s, dt = " << dt << " s): ";
+    if (flags & kFlagNonFinite) {
+      msg << "NaN/Inf";
+      if (node >= 0) msg << " at node " << node;
+      if (s.element_stats.non_finite > 0) msg << " (" << s.element_stats.non_finite << " elements with non-finite input)";
+    } else if (node >= 0) {
+      msg << "runaway at node " << node << ": speed " << s.scratch.next_velocities.col(node).norm()
+          << " mm/s (limit " << max_v << "), displacement " << (s.scratch.next_positions.col(node) - rest.col(node)).norm()
+          << " mm (limit " << max_d << ")";
+    } else {
+      msg << "runaway";
+    }
+    msg << "; the stable time step of " << to_string(set.kind) << " is estimated at " << limit << " s";
+    if (set.kind == IntegratorKind::explicit_euler && limit == 0.0)
+      msg << " (explicit Euler needs damping: set a damping ratio > 0)";
+    if (flags & kFlagNonFinite || set.limits.stop_on_runaway) msg << "; the step was not applied, the state is stopped";
+    s.status = (flags & kFlagNonFinite) ? StepStatus::non_finite : StepStatus::runaway;
+    s.message = msg.str();
+    rep.status = s.status;
+    if ((flags & kFlagNonFinite) || set.limits.stop_on_runaway) return;
+  }
+  s.positions.swap(s.scratch.next_positions);
+  s.velocities.swap(s.scratch.next_velocities);
+  s.time_s += dt;
+  ++s.steps;
+}
+
+/// True when the state may not be stepped: a NaN/Inf, or a runaway under stop_on_runaway.
+bool blocked(const SimState& s, const IntegratorSettings& set) {
+  return s.status == StepStatus::non_finite || (s.status == StepStatus::runaway && set.limits.stop_on_runaway);
+}
+
+bool any_damping(const PhysicsModel& p) {
+  for (double c : p.element_damping)
+    if (c > 0) return true;
+  return false;
+}
+
+// ---------------------------------------------------------------------------------------------
+// explicit and symplectic Euler
+
+class ExplicitIntegrator final : public Integrator {
+ public:
+  using Integrator::Integrator;
+
+  StepReport step(SimState& s) override {
+    StepReport rep;
+    if (blocked(s, settings_)) {
+      rep.status = s.status;
+      return rep;
+    }
+    const PhysicsModel& p = *s.physics;
+    const int threads = settings_.threads;
+    const double dt = settings_.time_step_s;
+    if (cached_physics_ != &p) {  // per-model constants (no allocation)
+      cached_physics_ = &p;
+      damped_ = any_damping(p);
+      max_d_ = max_displacement(p, settings_.limits);
+    }
+    // forces of the elements at (x, v)
+    ElementPassOptions opt;
+    opt.damping = damped_;
+    opt.energy = settings_.track_energy;
+    opt.rotation = settings_.rotation;
+    s.element_stats = compute_element_forces(p, s.positions, &s.velocities, s.rotations, s.scratch.entry_forces,
+                                             &s.scratch.element_energy, opt, threads, s.scratch.element_pass);
+    rep.iterations = 1;
+    rep.inverted_elements = s.element_stats.inverted;
+    rep.unconverged_rotations = s.element_stats.unconverged;
+
+    // per node: gather, add gravity and external forces, integrate, check
+    const bool symplectic = settings_.kind == IntegratorKind::symplectic_euler;
+    const bool track = settings_.track_energy;
+    const double max_v2 = settings_.limits.max_speed_mm_s * settings_.limits.max_speed_mm_s;
+    const double max_d2 = max_d_ * max_d_;
+    const Eigen::Vector3d g = s.gravity_mm_s2;
+    const Eigen::Matrix3Xd& rest = p.model->rest_positions;
+    // raw pointers: the compiler cannot hoist loads through the state's members
+    const double* ef = s.scratch.entry_forces.data();
+    const double* xs = s.positions.data();
+    const double* vs = s.velocities.data();
+    const double* fext = s.external_forces.data();
+    const double* rs = rest.data();
+    double* xo = s.scratch.next_positions.data();
+    double* vo = s.scratch.next_velocities.data();
+    const std::uint8_t* fixed = s.node_fixed.data();
+    const std::int32_t* noff = p.node_entry_offsets.data();
+    const double* mass = p.node_mass.data();
+    const double* inv_mass = p.node_inv_mass.data();
+    std::uint8_t* chunk_flags = s.scratch.node_chunk_flags.data();
+    double* chunk_sums = s.scratch.node_chunk_sums.data();
+    const double gx = g.x(), gy = g.y(), gz = g.z();
+    parallel_for_chunks(p.num_nodes(), kNodeGrain, threads, [=](std::int64_t c, std::int64_t b, std::int64_t e) {
+      std::uint8_t flags = 0;
+      double kin = 0, grav = 0;
+      for (std::int64_t i = b; i < e; ++i) {
+        const double* x = xs + 3 * i;
+        const double* v = vs + 3 * i;
+        if (track) {
+          kin += 0.5 * mass[i] * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+          grav -= mass[i] * (gx * (x[0] - rs[3 * i]) + gy * (x[1] - rs[3 * i + 1]) + gz * (x[2] - rs[3 * i + 2]));
+        }
+        double nx[3], nv[3];
+        if (fixed[i]) {  // kinematic
+          for (int d = 0; d < 3; ++d) {
+            nx[d] = x[d] + dt * v[d];
+            nv[d] = v[d];
+          }
+        } else {
+          // gather the entry forces in entry order, add external forces and gravity
+          double f[3] = {fext[3 * i], fext[3 * i + 1], fext[3 * i + 2]};
+          for (std::int32_t j = noff[i]; j < noff[i + 1]; ++j) {  // contiguous slots
+            const double* fj = ef + 3 * std::int64_t(j);
+            f[0] += fj[0];
+            f[1] += fj[1];
+            f[2] += fj[2];
+          }
+          const double a[3] = {f[0] * inv_mass[i] + gx, f[1] * inv_mass[i] + gy, f[2] * inv_mass[i] + gz};
+          for (int d = 0; d < 3; ++d) {
+            if (symplectic) {
+              nv[d] = v[d] + dt * a[d];
+              nx[d] = x[d] + dt * nv[d];
+            } else {  // the paper's eq. 1-2: position with the old velocity
+              nx[d] = x[d] + dt * v[d];
+              nv[d] = v[d] + dt * a[d];
+            }
+          }
+        }
+        // checks: finite, speed, distance from rest
+        const double v2 = nv[0] * nv[0] + nv[1] * nv[1] + nv[2] * nv[2];
+        const double dx = nx[0] - rs[3 * i], dy = nx[1] - rs[3 * i + 1], dz = nx[2] - rs[3 * i + 2];
+        const double d2 = dx * dx + dy * dy + dz * dz;
+        if (!std::isfinite(v2 + d2 + nx[0] + nx[1] + nx[2]))
+          flags |= kFlagNonFinite;
+        else if (v2 > max_v2 || d2 > max_d2)
+          flags |= kFlagRunaway;
+        for (int d = 0; d < 3; ++d) {
+          xo[3 * i + d] = nx[d];
+          vo[3 * i + d] = nv[d];
+        }
+      }
+      chunk_flags[c] = flags;
+      chunk_sums[3 * c] = kin;
+      chunk_sums[3 * c + 1] = grav;
+    });
+    std::uint8_t flags = s.element_stats.non_finite > 0 ? kFlagNonFinite : 0;
+    const std::size_t chunks = std::size_t(chunk_count(p.num_nodes(), kNodeGrain));
+    Energies en;
+    for (std::size_t c = 0; c < chunks; ++c) {
+      flags |= s.scratch.node_chunk_flags[c];
+      en.kinetic += s.scratch.node_chunk_sums[3 * c];
+      en.gravitational += s.scratch.node_chunk_sums[3 * c + 1];
+    }
+    if (track) {
+      en.elastic = s.element_stats.elastic_energy;
+      s.energies = en;
+    }
+    finish_step(s, settings_, flags, rep);
+    return rep;
+  }
+
+ private:
+  const PhysicsModel* cached_physics_{nullptr};
+  bool damped_{false};
+  double max_d_{0.0};
+};
+
+// ---------------------------------------------------------------------------------------------
+// projective dynamics: prefactored global matrix + local rotation fits
+
+using SpMat = Eigen::SparseMatrix<double>;
+
+class ProjectiveSolver {
+ public:
+  /// True when the factorisation fits this state, time step and mode.
+  [[nodiscard]] bool ready_for(const SimState& s, double dt, bool inertia, bool damping) const {
+    return physics_ == s.physics.get() && state_ == &s && fixed_version_ == s.fixed_version && dt_ == dt &&
+           inertia_ == inertia && damping_ == damping;
+  }
+
+  /// Builds and factors the system matrix (allocates). Throws vx::Error on failure.
+  void setup(const SimState& s, double dt, bool inertia, bool damping) {
+    const PhysicsModel& p = *s.physics;
+    const Model& m = *p.model;
+    const int nn = p.num_nodes(), ne = p.num_elements();
+    physics_ = s.physics.get();
+    state_ = &s;
+    fixed_version_ = s.fixed_version;
+    dt_ = dt;
+    inertia_ = inertia;
+    damping_ = damping;
+    // free numbering
+    free_index_.assign(std::size_t(nn), -1);
+    fixed_index_.assign(std::size_t(nn), -1);
+    free_nodes_.clear();
+    fixed_nodes_.clear();
+    for (int i = 0; i < nn; ++i) {
+      if (s.node_fixed[std::size_t(i)]) {
+        fixed_index_[std::size_t(i)] = int(fixed_nodes_.size());
+        fixed_nodes_.push_back(i);
+      } else {
+        free_index_[std::size_t(i)] = int(free_nodes_.size());
+        free_nodes_.push_back(i);
+      }
+    }
+    const int nf = int(free_nodes_.size()), nc = int(fixed_nodes_.size());
+    if (!inertia) check_held(s);
+    // weights kappa_e = k_e + k_v,e (+ c_e / dt)
+    kappa_.resize(std::size_t(ne));
+    for (int e = 0; e < ne; ++e)
+      kappa_[std::size_t(e)] = p.element_stiffness[std::size_t(e)] +
+                               (p.has_volume_term() ? p.element_volume_stiffness[std::size_t(e)] : 0.0) +
+                               (damping ? p.element_damping[std::size_t(e)] / dt : 0.0);
+    // assemble M/dt^2 + sum_e kappa_e (diag(w) - w w^T / W), split into free-free and free-fixed
+    std::vector<Eigen::Triplet<double>> tff, tfc;
+    std::size_t guess = 0;
+    for (int e = 0; e < ne; ++e) guess += std::size_t(m.num_vertices(e)) * std::size_t(m.num_vertices(e));
+    tff.reserve(guess + std::size_t(nf));
+    for (int e = 0; e < ne; ++e) {
+      const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+      const double kap = kappa_[std::size_t(e)];
+      const double* w = p.entry_weight.data() + b;
+      double wsum = 0;
+      for (int i = 0; i < n; ++i) wsum += w[i];
+      for (int i = 0; i < n; ++i) {
+        const int fi = free_index_[std::size_t(m.element_vertices[b + i])];
+        if (fi < 0) continue;
+        for (int j = 0; j < n; ++j) {
+          const int nj = m.element_vertices[b + j];
+          const double v = kap * ((i == j ? w[i] : 0.0) - w[i] * w[j] / wsum);
+          if (free_index_[std::size_t(nj)] >= 0)
+            tff.emplace_back(fi, free_index_[std::size_t(nj)], v);
+          else
+            tfc.emplace_back(fi, fixed_index_[std::size_t(nj)], v);
+        }
+      }
+    }
+    if (inertia)
+      for (int f = 0; f < nf; ++f) tff.emplace_back(f, f, p.node_mass[std::size_t(free_nodes_[std::size_t(f)])] / (dt * dt));
+    SpMat a(nf, nf);
+    a.setFromTriplets(tff.begin(), tff.end());
+    tff.clear();
+    tff.shrink_to_fit();
+    a_fc_.resize(nf, nc);
+    a_fc_.setFromTriplets(tfc.begin(), tfc.end());
+    ldlt_.compute(a);
+    if (ldlt_.info() != Eigen::Success)
+      throw Error("implicit integrator: the system matrix could not be factored (" + std::to_string(nf) +
+                  " free nodes); is a part of the model held by nothing?");
+    nnz_factor_ = ldlt_.matrixL().nestedExpression().nonZeros();
+    // buffers
+    const std::int64_t entries = p.num_vertex_entries();
+    targets_.resize(3, entries);
+    rest_now_.resize(3, entries);
+    damp_rot_.assign(std::size_t(ne), Eigen::Quaterniond::Identity());
+    rhs_const_.resize(nf, 3);
+    rhs_.resize(nf, 3);
+    rhs_prev_.resize(nf, 3);
+    sol_.resize(nf, 3);
+    work_.assign(3 * std::size_t(nf), 0.0);
+    xc_.resize(nc, 3);
+    x_start_.resize(3, nn);
+    const std::size_t ec = std::size_t(chunk_count(ne, kElementGrain));
+    elem_chunks_.assign(ec, ElementPassStats{});
+    const std::size_t fc = std::size_t(chunk_count(nf, kNodeGrain));
+    free_chunk_sums_.assign(2 * fc, 0.0);
+  }
+
+  [[nodiscard]] int num_free() const { return int(free_nodes_.size()); }
+  [[nodiscard]] std::int64_t factor_nonzeros() const { return nnz_factor_; }
+
+  /// Runs the local/global iterations on `x` (3 x nodes; fixed nodes already at their targets).
+  /// `rhs_const_` must be set by the caller (per free node: inertia and external terms minus
+  /// the fixed nodes' coupling, see set_fixed_coupling()).
+  void iterate(SimState& s, Eigen::Matrix3Xd& x, int max_iterations, double tolerance_mm,
+               const RotationFitSettings& fit, int threads, StepReport& rep) {
+    const PhysicsModel& p = *s.physics;
+    const int nf = num_free();
+    double max_update = std::numeric_limits<double>::infinity();
+    ElementPassStats last;
+    int it = 0;
+    for (; it < max_iterations; ++it) {
+      last = local_step(s, x, fit, threads);
+      // global right-hand side: per free node, in entry order
+      parallel_for(nf, kNodeGrain, threads, [&](std::int64_t b, std::int64_t e) {
+        for (std::int64_t f = b; f < e; ++f) {
+          const Eigen::Vector3d t = gather_node_force(p, targets_, free_nodes_[std::size_t(f)]);
+          rhs_.row(f) = rhs_const_.row(f) + t.transpose();
+        }
+      });
+      if (it > 0) rep.residual_n = rms_difference(rhs_, rhs_prev_, threads);
+      if (tolerance_mm > 0 && it > 0 && max_update <= tolerance_mm) break;
+      solve();
+      max_update = scatter(x, threads);
+      rhs_prev_.swap(rhs_);
+    }
+    rep.iterations = it;
+    rep.max_update_mm = it > 0 ? max_update : 0.0;
+    rep.inverted_elements = last.inverted;
+    rep.unconverged_rotations = last.unconverged;
+    s.element_stats = last;
+  }
+
+  /// rhs_const_ -= A_fc * x_c for the fixed nodes' positions in x.
+  void subtract_fixed_coupling(const Eigen::Matrix3Xd& x) {
+    if (fixed_nodes_.empty()) return;
+    for (std::size_t c = 0; c < fixed_nodes_.size(); ++c) xc_.row(Eigen::Index(c)) = x.col(fixed_nodes_[c]).transpose();
+    rhs_const_.noalias() -= a_fc_ * xc_;
+  }
+
+  /// Relative offsets of the vertices at the start of the step (for the damping term).
+  void record_start_shape(const PhysicsModel& p, const Eigen::Matrix3Xd& x, int threads) {
+    const Model& m = *p.model;
+    parallel_for(p.num_elements(), kElementGrain, threads, [&](std::int64_t b, std::int64_t e) {
+      for (std::int64_t el = b; el < e; ++el) {
+        const int o = m.element_offsets[el], n = m.element_offsets[el + 1] - o;
+        Eigen::Vector3d c = Eigen::Vector3d::Zero();
+        double sw = 0;
+        for (int j = o; j < o + n; ++j) {
+          c += p.entry_weight[std::size_t(j)] * x.col(m.element_vertices[j]);
+          sw += p.entry_weight[std::size_t(j)];
+        }
+        c /= sw;
+        for (int j = o; j < o + n; ++j) rest_now_.col(j) = x.col(m.element_vertices[j]) - c;
+        damp_rot_[std::size_t(el)] = Eigen::Quaterniond::Identity();
+      }
+    });
+  }
+
+  Eigen::MatrixX3d& rhs_const() { return rhs_const_; }
+  const std::vector<int>& free_nodes() const { return free_nodes_; }
+  Eigen::Matrix3Xd& x_start() { return x_start_; }
+  std::vector<double>& free_chunk_sums() { return free_chunk_sums_; }
+
+ private:
+  /// Every connected part of the model must hold a fixed node (static solve).
+  void check_held(const SimState& s) const {
+    const PhysicsModel& p = *s.physics;
+    const Model& m = *p.model;
+    std::vector<int> parent(std::size_t(p.num_nodes()));
+    std::iota(parent.begin(), parent.end(), 0);
+    const auto find = [&](int a) {
+      while (parent[std::size_t(a)] != a) a = parent[std::size_t(a)] = parent[std::size_t(parent[std::size_t(a)])];
+      return a;
+    };
+    for (int e = 0; e < p.num_elements(); ++e)
+      for (int j = m.element_offsets[e] + 1; j < m.element_offsets[e + 1]; ++j)
+        parent[std::size_t(find(m.element_vertices[j]))] = find(m.element_vertices[m.element_offsets[e]]);
+    std::vector<std::uint8_t> held(std::size_t(p.num_nodes()), 0);
+    for (int i : fixed_nodes_) held[std::size_t(find(i))] = 1;
+    for (int i = 0; i < p.num_nodes(); ++i)
+      if (!held[std::size_t(find(i))])
+        throw Error("static solve: node " + std::to_string(i) +
+                    " belongs to a part of the model that no fixed node holds; fix nodes in every part "
+                    "(e.g. nodes_on_face) before solving");
+  }
+
+  /// Local step: per element the rotation fits and the per-entry targets
+  /// t_i = w_i ((k Q + k_v T) R0_i + (c/dt) R_d r_i^n)  (w_i: vertex weight).
+  ElementPassStats local_step(SimState& s, const Eigen::Matrix3Xd& x, const RotationFitSettings& fit, int threads) {
+    const PhysicsModel& p = *s.physics;
+    const Model& m = *p.model;
+    const bool volume = p.has_volume_term();
+    const double inv_dt = 1.0 / dt_;
+    parallel_for_chunks(p.num_elements(), kElementGrain, threads, [&](std::int64_t chunk, std::int64_t b, std::int64_t e) {
+      ElementPassStats st;
+      for (std::int64_t el = b; el < e; ++el) {
+        const int o = m.element_offsets[el], n = m.element_offsets[el + 1] - o;
+        // (sum w R0 = sum w r^n = 0: no centring needed)
+        const Eigen::Vector3d x0 = x.col(m.element_vertices[o]);
+        Eigen::Matrix3d a = Eigen::Matrix3d::Zero(), ad = Eigen::Matrix3d::Zero();
+        for (int j = o; j < o + n; ++j) {
+          const Eigen::Vector3d y = x.col(m.element_vertices[j]) - x0;
+          a.noalias() += y * p.entry_rest_weighted.col(j).transpose();
+          if (damping_) ad.noalias() += (p.entry_weight[std::size_t(j)] * y) * rest_now_.col(j).transpose();
+        }
+        const std::int32_t* slot = p.entry_slot.data();
+        if (!a.allFinite()) {
+          ++st.non_finite;
+          for (int j = o; j < o + n; ++j) targets_.col(slot[j]).setZero();
+          continue;
+        }
+        bool conv = true;
+        Eigen::Matrix3d rq;
+        st.rotation_iterations += fit_rotation(a * p.element_fit_scale[std::size_t(el)], s.rotations[std::size_t(el)], fit, &conv, &rq);
+        st.unconverged += conv ? 0 : 1;
+        if (a.determinant() <= 0) ++st.inverted;
+        Eigen::Matrix3d mq = p.element_stiffness[std::size_t(el)] * rq;
+        if (volume) {
+          const Eigen::Matrix3d& ninv = p.element_spread_inv_sqrt[std::size_t(el)];
+          Eigen::Quaterniond qv = s.rotations[std::size_t(el)];
+          mq += p.element_volume_stiffness[std::size_t(el)] *
+                closest_with_determinant(a * ninv, p.element_spread_sqrt_det[std::size_t(el)], qv, fit) * ninv;
+        }
+        if (damping_) {
+          Eigen::Matrix3d rd;
+          fit_rotation(ad, damp_rot_[std::size_t(el)], fit, nullptr, &rd);
+          const Eigen::Matrix3d md = p.element_damping[std::size_t(el)] * inv_dt * rd;
+          for (int j = o; j < o + n; ++j)
+            targets_.col(slot[j]).noalias() =
+                mq * p.entry_rest_weighted.col(j) + p.entry_weight[std::size_t(j)] * (md * rest_now_.col(j));
+        } else {
+          for (int j = o; j < o + n; ++j) targets_.col(slot[j]).noalias() = mq * p.entry_rest_weighted.col(j);
+        }
+      }
+      elem_chunks_[std::size_t(chunk)] = st;
+    });
+    ElementPassStats total;
+    for (const auto& c : elem_chunks_) total.add(c);
+    return total;
+  }
+
+  /// Global step: P^T L D L^T P x = b for the three coordinates at once, in one pass over the
+  /// factor per triangle (each entry of L serves three right-hand sides; serial, so no
+  /// thread waits at a barrier; deterministic). L is Eigen's strictly lower unit factor.
+  void solve() {
+    const int nf = num_free();
+    const auto& l = ldlt_.matrixL().nestedExpression();
+    const auto& perm = ldlt_.permutationP().indices();
+    const auto& d = ldlt_.vectorD();
+    double* w = work_.data();  // nf x 3, row-major
+    for (int i = 0; i < nf; ++i)
+      for (int c = 0; c < 3; ++c) w[3 * perm(i) + c] = rhs_(i, c);
+    const auto* outer = l.outerIndexPtr();
+    const auto* nnz = l.innerNonZeroPtr();
+    const auto* inner = l.innerIndexPtr();
+    const double* val = l.valuePtr();
+    // forward: L z = w
+    for (int j = 0; j < nf; ++j) {
+      const double w0 = w[3 * j], w1 = w[3 * j + 1], w2 = w[3 * j + 2];
+      const auto end = nnz ? outer[j] + nnz[j] : outer[j + 1];
+      for (auto p = outer[j]; p < end; ++p) {
+        double* wi = w + 3 * std::int64_t(inner[p]);
+        wi[0] -= val[p] * w0;
+        wi[1] -= val[p] * w1;
+        wi[2] -= val[p] * w2;
+      }
+    }
+    // diagonal
+    for (int j = 0; j < nf; ++j) {
+      const double inv = 1.0 / d(j);
+      w[3 * j] *= inv;
+      w[3 * j + 1] *= inv;
+      w[3 * j + 2] *= inv;
+    }
+    // backward: L^T x = z
+    for (int j = nf - 1; j >= 0; --j) {
+      double w0 = w[3 * j], w1 = w[3 * j + 1], w2 = w[3 * j + 2];
+      const auto end = nnz ? outer[j] + nnz[j] : outer[j + 1];
+      for (auto p = outer[j]; p < end; ++p) {
+        const double* wi = w + 3 * std::int64_t(inner[p]);
+        w0 -= val[p] * wi[0];
+        w1 -= val[p] * wi[1];
+        w2 -= val[p] * wi[2];
+      }
+      w[3 * j] = w0;
+      w[3 * j + 1] = w1;
+      w[3 * j + 2] = w2;
+    }
+    for (int i = 0; i < nf; ++i)
+      for (int c = 0; c < 3; ++c) sol_(i, c) = w[3 * perm(i) + c];
+  }
+
+  /// Writes the solution into x; returns the largest node move.
+  double scatter(Eigen::Matrix3Xd& x, int threads) {
+    const int nf = num_free();
+    const std::int64_t chunks = chunk_count(nf, kNodeGrain);
+    parallel_for_chunks(nf, kNodeGrain, threads, [&](std::int64_t c, std::int64_t b, std::int64_t e) {
+      double mx = 0;
+      for (std::int64_t f = b; f < e; ++f) {
+        const int i = free_nodes_[std::size_t(f)];
+        const Eigen::Vector3d nx = sol_.row(f).transpose();
+        mx = std::max(mx, (nx - x.col(i)).squaredNorm());
+        x.col(i) = nx;
+      }
+      free_chunk_sums_[std::size_t(c)] = mx;
+    });
+    double mx = 0;
+    for (std::int64_t c = 0; c < chunks; ++c) mx = std::max(mx, free_chunk_sums_[std::size_t(c)]);
+    return std::sqrt(mx);
+  }
+
+  double rms_difference(const Eigen::MatrixX3d& a, const Eigen::MatrixX3d& b, int threads) {
+    const int nf = num_free();
+    if (nf == 0) return 0.0;
+    const std::int64_t chunks = chunk_count(nf, kNodeGrain);
+    parallel_for_chunks(nf, kNodeGrain, threads, [&](std::int64_t c, std::int64_t lo, std::int64_t hi) {
+      double s = 0;
+      for (std::int64_t f = lo; f < hi; ++f) s += (a.row(f) - b.row(f)).squaredNorm();
+      free_chunk_sums_[std::size_t(c)] = s;
+    });
+    double s = 0;
+    for (std::int64_t c = 0; c < chunks; ++c) s += free_chunk_sums_[std::size_t(c)];
+    return std::sqrt(s / nf);
+  }
+
+  const PhysicsModel* physics_{nullptr};
+  const SimState* state_{nullptr};
+  std::uint64_t fixed_version_{0};
+  double dt_{0.0};
+  bool inertia_{true};
+  bool damping_{false};
+
+  std::vector<int> free_index_, fixed_index_, free_nodes_, fixed_nodes_;
+  std::vector<double> kappa_;
+  SpMat a_fc_;
+  Eigen::SimplicialLDLT<SpMat> ldlt_;
+  std::int64_t nnz_factor_{0};
+
+  Eigen::Matrix3Xd targets_, rest_now_, x_start_;
+  std::vector<Eigen::Quaterniond> damp_rot_;
+  Eigen::MatrixX3d rhs_const_, rhs_, rhs_prev_, sol_, xc_;
+  std::vector<double> work_;
+  std::vector<ElementPassStats> elem_chunks_;
+  std::vector<double> free_chunk_sums_;
+};
+
+// ---------------------------------------------------------------------------------------------
+// implicit (backward Euler by projective dynamics)
+
+class ImplicitIntegrator final : public Integrator {
+ public:
+  using Integrator::Integrator;
+
+  StepReport step(SimState& s) override {
+    StepReport rep;
+    if (blocked(s, settings_)) {
+      rep.status = s.status;
+      return rep;
+    }
+    const PhysicsModel& p = *s.physics;
+    const int threads = settings_.threads;
+    const double dt = settings_.time_step_s;
+    const bool damping = any_damping(p);
+    if (!solver_.ready_for(s, dt, true, damping)) {
+      solver_.setup(s, dt, true, damping);
+      max_d_ = max_displacement(p, settings_.limits);
+      rep.refactored = true;
+    }
+    rep.factor_nonzeros = solver_.factor_nonzeros();
+    if (settings_.track_energy) {
+      ElementPassOptions opt;
+      opt.damping = false;
+      opt.energy = true;
+      opt.rotation = settings_.rotation;
+      s.energies.elastic = compute_element_forces(p, s.positions, nullptr, s.rotations, s.scratch.entry_forces,
+                                                  &s.scratch.element_energy, opt, threads, s.scratch.element_pass)
+                               .elastic_energy;
+    }
+    // start of step: x_n, the inertial prediction y, the kinematic nodes' targets
+    Eigen::Matrix3Xd& xs = solver_.x_start();
+    xs = s.positions;
+    if (damping) solver_.record_start_shape(p, xs, threads);
+    Eigen::Matrix3Xd& x = s.scratch.next_positions;
+    const Eigen::Vector3d g = s.gravity_mm_s2;
+    const std::vector<int>& free = solver_.free_nodes();
+    Eigen::MatrixX3d& rc = solver_.rhs_const();
+    const double inv_dt2 = 1.0 / (dt * dt);
+    parallel_for(p.num_nodes(), kNodeGrain, threads, [&](std::int64_t b, std::int64_t e) {
+      for (std::int64_t i = b; i < e; ++i) x.col(i) = xs.col(i) + dt * s.velocities.col(i);
+    });
+    parallel_for(std::int64_t(free.size()), kNodeGrain, threads, [&](std::int64_t b, std::int64_t e) {
+      for (std::int64_t f = b; f < e; ++f) {
+        const int i = free[std::size_t(f)];
+        const double mass = p.node_mass[std::size_t(i)];
+        // y = x_n + dt v_n + dt^2 (g + f_ext / m); rhs = M y / dt^2
+        // (the iterations start from x_n + dt v_n, not from y: at large dt the dt^2 g of a
+        // held body puts y far from the solution)
+        const Eigen::Vector3d y = x.col(i) + dt * dt * (g + s.external_forces.col(i) / mass);
+        rc.row(f) = (mass * inv_dt2) * y.transpose();
+      }
+    });
+    solver_.subtract_fixed_coupling(x);
+    solver_.iterate(s, x, settings_.max_iterations, settings_.tolerance_mm, settings_.rotation, threads, rep);
+
+    // velocities, checks, energies
+    const double max_v2 = settings_.limits.max_speed_mm_s * settings_.limits.max_speed_mm_s;
+    const double max_d2 = max_d_ * max_d_;
+    const Eigen::Matrix3Xd& rest = p.model->rest_positions;
+    const bool track = settings_.track_energy;
+    parallel_for_chunks(p.num_nodes(), kNodeGrain, threads, [&](std::int64_t c, std::int64_t b, std::int64_t e) {
+      std::uint8_t flags = 0;
+      double kin = 0, grav = 0;
+      for (std::int64_t i = b; i < e; ++i) {
+        const double mass = p.node_mass[std::size_t(i)];
+        if (track) {
+          kin += 0.5 * mass * s.velocities.col(i).squaredNorm();
+          grav -= mass * g.dot(xs.col(i) - rest.col(i));
+        }
+        if (s.node_fixed[std::size_t(i)])
+          s.scratch.next_velocities.col(i) = s.velocities.col(i);
+        else
+          s.scratch.next_velocities.col(i) = (x.col(i) - xs.col(i)) / dt;
+        flags |= check_node(x.col(i), s.scratch.next_velocities.col(i), rest.col(i), max_v2, max_d2);
+      }
+      s.scratch.node_chunk_flags[std::size_t(c)] = flags;
+      s.scratch.node_chunk_sums[3 * std::size_t(c)] = kin;
+      s.scratch.node_chunk_sums[3 * std::size_t(c) + 1] = grav;
+    });
+    std::uint8_t flags = s.element_stats.non_finite > 0 ? kFlagNonFinite : 0;
+    Energies en;
+    const std::size_t chunks = std::size_t(chunk_count(p.num_nodes(), kNodeGrain));
+    for (std::size_t c = 0; c < chunks; ++c) {
+      flags |= s.scratch.node_chunk_flags[c];
+      en.kinetic += s.scratch.node_chunk_sums[3 * c];
+      en.gravitational += s.scratch.node_chunk_sums[3 * c + 1];
+    }
+    if (track) {
+      en.elastic = s.energies.elastic;
+      s.energies = en;
+    }
+    finish_step(s, settings_, flags, rep);
+    return rep;
+  }
+
+ private:
+  ProjectiveSolver solver_;
+  double max_d_{0.0};
+};
+
+void check_settings(const IntegratorSettings& s) {
+  std::ostringstream err;
+  if (!(s.time_step_s > 0) || !std::isfinite(s.time_step_s)) err << "time step " << s.time_step_s << " s must be > 0; ";
+  if (s.threads < 0) err << "threads " << s.threads << " must be >= 0 (0: all); ";
+  if (s.max_iterations < 1) err << "max_iterations " << s.max_iterations << " must be >= 1; ";
+  if (!(s.tolerance_mm >= 0)) err << "tolerance " << s.tolerance_mm << " mm must be >= 0; ";
+  if (s.rotation.max_iterations < 1) err << "rotation max_iterations must be >= 1; ";
+  if (!(s.limits.max_speed_mm_s > 0)) err << "max speed must be > 0; ";
+  if (!err.str().empty()) throw Error("integrator settings: " + err.str());
+}
+
+}  // namespace
+
+std::unique_ptr<Integrator> make_integrator(const IntegratorSettings& settings) {
+  check_settings(settings);
+  switch (settings.kind) {
+    case IntegratorKind::explicit_euler:
+    case IntegratorKind::symplectic_euler: return std::make_unique<ExplicitIntegrator>(settings);
+    case IntegratorKind::implicit: return std::make_unique<ImplicitIntegrator>(settings);
+  }
+  throw Error("unknown integrator kind");
+}
+
+StepReport solve_static(SimState& s, const StaticSolveSettings& settings) {
+  if (settings.max_iterations < 1) throw Error("static solve: max_iterations must be >= 1");
+  const PhysicsModel& p = *s.physics;
+  ProjectiveSolver solver;
+  solver.setup(s, 1.0, false, false);
+  StepReport rep;
+  rep.refactored = true;
+  rep.factor_nonzeros = solver.factor_nonzeros();
+  // rhs = gravity + external forces - A_fc x_c
+  const std::vector<int>& free = solver.free_nodes();
+  Eigen::MatrixX3d& rc = solver.rhs_const();
+  for (std::size_t f = 0; f < free.size(); ++f) {
+    const int i = free[f];
+    rc.row(Eigen::Index(f)) = (p.node_mass[std::size_t(i)] * s.gravity_mm_s2 + s.external_forces.col(i)).transpose();
+  }
+  Eigen::Matrix3Xd x = s.positions;
+  solver.subtract_fixed_coupling(x);
+  solver.iterate(s, x, settings.max_iterations, settings.tolerance_mm, settings.rotation, settings.threads, rep);
+  if (!x.allFinite()) {
+    s.status = StepStatus::non_finite;
+    s.message = "static solve: NaN/Inf in the solution; the state was not changed";
+    rep.status = s.status;
+    return rep;
+  }
+  s.positions = x;
+  for (int i = 0; i < s.num_nodes(); ++i)
+    if (!s.node_fixed[std::size_t(i)]) s.velocities.col(i).setZero();
+  return rep;
+}
+
+}  // namespace vx

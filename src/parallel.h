@@ -1,0 +1,52 @@
+#pragma once
+/// @file parallel.h
+/// The one parallel loop of the core (OpenMP), in the style of b2ParallelFor: a range is cut
+/// into chunks of `grain` items whose boundaries do not depend on the thread count, so a
+/// caller that writes per-item results, or per-chunk partial sums reduced in chunk order,
+/// gets bit-identical results for 1 and N threads.
+
+#include <omp.h>
+
+#include <algorithm>
+#include <cstdint>
+
+namespace vx {
+
+/// Threads a parallel region uses when asked for `requested` (0 = OpenMP's default, i.e.
+/// OMP_NUM_THREADS or the number of cores).
+[[nodiscard]] inline int resolve_threads(int requested) {
+  return requested > 0 ? requested : std::max(1, omp_get_max_threads());
+}
+
+/// Number of chunks parallel_for cuts [0, n) into.
+[[nodiscard]] inline std::int64_t chunk_count(std::int64_t n, std::int64_t grain) {
+  grain = std::max<std::int64_t>(1, grain);
+  return n <= 0 ? 0 : (n + grain - 1) / grain;
+}
+
+/// Calls fn(chunk, begin, end) for the chunks [chunk*grain, min(n, (chunk+1)*grain)) of
+/// [0, n), in parallel over `threads` threads (0 = default), chunks handed out dynamically
+/// (balances uneven chunks and cores shared with other work). A range of one chunk runs on the
+/// calling thread (no fork). fn must not throw and must not write what another chunk writes.
+template <class Fn>
+void parallel_for_chunks(std::int64_t n, std::int64_t grain, int threads, Fn&& fn) {
+  grain = std::max<std::int64_t>(1, grain);
+  const std::int64_t chunks = chunk_count(n, grain);
+  if (chunks == 0) return;
+  const int t = int(std::min<std::int64_t>(resolve_threads(threads), chunks));
+  if (t <= 1) {
+    for (std::int64_t c = 0; c < chunks; ++c) fn(c, c * grain, std::min(n, (c + 1) * grain));
+    return;
+  }
+#pragma omp parallel for num_threads(t) schedule(dynamic, 1)
+  for (std::int64_t c = 0; c < chunks; ++c) fn(c, c * grain, std::min(n, (c + 1) * grain));
+}
+
+/// Calls fn(begin, end) over chunks of [0, n); see parallel_for_chunks.
+template <class Fn>
+void parallel_for(std::int64_t n, std::int64_t grain, int threads, Fn&& fn) {
+  parallel_for_chunks(n, grain, threads,
+                      [&](std::int64_t, std::int64_t b, std::int64_t e) { fn(b, e); });
+}
+
+}  // namespace vx

@@ -1,0 +1,138 @@
+// `voxelastic phantom` through the built binary: every output format, the summary line, and
+// clean failures (non-zero exit, a message, no file).
+#include <fmt/format.h>
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <set>
+#include <sstream>
+#include <string>
+
+#include "phantom.h"
+#include "volume_io.h"
+
+namespace fs = std::filesystem;
+using namespace vx;
+
+namespace {
+
+const fs::path kBinary = fs::path(VX_BINARY_DIR) / "apps" / "voxelastic" / "voxelastic";
+
+struct Result {
+  int code{-1};
+  std::string out, err;
+};
+
+std::string slurp(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+class CliPhantom : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() / ("vx_cli_phantom_" + std::to_string(::getpid()) + "_" +
+                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_ / "out");
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+  /// Runs `voxelastic ARGS` inside dir_/out.
+  Result run(const std::string& args) const {
+    const std::string cmd = "cd '" + (dir_ / "out").string() + "' && '" + kBinary.string() + "' " + args +
+                            " > ../stdout.txt 2> ../stderr.txt";
+    const int status = std::system(cmd.c_str());
+    Result r;
+    r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+    r.out = slurp(dir_ / "stdout.txt");
+    r.err = slurp(dir_ / "stderr.txt");
+    return r;
+  }
+
+ public:
+  [[nodiscard]] std::set<std::string> outputs() const {
+    std::set<std::string> names;
+    for (const auto& f : fs::directory_iterator(dir_ / "out")) names.insert(f.path().filename().string());
+    return names;
+  }
+
+ protected:
+  fs::path dir_;
+};
+
+TEST_F(CliPhantom, SphereVtiMatchesTheLibrary) {
+  const Result r = run("phantom sphere -o x.vti --size 32 --spacing 0.5");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(outputs(), std::set<std::string>{"x.vti"});
+  PhantomSettings s;
+  s.name = "sphere";
+  s.size = 32;
+  s.spacing_mm = 0.5;
+  PhantomShape shape;
+  const Volume expected = make_phantom(s, &shape);
+  const Volume got = read_volume(dir_ / "out" / "x.vti");
+  EXPECT_EQ(got.hu, expected.hu);
+  EXPECT_EQ(got.geometry, expected.geometry);
+  // one summary line: shape, dims, spacing, tissue voxels, analytic volume
+  EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 1) << r.out;
+  EXPECT_NE(r.out.find("sphere"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("32x32x32"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("0.5 mm"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find(std::to_string(shape.tissue_voxels) + " tissue voxels"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find(fmt::format("analytic {:.4g} cm^3", shape.volume_mm3() / 1000.0)), std::string::npos) << r.out;
+}
+
+TEST_F(CliPhantom, EveryFormatAndTheLesionOptions) {
+  PhantomSettings s;
+  s.name = "block-lesion";
+  s.size = 24;
+  s.lesion_hu = 200;
+  s.noise_hu = 10;
+  s.seed = 5;
+  const Volume expected = make_phantom(s);
+  for (const std::string out : {"b.mha", "b.nii.gz", "b.nii", "b.nrrd", "b.vti", "series/"}) {
+    SCOPED_TRACE(out);
+    const Result r = run("phantom block-lesion --size 24 --lesion-hu 200 --noise 10 --seed 5 -o " + out);
+    ASSERT_EQ(r.code, 0) << r.err;
+    EXPECT_NE(r.out.find("lesion"), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("noise 10 HU (seed 5)"), std::string::npos) << r.out;
+    const Volume got = read_volume(dir_ / "out" / out);
+    EXPECT_EQ(got.hu, expected.hu);
+    EXPECT_LT((got.geometry.origin_mm - expected.geometry.origin_mm).norm(), 1e-5);
+    EXPECT_LT((got.geometry.spacing_mm - expected.geometry.spacing_mm).norm(), 1e-6);
+  }
+}
+
+/// Expects a failed run with a message containing each needle, and nothing written.
+void expect_clean_failure(const CliPhantom& t, const Result& r, std::initializer_list<const char*> needles) {
+  EXPECT_NE(r.code, 0) << r.out;
+  for (const char* n : needles) EXPECT_NE(r.err.find(n), std::string::npos) << "stderr: " << r.err;
+  EXPECT_TRUE(t.outputs().empty()) << "left behind: " << *t.outputs().begin();
+}
+
+TEST_F(CliPhantom, BadInputFailsCleanly) {
+  expect_clean_failure(*this, run("phantom pyramid -o x.vti"),
+                       {"unknown phantom 'pyramid'", "sphere", "ellipsoid", "block-lesion"});
+  expect_clean_failure(*this, run("phantom sphere -o x.vti --size 2"), {"size 2", "4 to 1024"});
+  expect_clean_failure(*this, run("phantom sphere -o x.vti --size 2000"), {"size 2000", "4 to 1024"});
+  expect_clean_failure(*this, run("phantom sphere -o x.vti --spacing 0"), {"spacing"});
+  expect_clean_failure(*this, run("phantom sphere -o x.vti --spacing -2"), {"spacing"});
+  expect_clean_failure(*this, run("phantom sphere -o x.vti --noise -5"), {"noise"});
+  expect_clean_failure(*this, run("phantom sphere -o x.png"), {"x.png", ".vti", ".nii.gz"});
+  expect_clean_failure(*this, run("phantom sphere -o x.mhd"), {"x.mhd", ".mha"});
+  expect_clean_failure(*this, run("phantom sphere -o missing/x.vti"), {"missing", "does not exist"});
+  expect_clean_failure(*this, run("phantom sphere"), {"--output"});
+  expect_clean_failure(*this, run("phantom sphere -o x.vti --size abc"), {"size"});
+  // errors say 'error' and exit 1; parse errors keep CLI11's codes
+  EXPECT_EQ(run("phantom pyramid -o x.vti").code, 1);
+  EXPECT_NE(run("phantom pyramid -o x.vti").err.find("voxelastic: error:"), std::string::npos);
+}
+
+}  // namespace

@@ -1,0 +1,170 @@
+// `voxelastic-probe` through the built binary: the scripted palpation of the sample scene
+// (headless and in a window), and clean failures (no display, bad input).
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+namespace fs = std::filesystem;
+
+namespace {
+
+const fs::path kBinary = fs::path(VX_BINARY_DIR) / "apps" / "probe" / "voxelastic-probe";
+const fs::path kScene = fs::path(VX_SAMPLES_DIR) / "scenes" / "palpation-lesion.json";
+const fs::path kScript = fs::path(VX_SAMPLES_DIR) / "scenes" / "palpation-lesion.joy";
+
+struct RunResult {
+  int code{-1};
+  std::string out, err;
+};
+
+std::string slurp(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+class ProbeApp : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() /
+           ("vx_probe_app_" + std::to_string(::getpid()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  // runs the binary with `args` (a shell-quoted string) and an optional environment prefix
+  RunResult run(const std::string& args, const std::string& env = "") const {
+    const fs::path out = dir_ / "stdout.txt", err = dir_ / "stderr.txt";
+    const std::string cmd = env + " timeout 300 '" + kBinary.string() + "' " + args + " >'" + out.string() + "' 2>'" +
+                            err.string() + "'";
+    const int status = std::system(cmd.c_str());
+    RunResult r;
+    r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+    r.out = slurp(out);
+    r.err = slurp(err);
+    return r;
+  }
+  static std::string q(const fs::path& p) {
+    std::string s(1, '\'');
+    s += p.string();
+    s.push_back('\'');
+    return s;
+  }
+
+  fs::path dir_;
+};
+
+// one row of the force log
+struct Row {
+  double sim_s, device_N, raw_N, tip_x, tip_z;
+  int contacts;
+};
+
+std::vector<Row> read_log(const fs::path& csv, std::string* header) {
+  std::ifstream in(csv);
+  std::string line;
+  std::getline(in, line);
+  if (header) *header = line;
+  std::vector<Row> rows;
+  while (std::getline(in, line)) {
+    std::vector<std::string> c;
+    std::stringstream ss(line);
+    for (std::string v; std::getline(ss, v, ',');) c.push_back(v);
+    if (c.size() != 17) continue;
+    rows.push_back({std::stod(c[1]), std::stod(c[6]), std::stod(c[10]), std::stod(c[13]), std::stod(c[15]),
+                    std::stoi(c[16])});
+  }
+  return rows;
+}
+
+double mean_force(const std::vector<Row>& rows, double t0, double t1, double x0, double x1) {
+  double sum = 0;
+  int n = 0;
+  for (const Row& r : rows)
+    if (r.sim_s >= t0 && r.sim_s <= t1 && r.tip_x >= x0 && r.tip_x <= x1) {
+      sum += r.device_N;
+      ++n;
+    }
+  return n ? sum / n : -1.0;
+}
+
+}  // namespace
+
+TEST_F(ProbeApp, WithoutADisplayItSaysSoAndExitsCleanly) {
+  const RunResult r = run(q(kScene), "env -u DISPLAY");
+  EXPECT_EQ(r.code, 2) << r.err;
+  EXPECT_NE(r.err.find("no display"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("xvfb-run"), std::string::npos) << r.err;
+}
+
+TEST_F(ProbeApp, BadInputIsAClearErrorWithExitCode1) {
+  RunResult r = run(q(dir_ / "missing.json") + " --headless --duration 1");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.err.find("does not exist"), std::string::npos) << r.err;
+
+  std::ofstream(dir_ / "bad.json") << R"({"object": {"phantom": "block"}, "duration_s": 1, "probes": [], "colour": 1})";
+  r = run(q(dir_ / "bad.json") + " --headless --duration 1");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.err.find("colour"), std::string::npos) << r.err;
+
+  std::ofstream(dir_ / "bad.joy") << "0 0 0\n1 0 2.5\n";
+  r = run(q(kScene) + " --headless --duration 1 --virtual-joystick " + q(dir_ / "bad.joy"));
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.err.find("bad.joy:2"), std::string::npos) << r.err;
+
+  r = run(q(kScene) + " --headless");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.err.find("stop condition"), std::string::npos) << r.err;
+
+  r = run(q(kScene) + " --headless --duration 1 --force-log " + q(dir_ / "no" / "such" / "dir" / "f.csv"));
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.err.find("does not exist"), std::string::npos) << r.err;
+}
+
+TEST_F(ProbeApp, ScriptedPalpationFeelsTheLesion) {
+  // the sample: press 5 mm into the block at x = -15 mm, slide to x = +14 mm across the lesion
+  // (centre x = +5.4 mm, 0.6 mm under the top), lift; forces recorded every device tick
+  const fs::path csv = dir_ / "forces.csv";
+  const RunResult r = run(q(kScene) + " --headless --virtual-joystick " + q(kScript) +
+                          " --exit-after-script --force-log " + q(csv));
+  ASSERT_EQ(r.code, 0) << r.out << r.err;
+  EXPECT_NE(r.out.find("the joystick script ended"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("rumble"), std::string::npos) << r.out;  // the virtual joystick's rumble sink
+  std::string header;
+  const std::vector<Row> rows = read_log(csv, &header);
+  EXPECT_EQ(header.rfind("wall_s,sim_s,probe,device_fx_N", 0), 0u) << header;
+  ASSERT_GT(rows.size(), 2000u);  // ~1 kHz for ~9.5 s, fewer on a loaded machine
+  EXPECT_GE(rows.back().sim_s, 9.5);
+  // pressed in and lifted off
+  EXPECT_EQ(rows.front().contacts, 0);
+  EXPECT_EQ(rows.back().contacts, 0);
+  EXPECT_LT(rows.back().device_N, 1e-9);
+  // during the slide: soft tissue, then the lesion, then soft tissue again
+  const double soft_before = mean_force(rows, 2.0, 7.5, -13.0, -7.0);
+  const double lesion = mean_force(rows, 2.0, 7.5, 4.0, 8.0);
+  const double soft_after = mean_force(rows, 2.0, 7.5, 12.5, 14.5);
+  EXPECT_GT(soft_before, 0.05);
+  EXPECT_GT(lesion, 1.5 * soft_before) << "soft " << soft_before << " N, lesion " << lesion << " N";
+  EXPECT_GT(lesion, 1.3 * soft_after) << "soft " << soft_after << " N, lesion " << lesion << " N";
+}
+
+TEST_F(ProbeApp, WindowScreenshotUnderADisplay) {
+  if (!std::getenv("DISPLAY")) GTEST_SKIP() << "no DISPLAY (run under xvfb-run, as scripts/test.sh does)";
+  const fs::path png = dir_ / "probe.png";
+  const RunResult r = run(q(kScene) + " --virtual-joystick " + q(kScript) + " --frames 15 --levels --screenshot " +
+                          q(png) + " --size 960x600");
+  ASSERT_EQ(r.code, 0) << r.out << r.err;
+  ASSERT_TRUE(fs::exists(png));
+  EXPECT_GT(fs::file_size(png), 20000u);  // a rendered scene, not a blank window
+  EXPECT_NE(r.out.find("display: 15 frames"), std::string::npos) << r.out;
+}

@@ -1,0 +1,132 @@
+// The probe app's VTK window: level cells of a model, and (under a display) rendering,
+// the view basis the sticks follow, screenshots.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cstdlib>
+#include <filesystem>
+
+#include "error.h"
+#include "gradational_builder.h"
+#include "probe_view.h"
+#include "surface.h"
+
+using namespace vx::probe;
+namespace fs = std::filesystem;
+
+namespace {
+
+// a 12 x 8 x 6 block of 2 mm voxels
+vx::VoxelGrid block_grid() {
+  vx::GridGeometry g;
+  g.dims = Eigen::Vector3i(14, 10, 8);
+  g.spacing_mm = Eigen::Vector3d::Constant(2.0);
+  vx::VoxelGrid grid(g);
+  for (int k = 1; k < 7; ++k)
+    for (int j = 1; j < 9; ++j)
+      for (int i = 1; i < 13; ++i) grid.set(i, j, k, 1);
+  return grid;
+}
+
+}  // namespace
+
+TEST(LevelCells, EveryElementIsClosedPolygonsOfItsOwnPoints) {
+  const vx::VoxelGrid grid = block_grid();
+  const vx::Model model = vx::build_model(grid);
+  const LevelCells c = make_level_cells(model);
+  ASSERT_EQ(int(c.element_offsets.size()), model.num_elements() + 1);
+  ASSERT_EQ(int(c.element_polys.size()), model.num_elements() + 1);
+  EXPECT_EQ(std::int64_t(c.point_node.size()), model.num_vertex_entries());
+  EXPECT_EQ(c.levels, model.num_levels());
+  EXPECT_EQ(int(c.level_size_mm.size()), c.levels);
+  EXPECT_DOUBLE_EQ(c.level_size_mm[0], 4.0);  // level 0: 2 voxels of 2 mm
+  EXPECT_EQ(c.poly_level.size() + 1, c.poly_offsets.size());
+  for (int e = 0; e < model.num_elements(); ++e) {
+    // a closed cube-like element has at least 6 faces; its polygons use its own points only
+    EXPECT_GE(c.element_polys[std::size_t(e) + 1] - c.element_polys[std::size_t(e)], 6);
+    for (int f = c.element_polys[std::size_t(e)]; f < c.element_polys[std::size_t(e) + 1]; ++f) {
+      EXPECT_EQ(c.poly_level[std::size_t(f)], model.element_level[std::size_t(e)]);
+      for (int k = c.poly_offsets[std::size_t(f)]; k < c.poly_offsets[std::size_t(f) + 1]; ++k) {
+        EXPECT_GE(c.poly_points[std::size_t(k)], c.element_offsets[std::size_t(e)]);
+        EXPECT_LT(c.poly_points[std::size_t(k)], c.element_offsets[std::size_t(e) + 1]);
+      }
+    }
+  }
+}
+
+TEST(StartViewBasis, RightUpAwayAreOrthonormal) {
+  for (const Eigen::Vector3d& up : {Eigen::Vector3d(0, 0, 1), Eigen::Vector3d(0, -1, 0), Eigen::Vector3d(1, 1, 0)}) {
+    const Eigen::Matrix3d b = start_view_basis(up);
+    EXPECT_TRUE((b.transpose() * b).isApprox(Eigen::Matrix3d::Identity(), 1e-12));
+    EXPECT_TRUE(b.col(1).isApprox(up.normalized()));
+  }
+  // z up: the viewer stands anterior (-y) and looks along +y; right is +x
+  const Eigen::Matrix3d b = start_view_basis(Eigen::Vector3d(0, 0, 1));
+  EXPECT_TRUE(b.col(0).isApprox(Eigen::Vector3d(1, 0, 0)));
+  EXPECT_TRUE(b.col(2).isApprox(Eigen::Vector3d(0, 1, 0)));
+}
+
+TEST(ProbeView, RendersUpdatesAndWritesScreenshots) {
+  if (!std::getenv("DISPLAY")) GTEST_SKIP() << "no DISPLAY (VTK 9.1 needs X11; run under xvfb-run)";
+  const vx::VoxelGrid grid = block_grid();
+  const vx::Model model = vx::build_model(grid);
+  const vx::EmbeddedSurface surface = vx::make_voxel_surface(model, grid, true);
+
+  ViewSetup setup;
+  setup.title = "test";
+  setup.surface_vertices = surface.rest_vertices;
+  setup.surface_triangles = surface.triangles;
+  setup.levels = std::make_shared<const LevelCells>(make_level_cells(model));
+  vx::ProbeGeometry tool;
+  tool.shape = vx::ProbeShape::capsule;
+  tool.radius_mm = 3.0;
+  tool.length_mm = 20.0;
+  tool.axis = Eigen::Vector3d(0, 0, 1);
+  setup.probes = {tool};
+  setup.probe_names = {"tool"};
+  const Eigen::Vector3d top(13.0, 9.0, 18.0);
+  setup.probe_start_mm = {top};
+  setup.walls = true;
+  setup.workspace = Box{Eigen::Vector3d(-5, -5, 2), Eigen::Vector3d(31, 23, 40)};
+  setup.world_up = Eigen::Vector3d(0, 0, 1);
+  setup.width = 640;
+  setup.height = 400;
+  KeyboardStick keyboard;
+  int actions = 0;
+  ProbeView view(setup, &keyboard, [&](ViewAction) { ++actions; });
+
+  // the sticks follow the start camera
+  EXPECT_TRUE(view.view_basis().isApprox(start_view_basis(setup.world_up), 1e-9));
+
+  // a few frames with a deformed surface, the level view and the plot
+  Eigen::Matrix3Xd verts = surface.rest_vertices, normals;
+  vx::compute_vertex_normals(surface, verts, normals);
+  view.toggle_levels();
+  for (int f = 0; f < 5; ++f) {
+    verts.row(2).array() -= 0.1;
+    ASSERT_TRUE(view.process_events());
+    view.update_geometry(verts, normals, model.rest_positions, {top - Eigen::Vector3d(0, 0, f)}, {f});
+    PlotSample s;
+    s.t_s = 0.01 * f;
+    s.device_N[0] = s.mean_N[0] = s.raw_N[0] = 0.1f * float(f);
+    view.add_plot_samples({s});
+    HudInfo hud;
+    hud.probes = 1;
+    hud.force_N[0] = 0.1 * f;
+    view.set_hud(hud);
+    view.render();
+  }
+  EXPECT_EQ(view.frames(), 5);
+  const fs::path dir = fs::temp_directory_path() / ("vx_probe_view_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  view.save_screenshot(dir / "view.png");
+  EXPECT_TRUE(fs::exists(dir / "view.png"));
+  EXPECT_GT(fs::file_size(dir / "view.png"), 5000u);
+  EXPECT_THROW(view.save_screenshot(dir / "view.jpg"), vx::Error);
+  EXPECT_THROW(view.save_screenshot(dir / "missing" / "view.png"), vx::Error);
+  view.reset_camera();
+  view.clear_plot();
+  view.render();
+  fs::remove_all(dir);
+  EXPECT_EQ(actions, 0);
+}

@@ -1,0 +1,319 @@
+// The shape-keeping element: rotation fit, zero force at rest and under rigid motion, momentum
+// balance, force = -gradient of the energy (finite differences), damping, determinism.
+#include "elements.h"
+
+#include <gtest/gtest.h>
+
+#include <cstring>
+#include <random>
+
+#include "physics_helpers.h"
+#include "state.h"
+
+namespace vx {
+namespace {
+
+using testing::hand_block;
+using testing::hand_cube;
+using testing::hand_element;
+using testing::node_forces;
+
+double trace_fit(const Eigen::Matrix3d& q, const Eigen::Matrix3d& a) { return (q.transpose() * a).trace(); }
+
+// ------------------------------------------------------------------------------------------
+// rotation fit
+
+TEST(RotationFit, ReachesTheSvdOptimumFromAnyStartIncludingInvertedAndFlat) {
+  std::mt19937 rng(7);
+  RotationFitSettings fit{100, 1e-13};
+  int cases = 0;
+  for (int t = 0; t < 2000; ++t) {
+    Eigen::Matrix3d a = testing::random_matrix(rng);
+    const int kind = t % 5;
+    if (kind == 1) a.col(2) *= -1.0;                             // often inverted
+    if (kind == 2) a.row(2).setZero();                           // flat (rank 2)
+    if (kind == 3) a = a.col(0) * a.col(1).transpose();          // collinear (rank 1)
+    if (kind == 4) a = testing::random_rotation(rng) * Eigen::Vector3d(1.0, 1.0, -0.2).asDiagonal();  // inverted
+    Eigen::Quaterniond q = t % 2 ? Eigen::Quaterniond::Identity() : Eigen::Quaterniond(testing::random_rotation(rng));
+    bool conv = false;
+    fit_rotation(a, q, fit, &conv);
+    const Eigen::Matrix3d r = q.toRotationMatrix();
+    EXPECT_NEAR(r.determinant(), 1.0, 1e-12);
+    EXPECT_NEAR((r.transpose() * r - Eigen::Matrix3d::Identity()).norm(), 0.0, 1e-12);
+    const double best = trace_fit(optimal_rotation_svd(a), a);
+    EXPECT_GE(trace_fit(r, a), best - 1e-9 * (1.0 + a.norm())) << "case " << t << " kind " << kind << "\n" << a;
+    EXPECT_TRUE(conv) << "case " << t;
+    ++cases;
+  }
+  EXPECT_EQ(cases, 2000);
+}
+
+TEST(RotationFit, WarmStartNeedsFewIterations) {
+  std::mt19937 rng(3);
+  int worst = 0;
+  for (int t = 0; t < 500; ++t) {
+    const Eigen::Matrix3d r = testing::random_rotation(rng);
+    // a rotation with a moderate stretch, warm start 0.05 rad off
+    Eigen::Matrix3d s = Eigen::Matrix3d::Identity() + 0.2 * testing::random_matrix(rng);
+    s = 0.5 * (s + s.transpose()).eval();
+    const Eigen::Matrix3d a = r * s;
+    const Eigen::Matrix3d target = optimal_rotation_svd(a);
+    Eigen::Quaterniond q(Eigen::AngleAxisd(0.05, Eigen::Vector3d(1, 2, 3).normalized()) * target);
+    bool conv = false;
+    const int it = fit_rotation(a, q, RotationFitSettings{20, 1e-10}, &conv);
+    EXPECT_TRUE(conv);
+    EXPECT_LT((q.toRotationMatrix() - target).norm(), 1e-8);
+    worst = std::max(worst, it);
+  }
+  EXPECT_LE(worst, 4) << "Newton from a close warm start converges quadratically";
+}
+
+TEST(RotationFit, CollapsedElementKeepsItsWarmStart) {
+  Eigen::Quaterniond q(Eigen::AngleAxisd(0.7, Eigen::Vector3d::UnitY()));
+  const Eigen::Quaterniond before = q;
+  bool conv = false;
+  EXPECT_EQ(fit_rotation(Eigen::Matrix3d::Zero(), q, {}, &conv), 0);
+  EXPECT_TRUE(conv);
+  EXPECT_EQ(q.coeffs(), before.coeffs());
+  // NaN input: reported as not converged, q untouched
+  Eigen::Matrix3d bad = Eigen::Matrix3d::Identity();
+  bad(1, 1) = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_EQ(fit_rotation(bad, q, {}, &conv), 0);
+  EXPECT_FALSE(conv);
+  EXPECT_EQ(q.coeffs(), before.coeffs());
+}
+
+TEST(RotationFit, ClosestWithDeterminantIsOnTheConstraintAndClosest) {
+  std::mt19937 rng(11);
+  for (int t = 0; t < 300; ++t) {
+    Eigen::Matrix3d b = Eigen::Matrix3d::Identity() + 0.5 * testing::random_matrix(rng);
+    if (t % 4 == 0) b.col(0) *= -1.0;  // inverted input
+    const double det = 0.5 + (t % 7) * 0.3;
+    Eigen::Quaterniond q = Eigen::Quaterniond::Identity();
+    const Eigen::Matrix3d g = closest_with_determinant(b, det, q, RotationFitSettings{50, 1e-13});
+    EXPECT_NEAR(g.determinant(), det, 1e-9 * det);
+    // no random point on the constraint (a perturbation of g rescaled to det) is closer
+    for (int k = 0; k < 20; ++k) {
+      Eigen::Matrix3d h = g + 0.01 * testing::random_matrix(rng);
+      if (h.determinant() <= 0) continue;
+      h *= std::cbrt(det / h.determinant());
+      EXPECT_GE((h - b).norm(), (g - b).norm() - 1e-9);
+    }
+  }
+}
+
+// ------------------------------------------------------------------------------------------
+// forces and energy
+
+struct Fixture {
+  std::shared_ptr<const PhysicsModel> physics;
+  SimState state;
+};
+
+Fixture make(const Model& m, Material mat = {}) {
+  Fixture f{make_physics_model(m, mat), {}};
+  f.state = make_state(f.physics);
+  return f;
+}
+
+/// An irregular 11-vertex element (any vertex set must work).
+Eigen::Matrix3Xd irregular_points() {
+  Eigen::Matrix3Xd p(3, 11);
+  p << 0, 2, 0, 0, 2, 2, 0, 2.2, 1, 1.1, 0.3,  //
+      0, 0, 2, 0, 2, 0, 2, 2.1, 1, 0.2, 1.9,   //
+      0, 0, 0, 2, 0, 2, 2, 1.8, 2.1, 1.0, 0.7;
+  return p;
+}
+
+TEST(Elements, ZeroForceAndEnergyAtRest) {
+  for (const Model& m : {hand_cube(2.0), hand_block(3, 2, 2, 1.5), hand_element(irregular_points())}) {
+    auto f = make(m);
+    double energy = -1;
+    const Eigen::Matrix3Xd nf = node_forces(f.state, true, &energy);
+    EXPECT_LT(nf.cwiseAbs().maxCoeff(), 1e-15);
+    EXPECT_LT(energy, 1e-20);
+  }
+}
+
+TEST(Elements, ZeroForceAndEnergyUnderAnyRigidMotion) {
+  std::mt19937 rng(5);
+  for (const Model& m : {hand_cube(2.0), hand_block(3, 2, 2, 1.5), hand_element(irregular_points())}) {
+    auto f = make(m);
+    const double kscale = f.physics->element_stiffness[0] * 3.0;  // force scale, N (k * size)
+    for (int t = 0; t < 20; ++t) {
+      const Eigen::Matrix3d r = testing::random_rotation(rng);
+      const Eigen::Vector3d shift = 100.0 * Eigen::Vector3d::Random();
+      const Eigen::Vector3d v0 = 50.0 * Eigen::Vector3d::Random(), w = 20.0 * Eigen::Vector3d::Random();
+      for (int i = 0; i < m.num_nodes(); ++i) {
+        f.state.positions.col(i) = r * m.rest_positions.col(i) + shift;
+        f.state.velocities.col(i) = v0 + w.cross(f.state.positions.col(i));  // rigid velocity
+      }
+      double energy = -1;
+      const Eigen::Matrix3Xd nf = node_forces(f.state, true, &energy);
+      EXPECT_LT(nf.cwiseAbs().maxCoeff(), 1e-11 * kscale) << "rigid motion must not create force";
+      EXPECT_LT(energy, 1e-20);
+    }
+  }
+}
+
+TEST(Elements, ForcesSumToZeroAndTheirMomentsBalance) {
+  std::mt19937 rng(9);
+  Material mat;
+  mat.damping_ratio = 0.3;
+  for (const Model& m : {hand_cube(2.0), hand_block(3, 3, 2, 1.0), hand_element(irregular_points())}) {
+    auto f = make(m, mat);
+    const PhysicsModel& p = *f.physics;
+    for (int t = 0; t < 10; ++t) {
+      // a large random deformation (some elements inverted) with random velocities
+      f.state.positions = m.rest_positions + 0.6 * Eigen::Matrix3Xd::Random(3, m.num_nodes());
+      f.state.velocities = 30.0 * Eigen::Matrix3Xd::Random(3, m.num_nodes());
+      Eigen::Matrix3Xd ef(3, p.num_vertex_entries());
+      ElementPassScratch scratch;
+      ElementPassOptions opt;
+      opt.damping = true;
+      opt.rotation = {200, 1e-14};
+      compute_element_forces(p, f.state.positions, &f.state.velocities, f.state.rotations, ef, nullptr, opt, 1, scratch);
+      for (int e = 0; e < m.num_elements(); ++e) {
+        const int b = m.element_offsets[e], n = m.num_vertices(e);
+        Eigen::Vector3d c = Eigen::Vector3d::Zero(), sum = Eigen::Vector3d::Zero(), moment = Eigen::Vector3d::Zero();
+        for (int j = b; j < b + n; ++j) c += f.state.positions.col(m.element_vertices[j]) / n;
+        double scale = 0;
+        for (int j = b; j < b + n; ++j) {
+          const Eigen::Vector3d fj = ef.col(p.entry_slot[std::size_t(j)]);
+          sum += fj;
+          moment += (f.state.positions.col(m.element_vertices[j]) - c).cross(fj);
+          scale = std::max(scale, fj.norm());
+        }
+        EXPECT_LT(sum.norm(), 1e-12 * scale * n) << "element " << e;
+        EXPECT_LT(moment.norm(), 1e-11 * scale * n) << "element " << e;
+      }
+    }
+  }
+}
+
+/// Central finite differences of the total elastic energy against the forces.
+void expect_gradient(const Model& m, const Material& mat, std::uint32_t seed, double amplitude) {
+  auto f = make(m, mat);
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-amplitude, amplitude);
+  for (int i = 0; i < m.num_nodes(); ++i)
+    for (int d = 0; d < 3; ++d) f.state.positions(d, i) = m.rest_positions(d, i) + u(rng);
+  double e0 = 0;
+  const Eigen::Matrix3Xd force = node_forces(f.state, false, &e0);
+  ASSERT_GT(e0, 0);
+  const double hstep = 1e-6;
+  double worst = 0;
+  const double scale = force.cwiseAbs().maxCoeff();
+  for (int i = 0; i < m.num_nodes(); ++i)
+    for (int d = 0; d < 3; ++d) {
+      SimState s = f.state;
+      s.positions(d, i) += hstep;
+      double ep = 0, em = 0;
+      node_forces(s, false, &ep);
+      s.positions(d, i) -= 2 * hstep;
+      node_forces(s, false, &em);
+      const double grad = (ep - em) / (2 * hstep);
+      worst = std::max(worst, std::abs(force(d, i) + grad));
+    }
+  EXPECT_LT(worst, 1e-6 * scale) << "force = -dE/dx within 1e-6 of the largest force component";
+}
+
+TEST(Elements, ForceIsMinusTheEnergyGradient) {
+  expect_gradient(hand_cube(2.0), {}, 1, 0.5);
+  expect_gradient(hand_block(2, 2, 2, 1.0), {}, 2, 0.3);
+  expect_gradient(hand_element(irregular_points()), {}, 3, 0.5);
+  // large deformation including inversion
+  expect_gradient(hand_cube(1.0), {}, 4, 0.9);
+}
+
+TEST(Elements, VolumeTermForceIsMinusItsEnergyGradient) {
+  Material mat;
+  mat.poisson_ratio = 0.45;
+  expect_gradient(hand_cube(2.0), mat, 5, 0.4);
+  expect_gradient(hand_block(2, 2, 1, 1.0), mat, 6, 0.2);
+  expect_gradient(hand_element(irregular_points()), mat, 7, 0.3);
+}
+
+TEST(Elements, DampingOnlyRemovesDeformationEnergy) {
+  Material mat;
+  mat.damping_ratio = 0.5;
+  std::mt19937 rng(13);
+  auto f = make(hand_element(irregular_points()), mat);
+  const PhysicsModel& p = *f.physics;
+  const int n = p.num_nodes();
+  f.state.positions += 0.2 * Eigen::Matrix3Xd::Random(3, n);
+  for (int t = 0; t < 20; ++t) {
+    f.state.velocities = 10.0 * Eigen::Matrix3Xd::Random(3, n);
+    const Eigen::Matrix3Xd elastic = node_forces(f.state, false);
+    const Eigen::Matrix3Xd total = node_forces(f.state, true);
+    const Eigen::Matrix3Xd damp = total - elastic;
+    // power of the damping force: -c |v - v_rigid|^2 <= 0
+    double power = 0;
+    for (int i = 0; i < n; ++i) power += damp.col(i).dot(f.state.velocities.col(i));
+    EXPECT_LT(power, 0.0);
+    // the rigid part of the velocity is not damped: adding a rigid velocity changes nothing
+    SimState s = f.state;
+    const Eigen::Vector3d v0(3, -1, 2), w(0.5, 2, -1);
+    for (int i = 0; i < n; ++i) s.velocities.col(i) += v0 + w.cross(s.positions.col(i));
+    const Eigen::Matrix3Xd damp2 = node_forces(s, true) - elastic;
+    EXPECT_LT((damp2 - damp).cwiseAbs().maxCoeff(), 1e-9 * damp.cwiseAbs().maxCoeff());
+  }
+}
+
+TEST(Elements, InvertedAndCrushedElementsArePushedBack) {
+  auto f = make(hand_cube(2.0));
+  const Model& m = *f.physics->model;
+  // mirror the cube through its mid-plane z = 1: inverted
+  for (int i = 0; i < m.num_nodes(); ++i) f.state.positions(2, i) = 2.0 - m.rest_positions(2, i);
+  double energy = 0;
+  Eigen::Matrix3Xd force = node_forces(f.state, false, &energy);
+  EXPECT_GT(energy, 0);
+  // a small move along the force lowers the energy
+  SimState s = f.state;
+  s.positions += 1e-4 * force / force.cwiseAbs().maxCoeff();
+  double lower = 0;
+  node_forces(s, false, &lower);
+  EXPECT_LT(lower, energy);
+  // crushed flat (all z = 1): the force has a z-component that restores the height
+  for (int i = 0; i < m.num_nodes(); ++i) f.state.positions(2, i) = 1.0;
+  force = node_forces(f.state, false, &energy);
+  for (int i = 0; i < m.num_nodes(); ++i)
+    EXPECT_GT(force(2, i) * (m.rest_positions(2, i) - 1.0), 0.0) << "node " << i << " pushed back out";
+  // collapsed to a point: pushed back towards the rest shape
+  for (int i = 0; i < m.num_nodes(); ++i) f.state.positions.col(i) = Eigen::Vector3d(1, 1, 1);
+  force = node_forces(f.state, false, &energy);
+  for (int i = 0; i < m.num_nodes(); ++i)
+    EXPECT_GT(force.col(i).dot(m.rest_positions.col(i) - Eigen::Vector3d(1, 1, 1)), 0.0);
+}
+
+TEST(Elements, BitIdenticalForOneAndManyThreads) {
+  Material mat;
+  mat.damping_ratio = 0.2;
+  mat.poisson_ratio = 0.3;
+  auto f = make(hand_block(24, 20, 16, 1.0), mat);
+  const PhysicsModel& p = *f.physics;
+  f.state.positions += 0.3 * Eigen::Matrix3Xd::Random(3, p.num_nodes());
+  f.state.velocities = Eigen::Matrix3Xd::Random(3, p.num_nodes());
+  Eigen::Matrix3Xd ref, nf;
+  double ref_energy = 0;
+  for (int threads : {1, 2, 3, 4}) {
+    std::vector<Eigen::Quaterniond> rot = f.state.rotations;
+    Eigen::Matrix3Xd ef(3, p.num_vertex_entries());
+    std::vector<double> en;
+    ElementPassScratch scratch;
+    ElementPassOptions opt;
+    opt.energy = true;
+    const auto st = compute_element_forces(p, f.state.positions, &f.state.velocities, rot, ef, &en, opt, threads, scratch);
+    gather_node_forces(p, ef, nf, threads);
+    if (threads == 1) {
+      ref = nf;
+      ref_energy = st.elastic_energy;
+    } else {
+      EXPECT_EQ(std::memcmp(ref.data(), nf.data(), sizeof(double) * std::size_t(nf.size())), 0) << threads << " threads";
+      EXPECT_EQ(st.elastic_energy, ref_energy) << threads << " threads";
+    }
+  }
+}
+
+}  // namespace
+}  // namespace vx
