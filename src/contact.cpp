@@ -135,6 +135,12 @@ void ContactSolver::init(std::vector<std::int32_t> nodes, int probes, const Work
   probe_at_rebuild_.assign(std::size_t(probes_), Eigen::Vector3d::Zero());
   counters_ = {};
   valid_ = false;
+  // friction anchors, per node id
+  const std::size_t slots = nodes_.empty() ? 0 : std::size_t(nodes_.back()) + 1;
+  anchor_.assign(slots, Eigen::Vector3d::Zero());
+  anchor_owner_.assign(slots, -1);
+  anchor_step_.assign(slots, 0);
+  step_ = 0;
 }
 
 void ContactSolver::rebuild(const Eigen::Matrix3Xd& x, const std::vector<ProbeGeometry>& geometry,
@@ -165,6 +171,11 @@ void ContactSolver::rebuild(const Eigen::Matrix3Xd& x, const std::vector<ProbeGe
   valid_ = true;
 }
 
+void ContactSolver::invalidate() {
+  valid_ = false;
+  std::fill(anchor_owner_.begin(), anchor_owner_.end(), -1);
+}
+
 double ContactSolver::node_move(const Eigen::Matrix3Xd& x) const {
   // largest node displacement since the rebuild
   double max_d2 = 0.0;
@@ -177,6 +188,7 @@ void ContactSolver::resolve(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const std:
                             const std::vector<ProbeGeometry>& geometry, const std::vector<ProbeState>& probes,
                             double dt, std::vector<Eigen::Vector3d>& probe_force, Eigen::Vector3d& wall_force,
                             std::vector<int>* probe_contacts) {
+  ++step_;
   probe_force.assign(std::size_t(probes_), Eigen::Vector3d::Zero());
   if (probe_contacts) probe_contacts->assign(std::size_t(probes_), 0);
   wall_force.setZero();
@@ -192,26 +204,38 @@ void ContactSolver::resolve(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const std:
 
   const double e = settings_.restitution;
   const double mu = settings_.friction;
-  // response of node i, already put on a surface moving at vs with outward normal n, that
-  // was `depth` inside it: reflect the approaching normal part of the relative velocity;
-  // friction (position-level Coulomb, as in position-based dynamics): the node's tangential
-  // slip over the surface during this step, (v_t - vs_t) dt, is undone up to mu * depth
-  // (sticking when the tangential correction is inside the friction cone, sliding else),
-  // and the same fraction of its tangential relative velocity is removed.
+  // response of node i, already put back on a surface moving at vs (frame origin `origin`)
+  // with outward normal n: reflect the approaching normal part of the relative velocity,
+  // v_n -> -e v_n, a normal impulse jn per unit mass. Friction (Coulomb, impulse form, with a
+  // position-level stick as in position-based dynamics): stopping the node's tangential
+  // relative velocity v_t takes |v_t| per unit mass; if that is within mu * jn the node
+  // sticks: v_t is removed and its slip over the surface since it last touched it (the anchor,
+  // kept for up to kAnchorSteps steps, so nodes that bounce every other step stick too) is
+  // undone; else it slides: the fraction mu * jn / |v_t| of both is removed.
   // Returns the velocity change (the impulse per mass given to the node).
-  auto respond = [&](int i, const Eigen::Vector3d& n, const Eigen::Vector3d& vs, double depth) -> Eigen::Vector3d {
+  auto respond = [&](int i, const Eigen::Vector3d& n, const Eigen::Vector3d& vs, const Eigen::Vector3d& origin,
+                     int owner) -> Eigen::Vector3d {
     const Eigen::Vector3d rel = v.col(i) - vs;
     const double vn = rel.dot(n);
-    Eigen::Vector3d dv = Eigen::Vector3d::Zero();
-    if (vn < 0) dv = -(1.0 + e) * vn * n;
+    const double jn = vn < 0 ? -(1.0 + e) * vn : 0.0;
+    Eigen::Vector3d dv = jn * n;
     if (mu > 0) {
+      const auto k = std::size_t(i);
       const Eigen::Vector3d vt = rel - vn * n;
-      const double slip = vt.norm() * dt;
-      if (slip > 0) {
-        const double keep = std::min(1.0, mu * depth / slip);
-        x.col(i) -= (keep * dt) * vt;
-        dv -= keep * vt;
+      Eigen::Vector3d slip;
+      if (anchor_owner_[k] == owner && step_ - anchor_step_[k] <= kAnchorSteps) {
+        slip = x.col(i) - origin - anchor_[k];
+        slip -= slip.dot(n) * n;
+      } else {
+        slip = dt * vt;
       }
+      const double need = vt.norm();
+      const double keep = need > 0 ? std::min(1.0, mu * jn / need) : 1.0;
+      dv -= keep * vt;
+      x.col(i) -= keep * slip;
+      anchor_[k] = x.col(i) - origin;
+      anchor_owner_[k] = owner;
+      anchor_step_[k] = step_;
     }
     v.col(i) += dv;
     return dv;
@@ -219,7 +243,7 @@ void ContactSolver::resolve(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const std:
 
   // probes, in order
   Eigen::Vector3d surface_point, normal;
-  double shift = 0.0;  // largest projection this step, mm
+  double shift = 0.0;  // largest move of a node by this probe's contacts, mm
   for (int q = 0; q < probes_; ++q) {
     const auto& list = lists_[std::size_t(q)];
     const ProbeGeometry& g = geometry[std::size_t(q)];
@@ -232,8 +256,8 @@ void ContactSolver::resolve(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const std:
       const double depth = -probe_signed_distance(g, p.position_mm, xi, &surface_point, &normal);
       if (!(depth > 0)) continue;
       x.col(i) = surface_point;
-      shift = std::max(shift, depth * (1.0 + mu));
-      impulse += mass[std::size_t(i)] * respond(i, normal, p.velocity_mm_s, depth);
+      impulse += mass[std::size_t(i)] * respond(i, normal, p.velocity_mm_s, p.position_mm, q);
+      shift = std::max(shift, (x.col(i) - xi).norm());
       ++contacts;
     }
     counters_.narrow_tests += std::int64_t(list.size());
@@ -259,7 +283,7 @@ void ContactSolver::resolve(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const std:
           x(a, i) = wall;
           Eigen::Vector3d n = Eigen::Vector3d::Zero();
           n[a] = side == 0 ? 1.0 : -1.0;
-          impulse += mass[std::size_t(i)] * respond(i, n, Eigen::Vector3d::Zero(), out);
+          impulse += mass[std::size_t(i)] * respond(i, n, Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(), probes_);
           ++counters_.wall_contacts;
         }
       }

@@ -6,7 +6,8 @@
 /// Each surface node that is inside a probe (or outside the workspace box) is put back on the
 /// probe's surface (the wall), and its velocity relative to the probe is reflected along the
 /// surface normal: v_rel_n -> -e v_rel_n (e = restitution, 1 = the paper's elastic collision),
-/// with optional Coulomb friction on the tangential part. The force of the tissue on a probe is
+/// with optional Coulomb friction on the tangential part (impulse-form cone, position-level
+/// stick: see ContactSettings::friction). The force of the tissue on a probe is
 /// minus the momentum change of those nodes per step:  F = -sum_i m_i (v_i' - v_i) / dt  (N).
 ///
 /// Broad phase (a Verlet list): when rebuilt, each probe and the walls keep the list of surface
@@ -72,7 +73,11 @@ struct Workspace {
 /// How collisions respond.
 struct ContactSettings {
   double restitution{1.0};  ///< normal restitution e in [0,1]; 1 = elastic collision (the paper)
-  double friction{0.0};     ///< Coulomb coefficient >= 0; 0 = frictionless (the paper)
+  /// Coulomb coefficient >= 0; 0 = frictionless (the paper). A node sticks when stopping its
+  /// tangential velocity relative to the surface takes no more than mu times its normal
+  /// impulse; its slip since it last touched the surface is then undone. Else it slides and
+  /// that fraction of velocity and slip is removed.
+  double friction{0.0};
   double skin_mm{0.0};      ///< broad-phase margin, mm; <= 0 picks 2 x the mean surface node spacing
   bool broad_phase{true};   ///< false tests every surface node every step (the reference)
 
@@ -110,8 +115,9 @@ class ContactSolver {
   [[nodiscard]] const ContactCounters& counters() const { return counters_; }
   [[nodiscard]] double skin_mm() const { return skin_mm_; }
   [[nodiscard]] const std::vector<std::int32_t>& nodes() const { return nodes_; }
-  /// Forces a broad-phase rebuild at the next resolve() (after positions were set from outside).
-  void invalidate() { valid_ = false; }
+  /// Forces a broad-phase rebuild at the next resolve() and forgets the friction anchors
+  /// (after positions were set from outside, e.g. a reset).
+  void invalidate();
 
  private:
   void rebuild(const Eigen::Matrix3Xd& positions, const std::vector<ProbeGeometry>& geometry,
@@ -129,6 +135,12 @@ class ContactSolver {
   Eigen::Matrix3Xd node_at_rebuild_;             ///< 3 x nodes_.size()
   std::vector<Eigen::Vector3d> probe_at_rebuild_;
   ContactCounters counters_;
+  // friction: where each node last touched a surface, in that surface's frame (per node id)
+  static constexpr std::int64_t kAnchorSteps = 8;
+  std::vector<Eigen::Vector3d> anchor_;
+  std::vector<int> anchor_owner_;                 ///< probe index, probes_ for the walls, -1 none
+  std::vector<std::int64_t> anchor_step_;
+  std::int64_t step_{0};
 };
 
 }  // namespace vx

@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include "error.h"
+#include "parallel.h"
 
 namespace vx {
 
@@ -86,7 +87,7 @@ Eigen::VectorXd isotropic_weights(const Eigen::Matrix3Xd& points, double min_wei
     return m;
   };
   for (int outer = 0; outer < n; ++outer) {
-    for (int it = 0; it < 50; ++it) {
+    for (int it = 0; it < 30; ++it) {
       // constraints: sum w = n, off-diagonals of the central spread 0, its diagonal equal
       Eigen::Vector3d c;
       central = moments(c);
@@ -114,6 +115,7 @@ Eigen::VectorXd isotropic_weights(const Eigen::Matrix3Xd& points, double min_wei
         if (at_bound[std::size_t(i)]) delta(i) = 0;
       if (!delta.allFinite()) break;
       w += delta;
+      if (delta.cwiseAbs().maxCoeff() < 1e-12) break;  // stalled: the bounded compromise
     }
     // weights outside the bounds: hold them at the bound and solve again
     bool changed = false;
@@ -182,55 +184,71 @@ std::shared_ptr<const PhysicsModel> make_physics_model(std::shared_ptr<const Mod
   p->entry_weight.resize(std::size_t(entries));
   p->entry_rest.resize(3, entries);
   p->entry_rest_weighted.resize(3, entries);
+  // per element, in parallel (independent): weights, rest offsets, spread, stiffness, damping
+  std::vector<double> aniso(std::size_t(ne), 0.0);
+  std::vector<std::uint8_t> bad(std::size_t(ne), 0);
+  parallel_for(ne, 64, 0, [&](std::int64_t e0, std::int64_t e1) {
+    for (int e = int(e0); e < int(e1); ++e) {
+      const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+      // vertex weights making the weighted rest spread isotropic
+      Eigen::Matrix3Xd pts(3, n);
+      for (int i = 0; i < n; ++i) pts.col(i) = m.rest_positions.col(m.element_vertices[b + i]);
+      const Eigen::VectorXd w = options.isotropic_weights
+                                    ? isotropic_weights(pts, options.min_weight, options.max_weight)
+                                    : Eigen::VectorXd::Ones(n);
+      const double wsum = w.sum();
+      const Eigen::Vector3d centroid = pts * w / wsum;
+      // rest offsets about the weighted centroid, spread S_e and C0
+      double s = 0;
+      Eigen::Matrix3d c0 = Eigen::Matrix3d::Zero();
+      for (int i = 0; i < n; ++i) {
+        const Eigen::Vector3d r0 = pts.col(i) - centroid;
+        p->entry_weight[std::size_t(b + i)] = w(i);
+        p->entry_rest.col(b + i) = r0;
+        p->entry_rest_weighted.col(b + i) = w(i) * r0;
+        s += w(i) * r0.squaredNorm();
+        c0 += w(i) * r0 * r0.transpose();
+      }
+      aniso[std::size_t(e)] = anisotropy_of(c0);
+      const double vol = m.element_volume_mm3[e];
+      if (!(s > 0) || !(vol > 0)) {
+        bad[std::size_t(e)] = 1;
+        continue;
+      }
+      const double e_kpa = field.youngs_modulus_kpa.empty() ? material.youngs_modulus_kpa : field.youngs_modulus_kpa[e];
+      const double rho = field.density_kg_m3.empty() ? material.density_kg_m3 : field.density_kg_m3[e];
+      const double mu = shear_modulus_n_mm2(e_kpa, material.poisson_ratio);
+      // k_e = 6 mu V / S (see the header's derivation)
+      const double k = 6.0 * mu * vol / s;
+      const double mass_kg = rho * kKgM3ToKgPerMm3 * vol;
+      const double m_unit = mass_kg * kKgToNs2PerMm / wsum;  // per unit weight, N*s^2/mm
+      p->element_stiffness[e] = k;
+      p->element_damping[e] = material.damping_ratio * 2.0 * std::sqrt(k * m_unit);
+      p->element_mass_kg[e] = mass_kg;
+      p->element_spread_mm2[e] = s;
+      p->element_fit_scale[e] = 3.0 / s;
+      if (volume) {
+        const double lambda = lame_lambda_n_mm2(e_kpa, material.poisson_ratio);
+        p->element_volume_stiffness[e] = 9.0 * lambda * vol / s;
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(c0);
+        const Eigen::Vector3d ev = eig.eigenvalues().cwiseMax(1e-12 * eig.eigenvalues().maxCoeff());
+        p->element_spread_inv_sqrt[e] =
+            eig.eigenvectors() * ev.cwiseSqrt().cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
+        p->element_spread_sqrt_det[e] = std::sqrt(ev.prod());
+      }
+    }
+  });
+  // serial, in element order: checks, statistics, lumped node masses (deterministic sums)
   for (int e = 0; e < ne; ++e) {
-    const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
-    // vertex weights making the weighted rest spread isotropic
-    Eigen::Matrix3Xd pts(3, n);
-    for (int i = 0; i < n; ++i) pts.col(i) = m.rest_positions.col(m.element_vertices[b + i]);
-    const Eigen::VectorXd w =
-        options.isotropic_weights ? isotropic_weights(pts, options.min_weight, options.max_weight)
-                                  : Eigen::VectorXd::Ones(n);
-    const double wsum = w.sum();
-    const Eigen::Vector3d centroid = pts * w / wsum;
-    // rest offsets about the weighted centroid, spread S_e and C0
-    double s = 0;
-    Eigen::Matrix3d c0 = Eigen::Matrix3d::Zero();
-    for (int i = 0; i < n; ++i) {
-      const Eigen::Vector3d r0 = pts.col(i) - centroid;
-      p->entry_weight[std::size_t(b + i)] = w(i);
-      p->entry_rest.col(b + i) = r0;
-      p->entry_rest_weighted.col(b + i) = w(i) * r0;
-      s += w(i) * r0.squaredNorm();
-      c0 += w(i) * r0 * r0.transpose();
-    }
-    const double aniso = anisotropy_of(c0);
-    p->max_anisotropy = std::max(p->max_anisotropy, aniso);
-    if (aniso > 1e-6) ++p->anisotropic_elements;
-    const double vol = m.element_volume_mm3[e];
-    if (!(s > 0) || !(vol > 0))
+    if (bad[std::size_t(e)])
       throw Error("make_physics_model: element " + std::to_string(e) + " has no rest extent or volume");
-    const double e_kpa = field.youngs_modulus_kpa.empty() ? material.youngs_modulus_kpa : field.youngs_modulus_kpa[e];
-    const double rho = field.density_kg_m3.empty() ? material.density_kg_m3 : field.density_kg_m3[e];
-    const double mu = shear_modulus_n_mm2(e_kpa, material.poisson_ratio);
-    // k_e = 6 mu V / S (see the header's derivation)
-    const double k = 6.0 * mu * vol / s;
-    const double mass_kg = rho * kKgM3ToKgPerMm3 * vol;
-    const double m_unit = mass_kg * kKgToNs2PerMm / wsum;  // per unit weight, N*s^2/mm
-    p->element_stiffness[e] = k;
-    p->element_damping[e] = material.damping_ratio * 2.0 * std::sqrt(k * m_unit);
-    p->element_mass_kg[e] = mass_kg;
-    p->element_spread_mm2[e] = s;
-    p->element_fit_scale[e] = 3.0 / s;
-    if (volume) {
-      const double lambda = lame_lambda_n_mm2(e_kpa, material.poisson_ratio);
-      p->element_volume_stiffness[e] = 9.0 * lambda * vol / s;
-      Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(c0);
-      const Eigen::Vector3d ev = eig.eigenvalues().cwiseMax(1e-12 * eig.eigenvalues().maxCoeff());
-      p->element_spread_inv_sqrt[e] =
-          eig.eigenvectors() * ev.cwiseSqrt().cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
-      p->element_spread_sqrt_det[e] = std::sqrt(ev.prod());
-    }
-    for (int i = 0; i < n; ++i) p->node_mass_kg[std::size_t(m.element_vertices[b + i])] += mass_kg * w(i) / wsum;
+    p->max_anisotropy = std::max(p->max_anisotropy, aniso[std::size_t(e)]);
+    if (aniso[std::size_t(e)] > 1e-6) ++p->anisotropic_elements;
+    const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+    double wsum = 0;
+    for (int i = 0; i < n; ++i) wsum += p->entry_weight[std::size_t(b + i)];
+    for (int i = 0; i < n; ++i)
+      p->node_mass_kg[std::size_t(m.element_vertices[b + i])] += p->element_mass_kg[e] * p->entry_weight[std::size_t(b + i)] / wsum;
   }
 
   p->node_mass.resize(std::size_t(nn));

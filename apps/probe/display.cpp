@@ -16,7 +16,13 @@ std::string display_problem() {
   if (!d)
     return std::string("cannot open the X display '") + name +
            "' (is the X server running and may this user connect?). Headless: xvfb-run -a voxelastic-probe ...";
+  // VTK renders through GLX; an X server without it would crash VTK at the first frame
+  int opcode = 0, event = 0, error = 0;
+  const bool glx = XQueryExtension(d, "GLX", &opcode, &event, &error);
   XCloseDisplay(d);
+  if (!glx)
+    return std::string("the X display '") + name +
+           "' has no OpenGL (GLX extension); run under xvfb-run (Xvfb provides GLX) or on a desktop with OpenGL";
   return {};
 }
 

@@ -58,7 +58,7 @@ class ForceOutput {
 /// Settings shared by the device backends.
 struct DeviceOutputSettings {
   int probe{0};                   ///< which probe's force this device renders
-  double max_force_N{4.0};        ///< force that maps to the device's full level
+  double max_force_N{2.0};        ///< force that maps to the device's full level
   double max_update_hz{100.0};    ///< at most this many device commands per second
   double min_change{0.01};        ///< skip an update when the level changed by less (fraction of full)
 };

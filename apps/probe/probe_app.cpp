@@ -118,6 +118,8 @@ class App {
   double sim_target_s_{0.0};
   std::atomic<std::int64_t> steps_total_{0};
   std::atomic<std::int64_t> sim_time_us_{0};
+  std::atomic<std::int64_t> sim_advanced_us_{0};  // simulated time advanced (resets and pauses excluded)
+  std::atomic<std::int64_t> active_wall_us_{0};   // wall time while running (not paused, not failed)
   double lag_dropped_s_{0.0};                     // physics thread only
   std::atomic<std::int64_t> lag_drops_{0};
   std::atomic<bool> physics_failed_{false};
@@ -219,6 +221,7 @@ void App::physics_tick() {
   }
   const bool paused = paused_.load();
   if (!paused && !sim_->failed()) {
+    const double t0 = sim_->time_s();
     sim_target_s_ += dt_wall;
     // at most twice real time per tick: catch up a little, never burst
     const int budget = std::max(1, int(std::ceil(2.0 * physics_period_s_ / sim_->dt_s())));
@@ -230,6 +233,8 @@ void App::physics_tick() {
       lag_drops_.fetch_add(1);
       sim_target_s_ = sim_->time_s();
     }
+    active_wall_us_.fetch_add(std::llround(dt_wall * 1e6), std::memory_order_relaxed);
+    sim_advanced_us_.fetch_add(std::llround((sim_->time_s() - t0) * 1e6), std::memory_order_relaxed);
     if (sim_->failed() && !physics_failed_.load()) {
       physics_failure_ = fmt::format("physics stopped at t = {:.3f} s: {} ({}); press r to reset", sim_->time_s(),
                                      to_string(sim_->state().status), sim_->state().message);
@@ -297,7 +302,9 @@ void App::device_tick() {
   std::lock_guard lock(device_mutex_);
   for (int p = 0; p < tick.probes; ++p) {
     const ProbeForce& f = tick.probe[std::size_t(p)];
-    hud_forces_.force_N[std::size_t(p)] = f.device_N.norm();
+    // the HUD shows the force of the current device update (the half sine's mean), which
+    // reads steadily; the played half sine itself passes through zero 50 times a second
+    hud_forces_.force_N[std::size_t(p)] = update_mean[std::size_t(p)];
     hud_forces_.contacts[std::size_t(p)] = f.contacts;
     ForceStats& s = stats_[std::size_t(p)];
     s.max_device_N = std::max(s.max_device_N, f.device_N.norm());
@@ -345,6 +352,7 @@ HudInfo App::hud(double physics_rate, double rtf, double device_rate) {
   h.paused = paused_.load();
   h.behind_real_time = !h.paused && !physics_failed_.load() && rtf < 0.95;
   h.device_hz = device_rate;
+  h.device_target_hz = options_.device_hz;
   h.probes = std::min(probes_, 2);
   h.active_probe = keyboard_.active_probe();
   std::lock_guard lock(device_mutex_);
@@ -355,13 +363,14 @@ HudInfo App::hud(double physics_rate, double rtf, double device_rate) {
 }
 
 void App::summary(double wall_s) {
-  const double sim_s = double(sim_time_us_.load()) * 1e-6;
+  const double sim_s = double(sim_advanced_us_.load()) * 1e-6;
+  const double active_s = double(active_wall_us_.load()) * 1e-6;
   const std::int64_t steps = steps_total_.load();
   say(fmt::format("voxelastic-probe: {:.2f} s wall, {:.2f} s simulated ({:.2f}x real time{}); physics {} steps "
                   "({:.0f} steps/s, dt {:.3g} ms)",
-                  wall_s, sim_s, wall_s > 0 ? sim_s / wall_s : 0.0,
+                  wall_s, sim_s, active_s > 0 ? sim_s / active_s : 0.0,
                   lag_drops_.load() > 0 ? ", could not keep real time" : "", steps,
-                  wall_s > 0 ? double(steps) / wall_s : 0.0, 1e3 * sim_->dt_s()));
+                  active_s > 0 ? double(steps) / active_s : 0.0, 1e3 * sim_->dt_s()));
   std::lock_guard lock(device_mutex_);
   for (int p = 0; p < std::min(probes_, 2); ++p) {
     const ForceStats& s = stats_[std::size_t(p)];
@@ -463,7 +472,11 @@ int App::run() {
 
   const bool automated =
       options_.headless || options_.frames > 0 || options_.duration_s > 0 || options_.exit_after_script;
-  RateMeter physics_rate(0.5), device_rate(0.5), sim_rate(0.5);
+  RateMeter physics_rate(0.5), device_rate(0.5);
+  // real-time factor: simulated over running wall time, per half second (pauses, resets excluded)
+  double rtf = 1.0;
+  bool rtf_valid = false;
+  std::int64_t rtf_sim0 = 0, rtf_wall0 = 0;
   SimulationFrame frame;
   std::vector<Eigen::Vector3d> probe_pos(static_cast<std::size_t>(probes_), Eigen::Vector3d::Zero());
   std::vector<int> probe_contacts(std::size_t(probes_), 0);
@@ -486,13 +499,19 @@ int App::run() {
       const auto now = SteadyClock::now();
       physics_rate.sample(steps_total_.load(), now);
       device_rate.sample(device.ticks(), now);
-      const double rtf = sim_rate.sample(sim_time_us_.load(), now) * 1e-6;
+      if (const std::int64_t w = active_wall_us_.load(), sm = sim_advanced_us_.load(); w - rtf_wall0 >= 500000) {
+        rtf = double(sm - rtf_sim0) / double(w - rtf_wall0);
+        rtf_valid = true;
+        rtf_sim0 = sm;
+        rtf_wall0 = w;
+      }
       {
         std::lock_guard lock(device_mutex_);
         for (const auto& m : messages_) say("input: " + m);
         messages_.clear();
       }
-      if (sim_rate.valid() && rtf < 0.9 && !paused_.load() && !physics_failed_.load() && !warned_behind) {
+      if (rtf_valid && rtf < 0.9 && lag_drops_.load() > 0 && !paused_.load() && !physics_failed_.load() &&
+          !warned_behind) {
         say(fmt::format("warning: physics cannot keep real time ({:.2f}x): the simulation runs in slow motion "
                         "(a smaller model, fewer --threads competitors or a larger time step help)",
                         rtf));
@@ -524,7 +543,7 @@ int App::run() {
           samples.swap(plot_pending_);
         }
         view->add_plot_samples(samples);
-        view->set_hud(hud(physics_rate.rate(), sim_rate.valid() ? rtf : 1.0, device_rate.rate()));
+        view->set_hud(hud(physics_rate.rate(), rtf_valid ? rtf : 1.0, device_rate.rate()));
         view->render();
         if (screenshot_requested_.exchange(false)) {
           const std::string name = fmt::format("voxelastic-probe-{:06d}.png", view->frames());

@@ -40,7 +40,7 @@ struct AppOptions {
   std::filesystem::path screenshot;             ///< written from the last frame
   std::filesystem::path force_log;              ///< CSV from the recording backend
   DeviceChoice device{DeviceChoice::automatic};
-  double max_force_N{4.0};                      ///< device full scale
+  double max_force_N{2.0};                      ///< device full scale
   double device_update_hz{100.0};               ///< haptic/rumble commands per second at most
   ControlSettings control;
   /// Which fields of `control` the command line set; the others come from the scene's live

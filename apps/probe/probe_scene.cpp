@@ -40,10 +40,22 @@ BoxFace bottom_face(const Eigen::Vector3d& up) {
   }
 }
 
-// "up" for the view: against gravity, else along the first probe's tool axis (tip -> handle),
-// else anterior (LPS -y: a patient lying on the table)
-Eigen::Vector3d scene_up(const SimulationSettings& s) {
+// "up" for the view: against gravity; else away from the face the tissue is held by (a
+// specimen fixed at z_min sits on a table below it); else along the first probe's tool axis
+// (tip -> handle); else anterior (LPS -y: a patient lying on the table)
+Eigen::Vector3d scene_up(const Scene& file, const SimulationSettings& s) {
   if (s.gravity_mm_s2.norm() > 0) return -s.gravity_mm_s2.normalized();
+  for (const auto& f : file.fixed) {
+    if (!f.is_face) continue;
+    switch (f.face) {
+      case BoxFace::x_min: return Eigen::Vector3d(1, 0, 0);
+      case BoxFace::x_max: return Eigen::Vector3d(-1, 0, 0);
+      case BoxFace::y_min: return Eigen::Vector3d(0, 1, 0);
+      case BoxFace::y_max: return Eigen::Vector3d(0, -1, 0);
+      case BoxFace::z_min: return Eigen::Vector3d(0, 0, 1);
+      case BoxFace::z_max: return Eigen::Vector3d(0, 0, -1);
+    }
+  }
   for (const auto& p : s.probes)
     if (p.geometry.shape == ProbeShape::capsule || p.geometry.shape == ProbeShape::cylinder ||
         p.geometry.shape == ProbeShape::plane)
@@ -69,7 +81,7 @@ ProbeScene load_scene_file(const std::filesystem::path& path, const DefaultScene
   } else {
     scene.surface = built.surface;
   }
-  scene.world_up = scene_up(scene.simulation);
+  scene.world_up = scene_up(file, scene.simulation);
   if (!file.description.empty()) scene.notes.push_back(file.description);
   for (const auto& l : built.log) scene.notes.push_back(l);
   scene.notes.push_back(fmt::format("surface: {} ({} triangles)", to_string(scene.surface->method),

@@ -118,7 +118,7 @@ struct Rgb {
 };
 constexpr Rgb kTissue{0.86, 0.56, 0.50};
 constexpr Rgb kTool{0.78, 0.80, 0.84};
-constexpr Rgb kToolContact{0.62, 0.80, 1.0};
+constexpr Rgb kToolContact{0.66, 0.77, 0.93};
 constexpr Rgb kBackgroundTop{0.10, 0.12, 0.16};
 constexpr Rgb kBackgroundBottom{0.28, 0.31, 0.36};
 constexpr std::array<Rgb, 2> kProbeColour{Rgb{1.0, 0.62, 0.15}, Rgb{0.30, 0.80, 1.0}};
@@ -135,6 +135,7 @@ constexpr const char* kHelp =
     "  left-drag    rotate the view, wheel: zoom\n"
     "  Tab          switch probe (keyboard)\n"
     "  l  element levels    t  see-through\n"
+    "  d  displacement tint\n"
     "  w  walls             g  force plot\n"
     "  c  reset camera      r  reset scene\n"
     "  space  pause         s  screenshot\n"
@@ -193,6 +194,10 @@ struct ProbeView::Impl {
   Ptr<vtkPolyData> surface;
   Ptr<vtkActor> surface_actor;
   int tissue_mode{0};  // 0 solid, 1 see-through
+  bool tint_on{true};  // tissue tinted by its displacement (where it is pressed)
+  double tint_full_mm{4.0};
+  Ptr<vtkUnsignedCharArray> tint;
+  Ptr<vtkTextActor> tint_legend;
 
   // elements by level
   Ptr<vtkPolyData> level_poly;
@@ -413,7 +418,10 @@ void ProbeView::Impl::build_scene() {
 
   // lights: a key/fill/back kit like a surgical lamp, plus the camera's headlight off
   auto lights = make<vtkLightKit>();
-  lights->SetKeyLightIntensity(0.85);
+  lights->SetKeyLightIntensity(0.9);
+  lights->SetKeyToFillRatio(4.0);  // more relief than VTK's default 3
+  lights->SetKeyLightElevation(40.0);
+  lights->SetKeyLightAzimuth(25.0);
   lights->AddLightsToRenderer(renderer);
 
   // the tissue surface (points and normals replaced every frame)
@@ -442,9 +450,22 @@ void ProbeView::Impl::build_scene() {
     tris->SetData(offsets, conn);
     surface->SetPolys(tris);
   }
+  // the displacement tint: per-vertex colours, the tissue colour deepening where it is pressed
+  tint = make<vtkUnsignedCharArray>();
+  tint->SetName("tint");
+  tint->SetNumberOfComponents(3);
+  tint->SetNumberOfTuples(setup.surface_vertices.cols());
+  for (vtkIdType i = 0; i < setup.surface_vertices.cols(); ++i)
+    tint->SetTypedTuple(i, std::array<unsigned char, 3>{static_cast<unsigned char>(255 * kTissue.r),
+                                                        static_cast<unsigned char>(255 * kTissue.g),
+                                                        static_cast<unsigned char>(255 * kTissue.b)}
+                               .data());
+  surface->GetPointData()->SetScalars(tint);
   auto surface_mapper = make<vtkPolyDataMapper>();
   surface_mapper->SetInputData(surface);
-  surface_mapper->ScalarVisibilityOff();
+  surface_mapper->SetColorModeToDirectScalars();
+  surface_mapper->SetScalarModeToUsePointData();
+  surface_mapper->ScalarVisibilityOn();
   surface_actor = make<vtkActor>();
   surface_actor->SetMapper(surface_mapper);
   {
@@ -464,12 +485,14 @@ void ProbeView::Impl::build_scene() {
   const Eigen::Vector3d hi = setup.surface_vertices.rowwise().maxCoeff();
   focus = 0.5 * (lo + hi);
   radius = std::max(1.0, 0.5 * (hi - lo).norm());
+  tint_full_mm = std::max(0.5, 0.12 * (hi - lo).minCoeff());
 
   build_probes();
   build_walls();
   build_levels();
   build_hud();
   build_plot();
+  update_plot();  // the table holds a line before anything is drawn
   camera_to_start();
   interactor->Initialize();
   layout();
@@ -586,6 +609,10 @@ void ProbeView::Impl::build_levels() {
 }
 
 void ProbeView::Impl::build_hud() {
+  tint_legend = make<vtkTextActor>();
+  set_text_style(tint_legend->GetTextProperty(), 13, Rgb{0.95, 0.80, 0.76});
+  tint_legend->SetInput(fmt::format("deeper red: tissue displaced (full at {:.1f} mm); d toggles", tint_full_mm).c_str());
+  renderer->AddViewProp(tint_legend);
   hud = make<vtkTextActor>();
   set_text_style(hud->GetTextProperty(), 15, Rgb{0.95, 0.97, 1.0});
   hud->GetTextProperty()->SetVerticalJustificationToTop();
@@ -645,16 +672,16 @@ void ProbeView::Impl::build_plot() {
   chart->GetAxis(vtkAxis::BOTTOM)->SetTitle("simulated time (s)");
   for (int p = 0; p < np; ++p) {
     const Rgb& c = kProbeColour[std::size_t(p)];
-    vtkPlot* raw = chart->AddPlot(vtkChart::LINE);
-    raw->SetInputData(table, 0, 1 + 3 * p);
-    raw->SetColor(0.75, 0.77, 0.80);
-    raw->GetPen()->SetOpacityF(0.8);
-    raw->SetWidth(1.0);
     vtkPlot* played = chart->AddPlot(vtkChart::LINE);
     played->SetInputData(table, 0, 2 + 3 * p);
     played->SetColor(c.r, c.g, c.b);
     played->GetPen()->SetOpacityF(0.35);
     played->SetWidth(1.0);
+    vtkPlot* raw = chart->AddPlot(vtkChart::LINE);
+    raw->SetInputData(table, 0, 1 + 3 * p);
+    raw->SetColor(0.85, 0.87, 0.90);
+    raw->GetPen()->SetOpacityF(0.7);
+    raw->SetWidth(1.0);
     vtkPlot* mean = chart->AddPlot(vtkChart::LINE);
     mean->SetInputData(table, 0, 3 + 3 * p);
     mean->SetColor(c.r, c.g, c.b);
@@ -679,13 +706,15 @@ void ProbeView::Impl::layout() {
   help->SetPosition(14.0, double(h) - ph - 30.0);
   for (std::size_t l = 0; l < level_legend.size(); ++l)
     level_legend[l]->SetDisplayPosition(10, 12 + int(level_legend.size() - 1 - l) * 20);
+  tint_legend->SetDisplayPosition(10, 12 + (levels_on ? int(level_legend.size()) * 20 : 0));
 }
 
 void ProbeView::Impl::camera_to_start() {
   const Eigen::Matrix3d basis = start_view_basis(setup.world_up);
   const Eigen::Vector3d up = basis.col(1), away = basis.col(2);
-  // look from the front (against "away"), 40 degrees above the horizon
-  const double el = 40.0 * M_PI / 180.0;
+  // look from the front (against "away"), 50 degrees above the horizon: the tissue around the
+  // tool tip stays in sight
+  const double el = 50.0 * M_PI / 180.0;
   const Eigen::Vector3d dir = (-std::cos(el) * away + std::sin(el) * up).normalized();
   vtkCamera* cam = renderer->GetActiveCamera();
   cam->SetViewAngle(30.0);
@@ -752,7 +781,7 @@ void ProbeView::Impl::update_hud_text() {
   for (int p = 0; p < h.probes && p < 2; ++p) {
     const std::string name = std::size_t(p) < setup.probe_names.size() ? setup.probe_names[std::size_t(p)]
                                                                          : fmt::format("probe {}", p);
-    text += fmt::format("{}{}: {:.3f} N  ({} nodes in contact)\n", name,
+    text += fmt::format("{}{}: force {:.3f} N  ({} nodes in contact)\n", name,
                         h.probes > 1 && p == h.active_probe ? " [keys]" : "", h.force_N[std::size_t(p)],
                         h.contacts[std::size_t(p)]);
   }
@@ -762,9 +791,9 @@ void ProbeView::Impl::update_hud_text() {
   std::string warn;
   if (h.behind_real_time)
     warn = fmt::format("physics cannot keep real time: {:.2f}x (slow motion)", h.real_time_factor);
-  if (h.device_missed > 0) {
+  if (h.device_hz > 0 && h.device_hz < 0.9 * h.device_target_hz) {
     if (!warn.empty()) warn += "\n";
-    warn += fmt::format("device thread late: {} ticks skipped", h.device_missed);
+    warn += fmt::format("device thread late: {:.0f} of {:.0f} updates/s", h.device_hz, h.device_target_hz);
   }
   if (!h.status.empty()) {
     if (!warn.empty()) warn += "\n";
@@ -808,6 +837,10 @@ void ProbeView::Impl::key(const std::string& sym_in, bool down) {
     if (on_action) on_action(ViewAction::next_probe);
   } else if (sym == "l") {
     set_levels(!levels_on);
+  } else if (sym == "d") {
+    tint_on = !tint_on;
+    tint_legend->SetVisibility(tint_on);
+    surface_actor->GetMapper()->SetScalarVisibility(tint_on);
   } else if (sym == "t") {
     tissue_mode = (tissue_mode + 1) % 2;
     surface_actor->GetProperty()->SetOpacity(tissue_mode == 1 ? 0.35 : 1.0);
@@ -921,6 +954,19 @@ void ProbeView::update_geometry(const Eigen::Matrix3Xd& surface_vertices, const 
   if (normals && surface_normals.cols() == normals->GetNumberOfTuples()) {
     std::copy_n(surface_normals.data(), 3 * surface_normals.cols(), normals->GetPointer(0));
     normals->Modified();
+  }
+  if (v.tint_on && surface_vertices.cols() == v.setup.surface_vertices.cols()) {
+    // deeper, darker red with the displacement from rest (smoothstep up to tint_full_mm)
+    const Rgb deep{0.62, 0.20, 0.22};
+    auto* c = v.tint->GetPointer(0);
+    for (Eigen::Index i = 0; i < surface_vertices.cols(); ++i) {
+      const double d = (surface_vertices.col(i) - v.setup.surface_vertices.col(i)).norm() / v.tint_full_mm;
+      const double t0 = std::clamp(d, 0.0, 1.0), t = t0 * t0 * (3.0 - 2.0 * t0);
+      c[3 * i + 0] = static_cast<unsigned char>(255.0 * (kTissue.r + t * (deep.r - kTissue.r)));
+      c[3 * i + 1] = static_cast<unsigned char>(255.0 * (kTissue.g + t * (deep.g - kTissue.g)));
+      c[3 * i + 2] = static_cast<unsigned char>(255.0 * (kTissue.b + t * (deep.b - kTissue.b)));
+    }
+    v.tint->Modified();
   }
   v.surface->Modified();
 

@@ -66,9 +66,9 @@ struct HudInfo {
   double real_time_factor{1.0};     ///< simulated seconds per wall second
   bool behind_real_time{false};     ///< physics cannot keep up
   double device_hz{0.0};
-  std::int64_t device_missed{0};    ///< device ticks skipped (late)
+  double device_target_hz{1000.0};  ///< the device thread's rate; below 90% of it the HUD warns
   int probes{0};
-  std::array<double, 2> force_N{};  ///< device force magnitude per probe
+  std::array<double, 2> force_N{};  ///< per probe: |force of the current device update| (the half sine's mean)
   std::array<int, 2> contacts{};
   int active_probe{0};              ///< the keyboard's probe
   bool paused{false};

@@ -146,15 +146,15 @@ TEST(ContactSolver, ReflectsRelativeVelocityAndReportsMomentumChange) {
 }
 
 TEST(ContactSolver, RestitutionZeroAndFrictionStickOrSlide) {
-  // two nodes moving into a plate that faces down (normal -z) while sliding along x at 30 mm/s:
-  // node 0 is 0.1 mm deep, node 1 only 0.01 mm. Friction undoes this step's tangential slip
-  // (30 mm/s * 1 ms = 0.03 mm) up to mu * depth: node 0 sticks (0.05 mm >= 0.03 mm), node 1
-  // slides (0.005 mm: one sixth of the slip and of the tangential velocity is removed)
+  // two nodes moving into a plate that faces down (normal -z) at 10 mm/s while sliding along x:
+  // restitution 0 removes the normal 10 mm/s (jn = 10); with mu = 0.5 friction can take up to
+  // 5 mm/s of tangential velocity. Node 0 slides at 30 mm/s: 1/6 of its tangential velocity and
+  // of this step's slip (30 mm/s * 1 ms) is removed. Node 1 slides at only 4 mm/s: it sticks.
   Eigen::Matrix3Xd x(3, 2), v(3, 2);
   x.col(0) = Eigen::Vector3d(0, 0, -0.1);
   x.col(1) = Eigen::Vector3d(5, 0, -0.19);
   v.col(0) = Eigen::Vector3d(30, 0, 10);
-  v.col(1) = Eigen::Vector3d(30, 0, 10);
+  v.col(1) = Eigen::Vector3d(4, 0, 10);
   const std::vector<double> m = {1e-6, 1e-6};
   ContactSettings s;
   s.restitution = 0.0;
@@ -167,20 +167,53 @@ TEST(ContactSolver, RestitutionZeroAndFrictionStickOrSlide) {
   Eigen::Vector3d wall;
   const double dt = 1e-3;
   solver.resolve(x, v, m, g, p, dt, force, wall);
-  // normal part removed (10 -> 0), both put on the plate
+  // normal part removed, both put on the plate
   EXPECT_NEAR(v(2, 0), 0.0, 1e-12);
   EXPECT_NEAR(v(2, 1), 0.0, 1e-12);
   EXPECT_NEAR(x(2, 0), -0.2, 1e-12);
   EXPECT_NEAR(x(2, 1), -0.2, 1e-12);
-  // node 0 sticks: no tangential velocity left, this step's slip undone
-  EXPECT_NEAR(v(0, 0), 0.0, 1e-12);
-  EXPECT_NEAR(x(0, 0), -0.03, 1e-12);
-  // node 1 slides: 1/6 removed
-  EXPECT_NEAR(v(0, 1), 25.0, 1e-12);
-  EXPECT_NEAR(x(0, 1), 5.0 - 0.005, 1e-12);
-  // momentum change per step: normal 2 x 10 mm/s, tangential 30 + 5 mm/s
+  // node 0 slides: 1/6 removed
+  EXPECT_NEAR(v(0, 0), 25.0, 1e-12);
+  EXPECT_NEAR(x(0, 0), -0.005, 1e-12);
+  // node 1 sticks: no tangential velocity left, this step's slip undone
+  EXPECT_NEAR(v(0, 1), 0.0, 1e-12);
+  EXPECT_NEAR(x(0, 1), 5.0 - 0.004, 1e-12);
+  // momentum change per step: normal 2 x 10 mm/s, tangential 5 + 4 mm/s
   EXPECT_NEAR(force[0].z(), 1e-6 * 20 / dt, 1e-12);
-  EXPECT_NEAR(force[0].x(), 1e-6 * 35 / dt, 1e-12);
+  EXPECT_NEAR(force[0].x(), 1e-6 * 9 / dt, 1e-12);
+}
+
+TEST(ContactSolver, StickingNodeReturnsToItsAnchorAfterABounce) {
+  // a node touches a plate, bounces off for a step (sliding 0.02 mm), touches again: sticking
+  // undoes the whole slip since the first touch, not only the last step's
+  Eigen::Matrix3Xd x(3, 1), v(3, 1);
+  x.col(0) = Eigen::Vector3d(0, 0, 0.01);  // plate normal +z at z = 0.02: 0.01 inside
+  v.col(0) = Eigen::Vector3d(0, 0, -5);
+  const std::vector<double> m = {1e-6};
+  ContactSettings s;
+  s.friction = 1.0;  // restitution 1: the node bounces
+  ContactSolver solver;
+  solver.init({0}, 1, {}, s, 1.0);
+  const std::vector<ProbeGeometry> g = {make_geometry(ProbeShape::plane, 0, 0, {0, 0, 1})};
+  const std::vector<ProbeState> p = {{Eigen::Vector3d(0, 0, 0.02), Eigen::Vector3d::Zero()}};
+  std::vector<Eigen::Vector3d> force;
+  Eigen::Vector3d wall;
+  const double dt = 1e-3;
+  solver.resolve(x, v, m, g, p, dt, force, wall);
+  EXPECT_NEAR(x(2, 0), 0.02, 1e-12);
+  EXPECT_NEAR(v(2, 0), 5.0, 1e-12);
+  // off the plate for a step, drifting 0.02 mm along x
+  x.col(0) = Eigen::Vector3d(0.01, 0, 0.025);
+  v.col(0) = Eigen::Vector3d(10, 0, 0);
+  solver.resolve(x, v, m, g, p, dt, force, wall);
+  EXPECT_NEAR(x(0, 0), 0.01, 1e-15);  // not in contact: untouched
+  // back in, having slid 0.02 mm since the first touch: stuck (10 mm/s <= 1.0 * 2 * 5 mm/s)
+  x.col(0) = Eigen::Vector3d(0.02, 0, 0.015);
+  v.col(0) = Eigen::Vector3d(10, 0, -5);
+  solver.resolve(x, v, m, g, p, dt, force, wall);
+  EXPECT_NEAR(x(0, 0), 0.0, 1e-12);
+  EXPECT_NEAR(v(0, 0), 0.0, 1e-12);
+  EXPECT_NEAR(force[0].x(), 1e-6 * 10 / dt, 1e-12);
 }
 
 TEST(ContactSolver, WallsKeepNodesInTheBox) {

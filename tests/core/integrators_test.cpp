@@ -6,11 +6,24 @@
 
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
+#include <new>
 
 #include "error.h"
 #include "physics_helpers.h"
+
+// counts heap allocations through operator new (std::vector, std::string, ...)
+static std::atomic<long> g_allocations{0};
+void* operator new(std::size_t n) {
+  ++g_allocations;
+  if (void* p = std::malloc(n ? n : 1)) return p;
+  throw std::bad_alloc();
+}
+void operator delete(void* p) noexcept { std::free(p); }
+void operator delete(void* p, std::size_t) noexcept { std::free(p); }
 
 namespace vx {
 namespace {
@@ -351,6 +364,25 @@ TEST(Integrators, InvertedAndCrushedElementsRecover) {
       const auto [lo, hi] = distance_ratios(sim.state);
       EXPECT_NEAR(lo, 1.0, 1e-3) << to_string(kind) << " case " << c << ": back to the rest shape";
       EXPECT_NEAR(hi, 1.0, 1e-3) << to_string(kind) << " case " << c;
+    }
+  }
+}
+
+TEST(Integrators, StepsDoNotAllocate) {
+  const Model m = hand_block(12, 10, 9, 1.0);
+  for (IntegratorKind kind : {IntegratorKind::explicit_euler, IntegratorKind::symplectic_euler, IntegratorKind::implicit}) {
+    for (int threads : {1, 2}) {
+      Sim sim = make_sim(m, soft(0.2, kind == IntegratorKind::symplectic_euler ? 0.3 : 0.0));
+      sim.state.fix_nodes(nodes_on_face(m, BoxFace::z_min));
+      sim.state.gravity_mm_s2 = {0, 0, -kStandardGravityMmS2};
+      IntegratorSettings set = settings(kind, 0.5 * stable_time_step(*sim.physics, IntegratorKind::explicit_euler), threads);
+      set.track_energy = true;
+      auto integ = make_integrator(set);
+      integ->advance(sim.state, 3);  // the implicit integrator factors here; thread pools start
+      const long before = g_allocations.load();
+      integ->advance(sim.state, 20);
+      EXPECT_EQ(g_allocations.load() - before, 0) << to_string(kind) << ", " << threads << " threads";
+      EXPECT_FALSE(sim.state.failed());
     }
   }
 }
