@@ -380,11 +380,10 @@ void App::summary(double wall_s) {
 }
 
 int App::run() {
-  Simulation* sim = nullptr;
   // the simulation, with the options that override the scene
   scene_.simulation.integrator.threads = options_.threads;
   sim_ = std::make_unique<Simulation>(scene_.physics, scene_.simulation);
-  sim = sim_.get();
+  Simulation* const sim = sim_.get();
   probes_ = sim->num_probes();
   if (probes_ == 0) throw Error("the scene has no probe to palpate with");
   if (probes_ > kMaxSticks) say(fmt::format("note: the scene has {} probes; the app drives the first {}", probes_, kMaxSticks));

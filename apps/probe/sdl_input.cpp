@@ -11,7 +11,6 @@ namespace vx::probe {
 
 namespace {
 
-constexpr Uint32 kSubsystems = SDL_INIT_JOYSTICK | SDL_INIT_HAPTIC;
 
 int SDLCALL virtual_rumble_callback(void* userdata, Uint16 low, Uint16 high) {
   auto* r = static_cast<VirtualRumble*>(userdata);
@@ -37,8 +36,21 @@ void drain_events(std::vector<SDL_JoystickID>* removed) {
 SdlInput::SdlInput(const InputSettings& settings) : script_(settings.script) {
   // joystick input must keep flowing although SDL has no window of its own
   SDL_SetHint(SDL_HINT_JOYSTICK_ALLOW_BACKGROUND_EVENTS, "1");
-  if (SDL_InitSubSystem(kSubsystems) != 0)
-    throw Error(std::string("cannot initialise SDL joystick/haptic support: ") + SDL_GetError());
+  if (SDL_InitSubSystem(SDL_INIT_JOYSTICK) != 0) {
+    const std::string why = SDL_GetError();
+    SDL_Quit();
+    // virtual joysticks need SDL; without a script the keyboard and mouse still work
+    if (settings.script) throw Error("cannot initialise SDL joystick support (needed for --virtual-joystick): " + why);
+    messages_.push_back("SDL joystick support is unavailable (" + why + "): keyboard and mouse only");
+    return;
+  }
+  subsystems_ = SDL_INIT_JOYSTICK;
+  // force feedback is optional: without it the devices can still rumble or log
+  if (SDL_InitSubSystem(SDL_INIT_HAPTIC) == 0)
+    subsystems_ |= SDL_INIT_HAPTIC;
+  else
+    messages_.push_back(std::string("SDL haptic support is unavailable (") + SDL_GetError() +
+                        "): no constant-force effects");
   const int max_sticks = std::clamp(settings.max_sticks, 1, kMaxSticks);
 
   try {
@@ -89,7 +101,7 @@ SdlInput::SdlInput(const InputSettings& settings) : script_(settings.script) {
   } catch (...) {
     for (auto& s : sticks_)
       if (s.js) SDL_JoystickClose(s.js);
-    SDL_QuitSubSystem(kSubsystems);
+    SDL_QuitSubSystem(subsystems_);
     SDL_Quit();
     throw;
   }
@@ -105,7 +117,7 @@ SdlInput::~SdlInput() {
     if (s.js) SDL_JoystickClose(s.js);
   sticks_.clear();
   // quitting the joystick subsystem also detaches the virtual joysticks
-  SDL_QuitSubSystem(kSubsystems);
+  if (subsystems_) SDL_QuitSubSystem(subsystems_);
   SDL_Quit();
 }
 
@@ -140,6 +152,7 @@ void SdlInput::play_script(double t_s) {
 }
 
 void SdlInput::poll() {
+  if (!subsystems_) return;
   // pumping applies the virtual values and delivers hotplug events
   std::vector<SDL_JoystickID> removed;
   SDL_JoystickUpdate();

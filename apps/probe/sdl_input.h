@@ -51,7 +51,9 @@ class SdlInput {
   /// Initialises SDL (joystick, haptic) and opens the sticks: with a script, one virtual
   /// joystick per scripted stick (physical joysticks are then ignored); otherwise the first
   /// `max_sticks` physical joysticks (none is fine: the app falls back to the keyboard).
-  /// Throws vx::Error when SDL cannot be initialised or a virtual joystick cannot be attached.
+  /// Without SDL joystick support there are no sticks (a message says why); without haptic
+  /// support the sticks open without force feedback. Throws vx::Error when a script was given
+  /// and SDL joysticks are unavailable, or a virtual joystick cannot be attached.
   explicit SdlInput(const InputSettings& settings);
   ~SdlInput();
   SdlInput(const SdlInput&) = delete;
@@ -91,6 +93,7 @@ class SdlInput {
   std::vector<int> virtual_device_indices_;
   std::shared_ptr<const JoystickScript> script_;
   std::vector<std::string> messages_;
+  Uint32 subsystems_{0};  ///< SDL subsystems initialised (joystick, haptic)
 };
 
 }  // namespace vx::probe
