@@ -25,6 +25,7 @@
 #include "atomic_file.h"
 #include "element_faces.h"
 #include "error.h"
+#include "vtk_arrays.h"
 #include "vtk_messages.h"
 
 namespace vx {
@@ -34,22 +35,6 @@ namespace {
 
 constexpr const char* kMagic = "voxelastic-model";  ///< field data `voxelastic` holds this
 constexpr int kFormatVersion = 1;
-
-template <class ArrayT>
-vtkSmartPointer<ArrayT> make_array(const char* name, int components, vtkIdType tuples) {
-  auto a = vtkSmartPointer<ArrayT>::New();
-  a->SetName(name);
-  a->SetNumberOfComponents(components);
-  a->SetNumberOfTuples(tuples);
-  return a;
-}
-
-void add_string(vtkFieldData* fd, const char* name, const std::string& value) {
-  vtkNew<vtkStringArray> a;
-  a->SetName(name);
-  a->InsertNextValue(value);
-  fd->AddArray(a);
-}
 
 /// The model as an unstructured grid of VTK_POLYHEDRON cells with all its arrays.
 vtkSmartPointer<vtkUnstructuredGrid> to_vtk(const Model& m) {
@@ -64,22 +49,7 @@ vtkSmartPointer<vtkUnstructuredGrid> to_vtk(const Model& m) {
   ug->SetPoints(points);
 
   // one polyhedron per element: point list = vertex list in order, plus its face stream
-  ug->AllocateEstimate(ne, 64);
-  FacePolygons faces;
-  std::vector<vtkIdType> ids, stream;
-  for (int e = 0; e < ne; ++e) {
-    const int b = m.element_offsets[std::size_t(e)], n = m.num_vertices(e);
-    ids.assign(m.element_vertices.begin() + b, m.element_vertices.begin() + b + n);
-    faces.clear();
-    append_element_faces(m, e, faces);
-    stream.clear();
-    for (int f = 0; f < faces.size(); ++f) {
-      stream.push_back(faces.offsets[std::size_t(f) + 1] - faces.offsets[std::size_t(f)]);
-      for (int k = faces.offsets[std::size_t(f)]; k < faces.offsets[std::size_t(f) + 1]; ++k)
-        stream.push_back(faces.nodes[std::size_t(k)]);
-    }
-    ug->InsertNextCell(VTK_POLYHEDRON, n, ids.data(), faces.size(), stream.data());
-  }
+  insert_element_polyhedra(m, ug);
 
   // per element
   auto level = make_array<vtkIntArray>("level", 1, ne);

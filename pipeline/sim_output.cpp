@@ -23,6 +23,7 @@
 #include "element_faces.h"
 #include "error.h"
 #include "plot.h"
+#include "vtk_arrays.h"
 #include "vtk_messages.h"
 
 namespace vx {
@@ -223,22 +224,7 @@ ModelFrameWriter::ModelFrameWriter(const Model& m) : impl_(std::make_unique<Impl
   impl_->points->SetDataTypeToDouble();
   impl_->points->SetNumberOfPoints(nn);
   ug->SetPoints(impl_->points);
-  ug->AllocateEstimate(ne, 64);
-  FacePolygons faces;
-  std::vector<vtkIdType> ids, stream;
-  for (int e = 0; e < ne; ++e) {
-    const int b = m.element_offsets[std::size_t(e)], n = m.num_vertices(e);
-    ids.assign(m.element_vertices.begin() + b, m.element_vertices.begin() + b + n);
-    faces.clear();
-    append_element_faces(m, e, faces);
-    stream.clear();
-    for (int f = 0; f < faces.size(); ++f) {
-      stream.push_back(faces.offsets[std::size_t(f) + 1] - faces.offsets[std::size_t(f)]);
-      for (int k = faces.offsets[std::size_t(f)]; k < faces.offsets[std::size_t(f) + 1]; ++k)
-        stream.push_back(faces.nodes[std::size_t(k)]);
-    }
-    ug->InsertNextCell(VTK_POLYHEDRON, n, ids.data(), faces.size(), stream.data());
-  }
+  insert_element_polyhedra(m, ug);
   vtkNew<vtkIntArray> level;
   level->SetName("level");
   level->SetNumberOfTuples(ne);

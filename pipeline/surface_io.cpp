@@ -22,6 +22,7 @@
 
 #include "atomic_file.h"
 #include "error.h"
+#include "vtk_arrays.h"
 #include "vtk_messages.h"
 
 namespace vx {
@@ -31,22 +32,6 @@ namespace {
 
 constexpr const char* kMagic = "voxelastic-surface";  ///< field data `voxelastic` holds this
 constexpr int kFormatVersion = 1;
-
-template <class ArrayT>
-vtkSmartPointer<ArrayT> make_array(const char* name, int components, vtkIdType tuples) {
-  auto a = vtkSmartPointer<ArrayT>::New();
-  a->SetName(name);
-  a->SetNumberOfComponents(components);
-  a->SetNumberOfTuples(tuples);
-  return a;
-}
-
-void add_string(vtkFieldData* fd, const char* name, const std::string& value) {
-  vtkNew<vtkStringArray> a;
-  a->SetName(name);
-  a->InsertNextValue(value);
-  fd->AddArray(a);
-}
 
 vtkSmartPointer<vtkPolyData> to_vtk(const EmbeddedSurface& s) {
   const int nv = s.num_vertices(), nt = s.num_triangles();

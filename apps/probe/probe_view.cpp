@@ -2,7 +2,6 @@
 
 #include <fmt/core.h>
 #include <vtkActor.h>
-#include <vtkAppendPolyData.h>
 #include <vtkAxis.h>
 #include <vtkBrush.h>
 #include <vtkCallbackCommand.h>
@@ -23,13 +22,11 @@
 #include <vtkInteractorStyleTrackballCamera.h>
 #include <vtkLightKit.h>
 #include <vtkLookupTable.h>
-#include <vtkMatrix4x4.h>
 #include <vtkObjectFactory.h>
 #include <vtkOutlineSource.h>
 #include <vtkPNGWriter.h>
 #include <vtkPen.h>
 #include <vtkPlane.h>
-#include <vtkPlaneCollection.h>
 #include <vtkPlaneSource.h>
 #include <vtkPlot.h>
 #include <vtkPointData.h>
@@ -52,7 +49,6 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <deque>
 
