@@ -38,7 +38,8 @@ int main(int argc, char** argv) {
   auto* g_in = app.add_option_group("input", "joystick and keyboard");
   auto* opt_control = g_in->add_option("--control", control, "rate (the paper: velocity follows the tilt) or position")
       ->check(CLI::IsMember({"rate", "position"}));
-  auto* opt_speed = g_in->add_option("--speed", o.control.speed_mm_s, "probe speed at full tilt, mm/s")->check(CLI::PositiveNumber);
+  auto* opt_speed = g_in->add_option("--speed", o.control.speed_mm_s, "probe speed at full tilt, mm/s")
+                        ->check(CLI::PositiveNumber);
   auto* opt_range = g_in->add_option("--range", o.control.position_range_mm, "position control: offset at full tilt, mm")
       ->check(CLI::PositiveNumber);
   auto* opt_deadzone = g_in->add_option("--deadzone", o.control.deadzone, "stick dead zone, fraction of full tilt")

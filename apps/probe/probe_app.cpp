@@ -386,7 +386,8 @@ int App::run() {
   Simulation* const sim = sim_.get();
   probes_ = sim->num_probes();
   if (probes_ == 0) throw Error("the scene has no probe to palpate with");
-  if (probes_ > kMaxSticks) say(fmt::format("note: the scene has {} probes; the app drives the first {}", probes_, kMaxSticks));
+  if (probes_ > kMaxSticks)
+    say(fmt::format("note: the scene has {} probes; the app drives the first {}", probes_, kMaxSticks));
   // the stick mapping: the command line over the scene over the defaults
   control_ = options_.control;
   if (scene_.control_from_scene) {

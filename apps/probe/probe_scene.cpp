@@ -76,7 +76,8 @@ ProbeScene load_scene_file(const std::filesystem::path& path, const DefaultScene
   if (scene.simulation.probes.empty()) throw Error(path.string() + ": $.probes: the scene has no probe to palpate with");
   if (options.surface_method == SurfaceMethod::iso) {
     // a smoothed iso-surface of the model's voxels, embedded in its elements
-    scene.surface = std::make_shared<const EmbeddedSurface>(make_surface(*built.model, built.grid, nullptr, SurfaceMethod::iso));
+    scene.surface =
+        std::make_shared<const EmbeddedSurface>(make_surface(*built.model, built.grid, nullptr, SurfaceMethod::iso));
     scene.simulation.surface = scene.surface;
   } else {
     scene.surface = built.surface;

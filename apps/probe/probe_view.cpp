@@ -634,7 +634,9 @@ void ProbeView::Impl::build_plot() {
   table->AddColumn(t);
   const int np = std::min(2, std::max<int>(1, int(setup.probes.size())));
   for (int p = 0; p < np; ++p) {
-    const std::string who = np > 1 ? fmt::format(" ({})", p < int(setup.probe_names.size()) ? setup.probe_names[std::size_t(p)] : std::to_string(p)) : "";
+    const std::string name =
+        p < int(setup.probe_names.size()) ? setup.probe_names[std::size_t(p)] : std::to_string(p);
+    const std::string who = np > 1 ? " (" + name + ")" : "";
     for (const char* name : {"raw sum per step", "half sines played", "device update mean"}) {
       auto col = make<vtkFloatArray>();
       col->SetName((name + who).c_str());

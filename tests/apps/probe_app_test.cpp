@@ -158,6 +158,57 @@ TEST_F(ProbeApp, ScriptedPalpationFeelsTheLesion) {
   EXPECT_GT(lesion, 1.3 * soft_after) << "soft " << soft_after << " N, lesion " << lesion << " N";
 }
 
+TEST_F(ProbeApp, TwoJoysticksGraspWithTwoProbes) {
+  // a block held at its base, squeezed from both sides by two capsules, one per virtual stick
+  std::ofstream(dir_ / "grasp.json") << R"({
+    "description": "grasp a block between two capsule probes",
+    "object": {"box_mm": {"min": [-10, -8, 0], "max": [10, 8, 12]}, "voxel_mm": 2},
+    "material": {"youngs_modulus_kpa": 10, "damping": 0.1},
+    "fixed": ["z_min"],
+    "workspace_mm": {"min": [-40, -20, 0], "max": [40, 20, 40]},
+    "device": {"update_interval_s": 0.02},
+    "probes": [
+      {"name": "left", "shape": "capsule", "radius_mm": 5, "length_mm": 20, "axis": [-1, 0, 0],
+       "live": {"start_mm": [-16, 0, 6], "speed_mm_s": 10}},
+      {"name": "right", "shape": "capsule", "radius_mm": 5, "length_mm": 20, "axis": [1, 0, 0],
+       "live": {"start_mm": [16, 0, 6], "speed_mm_s": 10}}],
+    "duration_s": 10})";
+  // both sticks tilt inwards (ramp to 0.6 = 6 mm/s in 0.2 s, held 0.7 s), then hold still
+  std::ofstream(dir_ / "grasp.joy") << "sticks 2\n0 0 0\n0 1 0\n0.2 0 0.6\n0.2 1 -0.6\n0.9 0 0.6\n0.9 1 -0.6\n"
+                                       "0.9 0 0\n0.9 1 0\n2.0 0 0\n2.0 1 0\n";
+  const fs::path csv = dir_ / "grasp.csv";
+  const RunResult r = run(q(dir_ / "grasp.json") + " --headless --virtual-joystick " + q(dir_ / "grasp.joy") +
+                          " --exit-after-script --force-log " + q(csv));
+  ASSERT_EQ(r.code, 0) << r.out << r.err;
+  EXPECT_NE(r.out.find("(probe 1,"), std::string::npos) << r.out;  // the second stick rumbles for probe 1
+  // rows alternate probe 0 and 1; read the probe column directly
+  std::ifstream in(csv);
+  std::string line;
+  std::getline(in, line);
+  double x_end[2] = {0, 0}, fx_hold[2] = {0, 0};
+  int n_hold[2] = {0, 0};
+  while (std::getline(in, line)) {
+    std::vector<std::string> c;
+    std::stringstream ss(line);
+    for (std::string v; std::getline(ss, v, ',');) c.push_back(v);
+    ASSERT_EQ(c.size(), 17u);
+    const int p = std::stoi(c[2]);
+    ASSERT_TRUE(p == 0 || p == 1);
+    x_end[p] = std::stod(c[13]);
+    if (std::stod(c[1]) > 1.5) {
+      fx_hold[p] += std::stod(c[3]);
+      ++n_hold[p];
+    }
+  }
+  // each tool moved 4.8 mm inwards, 3.8 mm into the tissue, and is pushed back outwards
+  EXPECT_NEAR(x_end[0], -16.0 + 4.8, 0.3);
+  EXPECT_NEAR(x_end[1], 16.0 - 4.8, 0.3);
+  ASSERT_GT(n_hold[0], 0);
+  ASSERT_GT(n_hold[1], 0);
+  EXPECT_LT(fx_hold[0] / n_hold[0], -0.01);  // the tissue pushes the left tool to -x
+  EXPECT_GT(fx_hold[1] / n_hold[1], 0.01);   // and the right tool to +x
+}
+
 TEST_F(ProbeApp, WindowScreenshotUnderADisplay) {
   if (!std::getenv("DISPLAY")) GTEST_SKIP() << "no DISPLAY (run under xvfb-run, as scripts/test.sh does)";
   const fs::path png = dir_ / "probe.png";
