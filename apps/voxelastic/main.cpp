@@ -16,7 +16,8 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    // --help and --version exit 0; every usage mistake exits 2 (the convention of Unix tools)
+    return app.exit(e) == 0 ? 0 : 2;
   } catch (const vx::Error& e) {
     fmt::print(stderr, "voxelastic: error: {}\n", e.what());
     return 1;
