@@ -16,6 +16,7 @@
 #include "phantom.h"
 #include "render.h"
 #include "volume_io.h"
+#include "run_binary.h"
 
 namespace fs = std::filesystem;
 using namespace vx;
@@ -24,17 +25,8 @@ namespace {
 
 const fs::path kBinary = fs::path(VX_BINARY_DIR) / "apps" / "voxelastic" / "voxelastic";
 
-struct RunResult {
-  int code{-1};
-  std::string out, err;
-};
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
+using vx::testing::RunResult;
+using vx::testing::slurp;
 
 class CliConvert : public ::testing::Test {
  protected:
@@ -61,14 +53,7 @@ class CliConvert : public ::testing::Test {
   }
   /// Runs `voxelastic ARGS` in the output folder; `env` is put in front (e.g. "env -u DISPLAY").
   RunResult run(const std::string& args, const std::string& env = "") const {
-    const std::string cmd = "cd '" + out_.string() + "' && " + env + " '" + kBinary.string() + "' " + args +
-                            " > ../stdout.txt 2> ../stderr.txt";
-    const int status = std::system(cmd.c_str());
-    RunResult r;
-    r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-    r.out = slurp(dir_ / "stdout.txt");
-    r.err = slurp(dir_ / "stderr.txt");
-    return r;
+    return vx::testing::run_binary(kBinary, args, out_, dir_, env);
   }
   [[nodiscard]] std::set<std::string> outputs() const {
     std::set<std::string> names;

@@ -15,6 +15,7 @@
 
 #include "phantom.h"
 #include "volume_io.h"
+#include "run_binary.h"
 
 namespace fs = std::filesystem;
 using namespace vx;
@@ -23,17 +24,8 @@ namespace {
 
 const fs::path kBinary = fs::path(VX_BINARY_DIR) / "apps" / "voxelastic" / "voxelastic";
 
-struct Result {
-  int code{-1};
-  std::string out, err;
-};
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
+using vx::testing::RunResult;
+using vx::testing::slurp;
 
 class CliPhantom : public ::testing::Test {
  protected:
@@ -45,16 +37,7 @@ class CliPhantom : public ::testing::Test {
   }
   void TearDown() override { fs::remove_all(dir_); }
   /// Runs `voxelastic ARGS` inside dir_/out.
-  Result run(const std::string& args) const {
-    const std::string cmd = "cd '" + (dir_ / "out").string() + "' && '" + kBinary.string() + "' " + args +
-                            " > ../stdout.txt 2> ../stderr.txt";
-    const int status = std::system(cmd.c_str());
-    Result r;
-    r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-    r.out = slurp(dir_ / "stdout.txt");
-    r.err = slurp(dir_ / "stderr.txt");
-    return r;
-  }
+  RunResult run(const std::string& args) const { return vx::testing::run_binary(kBinary, args, dir_ / "out", dir_); }
 
  public:
   [[nodiscard]] std::set<std::string> outputs() const {
@@ -68,7 +51,7 @@ class CliPhantom : public ::testing::Test {
 };
 
 TEST_F(CliPhantom, SphereVtiMatchesTheLibrary) {
-  const Result r = run("phantom sphere -o x.vti --size 32 --spacing 0.5");
+  const RunResult r = run("phantom sphere -o x.vti --size 32 --spacing 0.5");
   ASSERT_EQ(r.code, 0) << r.err;
   EXPECT_EQ(outputs(), std::set<std::string>{"x.vti"});
   PhantomSettings s;
@@ -99,7 +82,7 @@ TEST_F(CliPhantom, EveryFormatAndTheLesionOptions) {
   const Volume expected = make_phantom(s);
   for (const std::string out : {"b.mha", "b.nii.gz", "b.nii", "b.nrrd", "b.vti", "series/"}) {
     SCOPED_TRACE(out);
-    const Result r = run("phantom block-lesion --size 24 --lesion-hu 200 --noise 10 --seed 5 -o " + out);
+    const RunResult r = run("phantom block-lesion --size 24 --lesion-hu 200 --noise 10 --seed 5 -o " + out);
     ASSERT_EQ(r.code, 0) << r.err;
     EXPECT_NE(r.out.find("lesion"), std::string::npos) << r.out;
     EXPECT_NE(r.out.find("noise 10 HU (seed 5)"), std::string::npos) << r.out;
@@ -111,7 +94,7 @@ TEST_F(CliPhantom, EveryFormatAndTheLesionOptions) {
 }
 
 /// Expects a failed run with a message containing each needle, and nothing written.
-void expect_clean_failure(const CliPhantom& t, const Result& r, std::initializer_list<const char*> needles) {
+void expect_clean_failure(const CliPhantom& t, const RunResult& r, std::initializer_list<const char*> needles) {
   EXPECT_NE(r.code, 0) << r.out;
   for (const char* n : needles) EXPECT_NE(r.err.find(n), std::string::npos) << "stderr: " << r.err;
   EXPECT_TRUE(t.outputs().empty()) << "left behind: " << *t.outputs().begin();

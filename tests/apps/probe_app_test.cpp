@@ -11,6 +11,8 @@
 #include <string>
 #include <vector>
 
+#include "run_binary.h"
+
 namespace fs = std::filesystem;
 
 namespace {
@@ -19,17 +21,8 @@ const fs::path kBinary = fs::path(VX_BINARY_DIR) / "apps" / "probe" / "voxelasti
 const fs::path kScene = fs::path(VX_SAMPLES_DIR) / "scenes" / "palpation-lesion.json";
 const fs::path kScript = fs::path(VX_SAMPLES_DIR) / "scenes" / "palpation-lesion.joy";
 
-struct RunResult {
-  int code{-1};
-  std::string out, err;
-};
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
+using vx::testing::RunResult;
+using vx::testing::slurp;
 
 class ProbeApp : public ::testing::Test {
  protected:
@@ -44,15 +37,7 @@ class ProbeApp : public ::testing::Test {
 
   // runs the binary with `args` (a shell-quoted string) and an optional environment prefix
   RunResult run(const std::string& args, const std::string& env = "") const {
-    const fs::path out = dir_ / "stdout.txt", err = dir_ / "stderr.txt";
-    const std::string cmd = env + " timeout 300 '" + kBinary.string() + "' " + args + " >'" + out.string() + "' 2>'" +
-                            err.string() + "'";
-    const int status = std::system(cmd.c_str());
-    RunResult r;
-    r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-    r.out = slurp(out);
-    r.err = slurp(err);
-    return r;
+    return vx::testing::run_binary(kBinary, args, dir_, dir_, env);
   }
   static std::string q(const fs::path& p) {
     std::string s(1, '\'');
@@ -219,3 +204,4 @@ TEST_F(ProbeApp, WindowScreenshotUnderADisplay) {
   EXPECT_GT(fs::file_size(png), 20000u);  // a rendered scene, not a blank window
   EXPECT_NE(r.out.find("display: 15 frames"), std::string::npos) << r.out;
 }
+#include "run_binary.h"
