@@ -747,17 +747,19 @@ std::string format_numbers(std::initializer_list<double> values, const char* sep
   return s;
 }
 
+/// The voxels as int16 (`as_short`: every value integral and in range) or float32, deflated
+/// (zlib stream, or gzip when `gzip`).
+std::vector<unsigned char> deflate_voxels(const Volume& v, bool as_short, bool gzip) {
+  if (!as_short) return deflate_bytes(v.hu.data(), v.hu.size() * 4, gzip);
+  std::vector<std::int16_t> s(v.hu.size());
+  for (std::size_t i = 0; i < s.size(); ++i) s[i] = std::int16_t(v.hu[i]);
+  return deflate_bytes(s.data(), s.size() * 2, gzip);
+}
+
 void write_mha(const Volume& v, const fs::path& tmp) {
   const GridGeometry& g = v.geometry;
   const bool as_short = fits_int16(v.hu);
-  std::vector<unsigned char> packed;
-  if (as_short) {
-    std::vector<std::int16_t> s(v.hu.size());
-    for (std::size_t i = 0; i < s.size(); ++i) s[i] = std::int16_t(v.hu[i]);
-    packed = deflate_bytes(s.data(), s.size() * 2, false);
-  } else {
-    packed = deflate_bytes(v.hu.data(), v.hu.size() * 4, false);
-  }
+  const std::vector<unsigned char> packed = deflate_voxels(v, as_short, false);
   const Eigen::Matrix3d& D = g.direction;
   std::string header;
   header += "ObjectType = Image\nNDims = 3\nBinaryData = True\nBinaryDataByteOrderMSB = False\n";
@@ -1223,14 +1225,7 @@ Volume read_nrrd(const fs::path& path) {
 void write_nrrd(const Volume& v, const fs::path& tmp) {
   const GridGeometry& g = v.geometry;
   const bool as_short = fits_int16(v.hu);
-  std::vector<unsigned char> packed;
-  if (as_short) {
-    std::vector<std::int16_t> s(v.hu.size());
-    for (std::size_t i = 0; i < s.size(); ++i) s[i] = std::int16_t(v.hu[i]);
-    packed = deflate_bytes(s.data(), s.size() * 2, true);
-  } else {
-    packed = deflate_bytes(v.hu.data(), v.hu.size() * 4, true);
-  }
+  const std::vector<unsigned char> packed = deflate_voxels(v, as_short, true);
   const Eigen::Matrix3d A = g.direction * g.spacing_mm.asDiagonal();
   auto vec = [](const Eigen::Vector3d& x) { return fmt::format("({})", format_numbers({x[0], x[1], x[2]}, ",")); };
   std::string header = "NRRD0004\n# written by voxelastic; values in HU, positions in LPS mm\n";

@@ -160,6 +160,26 @@ void finish_step(SimState& s, const IntegratorSettings& set, std::uint8_t flags,
   ++s.steps;
 }
 
+/// Ends a step after the per-chunk node pass: merges the chunks' flags and kinetic and
+/// gravitational energies in chunk order (the same for any thread count), stores the energies
+/// when tracked (with the given elastic energy) and finishes the step.
+void finish_node_pass(SimState& s, const PhysicsModel& p, const IntegratorSettings& set, bool track,
+                      double elastic_energy, StepReport& rep) {
+  std::uint8_t flags = s.element_stats.non_finite > 0 ? kFlagNonFinite : 0;
+  Energies en;
+  const std::size_t chunks = std::size_t(chunk_count(p.num_nodes(), kNodeGrain));
+  for (std::size_t c = 0; c < chunks; ++c) {
+    flags |= s.scratch.node_chunk_flags[c];
+    en.kinetic += s.scratch.node_chunk_sums[3 * c];
+    en.gravitational += s.scratch.node_chunk_sums[3 * c + 1];
+  }
+  if (track) {
+    en.elastic = elastic_energy;
+    s.energies = en;
+  }
+  finish_step(s, set, flags, rep);
+}
+
 /// True when the state may not be stepped: a NaN/Inf, or a runaway under stop_on_runaway.
 bool blocked(const SimState& s, const IntegratorSettings& set) {
   return s.status == StepStatus::non_finite || (s.status == StepStatus::runaway && set.limits.stop_on_runaway);
@@ -278,19 +298,7 @@ class ExplicitIntegrator final : public Integrator {
       chunk_sums[3 * c] = kin;
       chunk_sums[3 * c + 1] = grav;
     });
-    std::uint8_t flags = s.element_stats.non_finite > 0 ? kFlagNonFinite : 0;
-    const std::size_t chunks = std::size_t(chunk_count(p.num_nodes(), kNodeGrain));
-    Energies en;
-    for (std::size_t c = 0; c < chunks; ++c) {
-      flags |= s.scratch.node_chunk_flags[c];
-      en.kinetic += s.scratch.node_chunk_sums[3 * c];
-      en.gravitational += s.scratch.node_chunk_sums[3 * c + 1];
-    }
-    if (track) {
-      en.elastic = s.element_stats.elastic_energy;
-      s.energies = en;
-    }
-    finish_step(s, settings_, flags, rep);
+    finish_node_pass(s, p, settings_, track, s.element_stats.elastic_energy, rep);
     return rep;
   }
 
@@ -732,19 +740,7 @@ class ImplicitIntegrator final : public Integrator {
       s.scratch.node_chunk_sums[3 * std::size_t(c)] = kin;
       s.scratch.node_chunk_sums[3 * std::size_t(c) + 1] = grav;
     });
-    std::uint8_t flags = s.element_stats.non_finite > 0 ? kFlagNonFinite : 0;
-    Energies en;
-    const std::size_t chunks = std::size_t(chunk_count(p.num_nodes(), kNodeGrain));
-    for (std::size_t c = 0; c < chunks; ++c) {
-      flags |= s.scratch.node_chunk_flags[c];
-      en.kinetic += s.scratch.node_chunk_sums[3 * c];
-      en.gravitational += s.scratch.node_chunk_sums[3 * c + 1];
-    }
-    if (track) {
-      en.elastic = s.energies.elastic;
-      s.energies = en;
-    }
-    finish_step(s, settings_, flags, rep);
+    finish_node_pass(s, p, settings_, track, s.energies.elastic, rep);
     return rep;
   }
 
