@@ -194,6 +194,7 @@ void element_range(const PhysicsModel& phys, const double* xs, const double* vs,
   const std::int32_t* off = m.element_offsets.data();
   const std::int32_t* vert = m.element_vertices.data();
   const double* r0s = phys.entry_rest_weighted.data();
+  const double* gs = phys.entry_gradient.data();
   const double* wts = phys.entry_weight.data();
   const std::int32_t* slot = phys.entry_slot.data();
   for (std::int64_t e = e0; e < e1; ++e) {
@@ -201,7 +202,7 @@ void element_range(const PhysicsModel& phys, const double* xs, const double* vs,
     // positions relative to the first vertex (keeps sums free of the absolute offset)
     const double* x0 = xs + 3 * std::int64_t(vert[b]);
     const double ox = x0[0], oy = x0[1], oz = x0[2];
-    // pass 1: weighted centroid and A = sum w y R0^T (sum w R0 = 0: no centring needed)
+    // pass 1a: weighted centroid and A = sum w y R0^T (sum w R0 = 0: no centring needed)
     double sw = 0, sx = 0, sy = 0, sz = 0;
     double a00 = 0, a01 = 0, a02 = 0, a10 = 0, a11 = 0, a12 = 0, a20 = 0, a21 = 0, a22 = 0;
     for (int j = b; j < b + n; ++j) {
@@ -217,11 +218,22 @@ void element_range(const PhysicsModel& phys, const double* xs, const double* vs,
       a10 += yy * r0[0]; a11 += yy * r0[1]; a12 += yy * r0[2];
       a20 += yz * r0[0]; a21 += yz * r0[1]; a22 += yz * r0[2];
     }
+    // pass 1b: the consistent deformation gradient F = sum y g^T (sum g = 0: no centring)
+    double f00 = 0, f01 = 0, f02 = 0, f10 = 0, f11 = 0, f12 = 0, f20 = 0, f21 = 0, f22 = 0;
+    for (int j = b; j < b + n; ++j) {
+      const double* xp = xs + 3 * std::int64_t(vert[j]);
+      const double* g = gs + 3 * std::int64_t(j);
+      const double yx = xp[0] - ox, yy = xp[1] - oy, yz = xp[2] - oz;
+      f00 += yx * g[0]; f01 += yx * g[1]; f02 += yx * g[2];
+      f10 += yy * g[0]; f11 += yy * g[1]; f12 += yy * g[2];
+      f20 += yz * g[0]; f21 += yz * g[1]; f22 += yz * g[2];
+    }
     const double inv_w = 1.0 / sw;
     const Eigen::Vector3d c(sx * inv_w, sy * inv_w, sz * inv_w);  // relative to x0
-    Eigen::Matrix3d a;
+    Eigen::Matrix3d a, fg;
     a << a00, a01, a02, a10, a11, a12, a20, a21, a22;
-    if (!a.allFinite() || !c.allFinite()) {  // NaN/Inf in: no force out, counted
+    fg << f00, f01, f02, f10, f11, f12, f20, f21, f22;
+    if (!a.allFinite() || !fg.allFinite() || !c.allFinite()) {  // NaN/Inf in: no force out, counted
       ++st.non_finite;
       for (int j = b; j < b + n; ++j) ef[3 * slot[j]] = ef[3 * slot[j] + 1] = ef[3 * slot[j] + 2] = 0.0;
       if constexpr (kEnergy) energy_out[e] = 0.0;
@@ -230,11 +242,14 @@ void element_range(const PhysicsModel& phys, const double* xs, const double* vs,
     // rotation fit, warm-started
     bool conv = true;
     Eigen::Matrix3d q;
-    st.rotation_iterations += fit_rotation(a * phys.element_fit_scale[std::size_t(e)], rot[e], fit, &conv, &q);
+    st.rotation_iterations += fit_rotation(fg, rot[e], fit, &conv, &q);
     st.unconverged += conv ? 0 : 1;
-    if (a.determinant() <= 0.0) ++st.inverted;
+    if (fg.determinant() <= 0.0) ++st.inverted;
     const double k = phys.element_stiffness[std::size_t(e)];
-    Eigen::Matrix3d mq = k * q;
+    // f_i = k w_i (F R0_i - r_i) + G g_i,  G = 2 mu V (Q - F) + k (A - F C0)
+    const Eigen::Matrix3d gm = phys.element_affine_stiffness[std::size_t(e)] * (q - fg) +
+                               k * (a - fg * phys.element_spread[std::size_t(e)]);
+    Eigen::Matrix3d mq = k * fg;
     double ktot = k;
     Eigen::Matrix3d t;
     double wv = 0;
@@ -246,7 +261,7 @@ void element_range(const PhysicsModel& phys, const double* xs, const double* vs,
       mq += wv * t;
       ktot += wv;
     }
-    // pass 2: elastic force f = M R0' - w ktot (x - c)   (M = k Q + k_v T)
+    // pass 2: elastic force f = M R0' - w ktot (x - c)   (M = k F + k_v T, R0' = w R0)
     {
       const double m00 = mq(0, 0), m01 = mq(0, 1), m02 = mq(0, 2), m10 = mq(1, 0), m11 = mq(1, 1),
                    m12 = mq(1, 2), m20 = mq(2, 0), m21 = mq(2, 1), m22 = mq(2, 2);
@@ -259,6 +274,18 @@ void element_range(const PhysicsModel& phys, const double* xs, const double* vs,
         out[0] = m00 * r0[0] + m01 * r0[1] + m02 * r0[2] - kw * (xp[0] - cx);
         out[1] = m10 * r0[0] + m11 * r0[1] + m12 * r0[2] - kw * (xp[1] - cy);
         out[2] = m20 * r0[0] + m21 * r0[1] + m22 * r0[2] - kw * (xp[2] - cz);
+      }
+    }
+    // pass 2b: f += G g
+    {
+      const double g00 = gm(0, 0), g01 = gm(0, 1), g02 = gm(0, 2), g10 = gm(1, 0), g11 = gm(1, 1),
+                   g12 = gm(1, 2), g20 = gm(2, 0), g21 = gm(2, 1), g22 = gm(2, 2);
+      for (int j = b; j < b + n; ++j) {
+        const double* g = gs + 3 * std::int64_t(j);
+        double* out = ef + 3 * std::int64_t(slot[j]);
+        out[0] += g00 * g[0] + g01 * g[1] + g02 * g[2];
+        out[1] += g10 * g[0] + g11 * g[1] + g12 * g[2];
+        out[2] += g20 * g[0] + g21 * g[1] + g22 * g[2];
       }
     }
     if constexpr (kDamping) {
@@ -308,12 +335,12 @@ void element_range(const PhysicsModel& phys, const double* xs, const double* vs,
       }
     }
     if constexpr (kEnergy) {
-      double en = 0;
+      double en = 0.5 * phys.element_affine_stiffness[std::size_t(e)] * (fg - q).squaredNorm();
       const Eigen::Vector3d ca = Eigen::Vector3d(ox, oy, oz) + c;
       for (int j = b; j < b + n; ++j) {
         const Eigen::Vector3d r = Eigen::Map<const Eigen::Vector3d>(xs + 3 * std::int64_t(vert[j])) - ca;
         const Eigen::Vector3d rr = phys.entry_rest.col(j);
-        en += 0.5 * k * wts[j] * (q * rr - r).squaredNorm();
+        en += 0.5 * k * wts[j] * (fg * rr - r).squaredNorm();
         if constexpr (kVolume) en += 0.5 * wv * wts[j] * (t * rr - r).squaredNorm();
       }
       energy_out[e] = en;
@@ -380,6 +407,19 @@ void gather_node_forces(const PhysicsModel& phys, const Eigen::Matrix3Xd& entry_
   });
 }
 
+void element_elastic_matrix(const PhysicsModel& phys, int e, Eigen::MatrixXd& k) {
+  const Model& m = *phys.model;
+  const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+  const auto g = phys.entry_gradient.middleCols(b, n);
+  const auto r0 = phys.entry_rest.middleCols(b, n);
+  const Eigen::Map<const Eigen::VectorXd> w(phys.entry_weight.data() + b, n);
+  Eigen::MatrixXd p = -r0.transpose() * g;  // P_lj = delta_lj - w_j / W - R0_l . g_j
+  p.rowwise() -= w.transpose() / w.sum();
+  p.diagonal().array() += 1.0;
+  k.noalias() = phys.element_affine_stiffness[std::size_t(e)] * (g.transpose() * g);
+  k.noalias() += phys.element_stiffness[std::size_t(e)] * (p.transpose() * w.asDiagonal() * p);
+}
+
 double element_energy(const PhysicsModel& phys, int e, const Eigen::Matrix3Xd& x, Eigen::Quaterniond& q,
                       const RotationFitSettings& settings) {
   const Model& m = *phys.model;
@@ -392,13 +432,17 @@ double element_energy(const PhysicsModel& phys, int e, const Eigen::Matrix3Xd& x
   }
   c /= sw;
   Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
-  for (int j = b; j < b + n; ++j) a += (x.col(m.element_vertices[j]) - c) * phys.entry_rest_weighted.col(j).transpose();
-  fit_rotation(a * phys.element_fit_scale[e], q, settings);
+  Eigen::Matrix3d fg = Eigen::Matrix3d::Zero();
+  for (int j = b; j < b + n; ++j) {
+    a += (x.col(m.element_vertices[j]) - c) * phys.entry_rest_weighted.col(j).transpose();
+    fg += (x.col(m.element_vertices[j]) - c) * phys.entry_gradient.col(j).transpose();
+  }
+  fit_rotation(fg, q, settings);
   const Eigen::Matrix3d rq = q.toRotationMatrix();
-  double en = 0;
+  double en = 0.5 * phys.element_affine_stiffness[e] * (fg - rq).squaredNorm();
   for (int j = b; j < b + n; ++j)
     en += 0.5 * phys.element_stiffness[e] * phys.entry_weight[j] *
-          (rq * phys.entry_rest.col(j) - (x.col(m.element_vertices[j]) - c)).squaredNorm();
+          (fg * phys.entry_rest.col(j) - (x.col(m.element_vertices[j]) - c)).squaredNorm();
   if (phys.has_volume_term()) {
     const Eigen::Matrix3d& ninv = phys.element_spread_inv_sqrt[e];
     Eigen::Quaterniond qv = q;

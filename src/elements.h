@@ -7,11 +7,18 @@
 /// spread isotropic; 1 for an 8-vertex cube), rest offsets R0_i from the weighted rest
 /// centroid, current offsets r_i = x_i - c from the current weighted centroid c:
 ///   A   = sum_i w_i r_i R0_i^T                   (3x3, mm^2)
-///   Q   = argmax_{Q in SO(3)} tr(Q^T A)          (rotational part of the polar decomposition;
+///   F   = sum_i x_i g_i^T                         consistent deformation gradient (element_gradient.h)
+///   Q   = argmax_{Q in SO(3)} tr(Q^T F)          (rotational part of the polar decomposition;
 ///                                                 the paper's moment balance, eq. 3)
-///   f_i = k w_i (Q R0_i - r_i)                    elastic force, N
-///   E   = k/2 sum_i w_i |r_i - Q R0_i|^2          elastic energy, N*mm; f_i = -dE/dx_i exactly
+///   E   = mu V |F - Q|^2 + k/2 sum_i w_i |r_i - F R0_i|^2     elastic energy, N*mm
+///   f_i = k w_i (F R0_i - r_i) + G g_i,  G = 2 mu V (Q - F) + k (A - F C0)
+///                                                 elastic force, N; f_i = -dE/dx_i exactly
 ///                                                 because Q is optimal (envelope theorem)
+/// For an 8-vertex cube F = A C0^{-1} and 2 mu V = k S / 3, and this is exactly the paper's
+/// shape-keeping element: E = k/2 sum_i w_i |r_i - Q R0_i|^2, f_i = k w_i (Q R0_i - r_i).
+/// The split (affine part on the consistent F, the rest on the vertex fit) only differs where
+/// an element carries its smaller neighbours' nodes, and there it makes a uniform strain an
+/// equilibrium of the whole model (material.h, element_gradient.h).
 /// Volume term (Poisson ratio > 0, see material.h):
 ///   T   = argmin_{det T = 1} sum_i w_i |r_i - T R0_i|^2,  f_i += k_v w_i (T R0_i - r_i),
 ///   E  += k_v/2 sum_i w_i |r_i - T R0_i|^2.
@@ -115,6 +122,14 @@ ElementPassStats compute_element_forces(const PhysicsModel& physics, const Eigen
 /// Sums entry forces into node forces (3 x nodes, N); parallel over nodes, deterministic.
 void gather_node_forces(const PhysicsModel& physics, const Eigen::Matrix3Xd& entry_forces,
                         Eigen::Matrix3Xd& node_forces, int threads);
+
+/// The constant quadratic part of one element's elastic energy (without the volume term), as
+/// an n x n matrix acting on each coordinate alike (n = the element's vertices):
+///   K_ij = 2 mu V g_i . g_j + k sum_l w_l P_li P_lj,  P_lj = delta_lj - w_j / W - R0_l . g_j
+/// (the affine part mu V |F|^2 and the non-affine part k/2 sum_l w_l |r_l - F R0_l|^2). It is
+/// the projective-dynamics system matrix of the element and the Hessian at rest less the
+/// rotation's curvature; rows sum to zero (translations cost nothing).
+void element_elastic_matrix(const PhysicsModel& physics, int element, Eigen::MatrixXd& k);
 
 /// Elastic energy of one element at `positions` with rotation warm start `q` (updated), N*mm.
 /// Includes the volume term. For tests and diagnostics (not the hot path).

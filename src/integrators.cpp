@@ -51,17 +51,21 @@ TimeStepEstimate estimate_time_steps(const PhysicsModel& p) {
   double min_ratio = std::numeric_limits<double>::infinity();
   double min_period = std::numeric_limits<double>::infinity();
   bool damped = false;
+  Eigen::MatrixXd ke;
   for (int e = 0; e < ne; ++e) {
     const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
-    const double kappa = p.element_stiffness[e] + (p.has_volume_term() ? p.element_volume_stiffness[e] : 0.0);
+    const double kv = p.has_volume_term() ? p.element_volume_stiffness[e] : 0.0;
+    const double kappa = p.element_stiffness[e] + kv;
     const double c = p.element_damping[e];
     double wsum = 0;
     for (int j = b; j < b + n; ++j) wsum += p.entry_weight[std::size_t(j)];
+    // Gershgorin row sums: the elastic matrix K_e, and 2 w_i (1 - w_i / W) of
+    // diag(w) - w w^T / W for the volume and damping terms
+    element_elastic_matrix(p, e, ke);
     for (int j = b; j < b + n; ++j) {
-      // Gershgorin row sum of kappa (diag(w) - w w^T / W): 2 kappa w_i (1 - w_i / W)
       const double w = p.entry_weight[std::size_t(j)];
       const double row = 2.0 * w * (1.0 - w / wsum);
-      sk[std::size_t(m.element_vertices[j])] += row * kappa;
+      sk[std::size_t(m.element_vertices[j])] += ke.row(j - b).cwiseAbs().sum() + row * kv;
       sc[std::size_t(m.element_vertices[j])] += row * c;
     }
     if (c > 0) damped = true;
@@ -348,29 +352,31 @@ class ProjectiveSolver {
     }
     const int nf = int(free_nodes_.size()), nc = int(fixed_nodes_.size());
     if (!inertia) check_held(s);
-    // weights kappa_e = k_e + k_v,e (+ c_e / dt)
+    // weights kappa_e = k_v,e (+ c_e / dt) of diag(w) - w w^T / W (volume and damping terms)
     kappa_.resize(std::size_t(ne));
     for (int e = 0; e < ne; ++e)
-      kappa_[std::size_t(e)] = p.element_stiffness[std::size_t(e)] +
-                               (p.has_volume_term() ? p.element_volume_stiffness[std::size_t(e)] : 0.0) +
+      kappa_[std::size_t(e)] = (p.has_volume_term() ? p.element_volume_stiffness[std::size_t(e)] : 0.0) +
                                (damping ? p.element_damping[std::size_t(e)] / dt : 0.0);
-    // assemble M/dt^2 + sum_e kappa_e (diag(w) - w w^T / W), split into free-free and free-fixed
+    // assemble M/dt^2 + sum_e (K_e + kappa_e (diag(w) - w w^T / W)), split into free-free and
+    // free-fixed (K_e: the elastic matrix, elements.h)
     std::vector<Eigen::Triplet<double>> tff, tfc;
     std::size_t guess = 0;
     for (int e = 0; e < ne; ++e) guess += std::size_t(m.num_vertices(e)) * std::size_t(m.num_vertices(e));
     tff.reserve(guess + std::size_t(nf));
+    Eigen::MatrixXd ke;
     for (int e = 0; e < ne; ++e) {
       const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
       const double kap = kappa_[std::size_t(e)];
       const double* w = p.entry_weight.data() + b;
       double wsum = 0;
       for (int i = 0; i < n; ++i) wsum += w[i];
+      element_elastic_matrix(p, e, ke);
       for (int i = 0; i < n; ++i) {
         const int fi = free_index_[std::size_t(m.element_vertices[b + i])];
         if (fi < 0) continue;
         for (int j = 0; j < n; ++j) {
           const int nj = m.element_vertices[b + j];
-          const double v = kap * ((i == j ? w[i] : 0.0) - w[i] * w[j] / wsum);
+          const double v = ke(i, j) + kap * ((i == j ? w[i] : 0.0) - w[i] * w[j] / wsum);
           if (free_index_[std::size_t(nj)] >= 0)
             tff.emplace_back(fi, free_index_[std::size_t(nj)], v);
           else
@@ -499,7 +505,7 @@ class ProjectiveSolver {
   }
 
   /// Local step: per element the rotation fits and the per-entry targets
-  /// t_i = w_i ((k Q + k_v T) R0_i + (c/dt) R_d r_i^n)  (w_i: vertex weight).
+  /// t_i = 2 mu V Q g_i + w_i (k_v T R0_i + (c/dt) R_d r_i^n)  (w_i: vertex weight, g_i: gradient weight).
   ElementPassStats local_step(SimState& s, const Eigen::Matrix3Xd& x, const RotationFitSettings& fit, int threads) {
     const PhysicsModel& p = *s.physics;
     const Model& m = *p.model;
@@ -511,39 +517,42 @@ class ProjectiveSolver {
         const int o = m.element_offsets[el], n = m.element_offsets[el + 1] - o;
         // (sum w R0 = sum w r^n = 0: no centring needed)
         const Eigen::Vector3d x0 = x.col(m.element_vertices[o]);
-        Eigen::Matrix3d a = Eigen::Matrix3d::Zero(), ad = Eigen::Matrix3d::Zero();
+        Eigen::Matrix3d a = Eigen::Matrix3d::Zero(), fg = Eigen::Matrix3d::Zero(), ad = Eigen::Matrix3d::Zero();
         for (int j = o; j < o + n; ++j) {
           const Eigen::Vector3d y = x.col(m.element_vertices[j]) - x0;
-          a.noalias() += y * p.entry_rest_weighted.col(j).transpose();
+          fg.noalias() += y * p.entry_gradient.col(j).transpose();
+          if (volume) a.noalias() += y * p.entry_rest_weighted.col(j).transpose();
           if (damping_) ad.noalias() += (p.entry_weight[std::size_t(j)] * y) * rest_now_.col(j).transpose();
         }
         const std::int32_t* slot = p.entry_slot.data();
-        if (!a.allFinite()) {
+        if (!fg.allFinite() || !a.allFinite()) {
           ++st.non_finite;
           for (int j = o; j < o + n; ++j) targets_.col(slot[j]).setZero();
           continue;
         }
         bool conv = true;
         Eigen::Matrix3d rq;
-        st.rotation_iterations += fit_rotation(a * p.element_fit_scale[std::size_t(el)], s.rotations[std::size_t(el)], fit, &conv, &rq);
+        st.rotation_iterations += fit_rotation(fg, s.rotations[std::size_t(el)], fit, &conv, &rq);
         st.unconverged += conv ? 0 : 1;
-        if (a.determinant() <= 0) ++st.inverted;
-        Eigen::Matrix3d mq = p.element_stiffness[std::size_t(el)] * rq;
+        if (fg.determinant() <= 0) ++st.inverted;
+        const Eigen::Matrix3d mg = p.element_affine_stiffness[std::size_t(el)] * rq;
+        Eigen::Matrix3d mq = Eigen::Matrix3d::Zero();
         if (volume) {
           const Eigen::Matrix3d& ninv = p.element_spread_inv_sqrt[std::size_t(el)];
           Eigen::Quaterniond qv = s.rotations[std::size_t(el)];
-          mq += p.element_volume_stiffness[std::size_t(el)] *
-                closest_with_determinant(a * ninv, p.element_spread_sqrt_det[std::size_t(el)], qv, fit) * ninv;
+          mq = p.element_volume_stiffness[std::size_t(el)] *
+               closest_with_determinant(a * ninv, p.element_spread_sqrt_det[std::size_t(el)], qv, fit) * ninv;
         }
         if (damping_) {
           Eigen::Matrix3d rd;
           fit_rotation(ad, damp_rot_[std::size_t(el)], fit, nullptr, &rd);
           const Eigen::Matrix3d md = p.element_damping[std::size_t(el)] * inv_dt * rd;
           for (int j = o; j < o + n; ++j)
-            targets_.col(slot[j]).noalias() =
-                mq * p.entry_rest_weighted.col(j) + p.entry_weight[std::size_t(j)] * (md * rest_now_.col(j));
+            targets_.col(slot[j]).noalias() = mg * p.entry_gradient.col(j) + mq * p.entry_rest_weighted.col(j) +
+                                              p.entry_weight[std::size_t(j)] * (md * rest_now_.col(j));
         } else {
-          for (int j = o; j < o + n; ++j) targets_.col(slot[j]).noalias() = mq * p.entry_rest_weighted.col(j);
+          for (int j = o; j < o + n; ++j)
+            targets_.col(slot[j]).noalias() = mg * p.entry_gradient.col(j) + mq * p.entry_rest_weighted.col(j);
         }
       }
       elem_chunks_[std::size_t(chunk)] = st;

@@ -6,6 +6,7 @@
 #include <limits>
 #include <sstream>
 
+#include "element_gradient.h"
 #include "error.h"
 #include "parallel.h"
 
@@ -173,6 +174,8 @@ std::shared_ptr<const PhysicsModel> make_physics_model(std::shared_ptr<const Mod
   p->element_mass_kg.resize(std::size_t(ne));
   p->element_spread_mm2.resize(std::size_t(ne));
   p->element_fit_scale.resize(std::size_t(ne));
+  p->element_affine_stiffness.resize(std::size_t(ne));
+  p->element_spread.resize(std::size_t(ne));
   if (volume) {
     p->element_volume_stiffness.resize(std::size_t(ne));
     p->element_spread_inv_sqrt.resize(std::size_t(ne));
@@ -227,6 +230,8 @@ std::shared_ptr<const PhysicsModel> make_physics_model(std::shared_ptr<const Mod
       p->element_mass_kg[e] = mass_kg;
       p->element_spread_mm2[e] = s;
       p->element_fit_scale[e] = 3.0 / s;
+      p->element_affine_stiffness[e] = 2.0 * mu * vol;
+      p->element_spread[e] = c0;
       if (volume) {
         const double lambda = lame_lambda_n_mm2(e_kpa, material.poisson_ratio);
         p->element_volume_stiffness[e] = 9.0 * lambda * vol / s;
@@ -238,6 +243,17 @@ std::shared_ptr<const PhysicsModel> make_physics_model(std::shared_ptr<const Mod
       }
     }
   });
+  // consistent deformation gradients; the least-squares fit g_i = C0^{-1} w_i R0_i where the
+  // boundary shares cannot be formed (a hand-edited model)
+  ElementGradients grads = compute_element_gradients(m);
+  p->entry_gradient = std::move(grads.entry_gradient);
+  p->gradient_fallback_elements = grads.fallback_elements;
+  for (int e = 0; e < ne; ++e) {
+    if (!grads.element_fallback[std::size_t(e)] || bad[std::size_t(e)]) continue;
+    const Eigen::Matrix3d inv = p->element_spread[std::size_t(e)].inverse();
+    for (int j = m.element_offsets[e]; j < m.element_offsets[e + 1]; ++j)
+      p->entry_gradient.col(j) = inv * p->entry_rest_weighted.col(j);
+  }
   // serial, in element order: checks, statistics, lumped node masses (deterministic sums)
   for (int e = 0; e < ne; ++e) {
     if (bad[std::size_t(e)])

@@ -32,6 +32,15 @@
 /// average. Verified by tests/core/calibration_test.cpp (static compression and sag of one
 /// block for the voxel, uniform and gradational layouts against E).
 ///
+/// The element as implemented (elements.h): the shape-keeping energy split into its affine and
+/// non-affine parts, E_e = mu V |F - Q|^2 + k/2 sum_i w_i |r_i - F R0_i|^2, with F the
+/// element's consistent deformation gradient (element_gradient.h) and Q its rotation. For an
+/// 8-vertex cube F is the paper's least-squares fit A C0^{-1} and, because k S / 3 = 2 mu V,
+/// E_e is exactly the paper's k/2 sum_i w_i |r_i - Q R0_i|^2. For the gradational layout's
+/// elements with extra face vertices the consistent F passes the patch test (a uniform strain
+/// is an equilibrium of the whole model), which the least-squares fit does not (11 % too soft
+/// on a 32^3 cube; see element_gradient.h).
+///
 /// Poisson ratio > 0 (volume preservation): an extra projective term per element,
 ///   E_v = w_v/2 min_{T: det T = 1} sum_i w_i |r_i - T R0_i|^2,
 /// whose small-strain energy is w_v S (tr eps)^2 / 18 for an isotropic spread, i.e. the
@@ -100,6 +109,11 @@ struct PhysicsModel {
   std::vector<double> element_mass_kg;           ///< elements: rho V_e, kg
   std::vector<double> element_spread_mm2;        ///< elements: S_e = sum_i w_i |R0_i|^2, mm^2
   std::vector<double> element_fit_scale;         ///< elements: 3 / S_e, 1/mm^2 (A * scale ~ deformation gradient)
+  /// Consistent deformation gradient (element_gradient.h): F = sum_i x_i g_i^T.
+  Eigen::Matrix3Xd entry_gradient;               ///< 3 x entries: g_i, 1/mm
+  std::vector<double> element_affine_stiffness;  ///< elements: 2 mu V_e, N*mm (energy mu V |F - Q|^2)
+  std::vector<Eigen::Matrix3d> element_spread;   ///< elements: C0 = sum_i w_i R0_i R0_i^T, mm^2
+  std::int64_t gradient_fallback_elements{0};    ///< elements keeping the least-squares gradient
   /// elements (volume term only): C0^{-1/2}, 3x3 column-major, 1/mm; and sqrt(det C0), mm^3.
   std::vector<Eigen::Matrix3d> element_spread_inv_sqrt;
   std::vector<double> element_spread_sqrt_det;

@@ -148,13 +148,14 @@ double loglog_slope(const std::vector<std::pair<double, double>>& p, double x_mi
 // layout (8-vertex elements, exactly calibrated) matches this reference within 8 % at every
 // depth (+6 to +8 %: a 1 mm node lattice under a contact only 2-4 mm wide): the contact, the
 // collision response and the force measurement are right.
-// The gradational layout comes out softer, increasingly with depth as the stress reaches its
-// larger interior elements: measured -3 % at 0.5 mm to -19 % at 2 mm (its uniform compression is
-// -9 % for a 20 mm cube, see PlateCompressionGivesEAStrain: the physics core's calibration of
-// those elements, not the contact). Tolerance: force within [-22 %, +5 %] of the reference for
-// 0.5 <= d <= 2 mm, and the force must grow like d^1.5: log-log slope of F/c(chi) in 1.5 +- 0.2
-// (measured 1.34; 1.47 for the voxel layout). Against the half-space formula alone (what a
-// quick check computes) the gradational force reads -4 % to +3 %: the two errors cancel here.
+// The gradational layout comes out stiffer: measured +14 % at 0.5 mm to +23 % at 2 mm, i.e.
+// 7-14 % above the voxel layout. Its uniform compression is exact (consistent gradient, see
+// PlateCompressionGivesEAStrain); what remains is resolution: under a contact 2-4 mm wide its
+// surface elements are 2 mm cubes whose surface nodes move with one deformation gradient, so
+// the surface cannot dimple as finely as the 1 mm voxel layout. (With the paper's least-squares
+// fit it read -3 % to -19 %: its 9 % uniform softness masked this.) Tolerance: force within
+// [-5 %, +28 %] of the reference for 0.5 <= d <= 2 mm, and the force must grow like d^1.5:
+// log-log slope of F/c(chi) in 1.5 +- 0.1 (measured 1.44; 1.47 for the voxel layout).
 TEST(Simulation, HertzIndentationOfABlock) {
   const auto curve = indent_block(Resolution::gradational, 1.0);
   std::vector<std::pair<double, double>> reduced;  // F / c(chi): the half-space equivalent
@@ -164,15 +165,15 @@ TEST(Simulation, HertzIndentationOfABlock) {
     const double ref = hertz_bonded_layer_n(10.0, 0.0, 8.0, d, 20.0);
     lo = std::min(lo, f / ref);
     hi = std::max(hi, f / ref);
-    EXPECT_GT(f / ref, 0.78) << "depth " << d << " mm: " << f << " N against " << ref << " N";
-    EXPECT_LT(f / ref, 1.05) << "depth " << d << " mm: " << f << " N against " << ref << " N";
+    EXPECT_GT(f / ref, 0.95) << "depth " << d << " mm: " << f << " N against " << ref << " N";
+    EXPECT_LT(f / ref, 1.28) << "depth " << d << " mm: " << f << " N against " << ref << " N";
     reduced.emplace_back(d, f * hertz_bonded_layer_n(10.0, 0.0, 8.0, d, 1e12) / ref);
   }
   ASSERT_GT(reduced.size(), 20u);
   const double exponent = loglog_slope(reduced, 0.5);
   std::printf("Hertz (gradational): force / finite-layer Hertz %.3f .. %.3f, exponent %.3f (raw F: %.3f)\n", lo, hi,
               exponent, loglog_slope(curve, 0.5));
-  EXPECT_NEAR(exponent, 1.5, 0.2);
+  EXPECT_NEAR(exponent, 1.5, 0.1);
 }
 
 // A plate pressed onto a block fixed at its base: uniaxial strain, F = E A (d / H) for Poisson 0
