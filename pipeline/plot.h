@@ -15,12 +15,19 @@ struct PlotSeries {
   std::vector<double> x, y;  ///< same length
   bool points{false};        ///< draw points instead of lines
   double line_width{1.5};
+  bool with_points{false};   ///< lines with a point at every sample
+  int dash_type{0};          ///< gnuplot dash type: 0 solid, 2 dashed, 3 dotted, ...
+  int point_type{7};         ///< gnuplot point type (7 disc, 5 square, 9 triangle, 13 diamond, ...)
+  std::string color{};       ///< gnuplot colour name or "#rrggbb" ("": the next of gnuplot's cycle)
 };
 
 /// One panel (plots are stacked vertically).
 struct PlotPanel {
   std::string title, xlabel, ylabel;
   std::vector<PlotSeries> series;
+  bool log_x{false}, log_y{false};  ///< logarithmic axes (samples <= 0 on them are dropped)
+  std::string key{"top left"};      ///< gnuplot key position, e.g. "top right", "bottom right", "below"
+  std::string xrange{}, yrange{};   ///< gnuplot ranges, e.g. "[10:300]" ("": automatic)
 };
 
 /// The gnuplot executable found on PATH, or "" when there is none.

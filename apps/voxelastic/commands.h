@@ -11,6 +11,7 @@ namespace vx::cli {
 void add_phantom_command(CLI::App& app);  ///< voxelastic phantom NAME -o OUT
 void add_convert_command(CLI::App& app);  ///< voxelastic convert INPUT -o MODEL.vtu
 void add_simulate_command(CLI::App& app); ///< voxelastic simulate SCENE.json --out DIR
+void add_bench_command(CLI::App& app);    ///< voxelastic bench [--quick] [--out DIR] [--threads N]
 void add_verify_command(CLI::App& app);   ///< voxelastic verify [--suite S] --out DIR, voxelastic verify-merge DIR... --out DIR
 
 }  // namespace vx::cli

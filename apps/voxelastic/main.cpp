@@ -14,6 +14,7 @@ int main(int argc, char** argv) {
   vx::cli::add_convert_command(app);
   vx::cli::add_simulate_command(app);
   vx::cli::add_verify_command(app);
+  vx::cli::add_bench_command(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -1,0 +1,123 @@
+// voxelastic bench [--quick] [--out DIR] [--threads N]: the cost of one step against model size
+// (step.csv, step.png) and run time against error on a palpation scene (bench.csv, bench.json,
+// bench.md and plots), with the configuration that is best for real time. See docs/bench.md.
+#include <fmt/format.h>
+
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "atomic_file.h"
+#include "bench.h"
+#include "commands.h"
+#include "error.h"
+#include "plot.h"
+
+namespace vx::cli {
+namespace {
+namespace fs = std::filesystem;
+
+struct BenchOptions {
+  bool quick{false};
+  std::string out{"out/bench"};
+  int threads{1};
+  std::vector<int> sizes, step_sizes;
+  int reference_size{0};
+  double max_run_s{0.0};
+  double duration_s{0.0};
+  bool skip_step{false}, skip_palpation{false};
+  bool quiet{false};
+};
+
+void run_bench_command(const BenchOptions& o) {
+  BenchSettings set = o.quick ? BenchSettings::quick_settings() : BenchSettings{};
+  set.threads = o.threads;
+  if (!o.sizes.empty()) set.sizes = o.sizes;
+  if (!o.step_sizes.empty()) set.step_sizes = o.step_sizes;
+  if (o.reference_size > 0) set.reference_size = o.reference_size;
+  if (o.max_run_s > 0) set.max_run_s = o.max_run_s;
+  if (o.duration_s > 0) {
+    set.scene.duration_s = o.duration_s;
+    set.scene.press_s = 0.5 * o.duration_s;
+  }
+  set.run_step = !o.skip_step;
+  set.run_palpation = !o.skip_palpation;
+  set.validate();
+
+  // the outputs and gnuplot first: a mistake there should not cost a whole bench
+  const fs::path dir(o.out);
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec || !fs::is_directory(dir))
+    throw Error(fmt::format("--out '{}': cannot create the folder ({})", o.out, ec ? ec.message() : "not a folder"));
+  check_output_path(dir / "bench.json");
+  check_gnuplot();
+
+  if (!o.quiet) {
+    set.log = [](const std::string& line) { fmt::print(stderr, "{}\n", line); };
+    fmt::print(stderr, "voxelastic bench{}: {} physics thread(s); step sizes {}; palpation sizes {}, reference n = {}\n",
+               set.quick ? " --quick" : "", set.threads, set.run_step ? fmt::format("{}", fmt::join(set.step_sizes, ", ")) : "-",
+               set.run_palpation ? fmt::format("{}", fmt::join(set.sizes, ", ")) : "-", set.reference_size);
+  }
+  const BenchResult res = run_bench(set);
+  const std::vector<std::string> written = write_bench_report(res, dir);
+
+  if (set.run_step) {
+    for (Resolution r : {Resolution::gradational, Resolution::uniform, Resolution::voxel}) {
+      std::vector<StepBenchmarkRow> rows;
+      for (const auto& row : res.step_rows)
+        if (row.resolution == r) rows.push_back(row);
+      fmt::print("One step on sphere phantoms, {} models ({} thread(s)):\n{}", to_string(r), set.threads,
+                 format_step_benchmark(rows));
+    }
+    fmt::print("Explicit step time against n, log-log slope: gradational {:.2f}, uniform {:.2f}, voxel-level {:.2f} "
+               "(paper: ~2 against ~3)\n",
+               res.step_slope_gradational, res.step_slope_uniform, res.step_slope_voxel);
+  }
+  if (set.run_palpation) {
+    int unstable = 0, skipped = 0;
+    for (const auto& r : res.rows) {
+      unstable += r.status == BenchStatus::unstable;
+      skipped += r.status == BenchStatus::skipped;
+    }
+    fmt::print("Palpation: {} runs ({} unstable, {} skipped), reference voxel-level n = {}: peak force {:.4g} N; Pareto "
+               "front of {} runs\n",
+               res.rows.size(), unstable, skipped, res.reference.size, res.reference.peak_force_n, res.pareto.size());
+    fmt::print("{}\n", best_statement(res));
+  }
+  for (const auto& n : res.notes) fmt::print("note: {}\n", n);
+  fmt::print("bench took {:.0f} s; wrote {} to {}\n", res.total_s, fmt::join(written, ", "), dir.string());
+}
+
+}  // namespace
+
+void add_bench_command(CLI::App& app) {
+  auto opts = std::make_shared<BenchOptions>();
+  CLI::App* sub = app.add_subcommand(
+      "bench",
+      "Benchmarks (docs/bench.md): the cost of one step on sphere phantoms of growing size for each resolution and "
+      "integrator (DIR/step.csv, step.png), and run time against error on a palpation scene (DIR/bench.csv, bench.json, "
+      "bench.md, bench_error.png, bench_cost.png, bench_curves.png) with the best configuration for real time.");
+  sub->add_flag("--quick", opts->quick, "the small suite (about 2 minutes on 2 cores; the full one about 17)");
+  sub->add_option("-o,--out", opts->out, "output folder (created if missing)")->capture_default_str();
+  sub->add_option("--threads", opts->threads, "physics threads (>= 1)")->capture_default_str()->check(CLI::Range(1, 1024));
+  sub->add_option("--sizes", opts->sizes, "palpation grid sizes n, voxels across the block, even (e.g. 16,24,32)")
+      ->delimiter(',')
+      ->check(CLI::Range(8, 256));
+  sub->add_option("--step-sizes", opts->step_sizes, "sphere sizes of the step benchmark (e.g. 32,64,128,256)")
+      ->delimiter(',')
+      ->check(CLI::Range(8, 512));
+  sub->add_option("--reference-size", opts->reference_size, "size n of the voxel-level reference (even)")
+      ->check(CLI::Range(8, 256));
+  sub->add_option("--max-run-s", opts->max_run_s, "skip palpation runs predicted to take longer than this (s)")
+      ->check(CLI::PositiveNumber);
+  sub->add_option("--duration", opts->duration_s, "simulated time of the palpation scene, s (press half, lift half)")
+      ->check(CLI::Range(0.02, 10.0));
+  sub->add_flag("--skip-step", opts->skip_step, "skip the step benchmark (part A)");
+  sub->add_flag("--skip-palpation", opts->skip_palpation, "skip run time against error (part B)");
+  sub->add_flag("-q,--quiet", opts->quiet, "no progress on stderr");
+  sub->callback([opts] { run_bench_command(*opts); });
+}
+
+}  // namespace vx::cli
