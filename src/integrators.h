@@ -6,7 +6,7 @@
 /// - explicit_euler: the paper's eq. 1-2 exactly: v' = v + dt F(x, v)/m, x' = x + dt v
 ///   (the position moves with the OLD velocity). Without damping it gains energy every step
 ///   for any dt (unconditionally unstable); with damping it is stable only for
-///   dt <= min_e c_e / k_e = 2 zeta / omega_e (see estimate_time_steps()).
+///   dt <= ~c_e / k_e = 2 zeta / omega_e (see estimate_time_steps()).
 /// - symplectic_euler: v' = v + dt F(x, v)/m, x' = x + dt v' (semi-implicit). Undamped, its
 ///   energy stays bounded for dt < 2 / omega_max.
 /// - implicit: backward Euler by projective dynamics (Bouaziz et al. 2014). The element energy
@@ -102,7 +102,7 @@ class Integrator {
 [[nodiscard]] std::unique_ptr<Integrator> make_integrator(const IntegratorSettings& settings);
 
 /// Time-step limits of a physics model, from its stiffest element (Gershgorin bounds of the
-/// linearised system: per node, omega^2 <= sum_e 2 w_i (1 - w_i/W_e) (k_e + k_v,e) / m_i and
+/// linearised system: per node, omega^2 <= sum_e (|K_e| row sum + 2 w_i (1 - w_i/W_e) k_v,e) / m_i and
 /// the damping rate gamma <= sum_e 2 w_i (1 - w_i/W_e) c_e / m_i, with w_i the vertex weight
 /// and W_e the element's weight sum; conservative, not tight).
 struct TimeStepEstimate {
@@ -111,8 +111,10 @@ struct TimeStepEstimate {
   /// symplectic Euler: dt <= (sqrt(4 omega^2 + gamma^2) - gamma) / omega^2 at the worst node
   /// (2 / omega without damping)
   double symplectic_euler_s{0.0};
-  /// explicit Euler (the paper): dt <= min_e c_e / (k_e + k_v,e) and dt <= 2 / gamma_max;
-  /// 0 without damping (unstable at any dt)
+  /// explicit Euler (the paper): dt <= min_i (damping / stiffness Gershgorin sums at node i)
+  /// and dt <= 2 / gamma_max; this is c / k for the paper's cube element and ~c / k_e in general
+  /// (less where the consistent gradient stiffens an element); 0 without damping (unstable at
+  /// any dt)
   double explicit_euler_s{0.0};
   /// implicit: unconditionally stable (infinity); accuracy falls off above ~element_period_s / 10
   double implicit_s{std::numeric_limits<double>::infinity()};
