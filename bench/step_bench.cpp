@@ -11,6 +11,7 @@
 #include <map>
 #include <memory>
 
+#include "elements.h"
 #include "gradational_builder.h"
 #include "integrators.h"
 #include "parallel.h"
@@ -67,6 +68,36 @@ void step(benchmark::State& bs, IntegratorKind kind, int n) {
   if (kind == IntegratorKind::implicit) bs.counters["iterations"] = rep.iterations;
 }
 
+/// The element pass alone (elastic and damping forces of every element, as in an explicit
+/// step), with the given kernel: the packed kernel against the reference side by side.
+void element_pass(benchmark::State& bs, ElementKernel kernel, int n) {
+  const auto& physics = sphere(n);
+  const Model& model = *physics->model;
+  SimState s = make_state(physics);
+  const double zmin = model.rest_positions.row(2).minCoeff();
+  s.fix_nodes(nodes_in_box(model, Eigen::Vector3d::Constant(-1e30), Eigen::Vector3d(1e30, 1e30, zmin + 1.01)));
+  s.gravity_mm_s2 = {0, 0, -kStandardGravityMmS2};
+  IntegratorSettings is;
+  is.kind = IntegratorKind::explicit_euler;
+  is.time_step_s = 0.5 * stable_time_step(*physics, is.kind);
+  make_integrator(is)->advance(s, 10);  // a deformed, moving state with warm rotations
+  ElementPassOptions opt;
+  opt.kernel = kernel;
+  const auto t0 = std::chrono::steady_clock::now();
+  for (auto _ : bs) {
+    compute_element_forces(*physics, s.positions, &s.velocities, s.rotations, s.scratch.entry_forces, nullptr, opt, 0,
+                           s.scratch.element_pass);
+    benchmark::ClobberMemory();
+  }
+  const double steps = double(std::max<benchmark::IterationCount>(1, bs.iterations()));
+  const double pass_ns = std::chrono::duration<double, std::nano>(std::chrono::steady_clock::now() - t0).count() / steps;
+  bs.counters["threads"] = resolve_threads(0);
+  bs.counters["elements"] = model.num_elements();
+  bs.counters["entries"] = double(model.num_vertex_entries());
+  bs.counters["ns_per_element"] = pass_ns / model.num_elements();
+  bs.counters["ns_per_entry"] = pass_ns / double(model.num_vertex_entries());
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -79,6 +110,17 @@ int main(int argc, char** argv) {
           ->UseRealTime()
           ->MinTime(0.5);
     }
+  // the element pass with each kernel, interleaved per size so that the pair runs under the
+  // same machine load (compare ratios, not absolute times)
+  for (int n : {32, 64, 128, 256})
+    for (ElementKernel kernel : {ElementKernel::reference, ElementKernel::packed})
+      benchmark::RegisterBenchmark((std::string("element_pass/") +
+                                    (kernel == ElementKernel::packed ? "packed" : "reference") + "/" + std::to_string(n))
+                                       .c_str(),
+                                   [kernel, n](benchmark::State& bs) { element_pass(bs, kernel, n); })
+          ->Unit(benchmark::kMillisecond)
+          ->UseRealTime()
+          ->MinTime(0.5);
   benchmark::Initialize(&argc, argv);
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
   benchmark::RunSpecifiedBenchmarks();

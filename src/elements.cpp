@@ -45,7 +45,13 @@ int fit_rotation(const Eigen::Matrix3d& a, Eigen::Quaterniond& q, const Rotation
   if (scale2 < 1e-300) return finish(true, 0);  // collapsed to a point: every rotation fits; keep the warm start
   const Eigen::Matrix3d an = a * (1.0 / std::sqrt(scale2));
   const double tol2 = settings.tolerance * settings.tolerance;
+  // from here on r is always q's rotation matrix: the exits hand it out instead of recomputing it
   Eigen::Matrix3d r = q.toRotationMatrix();
+  const auto done = [&](int it) {
+    if (converged) *converged = true;
+    if (rotation) *rotation = r;
+    return it;
+  };
   Eigen::Matrix3d p = an * r.transpose();
   double f = p.trace();
   int it = 0;
@@ -60,12 +66,12 @@ int fit_rotation(const Eigen::Matrix3d& a, Eigen::Quaterniond& q, const Rotation
     const double det = h00 * c00 + h01 * c01 + h02 * c02;
     const bool pd = h00 > 1e-6 && h00 * h11 - h01 * h01 > 1e-12 && det > 1e-18;
     if (g.squaredNorm() <= tol2) {
-      if (pd) return finish(true, it);  // a strict maximum
+      if (pd) return done(it);  // a strict maximum
       Eigen::Matrix3d h;
       h << h00, h01, h02, h01, h11, h12, h02, h12, h22;
       Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
       eig.computeDirect(h);
-      if (eig.eigenvalues()(0) >= -1e-9) return finish(true, it);  // flat direction of a degenerate A: a maximum too
+      if (eig.eigenvalues()(0) >= -1e-9) return done(it);  // flat direction of a degenerate A: a maximum too
       // a saddle or minimum of the trace: half a revolution about the worst axis gains
       // 2 |u^T h u| exactly
       const Eigen::Vector3d u = eig.eigenvectors().col(0).normalized();
@@ -182,12 +188,13 @@ Eigen::Matrix3d closest_with_determinant(const Eigen::Matrix3d& b, double det, E
 
 namespace {
 
-/// The element kernel for elements [e0, e1): writes 3 doubles per vertex entry.
-/// Vertex i has weight w_i and weighted rest offset R0'_i = w_i R0_i (material.h).
-/// Each loop over the vertices keeps at most ~16 values live, so that baseline x86-64 (16 SSE
-/// registers) does not spill: elastic and damping parts run as separate loops.
+/// The reference element kernel for elements [e0, e1) (ElementKernel::reference): writes 3
+/// doubles per vertex entry. Vertex i has weight w_i and weighted rest offset R0'_i = w_i R0_i
+/// (material.h). Each loop over the vertices keeps at most ~16 values live, so that baseline
+/// x86-64 (16 SSE registers) does not spill: elastic and damping parts run as separate loops,
+/// each gathering the positions again and reading the per-entry constants from separate arrays.
 template <bool kDamping, bool kEnergy, bool kVolume>
-void element_range(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot,
+void element_range_reference(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot,
                    double* ef, double* energy_out, std::int64_t e0, std::int64_t e1,
                    const RotationFitSettings& fit, ElementPassStats& st) {
   const Model& m = *phys.model;
@@ -349,22 +356,215 @@ void element_range(const PhysicsModel& phys, const double* xs, const double* vs,
   }
 }
 
+/// Prefetch distances of the packed kernel, in elements: the packed records of element
+/// e + kPrefetchRecords, then (from those records, cached by then) the force slots and
+/// positions of element e + kPrefetchAhead.
+constexpr int kPrefetchRecords = 4;
+constexpr int kPrefetchAhead = 1;
+/// A row of [A, F] (and of the packed record's first 6 doubles: w R0, g).
+using Row6 = Eigen::Array<double, 6, 1>;
+
+/// The element kernel over the packed per-entry records (ElementKernel::packed): the same
+/// arithmetic as element_range_reference, in the same order for every value (the same bits
+/// where the compiler contracts no multiply-adds), but streaming one array of 64-byte records,
+/// with A and F in one loop (as packets) and each entry's force written once (elastic, gradient
+/// and damping parts summed in registers). Measured (bench/step_bench.cpp, element_pass): the
+/// pass is bound by memory, the scattered writes into the node-major force buffer and the
+/// stream of records, hence the software prefetches ahead of the current element.
+template <bool kDamping, bool kEnergy, bool kVolume>
+void element_range_packed(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot,
+                          double* ef, double* energy_out, std::int64_t e0, std::int64_t e1,
+                          const RotationFitSettings& fit, ElementPassStats& st) {
+  const Model& m = *phys.model;
+  const std::int32_t* off = m.element_offsets.data();
+  const PackedEntry* pk = phys.entry_packed.data();
+  for (std::int64_t e = e0; e < e1; ++e) {
+    const int b = off[e], n = off[e + 1] - b;
+    const PackedEntry* pe = pk + b;
+    if (e + kPrefetchRecords < e1) {
+      const char* p0 = reinterpret_cast<const char*>(pk + off[e + kPrefetchRecords]);
+      const char* p1 = reinterpret_cast<const char*>(pk + off[e + kPrefetchRecords + 1]);
+      for (; p0 < p1; p0 += sizeof(PackedEntry)) __builtin_prefetch(p0, 0);
+    }
+    if (e + kPrefetchAhead < e1) {
+      for (int j = off[e + kPrefetchAhead], je = off[e + kPrefetchAhead + 1]; j < je; ++j) {
+        __builtin_prefetch(ef + 3 * std::int64_t(pk[j].slot), 1);
+        __builtin_prefetch(xs + 3 * std::int64_t(pk[j].vertex), 0);
+        if constexpr (kDamping) __builtin_prefetch(vs + 3 * std::int64_t(pk[j].vertex), 0);
+      }
+    }
+    // positions relative to the first vertex (keeps sums free of the absolute offset)
+    const double* x0 = xs + 3 * std::int64_t(pe[0].vertex);
+    const double ox = x0[0], oy = x0[1], oz = x0[2];
+    // pass 1: weighted centroid, A = sum w y R0^T (sum w R0 = 0) and F = sum y g^T (sum g = 0)
+    // as the rows of y [w R0^T, g^T] (packets of the record's first 6 doubles)
+    double sw = 0, sx = 0, sy = 0, sz = 0;
+    Row6 ax = Row6::Zero(), ay = Row6::Zero(), az = Row6::Zero();  // rows of [A, F]
+    for (int j = 0; j < n; ++j) {
+      const PackedEntry& en = pe[j];
+      const double* xp = xs + 3 * std::int64_t(en.vertex);
+      const Eigen::Map<const Row6, Eigen::Aligned16> cst(en.rest_weighted);
+      const double w = en.weight;
+      const double yx = xp[0] - ox, yy = xp[1] - oy, yz = xp[2] - oz;
+      sw += w;
+      sx += w * yx;
+      sy += w * yy;
+      sz += w * yz;
+      ax += yx * cst;
+      ay += yy * cst;
+      az += yz * cst;
+    }
+    // pass 1b (damping): the sums of the rigid velocity fit; a loop of its own (the gather hits
+    // L1 now) because in pass 1 its 12 more sums spill, measured no faster
+    double svx = 0, svy = 0, svz = 0, lx = 0, ly = 0, lz = 0;
+    double ixx = 0, ixy = 0, ixz = 0, iyy = 0, iyz = 0, izz = 0;
+    if constexpr (kDamping) {
+      for (int j = 0; j < n; ++j) {
+        const PackedEntry& en = pe[j];
+        const double* xp = xs + 3 * std::int64_t(en.vertex);
+        const double* vp = vs + 3 * std::int64_t(en.vertex);
+        const double w = en.weight;
+        const double yx = xp[0] - ox, yy = xp[1] - oy, yz = xp[2] - oz;
+        const double wx = w * yx, wy = w * yy, wz = w * yz;
+        svx += w * vp[0];
+        svy += w * vp[1];
+        svz += w * vp[2];
+        lx += wy * vp[2] - wz * vp[1];
+        ly += wz * vp[0] - wx * vp[2];
+        lz += wx * vp[1] - wy * vp[0];
+        ixx += wx * yx; ixy += wx * yy; ixz += wx * yz;
+        iyy += wy * yy; iyz += wy * yz; izz += wz * yz;
+      }
+    }
+    const double inv_w = 1.0 / sw;
+    const Eigen::Vector3d c(sx * inv_w, sy * inv_w, sz * inv_w);  // relative to x0
+    Eigen::Matrix3d a, fg;
+    a << ax(0), ax(1), ax(2), ay(0), ay(1), ay(2), az(0), az(1), az(2);
+    fg << ax(3), ax(4), ax(5), ay(3), ay(4), ay(5), az(3), az(4), az(5);
+    if (!a.allFinite() || !fg.allFinite() || !c.allFinite()) {  // NaN/Inf in: no force out, counted
+      ++st.non_finite;
+      for (int j = 0; j < n; ++j) {
+        double* out = ef + 3 * std::int64_t(pe[j].slot);
+        out[0] = out[1] = out[2] = 0.0;
+      }
+      if constexpr (kEnergy) energy_out[e] = 0.0;
+      continue;
+    }
+    // rotation fit, warm-started
+    bool conv = true;
+    Eigen::Matrix3d q;
+    st.rotation_iterations += fit_rotation(fg, rot[e], fit, &conv, &q);
+    st.unconverged += conv ? 0 : 1;
+    if (fg.determinant() <= 0.0) ++st.inverted;
+    const double k = phys.element_stiffness[std::size_t(e)];
+    // f_i = k w_i (F R0_i - r_i) + G g_i,  G = 2 mu V (Q - F) + k (A - F C0)
+    const Eigen::Matrix3d gm = phys.element_affine_stiffness[std::size_t(e)] * (q - fg) +
+                               k * (a - fg * phys.element_spread[std::size_t(e)]);
+    Eigen::Matrix3d mq = k * fg;
+    double ktot = k;
+    Eigen::Matrix3d t;
+    double wv = 0;
+    if constexpr (kVolume) {
+      wv = phys.element_volume_stiffness[std::size_t(e)];
+      const Eigen::Matrix3d& ninv = phys.element_spread_inv_sqrt[std::size_t(e)];
+      Eigen::Quaterniond qv = rot[e];
+      t = closest_with_determinant(a * ninv, phys.element_spread_sqrt_det[std::size_t(e)], qv, fit) * ninv;
+      mq += wv * t;
+      ktot += wv;
+    }
+    // the rigid velocity fit about the centroid (damping)
+    double cd = 0, wx = 0, wy = 0, wz = 0, ux = 0, uy = 0, uz = 0;
+    if constexpr (kDamping) {
+      cd = phys.element_damping[std::size_t(e)];
+      const Eigen::Vector3d vc(svx * inv_w, svy * inv_w, svz * inv_w);
+      const Eigen::Vector3d ang = Eigen::Vector3d(lx, ly, lz) - sw * c.cross(vc);
+      Eigen::Matrix3d yy;
+      yy << ixx, ixy, ixz, ixy, iyy, iyz, ixz, iyz, izz;
+      yy -= sw * c * c.transpose();  // sum w r r^T about the centroid
+      Eigen::Matrix3d inertia = -yy;
+      const double tr = yy.trace();
+      inertia.diagonal().array() += tr * (1.0 + 1e-10);  // + tiny regularisation (collinear)
+      Eigen::Vector3d omega = Eigen::Vector3d::Zero();
+      if (tr > 0) omega = inertia.inverse() * ang;
+      if (!omega.allFinite()) omega.setZero();
+      wx = omega.x(), wy = omega.y(), wz = omega.z();
+      ux = vc.x(), uy = vc.y(), uz = vc.z();
+    }
+    // pass 2: f = M R0' - w ktot (x - c) + G g  (M = k F + k_v T, R0' = w R0)
+    //           [+ c w (v_c + omega x r - v)], summed in the reference kernel's order
+    {
+      const double m00 = mq(0, 0), m01 = mq(0, 1), m02 = mq(0, 2), m10 = mq(1, 0), m11 = mq(1, 1),
+                   m12 = mq(1, 2), m20 = mq(2, 0), m21 = mq(2, 1), m22 = mq(2, 2);
+      const double g00 = gm(0, 0), g01 = gm(0, 1), g02 = gm(0, 2), g10 = gm(1, 0), g11 = gm(1, 1),
+                   g12 = gm(1, 2), g20 = gm(2, 0), g21 = gm(2, 1), g22 = gm(2, 2);
+      const double cx = ox + c.x(), cy = oy + c.y(), cz = oz + c.z();
+      for (int j = 0; j < n; ++j) {
+        const PackedEntry& en = pe[j];
+        const double* xp = xs + 3 * std::int64_t(en.vertex);
+        const double* r0 = en.rest_weighted;
+        const double* g = en.gradient;
+        const double kw = ktot * en.weight;
+        const double rx = xp[0] - cx, ry = xp[1] - cy, rz = xp[2] - cz;
+        double o0 = m00 * r0[0] + m01 * r0[1] + m02 * r0[2] - kw * rx;
+        double o1 = m10 * r0[0] + m11 * r0[1] + m12 * r0[2] - kw * ry;
+        double o2 = m20 * r0[0] + m21 * r0[1] + m22 * r0[2] - kw * rz;
+        o0 += g00 * g[0] + g01 * g[1] + g02 * g[2];
+        o1 += g10 * g[0] + g11 * g[1] + g12 * g[2];
+        o2 += g20 * g[0] + g21 * g[1] + g22 * g[2];
+        if constexpr (kDamping) {
+          const double* vp = vs + 3 * std::int64_t(en.vertex);
+          const double cw = cd * en.weight;
+          o0 += cw * (ux + wy * rz - wz * ry - vp[0]);
+          o1 += cw * (uy + wz * rx - wx * rz - vp[1]);
+          o2 += cw * (uz + wx * ry - wy * rx - vp[2]);
+        }
+        double* out = ef + 3 * std::int64_t(en.slot);
+        out[0] = o0;
+        out[1] = o1;
+        out[2] = o2;
+      }
+    }
+    if constexpr (kEnergy) {
+      double en = 0.5 * phys.element_affine_stiffness[std::size_t(e)] * (fg - q).squaredNorm();
+      const Eigen::Vector3d ca = Eigen::Vector3d(ox, oy, oz) + c;
+      for (int j = 0; j < n; ++j) {
+        const Eigen::Vector3d r = Eigen::Map<const Eigen::Vector3d>(xs + 3 * std::int64_t(pe[j].vertex)) - ca;
+        const Eigen::Vector3d rr = phys.entry_rest.col(b + j);
+        en += 0.5 * k * pe[j].weight * (fg * rr - r).squaredNorm();
+        if constexpr (kVolume) en += 0.5 * wv * pe[j].weight * (t * rr - r).squaredNorm();
+      }
+      energy_out[e] = en;
+      st.elastic_energy += en;
+    }
+  }
+}
+
 using RangeFn = void (*)(const PhysicsModel&, const double*, const double*, Eigen::Quaterniond*, double*, double*,
                          std::int64_t, std::int64_t, const RotationFitSettings&, ElementPassStats&);
 
+template <template <bool, bool, bool> class Kernel>
 RangeFn pick_range(bool damping, bool energy, bool volume) {
   const int key = (damping ? 1 : 0) | (energy ? 2 : 0) | (volume ? 4 : 0);
   switch (key) {
-    case 0: return &element_range<false, false, false>;
-    case 1: return &element_range<true, false, false>;
-    case 2: return &element_range<false, true, false>;
-    case 3: return &element_range<true, true, false>;
-    case 4: return &element_range<false, false, true>;
-    case 5: return &element_range<true, false, true>;
-    case 6: return &element_range<false, true, true>;
-    default: return &element_range<true, true, true>;
+    case 0: return Kernel<false, false, false>::run;
+    case 1: return Kernel<true, false, false>::run;
+    case 2: return Kernel<false, true, false>::run;
+    case 3: return Kernel<true, true, false>::run;
+    case 4: return Kernel<false, false, true>::run;
+    case 5: return Kernel<true, false, true>::run;
+    case 6: return Kernel<false, true, true>::run;
+    default: return Kernel<true, true, true>::run;
   }
 }
+
+template <bool kDamping, bool kEnergy, bool kVolume>
+struct ReferenceKernel {
+  static constexpr RangeFn run = &element_range_reference<kDamping, kEnergy, kVolume>;
+};
+template <bool kDamping, bool kEnergy, bool kVolume>
+struct PackedKernel {
+  static constexpr RangeFn run = &element_range_packed<kDamping, kEnergy, kVolume>;
+};
 
 }  // namespace
 
@@ -382,7 +582,11 @@ ElementPassStats compute_element_forces(const PhysicsModel& phys, const Eigen::M
   if (energy && std::int64_t(element_energy->size()) != ne) element_energy->resize(std::size_t(ne));
   const std::int64_t chunks = chunk_count(ne, kElementGrain);
   if (std::int64_t(scratch.chunks.size()) != chunks) scratch.chunks.resize(std::size_t(chunks));
-  const RangeFn fn = pick_range(damping, energy, phys.has_volume_term());
+  // the packed kernel needs the packed entries (always there in a model from make_physics_model)
+  const bool packed = options.kernel == ElementKernel::packed &&
+                      std::int64_t(phys.entry_packed.size()) == phys.num_vertex_entries();
+  const RangeFn fn = packed ? pick_range<PackedKernel>(damping, energy, phys.has_volume_term())
+                            : pick_range<ReferenceKernel>(damping, energy, phys.has_volume_term());
   const double* xs = positions.data();
   const double* vs = damping ? velocities->data() : nullptr;
   Eigen::Quaterniond* rot = rotations.data();

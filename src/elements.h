@@ -71,11 +71,18 @@ int fit_rotation(const Eigen::Matrix3d& a, Eigen::Quaterniond& q, const Rotation
                                                        Eigen::Quaterniond& q,
                                                        const RotationFitSettings& settings);
 
+/// Which implementation of the element pass runs; both compute the same forces.
+enum class ElementKernel {
+  packed,     ///< the fast kernel: packed per-entry constants (PackedEntry), each force written once
+  reference,  ///< the plain kernel, one loop per term over separate arrays (for tests and benchmarks)
+};
+
 /// What an element pass should compute.
 struct ElementPassOptions {
   bool damping{true};    ///< add damping (needs velocities)
   bool energy{false};    ///< write per-element elastic energy
   RotationFitSettings rotation;
+  ElementKernel kernel{ElementKernel::packed};
 };
 
 /// Counters of one element pass (summed over elements).

@@ -287,6 +287,17 @@ std::shared_ptr<const PhysicsModel> make_physics_model(std::shared_ptr<const Mod
     p->node_entries[std::size_t(slot)] = std::int32_t(j);
     p->entry_slot[j] = slot;
   }
+  p->entry_packed.resize(m.element_vertices.size());
+  for (std::size_t j = 0; j < m.element_vertices.size(); ++j) {
+    PackedEntry& pe = p->entry_packed[j];
+    for (int d = 0; d < 3; ++d) {
+      pe.rest_weighted[d] = p->entry_rest_weighted(d, std::int64_t(j));
+      pe.gradient[d] = p->entry_gradient(d, std::int64_t(j));
+    }
+    pe.weight = p->entry_weight[j];
+    pe.vertex = m.element_vertices[j];
+    pe.slot = p->entry_slot[j];
+  }
   return p;
 }
 

@@ -91,6 +91,19 @@ inline constexpr double kKgM3ToKgPerMm3 = 1e-9;      ///< 1 kg/m^3 = 1e-9 kg/mm^
 inline constexpr double kKgToNs2PerMm = 1e-3;        ///< 1 kg = 1e-3 N*s^2/mm
 inline constexpr double kStandardGravityMmS2 = 9806.65;  ///< g, mm/s^2
 
+/// The per-entry constants of the element pass of one vertex entry, packed into one 64-byte
+/// record (one cache line) so that the force kernel streams a single array in entry order
+/// instead of five (copies of PhysicsModel::entry_rest_weighted, entry_gradient,
+/// entry_weight, entry_slot and Model::element_vertices).
+struct alignas(64) PackedEntry {
+  double rest_weighted[3];  ///< w_i R0_i, mm
+  double gradient[3];       ///< g_i, 1/mm
+  double weight;            ///< w_i
+  std::int32_t vertex;      ///< the node of the entry
+  std::int32_t slot;        ///< its column of the node-major entry buffers
+};
+static_assert(sizeof(PackedEntry) == 64);
+
 /// The immutable physical model: a Model plus the calibrated per-element and per-node data
 /// the integrators need. Many simulation states share one PhysicsModel.
 struct PhysicsModel {
@@ -133,6 +146,8 @@ struct PhysicsModel {
   std::vector<std::int32_t> node_entry_offsets;  ///< nodes + 1
   std::vector<std::int32_t> node_entries;        ///< slots: the vertex entry in each slot
   std::vector<std::int32_t> entry_slot;          ///< vertex entries: their slot (inverse of node_entries)
+  /// vertex entries: the element pass's constants packed per entry (derived from the above)
+  std::vector<PackedEntry> entry_packed;
 
   [[nodiscard]] int num_nodes() const { return model->num_nodes(); }
   [[nodiscard]] int num_elements() const { return model->num_elements(); }

@@ -5,8 +5,10 @@
 #include <gtest/gtest.h>
 
 #include <cstring>
+#include <iostream>
 #include <random>
 
+#include "gradational_builder.h"
 #include "physics_helpers.h"
 #include "state.h"
 
@@ -312,6 +314,128 @@ TEST(Elements, BitIdenticalForOneAndManyThreads) {
       EXPECT_EQ(std::memcmp(ref.data(), nf.data(), sizeof(double) * std::size_t(nf.size())), 0) << threads << " threads";
       EXPECT_EQ(st.elastic_energy, ref_energy) << threads << " threads";
     }
+  }
+}
+
+/// The force of every vertex entry (3 x entries, entry order) by a plain per-element Eigen loop,
+/// straight from the formulas of elements.h; rotations from fit_rotation with the warm starts
+/// `rot` (updated), as the kernels do.
+Eigen::Matrix3Xd plain_entry_forces(const PhysicsModel& p, const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v,
+                                    std::vector<Eigen::Quaterniond>& rot, const RotationFitSettings& fit) {
+  const Model& m = *p.model;
+  Eigen::Matrix3Xd out(3, p.num_vertex_entries());
+  for (int e = 0; e < m.num_elements(); ++e) {
+    const int b = m.element_offsets[e], n = m.num_vertices(e);
+    const auto xe = [&](int j) -> Eigen::Vector3d { return x.col(m.element_vertices[j]); };
+    const auto ve = [&](int j) -> Eigen::Vector3d { return v.col(m.element_vertices[j]); };
+    double sw = 0;
+    Eigen::Vector3d c = Eigen::Vector3d::Zero(), vc = Eigen::Vector3d::Zero();
+    for (int j = b; j < b + n; ++j) {
+      sw += p.entry_weight[j];
+      c += p.entry_weight[j] * xe(j);
+      vc += p.entry_weight[j] * ve(j);
+    }
+    c /= sw;
+    vc /= sw;
+    Eigen::Matrix3d a = Eigen::Matrix3d::Zero(), fg = Eigen::Matrix3d::Zero(), inertia = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d ang = Eigen::Vector3d::Zero();
+    for (int j = b; j < b + n; ++j) {
+      const Eigen::Vector3d r = xe(j) - c;
+      const double w = p.entry_weight[j];
+      a += r * p.entry_rest_weighted.col(j).transpose();
+      fg += r * p.entry_gradient.col(j).transpose();
+      inertia += w * (r.squaredNorm() * Eigen::Matrix3d::Identity() - r * r.transpose());
+      ang += w * r.cross(ve(j) - vc);
+    }
+    // the kernels' regularisation: 1e-10 tr(sum w r r^T) on the diagonal
+    inertia.diagonal().array() += 0.5e-10 * inertia.trace();
+    const Eigen::Vector3d omega = inertia.inverse() * ang;
+    fit_rotation(fg, rot[std::size_t(e)], fit);
+    const Eigen::Matrix3d q = rot[std::size_t(e)].toRotationMatrix();
+    const double k = p.element_stiffness[e];
+    const Eigen::Matrix3d gm = p.element_affine_stiffness[e] * (q - fg) + k * (a - fg * p.element_spread[e]);
+    Eigen::Matrix3d t = Eigen::Matrix3d::Zero();
+    double kv = 0;
+    if (p.has_volume_term()) {
+      kv = p.element_volume_stiffness[e];
+      Eigen::Quaterniond qv = rot[std::size_t(e)];
+      const Eigen::Matrix3d& ninv = p.element_spread_inv_sqrt[e];
+      t = closest_with_determinant(a * ninv, p.element_spread_sqrt_det[e], qv, fit) * ninv;
+    }
+    for (int j = b; j < b + n; ++j) {
+      const Eigen::Vector3d r = xe(j) - c, r0 = p.entry_rest.col(j);
+      const double w = p.entry_weight[j];
+      out.col(j) = k * w * (fg * r0 - r) + gm * p.entry_gradient.col(j) + kv * w * (t * r0 - r) +
+                   p.element_damping[e] * w * (vc + omega.cross(r) - ve(j));
+    }
+  }
+  return out;
+}
+
+TEST(Elements, PackedKernelMatchesThePlainFormulasAndTheReferenceKernel) {
+  // a gradational ball (elements with extra face vertices, non-uniform weights), with damping
+  // and the volume term, deformed and moving
+  Material mat;
+  mat.damping_ratio = 0.3;
+  mat.poisson_ratio = 0.35;
+  BuildSettings bs;
+  bs.resolution = Resolution::gradational;
+  auto f = make(build_model(testing::ball_grid(14, 6.0), bs), mat);
+  const PhysicsModel& p = *f.physics;
+  const Model& m = *p.model;
+  ASSERT_GT(m.num_levels(), 1);
+  ASSERT_EQ(std::int64_t(p.entry_packed.size()), p.num_vertex_entries());
+  std::mt19937 rng(21);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  const RotationFitSettings fit{100, 1e-14};
+  for (const double amplitude : {0.05, 0.3}) {
+    for (int i = 0; i < m.num_nodes(); ++i)
+      for (int d = 0; d < 3; ++d) {
+        f.state.positions(d, i) = m.rest_positions(d, i) + amplitude * u(rng);
+        f.state.velocities(d, i) = 20.0 * u(rng);
+      }
+    const auto run = [&](ElementKernel kernel, Eigen::Matrix3Xd& ef, std::vector<double>& en,
+                         std::vector<Eigen::Quaterniond>& rot) {
+      ElementPassScratch scratch;
+      ElementPassOptions opt;
+      opt.energy = true;
+      opt.rotation = fit;
+      opt.kernel = kernel;
+      rot = f.state.rotations;
+      return compute_element_forces(p, f.state.positions, &f.state.velocities, rot, ef, &en, opt, 2, scratch);
+    };
+    Eigen::Matrix3Xd ef_packed, ef_ref;
+    std::vector<double> en_packed, en_ref;
+    std::vector<Eigen::Quaterniond> rot_packed, rot_ref, rot_plain = f.state.rotations;
+    const auto st_packed = run(ElementKernel::packed, ef_packed, en_packed, rot_packed);
+    const auto st_ref = run(ElementKernel::reference, ef_ref, en_ref, rot_ref);
+    const Eigen::Matrix3Xd plain = plain_entry_forces(p, f.state.positions, f.state.velocities, rot_plain, fit);
+    double scale = 0, worst_plain = 0, worst_ref = 0;
+    for (std::int64_t j = 0; j < p.num_vertex_entries(); ++j) {
+      const Eigen::Vector3d fp = ef_packed.col(p.entry_slot[std::size_t(j)]);
+      scale = std::max(scale, plain.col(j).cwiseAbs().maxCoeff());
+      worst_plain = std::max(worst_plain, (fp - plain.col(j)).cwiseAbs().maxCoeff());
+      worst_ref = std::max(worst_ref, (fp - ef_ref.col(p.entry_slot[std::size_t(j)])).cwiseAbs().maxCoeff());
+    }
+    ASSERT_GT(scale, 0);
+    std::cout << "amplitude " << amplitude << ": largest force " << scale << " N, packed - plain "
+              << worst_plain / scale << ", packed - reference " << worst_ref / scale << " (relative)\n";
+    EXPECT_LT(worst_plain, 1e-12 * scale) << "amplitude " << amplitude << ": packed kernel against the plain formulas";
+    EXPECT_LT(worst_ref, 1e-12 * scale) << "amplitude " << amplitude << ": packed against reference kernel";
+    // energies, rotations and counters alike
+    double en_scale = 0, en_worst = 0;
+    for (int e = 0; e < m.num_elements(); ++e) {
+      en_scale = std::max(en_scale, std::abs(en_ref[std::size_t(e)]));
+      en_worst = std::max(en_worst, std::abs(en_packed[std::size_t(e)] - en_ref[std::size_t(e)]));
+      EXPECT_LT((rot_packed[std::size_t(e)].coeffs() - rot_ref[std::size_t(e)].coeffs()).norm(), 1e-12);
+      EXPECT_LT((rot_packed[std::size_t(e)].coeffs() - rot_plain[std::size_t(e)].coeffs()).norm(), 1e-12);
+    }
+    EXPECT_LT(en_worst, 1e-12 * en_scale);
+    EXPECT_NEAR(st_packed.elastic_energy, st_ref.elastic_energy, 1e-12 * std::abs(st_ref.elastic_energy));
+    EXPECT_EQ(st_packed.rotation_iterations, st_ref.rotation_iterations);
+    EXPECT_EQ(st_packed.inverted, st_ref.inverted);
+    EXPECT_EQ(st_packed.unconverged, st_ref.unconverged);
+    EXPECT_EQ(st_packed.non_finite, 0);
   }
 }
 
