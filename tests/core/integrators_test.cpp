@@ -185,8 +185,8 @@ double measured_stable_step(const Model& m, const Material& mat, IntegratorKind 
 TEST(Integrators, ExplicitEulerEstimateHoldsOnTheGradationalLayout) {
   // a gradational ball: partly filled surface elements and coarse inner ones, where the
   // elastic matrix K_e differs most from k (diag w - w w^T / W) (the paper's element). The
-  // estimate must not exceed the measured limit, and not be far below it (measured 2.8x).
-  // The element-wise c / k_e it replaced was 3.6 x above the limit here.
+  // estimate must not exceed the measured limit, and not be far below it (measured 3.1x, with
+  // the estimate's 10 % margin). The element-wise c / k_e it replaced was 3.6x above the limit.
   BuildSettings bs;
   bs.resolution = Resolution::gradational;
   const Model m = build_model(testing::ball_grid(12, 5.0), bs);
@@ -198,7 +198,7 @@ TEST(Integrators, ExplicitEulerEstimateHoldsOnTheGradationalLayout) {
   std::cout << "explicit Euler on a gradational ball: estimate " << est << " s, measured limit " << measured
             << " s (ratio " << measured / est << ")\n";
   EXPECT_GE(measured / est, 1.0);
-  EXPECT_LE(measured / est, 3.0);
+  EXPECT_LE(measured / est, 3.5);
 }
 
 TEST(Integrators, SymplecticIsStableBelowItsEstimateAndFlaggedFarAbove) {
