@@ -294,4 +294,58 @@ void ContactSolver::resolve(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const std:
   }
 }
 
+void ContactSolver::collect(const Eigen::Matrix3Xd& x, const std::vector<ProbeGeometry>& geometry,
+                            const std::vector<ProbeState>& probes, bool near, std::vector<ContactConstraint>& out) {
+  const double margin = near ? near_margin_mm() : 0.0;
+  // the lists hold every node within `margin` of its probe (wall) while the largest node
+  // displacement since the rebuild plus the probe's displacement plus the margin stays below
+  // the skin (the iterates of an implicit step count as displacements)
+  double moved = valid_ && settings_.broad_phase ? node_move(x) : 0.0;
+  auto ensure_valid = [&](double probe_move) {
+    if (valid_ && (!settings_.broad_phase || moved + probe_move + margin < skin_mm_)) return;  // NaN rebuilds
+    rebuild(x, geometry, probes);
+    moved = 0.0;
+  };
+  Eigen::Vector3d surface_point, normal;
+  for (int q = 0; q < probes_; ++q) {
+    const ProbeGeometry& g = geometry[std::size_t(q)];
+    const ProbeState& p = probes[std::size_t(q)];
+    ensure_valid((p.position_mm - probe_at_rebuild_[std::size_t(q)]).norm());
+    const auto& list = lists_[std::size_t(q)];
+    for (const std::int32_t i : list) {
+      const double dist = probe_signed_distance(g, p.position_mm, x.col(i), &surface_point, &normal);
+      if (!(dist < margin)) continue;
+      ContactConstraint c;
+      c.node = i;
+      c.owner = q;
+      c.point_mm = surface_point;
+      c.normal = normal;
+      out.push_back(c);
+    }
+    counters_.narrow_tests += std::int64_t(list.size());
+    counters_.narrow_tests_skipped += std::int64_t(nodes_.size() - list.size());
+  }
+  if (workspace_.enabled) {
+    ensure_valid(0.0);
+    const auto& list = lists_[std::size_t(probes_)];
+    for (const std::int32_t i : list)
+      for (int a = 0; a < 3; ++a)
+        for (int side = 0; side < 2; ++side) {
+          const double wall = side == 0 ? workspace_.min_mm[a] : workspace_.max_mm[a];
+          const double in = side == 0 ? x(a, i) - wall : wall - x(a, i);  // < 0: outside
+          if (!(in < margin)) continue;
+          ContactConstraint c;
+          c.node = i;
+          c.owner = probes_ + 2 * a + side;
+          c.point_mm = x.col(i);
+          c.point_mm[a] = wall;
+          c.normal.setZero();
+          c.normal[a] = side == 0 ? 1.0 : -1.0;
+          out.push_back(c);
+        }
+    counters_.narrow_tests += std::int64_t(list.size());
+    counters_.narrow_tests_skipped += std::int64_t(nodes_.size() - list.size());
+  }
+}
+
 }  // namespace vx

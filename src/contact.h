@@ -16,12 +16,19 @@
 /// nodes are tested. A node that is not listed cannot have reached the probe, so the result is
 /// identical (bit for bit) to testing every node, which `broad_phase = false` does.
 ///
+/// The implicit integrator takes the contact into its solve instead (integrators.h): collect()
+/// hands it the same nodes, from the same broad phase, as unilateral constraints linearised at
+/// its iterates; the forces are then its multipliers, the contact is perfectly inelastic
+/// (restitution does not apply) and frictionless (see docs/scenes.md).
+///
 /// Units: positions mm, velocities mm/s, masses N*s^2/mm (material.h), forces N.
 
 #include <Eigen/Core>
 #include <cstdint>
 #include <string>
 #include <vector>
+
+#include "integrators.h"
 
 namespace vx {
 
@@ -111,6 +118,21 @@ class ContactSolver {
                const std::vector<ProbeGeometry>& geometry, const std::vector<ProbeState>& probes, double dt_s,
                std::vector<Eigen::Vector3d>& probe_force_n, Eigen::Vector3d& wall_force_n,
                std::vector<int>* probe_contacts = nullptr);
+
+  /// Implicit path: appends a constraint for every listed node that `positions` put inside a
+  /// probe or beyond a wall, and with `near` also within near_margin_mm() outside, linearised at
+  /// the node (closest surface point, outward normal). Owner: the probe index, or
+  /// probes + 2 * axis + side for the walls (side 0: the min wall). Rebuilds the broad-phase
+  /// lists when they may miss such a node (the same rule as resolve(), with the margin).
+  void collect(const Eigen::Matrix3Xd& positions, const std::vector<ProbeGeometry>& geometry,
+               const std::vector<ProbeState>& probes, bool near, std::vector<ContactConstraint>& out);
+  /// The margin of collect(near = true), mm: a quarter of the skin.
+  [[nodiscard]] double near_margin_mm() const { return 0.25 * skin_mm_; }
+  /// Implicit path: counts the contacts a step resolved (its active constraints).
+  void count_contacts(std::int64_t probe_contacts, std::int64_t wall_contacts) {
+    counters_.contacts += probe_contacts;
+    counters_.wall_contacts += wall_contacts;
+  }
 
   [[nodiscard]] const ContactCounters& counters() const { return counters_; }
   [[nodiscard]] double skin_mm() const { return skin_mm_; }

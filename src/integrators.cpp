@@ -40,6 +40,11 @@ StepReport Integrator::advance(SimState& state, int steps) {
   return r;
 }
 
+const std::vector<ContactConstraint>& Integrator::contacts() const {
+  static const std::vector<ContactConstraint> none;
+  return none;
+}
+
 // ---------------------------------------------------------------------------------------------
 // time-step estimates
 
@@ -420,7 +425,25 @@ class ProjectiveSolver {
     elem_chunks_.assign(ec, ElementPassStats{});
     const std::size_t fc = std::size_t(chunk_count(nf, kNodeGrain));
     free_chunk_sums_.assign(2 * fc, 0.0);
+    // contact: the cached columns A_s^-1 e_i belong to the old factorisation
+    xu_.resize(nf, 3);
+    x_trial_.resize(3, nn);
+    col_work_.assign(std::size_t(nf), 0.0);
+    col_slot_.assign(std::size_t(nf), -1);
+    slot_free_.clear();
+    slot_stamp_.clear();
+    used_slots_ = 0;
+    if (cols_.rows() != nf) cols_.resize(nf, 0);
   }
+
+  /// Contact constraints for the following iterate() calls (null: none).
+  void set_contact(ContactProvider* provider) { contact_ = provider; }
+  [[nodiscard]] bool has_contact() const { return contact_ != nullptr; }
+  /// The constraints active after the last global solve, sorted by (owner, node), with their
+  /// multipliers (N); the next solve starts from them (warm start).
+  [[nodiscard]] const std::vector<ContactConstraint>& active_contacts() const { return active_; }
+  /// Forgets the warm start (the state was reset or replaced).
+  void forget_contacts() { active_.clear(); }
 
   [[nodiscard]] int num_free() const { return int(free_nodes_.size()); }
   [[nodiscard]] std::int64_t factor_nonzeros() const { return nnz_factor_; }
@@ -447,9 +470,11 @@ class ProjectiveSolver {
       if (it > 0) rep.residual_n = rms_difference(rhs_, rhs_prev_, threads);
       if (tolerance_mm > 0 && it > 0 && max_update <= tolerance_mm) break;
       solve();
+      if (contact_) solve_contacts(x, threads, rep);
       max_update = scatter(x, threads);
       rhs_prev_.swap(rhs_);
     }
+    if (contact_) rep.contacts = int(active_.size());
     rep.iterations = it;
     rep.max_update_mm = it > 0 ? max_update : 0.0;
     rep.inverted_elements = last.inverted;
@@ -639,6 +664,304 @@ class ProjectiveSolver {
     return std::sqrt(mx);
   }
 
+  // -------------------------------------------------------------------------------------------
+  // contact inside the global step
+  //
+  // Why here: after the integrator's step the post-step projection (contact.h) only sees the
+  // momentum change m (v' - v) / dt of the nodes it moves, which at long implicit steps is a
+  // small part of the elastic reaction (roughly (m/dt^2) / (K + m/dt^2) of it): the nodes
+  // relaxed to the free equilibrium inside the step. So the probes and walls take part in the
+  // minimisation itself: every global step solves
+  //   A x = b + sum_i lambda_i n_i e_i^T,  n_i . x_i >= n_i . p_i,  lambda_i >= 0,
+  //   lambda_i (n_i . x_i - n_i . p_i) = 0,
+  // with each constraint linearised at the current iterate (the closest surface point p_i and
+  // the outward normal n_i; re-linearised every local/global iteration, so a curved probe is
+  // followed). A acts on each coordinate alike, so with G = A_s^-1 (the scalar matrix),
+  //   x = x_u + sum_j lambda_j n_j G e_j,    x_u = A^-1 b (the unconstrained solve),
+  // and the constraints on the working set W give the Schur complement system
+  //   S lambda = d,  S_ij = (n_i . n_j) G_ij,  d_i = n_i . (p_i - x_u,i),
+  // exact on the existing factorisation. The columns G e_j are solved once per node and cached
+  // until the matrix is refactored (memory nf doubles each, within kColumnBudgetBytes; the
+  // least recently used are reused beyond it). An active-set iteration keeps lambda >= 0: it
+  // drops the constraints that pull and adds the candidates the solution violates, starting
+  // from the last solve's active set (a warm start that usually converges in 1-2 rounds).
+  // The multipliers are the contact forces (N, A x = b is a force balance). Serial and in a
+  // fixed order: the same result for any thread count.
+
+  static constexpr int kMaxContactRounds = 100;   ///< active-set rounds per global solve
+  static constexpr int kMaxContactPasses = 4;     ///< re-checks for nodes pushed into a probe
+  static constexpr double kGapToleranceMm = 1e-9; ///< a violation smaller than this is none
+  static constexpr double kColumnBudgetBytes = 256.0 * 1024 * 1024;
+
+  static bool key_less(const ContactConstraint& a, const ContactConstraint& b) {
+    return a.owner != b.owner ? a.owner < b.owner : a.node < b.node;
+  }
+
+  /// G e_f (one scalar solve on the factor), into `out` (nf values in free order).
+  void solve_unit(int f, double* out) {
+    const int nf = num_free();
+    const auto& l = ldlt_.matrixL().nestedExpression();
+    const auto& perm = ldlt_.permutationP().indices();
+    const auto& d = ldlt_.vectorD();
+    double* w = col_work_.data();
+    std::fill(col_work_.begin(), col_work_.end(), 0.0);
+    const int start = perm(f);
+    w[start] = 1.0;
+    const auto* outer = l.outerIndexPtr();
+    const auto* nnz = l.innerNonZeroPtr();
+    const auto* inner = l.innerIndexPtr();
+    const double* val = l.valuePtr();
+    for (int j = start; j < nf; ++j) {  // forward: entries above `start` stay zero
+      const double wj = w[j];
+      if (wj == 0.0) continue;
+      const auto end = nnz ? outer[j] + nnz[j] : outer[j + 1];
+      for (auto p = outer[j]; p < end; ++p) w[inner[p]] -= val[p] * wj;
+    }
+    for (int j = 0; j < nf; ++j) w[j] /= d(j);
+    for (int j = nf - 1; j >= 0; --j) {
+      double wj = w[j];
+      const auto end = nnz ? outer[j] + nnz[j] : outer[j + 1];
+      for (auto p = outer[j]; p < end; ++p) wj -= val[p] * w[inner[p]];
+      w[j] = wj;
+    }
+    for (int i = 0; i < nf; ++i) out[i] = w[perm(i)];
+  }
+
+  /// The column slot of free node f, solving its column when it has none (allocates when the
+  /// cache grows).
+  int ensure_column(int f, StepReport& rep) {
+    int slot = col_slot_[std::size_t(f)];
+    if (slot < 0) {
+      const int nf = num_free();
+      if (used_slots_ < cols_.cols()) {
+        slot = used_slots_++;
+      } else if (double(cols_.cols()) * nf * sizeof(double) < kColumnBudgetBytes) {
+        const Eigen::Index grow = std::max<Eigen::Index>(16, cols_.cols());
+        cols_.conservativeResize(nf, cols_.cols() + grow);
+        slot = used_slots_++;
+      } else {
+        // full: reuse the least recently used slot (never one of this solve)
+        std::int64_t oldest = stamp_;
+        for (int k = 0; k < used_slots_; ++k)
+          if (slot_stamp_[std::size_t(k)] < oldest) oldest = slot_stamp_[std::size_t(k)], slot = k;
+        if (slot < 0) {  // all in use now: grow beyond the budget
+          cols_.conservativeResize(nf, cols_.cols() + 16);
+          slot = used_slots_++;
+        } else {
+          col_slot_[std::size_t(slot_free_[std::size_t(slot)])] = -1;
+        }
+      }
+      if (std::size_t(slot) >= slot_free_.size()) {
+        slot_free_.resize(std::size_t(cols_.cols()), -1);
+        slot_stamp_.resize(std::size_t(cols_.cols()), 0);
+      }
+      solve_unit(f, cols_.col(slot).data());
+      col_slot_[std::size_t(f)] = slot;
+      slot_free_[std::size_t(slot)] = f;
+      ++rep.contact_columns;
+    }
+    slot_stamp_[std::size_t(slot)] = stamp_;
+    return slot;
+  }
+
+  /// Solves S lambda = d in place (S: n x n row-major, symmetric positive definite; lower
+  /// triangle used) by Cholesky. S is the Hadamard product of the normals' Gram matrix and G,
+  /// positive definite unless one node has two parallel constraints; a pivot below 1e-12 of its
+  /// diagonal (that case) is raised to it, which splits the force between them.
+  static void dense_solve(double* a, int n, double* b) {
+    for (int j = 0; j < n; ++j) {
+      double piv = a[j * n + j];
+      for (int k = 0; k < j; ++k) piv -= a[j * n + k] * a[j * n + k];
+      const double floor = 1e-12 * std::abs(a[j * n + j]);
+      piv = std::sqrt(std::max(piv, floor > 0 ? floor : 1e-300));
+      a[j * n + j] = piv;
+      for (int i = j + 1; i < n; ++i) {
+        double v = a[i * n + j];
+        for (int k = 0; k < j; ++k) v -= a[i * n + k] * a[j * n + k];
+        a[i * n + j] = v / piv;
+      }
+    }
+    for (int i = 0; i < n; ++i) {
+      double v = b[i];
+      for (int k = 0; k < i; ++k) v -= a[i * n + k] * b[k];
+      b[i] = v / a[i * n + i];
+    }
+    for (int i = n - 1; i >= 0; --i) {
+      double v = b[i];
+      for (int k = i + 1; k < n; ++k) v -= a[k * n + i] * b[k];
+      b[i] = v / a[i * n + i];
+    }
+  }
+
+  /// Position of candidate c's node for the current multipliers of the working set.
+  Eigen::Vector3d constrained_position(int c) const {
+    const int f = cand_free_[std::size_t(c)];
+    Eigen::Vector3d xi = xu_.row(f).transpose();
+    for (std::size_t b = 0; b < w_.size(); ++b)
+      xi += cols_(f, w_slot_[b]) * Eigen::Vector3d(wl_[3 * b], wl_[3 * b + 1], wl_[3 * b + 2]);
+    return xi;
+  }
+
+  /// Active-set iteration on the candidates with x_u = xu_; leaves the multipliers in
+  /// cand_[c].force_n (0 off the working set) and wl_/w_slot_ for the working set. Returns the
+  /// rounds taken.
+  int active_set(StepReport& rep) {
+    const int nc = int(cand_.size());
+    int round = 1;
+    for (;; ++round) {
+      w_.clear();
+      for (int c = 0; c < nc; ++c) {
+        cand_[std::size_t(c)].force_n = 0.0;
+        if (in_w_[std::size_t(c)]) w_.push_back(c);
+      }
+      const int nw = int(w_.size());
+      w_slot_.resize(std::size_t(nw));
+      wl_.resize(3 * std::size_t(nw));
+      s_.resize(std::size_t(nw) * std::size_t(nw));
+      d_.resize(std::size_t(nw));
+      for (int a = 0; a < nw; ++a) w_slot_[std::size_t(a)] = ensure_column(cand_free_[std::size_t(w_[std::size_t(a)])], rep);
+      for (int a = 0; a < nw; ++a) {
+        const ContactConstraint& ca = cand_[std::size_t(w_[std::size_t(a)])];
+        const int fa = cand_free_[std::size_t(w_[std::size_t(a)])];
+        for (int b = 0; b <= a; ++b) {
+          const ContactConstraint& cb = cand_[std::size_t(w_[std::size_t(b)])];
+          s_[std::size_t(a * nw + b)] = ca.normal.dot(cb.normal) * cols_(fa, w_slot_[std::size_t(b)]);
+        }
+        d_[std::size_t(a)] = ca.normal.dot(ca.point_mm - xu_.row(fa).transpose());
+      }
+      if (nw > 0) dense_solve(s_.data(), nw, d_.data());
+      bool pulled = false;
+      for (int a = 0; a < nw; ++a) {
+        const int c = w_[std::size_t(a)];
+        const double lambda = d_[std::size_t(a)];
+        cand_[std::size_t(c)].force_n = lambda;
+        const Eigen::Vector3d ln = lambda * cand_[std::size_t(c)].normal;
+        for (int k = 0; k < 3; ++k) wl_[3 * std::size_t(a) + std::size_t(k)] = ln[k];
+        if (!(lambda >= 0.0)) {  // pulls (or NaN): leave the working set
+          in_w_[std::size_t(c)] = 0;
+          pulled = true;
+        }
+      }
+      if (round >= kMaxContactRounds) break;
+      if (pulled) continue;
+      // candidates off the working set that the solution pushes through their surface
+      bool added = false;
+      for (int c = 0; c < nc; ++c) {
+        if (in_w_[std::size_t(c)]) continue;
+        const ContactConstraint& cc = cand_[std::size_t(c)];
+        if (cc.normal.dot(constrained_position(c) - cc.point_mm) < -kGapToleranceMm) {
+          in_w_[std::size_t(c)] = 1;
+          added = true;
+        }
+      }
+      if (!added) break;
+    }
+    // (not converged within the rounds: keep the multipliers that push; the rest are zero)
+    for (std::size_t a = 0; a < w_.size(); ++a)
+      if (!(cand_[std::size_t(w_[a])].force_n >= 0.0)) {
+        cand_[std::size_t(w_[a])].force_n = 0.0;
+        for (int k = 0; k < 3; ++k) wl_[3 * a + std::size_t(k)] = 0.0;
+      }
+    return round;
+  }
+
+  /// sol_ = xu_ + sum over the working set of lambda_j n_j G e_j (per free node, parallel).
+  void apply_contact_forces(int threads) {
+    const int nf = num_free();
+    const std::size_t nw = w_.size();
+    if (nw == 0) {
+      sol_ = xu_;
+      return;
+    }
+    // column by column within a chunk of nodes (contiguous reads; each node sums its terms in
+    // working-set order whatever the chunking)
+    parallel_for(nf, kNodeGrain, threads, [&](std::int64_t lo, std::int64_t hi) {
+      double* s0 = sol_.col(0).data();
+      double* s1 = sol_.col(1).data();
+      double* s2 = sol_.col(2).data();
+      for (std::int64_t f = lo; f < hi; ++f) {
+        s0[f] = xu_(f, 0);
+        s1[f] = xu_(f, 1);
+        s2[f] = xu_(f, 2);
+      }
+      for (std::size_t b = 0; b < nw; ++b) {
+        const double* g = cols_.col(w_slot_[b]).data();
+        const double l0 = wl_[3 * b], l1 = wl_[3 * b + 1], l2 = wl_[3 * b + 2];
+        for (std::int64_t f = lo; f < hi; ++f) {
+          s0[f] += g[f] * l0;
+          s1[f] += g[f] * l1;
+          s2[f] += g[f] * l2;
+        }
+      }
+    });
+  }
+
+  /// Keeps the constraints of free nodes and records their free indices.
+  void index_candidates(std::size_t from) {
+    std::size_t k = from;
+    for (std::size_t c = from; c < cand_.size(); ++c)
+      if (cand_[c].node >= 0 && std::size_t(cand_[c].node) < free_index_.size() &&
+          free_index_[std::size_t(cand_[c].node)] >= 0)
+        cand_[k++] = cand_[c];
+    cand_.resize(k);
+    cand_free_.resize(k);
+    in_w_.resize(k, 0);
+    for (std::size_t c = from; c < k; ++c) cand_free_[c] = free_index_[std::size_t(cand_[c].node)];
+  }
+
+  /// Turns the unconstrained solution in sol_ into the constrained one (see above); `x` is the
+  /// iterate before this solve (where the constraints are linearised).
+  void solve_contacts(const Eigen::Matrix3Xd& x, int threads, StepReport& rep) {
+    ++stamp_;
+    xu_ = sol_;
+    // candidates near the surfaces at the current iterate, sorted by (owner, node)
+    cand_.clear();
+    contact_->collect(x, true, cand_);
+    index_candidates(0);
+    std::sort(cand_.begin(), cand_.end(), key_less);
+    for (std::size_t c = 0; c < cand_.size(); ++c) cand_free_[c] = free_index_[std::size_t(cand_[c].node)];
+    // warm start: the last solve's active set (both sorted by key)
+    std::fill(in_w_.begin(), in_w_.end(), std::uint8_t(0));
+    for (std::size_t c = 0, a = 0; c < cand_.size() && a < active_.size();) {
+      if (key_less(cand_[c], active_[a])) {
+        ++c;
+      } else if (key_less(active_[a], cand_[c])) {
+        ++a;
+      } else {
+        in_w_[c] = 1;
+        ++c;
+        ++a;
+      }
+    }
+    const std::size_t sorted = cand_.size();
+    for (int pass = 0;; ++pass) {
+      rep.contact_rounds += active_set(rep);
+      apply_contact_forces(threads);
+      if (pass + 1 >= kMaxContactPasses) break;
+      // nodes that were not candidates but that the constrained solution puts inside a probe
+      // (they moved farther than the provider's margin in this solve): add them and redo
+      x_trial_ = x;
+      for (int f = 0; f < num_free(); ++f) x_trial_.col(free_nodes_[std::size_t(f)]) = sol_.row(f).transpose();
+      extra_.clear();
+      contact_->collect(x_trial_, false, extra_);
+      const std::size_t before = cand_.size();
+      for (const ContactConstraint& e : extra_) {
+        const auto it = std::lower_bound(cand_.begin(), cand_.begin() + std::ptrdiff_t(sorted), e, key_less);
+        bool known = it != cand_.begin() + std::ptrdiff_t(sorted) && !key_less(e, *it);
+        for (std::size_t c = sorted; c < cand_.size() && !known; ++c)
+          known = cand_[c].owner == e.owner && cand_[c].node == e.node;
+        if (!known) cand_.push_back(e);
+      }
+      index_candidates(before);
+      if (cand_.size() == before) break;
+    }
+    // the active set, sorted by key, with the multipliers
+    active_.clear();
+    for (const int c : w_)
+      if (cand_[std::size_t(c)].force_n > 0.0) active_.push_back(cand_[std::size_t(c)]);
+    std::sort(active_.begin(), active_.end(), key_less);
+  }
+
   double rms_difference(const Eigen::MatrixX3d& a, const Eigen::MatrixX3d& b, int threads) {
     const int nf = num_free();
     if (nf == 0) return 0.0;
@@ -672,6 +995,25 @@ class ProjectiveSolver {
   std::vector<double> work_;
   std::vector<ElementPassStats> elem_chunks_;
   std::vector<double> free_chunk_sums_;
+
+  // contact (see solve_contacts())
+  ContactProvider* contact_{nullptr};
+  std::vector<ContactConstraint> cand_, extra_, active_;
+  std::vector<int> cand_free_;            ///< free index of each candidate's node
+  std::vector<std::uint8_t> in_w_;        ///< candidate in the working (active) set
+  std::vector<int> w_;                    ///< candidates of the working set
+  std::vector<double> s_, d_;             ///< Schur complement (row-major) and right-hand side
+  std::vector<double> wl_;                ///< per working-set member: lambda n (3) and its column slot
+  std::vector<int> w_slot_;
+  Eigen::MatrixX3d xu_;                   ///< unconstrained solution of the global step
+  Eigen::Matrix3Xd x_trial_;              ///< constrained iterate (all nodes) for the last check
+  Eigen::MatrixXd cols_;                  ///< cached columns A_s^-1 e_f (nf x capacity)
+  std::vector<int> col_slot_;             ///< free index -> column slot, -1 none
+  std::vector<int> slot_free_;            ///< slot -> free index
+  std::vector<std::int64_t> slot_stamp_;  ///< slot -> last global solve that used it
+  int used_slots_{0};
+  std::int64_t stamp_{0};
+  std::vector<double> col_work_;
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -681,12 +1023,21 @@ class ImplicitIntegrator final : public Integrator {
  public:
   using Integrator::Integrator;
 
+  [[nodiscard]] bool solves_contact() const override { return true; }
+  void set_contact_provider(ContactProvider* provider) override {
+    solver_.set_contact(provider);
+    solver_.forget_contacts();
+  }
+  [[nodiscard]] const std::vector<ContactConstraint>& contacts() const override { return solver_.active_contacts(); }
+
   StepReport step(SimState& s) override {
     StepReport rep;
     if (blocked(s, settings_)) {
       rep.status = s.status;
       return rep;
     }
+    // the warm start of the contact solve holds only for the step that follows the last one
+    if (&s != last_state_ || s.steps != last_steps_ || s.time_s != last_time_s_) solver_.forget_contacts();
     const PhysicsModel& p = *s.physics;
     const int threads = settings_.threads;
     const double dt = settings_.time_step_s;
@@ -757,12 +1108,18 @@ class ImplicitIntegrator final : public Integrator {
       s.scratch.node_chunk_sums[3 * std::size_t(c) + 1] = grav;
     });
     finish_node_pass(s, p, settings_, track, s.energies.elastic, rep);
+    last_state_ = &s;  // where the next step should start
+    last_steps_ = s.steps;
+    last_time_s_ = s.time_s;
     return rep;
   }
 
  private:
   ProjectiveSolver solver_;
   double max_d_{0.0};
+  const SimState* last_state_{nullptr};
+  std::int64_t last_steps_{-1};
+  double last_time_s_{0.0};
 };
 
 void check_settings(const IntegratorSettings& s) {

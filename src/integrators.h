@@ -19,6 +19,11 @@
 ///   nodes eliminated. Damping D_e = c_e/(2 dt) min_R sum_i |r_i - R r_i^n|^2 (the vertex
 ///   motion during the step relative to the element's best rigid motion) is the backward
 ///   Euler form of the explicit damping force and also a projective term. Stable for any dt.
+///   Contact (set_contact_provider()): the probes and walls are unilateral node constraints
+///   n_i . x_i >= n_i . p_i of the same minimisation, solved exactly in every global step (an
+///   active-set iteration on the Schur complement of the prefactored matrix), so the reaction
+///   force is the constraint multiplier, right at any dt. The contact is perfectly inelastic
+///   (v = (x' - x_n)/dt; restitution does not apply) and frictionless.
 ///
 /// Units: dt in s, positions mm, velocities mm/s, forces N, masses N*s^2/mm (material.h).
 
@@ -27,6 +32,7 @@
 #include <limits>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "elements.h"
 #include "material.h"
@@ -45,6 +51,32 @@ struct StabilityLimits {
   double max_speed_mm_s{1.0e5};     ///< any node faster than this (100 m/s): runaway
   double max_displacement_mm{0.0};  ///< any node farther from rest; <= 0: 10 x the rest bounding-box diagonal
   bool stop_on_runaway{true};       ///< false: flag a runaway but apply the step and go on
+};
+
+/// One unilateral contact constraint of an implicit step: node `node` must stay on the free side
+/// of the plane through `point_mm` with unit normal `normal`,  normal . x_node >= normal . point_mm
+/// (the probe's or wall's surface linearised at the node: its closest surface point and outward
+/// normal, see probe_signed_distance() in contact.h).
+struct ContactConstraint {
+  std::int32_t node{0};
+  std::int32_t owner{0};  ///< who pushes (the provider's numbering: a probe, a wall face)
+  Eigen::Vector3d point_mm{Eigen::Vector3d::Zero()};
+  Eigen::Vector3d normal{Eigen::Vector3d::UnitZ()};
+  /// integrator output: the multiplier, the force of the surface on the node along `normal`
+  /// (N, >= 0; the force of the node on the probe is -force_n * normal)
+  double force_n{0.0};
+};
+
+/// Supplies the contact constraints of an implicit step (the simulation's probes and walls;
+/// contact.h finds them). The implicit integrator calls it with its iterates during the step.
+class ContactProvider {
+ public:
+  virtual ~ContactProvider() = default;
+  /// Appends a constraint (linearised at x) for every collidable node that `x` (3 x nodes, mm)
+  /// puts inside a probe or beyond a wall, and with `near` also for the nodes within the
+  /// provider's margin outside them (candidates that may touch within the step). Each
+  /// (owner, node) pair at most once. Must not allocate in steady state.
+  virtual void collect(const Eigen::Matrix3Xd& x, bool near, std::vector<ContactConstraint>& out) = 0;
 };
 
 /// Settings of an integrator, with defaults that suit soft tissue at voxel size ~1 mm.
@@ -70,6 +102,9 @@ struct StepReport {
   std::int64_t unconverged_rotations{0}; ///< rotation fits that hit max_iterations
   bool refactored{false};          ///< implicit: the system matrix was (re)factored in this step
   std::int64_t factor_nonzeros{0}; ///< implicit: nonzeros of the Cholesky factor L (cost of a solve)
+  int contacts{0};                 ///< implicit with a contact provider: active constraints at the end
+  int contact_rounds{0};           ///< implicit with a contact provider: active-set rounds in the step
+  std::int64_t contact_columns{0}; ///< implicit: new columns A^-1 e_i solved in this step (each allocates once)
 };
 
 /// One time-integration scheme. An integrator may keep per-state caches (the implicit one
@@ -88,11 +123,22 @@ class Integrator {
   /// Advances `state` by one time step. A stopped state (status non_finite, or runaway with
   /// limits.stop_on_runaway) is left unchanged and its status returned; a runaway flagged
   /// without stop_on_runaway keeps its status and message but goes on stepping.
-  /// Allocation-free (the implicit integrator allocates when it factors).
+  /// Allocation-free (the implicit integrator allocates when it factors, and with a contact
+  /// provider when a node first touches: its column A^-1 e_i is solved and cached, and the
+  /// contact buffers grow to the largest contact set seen).
   virtual StepReport step(SimState& state) = 0;
 
   /// Steps `steps` times or until the state stops; returns the last report.
   StepReport advance(SimState& state, int steps);
+
+  /// True when the integrator can take contact constraints into its solve (implicit).
+  [[nodiscard]] virtual bool solves_contact() const { return false; }
+  /// Implicit: makes the constraints of `provider` part of every following step's solve (null:
+  /// none). The provider must outlive the integrator or be unset. Others ignore it.
+  virtual void set_contact_provider(ContactProvider* /*provider*/) {}
+  /// Implicit: the constraints active at the end of the last step with their forces (N); empty
+  /// for the other integrators and without a provider.
+  [[nodiscard]] virtual const std::vector<ContactConstraint>& contacts() const;
 
  protected:
   IntegratorSettings settings_;

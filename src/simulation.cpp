@@ -64,6 +64,13 @@ Simulation::Simulation(std::shared_ptr<const PhysicsModel> physics, SimulationSe
   if (!settings_.skip_unneeded) contact.broad_phase = false;  // test every node every step
   contact_.init(collidable_nodes(model, state_.node_fixed), int(np), settings_.workspace, contact,
                 surface_node_spacing_mm(model));
+  // the implicit integrator takes the probes and walls into its solve (the post-step projection
+  // would lose most of the reaction force at its long steps); the explicit schemes keep the
+  // post-step projection, unchanged
+  if (integrator_->solves_contact() && (collide_ || !settings_.skip_unneeded)) {
+    implicit_contact_ = std::make_unique<ImplicitContact>(*this);
+    integrator_->set_contact_provider(implicit_contact_.get());
+  }
 
   // device forces: only with a device (or when told to do all the work)
   shape_ = settings_.device.has_value() || !settings_.skip_unneeded;
@@ -132,8 +139,11 @@ StepStatus Simulation::step() {
 
   // collisions of the surface nodes near probes and walls
   if (collide_ || !settings_.skip_unneeded) {
-    contact_.resolve(state_.positions, state_.velocities, physics_->node_mass, geometry_, poses_, dt, raw_,
-                     wall_force_, &contacts_);
+    if (implicit_contact_)
+      take_implicit_contact_forces();
+    else
+      contact_.resolve(state_.positions, state_.velocities, physics_->node_mass, geometry_, poses_, dt, raw_,
+                       wall_force_, &contacts_);
     ++counters_.contact_passes;
     counters_.contact = contact_.counters();
   } else {
@@ -166,6 +176,33 @@ StepStatus Simulation::step() {
   counters_.surface_updates_skipped = counters_.steps - counters_.surface_updates;
   publish();
   return state_.status;
+}
+
+void Simulation::ImplicitContact::collect(const Eigen::Matrix3Xd& x, bool near, std::vector<ContactConstraint>& out) {
+  sim_.contact_.collect(x, sim_.geometry_, sim_.poses_, near, out);
+}
+
+void Simulation::take_implicit_contact_forces() {
+  // each multiplier is the force of a surface on a node along the surface's normal; the node
+  // pushes back: -force_n * normal on the probe (the wall), as the momentum formula of the
+  // explicit path gives. The constraints come sorted by (owner, node): a fixed summation order.
+  const int np = int(raw_.size());
+  for (auto& f : raw_) f.setZero();
+  std::fill(contacts_.begin(), contacts_.end(), 0);
+  wall_force_.setZero();
+  std::int64_t probe_contacts = 0, wall_contacts = 0;
+  for (const ContactConstraint& c : integrator_->contacts()) {
+    const Eigen::Vector3d f = -c.force_n * c.normal;
+    if (c.owner < np) {
+      raw_[std::size_t(c.owner)] += f;
+      ++contacts_[std::size_t(c.owner)];
+      ++probe_contacts;
+    } else {
+      wall_force_ += f;
+      ++wall_contacts;
+    }
+  }
+  contact_.count_contacts(probe_contacts, wall_contacts);
 }
 
 int Simulation::advance_to(double target_time_s, int max_steps) {

@@ -8,6 +8,11 @@
 ///   3. collide the surface nodes near a probe or a wall (contact.h): put them back on the
 ///      surface, reflect their velocity relative to the probe; the reaction on each probe is
 ///      the momentum change of its nodes per step (the raw force, N);
+///      With the implicit integrator, steps 2 and 3 are one: the probes and walls are
+///      unilateral constraints of its solve (integrators.h), found by the same broad phase;
+///      the reaction on each probe is minus the sum of its constraints' multipliers (N), right
+///      at long steps where the momentum change falls far short of the elastic reaction. That
+///      contact is perfectly inelastic (restitution does not apply) and frictionless;
 ///   4. device force (device_force.h): the raw force averaged and played as half sines, only
 ///      when the simulation has a device;
 ///   5. a frame for a display thread, only when one was requested; the embedded surface is
@@ -145,13 +150,26 @@ class Simulation {
   bool take_frame(SimulationFrame& out);
 
  private:
+  /// Hands the probes and walls to an implicit integrator (contact inside its solve).
+  class ImplicitContact final : public ContactProvider {
+   public:
+    explicit ImplicitContact(Simulation& sim) : sim_(sim) {}
+    void collect(const Eigen::Matrix3Xd& x, bool near, std::vector<ContactConstraint>& out) override;
+
+   private:
+    Simulation& sim_;
+  };
+
   void publish();
+  /// Probe and wall forces from the implicit integrator's contact multipliers.
+  void take_implicit_contact_forces();
 
   std::shared_ptr<const PhysicsModel> physics_;
   SimulationSettings settings_;
   SimState state_;
   std::unique_ptr<Integrator> integrator_;
   ContactSolver contact_;
+  std::unique_ptr<ImplicitContact> implicit_contact_;  ///< set: the integrator solves the contact
   std::vector<ProbeDriver> drivers_;
   std::vector<ProbeGeometry> geometry_;
   std::vector<ProbeState> poses_;
