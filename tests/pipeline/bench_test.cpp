@@ -309,7 +309,7 @@ BenchSettings tiny_bench() {
   s.run_step = false;
   s.sizes = {8};
   s.resolutions = {Resolution::gradational, Resolution::voxel};
-  s.explicit_fractions = {0.5, 3.0};  // 3x the stable estimate blows up: an unstable row
+  s.explicit_fractions = {0.5, 8.0};  // 8x the stable estimate blows up (the estimates are 1.1-3.1x below the limits): an unstable row
   s.implicit_steps_s = {2e-3};
   s.reference_size = 12;
   s.scene.duration_s = 0.12;
@@ -337,7 +337,7 @@ TEST(BenchRun, TinyBenchMeasuresEveryRunAgainstTheReference) {
     EXPECT_EQ(r.size, 8);
     EXPECT_DOUBLE_EQ(r.voxel_mm, 4.0);
     EXPECT_EQ(r.threads, 1);
-    if (r.dt_fraction == 3.0) {
+    if (r.dt_fraction == 8.0) {
       EXPECT_EQ(r.status, BenchStatus::unstable) << r.label();
       EXPECT_FALSE(r.note.empty());
       EXPECT_FALSE(r.pareto);
