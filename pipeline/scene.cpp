@@ -923,6 +923,11 @@ PreparedScene prepare_scene(const Scene& scene, const PrepareSceneOptions& optio
                                          "may blow up (the summary's \"stable\" will say)",
                                          s.integrator.time_step_s, out.dt_stable_estimate_s, to_string(scene.integrator)));
   }
+  if (scene.integrator == IntegratorKind::implicit && scene.contact.friction > 0)
+    out.warnings.push_back(fmt::format("contact.friction {:g} is ignored by the implicit integrator (its contact is "
+                                       "frictionless and inelastic, solved inside the step); use symplectic_euler to "
+                                       "grasp and lift",
+                                       scene.contact.friction));
   if (scene.duration_s / s.integrator.time_step_s > 2e9)
     fail("$.duration_s", fmt::format("{} s at dt {:.3g} s is more than 2e9 steps", scene.duration_s, s.integrator.time_step_s));
   s.integrator.threads = options.threads_override >= 0 ? options.threads_override : scene.threads;

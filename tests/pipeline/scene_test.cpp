@@ -303,6 +303,13 @@ TEST(Scene, PrepareChecksWhatOnlyTheModelTells) {
   ASSERT_EQ(p.warnings.size(), 2u);
   EXPECT_CONTAINS(p.warnings[0], "exceeds the estimated stable step");
   EXPECT_CONTAINS(p.warnings[1], "starts with");
+  // friction with the implicit integrator (whose contact is frictionless): said, not silent
+  j = base_scene();
+  j["integrator"] = {{"type", "implicit"}, {"dt_s", 2e-3}};
+  j["contact"] = {{"friction", 0.5}};
+  const PreparedScene q = prepare_scene(parse_scene(j, ".", "test.json"));
+  ASSERT_EQ(q.warnings.size(), 1u);
+  EXPECT_CONTAINS(q.warnings[0], "friction 0.5 is ignored by the implicit integrator");
 }
 
 TEST(Scene, HounsfieldTableAndInclusionsGivePerElementModulus) {
