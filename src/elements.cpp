@@ -368,9 +368,11 @@ using Row6 = Eigen::Array<double, 6, 1>;
 /// arithmetic as element_range_reference, in the same order for every value (the same bits
 /// where the compiler contracts no multiply-adds), but streaming one array of 64-byte records,
 /// with A and F in one loop (as packets) and each entry's force written once (elastic, gradient
-/// and damping parts summed in registers). Measured (bench/step_bench.cpp, element_pass): the
-/// pass is bound by memory, the scattered writes into the node-major force buffer and the
-/// stream of records, hence the software prefetches ahead of the current element.
+/// and damping parts summed in registers). Measured (bench/step_bench.cpp, element_pass, one
+/// thread): 0.66-0.71x the reference's time on the 128^3 and 256^3 spheres, where the reference
+/// waits on memory (the scattered writes into the node-major force buffer, the five streams of
+/// constants); 0.92-0.96x on 32^3 and 64^3, where both are bound by arithmetic. The software
+/// prefetches ahead of the current element: about 15 % on 256^3, within the noise below.
 template <bool kDamping, bool kEnergy, bool kVolume>
 void element_range_packed(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot,
                           double* ef, double* energy_out, std::int64_t e0, std::int64_t e1,
