@@ -16,15 +16,7 @@
 #include "integrators.h"
 #include "simulation.h"
 
-// counts heap allocations through operator new (std::vector, std::string, ...)
-static std::atomic<long> g_allocations{0};
-void* operator new(std::size_t n) {
-  ++g_allocations;
-  if (void* p = std::malloc(n ? n : 1)) return p;
-  throw std::bad_alloc();
-}
-void operator delete(void* p) noexcept { std::free(p); }
-void operator delete(void* p, std::size_t) noexcept { std::free(p); }
+#include "allocation_counter.h"
 
 using namespace vx;
 
@@ -269,9 +261,9 @@ TEST(ImplicitContact, MultipliersArePositiveComplementaryAndStepsDoNotAllocate) 
   StepReport rep = integ->advance(state, 10);  // factors, solves the contact nodes' columns
   ASSERT_FALSE(state.failed()) << state.message;
   EXPECT_GT(rep.contacts, 10);
-  const long before = g_allocations.load();
+  const long before = vx::testing::allocations();
   for (int k = 0; k < 20; ++k) rep = integ->step(state);
-  EXPECT_EQ(g_allocations.load() - before, 0);
+  EXPECT_EQ(vx::testing::allocations() - before, 0);
   EXPECT_EQ(rep.contact_columns, 0);
   EXPECT_GT(plate.calls, 0);
   double total = 0;
