@@ -34,13 +34,20 @@ const std::shared_ptr<const PhysicsModel>& sphere(int n) {
   return it->second;
 }
 
-void step(benchmark::State& bs, IntegratorKind kind, int n) {
-  const auto& physics = sphere(n);
+/// The benchmark scenario's state: the lowest cap of nodes fixed, under gravity.
+SimState sphere_state(const std::shared_ptr<const PhysicsModel>& physics) {
   const Model& model = *physics->model;
   SimState s = make_state(physics);
   const double zmin = model.rest_positions.row(2).minCoeff();
   s.fix_nodes(nodes_in_box(model, Eigen::Vector3d::Constant(-1e30), Eigen::Vector3d(1e30, 1e30, zmin + 1.01)));
   s.gravity_mm_s2 = {0, 0, -kStandardGravityMmS2};
+  return s;
+}
+
+void step(benchmark::State& bs, IntegratorKind kind, int n) {
+  const auto& physics = sphere(n);
+  const Model& model = *physics->model;
+  SimState s = sphere_state(physics);
   IntegratorSettings is;
   is.kind = kind;
   is.time_step_s = kind == IntegratorKind::implicit ? 1e-3 : 0.5 * stable_time_step(*physics, kind);
@@ -73,10 +80,7 @@ void step(benchmark::State& bs, IntegratorKind kind, int n) {
 void element_pass(benchmark::State& bs, ElementKernel kernel, int n) {
   const auto& physics = sphere(n);
   const Model& model = *physics->model;
-  SimState s = make_state(physics);
-  const double zmin = model.rest_positions.row(2).minCoeff();
-  s.fix_nodes(nodes_in_box(model, Eigen::Vector3d::Constant(-1e30), Eigen::Vector3d(1e30, 1e30, zmin + 1.01)));
-  s.gravity_mm_s2 = {0, 0, -kStandardGravityMmS2};
+  SimState s = sphere_state(physics);
   IntegratorSettings is;
   is.kind = IntegratorKind::explicit_euler;
   is.time_step_s = 0.5 * stable_time_step(*physics, is.kind);

@@ -193,6 +193,36 @@ namespace {
 /// (material.h). Each loop over the vertices keeps at most ~16 values live, so that baseline
 /// x86-64 (16 SSE registers) does not spill: elastic and damping parts run as separate loops,
 /// each gathering the positions again and reading the per-entry constants from separate arrays.
+/// The per-element 3 x 3 work shared by both kernels: the warm-started rotation fit of F and
+/// the matrices of the force f_i = M R0'_i - k_tot w_i (x_i - c) + G g_i,
+///   G = 2 mu V (Q - F) + k (A - F C0),  M = k F (+ k_v T),  k_tot = k (+ k_v)
+/// (T: the volume term's closest matrix with the rest determinant).
+template <bool kVolume>
+struct ElementMatrices {
+  Eigen::Matrix3d q, gm, mq, t;
+  double k{0}, ktot{0}, wv{0};
+
+  ElementMatrices(const PhysicsModel& phys, std::int64_t e, const Eigen::Matrix3d& a, const Eigen::Matrix3d& fg,
+                  Eigen::Quaterniond& rot, const RotationFitSettings& fit, ElementPassStats& st) {
+    bool conv = true;
+    st.rotation_iterations += fit_rotation(fg, rot, fit, &conv, &q);
+    st.unconverged += conv ? 0 : 1;
+    if (fg.determinant() <= 0.0) ++st.inverted;
+    k = phys.element_stiffness[std::size_t(e)];
+    gm = phys.element_affine_stiffness[std::size_t(e)] * (q - fg) + k * (a - fg * phys.element_spread[std::size_t(e)]);
+    mq = k * fg;
+    ktot = k;
+    if constexpr (kVolume) {
+      wv = phys.element_volume_stiffness[std::size_t(e)];
+      const Eigen::Matrix3d& ninv = phys.element_spread_inv_sqrt[std::size_t(e)];
+      Eigen::Quaterniond qv = rot;
+      t = closest_with_determinant(a * ninv, phys.element_spread_sqrt_det[std::size_t(e)], qv, fit) * ninv;
+      mq += wv * t;
+      ktot += wv;
+    }
+  }
+};
+
 template <bool kDamping, bool kEnergy, bool kVolume>
 void element_range_reference(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot,
                    double* ef, double* energy_out, std::int64_t e0, std::int64_t e1,
@@ -246,28 +276,9 @@ void element_range_reference(const PhysicsModel& phys, const double* xs, const d
       if constexpr (kEnergy) energy_out[e] = 0.0;
       continue;
     }
-    // rotation fit, warm-started
-    bool conv = true;
-    Eigen::Matrix3d q;
-    st.rotation_iterations += fit_rotation(fg, rot[e], fit, &conv, &q);
-    st.unconverged += conv ? 0 : 1;
-    if (fg.determinant() <= 0.0) ++st.inverted;
-    const double k = phys.element_stiffness[std::size_t(e)];
-    // f_i = k w_i (F R0_i - r_i) + G g_i,  G = 2 mu V (Q - F) + k (A - F C0)
-    const Eigen::Matrix3d gm = phys.element_affine_stiffness[std::size_t(e)] * (q - fg) +
-                               k * (a - fg * phys.element_spread[std::size_t(e)]);
-    Eigen::Matrix3d mq = k * fg;
-    double ktot = k;
-    Eigen::Matrix3d t;
-    double wv = 0;
-    if constexpr (kVolume) {
-      wv = phys.element_volume_stiffness[std::size_t(e)];
-      const Eigen::Matrix3d& ninv = phys.element_spread_inv_sqrt[std::size_t(e)];
-      Eigen::Quaterniond qv = rot[e];
-      t = closest_with_determinant(a * ninv, phys.element_spread_sqrt_det[std::size_t(e)], qv, fit) * ninv;
-      mq += wv * t;
-      ktot += wv;
-    }
+    const ElementMatrices<kVolume> em(phys, e, a, fg, rot[e], fit, st);
+    const Eigen::Matrix3d &q = em.q, &gm = em.gm, &mq = em.mq, &t = em.t;
+    const double k = em.k, ktot = em.ktot, wv = em.wv;
     // pass 2: elastic force f = M R0' - w ktot (x - c)   (M = k F + k_v T, R0' = w R0)
     {
       const double m00 = mq(0, 0), m01 = mq(0, 1), m02 = mq(0, 2), m10 = mq(1, 0), m11 = mq(1, 1),
@@ -452,28 +463,9 @@ void element_range_packed(const PhysicsModel& phys, const double* xs, const doub
       if constexpr (kEnergy) energy_out[e] = 0.0;
       continue;
     }
-    // rotation fit, warm-started
-    bool conv = true;
-    Eigen::Matrix3d q;
-    st.rotation_iterations += fit_rotation(fg, rot[e], fit, &conv, &q);
-    st.unconverged += conv ? 0 : 1;
-    if (fg.determinant() <= 0.0) ++st.inverted;
-    const double k = phys.element_stiffness[std::size_t(e)];
-    // f_i = k w_i (F R0_i - r_i) + G g_i,  G = 2 mu V (Q - F) + k (A - F C0)
-    const Eigen::Matrix3d gm = phys.element_affine_stiffness[std::size_t(e)] * (q - fg) +
-                               k * (a - fg * phys.element_spread[std::size_t(e)]);
-    Eigen::Matrix3d mq = k * fg;
-    double ktot = k;
-    Eigen::Matrix3d t;
-    double wv = 0;
-    if constexpr (kVolume) {
-      wv = phys.element_volume_stiffness[std::size_t(e)];
-      const Eigen::Matrix3d& ninv = phys.element_spread_inv_sqrt[std::size_t(e)];
-      Eigen::Quaterniond qv = rot[e];
-      t = closest_with_determinant(a * ninv, phys.element_spread_sqrt_det[std::size_t(e)], qv, fit) * ninv;
-      mq += wv * t;
-      ktot += wv;
-    }
+    const ElementMatrices<kVolume> em(phys, e, a, fg, rot[e], fit, st);
+    const Eigen::Matrix3d &q = em.q, &gm = em.gm, &mq = em.mq, &t = em.t;
+    const double k = em.k, ktot = em.ktot, wv = em.wv;
     // the rigid velocity fit about the centroid (damping)
     double cd = 0, wx = 0, wy = 0, wz = 0, ux = 0, uy = 0, uz = 0;
     if constexpr (kDamping) {
