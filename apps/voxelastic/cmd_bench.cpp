@@ -99,7 +99,7 @@ void add_bench_command(CLI::App& app) {
       "Benchmarks (docs/bench.md): the cost of one step on sphere phantoms of growing size for each resolution and "
       "integrator (DIR/step.csv, step.png), and run time against error on a palpation scene (DIR/bench.csv, bench.json, "
       "bench.md, bench_error.png, bench_cost.png, bench_curves.png) with the best configuration for real time.");
-  sub->add_flag("--quick", opts->quick, "the small suite (about 2 minutes on 2 cores; the full one about 17)");
+  sub->add_flag("--quick", opts->quick, "the small suite (about 2 minutes on 2 cores; the full one 13 to 17)");
   sub->add_option("-o,--out", opts->out, "output folder (created if missing)")->capture_default_str();
   sub->add_option("--threads", opts->threads, "physics threads (>= 1)")->capture_default_str()->check(CLI::Range(1, 1024));
   sub->add_option("--sizes", opts->sizes, "palpation grid sizes n, voxels across the block, even (e.g. 16,24,32)")
