@@ -1,16 +1,16 @@
 #pragma once
 /// @file contact.h
-/// Collision of the elastic object's surface nodes with rigid probes and the workspace walls
+/// Collision of the elastic object's nodes with rigid probes and the workspace walls
 /// (MODEL.md section 5, paper 4.1 and 4.3).
 ///
-/// Each surface node that is inside a probe (or outside the workspace box) is put back on the
-/// probe's surface (the wall), and its velocity relative to the probe is reflected along the
+/// Each listed node (simulation.h: every free node) that is inside a probe (or outside the
+/// workspace box) is put back on the probe's surface (the wall), and its velocity relative to the probe is reflected along the
 /// surface normal: v_rel_n -> -e v_rel_n (e = restitution, 1 = the paper's elastic collision),
 /// with optional Coulomb friction on the tangential part (impulse-form cone, position-level
 /// stick: see ContactSettings::friction). The force of the tissue on a probe is
 /// minus the momentum change of those nodes per step:  F = -sum_i m_i (v_i' - v_i) / dt  (N).
 ///
-/// Broad phase (a Verlet list): when rebuilt, each probe and the walls keep the list of surface
+/// Broad phase (a Verlet list): when rebuilt, each probe and the walls keep the list of
 /// nodes within `skin_mm` of them. The lists stay valid while the largest node displacement
 /// since the rebuild plus the probe's own displacement is below the skin; only the listed
 /// nodes are tested. A node that is not listed cannot have reached the probe, so the result is
@@ -86,7 +86,7 @@ struct ContactSettings {
   /// that fraction of velocity and slip is removed.
   double friction{0.0};
   double skin_mm{0.0};      ///< broad-phase margin, mm; <= 0 picks 2 x the mean surface node spacing
-  bool broad_phase{true};   ///< false tests every surface node every step (the reference)
+  bool broad_phase{true};   ///< false tests every listed node every step (the reference)
 
   /// Empty when valid, else what is wrong.
   [[nodiscard]] std::string validate() const;
@@ -102,11 +102,11 @@ struct ContactCounters {
   std::int64_t wall_contacts{0};         ///< node-wall contacts resolved
 };
 
-/// Resolves contacts between surface nodes and probes/walls. Allocates in init() and on the
+/// Resolves contacts between nodes and probes/walls. Allocates in init() and on the
 /// (rare) rebuilds only while a list grows; resolve() itself does not allocate otherwise.
 class ContactSolver {
  public:
-  /// `nodes`: the node ids that may collide (surface nodes that are not fixed), `probes` the
+  /// `nodes`: the node ids that may collide (simulation.h: the free nodes), `probes` the
   /// number of probes, `spacing_mm` the typical surface node spacing (for the automatic skin).
   void init(std::vector<std::int32_t> nodes, int probes, const Workspace& workspace,
             const ContactSettings& settings, double spacing_mm);

@@ -106,6 +106,37 @@ TEST(Scene, EverySampleSceneLoadsAndPrepares) {
   EXPECT_GE(n, 5);
 }
 
+// The palpation demo's block and lesion, its tool pressed 5 mm (more than a 4 mm surface
+// element) and slid across the lesion on a path: the tissue must hold the tool up all along.
+// The frictionless tip lets the surface layer fold around it at x = -7 mm; with only surface
+// nodes colliding the vertical force then fell to 0.00 N for the rest of the slide (measured);
+// the nodes below the surface collide too and hold it (0.29 N rising to 0.94 N over the lesion).
+TEST(Scene, DeepPalpationOfTheSampleKeepsTheTissueUnderTheTool) {
+  json j = json::parse(std::ifstream(fs::path(VX_SAMPLES_DIR) / "scenes" / "palpation-lesion.json"));
+  json& tool = j["probes"][0];
+  tool.erase("live");
+  tool["path"] = {{{"t_s", 0.0}, {"position_mm", {-15, 0, 16}}},
+                  {{"t_s", 0.5}, {"position_mm", {-15, 0, 16}}},
+                  {{"t_s", 1.345}, {"position_mm", {-15, 0, 7.98}}},
+                  {{"t_s", 2.0}, {"position_mm", {-15, 0, 7.98}}},
+                  {{"t_s", 7.5}, {"position_mm", {14, 0, 7.98}}}};
+  const PreparedScene p = prepare_scene(parse_scene(j, fs::path(VX_SAMPLES_DIR) / "scenes", "deep.json"));
+  Simulation sim(p.physics, p.settings);
+  double sum = 0, lowest = 1e9;
+  int n = 0;
+  while (sim.time_s() < 5.0) {
+    ASSERT_EQ(sim.step(), StepStatus::ok) << sim.state().message;
+    if (sim.time_s() < 2.0) continue;
+    sum += sim.probe(0).raw_force_n.z();
+    if (++n * sim.dt_s() >= 0.5) {  // mean over 0.5 s (about 2.6 mm of slide)
+      lowest = std::min(lowest, sum / n);
+      sum = 0;
+      n = 0;
+    }
+  }
+  EXPECT_GT(lowest, 0.15) << "the tool sank through the tissue surface";
+}
+
 TEST(Scene, UnknownKeysNameTheirJsonPath) {
   json j = base_scene();
   j["probes"][0]["colour"] = "red";
