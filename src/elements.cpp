@@ -193,6 +193,26 @@ namespace {
 /// (material.h). Each loop over the vertices keeps at most ~16 values live, so that baseline
 /// x86-64 (16 SSE registers) does not spill: elastic and damping parts run as separate loops,
 /// each gathering the positions again and reading the per-entry constants from separate arrays.
+/// The element's best rigid velocity (damping): from the weighted sums of velocities (sv),
+/// angular momenta (l) and second moments (i) of the offsets y = x - x0, about the centroid c
+/// (relative to x0): the centroid velocity vc and the angular velocity omega (zero for a
+/// collapsed or collinear element).
+inline void rigid_velocity(double svx, double svy, double svz, double lx, double ly, double lz, double ixx,
+                           double ixy, double ixz, double iyy, double iyz, double izz, double sw, double inv_w,
+                           const Eigen::Vector3d& c, Eigen::Vector3d& vc, Eigen::Vector3d& omega) {
+  vc = Eigen::Vector3d(svx * inv_w, svy * inv_w, svz * inv_w);
+  const Eigen::Vector3d ang = Eigen::Vector3d(lx, ly, lz) - sw * c.cross(vc);
+  Eigen::Matrix3d yy;
+  yy << ixx, ixy, ixz, ixy, iyy, iyz, ixz, iyz, izz;
+  yy -= sw * c * c.transpose();  // sum w r r^T about the centroid
+  Eigen::Matrix3d inertia = -yy;
+  const double tr = yy.trace();
+  inertia.diagonal().array() += tr * (1.0 + 1e-10);  // + tiny regularisation (collinear)
+  omega.setZero();
+  if (tr > 0) omega = inertia.inverse() * ang;
+  if (!omega.allFinite()) omega.setZero();
+}
+
 /// The per-element 3 x 3 work shared by both kernels: the warm-started rotation fit of F and
 /// the matrices of the force f_i = M R0'_i - k_tot w_i (x_i - c) + G g_i,
 ///   G = 2 mu V (Q - F) + k (A - F C0),  M = k F (+ k_v T),  k_tot = k (+ k_v)
@@ -326,17 +346,8 @@ void element_range_reference(const PhysicsModel& phys, const double* xs, const d
         iyy += wy * yy; iyz += wy * yz; izz += wz * yz;
       }
       const double cd = phys.element_damping[std::size_t(e)];
-      const Eigen::Vector3d vc(svx * inv_w, svy * inv_w, svz * inv_w);
-      const Eigen::Vector3d ang = Eigen::Vector3d(lx, ly, lz) - sw * c.cross(vc);
-      Eigen::Matrix3d yy;
-      yy << ixx, ixy, ixz, ixy, iyy, iyz, ixz, iyz, izz;
-      yy -= sw * c * c.transpose();  // sum w r r^T about the centroid
-      Eigen::Matrix3d inertia = -yy;
-      const double tr = yy.trace();
-      inertia.diagonal().array() += tr * (1.0 + 1e-10);  // + tiny regularisation (collinear)
-      Eigen::Vector3d omega = Eigen::Vector3d::Zero();
-      if (tr > 0) omega = inertia.inverse() * ang;
-      if (!omega.allFinite()) omega.setZero();
+      Eigen::Vector3d vc, omega;
+      rigid_velocity(svx, svy, svz, lx, ly, lz, ixx, ixy, ixz, iyy, iyz, izz, sw, inv_w, c, vc, omega);
       // pass 4: f += c w (v_c + omega x r - v)
       const double wx = omega.x(), wy = omega.y(), wz = omega.z();
       const double cx = ox + c.x(), cy = oy + c.y(), cz = oz + c.z();
@@ -470,17 +481,8 @@ void element_range_packed(const PhysicsModel& phys, const double* xs, const doub
     double cd = 0, wx = 0, wy = 0, wz = 0, ux = 0, uy = 0, uz = 0;
     if constexpr (kDamping) {
       cd = phys.element_damping[std::size_t(e)];
-      const Eigen::Vector3d vc(svx * inv_w, svy * inv_w, svz * inv_w);
-      const Eigen::Vector3d ang = Eigen::Vector3d(lx, ly, lz) - sw * c.cross(vc);
-      Eigen::Matrix3d yy;
-      yy << ixx, ixy, ixz, ixy, iyy, iyz, ixz, iyz, izz;
-      yy -= sw * c * c.transpose();  // sum w r r^T about the centroid
-      Eigen::Matrix3d inertia = -yy;
-      const double tr = yy.trace();
-      inertia.diagonal().array() += tr * (1.0 + 1e-10);  // + tiny regularisation (collinear)
-      Eigen::Vector3d omega = Eigen::Vector3d::Zero();
-      if (tr > 0) omega = inertia.inverse() * ang;
-      if (!omega.allFinite()) omega.setZero();
+      Eigen::Vector3d vc, omega;
+      rigid_velocity(svx, svy, svz, lx, ly, lz, ixx, ixy, ixz, iyy, iyz, izz, sw, inv_w, c, vc, omega);
       wx = omega.x(), wy = omega.y(), wz = omega.z();
       ux = vc.x(), uy = vc.y(), uz = vc.z();
     }
