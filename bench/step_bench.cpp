@@ -44,6 +44,16 @@ SimState sphere_state(const std::shared_ptr<const PhysicsModel>& physics) {
   return s;
 }
 
+/// Threads, model size and the wall time `ns` (per step or pass) over elements and vertex
+/// entries, in ns.
+void size_counters(benchmark::State& bs, const Model& model, double ns) {
+  bs.counters["threads"] = resolve_threads(0);
+  bs.counters["elements"] = model.num_elements();
+  bs.counters["entries"] = double(model.num_vertex_entries());
+  bs.counters["ns_per_element"] = ns / model.num_elements();
+  bs.counters["ns_per_entry"] = ns / double(model.num_vertex_entries());
+}
+
 void step(benchmark::State& bs, IntegratorKind kind, int n) {
   const auto& physics = sphere(n);
   const Model& model = *physics->model;
@@ -64,12 +74,8 @@ void step(benchmark::State& bs, IntegratorKind kind, int n) {
   }
   const double steps = double(std::max<benchmark::IterationCount>(1, bs.iterations()));
   const double step_ns = std::chrono::duration<double, std::nano>(std::chrono::steady_clock::now() - t0).count() / steps;
-  bs.counters["threads"] = resolve_threads(0);
-  bs.counters["elements"] = model.num_elements();
-  bs.counters["entries"] = double(model.num_vertex_entries());
-  // wall time per step over elements and vertex entries, in ns; real-time factor dt / step
-  bs.counters["ns_per_element"] = step_ns / model.num_elements();
-  bs.counters["ns_per_entry"] = step_ns / double(model.num_vertex_entries());
+  size_counters(bs, model, step_ns);
+  // real-time factor dt / step
   bs.counters["dt_ms"] = is.time_step_s * 1e3;
   bs.counters["realtime_x"] = is.time_step_s * 1e9 / step_ns;
   if (kind == IntegratorKind::implicit) bs.counters["iterations"] = rep.iterations;
@@ -105,11 +111,7 @@ void element_pass(benchmark::State& bs, ElementKernel kernel, int n) {
   }
   const double steps = double(std::max<benchmark::IterationCount>(1, bs.iterations()));
   const double pass_ns = std::chrono::duration<double, std::nano>(std::chrono::steady_clock::now() - t0).count() / steps;
-  bs.counters["threads"] = resolve_threads(0);
-  bs.counters["elements"] = model.num_elements();
-  bs.counters["entries"] = double(model.num_vertex_entries());
-  bs.counters["ns_per_element"] = pass_ns / model.num_elements();
-  bs.counters["ns_per_entry"] = pass_ns / double(model.num_vertex_entries());
+  size_counters(bs, model, pass_ns);
   // rotation fit iterations per element and pass (warm-started: about one Newton step)
   bs.counters["fit_iterations"] = double(fit_iterations) / double(std::max<std::int64_t>(1, passes)) / model.num_elements();
 }

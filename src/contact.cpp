@@ -184,6 +184,15 @@ double ContactSolver::node_move(const Eigen::Matrix3Xd& x) const {
   return std::sqrt(max_d2);
 }
 
+void ContactSolver::keep_lists_valid(const Eigen::Matrix3Xd& x, const std::vector<ProbeGeometry>& geometry,
+                                     const std::vector<ProbeState>& probes, int q, double margin, double& moved) {
+  const double probe_move =
+      q < probes_ ? (probes[std::size_t(q)].position_mm - probe_at_rebuild_[std::size_t(q)]).norm() : 0.0;
+  if (valid_ && (!settings_.broad_phase || moved + probe_move + margin < skin_mm_)) return;  // NaN rebuilds
+  rebuild(x, geometry, probes);
+  moved = 0.0;
+}
+
 void ContactSolver::resolve(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const std::vector<double>& mass,
                             const std::vector<ProbeGeometry>& geometry, const std::vector<ProbeState>& probes,
                             double dt, std::vector<Eigen::Vector3d>& probe_force, Eigen::Vector3d& wall_force,
@@ -196,11 +205,6 @@ void ContactSolver::resolve(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const std:
   // displacement since the rebuild (moves this step's projections add to) plus the probe's
   // own displacement stays below the skin; else rebuild from the current positions
   double moved = valid_ && settings_.broad_phase ? node_move(x) : 0.0;
-  auto ensure_valid = [&](double probe_move) {
-    if (valid_ && (!settings_.broad_phase || moved + probe_move < skin_mm_)) return;  // NaN rebuilds
-    rebuild(x, geometry, probes);
-    moved = 0.0;
-  };
 
   const double e = settings_.restitution;
   const double mu = settings_.friction;
@@ -248,7 +252,7 @@ void ContactSolver::resolve(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const std:
     const auto& list = lists_[std::size_t(q)];
     const ProbeGeometry& g = geometry[std::size_t(q)];
     const ProbeState& p = probes[std::size_t(q)];
-    ensure_valid((p.position_mm - probe_at_rebuild_[std::size_t(q)]).norm());
+    keep_lists_valid(x, geometry, probes, q, 0.0, moved);
     Eigen::Vector3d impulse = Eigen::Vector3d::Zero();  // given to the nodes, N*s
     int contacts = 0;
     for (const std::int32_t i : list) {
@@ -271,7 +275,7 @@ void ContactSolver::resolve(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const std:
 
   // walls: static, each violated axis in turn
   if (workspace_.enabled) {
-    ensure_valid(0.0);
+    keep_lists_valid(x, geometry, probes, probes_, 0.0, moved);
     const auto& list = lists_[std::size_t(probes_)];
     Eigen::Vector3d impulse = Eigen::Vector3d::Zero();
     for (const std::int32_t i : list) {
@@ -301,16 +305,11 @@ void ContactSolver::collect(const Eigen::Matrix3Xd& x, const std::vector<ProbeGe
   // displacement since the rebuild plus the probe's displacement plus the margin stays below
   // the skin (the iterates of an implicit step count as displacements)
   double moved = valid_ && settings_.broad_phase ? node_move(x) : 0.0;
-  auto ensure_valid = [&](double probe_move) {
-    if (valid_ && (!settings_.broad_phase || moved + probe_move + margin < skin_mm_)) return;  // NaN rebuilds
-    rebuild(x, geometry, probes);
-    moved = 0.0;
-  };
   Eigen::Vector3d surface_point, normal;
   for (int q = 0; q < probes_; ++q) {
     const ProbeGeometry& g = geometry[std::size_t(q)];
     const ProbeState& p = probes[std::size_t(q)];
-    ensure_valid((p.position_mm - probe_at_rebuild_[std::size_t(q)]).norm());
+    keep_lists_valid(x, geometry, probes, q, margin, moved);
     const auto& list = lists_[std::size_t(q)];
     for (const std::int32_t i : list) {
       const double dist = probe_signed_distance(g, p.position_mm, x.col(i), &surface_point, &normal);
@@ -326,7 +325,7 @@ void ContactSolver::collect(const Eigen::Matrix3Xd& x, const std::vector<ProbeGe
     counters_.narrow_tests_skipped += std::int64_t(nodes_.size() - list.size());
   }
   if (workspace_.enabled) {
-    ensure_valid(0.0);
+    keep_lists_valid(x, geometry, probes, probes_, margin, moved);
     const auto& list = lists_[std::size_t(probes_)];
     for (const std::int32_t i : list)
       for (int a = 0; a < 3; ++a)

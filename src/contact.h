@@ -4,10 +4,10 @@
 /// (MODEL.md section 5, paper 4.1 and 4.3).
 ///
 /// Each listed node (simulation.h: every free node) that is inside a probe (or outside the
-/// workspace box) is put back on the probe's surface (the wall), and its velocity relative to the probe is reflected along the
-/// surface normal: v_rel_n -> -e v_rel_n (e = restitution, 1 = the paper's elastic collision),
-/// with optional Coulomb friction on the tangential part (impulse-form cone, position-level
-/// stick: see ContactSettings::friction). The force of the tissue on a probe is
+/// workspace box) is put back on the probe's surface (the wall), and its velocity relative to
+/// the probe is reflected along the surface normal: v_rel_n -> -e v_rel_n (e = restitution,
+/// 1 = the paper's elastic collision), with optional Coulomb friction on the tangential part
+/// (impulse-form cone, position-level stick: see ContactSettings::friction). The force of the tissue on a probe is
 /// minus the momentum change of those nodes per step:  F = -sum_i m_i (v_i' - v_i) / dt  (N).
 ///
 /// Broad phase (a Verlet list): when rebuilt, each probe and the walls keep the list of
@@ -145,6 +145,11 @@ class ContactSolver {
   void rebuild(const Eigen::Matrix3Xd& positions, const std::vector<ProbeGeometry>& geometry,
                const std::vector<ProbeState>& probes);
   [[nodiscard]] double node_move(const Eigen::Matrix3Xd& positions) const;
+  /// Rebuilds the lists unless list q (a probe, or probes_ for the walls) still holds every
+  /// node within `margin` of its surface: `moved` (the largest node move since the rebuild;
+  /// reset by one) plus the probe's own move plus the margin below the skin.
+  void keep_lists_valid(const Eigen::Matrix3Xd& positions, const std::vector<ProbeGeometry>& geometry,
+                        const std::vector<ProbeState>& probes, int q, double margin, double& moved);
 
   std::vector<std::int32_t> nodes_;
   Workspace workspace_;

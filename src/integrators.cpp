@@ -599,50 +599,58 @@ class ProjectiveSolver {
   /// thread waits at a barrier; deterministic). L is Eigen's strictly lower unit factor.
   void solve() {
     const int nf = num_free();
-    const auto& l = ldlt_.matrixL().nestedExpression();
     const auto& perm = ldlt_.permutationP().indices();
-    const auto& d = ldlt_.vectorD();
     double* w = work_.data();  // nf x 3, row-major
     for (int i = 0; i < nf; ++i)
       for (int c = 0; c < 3; ++c) w[3 * perm(i) + c] = rhs_(i, c);
+    factor_solve_in_place<3>(w, 0);
+    for (int i = 0; i < nf; ++i)
+      for (int c = 0; c < 3; ++c) sol_(i, c) = w[3 * perm(i) + c];
+  }
+
+  /// Solves L D L^T w = w in place on the factor (permuted order; K right-hand sides
+  /// interleaved, row-major nf x K). Entries before `first` must be zero in every lane: the
+  /// forward pass starts there (a unit vector's solve skips the rows above it).
+  template <int K>
+  void factor_solve_in_place(double* w, int first) const {
+    const int nf = num_free();
+    const auto& l = ldlt_.matrixL().nestedExpression();
+    const auto& d = ldlt_.vectorD();
     const auto* outer = l.outerIndexPtr();
     const auto* nnz = l.innerNonZeroPtr();
     const auto* inner = l.innerIndexPtr();
     const double* val = l.valuePtr();
     // forward: L z = w
-    for (int j = 0; j < nf; ++j) {
-      const double w0 = w[3 * j], w1 = w[3 * j + 1], w2 = w[3 * j + 2];
+    for (int j = first; j < nf; ++j) {
+      double wj[K];
+      bool zero = true;
+      for (int c = 0; c < K; ++c) {
+        wj[c] = w[K * j + c];
+        zero = zero && wj[c] == 0.0;
+      }
+      if (zero) continue;  // nothing to carry (sparse right-hand sides)
       const auto end = nnz ? outer[j] + nnz[j] : outer[j + 1];
       for (auto p = outer[j]; p < end; ++p) {
-        double* wi = w + 3 * std::int64_t(inner[p]);
-        wi[0] -= val[p] * w0;
-        wi[1] -= val[p] * w1;
-        wi[2] -= val[p] * w2;
+        double* wi = w + K * std::int64_t(inner[p]);
+        for (int c = 0; c < K; ++c) wi[c] -= val[p] * wj[c];
       }
     }
     // diagonal
     for (int j = 0; j < nf; ++j) {
       const double inv = 1.0 / d(j);
-      w[3 * j] *= inv;
-      w[3 * j + 1] *= inv;
-      w[3 * j + 2] *= inv;
+      for (int c = 0; c < K; ++c) w[K * j + c] *= inv;
     }
     // backward: L^T x = z
     for (int j = nf - 1; j >= 0; --j) {
-      double w0 = w[3 * j], w1 = w[3 * j + 1], w2 = w[3 * j + 2];
+      double wj[K];
+      for (int c = 0; c < K; ++c) wj[c] = w[K * j + c];
       const auto end = nnz ? outer[j] + nnz[j] : outer[j + 1];
       for (auto p = outer[j]; p < end; ++p) {
-        const double* wi = w + 3 * std::int64_t(inner[p]);
-        w0 -= val[p] * wi[0];
-        w1 -= val[p] * wi[1];
-        w2 -= val[p] * wi[2];
+        const double* wi = w + K * std::int64_t(inner[p]);
+        for (int c = 0; c < K; ++c) wj[c] -= val[p] * wi[c];
       }
-      w[3 * j] = w0;
-      w[3 * j + 1] = w1;
-      w[3 * j + 2] = w2;
+      for (int c = 0; c < K; ++c) w[K * j + c] = wj[c];
     }
-    for (int i = 0; i < nf; ++i)
-      for (int c = 0; c < 3; ++c) sol_(i, c) = w[3 * perm(i) + c];
   }
 
   /// Writes the solution into x; returns the largest node move.
@@ -700,30 +708,11 @@ class ProjectiveSolver {
   /// G e_f (one scalar solve on the factor), into `out` (nf values in free order).
   void solve_unit(int f, double* out) {
     const int nf = num_free();
-    const auto& l = ldlt_.matrixL().nestedExpression();
     const auto& perm = ldlt_.permutationP().indices();
-    const auto& d = ldlt_.vectorD();
     double* w = col_work_.data();
     std::fill(col_work_.begin(), col_work_.end(), 0.0);
-    const int start = perm(f);
-    w[start] = 1.0;
-    const auto* outer = l.outerIndexPtr();
-    const auto* nnz = l.innerNonZeroPtr();
-    const auto* inner = l.innerIndexPtr();
-    const double* val = l.valuePtr();
-    for (int j = start; j < nf; ++j) {  // forward: entries above `start` stay zero
-      const double wj = w[j];
-      if (wj == 0.0) continue;
-      const auto end = nnz ? outer[j] + nnz[j] : outer[j + 1];
-      for (auto p = outer[j]; p < end; ++p) w[inner[p]] -= val[p] * wj;
-    }
-    for (int j = 0; j < nf; ++j) w[j] /= d(j);
-    for (int j = nf - 1; j >= 0; --j) {
-      double wj = w[j];
-      const auto end = nnz ? outer[j] + nnz[j] : outer[j + 1];
-      for (auto p = outer[j]; p < end; ++p) wj -= val[p] * w[inner[p]];
-      w[j] = wj;
-    }
+    w[perm(f)] = 1.0;
+    factor_solve_in_place<1>(w, perm(f));
     for (int i = 0; i < nf; ++i) out[i] = w[perm(i)];
   }
 

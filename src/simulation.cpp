@@ -137,7 +137,7 @@ StepStatus Simulation::step() {
   integrator_->step(state_);
   if (state_.failed()) return state_.status;
 
-  // collisions of the surface nodes near probes and walls
+  // collisions of the nodes near probes and walls
   if (collide_ || !settings_.skip_unneeded) {
     if (implicit_contact_)
       take_implicit_contact_forces();
