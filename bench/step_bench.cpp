@@ -131,10 +131,8 @@ int main(int argc, char** argv) {
   // the element pass with each kernel, interleaved per size so that the pair runs under the
   // same machine load (compare ratios, not absolute times)
   for (int n : {32, 64, 128, 256})
-    for (ElementKernel kernel : {ElementKernel::reference, ElementKernel::packed})
-      benchmark::RegisterBenchmark((std::string("element_pass/") +
-                                    (kernel == ElementKernel::packed ? "packed" : "reference") + "/" + std::to_string(n))
-                                       .c_str(),
+    for (ElementKernel kernel : {ElementKernel::reference, ElementKernel::packed, ElementKernel::batched})
+      benchmark::RegisterBenchmark((std::string("element_pass/") + to_string(kernel) + "/" + std::to_string(n)).c_str(),
                                    [kernel, n](benchmark::State& bs) { element_pass(bs, kernel, n); })
           ->Unit(benchmark::kMillisecond)
           ->UseRealTime()

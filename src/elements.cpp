@@ -6,9 +6,19 @@
 #include <Eigen/SVD>
 #include <cmath>
 
+#include "element_batches.h"
 #include "parallel.h"
 
 namespace vx {
+
+const char* to_string(ElementKernel k) {
+  switch (k) {
+    case ElementKernel::batched: return "batched";
+    case ElementKernel::packed: return "packed";
+    case ElementKernel::reference: return "reference";
+  }
+  return "?";
+}
 
 void ElementPassStats::add(const ElementPassStats& o) {
   inverted += o.inverted;
@@ -577,10 +587,14 @@ ElementPassStats compute_element_forces(const PhysicsModel& phys, const Eigen::M
   if (entry_forces.cols() != phys.num_vertex_entries()) entry_forces.resize(3, phys.num_vertex_entries());
   if (energy && std::int64_t(element_energy->size()) != ne) element_energy->resize(std::size_t(ne));
   const std::int64_t chunks = chunk_count(ne, kElementGrain);
-  if (std::int64_t(scratch.chunks.size()) != chunks) scratch.chunks.resize(std::size_t(chunks));
-  // the packed kernel needs the packed entries (always there in a model from make_physics_model)
-  const bool packed = options.kernel == ElementKernel::packed &&
+  // one more slot: the elements the batched kernel leaves to the packed one
+  if (std::int64_t(scratch.chunks.size()) != chunks + 1) scratch.chunks.resize(std::size_t(chunks) + 1);
+  // the packed kernels need the packed entries (always there in a model from make_physics_model)
+  const bool packed = options.kernel != ElementKernel::reference &&
                       std::int64_t(phys.entry_packed.size()) == phys.num_vertex_entries();
+  const ElementBatches& eb = phys.element_batches;
+  const bool batched = packed && options.kernel == ElementKernel::batched && !energy && !phys.has_volume_term() &&
+                       std::int64_t(eb.window_offsets.size()) == chunks + 1;
   const RangeFn fn = packed ? pick_range<PackedKernel>(damping, energy, phys.has_volume_term())
                             : pick_range<ReferenceKernel>(damping, energy, phys.has_volume_term());
   const double* xs = positions.data();
@@ -588,11 +602,20 @@ ElementPassStats compute_element_forces(const PhysicsModel& phys, const Eigen::M
   Eigen::Quaterniond* rot = rotations.data();
   double* ef = entry_forces.data();
   double* en = energy ? element_energy->data() : nullptr;
+  // chunk c is the element window [c kElementGrain, (c+1) kElementGrain) for every kernel
   parallel_for_chunks(ne, kElementGrain, threads, [&](std::int64_t chunk, std::int64_t b, std::int64_t e) {
     ElementPassStats st;
-    fn(phys, xs, vs, rot, ef, en, b, e, options.rotation, st);
+    if (batched)
+      element_batches_range(phys, xs, vs, rot, ef, eb.window_offsets[std::size_t(chunk)],
+                            eb.window_offsets[std::size_t(chunk) + 1], options.rotation, damping, st);
+    else
+      fn(phys, xs, vs, rot, ef, en, b, e, options.rotation, st);
     scratch.chunks[std::size_t(chunk)] = st;
   });
+  ElementPassStats& rest = scratch.chunks.back();
+  rest = ElementPassStats{};
+  if (batched)
+    for (const std::int32_t e : eb.unbatched) fn(phys, xs, vs, rot, ef, en, e, e + 1, options.rotation, rest);
   // reduce in chunk order: the same sums for any thread count
   ElementPassStats total;
   for (const auto& s : scratch.chunks) total.add(s);

@@ -73,16 +73,21 @@ int fit_rotation(const Eigen::Matrix3d& a, Eigen::Quaterniond& q, const Rotation
 
 /// Which implementation of the element pass runs; both compute the same forces.
 enum class ElementKernel {
-  packed,     ///< the fast kernel: packed per-entry constants (PackedEntry), each force written once
+  batched,    ///< the fastest: packed's arithmetic on kBatchLanes elements at once (element_batches.h);
+              ///< without energy and volume term (else packed runs)
+  packed,     ///< packed per-entry constants (PackedEntry), each force written once
   reference,  ///< the plain kernel, one loop per term over separate arrays (for tests and benchmarks)
 };
+
+/// "batched", "packed" or "reference".
+[[nodiscard]] const char* to_string(ElementKernel k);
 
 /// What an element pass should compute.
 struct ElementPassOptions {
   bool damping{true};    ///< add damping (needs velocities)
   bool energy{false};    ///< write per-element elastic energy
   RotationFitSettings rotation;
-  ElementKernel kernel{ElementKernel::packed};
+  ElementKernel kernel{ElementKernel::batched};
 };
 
 /// Counters of one element pass (summed over elements).

@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include "element_gradient.h"
+#include "elements.h"
 #include "error.h"
 #include "parallel.h"
 
@@ -298,6 +299,7 @@ std::shared_ptr<const PhysicsModel> make_physics_model(std::shared_ptr<const Mod
     pe.vertex = m.element_vertices[j];
     pe.slot = p->entry_slot[j];
   }
+  build_element_batches(*p, kElementGrain, p->element_batches);
   return p;
 }
 

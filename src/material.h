@@ -59,6 +59,7 @@
 #include <string>
 #include <vector>
 
+#include "element_batches.h"
 #include "model.h"
 
 namespace vx {
@@ -148,6 +149,8 @@ struct PhysicsModel {
   std::vector<std::int32_t> entry_slot;          ///< vertex entries: their slot (inverse of node_entries)
   /// vertex entries: the element pass's constants packed per entry (derived from the above)
   std::vector<PackedEntry> entry_packed;
+  /// the same constants in batches of elements, one per SIMD lane (element_batches.h)
+  ElementBatches element_batches;
 
   [[nodiscard]] int num_nodes() const { return model->num_nodes(); }
   [[nodiscard]] int num_elements() const { return model->num_elements(); }

@@ -6,9 +6,11 @@
 
 #include <cstring>
 #include <iostream>
+#include <limits>
 #include <random>
 
 #include "gradational_builder.h"
+#include "parallel.h"
 #include "physics_helpers.h"
 #include "state.h"
 
@@ -437,6 +439,198 @@ TEST(Elements, PackedKernelMatchesThePlainFormulasAndTheReferenceKernel) {
     EXPECT_EQ(st_packed.unconverged, st_ref.unconverged);
     EXPECT_EQ(st_packed.non_finite, 0);
   }
+}
+
+
+// ------------------------------------------------------------------------------------------
+// the batched kernel (element_batches.h)
+
+/// A damped gradational ball (elements with extra face vertices, non-uniform weights), Poisson 0
+/// (the batched kernel's case), its nodes moved by up to `amplitude` mm and moving.
+Fixture batched_ball(double amplitude, unsigned seed) {
+  Material mat;
+  mat.damping_ratio = 0.3;
+  BuildSettings bs;
+  bs.resolution = Resolution::gradational;
+  auto f = make(build_model(testing::ball_grid(14, 6.0), bs), mat);
+  const Model& m = *f.physics->model;
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  for (int i = 0; i < m.num_nodes(); ++i)
+    for (int d = 0; d < 3; ++d) {
+      f.state.positions(d, i) = m.rest_positions(d, i) + amplitude * u(rng);
+      f.state.velocities(d, i) = 20.0 * u(rng);
+    }
+  return f;
+}
+
+struct PassResult {
+  Eigen::Matrix3Xd entry_forces;
+  std::vector<Eigen::Quaterniond> rotations;
+  ElementPassStats stats;
+};
+
+PassResult element_pass(const PhysicsModel& p, const SimState& s, ElementKernel kernel, int threads,
+                        const RotationFitSettings& fit = {}, const Eigen::Matrix3Xd* positions = nullptr) {
+  PassResult r;
+  r.rotations = s.rotations;
+  ElementPassScratch scratch;
+  ElementPassOptions opt;
+  opt.kernel = kernel;
+  opt.rotation = fit;
+  r.stats = compute_element_forces(p, positions ? *positions : s.positions, &s.velocities, r.rotations, r.entry_forces,
+                                   nullptr, opt, threads, scratch);
+  return r;
+}
+
+/// Largest entry-force difference relative to the largest force; rotations must agree to 1e-12.
+double relative_difference(const PassResult& a, const PassResult& b) {
+  const double scale = b.entry_forces.cwiseAbs().maxCoeff();
+  EXPECT_GT(scale, 0.0);
+  for (std::size_t e = 0; e < a.rotations.size(); ++e)
+    EXPECT_LT((a.rotations[e].coeffs() - b.rotations[e].coeffs()).norm(), 1e-12) << "element " << e;
+  return (a.entry_forces - b.entry_forces).cwiseAbs().maxCoeff() / scale;
+}
+
+TEST(ElementBatches, CoverEveryVertexEntryOnceWithLittlePadding) {
+  const auto f = batched_ball(0.0, 1);
+  const PhysicsModel& p = *f.physics;
+  const Model& m = *p.model;
+  const ElementBatches& eb = p.element_batches;
+  ASSERT_EQ(std::int64_t(eb.window_offsets.size()), chunk_count(p.num_elements(), kElementGrain) + 1);
+  EXPECT_TRUE(eb.unbatched.empty());
+  std::vector<int> seen(std::size_t(m.num_elements()), 0);
+  std::int64_t rows = 0;
+  for (std::size_t w = 0; w + 1 < eb.window_offsets.size(); ++w)
+    for (std::int32_t b = eb.window_offsets[w]; b < eb.window_offsets[w + 1]; ++b) {
+      const ElementBatch& bt = eb.batches[std::size_t(b)];
+      EXPECT_EQ(bt.first_row, rows);
+      rows += bt.rows;
+      for (int l = 0; l < kBatchLanes; ++l) {
+        const int e = bt.element[l];
+        if (e < 0) {
+          EXPECT_EQ(bt.count[l], 0);
+          continue;
+        }
+        ++seen[std::size_t(e)];
+        EXPECT_EQ(std::int64_t(e) / kElementGrain, std::int64_t(w)) << "element " << e << " left its window";
+        EXPECT_EQ(bt.count[l], m.num_vertices(e));
+        EXPECT_EQ(bt.stiffness[l], p.element_stiffness[std::size_t(e)]);
+        for (int r = 0; r < bt.rows; ++r) {
+          const BatchRow& row = eb.rows[std::size_t(bt.first_row + r)];
+          if (r >= bt.count[l]) {  // padding: nothing to add, nothing written
+            EXPECT_EQ(row.weight[l], 0.0);
+            EXPECT_EQ(row.gradient[0][l], 0.0);
+            EXPECT_EQ(row.slot[l], -1);
+            continue;
+          }
+          const PackedEntry& pe = p.entry_packed[std::size_t(m.element_offsets[std::size_t(e)] + r)];
+          EXPECT_EQ(row.vertex[l], pe.vertex);
+          EXPECT_EQ(row.slot[l], pe.slot);
+          EXPECT_EQ(row.weight[l], pe.weight);
+          for (int d = 0; d < 3; ++d) {
+            EXPECT_EQ(row.rest_weighted[d][l], pe.rest_weighted[d]);
+            EXPECT_EQ(row.gradient[d][l], pe.gradient[d]);
+          }
+        }
+      }
+    }
+  EXPECT_EQ(rows, std::int64_t(eb.rows.size()));
+  for (std::size_t e = 0; e < seen.size(); ++e) EXPECT_EQ(seen[e], 1) << "element " << e;
+  // the lanes of a batch have nearly equal counts: little padding
+  const double padded = double(rows * kBatchLanes) / double(p.num_vertex_entries());
+  std::cout << "batch rows x lanes / vertex entries: " << padded << "\n";
+  EXPECT_LT(padded, 1.05);
+}
+
+TEST(ElementBatches, MatchThePackedKernel) {
+  // 2 mm: some elements inverted
+  for (const double amplitude : {0.05, 0.3, 2.0}) {
+    const auto f = batched_ball(amplitude, 21);
+    const PhysicsModel& p = *f.physics;
+    // from the rest warm start (many lanes need the scalar fit, fitted tightly here), then again
+    // from the fitted rotations with the default tolerance (every lane passes the vectorised test)
+    const RotationFitSettings tight{100, 1e-13};
+    const PassResult packed = element_pass(p, f.state, ElementKernel::packed, 2, tight);
+    const PassResult batched = element_pass(p, f.state, ElementKernel::batched, 2, tight);
+    const double first = relative_difference(batched, packed);
+    EXPECT_EQ(batched.stats.rotation_iterations, packed.stats.rotation_iterations);
+    EXPECT_GT(batched.stats.rotation_iterations, p.num_elements());
+    EXPECT_EQ(batched.stats.inverted, packed.stats.inverted);
+    EXPECT_EQ(batched.stats.unconverged, packed.stats.unconverged);
+    EXPECT_EQ(batched.stats.non_finite, 0);
+    SimState next = f.state;
+    next.rotations = packed.rotations;
+    const PassResult packed2 = element_pass(p, next, ElementKernel::packed, 2);
+    const PassResult batched2 = element_pass(p, next, ElementKernel::batched, 2);
+    const double second = relative_difference(batched2, packed2);
+    EXPECT_EQ(packed2.stats.rotation_iterations, 0);
+    EXPECT_EQ(batched2.stats.rotation_iterations, 0);
+    EXPECT_EQ(batched2.stats.inverted, packed2.stats.inverted);
+    std::cout << "amplitude " << amplitude << ": batched - packed " << first << ", " << second
+              << " (relative); fit iterations " << batched.stats.rotation_iterations << " over "
+              << p.num_elements() << " elements, inverted " << batched.stats.inverted << "\n";
+    EXPECT_LT(first, 1e-12);
+    EXPECT_LT(second, 1e-12);
+    if (amplitude > 1.0) {
+      EXPECT_GT(batched.stats.inverted, 0);
+    }
+  }
+}
+
+TEST(ElementBatches, BitIdenticalForOneAndManyThreads) {
+  const auto f = batched_ball(0.3, 5);
+  const PhysicsModel& p = *f.physics;
+  const PassResult one = element_pass(p, f.state, ElementKernel::batched, 1);
+  for (int threads : {2, 3, 4}) {
+    const PassResult many = element_pass(p, f.state, ElementKernel::batched, threads);
+    EXPECT_EQ(std::memcmp(one.entry_forces.data(), many.entry_forces.data(),
+                          sizeof(double) * std::size_t(one.entry_forces.size())),
+              0)
+        << threads << " threads";
+    EXPECT_EQ(many.stats.rotation_iterations, one.stats.rotation_iterations);
+  }
+}
+
+TEST(ElementBatches, ElementsLeftOutOfTheBatchesRunOnThePackedKernel) {
+  const auto f = batched_ball(0.3, 9);
+  // a copy of the model whose batches take elements of at most 12 entries
+  PhysicsModel small = *f.physics;
+  build_element_batches(small, kElementGrain, small.element_batches, 12);
+  ASSERT_FALSE(small.element_batches.unbatched.empty());
+  ASSERT_LT(std::int64_t(small.element_batches.unbatched.size()), small.num_elements());
+  const PassResult packed = element_pass(*f.physics, f.state, ElementKernel::packed, 2);
+  for (int threads : {1, 2}) {
+    const PassResult mixed = element_pass(small, f.state, ElementKernel::batched, threads);
+    EXPECT_LT(relative_difference(mixed, packed), 1e-12) << threads << " threads";
+    EXPECT_EQ(mixed.stats.rotation_iterations, packed.stats.rotation_iterations);
+  }
+}
+
+TEST(ElementBatches, ANonFiniteNodeSilencesOnlyItsElements) {
+  auto f = batched_ball(0.05, 13);
+  const PhysicsModel& p = *f.physics;
+  const Model& m = *p.model;
+  const PassResult clean = element_pass(p, f.state, ElementKernel::batched, 2);
+  const int bad = m.num_nodes() / 2;
+  f.state.positions(1, bad) = std::numeric_limits<double>::quiet_NaN();
+  const PassResult hit = element_pass(p, f.state, ElementKernel::batched, 2);
+  std::int64_t touching = 0;
+  for (int e = 0; e < m.num_elements(); ++e) {
+    bool has = false;
+    for (int j = m.element_offsets[e]; j < m.element_offsets[e + 1]; ++j) has |= m.element_vertices[j] == bad;
+    touching += has ? 1 : 0;
+    for (int j = m.element_offsets[e]; j < m.element_offsets[e + 1]; ++j) {
+      const int slot = p.entry_slot[std::size_t(j)];
+      if (has)
+        EXPECT_EQ(hit.entry_forces.col(slot), Eigen::Vector3d::Zero()) << "element " << e;
+      else
+        EXPECT_EQ(hit.entry_forces.col(slot), clean.entry_forces.col(slot)) << "element " << e;
+    }
+  }
+  EXPECT_GT(touching, 0);
+  EXPECT_EQ(hit.stats.non_finite, touching);
+  EXPECT_TRUE(hit.entry_forces.allFinite());
 }
 
 }  // namespace

@@ -1,0 +1,344 @@
+#include "element_batches.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+
+#include "elements.h"
+#include "material.h"
+
+// The lane vectors below never cross a function boundary (everything is always_inline), so the
+// ABI note GCC gives for vector arguments without AVX does not apply.
+#pragma GCC diagnostic ignored "-Wpsabi"
+
+namespace vx {
+
+void build_element_batches(const PhysicsModel& p, std::int64_t window, ElementBatches& out, int max_rows) {
+  max_rows = std::min(max_rows, kBatchMaxRows);
+  const Model& m = *p.model;
+  const std::int64_t ne = p.num_elements();
+  out = ElementBatches{};
+  const auto count = [&](std::int32_t e) { return m.element_offsets[std::size_t(e) + 1] - m.element_offsets[std::size_t(e)]; };
+  std::vector<std::int32_t> order;
+  for (std::int64_t w0 = 0; w0 < ne; w0 += window) {
+    out.window_offsets.push_back(std::int32_t(out.batches.size()));
+    order.clear();
+    for (std::int64_t e = w0; e < std::min(ne, w0 + window); ++e) {
+      if (count(std::int32_t(e)) > max_rows)
+        out.unbatched.push_back(std::int32_t(e));
+      else
+        order.push_back(std::int32_t(e));
+    }
+    std::stable_sort(order.begin(), order.end(), [&](std::int32_t a, std::int32_t b) { return count(a) < count(b); });
+    for (std::size_t i = 0; i < order.size(); i += kBatchLanes) {
+      const int lanes = int(std::min<std::size_t>(kBatchLanes, order.size() - i));
+      ElementBatch bt{};
+      std::int32_t src[kBatchLanes];  // the element whose data a lane holds (empty lanes: lane 0's)
+      for (int l = 0; l < kBatchLanes; ++l) {
+        src[l] = order[i + std::size_t(l < lanes ? l : 0)];
+        const auto e = std::size_t(src[l]);
+        bt.element[l] = l < lanes ? src[l] : -1;
+        bt.count[l] = l < lanes ? count(src[l]) : 0;
+        bt.rows = std::max(bt.rows, count(src[l]));
+        bt.stiffness[l] = p.element_stiffness[e];
+        bt.affine_stiffness[l] = p.element_affine_stiffness[e];
+        bt.damping[l] = p.element_damping[e];
+        for (int r = 0; r < 3; ++r)
+          for (int c = 0; c < 3; ++c) bt.spread[3 * r + c][l] = p.element_spread[e](r, c);
+      }
+      bt.first_row = std::int32_t(out.rows.size());
+      for (int r = 0; r < bt.rows; ++r) {
+        BatchRow row{};
+        for (int l = 0; l < kBatchLanes; ++l) {
+          const std::int32_t b = m.element_offsets[std::size_t(src[l])];
+          row.slot[l] = -1;
+          row.vertex[l] = m.element_vertices[std::size_t(b)];
+          if (r >= count(src[l])) continue;  // padding: zero constants at the lane's first node
+          const auto j = std::size_t(b + r);
+          for (int d = 0; d < 3; ++d) {
+            row.rest_weighted[d][l] = p.entry_rest_weighted(d, std::int64_t(j));
+            row.gradient[d][l] = p.entry_gradient(d, std::int64_t(j));
+          }
+          row.weight[l] = p.entry_weight[j];
+          row.vertex[l] = m.element_vertices[j];
+          if (l < lanes) row.slot[l] = p.entry_slot[j];
+        }
+        out.rows.push_back(row);
+      }
+      out.batches.push_back(bt);
+    }
+  }
+  out.window_offsets.push_back(std::int32_t(out.batches.size()));
+}
+
+namespace {
+
+#define VX_INLINE [[gnu::always_inline]] inline
+
+using d4 = double __attribute__((vector_size(32)));
+
+VX_INLINE d4 load(const double* p) {
+  d4 v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+
+VX_INLINE d4 splat(double x) { return d4{x, x, x, x}; }
+
+/// Component d of the lanes' nodes `vertex`.
+VX_INLINE d4 gather(const double* xs, const std::int32_t* vertex, int d) {
+  return d4{xs[3 * std::int64_t(vertex[0]) + d], xs[3 * std::int64_t(vertex[1]) + d],
+            xs[3 * std::int64_t(vertex[2]) + d], xs[3 * std::int64_t(vertex[3]) + d]};
+}
+
+/// One batch: the packed kernel's arithmetic (elements.cpp) with one element per lane.
+template <bool kDamping>
+VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const double* xs, const double* vs,
+                            Eigen::Quaterniond* rot, double* ef, const RotationFitSettings& fit,
+                            ElementPassStats& st) {
+  const int nr = bt.rows;
+  d4 ys[kBatchMaxRows][3];                      // positions relative to each lane's first node
+  d4 vel[kDamping ? kBatchMaxRows : 1][3];  // velocities
+  const d4 ox = gather(xs, rows[0].vertex, 0), oy = gather(xs, rows[0].vertex, 1), oz = gather(xs, rows[0].vertex, 2);
+  // pass 1: weighted centroid and A = sum w y R0^T (sum w R0 = 0)
+  d4 sw{}, sx{}, sy{}, sz{};
+  d4 a00{}, a01{}, a02{}, a10{}, a11{}, a12{}, a20{}, a21{}, a22{};
+  for (int r = 0; r < nr; ++r) {
+    const BatchRow& row = rows[r];
+    const d4 yx = gather(xs, row.vertex, 0) - ox, yy = gather(xs, row.vertex, 1) - oy,
+             yz = gather(xs, row.vertex, 2) - oz;
+    ys[r][0] = yx;
+    ys[r][1] = yy;
+    ys[r][2] = yz;
+    const d4 w = load(row.weight);
+    const d4 c0 = load(row.rest_weighted[0]), c1 = load(row.rest_weighted[1]), c2 = load(row.rest_weighted[2]);
+    sw += w;
+    sx += w * yx;
+    sy += w * yy;
+    sz += w * yz;
+    a00 += yx * c0; a01 += yx * c1; a02 += yx * c2;
+    a10 += yy * c0; a11 += yy * c1; a12 += yy * c2;
+    a20 += yz * c0; a21 += yz * c1; a22 += yz * c2;
+  }
+  // the consistent deformation gradient F = sum y g^T (sum g = 0)
+  d4 f00{}, f01{}, f02{}, f10{}, f11{}, f12{}, f20{}, f21{}, f22{};
+  for (int r = 0; r < nr; ++r) {
+    const BatchRow& row = rows[r];
+    const d4 yx = ys[r][0], yy = ys[r][1], yz = ys[r][2];
+    const d4 g0 = load(row.gradient[0]), g1 = load(row.gradient[1]), g2 = load(row.gradient[2]);
+    f00 += yx * g0; f01 += yx * g1; f02 += yx * g2;
+    f10 += yy * g0; f11 += yy * g1; f12 += yy * g2;
+    f20 += yz * g0; f21 += yz * g1; f22 += yz * g2;
+  }
+  // the sums of the rigid velocity fit (damping)
+  d4 svx{}, svy{}, svz{}, lx{}, ly{}, lz{}, ixx{}, ixy{}, ixz{}, iyy{}, iyz{}, izz{};
+  if constexpr (kDamping) {
+    for (int r = 0; r < nr; ++r) {
+      const BatchRow& row = rows[r];
+      const d4 yx = ys[r][0], yy = ys[r][1], yz = ys[r][2];
+      const d4 vx = gather(vs, row.vertex, 0), vy = gather(vs, row.vertex, 1), vz = gather(vs, row.vertex, 2);
+      vel[r][0] = vx;
+      vel[r][1] = vy;
+      vel[r][2] = vz;
+      const d4 w = load(row.weight);
+      const d4 wx = w * yx, wy = w * yy, wz = w * yz;
+      svx += w * vx;
+      svy += w * vy;
+      svz += w * vz;
+      lx += wy * vz - wz * vy;
+      ly += wz * vx - wx * vz;
+      lz += wx * vy - wy * vx;
+      ixx += wx * yx; ixy += wx * yy; ixz += wx * yz;
+      iyy += wy * yy; iyz += wy * yz; izz += wz * yz;
+    }
+  }
+  const d4 inv_w = splat(1.0) / sw;
+  const d4 cx = sx * inv_w, cy = sy * inv_w, cz = sz * inv_w;  // relative to the first node
+  // NaN/Inf in: that lane writes no force, counted
+  const d4 probe = (cx + cy + cz + a00 + a01 + a02 + a10 + a11 + a12 + a20 + a21 + a22 + f00 + f01 + f02 + f10 + f11 +
+                    f12 + f20 + f21 + f22) * 0.0;
+  bool finite[kBatchLanes];
+  for (int l = 0; l < kBatchLanes; ++l) {
+    finite[l] = probe[l] == 0.0;
+    if (bt.count[l] > 0 && !finite[l]) ++st.non_finite;
+  }
+
+  // the warm start's rotation matrix (Eigen's Quaternion::toRotationMatrix)
+  d4 qx, qy, qz, qw;
+  for (int l = 0; l < kBatchLanes; ++l) {
+    const Eigen::Quaterniond& q = rot[bt.element[l] >= 0 ? bt.element[l] : bt.element[0]];
+    qx[l] = q.x();
+    qy[l] = q.y();
+    qz[l] = q.z();
+    qw[l] = q.w();
+  }
+  d4 q00, q01, q02, q10, q11, q12, q20, q21, q22;
+  {
+    const d4 tx = 2.0 * qx, ty = 2.0 * qy, tz = 2.0 * qz;
+    const d4 twx = tx * qw, twy = ty * qw, twz = tz * qw;
+    const d4 txx = tx * qx, txy = ty * qx, txz = tz * qx;
+    const d4 tyy = ty * qy, tyz = tz * qy, tzz = tz * qz;
+    q00 = 1.0 - (tyy + tzz); q01 = txy - twz;         q02 = txz + twy;
+    q10 = txy + twz;         q11 = 1.0 - (txx + tzz); q12 = tyz - twx;
+    q20 = txz - twy;         q21 = tyz + twx;         q22 = 1.0 - (txx + tyy);
+  }
+  // the rotation fit's first test (fit_rotation, elements.cpp): the warm start already maximises
+  // tr(Q^T F) (moment balance within the tolerance, negated Hessian positive definite); only the
+  // other lanes run the scalar fit
+  {
+    const d4 s2 = f00 * f00 + f01 * f01 + f02 * f02 + f10 * f10 + f11 * f11 + f12 * f12 + f20 * f20 + f21 * f21 + f22 * f22;
+    d4 is{};
+    for (int l = 0; l < kBatchLanes; ++l) is[l] = s2[l] > 0.0 ? 1.0 / std::sqrt(s2[l]) : 0.0;
+    // p = (F / |F|) Q^T
+    const d4 n00 = f00 * is, n01 = f01 * is, n02 = f02 * is, n10 = f10 * is, n11 = f11 * is, n12 = f12 * is,
+             n20 = f20 * is, n21 = f21 * is, n22 = f22 * is;
+    const d4 p00 = n00 * q00 + n01 * q01 + n02 * q02, p01 = n00 * q10 + n01 * q11 + n02 * q12,
+             p02 = n00 * q20 + n01 * q21 + n02 * q22;
+    const d4 p10 = n10 * q00 + n11 * q01 + n12 * q02, p11 = n10 * q10 + n11 * q11 + n12 * q12,
+             p12 = n10 * q20 + n11 * q21 + n12 * q22;
+    const d4 p20 = n20 * q00 + n21 * q01 + n22 * q02, p21 = n20 * q10 + n21 * q11 + n22 * q12,
+             p22 = n20 * q20 + n21 * q21 + n22 * q22;
+    const d4 tr = p00 + p11 + p22;
+    const d4 gx = p21 - p12, gy = p02 - p20, gz = p10 - p01;
+    const d4 g2 = gx * gx + gy * gy + gz * gz;
+    const d4 h00 = tr - p00, h11 = tr - p11, h22 = tr - p22;
+    const d4 h01 = -0.5 * (p01 + p10), h02 = -0.5 * (p02 + p20), h12 = -0.5 * (p12 + p21);
+    const d4 c00 = h11 * h22 - h12 * h12, c01 = h02 * h12 - h01 * h22, c02 = h01 * h12 - h02 * h11;
+    const d4 det = h00 * c00 + h01 * c01 + h02 * c02;
+    const d4 m2 = h00 * h11 - h01 * h01;
+    const double tol2 = fit.tolerance * fit.tolerance;
+    const d4 fdet = f00 * (f11 * f22 - f12 * f21) - f01 * (f10 * f22 - f12 * f20) + f02 * (f10 * f21 - f11 * f20);
+    for (int l = 0; l < kBatchLanes; ++l) {
+      if (bt.count[l] == 0 || !finite[l]) continue;
+      if (fdet[l] <= 0.0) ++st.inverted;
+      if (s2[l] < 1e-300) continue;  // collapsed to a point: keeps the warm start
+      if (fit.max_iterations > 0 && g2[l] <= tol2 && h00[l] > 1e-6 && m2[l] > 1e-12 && det[l] > 1e-18) continue;
+      Eigen::Matrix3d fl, ql;
+      fl << f00[l], f01[l], f02[l], f10[l], f11[l], f12[l], f20[l], f21[l], f22[l];
+      bool conv = true;
+      st.rotation_iterations += fit_rotation(fl, rot[bt.element[l]], fit, &conv, &ql);
+      st.unconverged += conv ? 0 : 1;
+      q00[l] = ql(0, 0), q01[l] = ql(0, 1), q02[l] = ql(0, 2);
+      q10[l] = ql(1, 0), q11[l] = ql(1, 1), q12[l] = ql(1, 2);
+      q20[l] = ql(2, 0), q21[l] = ql(2, 1), q22[l] = ql(2, 2);
+    }
+  }
+  // G = 2 mu V (Q - F) + k (A - F C0), M = k F
+  const d4 k = load(bt.stiffness), kaff = load(bt.affine_stiffness);
+  d4 gm[9];
+  {
+    const d4 f[9] = {f00, f01, f02, f10, f11, f12, f20, f21, f22};
+    const d4 a[9] = {a00, a01, a02, a10, a11, a12, a20, a21, a22};
+    const d4 q[9] = {q00, q01, q02, q10, q11, q12, q20, q21, q22};
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) {
+        const d4 fc = f[3 * i] * load(bt.spread[j]) + f[3 * i + 1] * load(bt.spread[3 + j]) +
+                      f[3 * i + 2] * load(bt.spread[6 + j]);
+        gm[3 * i + j] = kaff * (q[3 * i + j] - f[3 * i + j]) + k * (a[3 * i + j] - fc);
+      }
+  }
+  const d4 m00 = k * f00, m01 = k * f01, m02 = k * f02, m10 = k * f10, m11 = k * f11, m12 = k * f12, m20 = k * f20,
+           m21 = k * f21, m22 = k * f22;
+  // the rigid velocity about the centroid (elements.cpp, rigid_velocity)
+  d4 cd{}, ux{}, uy{}, uz{}, wx{}, wy{}, wz{};
+  if constexpr (kDamping) {
+    cd = load(bt.damping);
+    ux = svx * inv_w, uy = svy * inv_w, uz = svz * inv_w;
+    // angular momentum about the centroid: L - sw c x vc
+    const d4 angx = lx - sw * (cy * uz - cz * uy), angy = ly - sw * (cz * ux - cx * uz),
+             angz = lz - sw * (cx * uy - cy * ux);
+    // sum w r r^T about the centroid, the inertia tr 1 - that (+ tiny regularisation)
+    const d4 yxx = ixx - sw * cx * cx, yxy = ixy - sw * cx * cy, yxz = ixz - sw * cx * cz;
+    const d4 yyy = iyy - sw * cy * cy, yyz = iyz - sw * cy * cz, yzz = izz - sw * cz * cz;
+    const d4 tr = yxx + yyy + yzz;
+    const d4 reg = tr * (1.0 + 1e-10);
+    const d4 i00 = reg - yxx, i11 = reg - yyy, i22 = reg - yzz, i01 = -yxy, i02 = -yxz, i12 = -yyz;
+    // omega = I^{-1} ang by the adjugate of the symmetric I
+    const d4 c00 = i11 * i22 - i12 * i12, c01 = i02 * i12 - i01 * i22, c02 = i01 * i12 - i02 * i11;
+    const d4 c11 = i00 * i22 - i02 * i02, c12 = i01 * i02 - i00 * i12, c22 = i00 * i11 - i01 * i01;
+    const d4 inv_det = 1.0 / (i00 * c00 + i01 * c01 + i02 * c02);
+    wx = (c00 * angx + c01 * angy + c02 * angz) * inv_det;
+    wy = (c01 * angx + c11 * angy + c12 * angz) * inv_det;
+    wz = (c02 * angx + c12 * angy + c22 * angz) * inv_det;
+    // zero for a collapsed or collinear element
+    const d4 wprobe = (wx + wy + wz) * 0.0;
+    for (int l = 0; l < kBatchLanes; ++l)
+      if (!(tr[l] > 0.0) || wprobe[l] != 0.0) wx[l] = wy[l] = wz[l] = 0.0;
+  }
+  // pass 2: f = M R0' - w k (x - c) + G g [+ c w (v_c + omega x r - v)], each force written once
+  for (int r = 0; r < nr; ++r) {
+    const BatchRow& row = rows[r];
+    const d4 rx = ys[r][0] - cx, ry = ys[r][1] - cy, rz = ys[r][2] - cz;
+    const d4 w = load(row.weight);
+    const d4 kw = k * w;
+    const d4 c0 = load(row.rest_weighted[0]), c1 = load(row.rest_weighted[1]), c2 = load(row.rest_weighted[2]);
+    const d4 g0 = load(row.gradient[0]), g1 = load(row.gradient[1]), g2 = load(row.gradient[2]);
+    d4 o0 = m00 * c0 + m01 * c1 + m02 * c2 - kw * rx;
+    d4 o1 = m10 * c0 + m11 * c1 + m12 * c2 - kw * ry;
+    d4 o2 = m20 * c0 + m21 * c1 + m22 * c2 - kw * rz;
+    o0 += gm[0] * g0 + gm[1] * g1 + gm[2] * g2;
+    o1 += gm[3] * g0 + gm[4] * g1 + gm[5] * g2;
+    o2 += gm[6] * g0 + gm[7] * g1 + gm[8] * g2;
+    if constexpr (kDamping) {
+      const d4 cw = cd * w;
+      o0 += cw * (ux + wy * rz - wz * ry - vel[r][0]);
+      o1 += cw * (uy + wz * rx - wx * rz - vel[r][1]);
+      o2 += cw * (uz + wx * ry - wy * rx - vel[r][2]);
+    }
+    for (int l = 0; l < kBatchLanes; ++l) {
+      if (r >= bt.count[l]) continue;
+      double* out = ef + 3 * std::int64_t(row.slot[l]);
+      out[0] = finite[l] ? o0[l] : 0.0;
+      out[1] = finite[l] ? o1[l] : 0.0;
+      out[2] = finite[l] ? o2[l] : 0.0;
+    }
+  }
+}
+
+/// Prefetch distance, in batches.
+constexpr int kPrefetchAhead = 2;
+constexpr int kPrefetchRows = 8;
+
+template <bool kDamping>
+VX_INLINE void batch_range(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot,
+                           double* ef, std::int64_t b0, std::int64_t b1, const RotationFitSettings& fit,
+                           ElementPassStats& st) {
+  const ElementBatch* batches = phys.element_batches.batches.data();
+  const BatchRow* rows = phys.element_batches.rows.data();
+  for (std::int64_t b = b0; b < b1; ++b) {
+    if (b + kPrefetchRows < b1) {  // the rows of a batch further ahead (a stream the hardware
+                                   // prefetcher follows too late between the gathers)
+      const ElementBatch& far = batches[b + kPrefetchRows];
+      const char* p0 = reinterpret_cast<const char*>(rows + far.first_row);
+      const char* p1 = reinterpret_cast<const char*>(rows + far.first_row + far.rows);
+      for (; p0 < p1; p0 += 64) __builtin_prefetch(p0, 0);
+      __builtin_prefetch(&batches[b + kPrefetchRows + 1], 0);
+    }
+    if (b + kPrefetchAhead < b1) {  // the nodes and force slots of a batch ahead
+      const ElementBatch& ahead = batches[b + kPrefetchAhead];
+      const BatchRow* ar = rows + ahead.first_row;
+      for (int r = 0; r < ahead.rows; ++r)
+        for (int l = 0; l < kBatchLanes; ++l) {
+          __builtin_prefetch(xs + 3 * std::int64_t(ar[r].vertex[l]), 0);
+          if constexpr (kDamping) __builtin_prefetch(vs + 3 * std::int64_t(ar[r].vertex[l]), 0);
+          __builtin_prefetch(ef + 3 * std::int64_t(ar[r].slot[l]), 1);
+        }
+    }
+    batch_forces<kDamping>(batches[b], rows + batches[b].first_row, xs, vs, rot, ef, fit, st);
+  }
+}
+
+}  // namespace
+
+// one clone per instruction set, picked once at load time (GNU ifunc)
+__attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
+void element_batches_range(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot,
+                           double* ef, std::int64_t b0, std::int64_t b1, const RotationFitSettings& fit, bool damping,
+                           ElementPassStats& st) {
+  if (damping)
+    batch_range<true>(phys, xs, vs, rot, ef, b0, b1, fit, st);
+  else
+    batch_range<false>(phys, xs, vs, rot, ef, b0, b1, fit, st);
+}
+
+}  // namespace vx

@@ -1,0 +1,84 @@
+#pragma once
+/// @file element_batches.h
+/// The element pass vectorised across elements (ElementKernel::batched, elements.h): the
+/// elements are grouped into batches of kBatchLanes, one element per SIMD lane, and each
+/// batch's vertex entries are stored as rows of kBatchLanes entries (row r holds entry r of
+/// every lane's element), so that every step of the element kernel (the sums of A and F, the
+/// rigid velocity fit, the rotation check, the forces) runs on kBatchLanes elements at once.
+///
+/// Batches never leave a window of kElementGrain consecutive elements (the parallel chunk of
+/// the other kernels, spatially compact), and inside a window the elements are sorted by their
+/// number of vertex entries before they are grouped, so that the lanes of a batch have nearly
+/// the same count: the padding rows (weight 0, zero constants) add 0.4 % to the 128^3 sphere's
+/// 270k entries. A lane's rows beyond its element's count and the lanes of a short last batch
+/// repeat valid data and are never written back.
+///
+/// Each lane's sums run over its entries in entry order, as in the scalar kernels; the result
+/// equals theirs up to rounding (the compiled clone may contract multiply-adds). Elements with
+/// more than kBatchMaxRows entries are left to the packed kernel (none in the phantoms: at most
+/// 29 entries).
+
+#include <Eigen/Geometry>
+#include <cstdint>
+#include <vector>
+
+namespace vx {
+
+struct PhysicsModel;
+struct RotationFitSettings;
+struct ElementPassStats;
+
+/// Elements per batch (SIMD lanes of 4 doubles: AVX2).
+inline constexpr int kBatchLanes = 4;
+/// Largest entry count of a batched element (the kernel keeps a batch's positions on the stack).
+inline constexpr int kBatchMaxRows = 64;
+
+/// Row r of a batch: vertex entry r of each lane's element (structure of arrays).
+struct alignas(64) BatchRow {
+  double rest_weighted[3][kBatchLanes];  ///< w_i R0_i per component, mm (0 in padding)
+  double gradient[3][kBatchLanes];       ///< g_i per component, 1/mm (0 in padding)
+  double weight[kBatchLanes];            ///< w_i (0 in padding)
+  std::int32_t vertex[kBatchLanes];      ///< the entry's node (padding: the lane's first node)
+  std::int32_t slot[kBatchLanes];        ///< its column of the node-major entry buffers
+};
+static_assert(sizeof(BatchRow) == 256);
+
+/// The per-element constants of one batch, per lane.
+struct alignas(64) ElementBatch {
+  double stiffness[kBatchLanes];         ///< k_e, N/mm
+  double affine_stiffness[kBatchLanes];  ///< 2 mu V_e, N*mm
+  double damping[kBatchLanes];           ///< c_e, N*s/mm
+  double spread[9][kBatchLanes];         ///< C0, row-major, mm^2
+  std::int32_t element[kBatchLanes];     ///< the lane's element (-1: an empty lane)
+  std::int32_t count[kBatchLanes];       ///< its vertex entries (0: an empty lane)
+  std::int32_t first_row{0};             ///< its rows in ElementBatches::rows
+  std::int32_t rows{0};                  ///< the largest count of its lanes
+};
+
+/// The batched layout of a PhysicsModel (derived data, built by make_physics_model).
+struct ElementBatches {
+  std::vector<ElementBatch> batches;
+  std::vector<BatchRow> rows;
+  /// Batches of window w (elements [w kElementGrain, (w+1) kElementGrain)):
+  /// [window_offsets[w], window_offsets[w+1]).
+  std::vector<std::int32_t> window_offsets;
+  /// Elements too large for a batch (more than kBatchMaxRows entries), left to the packed kernel.
+  std::vector<std::int32_t> unbatched;
+  [[nodiscard]] bool empty() const { return window_offsets.empty(); }
+};
+
+/// Builds the batches of `physics` (its entry constants, element constants and slots must be
+/// set). `window` is the element window (kElementGrain); elements with more than `max_rows`
+/// entries (at most kBatchMaxRows) are left unbatched.
+void build_element_batches(const PhysicsModel& physics, std::int64_t window, ElementBatches& out,
+                           int max_rows = kBatchMaxRows);
+
+/// The batched kernel over batches [b0, b1): writes the forces of every batched element of
+/// those batches into `ef` (3 x vertex entries, node-major slots), with damping when
+/// `damping` (then `vs` must be set). No energy, no volume term (the caller picks the packed
+/// kernel for those). Dispatched at run time to the widest instruction set of the CPU.
+void element_batches_range(const PhysicsModel& physics, const double* xs, const double* vs,
+                           Eigen::Quaterniond* rotations, double* ef, std::int64_t b0, std::int64_t b1,
+                           const RotationFitSettings& fit, bool damping, ElementPassStats& stats);
+
+}  // namespace vx
