@@ -1,6 +1,7 @@
 // voxelastic_bench_step: one step of each integrator on sphere phantoms of growing size
 // (the gradational model of a ball of radius n/2 - 1 voxels, lowest cap fixed, under gravity).
 // Counters: ns per element and per vertex entry, threads, model size, real-time factor.
+// element_pass/<kernel>/n: the element pass alone with each kernel, side by side.
 //   voxelastic_bench_step [--benchmark_filter=...]   (OMP_NUM_THREADS sets the threads)
 // Targets (issue): explicit step of the 128^3 sphere (~19k elements, ~270k entries) < 1 ms on
 // 2 cores; ns/entry flat from 32^3 to 256^3; implicit 128^3 at dt = 1 ms in real time.
@@ -83,7 +84,7 @@ void step(benchmark::State& bs, IntegratorKind kind, int n) {
 
 /// The element pass alone (elastic and damping forces of every element, as in an explicit
 /// step), with the given kernel: the packed kernel against the reference side by side.
-void element_pass(benchmark::State& bs, ElementKernel kernel, int n) {
+void element_pass(benchmark::State& bs, ElementKernel kernel, SimdLevel simd, int n) {
   const auto& physics = sphere(n);
   const Model& model = *physics->model;
   SimState s = sphere_state(physics);
@@ -99,6 +100,7 @@ void element_pass(benchmark::State& bs, ElementKernel kernel, int n) {
   const Eigen::Matrix3Xd* positions[2] = {&previous, &s.positions};
   ElementPassOptions opt;
   opt.kernel = kernel;
+  opt.simd = simd;
   ElementPassStats st;
   std::int64_t passes = 0, fit_iterations = 0;
   const auto t0 = std::chrono::steady_clock::now();
@@ -128,15 +130,27 @@ int main(int argc, char** argv) {
           ->UseRealTime()
           ->MinTime(0.5);
     }
-  // the element pass with each kernel, interleaved per size so that the pair runs under the
-  // same machine load (compare ratios, not absolute times)
+  // the element pass with each kernel (the batched one with each instruction set this CPU
+  // runs), interleaved per size so that they run under the same machine load (compare ratios,
+  // not absolute times)
+  struct Variant {
+    ElementKernel kernel;
+    SimdLevel simd;
+  };
+  std::vector<Variant> variants{{ElementKernel::reference, SimdLevel::automatic},
+                                {ElementKernel::packed, SimdLevel::automatic}};
+  for (SimdLevel simd : {SimdLevel::generic, SimdLevel::avx2, SimdLevel::avx512})
+    if (simd_supported(simd)) variants.push_back({ElementKernel::batched, simd});
   for (int n : {32, 64, 128, 256})
-    for (ElementKernel kernel : {ElementKernel::reference, ElementKernel::packed, ElementKernel::batched})
-      benchmark::RegisterBenchmark((std::string("element_pass/") + to_string(kernel) + "/" + std::to_string(n)).c_str(),
-                                   [kernel, n](benchmark::State& bs) { element_pass(bs, kernel, n); })
+    for (const Variant& v : variants) {
+      std::string name = std::string("element_pass/") + to_string(v.kernel);
+      if (v.kernel == ElementKernel::batched) name += std::string("_") + to_string(v.simd);
+      benchmark::RegisterBenchmark((name + "/" + std::to_string(n)).c_str(),
+                                   [v, n](benchmark::State& bs) { element_pass(bs, v.kernel, v.simd, n); })
           ->Unit(benchmark::kMillisecond)
           ->UseRealTime()
           ->MinTime(0.5);
+    }
   benchmark::Initialize(&argc, argv);
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
   benchmark::RunSpecifiedBenchmarks();

@@ -330,15 +330,68 @@ VX_INLINE void batch_range(const PhysicsModel& phys, const double* xs, const dou
 
 }  // namespace
 
-// one clone per instruction set, picked once at load time (GNU ifunc)
-__attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
+// one copy of the kernel per instruction set (the same source; the compiler vectorises the
+// lane arithmetic for each)
+#define VX_BATCH_RANGE(name, attributes)                                                                  \
+  attributes void name(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot, \
+                       double* ef, std::int64_t b0, std::int64_t b1, const RotationFitSettings& fit,          \
+                       bool damping, ElementPassStats& st) {                                                 \
+    if (damping)                                                                                             \
+      batch_range<true>(phys, xs, vs, rot, ef, b0, b1, fit, st);                                             \
+    else                                                                                                     \
+      batch_range<false>(phys, xs, vs, rot, ef, b0, b1, fit, st);                                            \
+  }
+
+namespace {
+#if defined(__x86_64__) && defined(__GNUC__)
+VX_BATCH_RANGE(range_avx512, __attribute__((target("arch=x86-64-v4"))))
+VX_BATCH_RANGE(range_avx2, __attribute__((target("arch=x86-64-v3"))))
+#endif
+VX_BATCH_RANGE(range_generic, )
+}  // namespace
+
+bool simd_supported(SimdLevel level) {
+  switch (level) {
+    case SimdLevel::automatic:
+    case SimdLevel::generic: return true;
+#if defined(__x86_64__) && defined(__GNUC__)
+    case SimdLevel::avx2: return __builtin_cpu_supports("x86-64-v3");
+    case SimdLevel::avx512: return __builtin_cpu_supports("x86-64-v4");
+#else
+    default: return false;
+#endif
+  }
+  return false;
+}
+
+SimdLevel best_simd_level() {
+  static const SimdLevel best = simd_supported(SimdLevel::avx512) ? SimdLevel::avx512
+                                : simd_supported(SimdLevel::avx2) ? SimdLevel::avx2
+                                                                  : SimdLevel::generic;
+  return best;
+}
+
+const char* to_string(SimdLevel level) {
+  switch (level) {
+    case SimdLevel::automatic: return "auto";
+    case SimdLevel::generic: return "generic";
+    case SimdLevel::avx2: return "avx2";
+    case SimdLevel::avx512: return "avx512";
+  }
+  return "?";
+}
+
 void element_batches_range(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot,
                            double* ef, std::int64_t b0, std::int64_t b1, const RotationFitSettings& fit, bool damping,
-                           ElementPassStats& st) {
-  if (damping)
-    batch_range<true>(phys, xs, vs, rot, ef, b0, b1, fit, st);
-  else
-    batch_range<false>(phys, xs, vs, rot, ef, b0, b1, fit, st);
+                           ElementPassStats& st, SimdLevel level) {
+  if (level == SimdLevel::automatic || !simd_supported(level)) level = best_simd_level();
+  switch (level) {
+#if defined(__x86_64__) && defined(__GNUC__)
+    case SimdLevel::avx512: return range_avx512(phys, xs, vs, rot, ef, b0, b1, fit, damping, st);
+    case SimdLevel::avx2: return range_avx2(phys, xs, vs, rot, ef, b0, b1, fit, damping, st);
+#endif
+    default: return range_generic(phys, xs, vs, rot, ef, b0, b1, fit, damping, st);
+  }
 }
 
 }  // namespace vx

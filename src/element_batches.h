@@ -73,12 +73,28 @@ struct ElementBatches {
 void build_element_batches(const PhysicsModel& physics, std::int64_t window, ElementBatches& out,
                            int max_rows = kBatchMaxRows);
 
+/// The instruction set the batched kernel is compiled for (one copy of the same source each).
+enum class SimdLevel {
+  automatic,  ///< the widest this CPU runs (best_simd_level)
+  generic,    ///< baseline x86-64 (SSE2: two lanes per instruction) or any other CPU
+  avx2,       ///< x86-64-v3: AVX2 and FMA (four lanes, fused multiply-adds)
+  avx512,     ///< x86-64-v4: AVX-512 (four lanes, 32 vector registers)
+};
+/// True when this CPU runs `level` (automatic and generic: always).
+[[nodiscard]] bool simd_supported(SimdLevel level);
+/// The widest level this CPU runs (checked once).
+[[nodiscard]] SimdLevel best_simd_level();
+/// "auto", "generic", "avx2" or "avx512".
+[[nodiscard]] const char* to_string(SimdLevel level);
+
 /// The batched kernel over batches [b0, b1): writes the forces of every batched element of
 /// those batches into `ef` (3 x vertex entries, node-major slots), with damping when
 /// `damping` (then `vs` must be set). No energy, no volume term (the caller picks the packed
-/// kernel for those). Dispatched at run time to the widest instruction set of the CPU.
+/// kernel for those). `level` picks the compiled copy; one this CPU cannot run falls back to
+/// best_simd_level().
 void element_batches_range(const PhysicsModel& physics, const double* xs, const double* vs,
                            Eigen::Quaterniond* rotations, double* ef, std::int64_t b0, std::int64_t b1,
-                           const RotationFitSettings& fit, bool damping, ElementPassStats& stats);
+                           const RotationFitSettings& fit, bool damping, ElementPassStats& stats,
+                           SimdLevel level = SimdLevel::automatic);
 
 }  // namespace vx

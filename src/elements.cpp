@@ -607,7 +607,7 @@ ElementPassStats compute_element_forces(const PhysicsModel& phys, const Eigen::M
     ElementPassStats st;
     if (batched)
       element_batches_range(phys, xs, vs, rot, ef, eb.window_offsets[std::size_t(chunk)],
-                            eb.window_offsets[std::size_t(chunk) + 1], options.rotation, damping, st);
+                            eb.window_offsets[std::size_t(chunk) + 1], options.rotation, damping, st, options.simd);
     else
       fn(phys, xs, vs, rot, ef, en, b, e, options.rotation, st);
     scratch.chunks[std::size_t(chunk)] = st;

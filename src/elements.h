@@ -88,6 +88,7 @@ struct ElementPassOptions {
   bool energy{false};    ///< write per-element elastic energy
   RotationFitSettings rotation;
   ElementKernel kernel{ElementKernel::batched};
+  SimdLevel simd{SimdLevel::automatic};  ///< the batched kernel's instruction set (element_batches.h)
 };
 
 /// Counters of one element pass (summed over elements).

@@ -471,15 +471,16 @@ struct PassResult {
 };
 
 PassResult element_pass(const PhysicsModel& p, const SimState& s, ElementKernel kernel, int threads,
-                        const RotationFitSettings& fit = {}, const Eigen::Matrix3Xd* positions = nullptr) {
+                        const RotationFitSettings& fit = {}, SimdLevel simd = SimdLevel::automatic) {
   PassResult r;
   r.rotations = s.rotations;
   ElementPassScratch scratch;
   ElementPassOptions opt;
   opt.kernel = kernel;
   opt.rotation = fit;
-  r.stats = compute_element_forces(p, positions ? *positions : s.positions, &s.velocities, r.rotations, r.entry_forces,
-                                   nullptr, opt, threads, scratch);
+  opt.simd = simd;
+  r.stats = compute_element_forces(p, s.positions, &s.velocities, r.rotations, r.entry_forces, nullptr, opt, threads,
+                                   scratch);
   return r;
 }
 
@@ -543,7 +544,8 @@ TEST(ElementBatches, CoverEveryVertexEntryOnceWithLittlePadding) {
   EXPECT_LT(padded, 1.05);
 }
 
-TEST(ElementBatches, MatchThePackedKernel) {
+TEST(ElementBatches, MatchThePackedKernelWithEveryInstructionSet) {
+  std::cout << "this CPU: " << to_string(best_simd_level()) << "\n";
   // 2 mm: some elements inverted
   for (const double amplitude : {0.05, 0.3, 2.0}) {
     const auto f = batched_ball(amplitude, 21);
@@ -552,28 +554,35 @@ TEST(ElementBatches, MatchThePackedKernel) {
     // from the fitted rotations with the default tolerance (every lane passes the vectorised test)
     const RotationFitSettings tight{100, 1e-13};
     const PassResult packed = element_pass(p, f.state, ElementKernel::packed, 2, tight);
-    const PassResult batched = element_pass(p, f.state, ElementKernel::batched, 2, tight);
-    const double first = relative_difference(batched, packed);
-    EXPECT_EQ(batched.stats.rotation_iterations, packed.stats.rotation_iterations);
-    EXPECT_GT(batched.stats.rotation_iterations, p.num_elements());
-    EXPECT_EQ(batched.stats.inverted, packed.stats.inverted);
-    EXPECT_EQ(batched.stats.unconverged, packed.stats.unconverged);
-    EXPECT_EQ(batched.stats.non_finite, 0);
     SimState next = f.state;
     next.rotations = packed.rotations;
     const PassResult packed2 = element_pass(p, next, ElementKernel::packed, 2);
-    const PassResult batched2 = element_pass(p, next, ElementKernel::batched, 2);
-    const double second = relative_difference(batched2, packed2);
     EXPECT_EQ(packed2.stats.rotation_iterations, 0);
-    EXPECT_EQ(batched2.stats.rotation_iterations, 0);
-    EXPECT_EQ(batched2.stats.inverted, packed2.stats.inverted);
-    std::cout << "amplitude " << amplitude << ": batched - packed " << first << ", " << second
-              << " (relative); fit iterations " << batched.stats.rotation_iterations << " over "
-              << p.num_elements() << " elements, inverted " << batched.stats.inverted << "\n";
-    EXPECT_LT(first, 1e-12);
-    EXPECT_LT(second, 1e-12);
-    if (amplitude > 1.0) {
-      EXPECT_GT(batched.stats.inverted, 0);
+    for (const SimdLevel simd : {SimdLevel::generic, SimdLevel::avx2, SimdLevel::avx512}) {
+      if (!simd_supported(simd)) {
+        std::cout << to_string(simd) << ": not on this CPU, not checked\n";
+        continue;
+      }
+      SCOPED_TRACE(to_string(simd));
+      const PassResult batched = element_pass(p, f.state, ElementKernel::batched, 2, tight, simd);
+      const double first = relative_difference(batched, packed);
+      EXPECT_EQ(batched.stats.rotation_iterations, packed.stats.rotation_iterations);
+      EXPECT_GT(batched.stats.rotation_iterations, p.num_elements());
+      EXPECT_EQ(batched.stats.inverted, packed.stats.inverted);
+      EXPECT_EQ(batched.stats.unconverged, packed.stats.unconverged);
+      EXPECT_EQ(batched.stats.non_finite, 0);
+      const PassResult batched2 = element_pass(p, next, ElementKernel::batched, 2, {}, simd);
+      const double second = relative_difference(batched2, packed2);
+      EXPECT_EQ(batched2.stats.rotation_iterations, 0);
+      EXPECT_EQ(batched2.stats.inverted, packed2.stats.inverted);
+      std::cout << to_string(simd) << ", amplitude " << amplitude << ": batched - packed " << first << ", " << second
+                << " (relative); fit iterations " << batched.stats.rotation_iterations << " over "
+                << p.num_elements() << " elements, inverted " << batched.stats.inverted << "\n";
+      EXPECT_LT(first, 1e-12);
+      EXPECT_LT(second, 1e-12);
+      if (amplitude > 1.0) {
+        EXPECT_GT(batched.stats.inverted, 0);
+      }
     }
   }
 }
