@@ -91,6 +91,68 @@ VX_INLINE d4 gather(const double* xs, const std::int32_t* vertex, int d) {
             xs[3 * std::int64_t(vertex[2]) + d], xs[3 * std::int64_t(vertex[3]) + d]};
 }
 
+/// A 3 x 3 matrix per lane, row-major.
+struct Mat3 {
+  d4 m[9];
+};
+
+/// The rotation matrix of the unit quaternions (x, y, z, w) (Eigen's Quaternion::toRotationMatrix).
+VX_INLINE Mat3 rotation_matrix(d4 qx, d4 qy, d4 qz, d4 qw) {
+  const d4 tx = 2.0 * qx, ty = 2.0 * qy, tz = 2.0 * qz;
+  const d4 twx = tx * qw, twy = ty * qw, twz = tz * qw;
+  const d4 txx = tx * qx, txy = ty * qx, txz = tz * qx;
+  const d4 tyy = ty * qy, tyz = tz * qy, tzz = tz * qz;
+  return Mat3{{1.0 - (tyy + tzz), txy - twz, txz + twy, txy + twz, 1.0 - (txx + tzz), tyz - twx, txz - twy, tyz + twx,
+               1.0 - (txx + tyy)}};
+}
+
+/// One evaluation of the rotation fit (fit_rotation, elements.cpp) at the quaternions q for the
+/// normalised matrices an: the rotation r, the trace of P = an r^T, the squared moment
+/// imbalance g2, whether the negated Hessian is positive definite, and the Newton step's squared
+/// length and the quaternions it leads to (rotate_by: n = normalise(q + (0, theta / 2) q)).
+struct FitProbe {
+  Mat3 r;
+  d4 trace{}, g2{}, step2{}, nx{}, ny{}, nz{}, nw{};
+  bool pd[kBatchLanes]{};
+};
+
+VX_INLINE FitProbe probe_fit(const Mat3& an, d4 qx, d4 qy, d4 qz, d4 qw) {
+  FitProbe o;
+  o.r = rotation_matrix(qx, qy, qz, qw);
+  const d4* a = an.m;
+  const d4* r = o.r.m;
+  const d4 p00 = a[0] * r[0] + a[1] * r[1] + a[2] * r[2], p01 = a[0] * r[3] + a[1] * r[4] + a[2] * r[5],
+           p02 = a[0] * r[6] + a[1] * r[7] + a[2] * r[8];
+  const d4 p10 = a[3] * r[0] + a[4] * r[1] + a[5] * r[2], p11 = a[3] * r[3] + a[4] * r[4] + a[5] * r[5],
+           p12 = a[3] * r[6] + a[4] * r[7] + a[5] * r[8];
+  const d4 p20 = a[6] * r[0] + a[7] * r[1] + a[8] * r[2], p21 = a[6] * r[3] + a[7] * r[4] + a[8] * r[5],
+           p22 = a[6] * r[6] + a[7] * r[7] + a[8] * r[8];
+  const d4 tr = p00 + p11 + p22;
+  o.trace = tr;
+  const d4 gx = p21 - p12, gy = p02 - p20, gz = p10 - p01;
+  o.g2 = gx * gx + gy * gy + gz * gz;
+  const d4 h00 = tr - p00, h11 = tr - p11, h22 = tr - p22;
+  const d4 h01 = -0.5 * (p01 + p10), h02 = -0.5 * (p02 + p20), h12 = -0.5 * (p12 + p21);
+  const d4 c00 = h11 * h22 - h12 * h12, c01 = h02 * h12 - h01 * h22, c02 = h01 * h12 - h02 * h11;
+  const d4 c11 = h00 * h22 - h02 * h02, c12 = h01 * h02 - h00 * h12, c22 = h00 * h11 - h01 * h01;
+  const d4 det = h00 * c00 + h01 * c01 + h02 * c02;
+  for (int l = 0; l < kBatchLanes; ++l) o.pd[l] = h00[l] > 1e-6 && c22[l] > 1e-12 && det[l] > 1e-18;
+  const d4 idet = 1.0 / det;
+  const d4 tx = (c00 * gx + c01 * gy + c02 * gz) * idet, ty = (c01 * gx + c11 * gy + c12 * gz) * idet,
+           tz = (c02 * gx + c12 * gy + c22 * gz) * idet;
+  o.step2 = tx * tx + ty * ty + tz * tz;
+  const d4 hx = 0.5 * tx, hy = 0.5 * ty, hz = 0.5 * tz;
+  const d4 nw = -(hx * qx + hy * qy + hz * qz) + qw;
+  const d4 nx = qw * hx + (hy * qz - hz * qy) + qx;
+  const d4 ny = qw * hy + (hz * qx - hx * qz) + qy;
+  const d4 nz = qw * hz + (hx * qy - hy * qx) + qz;
+  const d4 nn = nw * nw + nx * nx + ny * ny + nz * nz;
+  d4 in{};
+  for (int l = 0; l < kBatchLanes; ++l) in[l] = nn[l] > 0.0 ? 1.0 / std::sqrt(nn[l]) : 0.0;
+  o.nx = nx * in, o.ny = ny * in, o.nz = nz * in, o.nw = nw * in;
+  return o;
+}
+
 /// One batch: the packed kernel's arithmetic (elements.cpp) with one element per lane.
 template <bool kDamping>
 VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const double* xs, const double* vs,
@@ -163,65 +225,73 @@ VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const 
     if (bt.count[l] > 0 && !finite[l]) ++st.non_finite;
   }
 
-  // the warm start's rotation matrix (Eigen's Quaternion::toRotationMatrix)
-  d4 qx, qy, qz, qw;
+  // the rotation fit (fit_rotation, elements.cpp) as far as almost every element goes in a
+  // running simulation, in lanes: the warm start passes its first test (it maximises tr(Q^T F):
+  // moment balance within the tolerance, negated Hessian positive definite), or one Newton step
+  // ends the fit (a step short enough, or one after which the test passes); the other lanes
+  // run the scalar fit from the warm start (the same result as the scalar kernels)
+  d4 q0x, q0y, q0z, q0w;
   for (int l = 0; l < kBatchLanes; ++l) {
     const Eigen::Quaterniond& q = rot[bt.element[l] >= 0 ? bt.element[l] : bt.element[0]];
-    qx[l] = q.x();
-    qy[l] = q.y();
-    qz[l] = q.z();
-    qw[l] = q.w();
+    q0x[l] = q.x();
+    q0y[l] = q.y();
+    q0z[l] = q.z();
+    q0w[l] = q.w();
   }
-  d4 q00, q01, q02, q10, q11, q12, q20, q21, q22;
-  {
-    const d4 tx = 2.0 * qx, ty = 2.0 * qy, tz = 2.0 * qz;
-    const d4 twx = tx * qw, twy = ty * qw, twz = tz * qw;
-    const d4 txx = tx * qx, txy = ty * qx, txz = tz * qx;
-    const d4 tyy = ty * qy, tyz = tz * qy, tzz = tz * qz;
-    q00 = 1.0 - (tyy + tzz); q01 = txy - twz;         q02 = txz + twy;
-    q10 = txy + twz;         q11 = 1.0 - (txx + tzz); q12 = tyz - twx;
-    q20 = txz - twy;         q21 = tyz + twx;         q22 = 1.0 - (txx + tyy);
+  const d4 s2 = f00 * f00 + f01 * f01 + f02 * f02 + f10 * f10 + f11 * f11 + f12 * f12 + f20 * f20 + f21 * f21 + f22 * f22;
+  d4 is{};
+  for (int l = 0; l < kBatchLanes; ++l) is[l] = s2[l] > 0.0 ? 1.0 / std::sqrt(s2[l]) : 0.0;
+  const Mat3 fn{f00 * is, f01 * is, f02 * is, f10 * is, f11 * is, f12 * is, f20 * is, f21 * is, f22 * is};
+  const FitProbe t0 = probe_fit(fn, q0x, q0y, q0z, q0w);
+  FitProbe t1;
+  const double tol2 = fit.tolerance * fit.tolerance;
+  const d4 fdet = f00 * (f11 * f22 - f12 * f21) - f01 * (f10 * f22 - f12 * f20) + f02 * (f10 * f21 - f11 * f20);
+  enum class Fit : unsigned char { warm, stepped, scalar };
+  Fit how[kBatchLanes] = {Fit::warm, Fit::warm, Fit::warm, Fit::warm};
+  bool probe_again = false;
+  for (int l = 0; l < kBatchLanes; ++l) {
+    if (bt.count[l] == 0 || !finite[l]) continue;
+    if (fdet[l] <= 0.0) ++st.inverted;
+    if (s2[l] < 1e-300) continue;  // collapsed to a point: keeps the warm start
+    how[l] = Fit::scalar;
+    if (fit.max_iterations < 1 || !t0.pd[l]) continue;
+    if (t0.g2[l] <= tol2) {
+      how[l] = Fit::warm;
+    } else if (t0.step2[l] <= fit.tolerance || (t0.step2[l] <= 1.0 && fit.max_iterations > 1)) {
+      // a step this short leaves an error of order its square: done; a longer one is decided
+      // after probing the stepped rotation (whose matrix both need)
+      how[l] = Fit::stepped;
+      probe_again = true;
+    }
   }
-  // the rotation fit's first test (fit_rotation, elements.cpp): the warm start already maximises
-  // tr(Q^T F) (moment balance within the tolerance, negated Hessian positive definite); only the
-  // other lanes run the scalar fit
-  {
-    const d4 s2 = f00 * f00 + f01 * f01 + f02 * f02 + f10 * f10 + f11 * f11 + f12 * f12 + f20 * f20 + f21 * f21 + f22 * f22;
-    d4 is{};
-    for (int l = 0; l < kBatchLanes; ++l) is[l] = s2[l] > 0.0 ? 1.0 / std::sqrt(s2[l]) : 0.0;
-    // p = (F / |F|) Q^T
-    const d4 n00 = f00 * is, n01 = f01 * is, n02 = f02 * is, n10 = f10 * is, n11 = f11 * is, n12 = f12 * is,
-             n20 = f20 * is, n21 = f21 * is, n22 = f22 * is;
-    const d4 p00 = n00 * q00 + n01 * q01 + n02 * q02, p01 = n00 * q10 + n01 * q11 + n02 * q12,
-             p02 = n00 * q20 + n01 * q21 + n02 * q22;
-    const d4 p10 = n10 * q00 + n11 * q01 + n12 * q02, p11 = n10 * q10 + n11 * q11 + n12 * q12,
-             p12 = n10 * q20 + n11 * q21 + n12 * q22;
-    const d4 p20 = n20 * q00 + n21 * q01 + n22 * q02, p21 = n20 * q10 + n21 * q11 + n22 * q12,
-             p22 = n20 * q20 + n21 * q21 + n22 * q22;
-    const d4 tr = p00 + p11 + p22;
-    const d4 gx = p21 - p12, gy = p02 - p20, gz = p10 - p01;
-    const d4 g2 = gx * gx + gy * gy + gz * gz;
-    const d4 h00 = tr - p00, h11 = tr - p11, h22 = tr - p22;
-    const d4 h01 = -0.5 * (p01 + p10), h02 = -0.5 * (p02 + p20), h12 = -0.5 * (p12 + p21);
-    const d4 c00 = h11 * h22 - h12 * h12, c01 = h02 * h12 - h01 * h22, c02 = h01 * h12 - h02 * h11;
-    const d4 det = h00 * c00 + h01 * c01 + h02 * c02;
-    const d4 m2 = h00 * h11 - h01 * h01;
-    const double tol2 = fit.tolerance * fit.tolerance;
-    const d4 fdet = f00 * (f11 * f22 - f12 * f21) - f01 * (f10 * f22 - f12 * f20) + f02 * (f10 * f21 - f11 * f20);
-    for (int l = 0; l < kBatchLanes; ++l) {
-      if (bt.count[l] == 0 || !finite[l]) continue;
-      if (fdet[l] <= 0.0) ++st.inverted;
-      if (s2[l] < 1e-300) continue;  // collapsed to a point: keeps the warm start
-      if (fit.max_iterations > 0 && g2[l] <= tol2 && h00[l] > 1e-6 && m2[l] > 1e-12 && det[l] > 1e-18) continue;
-      Eigen::Matrix3d fl, ql;
+  if (probe_again) t1 = probe_fit(fn, t0.nx, t0.ny, t0.nz, t0.nw);
+  Eigen::Matrix3d fitted[kBatchLanes];
+  for (int l = 0; l < kBatchLanes; ++l) {
+    if (how[l] == Fit::stepped && t0.step2[l] > fit.tolerance &&
+        !(t1.trace[l] >= t0.trace[l] - 1e-13 && t1.pd[l] && t1.g2[l] <= tol2))
+      how[l] = Fit::scalar;  // the step did not end the fit
+    if (how[l] == Fit::stepped) {
+      rot[bt.element[l]] = Eigen::Quaterniond(t0.nw[l], t0.nx[l], t0.ny[l], t0.nz[l]);
+      ++st.rotation_iterations;
+    } else if (how[l] == Fit::scalar) {
+      Eigen::Matrix3d fl;
       fl << f00[l], f01[l], f02[l], f10[l], f11[l], f12[l], f20[l], f21[l], f22[l];
       bool conv = true;
-      st.rotation_iterations += fit_rotation(fl, rot[bt.element[l]], fit, &conv, &ql);
+      st.rotation_iterations += fit_rotation(fl, rot[bt.element[l]], fit, &conv, &fitted[l]);
       st.unconverged += conv ? 0 : 1;
-      q00[l] = ql(0, 0), q01[l] = ql(0, 1), q02[l] = ql(0, 2);
-      q10[l] = ql(1, 0), q11[l] = ql(1, 1), q12[l] = ql(1, 2);
-      q20[l] = ql(2, 0), q21[l] = ql(2, 1), q22[l] = ql(2, 2);
     }
+  }
+  // the rotation of each lane
+  d4 q00, q01, q02, q10, q11, q12, q20, q21, q22;
+  {
+    Mat3 q = t0.r;
+    for (int l = 0; l < kBatchLanes; ++l)
+      for (int i = 0; i < 9; ++i) {
+        if (how[l] == Fit::stepped) q.m[i][l] = t1.r.m[i][l];
+        if (how[l] == Fit::scalar) q.m[i][l] = fitted[l](i / 3, i % 3);
+      }
+    q00 = q.m[0], q01 = q.m[1], q02 = q.m[2], q10 = q.m[3], q11 = q.m[4], q12 = q.m[5];
+    q20 = q.m[6], q21 = q.m[7], q22 = q.m[8];
   }
   // G = 2 mu V (Q - F) + k (A - F C0), M = k F
   const d4 k = load(bt.stiffness), kaff = load(bt.affine_stiffness);

@@ -593,8 +593,11 @@ ElementPassStats compute_element_forces(const PhysicsModel& phys, const Eigen::M
   const bool packed = options.kernel != ElementKernel::reference &&
                       std::int64_t(phys.entry_packed.size()) == phys.num_vertex_entries();
   const ElementBatches& eb = phys.element_batches;
-  const bool batched = packed && options.kernel == ElementKernel::batched && !energy && !phys.has_volume_term() &&
-                       std::int64_t(eb.window_offsets.size()) == chunks + 1;
+  // automatic on a CPU without AVX2: the packed kernel (the batched one on two-lane SSE2 is
+  // slower once the model leaves the cache: element_pass benchmark, batched_generic)
+  const bool vector_unit = options.simd != SimdLevel::automatic || best_simd_level() != SimdLevel::generic;
+  const bool batched = packed && options.kernel == ElementKernel::batched && vector_unit && !energy &&
+                       !phys.has_volume_term() && std::int64_t(eb.window_offsets.size()) == chunks + 1;
   const RangeFn fn = packed ? pick_range<PackedKernel>(damping, energy, phys.has_volume_term())
                             : pick_range<ReferenceKernel>(damping, energy, phys.has_volume_term());
   const double* xs = positions.data();

@@ -74,7 +74,8 @@ int fit_rotation(const Eigen::Matrix3d& a, Eigen::Quaterniond& q, const Rotation
 /// Which implementation of the element pass runs; both compute the same forces.
 enum class ElementKernel {
   batched,    ///< the fastest: packed's arithmetic on kBatchLanes elements at once (element_batches.h);
-              ///< without energy and volume term (else packed runs)
+              ///< without energy and volume term, and with simd automatic only on a CPU with AVX2
+              ///< (else packed runs)
   packed,     ///< packed per-entry constants (PackedEntry), each force written once
   reference,  ///< the plain kernel, one loop per term over separate arrays (for tests and benchmarks)
 };

@@ -551,13 +551,19 @@ TEST(ElementBatches, MatchThePackedKernelWithEveryInstructionSet) {
     const auto f = batched_ball(amplitude, 21);
     const PhysicsModel& p = *f.physics;
     // from the rest warm start (many lanes need the scalar fit, fitted tightly here), then again
-    // from the fitted rotations with the default tolerance (every lane passes the vectorised test)
+    // from the fitted rotations with the default tolerance (every lane passes the vectorised
+    // test), then a little later (most lanes end with the vectorised Newton step)
     const RotationFitSettings tight{100, 1e-13};
     const PassResult packed = element_pass(p, f.state, ElementKernel::packed, 2, tight);
     SimState next = f.state;
     next.rotations = packed.rotations;
     const PassResult packed2 = element_pass(p, next, ElementKernel::packed, 2);
     EXPECT_EQ(packed2.stats.rotation_iterations, 0);
+    // a step on (every element turns a little): the fit ends after one short Newton step
+    SimState moved = next;
+    moved.positions += 1e-4 * moved.velocities;
+    const PassResult packed3 = element_pass(p, moved, ElementKernel::packed, 2);
+    EXPECT_GE(packed3.stats.rotation_iterations, p.num_elements() / 2);
     for (const SimdLevel simd : {SimdLevel::generic, SimdLevel::avx2, SimdLevel::avx512}) {
       if (!simd_supported(simd)) {
         std::cout << to_string(simd) << ": not on this CPU, not checked\n";
@@ -575,11 +581,17 @@ TEST(ElementBatches, MatchThePackedKernelWithEveryInstructionSet) {
       const double second = relative_difference(batched2, packed2);
       EXPECT_EQ(batched2.stats.rotation_iterations, 0);
       EXPECT_EQ(batched2.stats.inverted, packed2.stats.inverted);
+      const PassResult batched3 = element_pass(p, moved, ElementKernel::batched, 2, {}, simd);
+      const double third = relative_difference(batched3, packed3);
+      EXPECT_EQ(batched3.stats.rotation_iterations, packed3.stats.rotation_iterations);
+      EXPECT_EQ(batched3.stats.unconverged, packed3.stats.unconverged);
       std::cout << to_string(simd) << ", amplitude " << amplitude << ": batched - packed " << first << ", " << second
-                << " (relative); fit iterations " << batched.stats.rotation_iterations << " over "
+                << ", " << third << " (relative); fit iterations " << batched.stats.rotation_iterations << ", "
+                << batched3.stats.rotation_iterations << " over "
                 << p.num_elements() << " elements, inverted " << batched.stats.inverted << "\n";
       EXPECT_LT(first, 1e-12);
       EXPECT_LT(second, 1e-12);
+      EXPECT_LT(third, 1e-12);
       if (amplitude > 1.0) {
         EXPECT_GT(batched.stats.inverted, 0);
       }
