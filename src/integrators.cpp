@@ -210,6 +210,69 @@ bool any_damping(const PhysicsModel& p) {
 // ---------------------------------------------------------------------------------------------
 // explicit and symplectic Euler
 
+/// The per-node part of an explicit step (what it reads and writes; raw pointers, so that the
+/// compiler need not reload them through the state's members).
+struct NodePass {
+  double dt{0}, max_v2{0}, max_d2{0}, gx{0}, gy{0}, gz{0};
+  const double *ef{}, *xs{}, *vs{}, *fext{}, *rest{}, *mass{}, *inv_mass{};
+  double *xo{}, *vo{}, *chunk_sums{};
+  const std::uint8_t* fixed{};
+  const std::int32_t* noff{};
+  std::uint8_t* chunk_flags{};
+};
+
+/// Nodes [b, e) (chunk c) of an explicit step: gather the entry forces in entry order, add
+/// external forces and gravity, integrate (symplectic: position with the new velocity; else
+/// the paper's eq. 1-2, position with the old velocity; fixed nodes move kinematically), check
+/// (finite, speed, distance from rest) and sum the energies when tracked.
+template <bool kSymplectic, bool kTrack>
+void explicit_nodes(const NodePass& n, std::int64_t c, std::int64_t b, std::int64_t e) {
+  std::uint8_t flags = 0;
+  double kin = 0, grav = 0;
+  const double dt = n.dt;
+  for (std::int64_t i = b; i < e; ++i) {
+    const double* x = n.xs + 3 * i;
+    const double* v = n.vs + 3 * i;
+    const double* r = n.rest + 3 * i;
+    if constexpr (kTrack) {
+      kin += 0.5 * n.mass[i] * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+      grav -= n.mass[i] * (n.gx * (x[0] - r[0]) + n.gy * (x[1] - r[1]) + n.gz * (x[2] - r[2]));
+    }
+    double f0 = n.fext[3 * i], f1 = n.fext[3 * i + 1], f2 = n.fext[3 * i + 2];
+    for (std::int32_t j = n.noff[i]; j < n.noff[i + 1]; ++j) {  // contiguous slots
+      const double* fj = n.ef + 3 * std::int64_t(j);
+      f0 += fj[0];
+      f1 += fj[1];
+      f2 += fj[2];
+    }
+    // a fixed node is kinematic: no acceleration (its forces do not act)
+    const bool free = !n.fixed[i];
+    const double im = n.inv_mass[i];
+    const double a0 = free ? f0 * im + n.gx : 0.0, a1 = free ? f1 * im + n.gy : 0.0, a2 = free ? f2 * im + n.gz : 0.0;
+    double nx0, nx1, nx2, nv0, nv1, nv2;
+    nv0 = v[0] + dt * a0, nv1 = v[1] + dt * a1, nv2 = v[2] + dt * a2;
+    if constexpr (kSymplectic) {
+      nx0 = x[0] + dt * nv0, nx1 = x[1] + dt * nv1, nx2 = x[2] + dt * nv2;
+    } else {
+      nx0 = x[0] + dt * v[0], nx1 = x[1] + dt * v[1], nx2 = x[2] + dt * v[2];
+    }
+    const double v2 = nv0 * nv0 + nv1 * nv1 + nv2 * nv2;
+    const double dx = nx0 - r[0], dy = nx1 - r[1], dz = nx2 - r[2];
+    const double d2 = dx * dx + dy * dy + dz * dz;
+    if (!std::isfinite(v2 + d2 + nx0 + nx1 + nx2))
+      flags |= kFlagNonFinite;
+    else if (v2 > n.max_v2 || d2 > n.max_d2)
+      flags |= kFlagRunaway;
+    double* xo = n.xo + 3 * i;
+    double* vo = n.vo + 3 * i;
+    xo[0] = nx0, xo[1] = nx1, xo[2] = nx2;
+    vo[0] = nv0, vo[1] = nv1, vo[2] = nv2;
+  }
+  n.chunk_flags[c] = flags;
+  n.chunk_sums[3 * c] = kin;
+  n.chunk_sums[3 * c + 1] = grav;
+}
+
 class ExplicitIntegrator final : public Integrator {
  public:
   using Integrator::Integrator;
@@ -242,78 +305,28 @@ class ExplicitIntegrator final : public Integrator {
     // per node: gather, add gravity and external forces, integrate, check
     const bool symplectic = settings_.kind == IntegratorKind::symplectic_euler;
     const bool track = settings_.track_energy;
-    const double max_v2 = settings_.limits.max_speed_mm_s * settings_.limits.max_speed_mm_s;
-    const double max_d2 = max_d_ * max_d_;
-    const Eigen::Vector3d g = s.gravity_mm_s2;
-    const Eigen::Matrix3Xd& rest = p.model->rest_positions;
-    // raw pointers: the compiler cannot hoist loads through the state's members
-    const double* ef = s.scratch.entry_forces.data();
-    const double* xs = s.positions.data();
-    const double* vs = s.velocities.data();
-    const double* fext = s.external_forces.data();
-    const double* rs = rest.data();
-    double* xo = s.scratch.next_positions.data();
-    double* vo = s.scratch.next_velocities.data();
-    const std::uint8_t* fixed = s.node_fixed.data();
-    const std::int32_t* noff = p.node_entry_offsets.data();
-    const double* mass = p.node_mass.data();
-    const double* inv_mass = p.node_inv_mass.data();
-    std::uint8_t* chunk_flags = s.scratch.node_chunk_flags.data();
-    double* chunk_sums = s.scratch.node_chunk_sums.data();
-    const double gx = g.x(), gy = g.y(), gz = g.z();
-    parallel_for_chunks(p.num_nodes(), kNodeGrain, threads, [=](std::int64_t c, std::int64_t b, std::int64_t e) {
-      std::uint8_t flags = 0;
-      double kin = 0, grav = 0;
-      for (std::int64_t i = b; i < e; ++i) {
-        const double* x = xs + 3 * i;
-        const double* v = vs + 3 * i;
-        if (track) {
-          kin += 0.5 * mass[i] * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-          grav -= mass[i] * (gx * (x[0] - rs[3 * i]) + gy * (x[1] - rs[3 * i + 1]) + gz * (x[2] - rs[3 * i + 2]));
-        }
-        double nx[3], nv[3];
-        if (fixed[i]) {  // kinematic
-          for (int d = 0; d < 3; ++d) {
-            nx[d] = x[d] + dt * v[d];
-            nv[d] = v[d];
-          }
-        } else {
-          // gather the entry forces in entry order, add external forces and gravity
-          double f[3] = {fext[3 * i], fext[3 * i + 1], fext[3 * i + 2]};
-          for (std::int32_t j = noff[i]; j < noff[i + 1]; ++j) {  // contiguous slots
-            const double* fj = ef + 3 * std::int64_t(j);
-            f[0] += fj[0];
-            f[1] += fj[1];
-            f[2] += fj[2];
-          }
-          const double a[3] = {f[0] * inv_mass[i] + gx, f[1] * inv_mass[i] + gy, f[2] * inv_mass[i] + gz};
-          for (int d = 0; d < 3; ++d) {
-            if (symplectic) {
-              nv[d] = v[d] + dt * a[d];
-              nx[d] = x[d] + dt * nv[d];
-            } else {  // the paper's eq. 1-2: position with the old velocity
-              nx[d] = x[d] + dt * v[d];
-              nv[d] = v[d] + dt * a[d];
-            }
-          }
-        }
-        // checks: finite, speed, distance from rest
-        const double v2 = nv[0] * nv[0] + nv[1] * nv[1] + nv[2] * nv[2];
-        const double dx = nx[0] - rs[3 * i], dy = nx[1] - rs[3 * i + 1], dz = nx[2] - rs[3 * i + 2];
-        const double d2 = dx * dx + dy * dy + dz * dz;
-        if (!std::isfinite(v2 + d2 + nx[0] + nx[1] + nx[2]))
-          flags |= kFlagNonFinite;
-        else if (v2 > max_v2 || d2 > max_d2)
-          flags |= kFlagRunaway;
-        for (int d = 0; d < 3; ++d) {
-          xo[3 * i + d] = nx[d];
-          vo[3 * i + d] = nv[d];
-        }
-      }
-      chunk_flags[c] = flags;
-      chunk_sums[3 * c] = kin;
-      chunk_sums[3 * c + 1] = grav;
-    });
+    NodePass np;
+    np.dt = dt;
+    np.max_v2 = settings_.limits.max_speed_mm_s * settings_.limits.max_speed_mm_s;
+    np.max_d2 = max_d_ * max_d_;
+    np.gx = s.gravity_mm_s2.x(), np.gy = s.gravity_mm_s2.y(), np.gz = s.gravity_mm_s2.z();
+    np.ef = s.scratch.entry_forces.data();
+    np.xs = s.positions.data();
+    np.vs = s.velocities.data();
+    np.fext = s.external_forces.data();
+    np.rest = p.model->rest_positions.data();
+    np.xo = s.scratch.next_positions.data();
+    np.vo = s.scratch.next_velocities.data();
+    np.fixed = s.node_fixed.data();
+    np.noff = p.node_entry_offsets.data();
+    np.mass = p.node_mass.data();
+    np.inv_mass = p.node_inv_mass.data();
+    np.chunk_flags = s.scratch.node_chunk_flags.data();
+    np.chunk_sums = s.scratch.node_chunk_sums.data();
+    const auto run = symplectic ? (track ? &explicit_nodes<true, true> : &explicit_nodes<true, false>)
+                                : (track ? &explicit_nodes<false, true> : &explicit_nodes<false, false>);
+    parallel_for_chunks(p.num_nodes(), kNodeGrain, threads,
+                        [&](std::int64_t c, std::int64_t b, std::int64_t e) { run(np, c, b, e); });
     finish_node_pass(s, p, settings_, track, s.element_stats.elastic_energy, rep);
     return rep;
   }
