@@ -2,9 +2,12 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
+#include <string>
 
 #include "elements.h"
+#include "error.h"
 #include "material.h"
 
 // The lane vectors below never cross a function boundary (everything is always_inline), so the
@@ -424,10 +427,30 @@ bool simd_supported(SimdLevel level) {
   return false;
 }
 
+namespace {
+
+SimdLevel pick_simd_level() {
+  const SimdLevel widest = simd_supported(SimdLevel::avx512) ? SimdLevel::avx512
+                           : simd_supported(SimdLevel::avx2) ? SimdLevel::avx2
+                                                             : SimdLevel::generic;
+  const char* env = std::getenv("VOXELASTIC_SIMD");
+  if (env == nullptr || *env == '\0') return widest;
+  const std::string want = env;
+  for (const SimdLevel level : {SimdLevel::automatic, SimdLevel::generic, SimdLevel::avx2, SimdLevel::avx512}) {
+    if (want != to_string(level)) continue;
+    if (level == SimdLevel::automatic) return widest;
+    if (!simd_supported(level))
+      throw Error("VOXELASTIC_SIMD=" + want + ": this CPU cannot run " + want + " (the widest it runs is " +
+                  to_string(widest) + "); unset it or choose auto, generic, avx2 or avx512");
+    return level;
+  }
+  throw Error("VOXELASTIC_SIMD=" + want + " is not an instruction set; unset it or choose auto, generic, avx2 or avx512");
+}
+
+}  // namespace
+
 SimdLevel best_simd_level() {
-  static const SimdLevel best = simd_supported(SimdLevel::avx512) ? SimdLevel::avx512
-                                : simd_supported(SimdLevel::avx2) ? SimdLevel::avx2
-                                                                  : SimdLevel::generic;
+  static const SimdLevel best = pick_simd_level();
   return best;
 }
 

@@ -82,7 +82,10 @@ enum class SimdLevel {
 };
 /// True when this CPU runs `level` (automatic and generic: always).
 [[nodiscard]] bool simd_supported(SimdLevel level);
-/// The widest level this CPU runs (checked once).
+/// The level `automatic` stands for (decided once): the widest this CPU runs, or the one the
+/// environment variable VOXELASTIC_SIMD names (auto, generic, avx2, avx512), e.g. to get the
+/// same bits on machines with different vector units; generic there also means the packed
+/// kernel (elements.h). Throws vx::Error for a value that is not a level or that this CPU cannot run.
 [[nodiscard]] SimdLevel best_simd_level();
 /// "auto", "generic", "avx2" or "avx512".
 [[nodiscard]] const char* to_string(SimdLevel level);

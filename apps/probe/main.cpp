@@ -6,6 +6,7 @@
 #include <exception>
 #include <string>
 
+#include "element_batches.h"
 #include "error.h"
 #include "probe_app.h"
 
@@ -81,6 +82,7 @@ int main(int argc, char** argv) {
       ->check(CLI::ExistingFile);
 
   try {
+    (void)vx::best_simd_level();  // a bad VOXELASTIC_SIMD is an error here, not in the physics thread
     app.parse(argc, argv);
     o.control.mode = parse_control_mode(control);
     o.mode_set = opt_control->count() > 0;

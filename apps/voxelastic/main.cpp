@@ -4,6 +4,7 @@
 #include <exception>
 
 #include "commands.h"
+#include "element_batches.h"
 #include "error.h"
 
 int main(int argc, char** argv) {
@@ -16,6 +17,7 @@ int main(int argc, char** argv) {
   vx::cli::add_verify_command(app);
   vx::cli::add_bench_command(app);
   try {
+    (void)vx::best_simd_level();  // a bad VOXELASTIC_SIMD is an error here, not inside a worker
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     // --help and --version exit 0; every usage mistake exits 2 (the convention of Unix tools)

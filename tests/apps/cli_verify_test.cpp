@@ -85,6 +85,21 @@ TEST_F(CliVerify, BadFoldersAndBadMergesExitOneWithAMessage) {
   EXPECT_FALSE(fs::exists(dir_ / "work" / "merged" / "report.json"));
 }
 
+TEST_F(CliVerify, SimdEnvironmentVariableIsCheckedAndObeyed) {
+  const auto run_env = [&](const std::string& env, const std::string& args) {
+    return vx::testing::run_binary(kBinary, args, dir_ / "work", dir_, env);
+  };
+  RunResult r = run_env("VOXELASTIC_SIMD=avx3", "verify --case model-counts --out bad");
+  EXPECT_EQ(r.code, 1) << r.err;
+  EXPECT_NE(r.err.find("VOXELASTIC_SIMD=avx3 is not an instruction set"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("auto, generic, avx2 or avx512"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(dir_ / "work" / "bad"));
+  // the scalar-width copy (here: the packed kernel) runs everywhere and passes
+  r = run_env("VOXELASTIC_SIMD=generic", "verify --case compression-voxel --out generic --jobs 1");
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("passed"), std::string::npos) << r.err;
+}
+
 // The quick suite, as two shards of a job array, then merged: every case once, every check
 // passing, the plots the report links to present. About 1-2 minutes on 2 cores.
 TEST_F(CliVerify, QuickSuiteInTwoShardsMergesAndPasses) {
