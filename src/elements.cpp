@@ -587,8 +587,8 @@ ElementPassStats compute_element_forces(const PhysicsModel& phys, const Eigen::M
   if (entry_forces.cols() != phys.num_vertex_entries()) entry_forces.resize(3, phys.num_vertex_entries());
   if (energy && std::int64_t(element_energy->size()) != ne) element_energy->resize(std::size_t(ne));
   const std::int64_t chunks = chunk_count(ne, kElementGrain);
-  // one more slot: the elements the batched kernel leaves to the packed one
-  if (std::int64_t(scratch.chunks.size()) != chunks + 1) scratch.chunks.resize(std::size_t(chunks) + 1);
+  if (std::int64_t(scratch.chunks.size()) != element_pass_slots(ne))
+    scratch.chunks.resize(std::size_t(element_pass_slots(ne)));
   // the packed kernels need the packed entries (always there in a model from make_physics_model)
   const bool packed = options.kernel != ElementKernel::reference &&
                       std::int64_t(phys.entry_packed.size()) == phys.num_vertex_entries();

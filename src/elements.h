@@ -104,13 +104,19 @@ struct ElementPassStats {
 
 /// Scratch of an element pass, allocated once (per-chunk partial counters).
 struct ElementPassScratch {
-  std::vector<ElementPassStats> chunks;
+  std::vector<ElementPassStats> chunks;  ///< element_pass_slots(elements) of them
 };
 
 /// Element grain of the parallel passes (elements per chunk).
 inline constexpr std::int64_t kElementGrain = 256;
 /// Node grain of the parallel passes (nodes per chunk).
 inline constexpr std::int64_t kNodeGrain = 1024;
+
+/// Partial counters of an element pass over `elements`: one per element window (chunk of
+/// kElementGrain), and one for the elements the batched kernel leaves to the packed one.
+[[nodiscard]] inline std::int64_t element_pass_slots(std::int64_t elements) {
+  return (elements + kElementGrain - 1) / kElementGrain + 1;
+}
 
 /// Elastic (and damping) forces of every element into `entry_forces` (3 x vertex entries, N,
 /// node-major: vertex entry j in column physics.entry_slot[j]), parallel over elements; rotations (one per element) are warm starts and are updated.

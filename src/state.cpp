@@ -103,7 +103,7 @@ SimState make_state(std::shared_ptr<const PhysicsModel> physics) {
   s.scratch.next_positions = Eigen::Matrix3Xd::Zero(3, nn);
   s.scratch.next_velocities = Eigen::Matrix3Xd::Zero(3, nn);
   s.scratch.element_energy.assign(std::size_t(ne), 0.0);
-  s.scratch.element_pass.chunks.resize(std::size_t(chunk_count(ne, kElementGrain)));
+  s.scratch.element_pass.chunks.resize(std::size_t(element_pass_slots(ne)));
   s.scratch.node_chunk_flags.assign(std::size_t(chunk_count(nn, kNodeGrain)), 0);
   s.scratch.node_chunk_sums.assign(3 * std::size_t(chunk_count(nn, kNodeGrain)), 0.0);
   return s;
