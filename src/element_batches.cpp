@@ -260,7 +260,8 @@ VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const 
     if (fit.max_iterations < 1 || !t0.pd[l]) continue;
     if (t0.g2[l] <= tol2) {
       how[l] = Fit::warm;
-    } else if (t0.step2[l] <= fit.tolerance || (t0.step2[l] <= 1.0 && fit.max_iterations > 1)) {
+    } else if (t0.step2[l] <= 1.0 && (t0.step2[l] <= fit.tolerance || fit.max_iterations > 1)) {
+      // (a step over one radian is shortened by the scalar fit: left to it)
       // a step this short leaves an error of order its square: done; a longer one is decided
       // after probing the stepped rotation (whose matrix both need)
       how[l] = Fit::stepped;
