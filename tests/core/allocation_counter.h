@@ -23,3 +23,10 @@ inline long allocations() { return g_allocations.load(); }
 }
 [[gnu::noinline]] void operator delete(void* p) noexcept { std::free(p); }
 [[gnu::noinline]] void operator delete(void* p, std::size_t) noexcept { std::free(p); }
+// the nothrow forms too (std::stable_sort's buffer): else a sanitizer's own nothrow new would be
+// paired with the free above
+[[gnu::noinline]] void* operator new(std::size_t n, const std::nothrow_t&) noexcept {
+  ++vx::testing::g_allocations;
+  return std::malloc(n ? n : 1);
+}
+[[gnu::noinline]] void operator delete(void* p, const std::nothrow_t&) noexcept { std::free(p); }
