@@ -93,7 +93,7 @@ TEST(GradationalBuilder, CoversEveryTissueVoxelOnceAndSharesNodes) {
     return q * q + z * z <= 36.0;
   });
   const VoxelGrid blob = make_grid({37, 29, 23}, [](int i, int j, int k) {
-    const unsigned h = unsigned(i * 73856093) ^ unsigned(j * 19349663) ^ unsigned(k * 83492791);
+    const unsigned h = (unsigned(i) * 73856093u) ^ (unsigned(j) * 19349663u) ^ (unsigned(k) * 83492791u);
     const double x = i - 18.0, y = j - 14.0, z = k - 11.0;
     return x * x / 300.0 + y * y / 150.0 + z * z / 100.0 < 1.0 && (h % 11 != 0);
   });
