@@ -9,6 +9,7 @@
 #include "elements.h"
 #include "error.h"
 #include "material.h"
+#include "rigid_sums.h"
 
 // The lane vectors below never cross a function boundary (everything is always_inline), so the
 // ABI note GCC gives for vector arguments without AVX does not apply.
@@ -196,25 +197,15 @@ VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const 
     f20 += yz * g0; f21 += yz * g1; f22 += yz * g2;
   }
   // the sums of the rigid velocity fit (damping)
-  d4 svx{}, svy{}, svz{}, lx{}, ly{}, lz{}, ixx{}, ixy{}, ixz{}, iyy{}, iyz{}, izz{};
+  RigidSums<d4> rs;
   if constexpr (kDamping) {
     for (int r = 0; r < nr; ++r) {
       const BatchRow& row = rows[r];
-      const d4 yx = ys[r][0], yy = ys[r][1], yz = ys[r][2];
       const d4 vx = gather(vs, row.vertex, 0), vy = gather(vs, row.vertex, 1), vz = gather(vs, row.vertex, 2);
       vel[r][0] = vx;
       vel[r][1] = vy;
       vel[r][2] = vz;
-      const d4 w = load(row.weight);
-      const d4 wx = w * yx, wy = w * yy, wz = w * yz;
-      svx += w * vx;
-      svy += w * vy;
-      svz += w * vz;
-      lx += wy * vz - wz * vy;
-      ly += wz * vx - wx * vz;
-      lz += wx * vy - wy * vx;
-      ixx += wx * yx; ixy += wx * yy; ixz += wx * yz;
-      iyy += wy * yy; iyz += wy * yz; izz += wz * yz;
+      rs.add(load(row.weight), ys[r][0], ys[r][1], ys[r][2], vx, vy, vz);
     }
   }
   const d4 inv_w = splat(1.0) / sw;
@@ -317,13 +308,13 @@ VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const 
   d4 cd{}, ux{}, uy{}, uz{}, wx{}, wy{}, wz{};
   if constexpr (kDamping) {
     cd = load(bt.damping);
-    ux = svx * inv_w, uy = svy * inv_w, uz = svz * inv_w;
+    ux = rs.svx * inv_w, uy = rs.svy * inv_w, uz = rs.svz * inv_w;
     // angular momentum about the centroid: L - sw c x vc
-    const d4 angx = lx - sw * (cy * uz - cz * uy), angy = ly - sw * (cz * ux - cx * uz),
-             angz = lz - sw * (cx * uy - cy * ux);
+    const d4 angx = rs.lx - sw * (cy * uz - cz * uy), angy = rs.ly - sw * (cz * ux - cx * uz),
+             angz = rs.lz - sw * (cx * uy - cy * ux);
     // sum w r r^T about the centroid, the inertia tr 1 - that (+ tiny regularisation)
-    const d4 yxx = ixx - sw * cx * cx, yxy = ixy - sw * cx * cy, yxz = ixz - sw * cx * cz;
-    const d4 yyy = iyy - sw * cy * cy, yyz = iyz - sw * cy * cz, yzz = izz - sw * cz * cz;
+    const d4 yxx = rs.ixx - sw * cx * cx, yxy = rs.ixy - sw * cx * cy, yxz = rs.ixz - sw * cx * cz;
+    const d4 yyy = rs.iyy - sw * cy * cy, yyz = rs.iyz - sw * cy * cz, yzz = rs.izz - sw * cz * cz;
     const d4 tr = yxx + yyy + yzz;
     const d4 reg = tr * (1.0 + 1e-10);
     const d4 i00 = reg - yxx, i11 = reg - yyy, i22 = reg - yzz, i01 = -yxy, i02 = -yxz, i12 = -yyz;

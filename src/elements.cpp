@@ -8,6 +8,7 @@
 
 #include "element_batches.h"
 #include "parallel.h"
+#include "rigid_sums.h"
 
 namespace vx {
 
@@ -207,13 +208,12 @@ namespace {
 /// angular momenta (l) and second moments (i) of the offsets y = x - x0, about the centroid c
 /// (relative to x0): the centroid velocity vc and the angular velocity omega (zero for a
 /// collapsed or collinear element).
-inline void rigid_velocity(double svx, double svy, double svz, double lx, double ly, double lz, double ixx,
-                           double ixy, double ixz, double iyy, double iyz, double izz, double sw, double inv_w,
-                           const Eigen::Vector3d& c, Eigen::Vector3d& vc, Eigen::Vector3d& omega) {
-  vc = Eigen::Vector3d(svx * inv_w, svy * inv_w, svz * inv_w);
-  const Eigen::Vector3d ang = Eigen::Vector3d(lx, ly, lz) - sw * c.cross(vc);
+inline void rigid_velocity(const RigidSums<double>& r, double sw, double inv_w, const Eigen::Vector3d& c,
+                           Eigen::Vector3d& vc, Eigen::Vector3d& omega) {
+  vc = Eigen::Vector3d(r.svx * inv_w, r.svy * inv_w, r.svz * inv_w);
+  const Eigen::Vector3d ang = Eigen::Vector3d(r.lx, r.ly, r.lz) - sw * c.cross(vc);
   Eigen::Matrix3d yy;
-  yy << ixx, ixy, ixz, ixy, iyy, iyz, ixz, iyz, izz;
+  yy << r.ixx, r.ixy, r.ixz, r.ixy, r.iyy, r.iyz, r.ixz, r.iyz, r.izz;
   yy -= sw * c * c.transpose();  // sum w r r^T about the centroid
   Eigen::Matrix3d inertia = -yy;
   const double tr = yy.trace();
@@ -338,26 +338,15 @@ void element_range_reference(const PhysicsModel& phys, const double* xs, const d
     }
     if constexpr (kDamping) {
       // pass 3: the weighted rigid velocity fit: v_c, angular momentum and inertia about c
-      double svx = 0, svy = 0, svz = 0, lx = 0, ly = 0, lz = 0;
-      double ixx = 0, ixy = 0, ixz = 0, iyy = 0, iyz = 0, izz = 0;
+      RigidSums<double> rs;
       for (int j = b; j < b + n; ++j) {
         const double* xp = xs + 3 * std::int64_t(vert[j]);
         const double* vp = vs + 3 * std::int64_t(vert[j]);
-        const double w = wts[j];
-        const double yx = xp[0] - ox, yy = xp[1] - oy, yz = xp[2] - oz;
-        const double wx = w * yx, wy = w * yy, wz = w * yz;
-        svx += w * vp[0];
-        svy += w * vp[1];
-        svz += w * vp[2];
-        lx += wy * vp[2] - wz * vp[1];
-        ly += wz * vp[0] - wx * vp[2];
-        lz += wx * vp[1] - wy * vp[0];
-        ixx += wx * yx; ixy += wx * yy; ixz += wx * yz;
-        iyy += wy * yy; iyz += wy * yz; izz += wz * yz;
+        rs.add(wts[j], xp[0] - ox, xp[1] - oy, xp[2] - oz, vp[0], vp[1], vp[2]);
       }
       const double cd = phys.element_damping[std::size_t(e)];
       Eigen::Vector3d vc, omega;
-      rigid_velocity(svx, svy, svz, lx, ly, lz, ixx, ixy, ixz, iyy, iyz, izz, sw, inv_w, c, vc, omega);
+      rigid_velocity(rs, sw, inv_w, c, vc, omega);
       // pass 4: f += c w (v_c + omega x r - v)
       const double wx = omega.x(), wy = omega.y(), wz = omega.z();
       const double cx = ox + c.x(), cy = oy + c.y(), cz = oz + c.z();
@@ -450,24 +439,12 @@ void element_range_packed(const PhysicsModel& phys, const double* xs, const doub
     }
     // pass 1b (damping): the sums of the rigid velocity fit; a loop of its own (the gather hits
     // L1 now) because in pass 1 its 12 more sums spill, measured no faster
-    double svx = 0, svy = 0, svz = 0, lx = 0, ly = 0, lz = 0;
-    double ixx = 0, ixy = 0, ixz = 0, iyy = 0, iyz = 0, izz = 0;
+    RigidSums<double> rs;
     if constexpr (kDamping) {
       for (int j = 0; j < n; ++j) {
-        const PackedEntry& en = pe[j];
-        const double* xp = xs + 3 * std::int64_t(en.vertex);
-        const double* vp = vs + 3 * std::int64_t(en.vertex);
-        const double w = en.weight;
-        const double yx = xp[0] - ox, yy = xp[1] - oy, yz = xp[2] - oz;
-        const double wx = w * yx, wy = w * yy, wz = w * yz;
-        svx += w * vp[0];
-        svy += w * vp[1];
-        svz += w * vp[2];
-        lx += wy * vp[2] - wz * vp[1];
-        ly += wz * vp[0] - wx * vp[2];
-        lz += wx * vp[1] - wy * vp[0];
-        ixx += wx * yx; ixy += wx * yy; ixz += wx * yz;
-        iyy += wy * yy; iyz += wy * yz; izz += wz * yz;
+        const double* xp = xs + 3 * std::int64_t(pe[j].vertex);
+        const double* vp = vs + 3 * std::int64_t(pe[j].vertex);
+        rs.add(pe[j].weight, xp[0] - ox, xp[1] - oy, xp[2] - oz, vp[0], vp[1], vp[2]);
       }
     }
     const double inv_w = 1.0 / sw;
@@ -492,7 +469,7 @@ void element_range_packed(const PhysicsModel& phys, const double* xs, const doub
     if constexpr (kDamping) {
       cd = phys.element_damping[std::size_t(e)];
       Eigen::Vector3d vc, omega;
-      rigid_velocity(svx, svy, svz, lx, ly, lz, ixx, ixy, ixz, iyy, iyz, izz, sw, inv_w, c, vc, omega);
+      rigid_velocity(rs, sw, inv_w, c, vc, omega);
       wx = omega.x(), wy = omega.y(), wz = omega.z();
       ux = vc.x(), uy = vc.y(), uz = vc.z();
     }

@@ -46,6 +46,7 @@
 #include <vector>
 
 #include "material.h"
+#include "parallel.h"
 
 namespace vx {
 
@@ -115,7 +116,7 @@ inline constexpr std::int64_t kNodeGrain = 1024;
 /// Partial counters of an element pass over `elements`: one per element window (chunk of
 /// kElementGrain), and one for the elements the batched kernel leaves to the packed one.
 [[nodiscard]] inline std::int64_t element_pass_slots(std::int64_t elements) {
-  return (elements + kElementGrain - 1) / kElementGrain + 1;
+  return chunk_count(elements, kElementGrain) + 1;
 }
 
 /// Elastic (and damping) forces of every element into `entry_forces` (3 x vertex entries, N,
