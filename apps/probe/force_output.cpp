@@ -8,7 +8,7 @@
 #include <iterator>
 #include <system_error>
 
-#include "error.h"
+#include "base/error.h"
 
 namespace vx::probe {
 

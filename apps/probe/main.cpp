@@ -6,8 +6,9 @@
 #include <exception>
 #include <string>
 
-#include "element_batches.h"
-#include "error.h"
+#include "base/error.h"
+#include "base/version.h"
+#include "physics/element_batches.h"
 #include "probe_app.h"
 
 int main(int argc, char** argv) {
@@ -20,7 +21,7 @@ int main(int argc, char** argv) {
       "force feedback (units: mm, s, N, kPa).\n"
       "INPUT is a scene (.json), a volume (.vti .mha .nii .nii.gz .nrrd, DICOM folder) or a model (.vtu) with "
       "default palpation settings."};
-  app.set_version_flag("--version", "voxelastic-probe 0.1.0");
+  app.set_version_flag("--version", std::string("voxelastic-probe ") + vx::kVersion);
   app.add_option("INPUT", o.input, "scene .json, volume or model .vtu")->required();
 
   auto* g_auto = app.add_option_group("automation", "scripted runs (CI)");

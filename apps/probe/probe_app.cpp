@@ -15,14 +15,14 @@
 #include <thread>
 #include <vector>
 
+#include "base/error.h"
 #include "display.h"
-#include "error.h"
 #include "force_output.h"
 #include "joystick_script.h"
 #include "probe_view.h"
 #include "rate_thread.h"
 #include "sdl_input.h"
-#include "simulation.h"
+#include "sim/simulation.h"
 
 namespace vx::probe {
 

@@ -5,16 +5,16 @@
 #include <algorithm>
 #include <cmath>
 
-#include "error.h"
-#include "gradational_builder.h"
-#include "iso_surface.h"
-#include "model_io.h"
-#include "prepare.h"
-#include "scene.h"
-#include "state.h"
-#include "surface_io.h"
-#include "threshold.h"
-#include "volume_io.h"
+#include "base/error.h"
+#include "convert/iso_surface.h"
+#include "convert/prepare.h"
+#include "convert/threshold.h"
+#include "io/model_io.h"
+#include "io/surface_io.h"
+#include "io/volume_io.h"
+#include "model/gradational_builder.h"
+#include "scene/scene.h"
+#include "sim/state.h"
 
 namespace vx::probe {
 

@@ -11,11 +11,11 @@
 #include <string>
 #include <vector>
 
-#include "material.h"
-#include "model.h"
-#include "simulation.h"
+#include "model/model.h"
+#include "physics/material.h"
+#include "sim/simulation.h"
 #include "stick_control.h"
-#include "surface.h"
+#include "surface/surface.h"
 
 namespace vx::probe {
 

@@ -52,10 +52,10 @@
 #include <cmath>
 #include <deque>
 
-#include "atomic_file.h"
-#include "element_faces.h"
-#include "error.h"
+#include "base/error.h"
+#include "io/element_faces.h"
 #include "rate_thread.h"
+#include "util/atomic_file.h"
 
 namespace vx::probe {
 

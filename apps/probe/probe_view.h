@@ -17,8 +17,8 @@
 #include <string>
 #include <vector>
 
-#include "contact.h"
-#include "model.h"
+#include "model/model.h"
+#include "sim/contact.h"
 #include "stick_control.h"
 
 namespace vx::probe {

@@ -16,8 +16,8 @@
 #include <mutex>
 #include <string>
 
-#include "probe.h"
 #include "sdl_input.h"
+#include "sim/probe.h"
 
 namespace vx::probe {
 

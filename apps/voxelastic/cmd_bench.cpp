@@ -8,11 +8,11 @@
 #include <string>
 #include <vector>
 
-#include "atomic_file.h"
-#include "bench.h"
+#include "base/error.h"
+#include "bench/bench.h"
 #include "commands.h"
-#include "error.h"
-#include "plot.h"
+#include "render/plot.h"
+#include "util/atomic_file.h"
 
 namespace vx::cli {
 namespace {

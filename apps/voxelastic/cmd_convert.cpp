@@ -12,19 +12,20 @@
 #include <system_error>
 #include <vector>
 
-#include "atomic_file.h"
+#include "base/error.h"
+#include "base/version.h"
 #include "commands.h"
-#include "error.h"
-#include "gradational_builder.h"
-#include "iso_surface.h"
-#include "model_io.h"
-#include "prepare.h"
-#include "progress.h"
-#include "render.h"
-#include "stats.h"
-#include "surface_io.h"
-#include "threshold.h"
-#include "volume_io.h"
+#include "convert/iso_surface.h"
+#include "convert/prepare.h"
+#include "convert/stats.h"
+#include "convert/threshold.h"
+#include "io/model_io.h"
+#include "io/surface_io.h"
+#include "io/volume_io.h"
+#include "model/gradational_builder.h"
+#include "render/render.h"
+#include "util/atomic_file.h"
+#include "util/progress.h"
 
 namespace vx::cli {
 namespace {
@@ -192,7 +193,7 @@ void run_convert(const ConvertOptions& o) {
     j["outputs"] = {{"model", o.output}, {"stats", o.stats}, {"png", optional(o.png)}, {"surface", optional(o.surface)}};
     if (!o.surface.empty())
       j["surface"] = {{"method", o.surface_method}, {"vertices", surface.num_vertices()}, {"triangles", surface.num_triangles()}};
-    j["voxelastic_version"] = "0.1.0";
+    j["voxelastic_version"] = vx::kVersion;
     write_text_atomically(outputs.stage(o.stats), j.dump(2) + "\n");
   }
   if (!o.png.empty()) {

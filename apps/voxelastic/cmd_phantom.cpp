@@ -5,11 +5,11 @@
 #include <memory>
 #include <string>
 
-#include "atomic_file.h"
+#include "base/error.h"
 #include "commands.h"
-#include "error.h"
-#include "phantom.h"
-#include "volume_io.h"
+#include "convert/phantom.h"
+#include "io/volume_io.h"
+#include "util/atomic_file.h"
 
 namespace vx::cli {
 namespace {

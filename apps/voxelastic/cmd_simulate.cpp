@@ -10,14 +10,15 @@
 #include <optional>
 #include <string>
 
-#include "atomic_file.h"
+#include "base/error.h"
+#include "base/version.h"
 #include "commands.h"
-#include "error.h"
-#include "plot.h"
-#include "progress.h"
-#include "scene.h"
-#include "sim_output.h"
-#include "simulation.h"
+#include "render/plot.h"
+#include "scene/scene.h"
+#include "scene/sim_output.h"
+#include "sim/simulation.h"
+#include "util/atomic_file.h"
+#include "util/progress.h"
 
 namespace vx::cli {
 namespace {
@@ -148,6 +149,7 @@ void run_simulate(const SimulateOptions& o) {
   json j;
   j["scene"] = fs::absolute(o.scene).string();
   j["description"] = scene.description;
+  j["voxelastic_version"] = vx::kVersion;
   j["steps"] = c.steps;
   j["sim_time_s"] = sim.time_s();
   j["wall_s"] = wall_s;

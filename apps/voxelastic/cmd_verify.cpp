@@ -11,10 +11,10 @@
 #include <thread>
 #include <vector>
 
+#include "base/error.h"
 #include "commands.h"
-#include "error.h"
-#include "plot.h"
-#include "verify.h"
+#include "render/plot.h"
+#include "verify/verify.h"
 
 namespace vx::cli {
 namespace {

@@ -3,14 +3,15 @@
 
 #include <exception>
 
+#include "base/error.h"
+#include "base/version.h"
 #include "commands.h"
-#include "element_batches.h"
-#include "error.h"
+#include "physics/element_batches.h"
 
 int main(int argc, char** argv) {
   CLI::App app{"voxelastic: CT volumes to gradational-resolution elastic models (units: mm, s, N, kPa, HU)"};
   app.require_subcommand(1);
-  app.set_version_flag("--version", "voxelastic 0.1.0");
+  app.set_version_flag("--version", std::string("voxelastic ") + vx::kVersion);
   vx::cli::add_phantom_command(app);
   vx::cli::add_convert_command(app);
   vx::cli::add_simulate_command(app);

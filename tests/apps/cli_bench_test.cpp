@@ -15,7 +15,7 @@
 #include <string>
 #include <vector>
 
-#include "run_binary.h"
+#include "support/run_binary.h"
 
 namespace fs = std::filesystem;
 using json = nlohmann::json;

@@ -12,11 +12,11 @@
 #include <sstream>
 #include <string>
 
-#include "model_io.h"
-#include "phantom.h"
-#include "render.h"
-#include "volume_io.h"
-#include "run_binary.h"
+#include "convert/phantom.h"
+#include "io/model_io.h"
+#include "io/volume_io.h"
+#include "render/render.h"
+#include "support/run_binary.h"
 
 namespace fs = std::filesystem;
 using namespace vx;

@@ -13,9 +13,9 @@
 #include <sstream>
 #include <string>
 
-#include "phantom.h"
-#include "volume_io.h"
-#include "run_binary.h"
+#include "convert/phantom.h"
+#include "io/volume_io.h"
+#include "support/run_binary.h"
 
 namespace fs = std::filesystem;
 using namespace vx;

@@ -10,8 +10,8 @@
 #include <set>
 #include <string>
 
-#include "run_binary.h"
-#include "verify.h"
+#include "support/run_binary.h"
+#include "verify/verify.h"
 
 namespace fs = std::filesystem;
 using json = nlohmann::json;

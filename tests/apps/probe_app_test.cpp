@@ -11,7 +11,7 @@
 #include <string>
 #include <vector>
 
-#include "run_binary.h"
+#include "support/run_binary.h"
 
 namespace fs = std::filesystem;
 
@@ -216,4 +216,4 @@ TEST_F(ProbeApp, WindowScreenshotUnderADisplay) {
   EXPECT_GT(fs::file_size(png), 20000u);  // a rendered scene, not a blank window
   EXPECT_NE(r.out.find("display: 15 frames"), std::string::npos) << r.out;
 }
-#include "run_binary.h"
+#include "support/run_binary.h"

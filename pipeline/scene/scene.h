@@ -1,0 +1,166 @@
+#pragma once
+/// @file scene.h
+/// Scene files (JSON): what object to simulate, its material, how it is held, which probes
+/// press, tap or grasp it, for how long, and what to write. The reference is docs/scenes.md;
+/// the examples are samples/scenes/*.json.
+///
+/// Loading is strict: an unknown key, a value of the wrong type, a wrong unit or an impossible
+/// value is a vx::Error naming the file and the key's JSON path (`$.probes[1].radius_mm`),
+/// saying what is wrong and how to fix it. Loading a scene reads no volume; prepare_scene()
+/// builds the object, its material and the core's SimulationSettings.
+///
+/// Units: mm, s, N, kPa, kg/m^3, HU; gravity m/s^2 (as people write it); LPS coordinates.
+
+#include <Eigen/Core>
+#include <filesystem>
+#include <memory>
+#include <nlohmann/json_fwd.hpp>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "convert/phantom.h"
+#include "convert/prepare.h"
+#include "io/volume.h"
+#include "io/volume_io.h"
+#include "model/gradational_builder.h"
+#include "physics/material.h"
+#include "sim/contact.h"
+#include "sim/device_force.h"
+#include "sim/integrators.h"
+#include "sim/probe.h"
+#include "sim/simulation.h"
+#include "sim/state.h"
+#include "surface/surface.h"
+
+namespace vx {
+
+/// Where the object comes from.
+enum class ObjectSource : std::uint8_t { phantom, volume, model, box };
+
+/// The `object` of a scene.
+struct SceneObject {
+  ObjectSource source{ObjectSource::phantom};
+  std::filesystem::path path;          ///< volume or model file (resolved against the scene's folder)
+  PhantomSettings phantom;             ///< phantom
+  PrepareOptions prepare;              ///< phantom, volume: threshold and clean-up
+  ReadOptions read;                    ///< volume
+  Eigen::Vector3d box_min_mm{0, 0, 0}; ///< box: a solid block of tissue
+  Eigen::Vector3d box_max_mm{0, 0, 0};
+  double box_voxel_mm{1.0};            ///< box: voxel size
+  BuildSettings build;                 ///< resolution, max level (not for a model file)
+};
+
+/// One row of a Hounsfield-to-modulus table.
+struct HuModulus {
+  double hu{0.0};
+  double youngs_modulus_kpa{0.0};
+};
+
+/// A spherical inclusion with its own material (a stiff lesion to find by palpation).
+struct Inclusion {
+  Eigen::Vector3d center_mm{0, 0, 0};
+  double radius_mm{0.0};
+  double youngs_modulus_kpa{0.0};
+  double density_kg_m3{0.0};  ///< 0: the surrounding density
+};
+
+/// The `material` of a scene.
+struct SceneMaterial {
+  Material base;                          ///< homogeneous part
+  std::vector<HuModulus> hounsfield;      ///< optional: modulus per voxel from its HU (piecewise linear)
+  std::vector<Inclusion> inclusions;      ///< optional: spheres with their own modulus
+};
+
+/// One entry of `fixed`: a face of the object's bounding box (nodes within `within_mm` of
+/// it), or a box.
+struct FixedRegion {
+  bool is_face{true};
+  BoxFace face{BoxFace::z_min};
+  double within_mm{0.0};
+  Eigen::Vector3d box_min_mm{0, 0, 0}, box_max_mm{0, 0, 0};
+  std::string label;  ///< what the scene said, for messages
+};
+
+/// What to write.
+struct SceneOutputs {
+  bool forces_csv{true};           ///< DIR/forces.csv
+  double forces_interval_s{1e-3};  ///< rows every this long (raw force averaged over the steps between rows)
+  bool plot{true};                 ///< DIR/forces.png: force against time and against indentation depth
+  bool pvd_model{false};           ///< DIR/model.pvd: deformed model series (point array displacement_mm)
+  bool pvd_surface{false};         ///< DIR/surface.pvd: deformed surface series
+  double pvd_interval_s{0.02};     ///< a frame every this long
+  SurfaceMethod surface_method{SurfaceMethod::paper};
+};
+
+/// A whole scene, loaded and checked, nothing built yet.
+struct Scene {
+  std::filesystem::path file;        ///< the scene file ("" when parsed from text)
+  std::string description;
+  SceneObject object;
+  SceneMaterial material;
+  std::vector<FixedRegion> fixed;
+  Eigen::Vector3d gravity_m_s2{0, 0, 0};
+  Workspace workspace;
+  IntegratorKind integrator{IntegratorKind::symplectic_euler};
+  double dt_s{0.0};                  ///< 0: automatic (half the estimated stable step)
+  ContactSettings contact;
+  std::optional<DeviceForceSettings> device;
+  std::vector<ProbeSettings> probes;
+  double duration_s{0.0};
+  SceneOutputs outputs;
+  int threads{0};
+};
+
+/// Reads and checks a scene file. Throws vx::Error (file, JSON path, what, how to fix).
+[[nodiscard]] Scene load_scene(const std::filesystem::path& path);
+/// Parses scene JSON text; relative paths resolve against `base_dir`; `name` labels messages.
+[[nodiscard]] Scene parse_scene(const std::string& text, const std::filesystem::path& base_dir,
+                                const std::string& name = "scene");
+/// The same from parsed JSON.
+[[nodiscard]] Scene parse_scene(const nlohmann::json& j, const std::filesystem::path& base_dir,
+                                const std::string& name = "scene");
+
+/// What to build besides the physics.
+struct PrepareSceneOptions {
+  bool surface{false};          ///< build the embedded surface (display, .pvd surface output)
+  int threads_override{-1};     ///< >= 0: replaces the scene's `threads`
+  bool skip_unneeded{true};     ///< false: the Simulation does every optional piece of work
+};
+
+/// A scene made ready to simulate: the object built, the material calibrated, the settings.
+struct PreparedScene {
+  std::shared_ptr<const Model> model;
+  std::shared_ptr<const PhysicsModel> physics;
+  std::shared_ptr<const EmbeddedSurface> surface;  ///< when asked for
+  VoxelGrid grid;                                  ///< the grid the model was built from
+  SimulationSettings settings;                     ///< ready for Simulation
+  Eigen::Vector3d bounds_min_mm{0, 0, 0};          ///< object's rest bounding box, LPS mm
+  Eigen::Vector3d bounds_max_mm{0, 0, 0};
+  double dt_stable_estimate_s{0.0};                ///< the integrator's estimated stable step
+  int fixed_nodes{0};
+  int heterogeneous_elements{0};                   ///< elements whose modulus differs from the base
+  double min_modulus_kpa{0.0}, max_modulus_kpa{0.0};
+  std::vector<std::string> warnings;               ///< plausible but risky choices
+  std::vector<std::string> log;                    ///< what was built, one line each
+};
+
+/// Builds the object (phantom, volume, model file or box), the per-element material (HU table,
+/// inclusions), the fixed nodes and the simulation settings. Checks what only the built model
+/// can tell (a fixed region that holds no node, a probe that starts inside the object, a time
+/// step or probe speed that would tunnel). Throws vx::Error.
+[[nodiscard]] PreparedScene prepare_scene(const Scene& scene, const PrepareSceneOptions& options = {});
+
+/// Per-element Young's modulus and density (MaterialField) from a HU table and inclusions,
+/// volume-averaged over each element's voxels (Voigt average). `hu` may be null when there is
+/// no table. Returns an empty field when neither applies.
+[[nodiscard]] MaterialField material_field(const Model& model, const SceneMaterial& material, const Volume* hu);
+
+/// The voxel grid covered by a model's elements (for a model loaded from a file).
+[[nodiscard]] VoxelGrid grid_from_model(const Model& model);
+
+/// Young's modulus (kPa) for `hu` from a table sorted by HU: linear between rows, constant
+/// beyond the ends.
+[[nodiscard]] double modulus_from_hu(const std::vector<HuModulus>& table, double hu);
+
+}  // namespace vx

@@ -1,0 +1,335 @@
+#include "scene/sim_output.h"
+
+#include <fmt/format.h>
+#include <vtkCellArray.h>
+#include <vtkCellData.h>
+#include <vtkDoubleArray.h>
+#include <vtkIdTypeArray.h>
+#include <vtkIntArray.h>
+#include <vtkNew.h>
+#include <vtkPointData.h>
+#include <vtkPoints.h>
+#include <vtkPolyData.h>
+#include <vtkSmartPointer.h>
+#include <vtkUnstructuredGrid.h>
+#include <vtkXMLPolyDataWriter.h>
+#include <vtkXMLUnstructuredGridWriter.h>
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+#include "base/error.h"
+#include "io/element_faces.h"
+#include "io/vtk_arrays.h"
+#include "render/plot.h"
+#include "util/atomic_file.h"
+#include "util/vtk_messages.h"
+
+namespace vx {
+namespace fs = std::filesystem;
+
+// ---------------------------------------------------------------------------------------------
+// forces
+
+ForceRecorder::ForceRecorder(const Simulation& sim, double interval_s)
+    : device_(sim.has_device()), interval_s_(std::max(interval_s, 0.0)) {
+  const int np = sim.num_probes();
+  for (int i = 0; i < np; ++i) names_.push_back(sim.settings().probes[std::size_t(i)].name);
+  sum_.assign(std::size_t(np), Eigen::Vector3d::Zero());
+  contacts_.assign(std::size_t(np), 0);
+  const double dt = sim.dt_s();
+  const double steps_per_row = std::max(1.0, std::round(interval_s_ / dt));
+  interval_s_ = steps_per_row * dt;
+  rows_.reserve(std::size_t(np) * 1024);
+  emit(sim);  // t = 0
+  next_s_ = sim.time_s() + interval_s_;
+}
+
+void ForceRecorder::emit(const Simulation& sim) {
+  for (int i = 0; i < sim.num_probes(); ++i) {
+    const ProbeOutput& o = sim.probe(i);
+    ForceRow r;
+    r.time_s = sim.time_s();
+    r.probe = i;
+    r.position_mm = o.pose.position_mm;
+    r.raw_n = steps_ > 0 ? Eigen::Vector3d(sum_[std::size_t(i)] / steps_) : Eigen::Vector3d::Zero();
+    r.shaped_n = o.shaped_force_n;
+    r.contacts = contacts_[std::size_t(i)];
+    rows_.push_back(r);
+    sum_[std::size_t(i)].setZero();
+    contacts_[std::size_t(i)] = 0;
+  }
+  steps_ = 0;
+}
+
+void ForceRecorder::record(const Simulation& sim) {
+  for (int i = 0; i < sim.num_probes(); ++i) {
+    const ProbeOutput& o = sim.probe(i);
+    sum_[std::size_t(i)] += o.raw_force_n;
+    contacts_[std::size_t(i)] = std::max(contacts_[std::size_t(i)], o.contacts);
+    max_step_force_ = std::max(max_step_force_, o.raw_force_n.norm());
+  }
+  max_wall_force_ = std::max(max_wall_force_, sim.wall_force_n().norm());
+  wall_impulse_ += sim.wall_force_n() * sim.dt_s();
+  ++steps_;
+  if (sim.time_s() >= next_s_ - 0.5 * sim.dt_s()) {
+    emit(sim);
+    next_s_ += interval_s_;
+  }
+}
+
+void ForceRecorder::finish(const Simulation& sim) {
+  if (steps_ > 0) emit(sim);
+}
+
+double ForceRecorder::max_force_n() const {
+  double m = 0;
+  for (const auto& r : rows_) m = std::max(m, r.raw_n.norm());
+  return m;
+}
+
+double ForceRecorder::max_force_n(int probe) const {
+  double m = 0;
+  for (const auto& r : rows_)
+    if (r.probe == probe) m = std::max(m, r.raw_n.norm());
+  return m;
+}
+
+void ForceRecorder::write_csv(const fs::path& path) const {
+  std::string out;
+  out.reserve(rows_.size() * 160 + 100);
+  out += "time_s,probe,x_mm,y_mm,z_mm,fx_n,fy_n,fz_n,dfx_n,dfy_n,dfz_n\n";
+  for (const auto& r : rows_) {
+    out += fmt::format("{:.9g},{},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},", r.time_s, names_[std::size_t(r.probe)],
+                       r.position_mm.x(), r.position_mm.y(), r.position_mm.z(), r.raw_n.x(), r.raw_n.y(), r.raw_n.z());
+    if (device_) out += fmt::format("{:.9g},{:.9g},{:.9g}\n", r.shaped_n.x(), r.shaped_n.y(), r.shaped_n.z());
+    else out += ",,\n";
+  }
+  write_text_atomically(path, out);
+}
+
+void indentation_curve(const std::vector<ForceRow>& rows, int probe, std::vector<double>& depth,
+                       std::vector<double>& force) {
+  depth.clear();
+  force.clear();
+  // the direction the tissue pushes the probe: its mean force while in contact
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  const ForceRow* first = nullptr;
+  for (const auto& r : rows)
+    if (r.probe == probe && r.contacts > 0) {
+      if (!first) first = &r;
+      mean += r.raw_n;
+    }
+  if (!first || !(mean.norm() > 0)) return;
+  const Eigen::Vector3d dir = mean.normalized();
+  for (const auto& r : rows) {
+    if (r.probe != probe) continue;
+    depth.push_back(-(r.position_mm - first->position_mm).dot(dir));
+    force.push_back(r.raw_n.dot(dir));
+  }
+}
+
+void plot_forces(const ForceRecorder& rec, const fs::path& png) {
+  PlotPanel time{"Force on the probes against time", "time (s)", "force (N)", {}};
+  PlotPanel depth{"Force against indentation depth (from first contact, along the mean force)",
+                  "indentation depth (mm)", "force (N)", {}};
+  for (int p = 0; p < int(rec.names().size()); ++p) {
+    PlotSeries raw{rec.names()[std::size_t(p)] + ": |raw|", {}, {}, false, 1.0};
+    PlotSeries dev{rec.names()[std::size_t(p)] + ": |device| (half sines)", {}, {}, false, 1.5};
+    for (const auto& r : rec.rows())
+      if (r.probe == p) {
+        raw.x.push_back(r.time_s);
+        raw.y.push_back(r.raw_n.norm());
+        dev.x.push_back(r.time_s);
+        dev.y.push_back(r.shaped_n.norm());
+      }
+    time.series.push_back(std::move(raw));
+    if (rec.has_device()) time.series.push_back(std::move(dev));
+    PlotSeries ind{rec.names()[std::size_t(p)], {}, {}, false, 1.5};
+    indentation_curve(rec.rows(), p, ind.x, ind.y);
+    if (!ind.x.empty()) depth.series.push_back(std::move(ind));
+  }
+  plot_png({time, depth}, png);
+}
+
+// ---------------------------------------------------------------------------------------------
+// ParaView series
+
+PvdSeries::PvdSeries(const fs::path& dir, const std::string& name, const std::string& ext)
+    : dir_(dir), name_(name), ext_(ext) {
+  std::error_code ec;
+  fs::create_directories(dir_ / name_, ec);
+  if (ec) throw Error(fmt::format("cannot create {}: {}", (dir_ / name_).string(), ec.message()));
+}
+
+fs::path PvdSeries::next_frame_path() const {
+  return dir_ / name_ / fmt::format("{}_{:06d}.{}", name_, times_.size(), ext_);
+}
+
+void PvdSeries::add(double t) { times_.push_back(t); }
+
+fs::path PvdSeries::collection_path() const { return dir_ / (name_ + ".pvd"); }
+
+void PvdSeries::finish() const {
+  std::ostringstream x;
+  x << "<?xml version=\"1.0\"?>\n<VTKFile type=\"Collection\" version=\"0.1\" byte_order=\"LittleEndian\">\n"
+       "  <Collection>\n";
+  for (std::size_t i = 0; i < times_.size(); ++i)
+    x << fmt::format("    <DataSet timestep=\"{:.9g}\" group=\"\" part=\"0\" file=\"{}/{}_{:06d}.{}\"/>\n", times_[i],
+                     name_, name_, i, ext_);
+  x << "  </Collection>\n</VTKFile>\n";
+  write_text_atomically(collection_path(), x.str());
+}
+
+namespace {
+
+vtkSmartPointer<vtkDoubleArray> vectors(const char* name, vtkIdType n) {
+  auto a = vtkSmartPointer<vtkDoubleArray>::New();
+  a->SetName(name);
+  a->SetNumberOfComponents(3);
+  a->SetNumberOfTuples(n);
+  return a;
+}
+
+template <class Writer, class Data>
+void write_xml(Data* data, const fs::path& path) {
+  write_atomically(path, [&](const fs::path& tmp) {
+    VtkMessageCapture capture;
+    vtkNew<Writer> w;
+    w->SetFileName(tmp.c_str());
+    w->SetInputData(data);
+    w->SetDataModeToBinary();
+    w->SetCompressorTypeToZLib();
+    if (w->Write() != 1 || !capture.errors().empty())
+      throw Error(fmt::format("cannot write {}: {}", path.string(), capture.first_error("the VTK writer failed")));
+  });
+}
+
+}  // namespace
+
+struct ModelFrameWriter::Impl {
+  const Model* model{nullptr};
+  vtkSmartPointer<vtkUnstructuredGrid> grid;
+  vtkSmartPointer<vtkPoints> points;
+  vtkSmartPointer<vtkDoubleArray> displacement, velocity;
+};
+
+ModelFrameWriter::ModelFrameWriter(const Model& m) : impl_(std::make_unique<Impl>()) {
+  impl_->model = &m;
+  const int nn = m.num_nodes(), ne = m.num_elements();
+  auto& ug = impl_->grid;
+  ug = vtkSmartPointer<vtkUnstructuredGrid>::New();
+  impl_->points = vtkSmartPointer<vtkPoints>::New();
+  impl_->points->SetDataTypeToDouble();
+  impl_->points->SetNumberOfPoints(nn);
+  ug->SetPoints(impl_->points);
+  insert_element_polyhedra(m, ug);
+  vtkNew<vtkIntArray> level;
+  level->SetName("level");
+  level->SetNumberOfTuples(ne);
+  for (int e = 0; e < ne; ++e) level->SetValue(e, m.element_level[std::size_t(e)]);
+  ug->GetCellData()->AddArray(level);
+  impl_->displacement = vectors("displacement_mm", nn);
+  impl_->velocity = vectors("velocity_mm_s", nn);
+  ug->GetPointData()->AddArray(impl_->displacement);
+  ug->GetPointData()->AddArray(impl_->velocity);
+  ug->GetPointData()->SetActiveVectors("displacement_mm");
+}
+
+ModelFrameWriter::~ModelFrameWriter() = default;
+
+void ModelFrameWriter::write(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& v, const fs::path& path) const {
+  const Model& m = *impl_->model;
+  for (int i = 0; i < m.num_nodes(); ++i) {
+    impl_->points->SetPoint(i, x.col(i).data());
+    const Eigen::Vector3d d = x.col(i) - m.rest_positions.col(i);
+    impl_->displacement->SetTuple(i, d.data());
+    impl_->velocity->SetTuple(i, v.col(i).data());
+  }
+  impl_->points->Modified();
+  impl_->displacement->Modified();
+  impl_->velocity->Modified();
+  write_xml<vtkXMLUnstructuredGridWriter>(impl_->grid.Get(), path);
+}
+
+struct SurfaceFrameWriter::Impl {
+  const EmbeddedSurface* surface{nullptr};
+  vtkSmartPointer<vtkPolyData> poly;
+  vtkSmartPointer<vtkPoints> points;
+  vtkSmartPointer<vtkDoubleArray> normals, displacement;
+  Eigen::Matrix3Xd normal_buffer;
+};
+
+SurfaceFrameWriter::SurfaceFrameWriter(const EmbeddedSurface& s) : impl_(std::make_unique<Impl>()) {
+  impl_->surface = &s;
+  const int nv = s.num_vertices(), nt = s.num_triangles();
+  impl_->poly = vtkSmartPointer<vtkPolyData>::New();
+  impl_->points = vtkSmartPointer<vtkPoints>::New();
+  impl_->points->SetDataTypeToDouble();
+  impl_->points->SetNumberOfPoints(nv);
+  impl_->poly->SetPoints(impl_->points);
+  vtkNew<vtkCellArray> tris;
+  tris->AllocateExact(nt, 3 * nt);
+  for (int t = 0; t < nt; ++t) {
+    const vtkIdType ids[3] = {s.triangles(0, t), s.triangles(1, t), s.triangles(2, t)};
+    tris->InsertNextCell(3, ids);
+  }
+  impl_->poly->SetPolys(tris);
+  impl_->normals = vectors("Normals", nv);
+  impl_->displacement = vectors("displacement_mm", nv);
+  impl_->poly->GetPointData()->SetNormals(impl_->normals);
+  impl_->poly->GetPointData()->AddArray(impl_->displacement);
+}
+
+SurfaceFrameWriter::~SurfaceFrameWriter() = default;
+
+void SurfaceFrameWriter::write(const Eigen::Matrix3Xd& vertices, const fs::path& path) const {
+  const EmbeddedSurface& s = *impl_->surface;
+  compute_vertex_normals(s, vertices, impl_->normal_buffer);
+  for (int i = 0; i < s.num_vertices(); ++i) {
+    impl_->points->SetPoint(i, vertices.col(i).data());
+    impl_->normals->SetTuple(i, impl_->normal_buffer.col(i).data());
+    const Eigen::Vector3d d = vertices.col(i) - s.rest_vertices.col(i);
+    impl_->displacement->SetTuple(i, d.data());
+  }
+  impl_->points->Modified();
+  impl_->normals->Modified();
+  impl_->displacement->Modified();
+  write_xml<vtkXMLPolyDataWriter>(impl_->poly.Get(), path);
+}
+
+void write_probe_frame(const Simulation& sim, const fs::path& path) {
+  const int np = sim.num_probes();
+  vtkNew<vtkPolyData> poly;
+  vtkNew<vtkPoints> points;
+  points->SetDataTypeToDouble();
+  points->SetNumberOfPoints(np);
+  vtkNew<vtkCellArray> verts;
+  auto force = vectors("force_n", np);
+  auto device = vectors("device_force_n", np);
+  auto axis = vectors("axis", np);
+  vtkNew<vtkDoubleArray> radius;
+  radius->SetName("radius_mm");
+  radius->SetNumberOfTuples(np);
+  for (int i = 0; i < np; ++i) {
+    const ProbeOutput& o = sim.probe(i);
+    const ProbeGeometry& g = sim.settings().probes[std::size_t(i)].geometry;
+    points->SetPoint(i, o.pose.position_mm.data());
+    const vtkIdType id = i;
+    verts->InsertNextCell(1, &id);
+    force->SetTuple(i, o.raw_force_n.data());
+    device->SetTuple(i, o.shaped_force_n.data());
+    axis->SetTuple(i, g.axis.data());
+    radius->SetValue(i, g.radius_mm);
+  }
+  poly->SetPoints(points);
+  poly->SetVerts(verts);
+  poly->GetPointData()->AddArray(force);
+  poly->GetPointData()->AddArray(device);
+  poly->GetPointData()->AddArray(axis);
+  poly->GetPointData()->AddArray(radius);
+  write_xml<vtkXMLPolyDataWriter>(poly.Get(), path);
+}
+
+}  // namespace vx

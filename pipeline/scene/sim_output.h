@@ -1,0 +1,134 @@
+#pragma once
+/// @file sim_output.h
+/// What `voxelastic simulate` writes: forces.csv, summary.json, forces.png and .pvd time
+/// series of the deformed model, surface and probes for ParaView. Every file is written
+/// atomically (no partial output after a failure).
+
+#include <Eigen/Core>
+#include <filesystem>
+#include <memory>
+#include <nlohmann/json_fwd.hpp>
+#include <string>
+#include <vector>
+
+#include "model/model.h"
+#include "sim/simulation.h"
+#include "surface/surface.h"
+
+namespace vx {
+
+/// One row of forces.csv.
+struct ForceRow {
+  double time_s{0.0};
+  int probe{0};
+  Eigen::Vector3d position_mm{Eigen::Vector3d::Zero()};
+  Eigen::Vector3d raw_n{Eigen::Vector3d::Zero()};     ///< tissue on probe, mean over the steps since the previous row
+  Eigen::Vector3d shaped_n{Eigen::Vector3d::Zero()};  ///< device force at the row's time
+  int contacts{0};                                    ///< most nodes in contact during those steps
+};
+
+/// Collects force rows while a simulation runs: one row per probe at t = 0 and then every
+/// `interval_s` (at least every step). The raw force of a row is the mean over the steps since
+/// the previous row, so no step is lost to sampling; the device force is sampled at the row.
+class ForceRecorder {
+ public:
+  ForceRecorder(const Simulation& sim, double interval_s);
+  /// Call after every step.
+  void record(const Simulation& sim);
+  /// Call once at the end: a last row for the steps since the previous row, if any.
+  void finish(const Simulation& sim);
+  /// Writes forces.csv: time_s,probe,x_mm,y_mm,z_mm,fx_n,fy_n,fz_n,dfx_n,dfy_n,dfz_n (the
+  /// device columns are empty when the scene has no device). Atomic.
+  void write_csv(const std::filesystem::path& path) const;
+
+  [[nodiscard]] const std::vector<ForceRow>& rows() const { return rows_; }
+  [[nodiscard]] const std::vector<std::string>& names() const { return names_; }
+  [[nodiscard]] bool has_device() const { return device_; }
+  /// Largest |raw force| over the rows, N (overall and per probe).
+  [[nodiscard]] double max_force_n() const;
+  [[nodiscard]] double max_force_n(int probe) const;
+  /// Largest |raw force| of any single step, N (the jitter peaks the rows average out).
+  [[nodiscard]] double max_step_force_n() const { return max_step_force_; }
+  /// Largest |force| of the tissue on the walls in any step, N, and its impulse (sum F dt), N*s.
+  [[nodiscard]] double max_wall_force_n() const { return max_wall_force_; }
+  [[nodiscard]] const Eigen::Vector3d& wall_impulse_n_s() const { return wall_impulse_; }
+
+ private:
+  void emit(const Simulation& sim);
+
+  std::vector<std::string> names_;
+  bool device_{false};
+  double interval_s_{0.0};
+  double next_s_{0.0};
+  std::vector<Eigen::Vector3d> sum_;
+  std::vector<int> contacts_;
+  int steps_{0};
+  double max_step_force_{0.0};
+  double max_wall_force_{0.0};
+  Eigen::Vector3d wall_impulse_{Eigen::Vector3d::Zero()};
+  std::vector<ForceRow> rows_;
+};
+
+/// Indentation depth of each row of one probe, mm: how far the probe has moved into the tissue
+/// since its first contact, measured against the direction of its mean force (the tissue
+/// pushes the probe back out). Rows before the first contact get depth <= 0. Also gives the
+/// force component along that direction (N), the curve to compare with Hertz.
+void indentation_curve(const std::vector<ForceRow>& rows, int probe, std::vector<double>& depth_mm,
+                       std::vector<double>& force_n);
+
+/// Draws forces.png: |raw| and |device| force against time, and force against indentation
+/// depth, per probe. Throws vx::Error when gnuplot fails.
+void plot_forces(const ForceRecorder& recorder, const std::filesystem::path& png);
+
+/// A time series for ParaView: frames written as they come, the .pvd collection at the end.
+class PvdSeries {
+ public:
+  /// Frames go to `dir/<name>/<name>_NNNNNN.<ext>`, the collection to `dir/<name>.pvd`.
+  PvdSeries(const std::filesystem::path& dir, const std::string& name, const std::string& ext);
+  /// The path of the next frame (relative names are kept in the collection).
+  [[nodiscard]] std::filesystem::path next_frame_path() const;
+  /// Records the frame just written at `next_frame_path()` for time t.
+  void add(double time_s);
+  /// Writes the .pvd collection (atomically).
+  void finish() const;
+  [[nodiscard]] int frames() const { return int(times_.size()); }
+  [[nodiscard]] std::filesystem::path collection_path() const;
+
+ private:
+  std::filesystem::path dir_;
+  std::string name_, ext_;
+  std::vector<double> times_;
+};
+
+/// Writes deformed-model frames (.vtu): the model's polyhedron cells with points at the node
+/// positions and the point array `displacement_mm` (from rest), so ParaView's "Warp By Vector"
+/// (scale 0 for the rest shape) works. The topology is built once.
+class ModelFrameWriter {
+ public:
+  explicit ModelFrameWriter(const Model& model);
+  ~ModelFrameWriter();
+  void write(const Eigen::Matrix3Xd& positions, const Eigen::Matrix3Xd& velocities,
+             const std::filesystem::path& path) const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+/// Writes deformed-surface frames (.vtp) with `Normals` and `displacement_mm`.
+class SurfaceFrameWriter {
+ public:
+  explicit SurfaceFrameWriter(const EmbeddedSurface& surface);
+  ~SurfaceFrameWriter();
+  void write(const Eigen::Matrix3Xd& vertices, const std::filesystem::path& path) const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+/// Writes probe frames (.vtp): one point per probe (its position) with `radius_mm`,
+/// `force_n` (raw) and `device_force_n` arrays, for glyphs in ParaView.
+void write_probe_frame(const Simulation& sim, const std::filesystem::path& path);
+
+}  // namespace vx

@@ -1,0 +1,119 @@
+#include "model/model.h"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+#include "base/error.h"
+
+namespace vx {
+
+const char* to_string(Resolution r) {
+  switch (r) {
+    case Resolution::gradational: return "gradational";
+    case Resolution::uniform: return "uniform";
+    case Resolution::voxel: return "voxel";
+  }
+  return "?";
+}
+
+Resolution parse_resolution(const std::string& s) {
+  if (s == "gradational") return Resolution::gradational;
+  if (s == "uniform") return Resolution::uniform;
+  if (s == "voxel") return Resolution::voxel;
+  throw Error("unknown resolution '" + s + "': use gradational, uniform or voxel");
+}
+
+int Model::num_surface_nodes() const {
+  return int(std::count(node_surface.begin(), node_surface.end(), std::uint8_t(1)));
+}
+
+int Model::num_levels() const {
+  int top = -1;
+  for (auto l : element_level) top = std::max(top, int(l));
+  return top + 1;
+}
+
+std::vector<std::int64_t> Model::elements_per_level() const {
+  std::vector<std::int64_t> counts(std::size_t(num_levels()), 0);
+  for (auto l : element_level) ++counts[std::size_t(l)];
+  return counts;
+}
+
+std::int64_t Model::covered_voxels() const {
+  std::int64_t n = 0;
+  for (int e = 0; e < num_elements(); ++e) {
+    const std::int64_t w = element_cell_voxels[e];
+    n += std::int64_t(__builtin_popcount(element_cells[e])) * w * w * w;
+  }
+  return n;
+}
+
+double Model::total_volume_mm3() const {
+  double v = 0;
+  for (double x : element_volume_mm3) v += x;
+  return v;
+}
+
+void Model::finalize() {
+  const int ne = num_elements();
+  rest_offsets.resize(3, num_vertex_entries());
+  rest_centroids.resize(3, ne);
+  element_volume_mm3.assign(std::size_t(ne), 0.0);
+  element_size_mm.assign(std::size_t(ne), 0.0);
+  const double voxel_mm3 = grid.voxel_volume_mm3();
+  const double voxel_edge_mm = std::cbrt(voxel_mm3);
+  for (int e = 0; e < ne; ++e) {
+    const int b = element_offsets[e], n = element_offsets[e + 1] - b;
+    Eigen::Vector3d c = Eigen::Vector3d::Zero();
+    for (int i = 0; i < n; ++i) c += rest_positions.col(element_vertices[b + i]);
+    c /= double(n);
+    rest_centroids.col(e) = c;
+    for (int i = 0; i < n; ++i) rest_offsets.col(b + i) = rest_positions.col(element_vertices[b + i]) - c;
+    const double w = element_cell_voxels[e];
+    element_volume_mm3[e] = __builtin_popcount(element_cells[e]) * w * w * w * voxel_mm3;
+    element_size_mm[e] = (resolution == Resolution::voxel ? 1.0 : 2.0) * w * voxel_edge_mm;
+  }
+}
+
+std::string Model::validate() const {
+  std::ostringstream err;
+  const int nn = num_nodes(), ne = num_elements();
+  if (node_lattice.cols() != nn) err << "node_lattice has " << node_lattice.cols() << " columns, expected " << nn << "; ";
+  if (int(node_surface.size()) != nn) err << "node_surface size " << node_surface.size() << " != nodes " << nn << "; ";
+  if (int(element_level.size()) != ne || int(element_cell_voxels.size()) != ne ||
+      int(element_cells.size()) != ne || element_anchor.cols() != ne)
+    err << "per-element arrays do not all have " << ne << " entries; ";
+  if (!element_offsets.empty() && (element_offsets.front() != 0 || element_offsets.back() != int(element_vertices.size())))
+    err << "element_offsets do not span element_vertices; ";
+  for (int e = 0; e < ne && err.tellp() == 0; ++e) {
+    const int b = element_offsets[e], n = element_offsets[e + 1] - b;
+    if (n < 4) { err << "element " << e << " has " << n << " vertices (< 4); "; break; }
+    std::vector<int> v(element_vertices.begin() + b, element_vertices.begin() + b + n);
+    for (int x : v)
+      if (x < 0 || x >= nn) { err << "element " << e << " refers to node " << x << " outside 0.." << nn - 1 << "; "; break; }
+    std::sort(v.begin(), v.end());
+    if (std::adjacent_find(v.begin(), v.end()) != v.end()) err << "element " << e << " repeats a vertex; ";
+    if (element_cells[e] == 0) err << "element " << e << " covers no cell; ";
+  }
+  return err.str();
+}
+
+bool same_model(const Model& a, const Model& b, double tol_mm) {
+  if (a.resolution != b.resolution || a.num_nodes() != b.num_nodes() || a.num_elements() != b.num_elements())
+    return false;
+  if (a.grid.dims != b.grid.dims || !a.grid.spacing_mm.isApprox(b.grid.spacing_mm, 1e-12) ||
+      (a.grid.origin_mm - b.grid.origin_mm).cwiseAbs().maxCoeff() > tol_mm ||
+      (a.grid.direction - b.grid.direction).cwiseAbs().maxCoeff() > 1e-12)
+    return false;
+  if (a.element_offsets != b.element_offsets || a.element_vertices != b.element_vertices ||
+      a.element_level != b.element_level || a.element_cell_voxels != b.element_cell_voxels ||
+      a.element_cells != b.element_cells || a.element_anchor != b.element_anchor ||
+      a.node_lattice != b.node_lattice || a.node_surface != b.node_surface)
+    return false;
+  if (a.num_nodes() > 0 && (a.rest_positions - b.rest_positions).cwiseAbs().maxCoeff() > tol_mm) return false;
+  if (a.num_vertex_entries() > 0 && (a.rest_offsets - b.rest_offsets).cwiseAbs().maxCoeff() > tol_mm) return false;
+  return true;
+}
+
+}  // namespace vx

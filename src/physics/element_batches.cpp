@@ -1,0 +1,472 @@
+#include "physics/element_batches.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+#include <string>
+
+#include "base/error.h"
+#include "physics/elements.h"
+#include "physics/material.h"
+#include "physics/rigid_sums.h"
+
+// The lane vectors below never cross a function boundary (everything is always_inline), so the
+// ABI note GCC gives for vector arguments without AVX does not apply.
+#pragma GCC diagnostic ignored "-Wpsabi"
+
+namespace vx {
+
+void build_element_batches(const PhysicsModel& p, std::int64_t window, ElementBatches& out, int max_rows) {
+  max_rows = std::min(max_rows, kBatchMaxRows);
+  const Model& m = *p.model;
+  const std::int64_t ne = p.num_elements();
+  out = ElementBatches{};
+  const auto count = [&](std::int32_t e) { return m.element_offsets[std::size_t(e) + 1] - m.element_offsets[std::size_t(e)]; };
+  std::vector<std::int32_t> order;
+  for (std::int64_t w0 = 0; w0 < ne; w0 += window) {
+    out.window_offsets.push_back(std::int32_t(out.batches.size()));
+    order.clear();
+    for (std::int64_t e = w0; e < std::min(ne, w0 + window); ++e) {
+      if (count(std::int32_t(e)) > max_rows)
+        out.unbatched.push_back(std::int32_t(e));
+      else
+        order.push_back(std::int32_t(e));
+    }
+    std::stable_sort(order.begin(), order.end(), [&](std::int32_t a, std::int32_t b) { return count(a) < count(b); });
+    for (std::size_t i = 0; i < order.size(); i += kBatchLanes) {
+      const int lanes = int(std::min<std::size_t>(kBatchLanes, order.size() - i));
+      ElementBatch bt{};
+      std::int32_t src[kBatchLanes];  // the element whose data a lane holds (empty lanes: lane 0's)
+      for (int l = 0; l < kBatchLanes; ++l) {
+        src[l] = order[i + std::size_t(l < lanes ? l : 0)];
+        const auto e = std::size_t(src[l]);
+        bt.element[l] = l < lanes ? src[l] : -1;
+        bt.count[l] = l < lanes ? count(src[l]) : 0;
+        bt.rows = std::max(bt.rows, count(src[l]));
+        bt.stiffness[l] = p.element_stiffness[e];
+        bt.affine_stiffness[l] = p.element_affine_stiffness[e];
+        bt.damping[l] = p.element_damping[e];
+        for (int r = 0; r < 3; ++r)
+          for (int c = 0; c < 3; ++c) bt.spread[3 * r + c][l] = p.element_spread[e](r, c);
+      }
+      bt.first_row = std::int32_t(out.rows.size());
+      for (int r = 0; r < bt.rows; ++r) {
+        BatchRow row{};
+        for (int l = 0; l < kBatchLanes; ++l) {
+          const std::int32_t b = m.element_offsets[std::size_t(src[l])];
+          row.slot[l] = -1;
+          row.vertex[l] = m.element_vertices[std::size_t(b)];
+          if (r >= count(src[l])) continue;  // padding: zero constants at the lane's first node
+          const auto j = std::size_t(b + r);
+          for (int d = 0; d < 3; ++d) {
+            row.rest_weighted[d][l] = p.entry_rest_weighted(d, std::int64_t(j));
+            row.gradient[d][l] = p.entry_gradient(d, std::int64_t(j));
+          }
+          row.weight[l] = p.entry_weight[j];
+          row.vertex[l] = m.element_vertices[j];
+          if (l < lanes) row.slot[l] = p.entry_slot[j];
+        }
+        out.rows.push_back(row);
+      }
+      out.batches.push_back(bt);
+    }
+  }
+  out.window_offsets.push_back(std::int32_t(out.batches.size()));
+}
+
+namespace {
+
+#define VX_INLINE [[gnu::always_inline]] inline
+
+using d4 = double __attribute__((vector_size(32)));
+
+VX_INLINE d4 load(const double* p) {
+  d4 v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+
+VX_INLINE d4 splat(double x) { return d4{x, x, x, x}; }
+
+/// Component d of the lanes' nodes `vertex`.
+VX_INLINE d4 gather(const double* xs, const std::int32_t* vertex, int d) {
+  return d4{xs[3 * std::int64_t(vertex[0]) + d], xs[3 * std::int64_t(vertex[1]) + d],
+            xs[3 * std::int64_t(vertex[2]) + d], xs[3 * std::int64_t(vertex[3]) + d]};
+}
+
+/// A 3 x 3 matrix per lane, row-major.
+struct Mat3 {
+  d4 m[9];
+};
+
+/// The rotation matrix of the unit quaternions (x, y, z, w) (Eigen's Quaternion::toRotationMatrix).
+VX_INLINE Mat3 rotation_matrix(d4 qx, d4 qy, d4 qz, d4 qw) {
+  const d4 tx = 2.0 * qx, ty = 2.0 * qy, tz = 2.0 * qz;
+  const d4 twx = tx * qw, twy = ty * qw, twz = tz * qw;
+  const d4 txx = tx * qx, txy = ty * qx, txz = tz * qx;
+  const d4 tyy = ty * qy, tyz = tz * qy, tzz = tz * qz;
+  return Mat3{{1.0 - (tyy + tzz), txy - twz, txz + twy, txy + twz, 1.0 - (txx + tzz), tyz - twx, txz - twy, tyz + twx,
+               1.0 - (txx + tyy)}};
+}
+
+/// One evaluation of the rotation fit (fit_rotation, elements.cpp) at the quaternions q for the
+/// normalised matrices an: the rotation r, the trace of P = an r^T, the squared moment
+/// imbalance g2, whether the negated Hessian is positive definite, and the Newton step's squared
+/// length and the quaternions it leads to (rotate_by: n = normalise(q + (0, theta / 2) q)).
+struct FitProbe {
+  Mat3 r;
+  d4 trace{}, g2{}, step2{}, nx{}, ny{}, nz{}, nw{};
+  bool pd[kBatchLanes]{};
+};
+
+VX_INLINE FitProbe probe_fit(const Mat3& an, d4 qx, d4 qy, d4 qz, d4 qw) {
+  FitProbe o;
+  o.r = rotation_matrix(qx, qy, qz, qw);
+  const d4* a = an.m;
+  const d4* r = o.r.m;
+  const d4 p00 = a[0] * r[0] + a[1] * r[1] + a[2] * r[2], p01 = a[0] * r[3] + a[1] * r[4] + a[2] * r[5],
+           p02 = a[0] * r[6] + a[1] * r[7] + a[2] * r[8];
+  const d4 p10 = a[3] * r[0] + a[4] * r[1] + a[5] * r[2], p11 = a[3] * r[3] + a[4] * r[4] + a[5] * r[5],
+           p12 = a[3] * r[6] + a[4] * r[7] + a[5] * r[8];
+  const d4 p20 = a[6] * r[0] + a[7] * r[1] + a[8] * r[2], p21 = a[6] * r[3] + a[7] * r[4] + a[8] * r[5],
+           p22 = a[6] * r[6] + a[7] * r[7] + a[8] * r[8];
+  const d4 tr = p00 + p11 + p22;
+  o.trace = tr;
+  const d4 gx = p21 - p12, gy = p02 - p20, gz = p10 - p01;
+  o.g2 = gx * gx + gy * gy + gz * gz;
+  const d4 h00 = tr - p00, h11 = tr - p11, h22 = tr - p22;
+  const d4 h01 = -0.5 * (p01 + p10), h02 = -0.5 * (p02 + p20), h12 = -0.5 * (p12 + p21);
+  const d4 c00 = h11 * h22 - h12 * h12, c01 = h02 * h12 - h01 * h22, c02 = h01 * h12 - h02 * h11;
+  const d4 c11 = h00 * h22 - h02 * h02, c12 = h01 * h02 - h00 * h12, c22 = h00 * h11 - h01 * h01;
+  const d4 det = h00 * c00 + h01 * c01 + h02 * c02;
+  for (int l = 0; l < kBatchLanes; ++l) o.pd[l] = h00[l] > 1e-6 && c22[l] > 1e-12 && det[l] > 1e-18;
+  const d4 idet = 1.0 / det;
+  const d4 tx = (c00 * gx + c01 * gy + c02 * gz) * idet, ty = (c01 * gx + c11 * gy + c12 * gz) * idet,
+           tz = (c02 * gx + c12 * gy + c22 * gz) * idet;
+  o.step2 = tx * tx + ty * ty + tz * tz;
+  const d4 hx = 0.5 * tx, hy = 0.5 * ty, hz = 0.5 * tz;
+  const d4 nw = -(hx * qx + hy * qy + hz * qz) + qw;
+  const d4 nx = qw * hx + (hy * qz - hz * qy) + qx;
+  const d4 ny = qw * hy + (hz * qx - hx * qz) + qy;
+  const d4 nz = qw * hz + (hx * qy - hy * qx) + qz;
+  const d4 nn = nw * nw + nx * nx + ny * ny + nz * nz;
+  d4 in{};
+  for (int l = 0; l < kBatchLanes; ++l) in[l] = nn[l] > 0.0 ? 1.0 / std::sqrt(nn[l]) : 0.0;
+  o.nx = nx * in, o.ny = ny * in, o.nz = nz * in, o.nw = nw * in;
+  return o;
+}
+
+/// One batch: the packed kernel's arithmetic (elements.cpp) with one element per lane.
+template <bool kDamping>
+VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const double* xs, const double* vs,
+                            Eigen::Quaterniond* rot, double* ef, const RotationFitSettings& fit,
+                            ElementPassStats& st) {
+  const int nr = bt.rows;
+  d4 ys[kBatchMaxRows][3];                      // positions relative to each lane's first node
+  d4 vel[kDamping ? kBatchMaxRows : 1][3];  // velocities
+  const d4 ox = gather(xs, rows[0].vertex, 0), oy = gather(xs, rows[0].vertex, 1), oz = gather(xs, rows[0].vertex, 2);
+  // pass 1: weighted centroid and A = sum w y R0^T (sum w R0 = 0)
+  d4 sw{}, sx{}, sy{}, sz{};
+  d4 a00{}, a01{}, a02{}, a10{}, a11{}, a12{}, a20{}, a21{}, a22{};
+  for (int r = 0; r < nr; ++r) {
+    const BatchRow& row = rows[r];
+    const d4 yx = gather(xs, row.vertex, 0) - ox, yy = gather(xs, row.vertex, 1) - oy,
+             yz = gather(xs, row.vertex, 2) - oz;
+    ys[r][0] = yx;
+    ys[r][1] = yy;
+    ys[r][2] = yz;
+    const d4 w = load(row.weight);
+    const d4 c0 = load(row.rest_weighted[0]), c1 = load(row.rest_weighted[1]), c2 = load(row.rest_weighted[2]);
+    sw += w;
+    sx += w * yx;
+    sy += w * yy;
+    sz += w * yz;
+    a00 += yx * c0; a01 += yx * c1; a02 += yx * c2;
+    a10 += yy * c0; a11 += yy * c1; a12 += yy * c2;
+    a20 += yz * c0; a21 += yz * c1; a22 += yz * c2;
+  }
+  // the consistent deformation gradient F = sum y g^T (sum g = 0)
+  d4 f00{}, f01{}, f02{}, f10{}, f11{}, f12{}, f20{}, f21{}, f22{};
+  for (int r = 0; r < nr; ++r) {
+    const BatchRow& row = rows[r];
+    const d4 yx = ys[r][0], yy = ys[r][1], yz = ys[r][2];
+    const d4 g0 = load(row.gradient[0]), g1 = load(row.gradient[1]), g2 = load(row.gradient[2]);
+    f00 += yx * g0; f01 += yx * g1; f02 += yx * g2;
+    f10 += yy * g0; f11 += yy * g1; f12 += yy * g2;
+    f20 += yz * g0; f21 += yz * g1; f22 += yz * g2;
+  }
+  // the sums of the rigid velocity fit (damping)
+  RigidSums<d4> rs;
+  if constexpr (kDamping) {
+    for (int r = 0; r < nr; ++r) {
+      const BatchRow& row = rows[r];
+      const d4 vx = gather(vs, row.vertex, 0), vy = gather(vs, row.vertex, 1), vz = gather(vs, row.vertex, 2);
+      vel[r][0] = vx;
+      vel[r][1] = vy;
+      vel[r][2] = vz;
+      rs.add(load(row.weight), ys[r][0], ys[r][1], ys[r][2], vx, vy, vz);
+    }
+  }
+  const d4 inv_w = splat(1.0) / sw;
+  const d4 cx = sx * inv_w, cy = sy * inv_w, cz = sz * inv_w;  // relative to the first node
+  // NaN/Inf in: that lane writes no force, counted
+  const d4 probe = (cx + cy + cz + a00 + a01 + a02 + a10 + a11 + a12 + a20 + a21 + a22 + f00 + f01 + f02 + f10 + f11 +
+                    f12 + f20 + f21 + f22) * 0.0;
+  bool finite[kBatchLanes];
+  for (int l = 0; l < kBatchLanes; ++l) {
+    finite[l] = probe[l] == 0.0;
+    if (bt.count[l] > 0 && !finite[l]) ++st.non_finite;
+  }
+
+  // the rotation fit (fit_rotation, elements.cpp) as far as almost every element goes in a
+  // running simulation, in lanes: the warm start passes its first test (it maximises tr(Q^T F):
+  // moment balance within the tolerance, negated Hessian positive definite), or one Newton step
+  // ends the fit (a step short enough, or one after which the test passes); the other lanes
+  // run the scalar fit from the warm start (the same result as the scalar kernels)
+  d4 q0x, q0y, q0z, q0w;
+  for (int l = 0; l < kBatchLanes; ++l) {
+    const Eigen::Quaterniond& q = rot[bt.element[l] >= 0 ? bt.element[l] : bt.element[0]];
+    q0x[l] = q.x();
+    q0y[l] = q.y();
+    q0z[l] = q.z();
+    q0w[l] = q.w();
+  }
+  const d4 s2 = f00 * f00 + f01 * f01 + f02 * f02 + f10 * f10 + f11 * f11 + f12 * f12 + f20 * f20 + f21 * f21 + f22 * f22;
+  d4 is{};
+  for (int l = 0; l < kBatchLanes; ++l) is[l] = s2[l] > 0.0 ? 1.0 / std::sqrt(s2[l]) : 0.0;
+  const Mat3 fn{f00 * is, f01 * is, f02 * is, f10 * is, f11 * is, f12 * is, f20 * is, f21 * is, f22 * is};
+  const FitProbe t0 = probe_fit(fn, q0x, q0y, q0z, q0w);
+  FitProbe t1;
+  const double tol2 = fit.tolerance * fit.tolerance;
+  const d4 fdet = f00 * (f11 * f22 - f12 * f21) - f01 * (f10 * f22 - f12 * f20) + f02 * (f10 * f21 - f11 * f20);
+  enum class Fit : unsigned char { warm, stepped, scalar };
+  Fit how[kBatchLanes] = {Fit::warm, Fit::warm, Fit::warm, Fit::warm};
+  bool probe_again = false;
+  for (int l = 0; l < kBatchLanes; ++l) {
+    if (bt.count[l] == 0 || !finite[l]) continue;
+    if (fdet[l] <= 0.0) ++st.inverted;
+    if (s2[l] < 1e-300) continue;  // collapsed to a point: keeps the warm start
+    how[l] = Fit::scalar;
+    if (fit.max_iterations < 1 || !t0.pd[l]) continue;
+    if (t0.g2[l] <= tol2) {
+      how[l] = Fit::warm;
+    } else if (t0.step2[l] <= 1.0 && (t0.step2[l] <= fit.tolerance || fit.max_iterations > 1)) {
+      // (a step over one radian is shortened by the scalar fit: left to it)
+      // a step this short leaves an error of order its square: done; a longer one is decided
+      // after probing the stepped rotation (whose matrix both need)
+      how[l] = Fit::stepped;
+      probe_again = true;
+    }
+  }
+  if (probe_again) t1 = probe_fit(fn, t0.nx, t0.ny, t0.nz, t0.nw);
+  Eigen::Matrix3d fitted[kBatchLanes];
+  for (int l = 0; l < kBatchLanes; ++l) {
+    if (how[l] == Fit::stepped && t0.step2[l] > fit.tolerance &&
+        !(t1.trace[l] >= t0.trace[l] - 1e-13 && t1.pd[l] && t1.g2[l] <= tol2))
+      how[l] = Fit::scalar;  // the step did not end the fit
+    if (how[l] == Fit::stepped) {
+      rot[bt.element[l]] = Eigen::Quaterniond(t0.nw[l], t0.nx[l], t0.ny[l], t0.nz[l]);
+      ++st.rotation_iterations;
+    } else if (how[l] == Fit::scalar) {
+      Eigen::Matrix3d fl;
+      fl << f00[l], f01[l], f02[l], f10[l], f11[l], f12[l], f20[l], f21[l], f22[l];
+      bool conv = true;
+      st.rotation_iterations += fit_rotation(fl, rot[bt.element[l]], fit, &conv, &fitted[l]);
+      st.unconverged += conv ? 0 : 1;
+    }
+  }
+  // the rotation of each lane
+  d4 q00, q01, q02, q10, q11, q12, q20, q21, q22;
+  {
+    Mat3 q = t0.r;
+    for (int l = 0; l < kBatchLanes; ++l)
+      for (int i = 0; i < 9; ++i) {
+        if (how[l] == Fit::stepped) q.m[i][l] = t1.r.m[i][l];
+        if (how[l] == Fit::scalar) q.m[i][l] = fitted[l](i / 3, i % 3);
+      }
+    q00 = q.m[0], q01 = q.m[1], q02 = q.m[2], q10 = q.m[3], q11 = q.m[4], q12 = q.m[5];
+    q20 = q.m[6], q21 = q.m[7], q22 = q.m[8];
+  }
+  // G = 2 mu V (Q - F) + k (A - F C0), M = k F
+  const d4 k = load(bt.stiffness), kaff = load(bt.affine_stiffness);
+  d4 gm[9];
+  {
+    const d4 f[9] = {f00, f01, f02, f10, f11, f12, f20, f21, f22};
+    const d4 a[9] = {a00, a01, a02, a10, a11, a12, a20, a21, a22};
+    const d4 q[9] = {q00, q01, q02, q10, q11, q12, q20, q21, q22};
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) {
+        const d4 fc = f[3 * i] * load(bt.spread[j]) + f[3 * i + 1] * load(bt.spread[3 + j]) +
+                      f[3 * i + 2] * load(bt.spread[6 + j]);
+        gm[3 * i + j] = kaff * (q[3 * i + j] - f[3 * i + j]) + k * (a[3 * i + j] - fc);
+      }
+  }
+  const d4 m00 = k * f00, m01 = k * f01, m02 = k * f02, m10 = k * f10, m11 = k * f11, m12 = k * f12, m20 = k * f20,
+           m21 = k * f21, m22 = k * f22;
+  // the rigid velocity about the centroid (elements.cpp, rigid_velocity)
+  d4 cd{}, ux{}, uy{}, uz{}, wx{}, wy{}, wz{};
+  if constexpr (kDamping) {
+    cd = load(bt.damping);
+    ux = rs.svx * inv_w, uy = rs.svy * inv_w, uz = rs.svz * inv_w;
+    // angular momentum about the centroid: L - sw c x vc
+    const d4 angx = rs.lx - sw * (cy * uz - cz * uy), angy = rs.ly - sw * (cz * ux - cx * uz),
+             angz = rs.lz - sw * (cx * uy - cy * ux);
+    // sum w r r^T about the centroid, the inertia tr 1 - that (+ tiny regularisation)
+    const d4 yxx = rs.ixx - sw * cx * cx, yxy = rs.ixy - sw * cx * cy, yxz = rs.ixz - sw * cx * cz;
+    const d4 yyy = rs.iyy - sw * cy * cy, yyz = rs.iyz - sw * cy * cz, yzz = rs.izz - sw * cz * cz;
+    const d4 tr = yxx + yyy + yzz;
+    const d4 reg = tr * (1.0 + 1e-10);
+    const d4 i00 = reg - yxx, i11 = reg - yyy, i22 = reg - yzz, i01 = -yxy, i02 = -yxz, i12 = -yyz;
+    // omega = I^{-1} ang by the adjugate of the symmetric I
+    const d4 c00 = i11 * i22 - i12 * i12, c01 = i02 * i12 - i01 * i22, c02 = i01 * i12 - i02 * i11;
+    const d4 c11 = i00 * i22 - i02 * i02, c12 = i01 * i02 - i00 * i12, c22 = i00 * i11 - i01 * i01;
+    const d4 inv_det = 1.0 / (i00 * c00 + i01 * c01 + i02 * c02);
+    wx = (c00 * angx + c01 * angy + c02 * angz) * inv_det;
+    wy = (c01 * angx + c11 * angy + c12 * angz) * inv_det;
+    wz = (c02 * angx + c12 * angy + c22 * angz) * inv_det;
+    // zero for a collapsed or collinear element
+    const d4 wprobe = (wx + wy + wz) * 0.0;
+    for (int l = 0; l < kBatchLanes; ++l)
+      if (!(tr[l] > 0.0) || wprobe[l] != 0.0) wx[l] = wy[l] = wz[l] = 0.0;
+  }
+  // pass 2: f = M R0' - w k (x - c) + G g [+ c w (v_c + omega x r - v)], each force written once
+  for (int r = 0; r < nr; ++r) {
+    const BatchRow& row = rows[r];
+    const d4 rx = ys[r][0] - cx, ry = ys[r][1] - cy, rz = ys[r][2] - cz;
+    const d4 w = load(row.weight);
+    const d4 kw = k * w;
+    const d4 c0 = load(row.rest_weighted[0]), c1 = load(row.rest_weighted[1]), c2 = load(row.rest_weighted[2]);
+    const d4 g0 = load(row.gradient[0]), g1 = load(row.gradient[1]), g2 = load(row.gradient[2]);
+    d4 o0 = m00 * c0 + m01 * c1 + m02 * c2 - kw * rx;
+    d4 o1 = m10 * c0 + m11 * c1 + m12 * c2 - kw * ry;
+    d4 o2 = m20 * c0 + m21 * c1 + m22 * c2 - kw * rz;
+    o0 += gm[0] * g0 + gm[1] * g1 + gm[2] * g2;
+    o1 += gm[3] * g0 + gm[4] * g1 + gm[5] * g2;
+    o2 += gm[6] * g0 + gm[7] * g1 + gm[8] * g2;
+    if constexpr (kDamping) {
+      const d4 cw = cd * w;
+      o0 += cw * (ux + wy * rz - wz * ry - vel[r][0]);
+      o1 += cw * (uy + wz * rx - wx * rz - vel[r][1]);
+      o2 += cw * (uz + wx * ry - wy * rx - vel[r][2]);
+    }
+    for (int l = 0; l < kBatchLanes; ++l) {
+      if (r >= bt.count[l]) continue;
+      double* out = ef + 3 * std::int64_t(row.slot[l]);
+      out[0] = finite[l] ? o0[l] : 0.0;
+      out[1] = finite[l] ? o1[l] : 0.0;
+      out[2] = finite[l] ? o2[l] : 0.0;
+    }
+  }
+}
+
+/// Prefetch distance of the rows, in batches (about 30 kB ahead). Prefetching the gathered
+/// nodes and force slots as well was slower (measured: those lines are mostly cached already).
+constexpr int kPrefetchRows = 8;
+
+template <bool kDamping>
+VX_INLINE void batch_range(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot,
+                           double* ef, std::int64_t b0, std::int64_t b1, const RotationFitSettings& fit,
+                           ElementPassStats& st) {
+  const ElementBatch* batches = phys.element_batches.batches.data();
+  const BatchRow* rows = phys.element_batches.rows.data();
+  for (std::int64_t b = b0; b < b1; ++b) {
+    if (b + kPrefetchRows < b1) {  // the rows of a batch further ahead (a stream the hardware
+                                   // prefetcher follows too late between the gathers)
+      const ElementBatch& far = batches[b + kPrefetchRows];
+      const char* p0 = reinterpret_cast<const char*>(rows + far.first_row);
+      const char* p1 = reinterpret_cast<const char*>(rows + far.first_row + far.rows);
+      for (; p0 < p1; p0 += 64) __builtin_prefetch(p0, 0);
+      __builtin_prefetch(&batches[b + kPrefetchRows + 1], 0);
+    }
+    batch_forces<kDamping>(batches[b], rows + batches[b].first_row, xs, vs, rot, ef, fit, st);
+  }
+}
+
+}  // namespace
+
+// one copy of the kernel per instruction set (the same source; the compiler vectorises the
+// lane arithmetic for each)
+#define VX_BATCH_RANGE(name, attributes)                                                                  \
+  attributes void name(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot, \
+                       double* ef, std::int64_t b0, std::int64_t b1, const RotationFitSettings& fit,          \
+                       bool damping, ElementPassStats& st) {                                                 \
+    if (damping)                                                                                             \
+      batch_range<true>(phys, xs, vs, rot, ef, b0, b1, fit, st);                                             \
+    else                                                                                                     \
+      batch_range<false>(phys, xs, vs, rot, ef, b0, b1, fit, st);                                            \
+  }
+
+namespace {
+#if defined(__x86_64__) && defined(__GNUC__)
+VX_BATCH_RANGE(range_avx512, __attribute__((target("arch=x86-64-v4"))))
+VX_BATCH_RANGE(range_avx2, __attribute__((target("arch=x86-64-v3"))))
+#endif
+VX_BATCH_RANGE(range_generic, )
+}  // namespace
+
+bool simd_supported(SimdLevel level) {
+  switch (level) {
+    case SimdLevel::automatic:
+    case SimdLevel::generic: return true;
+#if defined(__x86_64__) && defined(__GNUC__)
+    case SimdLevel::avx2: return __builtin_cpu_supports("x86-64-v3");
+    case SimdLevel::avx512: return __builtin_cpu_supports("x86-64-v4");
+#else
+    default: return false;
+#endif
+  }
+  return false;
+}
+
+namespace {
+
+SimdLevel pick_simd_level() {
+  const SimdLevel widest = simd_supported(SimdLevel::avx512) ? SimdLevel::avx512
+                           : simd_supported(SimdLevel::avx2) ? SimdLevel::avx2
+                                                             : SimdLevel::generic;
+  const char* env = std::getenv("VOXELASTIC_SIMD");
+  if (env == nullptr || *env == '\0') return widest;
+  const std::string want = env;
+  for (const SimdLevel level : {SimdLevel::automatic, SimdLevel::generic, SimdLevel::avx2, SimdLevel::avx512}) {
+    if (want != to_string(level)) continue;
+    if (level == SimdLevel::automatic) return widest;
+    if (!simd_supported(level))
+      throw Error("VOXELASTIC_SIMD=" + want + ": this CPU cannot run " + want + " (the widest it runs is " +
+                  to_string(widest) + "); unset it or choose auto, generic, avx2 or avx512");
+    return level;
+  }
+  throw Error("VOXELASTIC_SIMD=" + want + " is not an instruction set; unset it or choose auto, generic, avx2 or avx512");
+}
+
+}  // namespace
+
+SimdLevel best_simd_level() {
+  static const SimdLevel best = pick_simd_level();
+  return best;
+}
+
+const char* to_string(SimdLevel level) {
+  switch (level) {
+    case SimdLevel::automatic: return "auto";
+    case SimdLevel::generic: return "generic";
+    case SimdLevel::avx2: return "avx2";
+    case SimdLevel::avx512: return "avx512";
+  }
+  return "?";
+}
+
+void element_batches_range(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot,
+                           double* ef, std::int64_t b0, std::int64_t b1, const RotationFitSettings& fit, bool damping,
+                           ElementPassStats& st, SimdLevel level) {
+  if (level == SimdLevel::automatic || !simd_supported(level)) level = best_simd_level();
+  switch (level) {
+#if defined(__x86_64__) && defined(__GNUC__)
+    case SimdLevel::avx512: return range_avx512(phys, xs, vs, rot, ef, b0, b1, fit, damping, st);
+    case SimdLevel::avx2: return range_avx2(phys, xs, vs, rot, ef, b0, b1, fit, damping, st);
+#endif
+    default: return range_generic(phys, xs, vs, rot, ef, b0, b1, fit, damping, st);
+  }
+}
+
+}  // namespace vx

@@ -1,0 +1,660 @@
+#include "physics/elements.h"
+
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+#include <Eigen/LU>
+#include <Eigen/SVD>
+#include <cmath>
+
+#include "base/parallel.h"
+#include "physics/element_batches.h"
+#include "physics/rigid_sums.h"
+
+namespace vx {
+
+const char* to_string(ElementKernel k) {
+  switch (k) {
+    case ElementKernel::batched: return "batched";
+    case ElementKernel::packed: return "packed";
+    case ElementKernel::reference: return "reference";
+  }
+  return "?";
+}
+
+void ElementPassStats::add(const ElementPassStats& o) {
+  inverted += o.inverted;
+  unconverged += o.unconverged;
+  rotation_iterations += o.rotation_iterations;
+  non_finite += o.non_finite;
+  elastic_energy += o.elastic_energy;
+}
+
+namespace {
+
+/// q rotated by the small rotation vector theta (applied after q), first order and normalised:
+/// exact direction, angle 2 atan(|theta|/2); no trigonometry.
+Eigen::Quaterniond rotate_by(const Eigen::Quaterniond& q, const Eigen::Vector3d& theta) {
+  const Eigen::Quaterniond dq(0.0, 0.5 * theta.x(), 0.5 * theta.y(), 0.5 * theta.z());
+  Eigen::Quaterniond r = dq * q;
+  r.coeffs() += q.coeffs();
+  r.normalize();
+  return r;
+}
+
+}  // namespace
+
+int fit_rotation(const Eigen::Matrix3d& a, Eigen::Quaterniond& q, const RotationFitSettings& settings,
+                 bool* converged, Eigen::Matrix3d* rotation) {
+  // scale out the size: thresholds are relative
+  const double scale2 = a.squaredNorm();
+  const auto finish = [&](bool ok, int it) {
+    if (converged) *converged = ok;
+    if (rotation) *rotation = q.toRotationMatrix();
+    return it;
+  };
+  if (!std::isfinite(scale2)) return finish(false, 0);
+  if (scale2 < 1e-300) return finish(true, 0);  // collapsed to a point: every rotation fits; keep the warm start
+  const Eigen::Matrix3d an = a * (1.0 / std::sqrt(scale2));
+  const double tol2 = settings.tolerance * settings.tolerance;
+  // from here on r is always q's rotation matrix: the exits hand it out instead of recomputing it
+  Eigen::Matrix3d r = q.toRotationMatrix();
+  const auto done = [&](int it) {
+    if (converged) *converged = true;
+    if (rotation) *rotation = r;
+    return it;
+  };
+  Eigen::Matrix3d p = an * r.transpose();
+  double f = p.trace();
+  int it = 0;
+  for (; it < settings.max_iterations; ++it) {
+    // gradient of tr(Q^T A) over rotations applied after Q: the moment imbalance
+    const Eigen::Vector3d g(p(2, 1) - p(1, 2), p(0, 2) - p(2, 0), p(1, 0) - p(0, 1));
+    // Hessian (negated): h = tr(P) 1 - sym(P); its cofactors give the Sylvester test and the
+    // Newton step at once
+    const double h00 = f - p(0, 0), h11 = f - p(1, 1), h22 = f - p(2, 2);
+    const double h01 = -0.5 * (p(0, 1) + p(1, 0)), h02 = -0.5 * (p(0, 2) + p(2, 0)), h12 = -0.5 * (p(1, 2) + p(2, 1));
+    const double c00 = h11 * h22 - h12 * h12, c01 = h02 * h12 - h01 * h22, c02 = h01 * h12 - h02 * h11;
+    const double det = h00 * c00 + h01 * c01 + h02 * c02;
+    const bool pd = h00 > 1e-6 && h00 * h11 - h01 * h01 > 1e-12 && det > 1e-18;
+    if (g.squaredNorm() <= tol2) {
+      if (pd) return done(it);  // a strict maximum
+      Eigen::Matrix3d h;
+      h << h00, h01, h02, h01, h11, h12, h02, h12, h22;
+      Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
+      eig.computeDirect(h);
+      if (eig.eigenvalues()(0) >= -1e-9) return done(it);  // flat direction of a degenerate A: a maximum too
+      // a saddle or minimum of the trace: half a revolution about the worst axis gains
+      // 2 |u^T h u| exactly
+      const Eigen::Vector3d u = eig.eigenvectors().col(0).normalized();
+      q = Eigen::Quaterniond(0.0, u.x(), u.y(), u.z()) * q;
+      q.normalize();
+      r = q.toRotationMatrix();
+      p = an * r.transpose();
+      f = p.trace();
+      continue;
+    }
+    // Newton where the Hessian is positive definite (quadratic convergence near the optimum)
+    if (pd) {
+      const double c11 = h00 * h22 - h02 * h02, c12 = h01 * h02 - h00 * h12, c22 = h00 * h11 - h01 * h01;
+      Eigen::Vector3d theta(c00 * g.x() + c01 * g.y() + c02 * g.z(), c01 * g.x() + c11 * g.y() + c12 * g.z(),
+                            c02 * g.x() + c12 * g.y() + c22 * g.z());
+      theta *= 1.0 / det;
+      const double len2 = theta.squaredNorm();
+      if (len2 > 1.0) theta *= 1.0 / std::sqrt(len2);  // at most about one radian per iteration
+      const Eigen::Quaterniond qn = rotate_by(q, theta);
+      const Eigen::Matrix3d rn = qn.toRotationMatrix();
+      // a small Newton step leaves an error of order |theta|^2: done without re-evaluating
+      if (len2 <= settings.tolerance) {
+        q = qn;
+        if (rotation) *rotation = rn;
+        if (converged) *converged = true;
+        return it + 1;
+      }
+      const Eigen::Matrix3d pn = an * rn.transpose();
+      const double fn = pn.trace();
+      if (fn >= f - 1e-13) {  // an increase, up to rounding of the trace
+        q = qn;
+        r = rn;
+        p = pn;
+        f = fn;
+        continue;
+      }
+    }
+    // else the exact maximum along the gradient axis u: the trace is
+    // tr P + alpha sin(phi) - beta (1 - cos(phi)), alpha = |g|, beta = u^T h u,
+    // maximal at phi = atan2(alpha, beta) (a half turn or more where the curvature is negative)
+    const double alpha = g.norm();
+    const Eigen::Vector3d u = g / alpha;
+    const double beta = h00 * u.x() * u.x() + h11 * u.y() * u.y() + h22 * u.z() * u.z() +
+                        2.0 * (h01 * u.x() * u.y() + h02 * u.x() * u.z() + h12 * u.y() * u.z());
+    const double half = 0.5 * std::atan2(alpha, beta);
+    const double sh = std::sin(half);
+    q = Eigen::Quaterniond(std::cos(half), sh * u.x(), sh * u.y(), sh * u.z()) * q;
+    q.normalize();
+    r = q.toRotationMatrix();
+    p = an * r.transpose();
+    f = p.trace();
+  }
+  if (converged) *converged = false;
+  if (rotation) *rotation = r;
+  return it;
+}
+
+Eigen::Matrix3d optimal_rotation_svd(const Eigen::Matrix3d& a) {
+  Eigen::JacobiSVD<Eigen::Matrix3d> svd(a, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d u = svd.matrixU();
+  const Eigen::Matrix3d v = svd.matrixV();
+  if ((u * v.transpose()).determinant() < 0) u.col(2) *= -1.0;
+  return u * v.transpose();
+}
+
+Eigen::Matrix3d closest_with_determinant(const Eigen::Matrix3d& b, double det, Eigen::Quaterniond& q,
+                                         const RotationFitSettings& settings) {
+  // signed SVD b = U diag(s) V^T with U, V proper: polar rotation + symmetric eigen
+  fit_rotation(b, q, settings);
+  const Eigen::Matrix3d rot = q.toRotationMatrix();
+  Eigen::Matrix3d s = rot.transpose() * b;
+  s = 0.5 * (s + s.transpose());
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
+  eig.computeDirect(s);
+  const Eigen::Vector3d sig = eig.eigenvalues();
+  // closest point x to the singular values (in units where det = 1) on x1 x2 x3 = 1:
+  // Newton on the KKT system x_i - s_i = lambda prod_{j != i} x_j, prod x = 1, started from
+  // the scaled (or sign-repaired) values, which already satisfy the constraint
+  const double unit = std::cbrt(det);
+  const Eigen::Vector3d s0 = sig / unit;
+  const double top = std::max(s0.cwiseAbs().maxCoeff(), 1e-3);
+  Eigen::Vector3d start = s0.cwiseMax(0.1 * top);
+  start /= std::cbrt(start.prod());
+  Eigen::Vector3d x = start;
+  double lambda = 0;
+  bool ok = false;
+  for (int it = 0; it < 30; ++it) {
+    const Eigen::Vector3d pr(x.y() * x.z(), x.x() * x.z(), x.x() * x.y());
+    Eigen::Matrix<double, 4, 1> r;
+    r.head<3>() = x - s0 - lambda * pr;
+    r(3) = x.prod() - 1.0;
+    if (r.cwiseAbs().maxCoeff() < 1e-14) {
+      ok = true;
+      break;
+    }
+    Eigen::Matrix4d jac = Eigen::Matrix4d::Zero();
+    jac.topLeftCorner<3, 3>().setIdentity();
+    jac(0, 1) = jac(1, 0) = -lambda * x.z();
+    jac(0, 2) = jac(2, 0) = -lambda * x.y();
+    jac(1, 2) = jac(2, 1) = -lambda * x.x();
+    jac.block<3, 1>(0, 3) = -pr;
+    jac.block<1, 3>(3, 0) = pr.transpose();
+    const Eigen::Matrix<double, 4, 1> step = jac.fullPivLu().solve(-r);
+    if (!step.allFinite()) break;
+    x += step.head<3>();
+    lambda += step(3);
+  }
+  // a point on the positive branch that is a constrained minimum; else the scaled start
+  if (!ok || (x.array() <= 0).any() || (x - s0).squaredNorm() > (start - s0).squaredNorm()) x = start;
+  const Eigen::Vector3d d = x - s0;
+  const Eigen::Vector3d sp = (s0 + d) * unit;
+  return rot * eig.eigenvectors() * sp.asDiagonal() * eig.eigenvectors().transpose();
+}
+
+namespace {
+
+/// The reference element kernel for elements [e0, e1) (ElementKernel::reference): writes 3
+/// doubles per vertex entry. Vertex i has weight w_i and weighted rest offset R0'_i = w_i R0_i
+/// (material.h). Each loop over the vertices keeps at most ~16 values live, so that baseline
+/// x86-64 (16 SSE registers) does not spill: elastic and damping parts run as separate loops,
+/// each gathering the positions again and reading the per-entry constants from separate arrays.
+/// The element's best rigid velocity (damping): from the weighted sums of velocities (sv),
+/// angular momenta (l) and second moments (i) of the offsets y = x - x0, about the centroid c
+/// (relative to x0): the centroid velocity vc and the angular velocity omega (zero for a
+/// collapsed or collinear element).
+inline void rigid_velocity(const RigidSums<double>& r, double sw, double inv_w, const Eigen::Vector3d& c,
+                           Eigen::Vector3d& vc, Eigen::Vector3d& omega) {
+  vc = Eigen::Vector3d(r.svx * inv_w, r.svy * inv_w, r.svz * inv_w);
+  const Eigen::Vector3d ang = Eigen::Vector3d(r.lx, r.ly, r.lz) - sw * c.cross(vc);
+  Eigen::Matrix3d yy;
+  yy << r.ixx, r.ixy, r.ixz, r.ixy, r.iyy, r.iyz, r.ixz, r.iyz, r.izz;
+  yy -= sw * c * c.transpose();  // sum w r r^T about the centroid
+  Eigen::Matrix3d inertia = -yy;
+  const double tr = yy.trace();
+  inertia.diagonal().array() += tr * (1.0 + 1e-10);  // + tiny regularisation (collinear)
+  omega.setZero();
+  if (tr > 0) omega = inertia.inverse() * ang;
+  if (!omega.allFinite()) omega.setZero();
+}
+
+/// The per-element 3 x 3 work shared by both kernels: the warm-started rotation fit of F and
+/// the matrices of the force f_i = M R0'_i - k_tot w_i (x_i - c) + G g_i,
+///   G = 2 mu V (Q - F) + k (A - F C0),  M = k F (+ k_v T),  k_tot = k (+ k_v)
+/// (T: the volume term's closest matrix with the rest determinant).
+template <bool kVolume>
+struct ElementMatrices {
+  Eigen::Matrix3d q, gm, mq, t;
+  double k{0}, ktot{0}, wv{0};
+
+  ElementMatrices(const PhysicsModel& phys, std::int64_t e, const Eigen::Matrix3d& a, const Eigen::Matrix3d& fg,
+                  Eigen::Quaterniond& rot, const RotationFitSettings& fit, ElementPassStats& st) {
+    bool conv = true;
+    st.rotation_iterations += fit_rotation(fg, rot, fit, &conv, &q);
+    st.unconverged += conv ? 0 : 1;
+    if (fg.determinant() <= 0.0) ++st.inverted;
+    k = phys.element_stiffness[std::size_t(e)];
+    gm = phys.element_affine_stiffness[std::size_t(e)] * (q - fg) + k * (a - fg * phys.element_spread[std::size_t(e)]);
+    mq = k * fg;
+    ktot = k;
+    if constexpr (kVolume) {
+      wv = phys.element_volume_stiffness[std::size_t(e)];
+      const Eigen::Matrix3d& ninv = phys.element_spread_inv_sqrt[std::size_t(e)];
+      Eigen::Quaterniond qv = rot;
+      t = closest_with_determinant(a * ninv, phys.element_spread_sqrt_det[std::size_t(e)], qv, fit) * ninv;
+      mq += wv * t;
+      ktot += wv;
+    }
+  }
+};
+
+template <bool kDamping, bool kEnergy, bool kVolume>
+void element_range_reference(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot,
+                   double* ef, double* energy_out, std::int64_t e0, std::int64_t e1,
+                   const RotationFitSettings& fit, ElementPassStats& st) {
+  const Model& m = *phys.model;
+  const std::int32_t* off = m.element_offsets.data();
+  const std::int32_t* vert = m.element_vertices.data();
+  const double* r0s = phys.entry_rest_weighted.data();
+  const double* gs = phys.entry_gradient.data();
+  const double* wts = phys.entry_weight.data();
+  const std::int32_t* slot = phys.entry_slot.data();
+  for (std::int64_t e = e0; e < e1; ++e) {
+    const int b = off[e], n = off[e + 1] - b;
+    // positions relative to the first vertex (keeps sums free of the absolute offset)
+    const double* x0 = xs + 3 * std::int64_t(vert[b]);
+    const double ox = x0[0], oy = x0[1], oz = x0[2];
+    // pass 1a: weighted centroid and A = sum w y R0^T (sum w R0 = 0: no centring needed)
+    double sw = 0, sx = 0, sy = 0, sz = 0;
+    double a00 = 0, a01 = 0, a02 = 0, a10 = 0, a11 = 0, a12 = 0, a20 = 0, a21 = 0, a22 = 0;
+    for (int j = b; j < b + n; ++j) {
+      const double* xp = xs + 3 * std::int64_t(vert[j]);
+      const double* r0 = r0s + 3 * std::int64_t(j);
+      const double w = wts[j];
+      const double yx = xp[0] - ox, yy = xp[1] - oy, yz = xp[2] - oz;
+      sw += w;
+      sx += w * yx;
+      sy += w * yy;
+      sz += w * yz;
+      a00 += yx * r0[0]; a01 += yx * r0[1]; a02 += yx * r0[2];
+      a10 += yy * r0[0]; a11 += yy * r0[1]; a12 += yy * r0[2];
+      a20 += yz * r0[0]; a21 += yz * r0[1]; a22 += yz * r0[2];
+    }
+    // pass 1b: the consistent deformation gradient F = sum y g^T (sum g = 0: no centring)
+    double f00 = 0, f01 = 0, f02 = 0, f10 = 0, f11 = 0, f12 = 0, f20 = 0, f21 = 0, f22 = 0;
+    for (int j = b; j < b + n; ++j) {
+      const double* xp = xs + 3 * std::int64_t(vert[j]);
+      const double* g = gs + 3 * std::int64_t(j);
+      const double yx = xp[0] - ox, yy = xp[1] - oy, yz = xp[2] - oz;
+      f00 += yx * g[0]; f01 += yx * g[1]; f02 += yx * g[2];
+      f10 += yy * g[0]; f11 += yy * g[1]; f12 += yy * g[2];
+      f20 += yz * g[0]; f21 += yz * g[1]; f22 += yz * g[2];
+    }
+    const double inv_w = 1.0 / sw;
+    const Eigen::Vector3d c(sx * inv_w, sy * inv_w, sz * inv_w);  // relative to x0
+    Eigen::Matrix3d a, fg;
+    a << a00, a01, a02, a10, a11, a12, a20, a21, a22;
+    fg << f00, f01, f02, f10, f11, f12, f20, f21, f22;
+    if (!a.allFinite() || !fg.allFinite() || !c.allFinite()) {  // NaN/Inf in: no force out, counted
+      ++st.non_finite;
+      for (int j = b; j < b + n; ++j) ef[3 * slot[j]] = ef[3 * slot[j] + 1] = ef[3 * slot[j] + 2] = 0.0;
+      if constexpr (kEnergy) energy_out[e] = 0.0;
+      continue;
+    }
+    const ElementMatrices<kVolume> em(phys, e, a, fg, rot[e], fit, st);
+    const Eigen::Matrix3d &q = em.q, &gm = em.gm, &mq = em.mq, &t = em.t;
+    const double k = em.k, ktot = em.ktot, wv = em.wv;
+    // pass 2: elastic force f = M R0' - w ktot (x - c)   (M = k F + k_v T, R0' = w R0)
+    {
+      const double m00 = mq(0, 0), m01 = mq(0, 1), m02 = mq(0, 2), m10 = mq(1, 0), m11 = mq(1, 1),
+                   m12 = mq(1, 2), m20 = mq(2, 0), m21 = mq(2, 1), m22 = mq(2, 2);
+      const double cx = ox + c.x(), cy = oy + c.y(), cz = oz + c.z();
+      for (int j = b; j < b + n; ++j) {
+        const double* xp = xs + 3 * std::int64_t(vert[j]);
+        const double* r0 = r0s + 3 * std::int64_t(j);
+        const double kw = ktot * wts[j];
+        double* out = ef + 3 * std::int64_t(slot[j]);
+        out[0] = m00 * r0[0] + m01 * r0[1] + m02 * r0[2] - kw * (xp[0] - cx);
+        out[1] = m10 * r0[0] + m11 * r0[1] + m12 * r0[2] - kw * (xp[1] - cy);
+        out[2] = m20 * r0[0] + m21 * r0[1] + m22 * r0[2] - kw * (xp[2] - cz);
+      }
+    }
+    // pass 2b: f += G g
+    {
+      const double g00 = gm(0, 0), g01 = gm(0, 1), g02 = gm(0, 2), g10 = gm(1, 0), g11 = gm(1, 1),
+                   g12 = gm(1, 2), g20 = gm(2, 0), g21 = gm(2, 1), g22 = gm(2, 2);
+      for (int j = b; j < b + n; ++j) {
+        const double* g = gs + 3 * std::int64_t(j);
+        double* out = ef + 3 * std::int64_t(slot[j]);
+        out[0] += g00 * g[0] + g01 * g[1] + g02 * g[2];
+        out[1] += g10 * g[0] + g11 * g[1] + g12 * g[2];
+        out[2] += g20 * g[0] + g21 * g[1] + g22 * g[2];
+      }
+    }
+    if constexpr (kDamping) {
+      // pass 3: the weighted rigid velocity fit: v_c, angular momentum and inertia about c
+      RigidSums<double> rs;
+      for (int j = b; j < b + n; ++j) {
+        const double* xp = xs + 3 * std::int64_t(vert[j]);
+        const double* vp = vs + 3 * std::int64_t(vert[j]);
+        rs.add(wts[j], xp[0] - ox, xp[1] - oy, xp[2] - oz, vp[0], vp[1], vp[2]);
+      }
+      const double cd = phys.element_damping[std::size_t(e)];
+      Eigen::Vector3d vc, omega;
+      rigid_velocity(rs, sw, inv_w, c, vc, omega);
+      // pass 4: f += c w (v_c + omega x r - v)
+      const double wx = omega.x(), wy = omega.y(), wz = omega.z();
+      const double cx = ox + c.x(), cy = oy + c.y(), cz = oz + c.z();
+      const double ux = vc.x(), uy = vc.y(), uz = vc.z();
+      for (int j = b; j < b + n; ++j) {
+        const double* xp = xs + 3 * std::int64_t(vert[j]);
+        const double* vp = vs + 3 * std::int64_t(vert[j]);
+        const double cw = cd * wts[j];
+        const double rx = xp[0] - cx, ry = xp[1] - cy, rz = xp[2] - cz;
+        double* out = ef + 3 * std::int64_t(slot[j]);
+        out[0] += cw * (ux + wy * rz - wz * ry - vp[0]);
+        out[1] += cw * (uy + wz * rx - wx * rz - vp[1]);
+        out[2] += cw * (uz + wx * ry - wy * rx - vp[2]);
+      }
+    }
+    if constexpr (kEnergy) {
+      double en = 0.5 * phys.element_affine_stiffness[std::size_t(e)] * (fg - q).squaredNorm();
+      const Eigen::Vector3d ca = Eigen::Vector3d(ox, oy, oz) + c;
+      for (int j = b; j < b + n; ++j) {
+        const Eigen::Vector3d r = Eigen::Map<const Eigen::Vector3d>(xs + 3 * std::int64_t(vert[j])) - ca;
+        const Eigen::Vector3d rr = phys.entry_rest.col(j);
+        en += 0.5 * k * wts[j] * (fg * rr - r).squaredNorm();
+        if constexpr (kVolume) en += 0.5 * wv * wts[j] * (t * rr - r).squaredNorm();
+      }
+      energy_out[e] = en;
+      st.elastic_energy += en;
+    }
+  }
+}
+
+/// Prefetch distances of the packed kernel, in elements: the packed records of element
+/// e + kPrefetchRecords, then (from those records, cached by then) the force slots and
+/// positions of element e + kPrefetchAhead.
+constexpr int kPrefetchRecords = 4;
+constexpr int kPrefetchAhead = 1;
+/// A row of [A, F] (and of the packed record's first 6 doubles: w R0, g).
+using Row6 = Eigen::Array<double, 6, 1>;
+
+/// The element kernel over the packed per-entry records (ElementKernel::packed): the same
+/// arithmetic as element_range_reference, in the same order for every value (the same bits
+/// where the compiler contracts no multiply-adds), but streaming one array of 64-byte records,
+/// with A and F in one loop (as packets) and each entry's force written once (elastic, gradient
+/// and damping parts summed in registers). Measured (bench/step_bench.cpp, element_pass, one
+/// thread): 0.66-0.71x the reference's time on the 128^3 and 256^3 spheres, where the reference
+/// waits on memory (the scattered writes into the node-major force buffer, the five streams of
+/// constants); 0.92-0.96x on 32^3 and 64^3, where both are bound by arithmetic. The software
+/// prefetches ahead of the current element: about 15 % on 256^3, within the noise below.
+template <bool kDamping, bool kEnergy, bool kVolume>
+void element_range_packed(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot,
+                          double* ef, double* energy_out, std::int64_t e0, std::int64_t e1,
+                          const RotationFitSettings& fit, ElementPassStats& st) {
+  const Model& m = *phys.model;
+  const std::int32_t* off = m.element_offsets.data();
+  const PackedEntry* pk = phys.entry_packed.data();
+  for (std::int64_t e = e0; e < e1; ++e) {
+    const int b = off[e], n = off[e + 1] - b;
+    const PackedEntry* pe = pk + b;
+    if (e + kPrefetchRecords < e1) {
+      const char* p0 = reinterpret_cast<const char*>(pk + off[e + kPrefetchRecords]);
+      const char* p1 = reinterpret_cast<const char*>(pk + off[e + kPrefetchRecords + 1]);
+      for (; p0 < p1; p0 += sizeof(PackedEntry)) __builtin_prefetch(p0, 0);
+    }
+    if (e + kPrefetchAhead < e1) {
+      for (int j = off[e + kPrefetchAhead], je = off[e + kPrefetchAhead + 1]; j < je; ++j) {
+        __builtin_prefetch(ef + 3 * std::int64_t(pk[j].slot), 1);
+        __builtin_prefetch(xs + 3 * std::int64_t(pk[j].vertex), 0);
+        if constexpr (kDamping) __builtin_prefetch(vs + 3 * std::int64_t(pk[j].vertex), 0);
+      }
+    }
+    // positions relative to the first vertex (keeps sums free of the absolute offset)
+    const double* x0 = xs + 3 * std::int64_t(pe[0].vertex);
+    const double ox = x0[0], oy = x0[1], oz = x0[2];
+    // pass 1: weighted centroid, A = sum w y R0^T (sum w R0 = 0) and F = sum y g^T (sum g = 0)
+    // as the rows of y [w R0^T, g^T] (packets of the record's first 6 doubles)
+    double sw = 0, sx = 0, sy = 0, sz = 0;
+    Row6 ax = Row6::Zero(), ay = Row6::Zero(), az = Row6::Zero();  // rows of [A, F]
+    for (int j = 0; j < n; ++j) {
+      const PackedEntry& en = pe[j];
+      const double* xp = xs + 3 * std::int64_t(en.vertex);
+      const Eigen::Map<const Row6, Eigen::Aligned16> cst(en.rest_weighted);
+      const double w = en.weight;
+      const double yx = xp[0] - ox, yy = xp[1] - oy, yz = xp[2] - oz;
+      sw += w;
+      sx += w * yx;
+      sy += w * yy;
+      sz += w * yz;
+      ax += yx * cst;
+      ay += yy * cst;
+      az += yz * cst;
+    }
+    // pass 1b (damping): the sums of the rigid velocity fit; a loop of its own (the gather hits
+    // L1 now) because in pass 1 its 12 more sums spill, measured no faster
+    RigidSums<double> rs;
+    if constexpr (kDamping) {
+      for (int j = 0; j < n; ++j) {
+        const double* xp = xs + 3 * std::int64_t(pe[j].vertex);
+        const double* vp = vs + 3 * std::int64_t(pe[j].vertex);
+        rs.add(pe[j].weight, xp[0] - ox, xp[1] - oy, xp[2] - oz, vp[0], vp[1], vp[2]);
+      }
+    }
+    const double inv_w = 1.0 / sw;
+    const Eigen::Vector3d c(sx * inv_w, sy * inv_w, sz * inv_w);  // relative to x0
+    Eigen::Matrix3d a, fg;
+    a << ax(0), ax(1), ax(2), ay(0), ay(1), ay(2), az(0), az(1), az(2);
+    fg << ax(3), ax(4), ax(5), ay(3), ay(4), ay(5), az(3), az(4), az(5);
+    if (!a.allFinite() || !fg.allFinite() || !c.allFinite()) {  // NaN/Inf in: no force out, counted
+      ++st.non_finite;
+      for (int j = 0; j < n; ++j) {
+        double* out = ef + 3 * std::int64_t(pe[j].slot);
+        out[0] = out[1] = out[2] = 0.0;
+      }
+      if constexpr (kEnergy) energy_out[e] = 0.0;
+      continue;
+    }
+    const ElementMatrices<kVolume> em(phys, e, a, fg, rot[e], fit, st);
+    const Eigen::Matrix3d &q = em.q, &gm = em.gm, &mq = em.mq, &t = em.t;
+    const double k = em.k, ktot = em.ktot, wv = em.wv;
+    // the rigid velocity fit about the centroid (damping)
+    double cd = 0, wx = 0, wy = 0, wz = 0, ux = 0, uy = 0, uz = 0;
+    if constexpr (kDamping) {
+      cd = phys.element_damping[std::size_t(e)];
+      Eigen::Vector3d vc, omega;
+      rigid_velocity(rs, sw, inv_w, c, vc, omega);
+      wx = omega.x(), wy = omega.y(), wz = omega.z();
+      ux = vc.x(), uy = vc.y(), uz = vc.z();
+    }
+    // pass 2: f = M R0' - w ktot (x - c) + G g  (M = k F + k_v T, R0' = w R0)
+    //           [+ c w (v_c + omega x r - v)], summed in the reference kernel's order
+    {
+      const double m00 = mq(0, 0), m01 = mq(0, 1), m02 = mq(0, 2), m10 = mq(1, 0), m11 = mq(1, 1),
+                   m12 = mq(1, 2), m20 = mq(2, 0), m21 = mq(2, 1), m22 = mq(2, 2);
+      const double g00 = gm(0, 0), g01 = gm(0, 1), g02 = gm(0, 2), g10 = gm(1, 0), g11 = gm(1, 1),
+                   g12 = gm(1, 2), g20 = gm(2, 0), g21 = gm(2, 1), g22 = gm(2, 2);
+      const double cx = ox + c.x(), cy = oy + c.y(), cz = oz + c.z();
+      for (int j = 0; j < n; ++j) {
+        const PackedEntry& en = pe[j];
+        const double* xp = xs + 3 * std::int64_t(en.vertex);
+        const double* r0 = en.rest_weighted;
+        const double* g = en.gradient;
+        const double kw = ktot * en.weight;
+        const double rx = xp[0] - cx, ry = xp[1] - cy, rz = xp[2] - cz;
+        double o0 = m00 * r0[0] + m01 * r0[1] + m02 * r0[2] - kw * rx;
+        double o1 = m10 * r0[0] + m11 * r0[1] + m12 * r0[2] - kw * ry;
+        double o2 = m20 * r0[0] + m21 * r0[1] + m22 * r0[2] - kw * rz;
+        o0 += g00 * g[0] + g01 * g[1] + g02 * g[2];
+        o1 += g10 * g[0] + g11 * g[1] + g12 * g[2];
+        o2 += g20 * g[0] + g21 * g[1] + g22 * g[2];
+        if constexpr (kDamping) {
+          const double* vp = vs + 3 * std::int64_t(en.vertex);
+          const double cw = cd * en.weight;
+          o0 += cw * (ux + wy * rz - wz * ry - vp[0]);
+          o1 += cw * (uy + wz * rx - wx * rz - vp[1]);
+          o2 += cw * (uz + wx * ry - wy * rx - vp[2]);
+        }
+        double* out = ef + 3 * std::int64_t(en.slot);
+        out[0] = o0;
+        out[1] = o1;
+        out[2] = o2;
+      }
+    }
+    if constexpr (kEnergy) {
+      double en = 0.5 * phys.element_affine_stiffness[std::size_t(e)] * (fg - q).squaredNorm();
+      const Eigen::Vector3d ca = Eigen::Vector3d(ox, oy, oz) + c;
+      for (int j = 0; j < n; ++j) {
+        const Eigen::Vector3d r = Eigen::Map<const Eigen::Vector3d>(xs + 3 * std::int64_t(pe[j].vertex)) - ca;
+        const Eigen::Vector3d rr = phys.entry_rest.col(b + j);
+        en += 0.5 * k * pe[j].weight * (fg * rr - r).squaredNorm();
+        if constexpr (kVolume) en += 0.5 * wv * pe[j].weight * (t * rr - r).squaredNorm();
+      }
+      energy_out[e] = en;
+      st.elastic_energy += en;
+    }
+  }
+}
+
+using RangeFn = void (*)(const PhysicsModel&, const double*, const double*, Eigen::Quaterniond*, double*, double*,
+                         std::int64_t, std::int64_t, const RotationFitSettings&, ElementPassStats&);
+
+template <template <bool, bool, bool> class Kernel>
+RangeFn pick_range(bool damping, bool energy, bool volume) {
+  const int key = (damping ? 1 : 0) | (energy ? 2 : 0) | (volume ? 4 : 0);
+  switch (key) {
+    case 0: return Kernel<false, false, false>::run;
+    case 1: return Kernel<true, false, false>::run;
+    case 2: return Kernel<false, true, false>::run;
+    case 3: return Kernel<true, true, false>::run;
+    case 4: return Kernel<false, false, true>::run;
+    case 5: return Kernel<true, false, true>::run;
+    case 6: return Kernel<false, true, true>::run;
+    default: return Kernel<true, true, true>::run;
+  }
+}
+
+template <bool kDamping, bool kEnergy, bool kVolume>
+struct ReferenceKernel {
+  static constexpr RangeFn run = &element_range_reference<kDamping, kEnergy, kVolume>;
+};
+template <bool kDamping, bool kEnergy, bool kVolume>
+struct PackedKernel {
+  static constexpr RangeFn run = &element_range_packed<kDamping, kEnergy, kVolume>;
+};
+
+}  // namespace
+
+ElementPassStats compute_element_forces(const PhysicsModel& phys, const Eigen::Matrix3Xd& positions,
+                                        const Eigen::Matrix3Xd* velocities,
+                                        std::vector<Eigen::Quaterniond>& rotations,
+                                        Eigen::Matrix3Xd& entry_forces, std::vector<double>* element_energy,
+                                        const ElementPassOptions& options, int threads,
+                                        ElementPassScratch& scratch) {
+  const std::int64_t ne = phys.num_elements();
+  const bool damping = options.damping && velocities != nullptr;
+  const bool energy = options.energy && element_energy != nullptr;
+  // sizes are set up once; these are no-ops in a running simulation
+  if (entry_forces.cols() != phys.num_vertex_entries()) entry_forces.resize(3, phys.num_vertex_entries());
+  if (energy && std::int64_t(element_energy->size()) != ne) element_energy->resize(std::size_t(ne));
+  const std::int64_t chunks = chunk_count(ne, kElementGrain);
+  if (std::int64_t(scratch.chunks.size()) != element_pass_slots(ne))
+    scratch.chunks.resize(std::size_t(element_pass_slots(ne)));
+  // the packed kernels need the packed entries (always there in a model from make_physics_model)
+  const bool packed = options.kernel != ElementKernel::reference &&
+                      std::int64_t(phys.entry_packed.size()) == phys.num_vertex_entries();
+  const ElementBatches& eb = phys.element_batches;
+  // automatic on a CPU without AVX2: the packed kernel (the batched one on two-lane SSE2 is
+  // slower once the model leaves the cache: element_pass benchmark, batched_generic)
+  const bool vector_unit = options.simd != SimdLevel::automatic || best_simd_level() != SimdLevel::generic;
+  const bool batched = packed && options.kernel == ElementKernel::batched && vector_unit && !energy &&
+                       !phys.has_volume_term() && std::int64_t(eb.window_offsets.size()) == chunks + 1;
+  const RangeFn fn = packed ? pick_range<PackedKernel>(damping, energy, phys.has_volume_term())
+                            : pick_range<ReferenceKernel>(damping, energy, phys.has_volume_term());
+  const double* xs = positions.data();
+  const double* vs = damping ? velocities->data() : nullptr;
+  Eigen::Quaterniond* rot = rotations.data();
+  double* ef = entry_forces.data();
+  double* en = energy ? element_energy->data() : nullptr;
+  // chunk c is the element window [c kElementGrain, (c+1) kElementGrain) for every kernel
+  parallel_for_chunks(ne, kElementGrain, threads, [&](std::int64_t chunk, std::int64_t b, std::int64_t e) {
+    ElementPassStats st;
+    if (batched)
+      element_batches_range(phys, xs, vs, rot, ef, eb.window_offsets[std::size_t(chunk)],
+                            eb.window_offsets[std::size_t(chunk) + 1], options.rotation, damping, st, options.simd);
+    else
+      fn(phys, xs, vs, rot, ef, en, b, e, options.rotation, st);
+    scratch.chunks[std::size_t(chunk)] = st;
+  });
+  ElementPassStats& rest = scratch.chunks.back();
+  rest = ElementPassStats{};
+  if (batched)
+    for (const std::int32_t e : eb.unbatched) fn(phys, xs, vs, rot, ef, en, e, e + 1, options.rotation, rest);
+  // reduce in chunk order: the same sums for any thread count
+  ElementPassStats total;
+  for (const auto& s : scratch.chunks) total.add(s);
+  return total;
+}
+
+void gather_node_forces(const PhysicsModel& phys, const Eigen::Matrix3Xd& entry_forces, Eigen::Matrix3Xd& node_forces,
+                        int threads) {
+  if (node_forces.cols() != phys.num_nodes()) node_forces.resize(3, phys.num_nodes());
+  parallel_for(phys.num_nodes(), kNodeGrain, threads, [&](std::int64_t b, std::int64_t e) {
+    for (std::int64_t i = b; i < e; ++i) node_forces.col(i) = gather_node_force(phys, entry_forces, int(i));
+  });
+}
+
+void element_elastic_matrix(const PhysicsModel& phys, int e, Eigen::MatrixXd& k) {
+  const Model& m = *phys.model;
+  const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+  const auto g = phys.entry_gradient.middleCols(b, n);
+  const auto r0 = phys.entry_rest.middleCols(b, n);
+  const Eigen::Map<const Eigen::VectorXd> w(phys.entry_weight.data() + b, n);
+  Eigen::MatrixXd p = -r0.transpose() * g;  // P_lj = delta_lj - w_j / W - R0_l . g_j
+  p.rowwise() -= w.transpose() / w.sum();
+  p.diagonal().array() += 1.0;
+  k.noalias() = phys.element_affine_stiffness[std::size_t(e)] * (g.transpose() * g);
+  k.noalias() += phys.element_stiffness[std::size_t(e)] * (p.transpose() * w.asDiagonal() * p);
+}
+
+double element_energy(const PhysicsModel& phys, int e, const Eigen::Matrix3Xd& x, Eigen::Quaterniond& q,
+                      const RotationFitSettings& settings) {
+  const Model& m = *phys.model;
+  const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();
+  double sw = 0;
+  for (int j = b; j < b + n; ++j) {
+    c += phys.entry_weight[j] * x.col(m.element_vertices[j]);
+    sw += phys.entry_weight[j];
+  }
+  c /= sw;
+  Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
+  Eigen::Matrix3d fg = Eigen::Matrix3d::Zero();
+  for (int j = b; j < b + n; ++j) {
+    a += (x.col(m.element_vertices[j]) - c) * phys.entry_rest_weighted.col(j).transpose();
+    fg += (x.col(m.element_vertices[j]) - c) * phys.entry_gradient.col(j).transpose();
+  }
+  fit_rotation(fg, q, settings);
+  const Eigen::Matrix3d rq = q.toRotationMatrix();
+  double en = 0.5 * phys.element_affine_stiffness[e] * (fg - rq).squaredNorm();
+  for (int j = b; j < b + n; ++j)
+    en += 0.5 * phys.element_stiffness[e] * phys.entry_weight[j] *
+          (fg * phys.entry_rest.col(j) - (x.col(m.element_vertices[j]) - c)).squaredNorm();
+  if (phys.has_volume_term()) {
+    const Eigen::Matrix3d& ninv = phys.element_spread_inv_sqrt[e];
+    Eigen::Quaterniond qv = q;
+    const Eigen::Matrix3d t = closest_with_determinant(a * ninv, phys.element_spread_sqrt_det[e], qv, settings) * ninv;
+    for (int j = b; j < b + n; ++j)
+      en += 0.5 * phys.element_volume_stiffness[e] * phys.entry_weight[j] *
+            (t * phys.entry_rest.col(j) - (x.col(m.element_vertices[j]) - c)).squaredNorm();
+  }
+  return en;
+}
+
+}  // namespace vx

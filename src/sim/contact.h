@@ -1,0 +1,173 @@
+#pragma once
+/// @file contact.h
+/// Collision of the elastic object's nodes with rigid probes and the workspace walls
+/// (MODEL.md section 5, paper 4.1 and 4.3).
+///
+/// Each listed node (simulation.h: every free node) that is inside a probe (or outside the
+/// workspace box) is put back on the probe's surface (the wall), and its velocity relative to
+/// the probe is reflected along the surface normal: v_rel_n -> -e v_rel_n (e = restitution,
+/// 1 = the paper's elastic collision), with optional Coulomb friction on the tangential part
+/// (impulse-form cone, position-level stick: see ContactSettings::friction). The force of the tissue on a probe is
+/// minus the momentum change of those nodes per step:  F = -sum_i m_i (v_i' - v_i) / dt  (N).
+///
+/// Broad phase (a Verlet list): when rebuilt, each probe and the walls keep the list of
+/// nodes within `skin_mm` of them. The lists stay valid while the largest node displacement
+/// since the rebuild plus the probe's own displacement is below the skin; only the listed
+/// nodes are tested. A node that is not listed cannot have reached the probe, so the result is
+/// identical (bit for bit) to testing every node, which `broad_phase = false` does.
+///
+/// The implicit integrator takes the contact into its solve instead (integrators.h): collect()
+/// hands it the same nodes, from the same broad phase, as unilateral constraints linearised at
+/// its iterates; the forces are then its multipliers, the contact is perfectly inelastic
+/// (restitution does not apply) and frictionless (see docs/scenes.md).
+///
+/// Units: positions mm, velocities mm/s, masses N*s^2/mm (material.h), forces N.
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "sim/integrators.h"
+
+namespace vx {
+
+/// The shape of a rigid probe (tool). Probes translate; their axis is fixed in the world.
+enum class ProbeShape : std::uint8_t {
+  sphere,    ///< ball of `radius_mm` centred at the probe position
+  cylinder,  ///< flat-ended cylinder of `radius_mm`, `length_mm`, centred at the position, along `axis`
+  capsule,   ///< rod with a rounded tip: segment from the tip-sphere centre (the position) to
+             ///< position + length_mm * axis, swept by a ball of `radius_mm` (the surgeon's tool)
+  plane,     ///< a plate: the half-space behind the plane through the position with normal `axis`
+             ///< (the normal points out of the plate, towards the tissue)
+};
+[[nodiscard]] const char* to_string(ProbeShape s);
+/// Parses "sphere", "cylinder", "capsule" or "plane"; throws vx::Error otherwise.
+[[nodiscard]] ProbeShape parse_probe_shape(const std::string& s);
+
+/// The geometry of a probe in the world (LPS mm).
+struct ProbeGeometry {
+  ProbeShape shape{ProbeShape::sphere};
+  double radius_mm{5.0};                  ///< sphere, cylinder, capsule
+  double length_mm{0.0};                  ///< cylinder: full length; capsule: rod length behind the tip centre
+  Eigen::Vector3d axis{0.0, 0.0, 1.0};    ///< unit. cylinder: its axis; capsule: tip -> handle; plane: normal
+
+  /// Empty when valid, else what is wrong (sizes > 0, axis not zero).
+  [[nodiscard]] std::string validate() const;
+};
+
+/// Where a probe is this step.
+struct ProbeState {
+  Eigen::Vector3d position_mm{Eigen::Vector3d::Zero()};
+  Eigen::Vector3d velocity_mm_s{Eigen::Vector3d::Zero()};
+};
+
+/// Signed distance of point `x` from the surface of the probe at `position` (negative inside),
+/// mm, with the closest surface point and the outward unit normal there.
+/// The normal is well defined everywhere (a point on the axis of a sphere/capsule/cylinder gets
+/// a fixed perpendicular direction).
+[[nodiscard]] double probe_signed_distance(const ProbeGeometry& g, const Eigen::Vector3d& position,
+                                           const Eigen::Vector3d& x, Eigen::Vector3d* surface_point = nullptr,
+                                           Eigen::Vector3d* normal = nullptr);
+
+/// A box of walls the object stays in (LPS mm). Disabled by default (no walls).
+struct Workspace {
+  bool enabled{false};
+  Eigen::Vector3d min_mm{Eigen::Vector3d::Zero()};
+  Eigen::Vector3d max_mm{Eigen::Vector3d::Zero()};
+};
+
+/// How collisions respond.
+struct ContactSettings {
+  double restitution{1.0};  ///< normal restitution e in [0,1]; 1 = elastic collision (the paper)
+  /// Coulomb coefficient >= 0; 0 = frictionless (the paper). A node sticks when stopping its
+  /// tangential velocity relative to the surface takes no more than mu times its normal
+  /// impulse; its slip since it last touched the surface is then undone. Else it slides and
+  /// that fraction of velocity and slip is removed.
+  double friction{0.0};
+  double skin_mm{0.0};      ///< broad-phase margin, mm; <= 0 picks 2 x the mean surface node spacing
+  bool broad_phase{true};   ///< false tests every listed node every step (the reference)
+
+  /// Empty when valid, else what is wrong.
+  [[nodiscard]] std::string validate() const;
+};
+
+/// Work counters (cumulative since init()).
+struct ContactCounters {
+  std::int64_t narrow_tests{0};          ///< node-probe and node-wall tests done
+  std::int64_t narrow_tests_skipped{0};  ///< tests the broad phase made unnecessary
+  std::int64_t rebuilds{0};              ///< broad-phase list rebuilds
+  std::int64_t broad_tests{0};           ///< node distance tests done by the rebuilds
+  std::int64_t contacts{0};              ///< node-probe contacts resolved
+  std::int64_t wall_contacts{0};         ///< node-wall contacts resolved
+};
+
+/// Resolves contacts between nodes and probes/walls. Allocates in init() and on the
+/// (rare) rebuilds only while a list grows; resolve() itself does not allocate otherwise.
+class ContactSolver {
+ public:
+  /// `nodes`: the node ids that may collide (simulation.h: the free nodes), `probes` the
+  /// number of probes, `spacing_mm` the typical surface node spacing (for the automatic skin).
+  void init(std::vector<std::int32_t> nodes, int probes, const Workspace& workspace,
+            const ContactSettings& settings, double spacing_mm);
+
+  /// Moves the listed nodes that entered a probe or left the workspace back onto the surface
+  /// and reflects their velocities. `node_mass` in N*s^2/mm. Writes the force of the tissue on
+  /// each probe (N, one per probe) and on the walls.
+  void resolve(Eigen::Matrix3Xd& positions, Eigen::Matrix3Xd& velocities, const std::vector<double>& node_mass,
+               const std::vector<ProbeGeometry>& geometry, const std::vector<ProbeState>& probes, double dt_s,
+               std::vector<Eigen::Vector3d>& probe_force_n, Eigen::Vector3d& wall_force_n,
+               std::vector<int>* probe_contacts = nullptr);
+
+  /// Implicit path: appends a constraint for every listed node that `positions` put inside a
+  /// probe or beyond a wall, and with `near` also within near_margin_mm() outside, linearised at
+  /// the node (closest surface point, outward normal). Owner: the probe index, or
+  /// probes + 2 * axis + side for the walls (side 0: the min wall). Rebuilds the broad-phase
+  /// lists when they may miss such a node (the same rule as resolve(), with the margin).
+  void collect(const Eigen::Matrix3Xd& positions, const std::vector<ProbeGeometry>& geometry,
+               const std::vector<ProbeState>& probes, bool near, std::vector<ContactConstraint>& out);
+  /// The margin of collect(near = true), mm: a quarter of the skin.
+  [[nodiscard]] double near_margin_mm() const { return 0.25 * skin_mm_; }
+  /// Implicit path: counts the contacts a step resolved (its active constraints).
+  void count_contacts(std::int64_t probe_contacts, std::int64_t wall_contacts) {
+    counters_.contacts += probe_contacts;
+    counters_.wall_contacts += wall_contacts;
+  }
+
+  [[nodiscard]] const ContactCounters& counters() const { return counters_; }
+  [[nodiscard]] double skin_mm() const { return skin_mm_; }
+  [[nodiscard]] const std::vector<std::int32_t>& nodes() const { return nodes_; }
+  /// Forces a broad-phase rebuild at the next resolve() and forgets the friction anchors
+  /// (after positions were set from outside, e.g. a reset).
+  void invalidate();
+
+ private:
+  void rebuild(const Eigen::Matrix3Xd& positions, const std::vector<ProbeGeometry>& geometry,
+               const std::vector<ProbeState>& probes);
+  [[nodiscard]] double node_move(const Eigen::Matrix3Xd& positions) const;
+  /// Rebuilds the lists unless list q (a probe, or probes_ for the walls) still holds every
+  /// node within `margin` of its surface: `moved` (the largest node move since the rebuild;
+  /// reset by one) plus the probe's own move plus the margin below the skin.
+  void keep_lists_valid(const Eigen::Matrix3Xd& positions, const std::vector<ProbeGeometry>& geometry,
+                        const std::vector<ProbeState>& probes, int q, double margin, double& moved);
+
+  std::vector<std::int32_t> nodes_;
+  Workspace workspace_;
+  ContactSettings settings_;
+  double skin_mm_{1.0};
+  int probes_{0};
+  bool valid_{false};
+  // broad phase: per probe (and the walls, last) the listed nodes, sorted by node id
+  std::vector<std::vector<std::int32_t>> lists_;
+  Eigen::Matrix3Xd node_at_rebuild_;             ///< 3 x nodes_.size()
+  std::vector<Eigen::Vector3d> probe_at_rebuild_;
+  ContactCounters counters_;
+  // friction: where each node last touched a surface, in that surface's frame (per node id)
+  static constexpr std::int64_t kAnchorSteps = 8;
+  std::vector<Eigen::Vector3d> anchor_;
+  std::vector<int> anchor_owner_;                 ///< probe index, probes_ for the walls, -1 none
+  std::vector<std::int64_t> anchor_step_;
+  std::int64_t step_{0};
+};
+
+}  // namespace vx

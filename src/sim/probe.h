@@ -1,0 +1,108 @@
+#pragma once
+/// @file probe.h
+/// How a probe moves: a keyframed path, a scripted joystick (paper 4.2: the tool moves with a
+/// velocity proportional to the stick's tilt; or an optional position-control mapping), or live
+/// input from outside (the probe app sets a target position or velocity each step).
+///
+/// Every driver gives the probe position at the end of each step; the probe velocity used by
+/// the collision response is the step's displacement over dt, so a probe's motion and the
+/// velocity it imparts always agree. Units: mm, s, mm/s.
+
+#include <Eigen/Core>
+#include <string>
+#include <vector>
+
+#include "sim/contact.h"
+
+namespace vx {
+
+/// A keyframe of a path: where the probe is at time t.
+struct PathKey {
+  double t_s{0.0};
+  Eigen::Vector3d position_mm{Eigen::Vector3d::Zero()};  ///< LPS mm
+};
+
+/// A sample of a scripted joystick: stick deflections in [-1, 1] at time t (linearly
+/// interpolated between samples, held after the last).
+struct JoystickKey {
+  double t_s{0.0};
+  Eigen::Vector3d axes{Eigen::Vector3d::Zero()};  ///< up to three axes; unused ones 0
+};
+
+/// How stick deflections become probe motion.
+enum class JoystickMode : std::uint8_t {
+  rate,      ///< velocity = max_speed * mapped deflection (the paper's rate control)
+  position,  ///< position = start + range * mapped deflection (position control)
+};
+[[nodiscard]] const char* to_string(JoystickMode m);
+
+/// The joystick mapping. The deflection of each axis is first cut by the dead zone and
+/// rescaled (|a| <= dead_zone -> 0, |a| = 1 -> 1), then mapped to LPS by `directions`.
+struct JoystickMapping {
+  JoystickMode mode{JoystickMode::rate};
+  Eigen::Matrix3d directions{Eigen::Matrix3d::Identity()};  ///< column j: LPS direction of axis j (unit or 0)
+  double max_speed_mm_s{20.0};  ///< rate: speed at full deflection, mm/s
+  double range_mm{20.0};        ///< position: displacement at full deflection, mm
+  double dead_zone{0.0};        ///< in [0, 1)
+
+  /// The mapped LPS vector of deflections (rate: velocity mm/s; position: offset mm).
+  [[nodiscard]] Eigen::Vector3d map(const Eigen::Vector3d& axes) const;
+  [[nodiscard]] std::string validate() const;
+};
+
+/// What drives a probe.
+enum class ProbeDrive : std::uint8_t { path, joystick, live };
+[[nodiscard]] const char* to_string(ProbeDrive d);
+
+/// A probe: its shape and how it moves (plain settings; the scene file fills them).
+struct ProbeSettings {
+  std::string name;                  ///< for reports ("probe0", "left", ...)
+  ProbeGeometry geometry;
+  ProbeDrive drive{ProbeDrive::path};
+  std::vector<PathKey> path;         ///< path: at least one key, times increasing
+  std::vector<JoystickKey> joystick; ///< joystick: at least one sample, times increasing
+  JoystickMapping mapping;           ///< joystick (and live axes)
+  Eigen::Vector3d start_mm{Eigen::Vector3d::Zero()};  ///< joystick and live: position at t = 0
+  double max_speed_mm_s{200.0};      ///< live: a position target is approached at most this fast
+
+  /// Empty when valid, else what is wrong.
+  [[nodiscard]] std::string validate() const;
+  /// Position at t = 0.
+  [[nodiscard]] Eigen::Vector3d initial_position() const;
+  /// Largest speed the scripted motion reaches (path segments, joystick rate or position
+  /// steps); for live probes max_speed_mm_s. mm/s.
+  [[nodiscard]] double max_scripted_speed_mm_s() const;
+};
+
+/// Position on a keyframed path at time t (linear between keys, held outside).
+[[nodiscard]] Eigen::Vector3d path_position(const std::vector<PathKey>& path, double t_s);
+/// Interpolated joystick deflections at time t.
+[[nodiscard]] Eigen::Vector3d joystick_axes(const std::vector<JoystickKey>& keys, double t_s);
+
+/// A live command for a probe (from the probe app's input thread, via Simulation).
+struct LiveCommand {
+  enum class Kind : std::uint8_t { hold, position, velocity, axes } kind{Kind::hold};
+  Eigen::Vector3d value{Eigen::Vector3d::Zero()};  ///< position mm / velocity mm/s / stick deflections
+};
+
+/// Moves one probe step by step.
+class ProbeDriver {
+ public:
+  explicit ProbeDriver(ProbeSettings settings = {});
+  /// Back to t = 0.
+  void reset();
+  /// Advances to time t_s = t_prev + dt_s; sets position and velocity (displacement / dt).
+  void advance(double t_s, double dt_s);
+  /// Live input (used by `live` probes only; kept until replaced).
+  void set_live(const LiveCommand& command) { live_ = command; }
+
+  [[nodiscard]] const ProbeSettings& settings() const { return settings_; }
+  [[nodiscard]] const ProbeState& state() const { return state_; }
+
+ private:
+  ProbeSettings settings_;
+  ProbeState state_;
+  LiveCommand live_;
+};
+
+}  // namespace vx

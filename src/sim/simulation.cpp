@@ -1,0 +1,276 @@
+#include "sim/simulation.h"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+#include "base/error.h"
+
+namespace vx {
+
+std::vector<std::int32_t> collidable_nodes(const Model& model, const std::vector<std::uint8_t>& fixed) {
+  std::vector<std::int32_t> nodes;
+  for (int i = 0; i < model.num_nodes(); ++i)
+    if (!(std::size_t(i) < fixed.size() && fixed[std::size_t(i)]))
+      nodes.push_back(i);
+  return nodes;
+}
+
+double surface_node_spacing_mm(const Model& model) { return model.grid.spacing_mm.mean(); }
+
+Simulation::Simulation(std::shared_ptr<const PhysicsModel> physics, SimulationSettings settings)
+    : physics_(std::move(physics)), settings_(std::move(settings)) {
+  if (!physics_ || !physics_->model) throw Error("simulation: no physics model");
+  const Model& model = *physics_->model;
+  const int nn = model.num_nodes();
+
+  // check the settings against the model
+  std::ostringstream err;
+  for (std::size_t i = 0; i < settings_.probes.size(); ++i)
+    if (const std::string bad = settings_.probes[i].validate(); !bad.empty())
+      err << "probe " << i << " (" << settings_.probes[i].name << "): " << bad;
+  for (const int i : settings_.fixed_nodes)
+    if (i < 0 || i >= nn) {
+      err << "fixed node " << i << " is not a node of the model (0.." << nn - 1 << "); ";
+      break;
+    }
+  if (settings_.workspace.enabled && !(settings_.workspace.min_mm.array() < settings_.workspace.max_mm.array()).all())
+    err << "workspace: min must be below max on every axis; ";
+  if (!settings_.gravity_mm_s2.allFinite()) err << "gravity is not finite; ";
+  if (settings_.device)
+    if (const std::string bad = settings_.device->validate(); !bad.empty()) err << "device: " << bad;
+  if (settings_.surface && settings_.surface->model_nodes != nn)
+    err << "surface is embedded in a model of " << settings_.surface->model_nodes << " nodes, this one has " << nn
+        << "; ";
+  if (const std::string bad = err.str(); !bad.empty()) throw Error("simulation: " + bad);
+
+  // state, integrator
+  state_ = make_state(physics_);
+  state_.gravity_mm_s2 = settings_.gravity_mm_s2;
+  if (!settings_.fixed_nodes.empty()) state_.fix_nodes(settings_.fixed_nodes);
+  integrator_ = make_integrator(settings_.integrator);
+
+  // probes and contact
+  const std::size_t np = settings_.probes.size();
+  for (const auto& p : settings_.probes) {
+    drivers_.emplace_back(p);
+    geometry_.push_back(p.geometry);
+  }
+  poses_.resize(np);
+  raw_.assign(np, Eigen::Vector3d::Zero());
+  contacts_.assign(np, 0);
+  collide_ = np > 0 || settings_.workspace.enabled;
+  ContactSettings contact = settings_.contact;
+  if (!settings_.skip_unneeded) contact.broad_phase = false;  // test every node every step
+  contact_.init(collidable_nodes(model, state_.node_fixed), int(np), settings_.workspace, contact,
+                surface_node_spacing_mm(model));
+  // the implicit integrator takes the probes and walls into its solve (the post-step projection
+  // would lose most of the reaction force at its long steps); the explicit schemes keep the
+  // post-step projection, unchanged
+  if (integrator_->solves_contact() && (collide_ || !settings_.skip_unneeded)) {
+    implicit_contact_ = std::make_unique<ImplicitContact>(*this);
+    integrator_->set_contact_provider(implicit_contact_.get());
+  }
+
+  // device forces: only with a device (or when told to do all the work)
+  shape_ = settings_.device.has_value() || !settings_.skip_unneeded;
+  if (shape_) {
+    const DeviceForceSettings dev = settings_.device.value_or(DeviceForceSettings{});
+    shapers_.resize(np);
+    for (auto& s : shapers_) s.init(dev, dt_s());
+  }
+
+  outputs_.resize(np);
+  published_.resize(np);
+  live_.resize(np);
+  live_dirty_.assign(np, false);
+  reset();
+}
+
+Simulation::~Simulation() = default;
+
+void Simulation::reset() {
+  state_.reset();
+  for (std::size_t i = 0; i < drivers_.size(); ++i) {
+    drivers_[i].reset();
+    poses_[i] = drivers_[i].state();
+    outputs_[i] = {};
+    outputs_[i].pose = poses_[i];
+  }
+  for (auto& s : shapers_) s.reset();
+  contact_.invalidate();
+  wall_force_.setZero();
+  surface_step_ = -1;
+  std::lock_guard<std::mutex> lock(mutex_);
+  published_ = outputs_;
+  frame_ready_ = false;
+}
+
+int Simulation::probe_index(const std::string& name) const {
+  for (std::size_t i = 0; i < settings_.probes.size(); ++i)
+    if (settings_.probes[i].name == name) return int(i);
+  return -1;
+}
+
+StepStatus Simulation::step() {
+  if (state_.failed()) return state_.status;
+  const double dt = dt_s();
+
+  // live input from other threads
+  if (live_pending_.exchange(false, std::memory_order_acq_rel)) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (std::size_t i = 0; i < drivers_.size(); ++i)
+      if (live_dirty_[i]) {
+        drivers_[i].set_live(live_[i]);
+        live_dirty_[i] = false;
+      }
+  }
+
+  // probes to the end of the step
+  const double t_new = state_.time_s + dt;
+  for (std::size_t i = 0; i < drivers_.size(); ++i) {
+    drivers_[i].advance(t_new, dt);
+    poses_[i] = drivers_[i].state();
+  }
+
+  // elastic forces, gravity, integration
+  integrator_->step(state_);
+  if (state_.failed()) return state_.status;
+
+  // collisions of the nodes near probes and walls
+  if (collide_ || !settings_.skip_unneeded) {
+    if (implicit_contact_)
+      take_implicit_contact_forces();
+    else
+      contact_.resolve(state_.positions, state_.velocities, physics_->node_mass, geometry_, poses_, dt, raw_,
+                       wall_force_, &contacts_);
+    ++counters_.contact_passes;
+    counters_.contact = contact_.counters();
+  } else {
+    ++counters_.contact_passes_skipped;
+  }
+
+  // probe outputs and the device force
+  for (std::size_t i = 0; i < drivers_.size(); ++i) {
+    ProbeOutput& o = outputs_[i];
+    o.pose = poses_[i];
+    o.raw_force_n = raw_[i];
+    o.contacts = contacts_[i];
+    o.time_s = state_.time_s;
+    if (shape_) {
+      const Eigen::Vector3d& shaped = shapers_[i].push(raw_[i], state_.time_s);
+      if (settings_.device) {
+        o.shaped_force_n = shaped;
+        o.pulse = shapers_[i].pulse();
+      }
+      ++counters_.device_shaping_steps;
+    } else {
+      ++counters_.device_shaping_skipped;
+    }
+  }
+
+  // the surface: deformed now only when told to do all the work; else on demand
+  if (settings_.surface && !settings_.skip_unneeded) (void)surface_vertices();
+
+  ++counters_.steps;
+  counters_.surface_updates_skipped = counters_.steps - counters_.surface_updates;
+  publish();
+  return state_.status;
+}
+
+void Simulation::ImplicitContact::collect(const Eigen::Matrix3Xd& x, bool near, std::vector<ContactConstraint>& out) {
+  sim_.contact_.collect(x, sim_.geometry_, sim_.poses_, near, out);
+}
+
+void Simulation::take_implicit_contact_forces() {
+  // each multiplier is the force of a surface on a node along the surface's normal; the node
+  // pushes back: -force_n * normal on the probe (the wall), as the momentum formula of the
+  // explicit path gives. The constraints come sorted by (owner, node): a fixed summation order.
+  const int np = int(raw_.size());
+  for (auto& f : raw_) f.setZero();
+  std::fill(contacts_.begin(), contacts_.end(), 0);
+  wall_force_.setZero();
+  std::int64_t probe_contacts = 0, wall_contacts = 0;
+  for (const ContactConstraint& c : integrator_->contacts()) {
+    const Eigen::Vector3d f = -c.force_n * c.normal;
+    if (c.owner < np) {
+      raw_[std::size_t(c.owner)] += f;
+      ++contacts_[std::size_t(c.owner)];
+      ++probe_contacts;
+    } else {
+      wall_force_ += f;
+      ++wall_contacts;
+    }
+  }
+  contact_.count_contacts(probe_contacts, wall_contacts);
+}
+
+int Simulation::advance_to(double target_time_s, int max_steps) {
+  int done = 0;
+  while (done < max_steps && !state_.failed() && state_.time_s < target_time_s - 0.5 * dt_s()) {
+    step();
+    ++done;
+  }
+  return done;
+}
+
+const Eigen::Matrix3Xd& Simulation::surface_vertices() {
+  if (!settings_.surface) throw Error("simulation: this simulation has no surface");
+  if (surface_step_ != state_.steps) {
+    deform(*settings_.surface, state_.positions, surface_vertices_, surface_normals_);
+    surface_step_ = state_.steps;
+    ++counters_.surface_updates;
+    counters_.surface_updates_skipped = std::max<std::int64_t>(0, counters_.steps - counters_.surface_updates);
+  }
+  return surface_vertices_;
+}
+
+void Simulation::publish() {
+  const bool frame = frame_requested_.exchange(false, std::memory_order_acq_rel);
+  if (frame && settings_.surface) (void)surface_vertices();
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (std::size_t i = 0; i < outputs_.size(); ++i) published_[i] = outputs_[i];
+  if (frame) {
+    frame_.time_s = state_.time_s;
+    frame_.step = state_.steps;
+    frame_.positions = state_.positions;
+    if (settings_.surface) {
+      frame_.surface_vertices = surface_vertices_;
+      frame_.surface_normals = surface_normals_;
+    }
+    frame_.probes = outputs_;
+    frame_ready_ = true;
+    ++counters_.frames_published;
+  } else {
+    ++counters_.frames_skipped;
+  }
+}
+
+void Simulation::set_live(int i, const LiveCommand& command) {
+  if (i < 0 || i >= int(settings_.probes.size()))
+    throw Error("simulation: no probe " + std::to_string(i) + " (the scene has " +
+                std::to_string(settings_.probes.size()) + ")");
+  if (settings_.probes[std::size_t(i)].drive != ProbeDrive::live)
+    throw Error("simulation: probe " + std::to_string(i) + " (" + settings_.probes[std::size_t(i)].name +
+                ") is driven by its " + to_string(settings_.probes[std::size_t(i)].drive) +
+                ", not live; give it \"live\": {} in the scene");
+  std::lock_guard<std::mutex> lock(mutex_);
+  live_[std::size_t(i)] = command;
+  live_dirty_[std::size_t(i)] = true;
+  live_pending_.store(true, std::memory_order_release);
+}
+
+ProbeOutput Simulation::probe_snapshot(int i) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return published_.at(std::size_t(i));
+}
+
+bool Simulation::take_frame(SimulationFrame& out) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!frame_ready_) return false;
+  std::swap(out, frame_);
+  frame_ready_ = false;
+  return true;
+}
+
+}  // namespace vx

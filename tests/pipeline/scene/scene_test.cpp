@@ -1,0 +1,501 @@
+// Scene files: strict validation (JSON paths, wrong units, impossible values), building the
+// object and its heterogeneous material, and the simulate outputs (forces.csv, .pvd, plot).
+#include "scene/scene.h"
+
+#include <gtest/gtest.h>
+#include <vtkDataArray.h>
+#include <vtkNew.h>
+#include <vtkPointData.h>
+#include <vtkPolyData.h>
+#include <vtkUnstructuredGrid.h>
+#include <vtkXMLPolyDataReader.h>
+#include <vtkXMLUnstructuredGridReader.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "base/error.h"
+#include "render/plot.h"
+#include "scene/sim_output.h"
+
+using namespace vx;
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+
+namespace {
+
+/// A small valid scene: a box indented by a ball.
+json base_scene() {
+  return json::parse(R"({
+    "object": {"box_mm": {"min": [0, 0, 0], "max": [12, 12, 6]}, "voxel_mm": 1.0},
+    "material": {"youngs_modulus_kpa": 10, "poisson_ratio": 0, "density_kg_m3": 1000, "damping": 0.1},
+    "fixed": ["z_min"],
+    "integrator": {"type": "symplectic_euler", "dt_s": "auto"},
+    "probes": [{"name": "ball", "shape": "sphere", "radius_mm": 3,
+                "path": [{"t_s": 0, "position_mm": [6, 6, 9.2]}, {"t_s": 0.05, "position_mm": [6, 6, 8.2]}]}],
+    "duration_s": 0.05
+  })");
+}
+
+/// The message of the vx::Error that parsing `j` throws ("" when it does not throw).
+std::string error_of(const json& j) {
+  try {
+    (void)parse_scene(j, fs::path(VX_SAMPLES_DIR) / "scenes", "test.json");
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+std::string error_of_text(const std::string& text) {
+  try {
+    (void)parse_scene(text, ".", "test.json");
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+#define EXPECT_CONTAINS(haystack, needle) \
+  EXPECT_NE(std::string(haystack).find(needle), std::string::npos) << "message: " << (haystack)
+
+fs::path temp_dir(const std::string& name) {
+  const fs::path d = fs::temp_directory_path() / ("vx_scene_test_" + name + "_" + std::to_string(::getpid()));
+  fs::remove_all(d);
+  fs::create_directories(d);
+  return d;
+}
+
+}  // namespace
+
+TEST(Scene, ParsesAValidSceneWithDefaults) {
+  const Scene s = parse_scene(base_scene(), ".", "test.json");
+  EXPECT_EQ(s.object.source, ObjectSource::box);
+  EXPECT_EQ(s.object.build.resolution, Resolution::gradational);
+  EXPECT_DOUBLE_EQ(s.material.base.youngs_modulus_kpa, 10.0);
+  EXPECT_EQ(s.integrator, IntegratorKind::symplectic_euler);
+  EXPECT_DOUBLE_EQ(s.dt_s, 0.0);  // auto
+  ASSERT_EQ(s.probes.size(), 1u);
+  EXPECT_EQ(s.probes[0].geometry.shape, ProbeShape::sphere);
+  EXPECT_EQ(s.probes[0].drive, ProbeDrive::path);
+  EXPECT_FALSE(s.device.has_value());
+  EXPECT_FALSE(s.workspace.enabled);
+  EXPECT_TRUE(s.outputs.forces_csv);
+  EXPECT_FALSE(s.outputs.pvd_model);
+  EXPECT_DOUBLE_EQ(s.duration_s, 0.05);
+}
+
+TEST(Scene, EverySampleSceneLoadsAndPrepares) {
+  int n = 0;
+  for (const auto& e : fs::directory_iterator(fs::path(VX_SAMPLES_DIR) / "scenes")) {
+    if (e.path().extension() != ".json") continue;
+    ++n;
+    SCOPED_TRACE(e.path().string());
+    const Scene s = load_scene(e.path());
+    EXPECT_FALSE(s.description.empty()) << "samples explain themselves";
+    const PreparedScene p = prepare_scene(s);
+    EXPECT_GT(p.model->num_elements(), 0);
+    EXPECT_GT(p.settings.integrator.time_step_s, 0.0);
+    for (const auto& w : p.warnings) std::printf("%s: warning: %s\n", e.path().filename().c_str(), w.c_str());
+    Simulation sim(p.physics, p.settings);
+    for (int k = 0; k < 5; ++k) EXPECT_EQ(sim.step(), StepStatus::ok);
+  }
+  EXPECT_GE(n, 5);
+}
+
+// The palpation demo's block and lesion, its tool pressed 5 mm (more than a 4 mm surface
+// element) and slid across the lesion on a path: the tissue must hold the tool up all along.
+// The frictionless tip lets the surface layer fold around it at x = -7 mm; with only surface
+// nodes colliding the vertical force then fell to 0.00 N for the rest of the slide (measured);
+// the nodes below the surface collide too and hold it (0.29 N rising to 0.94 N over the lesion).
+TEST(Scene, DeepPalpationOfTheSampleKeepsTheTissueUnderTheTool) {
+  json j = json::parse(std::ifstream(fs::path(VX_SAMPLES_DIR) / "scenes" / "palpation-lesion.json"));
+  json& tool = j["probes"][0];
+  tool.erase("live");
+  tool["path"] = {{{"t_s", 0.0}, {"position_mm", {-15, 0, 16}}},
+                  {{"t_s", 0.5}, {"position_mm", {-15, 0, 16}}},
+                  {{"t_s", 1.345}, {"position_mm", {-15, 0, 7.98}}},
+                  {{"t_s", 2.0}, {"position_mm", {-15, 0, 7.98}}},
+                  {{"t_s", 7.5}, {"position_mm", {14, 0, 7.98}}}};
+  const PreparedScene p = prepare_scene(parse_scene(j, fs::path(VX_SAMPLES_DIR) / "scenes", "deep.json"));
+  Simulation sim(p.physics, p.settings);
+  double sum = 0, lowest = 1e9;
+  int n = 0;
+  while (sim.time_s() < 5.0) {
+    ASSERT_EQ(sim.step(), StepStatus::ok) << sim.state().message;
+    if (sim.time_s() < 2.0) continue;
+    sum += sim.probe(0).raw_force_n.z();
+    if (++n * sim.dt_s() >= 0.5) {  // mean over 0.5 s (about 2.6 mm of slide)
+      lowest = std::min(lowest, sum / n);
+      sum = 0;
+      n = 0;
+    }
+  }
+  EXPECT_GT(lowest, 0.15) << "the tool sank through the tissue surface";
+}
+
+TEST(Scene, UnknownKeysNameTheirJsonPath) {
+  json j = base_scene();
+  j["probes"][0]["colour"] = "red";
+  const std::string m = error_of(j);
+  EXPECT_CONTAINS(m, "test.json: $.probes[0].colour");
+  EXPECT_CONTAINS(m, "unknown key \"colour\"");
+  EXPECT_CONTAINS(m, "\"radius_mm\"");  // lists what is allowed
+
+  j = base_scene();
+  j["probes"][0]["raduis_mm"] = j["probes"][0]["radius_mm"];
+  j["probes"][0].erase("radius_mm");
+  EXPECT_CONTAINS(error_of(j), "did you mean \"radius_mm\"?");
+
+  j = base_scene();
+  j["durations_s"] = 1;
+  EXPECT_CONTAINS(error_of(j), "$.durations_s");
+}
+
+TEST(Scene, WrongUnitsAreCaught) {
+  // the modulus in Pa
+  json j = base_scene();
+  j["material"].erase("youngs_modulus_kpa");
+  j["material"]["youngs_modulus_pa"] = 10000;
+  std::string m = error_of(j);
+  EXPECT_CONTAINS(m, "$.material.youngs_modulus_pa");
+  EXPECT_CONTAINS(m, "given in kPa as \"youngs_modulus_kpa\"");
+  // a radius without unit
+  j = base_scene();
+  j["probes"][0]["radius"] = 3;
+  j["probes"][0].erase("radius_mm");
+  EXPECT_CONTAINS(error_of(j), "radius is given in mm as \"radius_mm\"");
+  // gravity in mm/s^2
+  j = base_scene();
+  j["gravity"] = {0, 0, -9810};
+  m = error_of(j);
+  EXPECT_CONTAINS(m, "$.gravity");
+  EXPECT_CONTAINS(m, "m/s^2");
+  j = base_scene();
+  j["gravity_mm_s2"] = {0, 0, -9810};
+  EXPECT_CONTAINS(error_of(j), "gravity is given in m/s^2 as \"gravity\"");
+  // density in g/cm^3
+  j = base_scene();
+  j["material"]["density_kg_m3"] = 1.05;
+  m = error_of(j);
+  EXPECT_CONTAINS(m, "$.material.density_kg_m3");
+  EXPECT_CONTAINS(m, "g/cm^3");
+  // a time step in ms
+  j = base_scene();
+  j["integrator"]["dt_s"] = 0.5;
+  EXPECT_CONTAINS(error_of(j), "$.integrator.dt_s");
+  // units written into the value
+  j = base_scene();
+  j["probes"][0]["radius_mm"] = "3 mm";
+  m = error_of(j);
+  EXPECT_CONTAINS(m, "$.probes[0].radius_mm");
+  EXPECT_CONTAINS(m, "expected a number in mm");
+}
+
+TEST(Scene, ImpossibleValuesAreCaught) {
+  json j = base_scene();
+  j["material"]["poisson_ratio"] = 0.5;
+  EXPECT_CONTAINS(error_of(j), "$.material.poisson_ratio: must be in [0, 0.5)");
+  j = base_scene();
+  j["material"]["youngs_modulus_kpa"] = -3;
+  EXPECT_CONTAINS(error_of(j), "$.material.youngs_modulus_kpa: must be > 0 kPa");
+  j = base_scene();
+  j["probes"][0]["radius_mm"] = 0;
+  EXPECT_CONTAINS(error_of(j), "$.probes[0].radius_mm");
+  j = base_scene();
+  j["probes"][0]["path"][1]["t_s"] = 0;
+  EXPECT_CONTAINS(error_of(j), "$.probes[0].path[1].t_s: keyframe times must increase");
+  j = base_scene();
+  j["probes"][0]["path"][1]["position_mm"] = {1, 2};
+  EXPECT_CONTAINS(error_of(j), "$.probes[0].path[1].position_mm: expected 3 numbers");
+  j = base_scene();
+  j["contact"] = {{"restitution", 1.5}};
+  EXPECT_CONTAINS(error_of(j), "$.contact.restitution");
+  j = base_scene();
+  j["workspace_mm"] = {{"min", {0, 0, 0}}, {"max", {10, -1, 10}}};
+  EXPECT_CONTAINS(error_of(j), "$.workspace_mm: min must be below max");
+  j = base_scene();
+  j["duration_s"] = 0;
+  EXPECT_CONTAINS(error_of(j), "$.duration_s");
+  j = base_scene();
+  j.erase("duration_s");
+  EXPECT_CONTAINS(error_of(j), "missing \"duration_s\"");
+  j = base_scene();
+  j["object"]["box_mm"]["max"] = {12.5, 12, 6};
+  EXPECT_CONTAINS(error_of(j), "not a whole number of 1 mm voxels");
+  j = base_scene();
+  j["fixed"] = {"bottom"};
+  EXPECT_CONTAINS(error_of(j), "$.fixed[0]: unknown face \"bottom\"");
+}
+
+TEST(Scene, ShapesAndDrivesAreChecked) {
+  json j = base_scene();
+  j["probes"][0]["shape"] = "cube";
+  EXPECT_CONTAINS(error_of(j), "$.probes[0].shape: unknown probe shape \"cube\"");
+  j = base_scene();
+  j["probes"][0]["shape"] = "plane";
+  EXPECT_CONTAINS(error_of(j), "$.probes[0].radius_mm: a plane has no radius");
+  j = base_scene();
+  j["probes"][0] = {{"shape", "plane"}, {"path", {{{"t_s", 0}, {"position_mm", {0, 0, 0}}}}}};
+  EXPECT_CONTAINS(error_of(j), "$.probes[0]: a plane needs \"normal\"");
+  j = base_scene();
+  j["probes"][0]["shape"] = "cylinder";
+  EXPECT_CONTAINS(error_of(j), "missing \"length_mm\"");
+  j = base_scene();
+  j["probes"][0]["axis"] = {0, 0, 1};
+  EXPECT_CONTAINS(error_of(j), "$.probes[0].axis: a sphere has no axis");
+  j = base_scene();
+  j["probes"][0]["live"] = {{"start_mm", {0, 0, 0}}};
+  EXPECT_CONTAINS(error_of(j), "needs exactly one of \"path\", \"joystick\", \"live\", found \"path\" and \"live\"");
+  j = base_scene();
+  j["probes"][0].erase("path");
+  j["probes"][0]["joystick"] = {{"start_mm", {6, 6, 9}}, {"input", {{{"t_s", 0}, {"axes", {1.5, 0}}}}}};
+  EXPECT_CONTAINS(error_of(j), "$.probes[0].joystick.input[0].axes[0]: a stick deflection must be in [-1, 1]");
+  j = base_scene();
+  j["probes"].push_back(j["probes"][0]);
+  EXPECT_CONTAINS(error_of(j), "$.probes[1].name: probe names must be unique");
+  // a capsule with an axis that is not unit length is normalised
+  j = base_scene();
+  j["probes"][0]["shape"] = "capsule";
+  j["probes"][0]["length_mm"] = 20;
+  j["probes"][0]["axis"] = {0, 0, 2};
+  const Scene s = parse_scene(j, ".", "test.json");
+  EXPECT_NEAR(s.probes[0].geometry.axis.z(), 1.0, 1e-15);
+}
+
+TEST(Scene, ObjectSourcesAreExclusiveAndPathsChecked) {
+  json j = base_scene();
+  j["object"]["phantom"] = "sphere";
+  EXPECT_CONTAINS(error_of(j), "$.object: the object needs exactly one of");
+  j = base_scene();
+  j["object"] = {{"volume", "no/such/file.nrrd"}};
+  std::string m = error_of(j);
+  EXPECT_CONTAINS(m, "$.object.volume");
+  EXPECT_CONTAINS(m, "does not exist");
+  j = base_scene();
+  j["object"] = {{"phantom", "dodecahedron"}};
+  EXPECT_CONTAINS(error_of(j), "unknown phantom \"dodecahedron\"");
+  j = base_scene();
+  j["material"]["hounsfield_table"] = {{{"hu", 0}, {"youngs_modulus_kpa", 5}}, {{"hu", 100}, {"youngs_modulus_kpa", 50}}};
+  EXPECT_CONTAINS(error_of(j), "$.material.hounsfield_table: needs the object's HU values");
+}
+
+TEST(Scene, InvalidJsonSaysWhere) {
+  const std::string m = error_of_text("{\n  \"object\": {\"phantom\": \"sphere\"},\n  \"duration_s\": 1,,\n}");
+  EXPECT_CONTAINS(m, "test.json: not valid JSON");
+  EXPECT_CONTAINS(m, "line 3");
+  // comments are allowed
+  EXPECT_EQ(error_of_text("{ // a comment\n \"object\": {\"phantom\": \"sphere\"}, \"duration_s\": 1}"), "");
+}
+
+TEST(Scene, PrepareChecksWhatOnlyTheModelTells) {
+  // a fixed region that holds no node
+  json j = base_scene();
+  j["fixed"] = {{{"box_mm", {{"min", {50, 50, 50}}, {"max", {60, 60, 60}}}}}};
+  Scene s = parse_scene(j, ".", "test.json");
+  try {
+    (void)prepare_scene(s);
+    ADD_FAILURE() << "no error";
+  } catch (const Error& e) {
+    EXPECT_CONTAINS(e.what(), "$.fixed[0]");
+    EXPECT_CONTAINS(e.what(), "holds no node");
+  }
+  // a probe that would tunnel: 3 mm radius moving 1 m/s, 2 mm per step of 2 ms (implicit: stable)
+  j = base_scene();
+  j["integrator"] = {{"type", "implicit"}, {"dt_s", 2e-3}};
+  j["probes"][0]["path"][1]["t_s"] = 0.001;
+  s = parse_scene(j, ".", "test.json");
+  try {
+    (void)prepare_scene(s);
+    ADD_FAILURE() << "no error";
+  } catch (const Error& e) {
+    EXPECT_CONTAINS(e.what(), "$.probes[0]");
+    EXPECT_CONTAINS(e.what(), "pass through the surface");
+  }
+  // a time step far beyond the stable limit
+  j = base_scene();
+  j["integrator"]["dt_s"] = 0.05;
+  s = parse_scene(j, ".", "test.json");
+  try {
+    (void)prepare_scene(s);
+    ADD_FAILURE() << "no error";
+  } catch (const Error& e) {
+    EXPECT_CONTAINS(e.what(), "$.integrator.dt_s");
+    EXPECT_CONTAINS(e.what(), "would blow up");
+  }
+  // risky but possible: warnings
+  j = base_scene();
+  j["integrator"]["dt_s"] = 1.1 * prepare_scene(parse_scene(base_scene(), ".", "t")).dt_stable_estimate_s;
+  j["probes"][0]["path"] = {{{"t_s", 0}, {"position_mm", {6, 6, 7}}}};  // starts inside
+  const PreparedScene p = prepare_scene(parse_scene(j, ".", "test.json"));
+  ASSERT_EQ(p.warnings.size(), 2u);
+  EXPECT_CONTAINS(p.warnings[0], "exceeds the estimated stable step");
+  EXPECT_CONTAINS(p.warnings[1], "starts with");
+  // friction with the implicit integrator (whose contact is frictionless): said, not silent
+  j = base_scene();
+  j["integrator"] = {{"type", "implicit"}, {"dt_s", 2e-3}};
+  j["contact"] = {{"friction", 0.5}};
+  const PreparedScene q = prepare_scene(parse_scene(j, ".", "test.json"));
+  ASSERT_EQ(q.warnings.size(), 1u);
+  EXPECT_CONTAINS(q.warnings[0], "friction 0.5 is ignored by the implicit integrator");
+}
+
+TEST(Scene, HounsfieldTableAndInclusionsGivePerElementModulus) {
+  // table: linear between rows, constant beyond
+  const std::vector<HuModulus> t = {{0, 5}, {100, 55}};
+  EXPECT_DOUBLE_EQ(modulus_from_hu(t, -500), 5);
+  EXPECT_DOUBLE_EQ(modulus_from_hu(t, 40), 25);
+  EXPECT_DOUBLE_EQ(modulus_from_hu(t, 900), 55);
+
+  // the block-lesion phantom: tissue 40 HU, lesion 120 HU
+  json j = json::parse(R"({
+    "object": {"phantom": "block-lesion", "size": 32},
+    "material": {"youngs_modulus_kpa": 5,
+                 "hounsfield_table": [{"hu": 40, "youngs_modulus_kpa": 5}, {"hu": 120, "youngs_modulus_kpa": 45}]},
+    "duration_s": 0.01
+  })");
+  PreparedScene p = prepare_scene(parse_scene(j, ".", "test.json"));
+  EXPECT_DOUBLE_EQ(p.min_modulus_kpa, 5.0);
+  EXPECT_GT(p.max_modulus_kpa, 40.0);  // small elements inside the lesion get (nearly) its modulus
+  EXPECT_LE(p.max_modulus_kpa, 45.0);
+  EXPECT_GT(p.heterogeneous_elements, 0);
+  // the stiffness follows: k_e scales with E
+  const PhysicsModel& ph = *p.physics;
+  double kmax = 0;
+  for (double k : ph.element_stiffness) kmax = std::max(kmax, k);
+  EXPECT_GT(kmax, 0.0);
+
+  // an inclusion in a box: each element gets the volume fraction of the sphere it holds
+  j = base_scene();
+  j["material"]["inclusions"] = {{{"center_mm", {6, 6, 3}}, {"radius_mm", 2.5}, {"youngs_modulus_kpa", 100}}};
+  p = prepare_scene(parse_scene(j, ".", "test.json"));
+  EXPECT_DOUBLE_EQ(p.max_modulus_kpa, 100.0);  // some element lies wholly inside
+  EXPECT_DOUBLE_EQ(p.min_modulus_kpa, 10.0);
+  // volume-weighted mean modulus = base + (inclusion - base) * (voxels inside / all voxels)
+  const Model& m = *p.model;
+  const MaterialField f = material_field(m, parse_scene(j, ".", "t").material, nullptr);
+  double weighted = 0, volume = 0;
+  for (int e = 0; e < m.num_elements(); ++e) {
+    weighted += f.youngs_modulus_kpa[std::size_t(e)] * m.element_volume_mm3[std::size_t(e)];
+    volume += m.element_volume_mm3[std::size_t(e)];
+  }
+  int inside = 0;
+  for (int k = 0; k < 6; ++k)
+    for (int jj = 0; jj < 12; ++jj)
+      for (int i = 0; i < 12; ++i)
+        if (Eigen::Vector3d(i + 0.5 - 6, jj + 0.5 - 6, k + 0.5 - 3).norm() < 2.5) ++inside;
+  EXPECT_NEAR(weighted / volume, 10.0 + 90.0 * inside / (12.0 * 12 * 6), 1e-9);
+}
+
+TEST(Scene, FixedFacesOfRoundedObjectsWithin) {
+  json j = json::parse(R"({"object": {"phantom": "sphere", "size": 20}, "fixed": [{"face": "z_min", "within_mm": 2}],
+                            "duration_s": 0.01})");
+  const PreparedScene p = prepare_scene(parse_scene(j, ".", "test.json"));
+  EXPECT_GT(p.fixed_nodes, 8);
+  for (int i : p.settings.fixed_nodes) EXPECT_LE(p.model->rest_positions(2, i), p.bounds_min_mm.z() + 2.0 + 1e-9);
+  j["fixed"] = {"z_min"};  // a voxel sphere touches its bounding box in a small flat patch only
+  const PreparedScene q = prepare_scene(parse_scene(j, ".", "test.json"));
+  EXPECT_GT(q.fixed_nodes, 0);
+  EXPECT_LT(3 * q.fixed_nodes, p.fixed_nodes);
+}
+
+TEST(Scene, ModelFileObjectRebuildsItsGrid) {
+  // grid_from_model covers exactly the voxels of the model it came from
+  const PreparedScene p = prepare_scene(parse_scene(json::parse(R"({"object": {"phantom": "torus", "size": 24},
+                                                                     "duration_s": 0.01})"),
+                                                    ".", "t"));
+  const VoxelGrid g = grid_from_model(*p.model);
+  EXPECT_EQ(g.data(), p.grid.data());
+}
+
+TEST(SimOutput, ForcesCsvPvdAndSkippingThroughAScene) {
+  json j = base_scene();
+  j["device"] = {{"update_interval_s", 0.004}};
+  j["workspace_mm"] = {{"min", {-1, -1, -1}}, {"max", {13, 13, 20}}};
+  const Scene s = parse_scene(j, ".", "test.json");
+  PrepareSceneOptions lean_opt, full_opt;
+  lean_opt.surface = full_opt.surface = true;
+  full_opt.skip_unneeded = false;
+  const PreparedScene lean_p = prepare_scene(s, lean_opt), full_p = prepare_scene(s, full_opt);
+  Simulation lean(lean_p.physics, lean_p.settings), full(full_p.physics, full_p.settings);
+  ForceRecorder rec(lean, 0.002);
+  const fs::path dir = temp_dir("out");
+  PvdSeries series(dir, "model", "vtu"), surf(dir, "surface", "vtp");
+  ModelFrameWriter mw(*lean_p.model);
+  SurfaceFrameWriter sw(*lean_p.surface);
+  while (lean.time_s() < s.duration_s) {
+    ASSERT_EQ(lean.step(), StepStatus::ok);
+    ASSERT_EQ(full.step(), StepStatus::ok);
+    ASSERT_EQ(lean.probe(0).raw_force_n, full.probe(0).raw_force_n);
+    ASSERT_EQ(lean.probe(0).shaped_force_n, full.probe(0).shaped_force_n);
+    rec.record(lean);
+  }
+  rec.finish(lean);
+  EXPECT_EQ(lean.state().positions, full.state().positions);
+  // the surface the lean run deforms on demand equals the one the full run kept up to date
+  EXPECT_EQ(lean.surface_vertices(), full.surface_vertices());
+  EXPECT_EQ(lean.counters().surface_updates, 1);
+  EXPECT_EQ(full.counters().surface_updates, full.counters().steps);
+  EXPECT_GT(lean.counters().contact.narrow_tests_skipped, 0);
+  EXPECT_EQ(full.counters().contact.narrow_tests_skipped, 0);
+
+  // forces.csv
+  rec.write_csv(dir / "forces.csv");
+  std::ifstream in(dir / "forces.csv");
+  std::string header, line, last;
+  std::getline(in, header);
+  EXPECT_EQ(header, "time_s,probe,x_mm,y_mm,z_mm,fx_n,fy_n,fz_n,dfx_n,dfy_n,dfz_n");
+  int rows = 0;
+  while (std::getline(in, line)) ++rows, last = line;
+  EXPECT_EQ(rows, int(rec.rows().size()));
+  EXPECT_GE(rows, 25);  // 0.05 s every 2 ms, plus t = 0
+  EXPECT_NE(last.find(",ball,6,6,8.2"), std::string::npos) << last;
+  EXPECT_GT(rec.rows().back().raw_n.z(), 0.0);  // pressed: the tissue pushes the ball up
+  // the rows' raw force is the mean over their steps: its time integral equals the total impulse
+  double impulse_rows = 0;
+  for (std::size_t r = 1; r < rec.rows().size(); ++r)
+    impulse_rows += rec.rows()[r].raw_n.z() * (rec.rows()[r].time_s - rec.rows()[r - 1].time_s);
+  EXPECT_GT(impulse_rows, 0.0);
+
+  // pvd frames read back with displacement_mm
+  mw.write(lean.state().positions, lean.state().velocities, series.next_frame_path());
+  series.add(lean.time_s());
+  series.finish();
+  sw.write(lean.surface_vertices(), surf.next_frame_path());
+  surf.add(lean.time_s());
+  surf.finish();
+  vtkNew<vtkXMLUnstructuredGridReader> r;
+  r->SetFileName((dir / "model" / "model_000000.vtu").c_str());
+  r->Update();
+  vtkUnstructuredGrid* ug = r->GetOutput();
+  ASSERT_EQ(ug->GetNumberOfPoints(), lean_p.model->num_nodes());
+  EXPECT_EQ(ug->GetNumberOfCells(), lean_p.model->num_elements());
+  vtkDataArray* d = ug->GetPointData()->GetArray("displacement_mm");
+  ASSERT_NE(d, nullptr);
+  double maxd = 0;
+  for (vtkIdType i = 0; i < d->GetNumberOfTuples(); ++i) {
+    const double* t = d->GetTuple3(i);
+    maxd = std::max(maxd, std::sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2]));
+    const Eigen::Vector3d expect = lean.state().positions.col(int(i)) - lean_p.model->rest_positions.col(int(i));
+    ASSERT_NEAR(t[2], expect.z(), 1e-12);
+  }
+  EXPECT_GT(maxd, 0.5);  // the ball pushed the surface about 1 mm
+  vtkNew<vtkXMLPolyDataReader> pr;
+  pr->SetFileName((dir / "surface" / "surface_000000.vtp").c_str());
+  pr->Update();
+  EXPECT_EQ(pr->GetOutput()->GetNumberOfPoints(), lean_p.surface->num_vertices());
+  EXPECT_NE(pr->GetOutput()->GetPointData()->GetArray("displacement_mm"), nullptr);
+  std::ifstream pvd(dir / "model.pvd");
+  std::stringstream text;
+  text << pvd.rdbuf();
+  EXPECT_NE(text.str().find("file=\"model/model_000000.vtu\""), std::string::npos);
+
+  // the plot, when gnuplot is there
+  if (find_gnuplot().empty()) GTEST_SKIP() << "gnuplot not installed";
+  plot_forces(rec, dir / "forces.png");
+  EXPECT_GT(fs::file_size(dir / "forces.png"), 5000u);
+  fs::remove_all(dir);
+}
