@@ -13,22 +13,6 @@
 
 namespace vx {
 
-const char* to_string(IntegratorKind k) {
-  switch (k) {
-    case IntegratorKind::explicit_euler: return "explicit_euler";
-    case IntegratorKind::symplectic_euler: return "symplectic_euler";
-    case IntegratorKind::implicit: return "implicit";
-  }
-  return "?";
-}
-
-IntegratorKind parse_integrator(const std::string& s) {
-  if (s == "explicit_euler") return IntegratorKind::explicit_euler;
-  if (s == "symplectic_euler") return IntegratorKind::symplectic_euler;
-  if (s == "implicit") return IntegratorKind::implicit;
-  throw Error("unknown integrator '" + s + "': use explicit_euler, symplectic_euler or implicit");
-}
-
 StepReport Integrator::advance(SimState& state, int steps) {
   StepReport r;
   for (int i = 0; i < steps; ++i) {
@@ -43,68 +27,6 @@ StepReport Integrator::advance(SimState& state, int steps) {
 const std::vector<ContactConstraint>& Integrator::contacts() const {
   static const std::vector<ContactConstraint> none;
   return none;
-}
-
-// ---------------------------------------------------------------------------------------------
-// time-step estimates
-
-TimeStepEstimate estimate_time_steps(const PhysicsModel& p) {
-  const Model& m = *p.model;
-  const int nn = p.num_nodes(), ne = p.num_elements();
-  std::vector<double> sk(std::size_t(nn), 0.0), sc(std::size_t(nn), 0.0);
-  TimeStepEstimate out;
-  double min_period = std::numeric_limits<double>::infinity();
-  bool damped = false;
-  Eigen::MatrixXd ke;
-  for (int e = 0; e < ne; ++e) {
-    const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
-    const double kv = p.has_volume_term() ? p.element_volume_stiffness[e] : 0.0;
-    const double kappa = p.element_stiffness[e] + kv;
-    const double c = p.element_damping[e];
-    double wsum = 0;
-    for (int j = b; j < b + n; ++j) wsum += p.entry_weight[std::size_t(j)];
-    // Gershgorin row sums: the elastic matrix K_e, and 2 w_i (1 - w_i / W) of
-    // diag(w) - w w^T / W for the volume and damping terms
-    element_elastic_matrix(p, e, ke);
-    for (int j = b; j < b + n; ++j) {
-      const double w = p.entry_weight[std::size_t(j)];
-      const double row = 2.0 * w * (1.0 - w / wsum);
-      sk[std::size_t(m.element_vertices[j])] += ke.row(j - b).cwiseAbs().sum() + row * kv;
-      sc[std::size_t(m.element_vertices[j])] += row * c;
-    }
-    if (c > 0) damped = true;
-    const double m_unit = p.element_mass_kg[e] * kKgToNs2PerMm / wsum;
-    min_period = std::min(min_period, 2.0 * M_PI * std::sqrt(m_unit / kappa));
-  }
-  // explicit Euler: a mode with frequency omega and damping rate gamma is stable for
-  // dt <= gamma / omega^2 (the determinant of the amplification matrix [[1, dt], [-dt omega^2,
-  // 1 - dt gamma]] stays below 1). Per node, the Gershgorin sums of damping and stiffness give
-  // gamma / omega^2 ~ sc / sk: exactly c / k for the paper's element (K_e = k (diag w - w w^T / W)),
-  // and below the worst element's c / k_e where the consistent gradient stiffens K_e (measured:
-  // c / k_e exceeded the limit by up to 3.6x on a gradational ball; sc / sk is below it). Not a
-  // strict bound: on a gradational cube sc / sk met the measured limit to the bisection's 1 %,
-  // so the estimate keeps a 10 % margin (measured limit / estimate: 1.1 there, 3.1 on the ball).
-  double w2 = 0, gamma = 0, node_ratio = std::numeric_limits<double>::infinity();
-  for (int i = 0; i < nn; ++i) {
-    if (sk[std::size_t(i)] > 0) node_ratio = std::min(node_ratio, sc[std::size_t(i)] / sk[std::size_t(i)]);
-    w2 = std::max(w2, sk[std::size_t(i)] * p.node_inv_mass[std::size_t(i)]);
-    gamma = std::max(gamma, sc[std::size_t(i)] * p.node_inv_mass[std::size_t(i)]);
-  }
-  out.highest_frequency_hz = std::sqrt(w2) / (2.0 * M_PI);
-  out.element_period_s = min_period;
-  out.symplectic_euler_s = w2 > 0 ? (std::sqrt(4.0 * w2 + gamma * gamma) - gamma) / w2 : 0.0;
-  out.explicit_euler_s = damped ? 0.9 * std::min(node_ratio, gamma > 0 ? 2.0 / gamma : node_ratio) : 0.0;
-  return out;
-}
-
-double stable_time_step(const PhysicsModel& physics, IntegratorKind kind) {
-  const TimeStepEstimate e = estimate_time_steps(physics);
-  switch (kind) {
-    case IntegratorKind::explicit_euler: return e.explicit_euler_s;
-    case IntegratorKind::symplectic_euler: return e.symplectic_euler_s;
-    case IntegratorKind::implicit: return e.implicit_s;
-  }
-  return 0.0;
 }
 
 namespace {
@@ -144,10 +66,7 @@ void finish_step(SimState& s, const IntegratorSettings& set, std::uint8_t flags,
       if (check_node(s.scratch.next_positions.col(i), s.scratch.next_velocities.col(i), rest.col(i), max_v * max_v,
                      max_d * max_d) != 0)
         node = i;
-    const TimeStepEstimate est = estimate_time_steps(p);
-    const double limit = set.kind == IntegratorKind::explicit_euler     ? est.explicit_euler_s
-                         : set.kind == IntegratorKind::symplectic_euler ? est.symplectic_euler_s
-                                                                         : est.implicit_s;
+    const double limit = stable_time_step(p, set.kind);
     std::ostringstream msg;
     msg << to_string(set.kind) << " step " << s.steps << " (t = " << s.time_s << " s, dt = " << dt << " s): ";
     if (flags & kFlagNonFinite) {

@@ -36,47 +36,18 @@
 
 #include "physics/elements.h"
 #include "physics/material.h"
+#include "sim/contact_constraint.h"
+#include "sim/integrator_kind.h"
 #include "sim/state.h"
+#include "sim/time_step.h"
 
 namespace vx {
-
-/// The available integrators.
-enum class IntegratorKind : std::uint8_t { explicit_euler, symplectic_euler, implicit };
-[[nodiscard]] const char* to_string(IntegratorKind k);
-/// Parses "explicit_euler", "symplectic_euler" or "implicit"; throws vx::Error otherwise.
-[[nodiscard]] IntegratorKind parse_integrator(const std::string& s);
 
 /// Limits beyond which a step is refused (not applied) and the state flagged.
 struct StabilityLimits {
   double max_speed_mm_s{1.0e5};     ///< any node faster than this (100 m/s): runaway
   double max_displacement_mm{0.0};  ///< any node farther from rest; <= 0: 10 x the rest bounding-box diagonal
   bool stop_on_runaway{true};       ///< false: flag a runaway but apply the step and go on
-};
-
-/// One unilateral contact constraint of an implicit step: node `node` must stay on the free side
-/// of the plane through `point_mm` with unit normal `normal`,  normal . x_node >= normal . point_mm
-/// (the probe's or wall's surface linearised at the node: its closest surface point and outward
-/// normal, see probe_signed_distance() in contact.h).
-struct ContactConstraint {
-  std::int32_t node{0};
-  std::int32_t owner{0};  ///< who pushes (the provider's numbering: a probe, a wall face)
-  Eigen::Vector3d point_mm{Eigen::Vector3d::Zero()};
-  Eigen::Vector3d normal{Eigen::Vector3d::UnitZ()};
-  /// integrator output: the multiplier, the force of the surface on the node along `normal`
-  /// (N, >= 0; the force of the node on the probe is -force_n * normal)
-  double force_n{0.0};
-};
-
-/// Supplies the contact constraints of an implicit step (the simulation's probes and walls;
-/// contact.h finds them). The implicit integrator calls it with its iterates during the step.
-class ContactProvider {
- public:
-  virtual ~ContactProvider() = default;
-  /// Appends a constraint (linearised at x) for every collidable node that `x` (3 x nodes, mm)
-  /// puts inside a probe or beyond a wall, and with `near` also for the nodes within the
-  /// provider's margin outside them (candidates that may touch within the step). Each
-  /// (owner, node) pair at most once. Must not allocate in steady state.
-  virtual void collect(const Eigen::Matrix3Xd& x, bool near, std::vector<ContactConstraint>& out) = 0;
 };
 
 /// Settings of an integrator, with defaults that suit soft tissue at voxel size ~1 mm.
@@ -146,29 +117,6 @@ class Integrator {
 
 /// Creates the integrator `settings.kind`. Throws vx::Error for invalid settings.
 [[nodiscard]] std::unique_ptr<Integrator> make_integrator(const IntegratorSettings& settings);
-
-/// Time-step limits of a physics model, from its stiffest element (Gershgorin bounds of the
-/// linearised system: per node, omega^2 <= sum_e (|K_e| row sum + 2 w_i (1 - w_i/W_e) k_v,e) / m_i and
-/// the damping rate gamma <= sum_e 2 w_i (1 - w_i/W_e) c_e / m_i, with w_i the vertex weight
-/// and W_e the element's weight sum; conservative, not tight).
-struct TimeStepEstimate {
-  double highest_frequency_hz{0.0};  ///< bound on the highest vibration frequency
-  double element_period_s{0.0};      ///< shortest element period 2 pi sqrt(m_unit / k_e)
-  /// symplectic Euler: dt <= (sqrt(4 omega^2 + gamma^2) - gamma) / omega^2 at the worst node
-  /// (2 / omega without damping)
-  double symplectic_euler_s{0.0};
-  /// explicit Euler (the paper): dt <= 0.9 min_i (damping / stiffness Gershgorin sums at node i)
-  /// and dt <= 0.9 * 2 / gamma_max; the sums' ratio is c / k for the paper's cube element and
-  /// ~c / k_e in general (less where the consistent gradient stiffens an element); measured
-  /// limits are 1.1x (gradational cube) to 3.1x (gradational ball) the estimate; 0 without
-  /// damping (unstable at any dt)
-  double explicit_euler_s{0.0};
-  /// implicit: unconditionally stable (infinity); accuracy falls off above ~element_period_s / 10
-  double implicit_s{std::numeric_limits<double>::infinity()};
-};
-[[nodiscard]] TimeStepEstimate estimate_time_steps(const PhysicsModel& physics);
-/// The estimate for one integrator.
-[[nodiscard]] double stable_time_step(const PhysicsModel& physics, IntegratorKind kind);
 
 /// Settings of the static solver.
 struct StaticSolveSettings {
