@@ -12,7 +12,7 @@
 #include <vector>
 
 #include "model/model.h"
-#include "physics/material.h"
+#include "physics/physics_model.h"
 #include "sim/simulation.h"
 #include "stick_control.h"
 #include "surface/surface.h"

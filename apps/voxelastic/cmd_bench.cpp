@@ -64,10 +64,10 @@ void run_bench_command(const BenchOptions& o) {
   const std::vector<std::string> written = write_bench_report(res, dir);
 
   if (set.run_step) {
-    for (Resolution r : {Resolution::gradational, Resolution::uniform, Resolution::voxel}) {
+    for (Layout r : {Layout::gradational, Layout::uniform, Layout::voxel}) {
       std::vector<StepBenchmarkRow> rows;
       for (const auto& row : res.step_rows)
-        if (row.resolution == r) rows.push_back(row);
+        if (row.layout == r) rows.push_back(row);
       fmt::print("One step on sphere phantoms, {} models ({} thread(s)):\n{}", to_string(r), set.threads,
                  format_step_benchmark(rows));
     }

@@ -35,7 +35,7 @@ struct ConvertOptions {
   std::string input;
   std::string output;
   std::string threshold;
-  std::string resolution{"gradational"};
+  std::string layout{"gradational"};
   int max_level{-1};
   std::string stats;
   std::string png;
@@ -111,8 +111,8 @@ void validate(const ConvertOptions& o) {
   if (!o.png.empty()) check_output(o.png, ".png", "--png", "picture");
   if (!o.surface.empty()) check_output(o.surface, ".vtp", "--surface", "surface");
   if (o.max_level < -1) throw Error(fmt::format("--max-level {}: the level must be 0 or more", o.max_level));
-  if (o.max_level >= 0 && o.resolution != "gradational")
-    throw Error("--max-level applies to --resolution gradational only (the " + o.resolution +
+  if (o.max_level >= 0 && o.layout != "gradational")
+    throw Error("--max-level applies to --resolution gradational only (the " + o.layout +
                 " layout has a single level); leave it out");
   if (!(o.voxel_mm >= 0.0) || !std::isfinite(o.voxel_mm))
     throw Error(fmt::format("--voxel {}: the voxel size must be a positive number of mm", o.voxel_mm));
@@ -131,7 +131,7 @@ void run_convert(const ConvertOptions& o) {
   prep.crop = !o.no_crop;
   prep.voxel_mm = o.voxel_mm;
   BuildSettings build;
-  build.resolution = parse_resolution(o.resolution);
+  build.layout = parse_layout(o.layout);
   build.max_level = o.max_level;
   ReadOptions read;
   read.series_uid = o.series;
@@ -151,7 +151,7 @@ void run_convert(const ConvertOptions& o) {
 
   // build the model
   BuildReport built;
-  Progress building("building the " + o.resolution + " model", talk);
+  Progress building("building the " + o.layout + " model", talk);
   build.progress = [&building](double f) { building.update(f); };
   const Model model = build_model(grid, build, &built);
   building.done();
@@ -233,7 +233,7 @@ void add_convert_command(CLI::App& app) {
   sub->add_option("-o,--output", opts->output, "model file to write (.vtu: open in ParaView or 3D Slicer)")->required();
   sub->add_option("--threshold", opts->threshold,
                   "tissue HU window: LO (HU >= LO), LO:HI, or a preset name; default: HU >= -200");
-  sub->add_option("--resolution", opts->resolution,
+  sub->add_option("--resolution", opts->layout,
                   "element layout: gradational (the paper's shells), uniform (all 2x2x2-voxel elements), "
                   "voxel (one element per voxel, the fine reference)")
       ->check(CLI::IsMember({"gradational", "uniform", "voxel"}));

@@ -170,7 +170,7 @@ void run_simulate(const SimulateOptions& o) {
   j["max_step_force_n"] = recorder ? recorder->max_step_force_n() : 0.0;
   j["forces_interval_s"] = out.forces_interval_s;
   j["object"] = {{"source", source_name(scene.object.source)},
-                 {"resolution", to_string(m.resolution)},
+                 {"resolution", to_string(m.layout)},
                  {"bounds_mm", {{"min", vec(prepared.bounds_min_mm)}, {"max", vec(prepared.bounds_max_mm)}}},
                  {"mass_kg", prepared.physics->total_mass_kg()},
                  {"spacing_mm", vec(m.grid.spacing_mm)}};

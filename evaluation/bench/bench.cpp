@@ -51,17 +51,17 @@ std::string csv_text(const std::string& s) {
 std::string fraction_text(double f) { return std::isfinite(f) ? fmt::format("{:g}x", f) : std::string(); }
 
 /// The colour of a resolution in every plot.
-const char* resolution_color(Resolution r) {
+const char* resolution_color(Layout r) {
   switch (r) {
-    case Resolution::gradational: return "#1f77b4";
-    case Resolution::uniform: return "#2ca02c";
-    case Resolution::voxel: return "#d62728";
+    case Layout::gradational: return "#1f77b4";
+    case Layout::uniform: return "#2ca02c";
+    case Layout::voxel: return "#d62728";
   }
   return "black";
 }
 
 /// A shade of a resolution's colour for size number `i` of `count` (light: small, dark: large).
-std::string resolution_shade(Resolution r, std::size_t i, std::size_t count) {
+std::string resolution_shade(Layout r, std::size_t i, std::size_t count) {
   // light and dark ends per resolution (ColorBrewer blues, greens, reds)
   static const int light[3][3] = {{0x9e, 0xca, 0xe1}, {0xa1, 0xd9, 0x9b}, {0xfc, 0x92, 0x72}};
   static const int dark[3][3] = {{0x08, 0x30, 0x6b}, {0x00, 0x44, 0x1b}, {0x67, 0x00, 0x0d}};
@@ -168,7 +168,7 @@ void run_palpation(const PreparedScene& prepared, const BenchSettings& set, Inte
 }
 
 /// The scene of one size and resolution, prepared (model built and calibrated).
-PreparedScene prepare_palpation(const BenchSettings& set, int n, Resolution r) {
+PreparedScene prepare_palpation(const BenchSettings& set, int n, Layout r) {
   const json j = palpation_scene_json(set.scene, n, r, IntegratorKind::symplectic_euler, 0.0, set.threads);
   const Scene scene = parse_scene(j, fs::current_path(), fmt::format("palpation scene n={} {}", n, to_string(r)));
   return prepare_scene(scene);
@@ -178,7 +178,7 @@ PreparedScene prepare_palpation(const BenchSettings& set, int n, Resolution r) {
 void describe_model(const PreparedScene& p, int n, double build_s, int threads, BenchRow& row) {
   row.size = n;
   row.voxel_mm = p.model->grid.spacing_mm.x();
-  row.resolution = p.model->resolution;
+  row.layout = p.model->layout;
   row.threads = threads;
   row.elements = p.model->num_elements();
   row.nodes = p.model->num_nodes();
@@ -192,7 +192,7 @@ std::string seconds_text(double s) { return s < 100 ? fmt::format("{:.1f} s", s)
 
 // --- scene and metrics -----------------------------------------------------------------------
 
-json palpation_scene_json(const PalpationSceneSettings& s, int n, Resolution resolution, IntegratorKind integrator,
+json palpation_scene_json(const PalpationSceneSettings& s, int n, Layout layout, IntegratorKind integrator,
                           double time_step_s, int threads) {
   if (n < 4 || n % 2 != 0) throw Error(fmt::format("bench: palpation size {} must be even and >= 4", n));
   const double voxel = s.block_mm / n;
@@ -204,10 +204,10 @@ json palpation_scene_json(const PalpationSceneSettings& s, int n, Resolution res
       "voxelastic bench palpation: a {:g} mm ball pressed {:g} mm into a {:g} x {:g} x {:g} mm block of {:g} kPa fixed at "
       "its base until {:g} s, lifted back by {:g} s; {} voxels across ({:.4g} mm), {} layout",
       s.probe_radius_mm, s.depth_mm, s.block_mm, s.block_mm, s.height_mm, s.material.youngs_modulus_kpa, s.press_s,
-      s.duration_s, n, voxel, to_string(resolution));
+      s.duration_s, n, voxel, to_string(layout));
   j["object"] = {{"box_mm", {{"min", {0.0, 0.0, 0.0}}, {"max", {s.block_mm, s.block_mm, s.height_mm}}}},
                  {"voxel_mm", voxel},
-                 {"resolution", to_string(resolution)}};
+                 {"resolution", to_string(layout)}};
   j["material"] = {{"youngs_modulus_kpa", s.material.youngs_modulus_kpa},
                    {"poisson_ratio", s.material.poisson_ratio},
                    {"density_kg_m3", s.material.density_kg_m3},
@@ -278,8 +278,8 @@ bool BenchRow::usable() const {
 
 std::string BenchRow::label() const {
   if (integrator == IntegratorKind::implicit)
-    return fmt::format("n={} {} implicit dt={:g} ms", size, to_string(resolution), time_step_s * 1e3);
-  return fmt::format("n={} {} {} dt={} ({:.2e} s)", size, to_string(resolution), to_string(integrator),
+    return fmt::format("n={} {} implicit dt={:g} ms", size, to_string(layout), time_step_s * 1e3);
+  return fmt::format("n={} {} {} dt={} ({:.2e} s)", size, to_string(layout), to_string(integrator),
                      fraction_text(dt_fraction), time_step_s);
 }
 
@@ -410,17 +410,17 @@ BenchResult run_bench(const BenchSettings& set) {
   // ---- part A: one step on sphere phantoms, every resolution
   if (set.run_step) {
     struct Part {
-      Resolution r;
+      Layout r;
       int max_size, implicit_max;
     };
-    const std::vector<Part> parts{{Resolution::gradational, 1 << 30, set.step_implicit_max_size},
-                                  {Resolution::uniform, set.step_uniform_max_size, set.step_implicit_uniform_max_size},
-                                  {Resolution::voxel, set.step_voxel_max_size, set.step_implicit_voxel_max_size}};
+    const std::vector<Part> parts{{Layout::gradational, 1 << 30, set.step_implicit_max_size},
+                                  {Layout::uniform, set.step_uniform_max_size, set.step_implicit_uniform_max_size},
+                                  {Layout::voxel, set.step_voxel_max_size, set.step_implicit_voxel_max_size}};
     int k = 0;
     for (const Part& p : parts) {
       ++k;
       StepBenchmarkSettings ss;
-      ss.resolution = p.r;
+      ss.layout = p.r;
       ss.threads = set.threads;
       ss.min_time_s = set.step_min_time_s;
       ss.implicit_max_size = p.implicit_max;
@@ -438,7 +438,7 @@ BenchResult run_bench(const BenchSettings& set) {
           StepBenchmarkRow row;
           row.size = n;
           row.integrator = kind;
-          row.resolution = p.r;
+          row.layout = p.r;
           row.threads = set.threads;
           row.skipped = true;
           row.note = fmt::format("{} models skipped above size {} (time and memory)", to_string(p.r), p.max_size);
@@ -457,18 +457,18 @@ BenchResult run_bench(const BenchSettings& set) {
       log(fmt::format("[step {}/3] {} done in {}", k, to_string(p.r), seconds_text(seconds_since(t))));
       res.step_rows.insert(res.step_rows.end(), rows.begin(), rows.end());
     }
-    auto slope = [&](Resolution r) {
+    auto slope = [&](Layout r) {
       std::vector<double> x, y;
       for (const auto& row : res.step_rows)
-        if (row.resolution == r && row.integrator == IntegratorKind::explicit_euler && !row.skipped && row.step_s > 0) {
+        if (row.layout == r && row.integrator == IntegratorKind::explicit_euler && !row.skipped && row.step_s > 0) {
           x.push_back(row.size);
           y.push_back(row.step_s);
         }
       return log_log_slope(x, y);
     };
-    res.step_slope_gradational = slope(Resolution::gradational);
-    res.step_slope_uniform = slope(Resolution::uniform);
-    res.step_slope_voxel = slope(Resolution::voxel);
+    res.step_slope_gradational = slope(Layout::gradational);
+    res.step_slope_uniform = slope(Layout::uniform);
+    res.step_slope_voxel = slope(Layout::voxel);
   }
 
   // ---- part B: run time against error on the palpation scene
@@ -495,7 +495,7 @@ BenchResult run_bench(const BenchSettings& set) {
     // the reference first: every error is measured against it
     {
       const Clock::time_point t = Clock::now();
-      const PreparedScene p = prepare_palpation(set, set.reference_size, Resolution::voxel);
+      const PreparedScene p = prepare_palpation(set, set.reference_size, Layout::voxel);
       const double build_s = seconds_since(t);
       const TimeStepEstimate est = estimate_time_steps(*p.physics);
       BenchRow& ref = res.reference;
@@ -518,7 +518,7 @@ BenchResult run_bench(const BenchSettings& set) {
     }
 
     for (int n : set.sizes)
-      for (Resolution r : set.resolutions) {
+      for (Layout r : set.resolutions) {
         const Clock::time_point tb = Clock::now();
         const PreparedScene p = prepare_palpation(set, n, r);
         const double build_s = seconds_since(tb);
@@ -562,7 +562,7 @@ std::string step_csv(const std::vector<StepBenchmarkRow>& rows) {
   out << "resolution,size,integrator,threads,elements,nodes,vertex_entries,build_s,setup_s,time_step_s,steps,step_ms,"
          "ns_per_element,ns_per_entry,real_time_factor,iterations,factor_nonzeros,skipped,note\n";
   for (const auto& r : rows) {
-    out << to_string(r.resolution) << ',' << r.size << ',' << to_string(r.integrator) << ',' << r.threads << ','
+    out << to_string(r.layout) << ',' << r.size << ',' << to_string(r.integrator) << ',' << r.threads << ','
         << r.elements << ',' << r.nodes << ',' << r.vertex_entries << ',';
     if (r.skipped) {
       out << ",,,,,,,,,," << "1," << csv_text(r.note) << '\n';
@@ -593,7 +593,7 @@ std::string bench_csv(const std::vector<BenchRow>& rows) {
   out << '\n';
   for (const auto& r : rows) {
     const bool rt = r.usable() && r.wall_per_sim_s <= 1.0;
-    out << r.size << ',' << csv_num(r.voxel_mm) << ',' << to_string(r.resolution) << ',' << to_string(r.integrator) << ','
+    out << r.size << ',' << csv_num(r.voxel_mm) << ',' << to_string(r.layout) << ',' << to_string(r.integrator) << ','
         << csv_num(r.time_step_s) << ',' << csv_num(r.dt_fraction) << ',' << csv_num(r.dt_stable_estimate_s) << ','
         << r.threads << ',' << r.elements << ',' << r.nodes << ',' << r.vertex_entries << ',' << csv_num(r.build_s) << ','
         << csv_num(r.setup_s) << ',' << r.steps << ',' << csv_num(r.sim_time_s) << ',' << csv_num(r.wall_s) << ','
@@ -609,7 +609,7 @@ namespace {
 json row_json(const BenchRow& r) {
   return {{"size", r.size},
           {"voxel_mm", r.voxel_mm},
-          {"resolution", to_string(r.resolution)},
+          {"resolution", to_string(r.layout)},
           {"integrator", to_string(r.integrator)},
           {"dt_s", r.time_step_s},
           {"dt_fraction", num(r.dt_fraction)},
@@ -636,7 +636,7 @@ json row_json(const BenchRow& r) {
 }
 
 json step_row_json(const StepBenchmarkRow& r) {
-  json j = {{"resolution", to_string(r.resolution)},
+  json j = {{"resolution", to_string(r.layout)},
             {"size", r.size},
             {"integrator", to_string(r.integrator)},
             {"threads", r.threads},
@@ -662,15 +662,15 @@ json step_row_json(const StepBenchmarkRow& r) {
 
 /// The scene that re-runs a row with `voxelastic simulate`.
 json row_scene(const BenchSettings& s, const BenchRow& r) {
-  return palpation_scene_json(s.scene, r.size, r.resolution, r.integrator, r.time_step_s, r.threads);
+  return palpation_scene_json(s.scene, r.size, r.layout, r.integrator, r.time_step_s, r.threads);
 }
 
 /// The lowest-error usable row of a resolution (-1: none); `real_time_only` keeps those <= 1 s/s.
-int best_of(const std::vector<BenchRow>& rows, Resolution res, bool real_time_only) {
+int best_of(const std::vector<BenchRow>& rows, Layout res, bool real_time_only) {
   int best = -1;
   for (std::size_t i = 0; i < rows.size(); ++i) {
     const BenchRow& r = rows[i];
-    if (r.resolution != res || !r.usable() || (real_time_only && r.wall_per_sim_s > 1.0)) continue;
+    if (r.layout != res || !r.usable() || (real_time_only && r.wall_per_sim_s > 1.0)) continue;
     if (best < 0 || r.error.rms_rel < rows[std::size_t(best)].error.rms_rel) best = int(i);
   }
   return best;
@@ -742,7 +742,7 @@ json bench_json(const BenchResult& res) {
       j["best"] = nullptr;
     }
     json per = json::object();
-    for (Resolution r : s.resolutions) {
+    for (Layout r : s.resolutions) {
       const int b = best_of(res.rows, r, false), brt = best_of(res.rows, r, true);
       per[to_string(r)] = {{"lowest_error", b >= 0 ? row_json(res.rows[std::size_t(b)]) : json(nullptr)},
                            {"lowest_error_real_time", brt >= 0 ? row_json(res.rows[std::size_t(brt)]) : json(nullptr)}};
@@ -795,7 +795,7 @@ std::string bench_markdown(const BenchResult& res) {
     md << "Per resolution (lowest error overall / lowest error in real time):\n\n"
           "| resolution | lowest error | s per s | error | real time: lowest error | s per s | error |\n"
           "|---|---|---|---|---|---|---|\n";
-    for (Resolution r : s.resolutions) {
+    for (Layout r : s.resolutions) {
       const int b = best_of(res.rows, r, false), brt = best_of(res.rows, r, true);
       auto cells = [&](int i) {
         if (i < 0) return std::string("none | - | -");
@@ -817,7 +817,7 @@ std::string bench_markdown(const BenchResult& res) {
       const std::string dt = r.integrator == IntegratorKind::implicit
                                  ? fmt::format("{:g} ms", r.time_step_s * 1e3)
                                  : fmt::format("{} = {:.2e} s", fraction_text(r.dt_fraction), r.time_step_s);
-      md << fmt::format("| {} | {} | {} | {} | {} | {}{} | {} | {} | {} | {}{} |\n", r.size, to_string(r.resolution),
+      md << fmt::format("| {} | {} | {} | {} | {} | {}{} | {} | {} | {} | {}{} |\n", r.size, to_string(r.layout),
                         to_string(r.integrator), dt, r.elements, sps(r.wall_per_sim_s), r.pareto ? " *" : "",
                         std::isfinite(r.peak_force_n) ? fmt::format("{:.4g}", r.peak_force_n) : "-", pct(r.error.rms_rel),
                         pct_signed(r.error.peak_rel), to_string(r.status), r.note.empty() ? "" : ": " + r.note);
@@ -834,12 +834,12 @@ std::string bench_markdown(const BenchResult& res) {
           "|---|---|---|---|---|---|---|---|---|\n";
     for (const auto& r : res.step_rows) {
       if (r.skipped) {
-        md << fmt::format("| {} | {} | {} | {} | {} | - | - | - | {} |\n", to_string(r.resolution), r.size,
+        md << fmt::format("| {} | {} | {} | {} | {} | - | - | - | {} |\n", to_string(r.layout), r.size,
                           to_string(r.integrator), r.elements ? std::to_string(r.elements) : "-",
                           r.vertex_entries ? std::to_string(r.vertex_entries) : "-", r.note);
         continue;
       }
-      md << fmt::format("| {} | {} | {} | {} | {} | {:.3f} | {:.2f} | {:.3g} | {} |\n", to_string(r.resolution), r.size,
+      md << fmt::format("| {} | {} | {} | {} | {} | {:.3f} | {:.2f} | {:.3g} | {} |\n", to_string(r.layout), r.size,
                         to_string(r.integrator), r.elements, r.vertex_entries, r.step_s * 1e3, r.ns_per_entry,
                         r.real_time_factor, r.note);
     }
@@ -887,7 +887,7 @@ void plot_step(const BenchResult& res, const fs::path& png) {
     nmax = std::max(nmax, double(r.size));
   }
   double anchor2 = 0, anchor3 = 0, entries2 = 0, entries3 = 0;
-  for (Resolution r : {Resolution::gradational, Resolution::uniform, Resolution::voxel})
+  for (Layout r : {Layout::gradational, Layout::uniform, Layout::voxel})
     for (IntegratorKind k : {IntegratorKind::explicit_euler, IntegratorKind::implicit}) {
       PlotSeries s;
       s.title = fmt::format("{}, {}", to_string(r), integrator_title(k));
@@ -900,14 +900,14 @@ void plot_step(const BenchResult& res, const fs::path& png) {
       w.with_points = true;
       w.color = resolution_color(r);
       for (const auto& row : res.step_rows) {
-        if (row.resolution != r || row.integrator != k || row.skipped) continue;
+        if (row.layout != r || row.integrator != k || row.skipped) continue;
         s.x.push_back(row.size);
         s.y.push_back(row.step_s * 1e3);
         w.x.push_back(row.size);
         w.y.push_back(double(row.vertex_entries));
         if (k == IntegratorKind::explicit_euler && row.size == nmin) {
-          if (r == Resolution::gradational) anchor2 = row.step_s * 1e3, entries2 = double(row.vertex_entries);
-          if (r == Resolution::voxel) anchor3 = row.step_s * 1e3, entries3 = double(row.vertex_entries);
+          if (r == Layout::gradational) anchor2 = row.step_s * 1e3, entries2 = double(row.vertex_entries);
+          if (r == Layout::voxel) anchor3 = row.step_s * 1e3, entries3 = double(row.vertex_entries);
         }
       }
       if (!s.x.empty()) time.series.push_back(s);
@@ -933,7 +933,7 @@ void plot_error(const BenchResult& res, const fs::path& png) {
   p.key = "outside right top";
   double ymin = 1e30, ymax = 0;
   const std::vector<int>& sizes = res.settings.sizes;
-  for (Resolution r : res.settings.resolutions)
+  for (Layout r : res.settings.resolutions)
     for (std::size_t si = 0; si < sizes.size(); ++si)
       for (IntegratorKind k : kIntegrators) {
         PlotSeries s;
@@ -942,7 +942,7 @@ void plot_error(const BenchResult& res, const fs::path& png) {
         s.color = resolution_shade(r, si, sizes.size());
         s.point_type = integrator_point(k);
         for (const auto& row : res.rows)
-          if (row.resolution == r && row.size == sizes[si] && row.integrator == k && row.usable()) {
+          if (row.layout == r && row.size == sizes[si] && row.integrator == k && row.usable()) {
             s.x.push_back(row.wall_per_sim_s);
             s.y.push_back(100 * row.error.rms_rel);
             if (row.error.rms_rel > 0) ymin = std::min(ymin, 100 * row.error.rms_rel);
@@ -998,7 +998,7 @@ void plot_cost(const BenchResult& res, const fs::path& png) {
   p.log_x = p.log_y = true;
   p.key = "outside right top";
   double nmin = 1e30, nmax = 0, lo = 1e30, hi = 0;
-  for (Resolution r : res.settings.resolutions) {
+  for (Layout r : res.settings.resolutions) {
     // symplectic Euler at its stable estimate, and implicit at its smallest step
     const double implicit_dt = res.settings.implicit_steps_s.empty()
                                    ? 0.0
@@ -1012,7 +1012,7 @@ void plot_cost(const BenchResult& res, const fs::path& png) {
     im.point_type = integrator_point(IntegratorKind::implicit);
     im.dash_type = 2;
     for (const auto& row : res.rows) {
-      if (row.resolution != r || !std::isfinite(row.wall_per_sim_s) || row.status != BenchStatus::ok) continue;
+      if (row.layout != r || !std::isfinite(row.wall_per_sim_s) || row.status != BenchStatus::ok) continue;
       PlotSeries* s = nullptr;
       if (row.integrator == IntegratorKind::symplectic_euler && std::abs(row.dt_fraction - 1.0) < 1e-9) s = &se;
       if (row.integrator == IntegratorKind::implicit && std::abs(row.time_step_s - implicit_dt) < 1e-12) s = &im;
@@ -1069,16 +1069,16 @@ void plot_curves(const BenchResult& res, const fs::path& png) {
     PlotSeries s;
     const std::string dt = r.integrator == IntegratorKind::implicit ? fmt::format("{:g} ms", r.time_step_s * 1e3)
                                                                     : fraction_text(r.dt_fraction);
-    s.title = fmt::format("{}n={} {} {} {}: {}", prefix, r.size, to_string(r.resolution), integrator_title(r.integrator),
+    s.title = fmt::format("{}n={} {} {} {}: {}", prefix, r.size, to_string(r.layout), integrator_title(r.integrator),
                           dt, pct(r.error.rms_rel));
-    s.color = resolution_color(r.resolution);
+    s.color = resolution_color(r.layout);
     s.dash_type = dash;
     s.x = r.curve.time_s;
     s.y = r.curve.force_n;
     p.series.push_back(s);
   };
   add(res.best, "best for real time: ", 0);
-  for (Resolution r : res.settings.resolutions) add(best_of(res.rows, r, false), "most accurate: ", 2);
+  for (Layout r : res.settings.resolutions) add(best_of(res.rows, r, false), "most accurate: ", 2);
   plot_png({p}, png, 1000, 520);
 }
 

@@ -27,7 +27,7 @@
 
 #include "bench/step_benchmark.h"
 #include "model/model.h"
-#include "physics/material.h"
+#include "physics/physics_model.h"
 #include "sim/integrators.h"
 
 namespace vx {
@@ -51,7 +51,7 @@ struct PalpationSceneSettings {
 /// The scene (the JSON of docs/scenes.md, runnable with `voxelastic simulate`) for a grid of `n`
 /// voxels across the block (voxel = block_mm / n), in `resolution`, with `integrator` at
 /// `time_step_s` (0: "auto"), on `threads` threads. Throws vx::Error when n is odd or below 4.
-[[nodiscard]] nlohmann::json palpation_scene_json(const PalpationSceneSettings& scene, int n, Resolution resolution,
+[[nodiscard]] nlohmann::json palpation_scene_json(const PalpationSceneSettings& scene, int n, Layout layout,
                                                   IntegratorKind integrator, double time_step_s, int threads);
 
 /// A force curve: the force of the tissue on the probe along the pressing axis (+z, up), N.
@@ -83,7 +83,7 @@ enum class BenchStatus : std::uint8_t { ok, unstable, skipped };
 struct BenchRow {
   int size{0};                       ///< n, voxels across the block
   double voxel_mm{0.0};
-  Resolution resolution{Resolution::gradational};
+  Layout layout{Layout::gradational};
   IntegratorKind integrator{IntegratorKind::symplectic_euler};
   double time_step_s{0.0};
   double dt_fraction{std::numeric_limits<double>::quiet_NaN()};  ///< explicit schemes: dt / stable estimate
@@ -142,7 +142,7 @@ struct BenchSettings {
   bool run_palpation{true};
   PalpationSceneSettings scene;
   std::vector<int> sizes{16, 24, 32};               ///< palpation grid sizes n (even)
-  std::vector<Resolution> resolutions{Resolution::gradational, Resolution::uniform, Resolution::voxel};
+  std::vector<Layout> resolutions{Layout::gradational, Layout::uniform, Layout::voxel};
   std::vector<double> explicit_fractions{0.25, 0.5, 1.0, 1.5};  ///< of each explicit scheme's stable estimate
   std::vector<double> implicit_steps_s{0.5e-3, 1e-3, 2e-3, 5e-3};
   int implicit_iterations{10};

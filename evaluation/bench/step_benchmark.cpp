@@ -45,7 +45,7 @@ std::vector<StepBenchmarkRow> run_step_benchmark(const StepBenchmarkSettings& se
     // model and calibration, shared by the integrators
     const Clock::time_point t0 = Clock::now();
     BuildSettings bs;
-    bs.resolution = set.resolution;
+    bs.layout = set.layout;
     auto model = std::make_shared<const Model>(build_model(make_sphere_grid(n, set.voxel_mm), bs));
     auto physics = make_physics_model(model, set.material);
     const double build_s = seconds_since(t0);
@@ -59,7 +59,7 @@ std::vector<StepBenchmarkRow> run_step_benchmark(const StepBenchmarkSettings& se
       StepBenchmarkRow row;
       row.size = n;
       row.integrator = kind;
-      row.resolution = set.resolution;
+      row.layout = set.layout;
       row.threads = resolve_threads(set.threads);
       row.elements = model->num_elements();
       row.nodes = model->num_nodes();

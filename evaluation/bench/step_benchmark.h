@@ -15,7 +15,7 @@
 
 #include "model/model.h"
 #include "model/voxel_grid.h"
-#include "physics/material.h"
+#include "physics/physics_model.h"
 #include "sim/integrators.h"
 
 namespace vx {
@@ -28,7 +28,7 @@ struct StepBenchmarkSettings {
   std::vector<int> sizes{32, 64, 128, 256};  ///< grid edges n (voxels)
   std::vector<IntegratorKind> integrators{IntegratorKind::explicit_euler, IntegratorKind::symplectic_euler,
                                           IntegratorKind::implicit};
-  Resolution resolution{Resolution::gradational};
+  Layout layout{Layout::gradational};
   Material material{5.0, 1000.0, 0.1, 0.0};  ///< soft tissue, E = 5 kPa
   double voxel_mm{1.0};
   int threads{0};                ///< 0: OpenMP default
@@ -47,7 +47,7 @@ struct StepBenchmarkSettings {
 struct StepBenchmarkRow {
   int size{0};
   IntegratorKind integrator{IntegratorKind::symplectic_euler};
-  Resolution resolution{Resolution::gradational};
+  Layout layout{Layout::gradational};
   int threads{0};
   int elements{0};
   int nodes{0};

@@ -21,10 +21,10 @@ vx::VoxelGrid sphere_grid(int diameter) {
   return grid;
 }
 
-void BM_Build(benchmark::State& state, vx::Resolution resolution) {
+void BM_Build(benchmark::State& state, vx::Layout layout) {
   const vx::VoxelGrid grid = sphere_grid(int(state.range(0)));
   vx::BuildSettings settings;
-  settings.resolution = resolution;
+  settings.layout = layout;
   std::int64_t entries = 0, elements = 0;
   for (auto _ : state) {
     const vx::Model m = vx::build_model(grid, settings);
@@ -41,9 +41,9 @@ void BM_Build(benchmark::State& state, vx::Resolution resolution) {
 
 }  // namespace
 
-BENCHMARK_CAPTURE(BM_Build, gradational, vx::Resolution::gradational)
+BENCHMARK_CAPTURE(BM_Build, gradational, vx::Layout::gradational)
     ->RangeMultiplier(2)->Range(32, 256)->Unit(benchmark::kMillisecond);
-BENCHMARK_CAPTURE(BM_Build, voxel, vx::Resolution::voxel)
+BENCHMARK_CAPTURE(BM_Build, voxel, vx::Layout::voxel)
     ->RangeMultiplier(2)->Range(32, 128)->Unit(benchmark::kMillisecond);
 
 BENCHMARK_MAIN();

@@ -17,11 +17,12 @@
 #include "convert/phantom.h"
 #include "convert/threshold.h"
 #include "model/gradational_builder.h"
-#include "physics/material.h"
+#include "physics/physics_model.h"
 #include "scene/scene.h"
 #include "sim/integrators.h"
 #include "sim/simulation.h"
 #include "sim/state.h"
+#include "sim/static_solver.h"
 #include "verify/surface_accuracy.h"
 #include "verify/verify.h"
 
@@ -34,7 +35,7 @@ constexpr double kPi = std::numbers::pi;
 // --- shared helpers ----------------------------------------------------------------------------
 
 /// A solid block of dims voxels of edge h mm, its corner at the origin.
-std::shared_ptr<const Model> block_model(Resolution r, const Eigen::Vector3i& dims, double h) {
+std::shared_ptr<const Model> block_model(Layout r, const Eigen::Vector3i& dims, double h) {
   GridGeometry g;
   g.dims = dims;
   g.spacing_mm = Eigen::Vector3d::Constant(h);
@@ -42,7 +43,7 @@ std::shared_ptr<const Model> block_model(Resolution r, const Eigen::Vector3i& di
   VoxelGrid grid(g);
   std::fill(grid.data().begin(), grid.data().end(), std::uint8_t(1));
   BuildSettings b;
-  b.resolution = r;
+  b.layout = r;
   return std::make_shared<const Model>(build_model(grid, b));
 }
 
@@ -138,7 +139,7 @@ double energy(const SimState& s) {
   return e.kinetic + e.elastic + e.gravitational;
 }
 
-std::string layout_name(Resolution r) { return to_string(r); }
+std::string layout_name(Layout r) { return to_string(r); }
 
 // --- model: counts against the paper -----------------------------------------------------------
 
@@ -195,7 +196,7 @@ void run_model_counts(VerifyContext& ctx) {
   // the voxel-level model: exactly 8 entries per tissue voxel
   {
     BuildSettings b;
-    b.resolution = Resolution::voxel;
+    b.layout = Layout::voxel;
     const Model v = build_model(full_cube(32), b);
     ctx.check("cube32.voxel_entries", double(v.num_vertex_entries()), 8.0 * 32 * 32 * 32, 0.0, "entries",
               "the voxel-level model: one 8-vertex element per voxel, 8 n^3, exact");
@@ -304,7 +305,7 @@ double compression_stress_kpa(const std::shared_ptr<const PhysicsModel>& p, doub
   return reaction / area / kKpaToNPerMm2;
 }
 
-void run_compression(VerifyContext& ctx, Resolution r, double tolerance) {
+void run_compression(VerifyContext& ctx, Layout r, double tolerance) {
   const int n = ctx.full() ? 20 : 16;
   const double e_kpa = 10.0;
   const auto p = make_physics_model(block_model(r, {n, n, n}, 1.0), tissue(e_kpa));
@@ -395,7 +396,7 @@ struct HertzRun {
   std::vector<double> d15, f, ref, half;
 };
 
-HertzRun hertz_run(Resolution r, const Eigen::Vector3d& dims_mm, double voxel_mm, double radius, double depth,
+HertzRun hertz_run(Layout r, const Eigen::Vector3d& dims_mm, double voxel_mm, double radius, double depth,
                    double e_kpa) {
   const Eigen::Vector3i dims = (dims_mm / voxel_mm).array().round().cast<int>();
   const double h = dims_mm.z();
@@ -432,7 +433,7 @@ HertzRun hertz_run(Resolution r, const Eigen::Vector3d& dims_mm, double voxel_mm
 
 /// Hertz indentation on layout `r` at the voxel sizes `voxels_mm` (coarse to fine): the modulus
 /// and exponent checked at the finest; with two sizes, the modulus error must not grow.
-void run_hertz(VerifyContext& ctx, Resolution r, const std::vector<double>& voxels_mm, double modulus_tolerance,
+void run_hertz(VerifyContext& ctx, Layout r, const std::vector<double>& voxels_mm, double modulus_tolerance,
                double exponent_tolerance) {
   // quick: 32 x 32 x 16 mm, R 6, 1.5 mm deep; full: the 40 x 40 x 20 mm, R 8, 2 mm of the slow test
   const bool full = ctx.full();
@@ -474,7 +475,7 @@ void run_hertz(VerifyContext& ctx, Resolution r, const std::vector<double>& voxe
 
 /// Tip deflection of a beam (length L along x, square section t, voxel h), clamped at x = 0,
 /// under its own weight; mm (downwards positive).
-double cantilever_tip_mm(Resolution r, double length, double t, double h, double e_kpa, int* elements) {
+double cantilever_tip_mm(Layout r, double length, double t, double h, double e_kpa, int* elements) {
   const Eigen::Vector3i dims(int(std::lround(length / h)), int(std::lround(t / h)), int(std::lround(t / h)));
   const auto p = make_physics_model(block_model(r, dims, h), tissue(e_kpa));
   if (elements) *elements = p->num_elements();
@@ -494,7 +495,7 @@ double cantilever_theory_mm(double length, double t, double e_kpa, double densit
   return q * std::pow(length, 4) / (8 * e * i) + q * length * length / (2 * (5.0 / 6.0) * (e / 2) * a);
 }
 
-void run_cantilever(VerifyContext& ctx, Resolution r, const std::vector<double>& voxels_mm, double tolerance) {
+void run_cantilever(VerifyContext& ctx, Layout r, const std::vector<double>& voxels_mm, double tolerance) {
   const double length = 32.0, t = 4.0, e_kpa = 3000.0;
   const double theory = cantilever_theory_mm(length, t, e_kpa, 1000.0);
   std::vector<double> hs, errors, lh, le;
@@ -555,7 +556,7 @@ double bar_frequency_hz(const std::shared_ptr<const PhysicsModel>& p, double per
   return 0.5 * double(crossings.size() - 1) / (crossings.back() - crossings.front());
 }
 
-void run_frequency(VerifyContext& ctx, Resolution r, int section_voxels, double h) {
+void run_frequency(VerifyContext& ctx, Layout r, int section_voxels, double h) {
   const double length = 32.0, e_kpa = 10.0, rho = 1000.0;
   const auto p = make_physics_model(
       block_model(r, {section_voxels, section_voxels, int(std::lround(length / h))}, h), tissue(e_kpa, 0.0));
@@ -583,7 +584,7 @@ void run_convergence_dt(VerifyContext& ctx) {
   const double length = 16.0;
   std::vector<PlotSeries> series;
   for (IntegratorKind kind : {IntegratorKind::symplectic_euler, IntegratorKind::explicit_euler, IntegratorKind::implicit}) {
-    const auto p = make_physics_model(block_model(Resolution::voxel, {4, 4, int(length)}, 1.0), tissue(10.0, 0.05));
+    const auto p = make_physics_model(block_model(Layout::voxel, {4, 4, int(length)}, 1.0), tissue(10.0, 0.05));
     const double f = std::sqrt(10.0 * kKpaToNPerMm2 / (1000.0 * kKgM3ToKgPerMm3 * kKgToNs2PerMm)) / (4 * length);
     // the coarsest step: half the stable one (explicit), the stable symplectic one for implicit
     const double dt0 = kind == IntegratorKind::implicit ? 2.0 * stable_time_step(*p, IntegratorKind::symplectic_euler)
@@ -671,7 +672,7 @@ double measured_stable_dt(const std::shared_ptr<const PhysicsModel>& p, Integrat
 /// The stable-step search for `kind` (symplectic: undamped; explicit Euler: damping 0.1);
 /// with `implicit`, also the implicit integrator far above the explicit limits.
 void run_stability_dt(VerifyContext& ctx, IntegratorKind kind, bool implicit) {
-  const auto model = block_model(Resolution::gradational, {8, 8, 8}, 1.0);
+  const auto model = block_model(Layout::gradational, {8, 8, 8}, 1.0);
   std::vector<PlotSeries> series;
   const std::vector<double> moduli = {1.0, 10.0, 100.0, 1000.0};
   {
@@ -735,7 +736,7 @@ struct EnergyRun {
 };
 
 void run_energy(VerifyContext& ctx, const std::vector<EnergyRun>& runs) {
-  const auto model = block_model(Resolution::gradational, {8, 8, 32}, 1.0);
+  const auto model = block_model(Layout::gradational, {8, 8, 32}, 1.0);
   const double duration = 0.4;  // 10 periods of the bar's axial mode
   std::vector<PlotSeries> series;
   for (const EnergyRun& run : runs) {
@@ -797,7 +798,7 @@ void run_energy(VerifyContext& ctx, const std::vector<EnergyRun>& runs) {
 void run_extreme(VerifyContext& ctx) {
   // (1) a probe teleported deep into the tissue, held, then pulled out: recovers or is flagged
   {
-    const auto p = make_physics_model(block_model(Resolution::gradational, {16, 16, 16}, 1.0), tissue(10.0, 0.3));
+    const auto p = make_physics_model(block_model(Layout::gradational, {16, 16, 16}, 1.0), tissue(10.0, 0.3));
     SimulationSettings s;
     s.integrator = integrator(IntegratorKind::symplectic_euler, 0.5 * stable_time_step(*p, IntegratorKind::symplectic_euler));
     s.fixed_nodes = nodes_on_face(*p->model, BoxFace::z_min);
@@ -843,7 +844,7 @@ void run_extreme(VerifyContext& ctx) {
   }
   // (2) very high stiffness: 1 GPa runs stably at its estimated step, and a soft-tissue step is flagged
   {
-    const auto p = make_physics_model(block_model(Resolution::gradational, {8, 8, 8}, 1.0), tissue(1e6, 0.1));
+    const auto p = make_physics_model(block_model(Layout::gradational, {8, 8, 8}, 1.0), tissue(1e6, 0.1));
     const double est = stable_time_step(*p, IntegratorKind::symplectic_euler);
     ctx.check("stiff.stable_at_estimate", runs_stably(p, IntegratorKind::symplectic_euler, 0.5 * est, 2000) ? 1.0 : 0.0,
               1.0, 0.0, "", "1 when E = 1 GPa runs 2000 steps at half its estimated stable step with bounded energy");
@@ -861,7 +862,7 @@ void run_extreme(VerifyContext& ctx) {
   }
   // (3) a crushed object (flattened to 2 % of its height) and (4) an inverted one (mirrored):
   // free, no gravity, damped; each element's rotation fit is proper, so the shape comes back
-  const auto model = block_model(Resolution::gradational, {12, 12, 12}, 1.0);
+  const auto model = block_model(Layout::gradational, {12, 12, 12}, 1.0);
   const auto p = make_physics_model(model, tissue(10.0, 0.5));
   const double diag = (model->rest_positions.rowwise().maxCoeff() - model->rest_positions.rowwise().minCoeff()).norm();
   std::vector<PlotSeries> series;
@@ -903,7 +904,7 @@ void run_extreme(VerifyContext& ctx) {
 void run_lesion(VerifyContext& ctx) {
   // a 40 x 24 x 16 mm block (5 kPa) with a 50 kPa sphere (radius 4 mm, its top 2 mm under the
   // surface) under x = 12; the ball presses 2 mm over it and over x = 28 (as far from the other end)
-  const auto model = block_model(Resolution::gradational, {40, 24, 16}, 1.0);
+  const auto model = block_model(Layout::gradational, {40, 24, 16}, 1.0);
   SceneMaterial sm;
   sm.base = tissue(5.0, 0.2);
   sm.inclusions.push_back({Eigen::Vector3d(12, 12, 10), 4.0, 50.0, 0.0});
@@ -931,17 +932,17 @@ void run_layouts(VerifyContext& ctx) {
   // 1 mm voxels (the same data as the voxel layout) and at 0.5 mm voxels (the same surface
   // elements as the voxel layout, the fair comparison of the models)
   struct Run {
-    Resolution r;
+    Layout r;
     double voxel_mm;
     std::shared_ptr<const PhysicsModel> phys;
     Indentation ind;
   };
   std::vector<Run> runs;
-  for (const auto& [r, h] : std::vector<std::pair<Resolution, double>>{{Resolution::voxel, 1.0},
-                                                                       {Resolution::uniform, 1.0},
-                                                                       {Resolution::gradational, 1.0},
-                                                                       {Resolution::uniform, 0.5},
-                                                                       {Resolution::gradational, 0.5}}) {
+  for (const auto& [r, h] : std::vector<std::pair<Layout, double>>{{Layout::voxel, 1.0},
+                                                                       {Layout::uniform, 1.0},
+                                                                       {Layout::gradational, 1.0},
+                                                                       {Layout::uniform, 0.5},
+                                                                       {Layout::gradational, 0.5}}) {
     const Eigen::Vector3i dims = (Eigen::Vector3d(24, 24, 12) / h).array().round().cast<int>();
     Run run{r, h, make_physics_model(block_model(r, dims, h), tissue(10.0)), {}};
     run.ind = indent(run.phys, 5.0, 1.5, 12, 12);
@@ -1075,37 +1076,37 @@ std::vector<VerifyCase> make_cases() {
                "is exact; its iso-surface rounds edges and corners (3 %).",
                true, run_geometry});
   c.push_back({"compression-voxel", "Plate compression, voxel layout: stress = E strain", compression_about, true,
-               [](VerifyContext& x) { run_compression(x, Resolution::voxel, 0.01); }});
+               [](VerifyContext& x) { run_compression(x, Layout::voxel, 0.01); }});
   c.push_back({"compression-uniform", "Plate compression, uniform layout: stress = E strain", compression_about, true,
-               [](VerifyContext& x) { run_compression(x, Resolution::uniform, 0.05); }});
+               [](VerifyContext& x) { run_compression(x, Layout::uniform, 0.05); }});
   c.push_back({"compression-gradational", "Plate compression, gradational layout: stress = E strain", compression_about,
-               false, [](VerifyContext& x) { run_compression(x, Resolution::gradational, 0.05); }});
+               false, [](VerifyContext& x) { run_compression(x, Layout::gradational, 0.05); }});
   const std::string hertz_coarse =
       " The uniform and gradational layouts' smallest elements are 2 voxels wide (the paper's level 0), so at the "
       "voxel layout's 1 mm voxels their surface elements are twice as coarse under the same contact; as for the "
       "cantilever they are run at 1 mm and at 0.5 mm voxels (the same elements as the voxel layout), checked at 0.5 "
       "mm, and the modulus error must not grow from 1 to 0.5 mm.";
   c.push_back({"hertz-voxel", "Hertz indentation, voxel layout", hertz_about, true,
-               [](VerifyContext& x) { run_hertz(x, Resolution::voxel, {1.0}, 0.12, 0.1); }});
+               [](VerifyContext& x) { run_hertz(x, Layout::voxel, {1.0}, 0.12, 0.1); }});
   c.push_back({"hertz-uniform", "Hertz indentation, uniform layout; convergence in resolution",
                hertz_about + hertz_coarse, false,
-               [](VerifyContext& x) { run_hertz(x, Resolution::uniform, {1.0, 0.5}, 0.12, 0.1); }});
+               [](VerifyContext& x) { run_hertz(x, Layout::uniform, {1.0, 0.5}, 0.12, 0.1); }});
   c.push_back({"hertz-gradational", "Hertz indentation, gradational layout; convergence in resolution",
                hertz_about + hertz_coarse, false,
-               [](VerifyContext& x) { run_hertz(x, Resolution::gradational, {1.0, 0.5, 0.25}, 0.12, 0.1); }});
+               [](VerifyContext& x) { run_hertz(x, Layout::gradational, {1.0, 0.5, 0.25}, 0.12, 0.1); }});
   c.push_back({"cantilever-voxel", "Cantilever under its own weight against beam theory; convergence in resolution",
                cantilever_about + " Voxel layout, finest model within 10 %.", true,
-               [](VerifyContext& x) { run_cantilever(x, Resolution::voxel, {2.0, 1.0, 0.5}, 0.10); }});
+               [](VerifyContext& x) { run_cantilever(x, Layout::voxel, {2.0, 1.0, 0.5}, 0.10); }});
   c.push_back({"cantilever-gradational", "Cantilever, gradational layout; convergence in resolution",
                cantilever_about + " Gradational layout at 1, 0.5 and 0.25 mm: its inner elements are 2 and 4 voxels "
                                   "wide, so it needs a voxel half the size of the voxel layout's for the same number of "
                                   "elements through the thickness; the finest (0.25 mm) must be within 10 %.",
-               false, [](VerifyContext& x) { run_cantilever(x, Resolution::gradational, {1.0, 0.5, 0.25}, 0.10); }});
+               false, [](VerifyContext& x) { run_cantilever(x, Layout::gradational, {1.0, 0.5, 0.25}, 0.10); }});
   c.push_back({"frequency-voxel", "Natural frequency of a fixed-free bar, voxel layout", frequency_about, true,
-               [](VerifyContext& x) { run_frequency(x, Resolution::voxel, 4, 1.0); }});
+               [](VerifyContext& x) { run_frequency(x, Layout::voxel, 4, 1.0); }});
   c.push_back({"frequency-gradational", "Natural frequency of a fixed-free bar, gradational layout",
                frequency_about + " Gradational layout: an 8 x 8 mm section at 1 mm voxels (interior elements 4 voxels wide).",
-               true, [](VerifyContext& x) { run_frequency(x, Resolution::gradational, 8, 1.0); }});
+               true, [](VerifyContext& x) { run_frequency(x, Layout::gradational, 8, 1.0); }});
   c.push_back({"layouts", "Gradational against uniform against voxel-level on one indentation",
                "One scene, a ball of 5 mm pressed 1.5 mm into a 24 x 24 x 12 mm block (E = 10 kPa) fixed at its base, "
                "on the three layouts. The voxel-level model (1 mm voxels) is the reference. The uniform and "

@@ -8,7 +8,7 @@ namespace vx {
 
 ModelStats model_stats(const Model& m) {
   ModelStats s;
-  s.resolution = to_string(m.resolution);
+  s.layout = to_string(m.layout);
   s.grid = m.grid.dims;
   s.spacing_mm = m.grid.spacing_mm;
   s.voxels = m.covered_voxels();
@@ -32,7 +32,7 @@ ModelStats model_stats(const Model& m) {
 
 void to_json(nlohmann::json& j, const ModelStats& s) {
   const auto vec = [](const auto& v) { return nlohmann::json::array({v.x(), v.y(), v.z()}); };
-  j = nlohmann::json{{"resolution", s.resolution},
+  j = nlohmann::json{{"resolution", s.layout},
                      {"grid", vec(s.grid)},
                      {"spacing_mm", vec(s.spacing_mm)},
                      {"voxels", s.voxels},
@@ -54,7 +54,7 @@ std::string summary(const ModelStats& s) {
     levels += fmt::format("{}level {}: {} ({:.3g} mm)", l ? ", " : "", l, s.elements_per_level[l], s.element_edge_mm[l]);
   std::string out;
   out += fmt::format("model:          {} resolution, grid {} x {} x {} voxels of {:.3g} x {:.3g} x {:.3g} mm\n",
-                     s.resolution, s.grid.x(), s.grid.y(), s.grid.z(), s.spacing_mm.x(), s.spacing_mm.y(),
+                     s.layout, s.grid.x(), s.grid.y(), s.grid.z(), s.spacing_mm.x(), s.spacing_mm.y(),
                      s.spacing_mm.z());
   out += fmt::format("tissue:         {} voxels, {:.1f} mm^3 ({:.2f} ml)\n", s.voxels, s.volume_mm3, s.volume_mm3 * 1e-3);
   out += fmt::format("elements:       {} ({})\n", s.elements, levels);

@@ -15,7 +15,7 @@ namespace vx {
 
 /// Counts, sizes and cost of a model, derived from the model alone.
 struct ModelStats {
-  std::string resolution;                        ///< gradational, uniform or voxel
+  std::string layout;                        ///< gradational, uniform or voxel
   Eigen::Vector3i grid{0, 0, 0};                 ///< voxels per axis of the grid the model was built from
   Eigen::Vector3d spacing_mm{0, 0, 0};           ///< voxel size per axis, mm
   std::int64_t voxels{0};                        ///< tissue voxels covered by the elements

@@ -89,7 +89,7 @@ vtkSmartPointer<vtkUnstructuredGrid> to_vtk(const Model& m) {
   auto version = make_array<vtkIntArray>("format_version", 1, 1);
   version->SetValue(0, kFormatVersion);
   fd->AddArray(version);
-  add_string(fd, "resolution", to_string(m.resolution));
+  add_string(fd, "resolution", to_string(m.layout));
   auto dims = make_array<vtkIntArray>("grid_dims", 3, 1);
   auto spacing = make_array<vtkDoubleArray>("grid_spacing_mm", 3, 1);
   auto origin = make_array<vtkDoubleArray>("grid_origin_mm", 3, 1);
@@ -184,11 +184,11 @@ Model load_model(const fs::path& path) {
                 std::to_string(kFormatVersion) + "): update voxelastic");
 
   Model m;
-  auto* resolution = vtkStringArray::SafeDownCast(fd->GetAbstractArray("resolution"));
-  if (!resolution || resolution->GetNumberOfValues() != 1)
+  auto* layout = vtkStringArray::SafeDownCast(fd->GetAbstractArray("resolution"));
+  if (!layout || layout->GetNumberOfValues() != 1)
     throw Error("'" + where + "' is not a complete voxelastic model: the field array 'resolution' is missing");
   try {
-    m.resolution = parse_resolution(resolution->GetValue(0));
+    m.layout = parse_layout(layout->GetValue(0));
   } catch (const Error& e) {
     throw Error("'" + where + "' is corrupt: " + e.what());
   }

@@ -297,7 +297,7 @@ void render_model_png(const Model& model, const fs::path& png, const RenderSetti
   scene->AddActor2D(make_text(format_mm(bar_mm), font(16), 0.5 * (bx0 + bx1), by + 0.035, VTK_TEXT_CENTERED));
 
   // title band
-  const std::string what = fmt::format("{} model: {} elements in {} level{}, {} nodes", to_string(model.resolution),
+  const std::string what = fmt::format("{} model: {} elements in {} level{}, {} nodes", to_string(model.layout),
                                        model.num_elements(), num_levels, num_levels == 1 ? "" : "s", model.num_nodes());
   if (!settings.title.empty()) {
     band->AddActor2D(make_text(settings.title, font(24), 0.5, 0.66, VTK_TEXT_CENTERED, true));

@@ -313,7 +313,7 @@ SceneObject read_object(const Obj& o, const fs::path& base) {
   if (src != "model") {
     const std::string r = o.string("resolution", "gradational");
     try {
-      obj.build.resolution = parse_resolution(r);
+      obj.build.layout = parse_layout(r);
     } catch (const Error&) {
       o.at_where("resolution").fail("unknown resolution \"" + r + "\"; use gradational, uniform or voxel");
     }
@@ -864,7 +864,7 @@ PreparedScene prepare_scene(const Scene& scene, const PrepareSceneOptions& optio
   out.bounds_max_mm = m.rest_positions.rowwise().maxCoeff();
   out.log.push_back(fmt::format("{} model: {} elements, {} nodes, {} vertex entries; bounds [{:.4g}, {:.4g}, {:.4g}] .. "
                                 "[{:.4g}, {:.4g}, {:.4g}] mm",
-                                to_string(m.resolution), m.num_elements(), m.num_nodes(), m.num_vertex_entries(),
+                                to_string(m.layout), m.num_elements(), m.num_nodes(), m.num_vertex_entries(),
                                 out.bounds_min_mm.x(), out.bounds_min_mm.y(), out.bounds_min_mm.z(),
                                 out.bounds_max_mm.x(), out.bounds_max_mm.y(), out.bounds_max_mm.z()));
 

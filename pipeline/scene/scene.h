@@ -24,7 +24,7 @@
 #include "io/volume.h"
 #include "io/volume_io.h"
 #include "model/gradational_builder.h"
-#include "physics/material.h"
+#include "physics/physics_model.h"
 #include "sim/contact.h"
 #include "sim/device_force.h"
 #include "sim/integrators.h"

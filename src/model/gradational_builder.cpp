@@ -301,18 +301,18 @@ Model build_model(const VoxelGrid& grid, const BuildSettings& settings, BuildRep
     throw Error("the voxel grid holds no tissue: nothing to build (check the HU threshold)");
 
   Model model;
-  model.resolution = settings.resolution;
+  model.layout = settings.layout;
   model.grid = grid.geometry();
   NodeLattice lattice(d);
   std::vector<ElementSeed> seeds;
-  switch (settings.resolution) {
-    case Resolution::gradational:
+  switch (settings.layout) {
+    case Layout::gradational:
       seeds = gradational_seeds(grid, settings.max_level, lattice, report, settings.progress);
       break;
-    case Resolution::uniform:
+    case Layout::uniform:
       seeds = gradational_seeds(grid, 0, lattice, report, settings.progress);
       break;
-    case Resolution::voxel:
+    case Layout::voxel:
       seeds = voxel_seeds(grid, lattice, report);
       break;
   }

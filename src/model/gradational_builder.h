@@ -13,7 +13,7 @@ namespace vx {
 
 /// How to build a model.
 struct BuildSettings {
-  Resolution resolution{Resolution::gradational};
+  Layout layout{Layout::gradational};
   /// Largest element level for the gradational layout (cells of 2^max_level voxels);
   /// -1 means no limit. Level max_level takes every remaining group.
   int max_level{-1};

@@ -8,19 +8,19 @@
 
 namespace vx {
 
-const char* to_string(Resolution r) {
+const char* to_string(Layout r) {
   switch (r) {
-    case Resolution::gradational: return "gradational";
-    case Resolution::uniform: return "uniform";
-    case Resolution::voxel: return "voxel";
+    case Layout::gradational: return "gradational";
+    case Layout::uniform: return "uniform";
+    case Layout::voxel: return "voxel";
   }
   return "?";
 }
 
-Resolution parse_resolution(const std::string& s) {
-  if (s == "gradational") return Resolution::gradational;
-  if (s == "uniform") return Resolution::uniform;
-  if (s == "voxel") return Resolution::voxel;
+Layout parse_layout(const std::string& s) {
+  if (s == "gradational") return Layout::gradational;
+  if (s == "uniform") return Layout::uniform;
+  if (s == "voxel") return Layout::voxel;
   throw Error("unknown resolution '" + s + "': use gradational, uniform or voxel");
 }
 
@@ -72,7 +72,7 @@ void Model::finalize() {
     for (int i = 0; i < n; ++i) rest_offsets.col(b + i) = rest_positions.col(element_vertices[b + i]) - c;
     const double w = element_cell_voxels[e];
     element_volume_mm3[e] = __builtin_popcount(element_cells[e]) * w * w * w * voxel_mm3;
-    element_size_mm[e] = (resolution == Resolution::voxel ? 1.0 : 2.0) * w * voxel_edge_mm;
+    element_size_mm[e] = (layout == Layout::voxel ? 1.0 : 2.0) * w * voxel_edge_mm;
   }
 }
 
@@ -100,7 +100,7 @@ std::string Model::validate() const {
 }
 
 bool same_model(const Model& a, const Model& b, double tol_mm) {
-  if (a.resolution != b.resolution || a.num_nodes() != b.num_nodes() || a.num_elements() != b.num_elements())
+  if (a.layout != b.layout || a.num_nodes() != b.num_nodes() || a.num_elements() != b.num_elements())
     return false;
   if (a.grid.dims != b.grid.dims || !a.grid.spacing_mm.isApprox(b.grid.spacing_mm, 1e-12) ||
       (a.grid.origin_mm - b.grid.origin_mm).cwiseAbs().maxCoeff() > tol_mm ||

@@ -13,14 +13,14 @@
 namespace vx {
 
 /// Which layout of elements a model uses.
-enum class Resolution : std::uint8_t {
+enum class Layout : std::uint8_t {
   gradational,  ///< the paper's layout: level-0 shell at the surface, larger elements inside
   uniform,      ///< every element at level 0 (2x2x2 voxels), same vertex rules
   voxel,        ///< one 8-vertex element per tissue voxel (the fine reference)
 };
-[[nodiscard]] const char* to_string(Resolution r);
+[[nodiscard]] const char* to_string(Layout r);
 /// Parses "gradational", "uniform" or "voxel"; throws vx::Error otherwise.
-[[nodiscard]] Resolution parse_resolution(const std::string& s);
+[[nodiscard]] Layout parse_layout(const std::string& s);
 
 /// The elastic model. Nodes sit on voxel corners (lattice points); an element is a set of
 /// nodes (its vertices) covering the tissue cells of one 2x2x2 group of cells at its level.
@@ -30,7 +30,7 @@ enum class Resolution : std::uint8_t {
 /// `element_cells[e]` says whether cell (cx,cy,cz) of the group is tissue (is covered).
 /// Voxel-level elements have cell width 1 and only cell (0,0,0).
 struct Model {
-  Resolution resolution{Resolution::gradational};
+  Layout layout{Layout::gradational};
   GridGeometry grid;                      ///< geometry of the voxel grid the model was built from
 
   // nodes

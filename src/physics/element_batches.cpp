@@ -8,7 +8,7 @@
 
 #include "base/error.h"
 #include "physics/elements.h"
-#include "physics/material.h"
+#include "physics/physics_model.h"
 #include "physics/rigid_sums.h"
 
 // The lane vectors below never cross a function boundary (everything is always_inline), so the

@@ -201,7 +201,7 @@ ElementGradients compute_element_gradients(const Model& m, int threads) {
         return cx >= 0 && cy >= 0 && cz >= 0 && cx < 2 && cy < 2 && cz < 2 && ((mask >> (cx + 2 * cy + 4 * cz)) & 1);
       };
       // voxel-level elements are one cell; their group is the cell itself
-      const int cells = m.resolution == Resolution::voxel ? 1 : 2;
+      const int cells = m.layout == Layout::voxel ? 1 : 2;
       bool ok = true;
       for (int cz = 0; cz < cells; ++cz)
         for (int cy = 0; cy < cells; ++cy)

@@ -46,7 +46,7 @@
 #include <vector>
 
 #include "base/parallel.h"
-#include "physics/material.h"
+#include "physics/physics_model.h"
 
 namespace vx {
 

@@ -1,66 +1,17 @@
 #pragma once
 /// @file material.h
-/// Physical material and its per-element calibration (MODEL.md section 1, "physical units").
+/// The physical material of the tissue (docs/model.md sections 1, 5 and 6): Young's modulus,
+/// density, damping ratio, Poisson ratio, per-element overrides, and the unit conversions of the
+/// physics core. The calibration that turns a material into element stiffnesses, masses and
+/// damping is physics_model.h.
 ///
 /// Units of the physics core: positions mm, time s, force N, energy N*mm (= mJ).
 /// Masses are kept in kg for reports and, for the integrators, in N*s^2/mm
 /// (1 kg = 1e-3 N*s^2/mm, because 1 N = 1 kg*m/s^2 = 1000 kg*mm/s^2), so that
 /// acceleration [mm/s^2] = force [N] / mass [N*s^2/mm] with no hidden factor 1000.
-///
-/// Vertex weights. The paper's element weights its vertices equally, but the gradational
-/// layout places vertices asymmetrically (dense where smaller neighbours share their nodes),
-/// so an interior element may carry, e.g., extra vertices on its top and bottom faces only:
-/// with equal weights its rest spread C0 = sum R0 R0^T is anisotropic and one scalar k makes
-/// it up to 50 % stiffer along one axis than across (measured on a 16x16x32 block). Each
-/// element therefore gets vertex weights w_i (mean 1, as close to 1 as possible, within
-/// [min_weight, max_weight]) that make its weighted spread isotropic about the weighted centroid:
-///   sum_i w_i R0_i = 0,   C0 = sum_i w_i R0_i R0_i^T = (S / 3) I,   S = sum_i w_i |R0_i|^2.
-/// (MODEL.md's fit A = sum_i m_i r_i R0_i^T is the weighted form.) An 8-vertex cube keeps
-/// w = 1. The element energy becomes E_e = k/2 sum_i w_i |r_i - Q R0_i|^2 with r_i about the
-/// weighted centroid, its force f_i = k w_i (Q R0_i - r_i), and masses and damping follow the
-/// weights, so every vertex of an element vibrates at the same omega_e^2 = k / m_unit.
-///
-/// Calibration (derivation). Under a small symmetric strain eps (d_i = eps R0_i, Q = I):
-///   E_e = k/2 sum_i w_i |eps R0_i|^2 = k/2 tr(eps^T eps C0) = (k S / 6) eps:eps,
-/// the energy of a linear isotropic solid with Lame parameters mu = k S / (6 V), lambda = 0
-/// over the element's volume V. Hence the model alone has Poisson ratio 0 and
-///   k_e = 6 mu V_e / S_e,  mu = E / (2 (1 + nu)),   (nu = 0: k_e = 3 E V_e / S_e).
-/// Check: an 8-vertex cube of edge h has V = h^3, S = 8 * 3 (h/2)^2 = 6 h^2, so k = E h / 2,
-/// i.e. E = 2 k / h. Every level and shape (extra face vertices, partly filled groups) gets
-/// its own V_e and S_e, so all levels represent the same material; where the weights cannot
-/// make a spread isotropic (counted in PhysicsModel::anisotropic_elements) k is the isotropic
-/// average. Verified by tests/core/calibration_test.cpp (static compression and sag of one
-/// block for the voxel, uniform and gradational layouts against E).
-///
-/// The element as implemented (elements.h): the shape-keeping energy split into its affine and
-/// non-affine parts, E_e = mu V |F - Q|^2 + k/2 sum_i w_i |r_i - F R0_i|^2, with F the
-/// element's consistent deformation gradient (element_gradient.h) and Q its rotation. For an
-/// 8-vertex cube F is the paper's least-squares fit A C0^{-1} and, because k S / 3 = 2 mu V,
-/// E_e is exactly the paper's k/2 sum_i w_i |r_i - Q R0_i|^2. For the gradational layout's
-/// elements with extra face vertices the consistent F passes the patch test (a uniform strain
-/// is an equilibrium of the whole model), which the least-squares fit does not (11 % too soft
-/// on a 32^3 cube; see element_gradient.h).
-///
-/// Poisson ratio > 0 (volume preservation): an extra projective term per element,
-///   E_v = w_v/2 min_{T: det T = 1} sum_i w_i |r_i - T R0_i|^2,
-/// whose small-strain energy is w_v S (tr eps)^2 / 18 for an isotropic spread, i.e. the
-/// lambda (tr eps)^2 V / 2 of linear elasticity with w_v = 9 lambda V_e / S_e,
-/// lambda = E nu / ((1 + nu)(1 - 2 nu)). T is found exactly for any spread, in the frame
-/// normalised by C0^{-1/2} (see elements.h).
-///
-/// Masses: element mass rho V_e is lumped onto its vertices in proportion to the weights.
-/// Damping: c_e = zeta * 2 sqrt(k_e m_unit), m_unit = rho V_e / sum_i w_i (vertex i gets
-/// stiffness k w_i, mass m_unit w_i, damping c w_i), i.e. the damping ratio zeta is relative to
-/// the critical damping of the element's own vibration, the same at every element size.
 
-#include <Eigen/Core>
-#include <cstdint>
-#include <memory>
 #include <string>
 #include <vector>
-
-#include "model/model.h"
-#include "physics/element_batches.h"
 
 namespace vx {
 
@@ -79,86 +30,11 @@ struct MaterialField {
   std::vector<double> density_kg_m3;       ///< elements, kg/m^3
 };
 
-/// How the per-element calibration is done (defaults: the calibrated model).
-struct CalibrationOptions {
-  bool isotropic_weights{true};  ///< false: equal vertex weights (the paper's plain element)
-  double min_weight{0.1};        ///< lower bound of a vertex weight (mean weight is 1)
-  double max_weight{4.0};        ///< upper bound of a vertex weight
-};
-
 /// Conversion constants.
 inline constexpr double kKpaToNPerMm2 = 1e-3;        ///< 1 kPa = 1e-3 N/mm^2
 inline constexpr double kKgM3ToKgPerMm3 = 1e-9;      ///< 1 kg/m^3 = 1e-9 kg/mm^3
 inline constexpr double kKgToNs2PerMm = 1e-3;        ///< 1 kg = 1e-3 N*s^2/mm
 inline constexpr double kStandardGravityMmS2 = 9806.65;  ///< g, mm/s^2
-
-/// The per-entry constants of the element pass of one vertex entry, packed into one 64-byte
-/// record (one cache line) so that the force kernel streams a single array in entry order
-/// instead of five (copies of PhysicsModel::entry_rest_weighted, entry_gradient,
-/// entry_weight, entry_slot and Model::element_vertices).
-struct alignas(64) PackedEntry {
-  double rest_weighted[3];  ///< w_i R0_i, mm
-  double gradient[3];       ///< g_i, 1/mm
-  double weight;            ///< w_i
-  std::int32_t vertex;      ///< the node of the entry
-  std::int32_t slot;        ///< its column of the node-major entry buffers
-};
-static_assert(sizeof(PackedEntry) == 64);
-
-/// The immutable physical model: a Model plus the calibrated per-element and per-node data
-/// the integrators need. Many simulation states share one PhysicsModel.
-struct PhysicsModel {
-  std::shared_ptr<const Model> model;  ///< the geometry (rest shape, vertex lists)
-  Material material;                   ///< the base material (before per-element overrides)
-
-  // vertex entries (parallel to model->element_vertices)
-  std::vector<double> entry_weight;   ///< entries: vertex weight w_i (mean 1 per element)
-  Eigen::Matrix3Xd entry_rest;        ///< 3 x entries: R0_i about the weighted rest centroid, mm
-  Eigen::Matrix3Xd entry_rest_weighted;  ///< 3 x entries: w_i R0_i, mm
-
-  // elements
-  std::vector<double> element_stiffness;         ///< elements: k_e (per unit weight), N/mm
-  std::vector<double> element_damping;           ///< elements: c_e (per unit weight), N*s/mm
-  std::vector<double> element_volume_stiffness;  ///< elements: w_e, N/mm (empty when nu = 0)
-  std::vector<double> element_mass_kg;           ///< elements: rho V_e, kg
-  std::vector<double> element_spread_mm2;        ///< elements: S_e = sum_i w_i |R0_i|^2, mm^2
-  std::vector<double> element_fit_scale;         ///< elements: 3 / S_e, 1/mm^2 (A * scale ~ deformation gradient)
-  /// Consistent deformation gradient (element_gradient.h): F = sum_i x_i g_i^T.
-  Eigen::Matrix3Xd entry_gradient;               ///< 3 x entries: g_i, 1/mm
-  std::vector<double> element_affine_stiffness;  ///< elements: 2 mu V_e, N*mm (energy mu V |F - Q|^2)
-  std::vector<Eigen::Matrix3d> element_spread;   ///< elements: C0 = sum_i w_i R0_i R0_i^T, mm^2
-  std::int64_t gradient_fallback_elements{0};    ///< elements keeping the least-squares gradient
-  /// elements (volume term only): C0^{-1/2}, 3x3 column-major, 1/mm; and sqrt(det C0), mm^3.
-  std::vector<Eigen::Matrix3d> element_spread_inv_sqrt;
-  std::vector<double> element_spread_sqrt_det;
-  std::int64_t anisotropic_elements{0};  ///< elements whose weighted spread stayed anisotropic (> 1e-6)
-  double max_anisotropy{0.0};            ///< largest (max - min) / mean eigenvalue of C0 over elements
-
-  // nodes
-  std::vector<double> node_mass_kg;  ///< nodes: lumped mass, kg
-  std::vector<double> node_mass;     ///< nodes: lumped mass, N*s^2/mm
-  std::vector<double> node_inv_mass; ///< nodes: 1 / node_mass, mm/(N*s^2)
-
-  // node -> vertex entries (CSR), entries in increasing order: the deterministic gather.
-  // Per-entry buffers of the step (entry forces, projection targets) are stored in this
-  // node-major order, so that summing a node's entries reads contiguous memory: the value of
-  // vertex entry j sits in column entry_slot[j], node i owns columns
-  // node_entry_offsets[i] .. node_entry_offsets[i+1].
-  std::vector<std::int32_t> node_entry_offsets;  ///< nodes + 1
-  std::vector<std::int32_t> node_entries;        ///< slots: the vertex entry in each slot
-  std::vector<std::int32_t> entry_slot;          ///< vertex entries: their slot (inverse of node_entries)
-  /// vertex entries: the element pass's constants packed per entry (derived from the above)
-  std::vector<PackedEntry> entry_packed;
-  /// the same constants in batches of elements, one per SIMD lane (element_batches.h)
-  ElementBatches element_batches;
-
-  [[nodiscard]] int num_nodes() const { return model->num_nodes(); }
-  [[nodiscard]] int num_elements() const { return model->num_elements(); }
-  [[nodiscard]] std::int64_t num_vertex_entries() const { return model->num_vertex_entries(); }
-  [[nodiscard]] bool has_volume_term() const { return !element_volume_stiffness.empty(); }
-  /// Total mass, kg.
-  [[nodiscard]] double total_mass_kg() const;
-};
 
 /// Shear modulus mu and Lame lambda, N/mm^2, of E (kPa) and nu.
 [[nodiscard]] double shear_modulus_n_mm2(double youngs_modulus_kpa, double poisson_ratio);
@@ -166,26 +42,5 @@ struct PhysicsModel {
 
 /// Checks a material; returns an empty string when valid, else what is wrong and the valid range.
 [[nodiscard]] std::string validate(const Material& material);
-
-/// Calibrates `model` (finalized: rest_offsets, element volumes) with `material` and optional
-/// per-element overrides. Throws vx::Error for an invalid material, an override of the wrong
-/// size or with non-positive values, or an empty/inconsistent model.
-[[nodiscard]] std::shared_ptr<const PhysicsModel> make_physics_model(
-    std::shared_ptr<const Model> model, const Material& material, const MaterialField& field = {},
-    const CalibrationOptions& options = {});
-
-/// Convenience: copies `model` into shared ownership.
-[[nodiscard]] std::shared_ptr<const PhysicsModel> make_physics_model(
-    const Model& model, const Material& material, const MaterialField& field = {},
-    const CalibrationOptions& options = {});
-
-/// Vertex weights (mean 1, in [min_weight, max_weight], closest to 1) making the weighted
-/// spread of the points (3 x n, mm) isotropic about their weighted centroid, by Gauss-Newton
-/// with the bounds enforced by an active set. Where isotropy is out of reach (thin partly
-/// filled elements, extra vertices on opposite faces only) the result is the bounded compromise,
-/// or equal weights when those are more isotropic. *anisotropy gets the remaining
-/// (max - min) / mean eigenvalue of the weighted spread.
-[[nodiscard]] Eigen::VectorXd isotropic_weights(const Eigen::Matrix3Xd& points, double min_weight,
-                                                double max_weight = 4.0, double* anisotropy = nullptr);
 
 }  // namespace vx

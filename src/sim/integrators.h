@@ -1,30 +1,23 @@
 #pragma once
 /// @file integrators.h
-/// Time integration (MODEL.md section 2, paper 2.1) behind one interface, stability limits
-/// and a static solver.
+/// Time integration (docs/model.md section 7, paper 2.1) behind one interface.
 ///
 /// - explicit_euler: the paper's eq. 1-2 exactly: v' = v + dt F(x, v)/m, x' = x + dt v
 ///   (the position moves with the OLD velocity). Without damping it gains energy every step
 ///   for any dt (unconditionally unstable); with damping it is stable only for
-///   dt <= ~c_e / k_e = 2 zeta / omega_e (see estimate_time_steps()).
+///   dt <= ~c_e / k_e = 2 zeta / omega_e (time_step.h).
 /// - symplectic_euler: v' = v + dt F(x, v)/m, x' = x + dt v' (semi-implicit). Undamped, its
 ///   energy stays bounded for dt < 2 / omega_max.
-/// - implicit: backward Euler by projective dynamics (Bouaziz et al. 2014). The element energy
-///   k/2 sum_i w_i |x_i - c - Q R0_i|^2 is a projective term, so each step minimises
+/// - implicit: backward Euler by projective dynamics (projective_solver.h): each step minimises
 ///     1/(2 dt^2) |x - y|_M^2 + sum_e E_e(x) + sum_e D_e(x),   y = x_n + dt v_n + dt^2 M^-1 f_ext,
-///   by alternating local rotation fits and a global solve with the constant matrix
-///     M / dt^2 + sum_e (k_e + k_v,e + c_e/dt) (diag(w) - w w^T / W)_e
-///   (the weighted centring operator of element e, material.h),
-///   prefactored once by a sparse Cholesky (Eigen SimplicialLDLT, AMD ordering) with fixed
-///   nodes eliminated. Damping D_e = c_e/(2 dt) min_R sum_i |r_i - R r_i^n|^2 (the vertex
-///   motion during the step relative to the element's best rigid motion) is the backward
-///   Euler form of the explicit damping force and also a projective term. Stable for any dt.
-///   Contact (set_contact_provider()): the probes and walls are unilateral node constraints
-///   n_i . x_i >= n_i . p_i of the same minimisation, solved exactly in every global step (an
-///   active-set iteration on the Schur complement of the prefactored matrix), so the reaction
-///   force is the constraint multiplier, right at any dt. The contact is perfectly inelastic
-///   (v = (x' - x_n)/dt; restitution does not apply) and frictionless.
+///   by local rotation fits and global solves with a prefactored constant matrix; stable for
+///   any dt. Contact (set_contact_provider()): the probes and walls are unilateral node
+///   constraints of the same minimisation, solved exactly in every global step
+///   (contact_active_set.h), so the reaction force is the constraint multiplier, right at any
+///   dt. The contact is perfectly inelastic (v = (x' - x_n)/dt; restitution does not apply)
+///   and frictionless. Its factorisation lives in the state (SimState::integrator_cache).
 ///
+/// The stable steps are in time_step.h, the static solve in static_solver.h.
 /// Units: dt in s, positions mm, velocities mm/s, forces N, masses N*s^2/mm (material.h).
 
 #include <Eigen/Core>
@@ -35,7 +28,7 @@
 #include <vector>
 
 #include "physics/elements.h"
-#include "physics/material.h"
+#include "physics/physics_model.h"
 #include "sim/contact_constraint.h"
 #include "sim/integrator_kind.h"
 #include "sim/state.h"
@@ -78,9 +71,9 @@ struct StepReport {
   std::int64_t contact_columns{0}; ///< implicit: new columns A^-1 e_i solved in this step (each allocates once)
 };
 
-/// One time-integration scheme. An integrator may keep per-state caches (the implicit one
-/// keeps its factorisation, rebuilt when the state, its fixed nodes or the time step change),
-/// so use one integrator per state.
+/// One time-integration scheme. What it keeps per state between steps lives in the state
+/// (the implicit integrator's factorisation, rebuilt when the state's fixed nodes, the time step
+/// or the damping change), so one integrator may step several states.
 class Integrator {
  public:
   explicit Integrator(const IntegratorSettings& settings) : settings_(settings) {}
@@ -117,18 +110,5 @@ class Integrator {
 
 /// Creates the integrator `settings.kind`. Throws vx::Error for invalid settings.
 [[nodiscard]] std::unique_ptr<Integrator> make_integrator(const IntegratorSettings& settings);
-
-/// Settings of the static solver.
-struct StaticSolveSettings {
-  int max_iterations{500};
-  double tolerance_mm{1e-9};  ///< stop once no node moves more than this in an iteration
-  int threads{0};
-  RotationFitSettings rotation{20, 1e-12};
-};
-
-/// Moves the free nodes of `state` to static equilibrium under gravity and external forces,
-/// with fixed nodes held where they are (local/global iterations without inertia). Velocities
-/// are set to zero. Throws vx::Error when a part of the model is held by no fixed node.
-StepReport solve_static(SimState& state, const StaticSolveSettings& settings = {});
 
 }  // namespace vx

@@ -38,7 +38,7 @@
 #include <string>
 #include <vector>
 
-#include "physics/material.h"
+#include "physics/physics_model.h"
 #include "sim/contact.h"
 #include "sim/device_force.h"
 #include "sim/integrators.h"

@@ -4,6 +4,7 @@
 
 #include "base/error.h"
 #include "base/parallel.h"
+#include "sim/projective_solver.h"
 
 namespace vx {
 
@@ -71,6 +72,16 @@ void SimState::free_all_nodes() {
   std::fill(node_fixed.begin(), node_fixed.end(), std::uint8_t(0));
   ++fixed_version;
 }
+
+IntegratorCache::IntegratorCache() = default;
+IntegratorCache::~IntegratorCache() = default;
+IntegratorCache::IntegratorCache(const IntegratorCache&) {}
+IntegratorCache& IntegratorCache::operator=(const IntegratorCache& other) {
+  if (this != &other) *this = IntegratorCache();
+  return *this;
+}
+IntegratorCache::IntegratorCache(IntegratorCache&&) noexcept = default;
+IntegratorCache& IntegratorCache::operator=(IntegratorCache&&) noexcept = default;
 
 void SimState::reset() {
   positions = physics->model->rest_positions;

@@ -13,7 +13,7 @@
 #include <vector>
 
 #include "physics/elements.h"
-#include "physics/material.h"
+#include "physics/physics_model.h"
 
 namespace vx {
 
@@ -53,6 +53,27 @@ struct StepScratch {
   std::vector<double> node_chunk_sums;         ///< per node chunk: partial energies (3 each)
 };
 
+class ProjectiveSolver;
+
+/// What an integrator keeps per state between steps: the implicit integrator's factorisation
+/// (projective_solver.h) and the key of its contact warm start. Owned by the state, so no
+/// integrator finds a state's cache by its address (a state rebuilt at a freed address cannot
+/// meet a stale factor); a copy of a state starts without one (its first implicit step factors).
+struct IntegratorCache {
+  std::unique_ptr<ProjectiveSolver> solver;  ///< null until the first implicit step
+  std::uint64_t fixed_version{0};            ///< SimState::fixed_version the solver was built for
+  std::uint64_t contact_epoch{0};            ///< the contact provider the warm start belongs to (0: none)
+  std::int64_t next_step{-1};                ///< the warm start holds for the step that starts at this count
+  double next_time_s{0.0};                   ///< ... and at this time
+
+  IntegratorCache();
+  ~IntegratorCache();
+  IntegratorCache(const IntegratorCache&);             ///< an empty cache
+  IntegratorCache& operator=(const IntegratorCache&);  ///< empties this cache
+  IntegratorCache(IntegratorCache&&) noexcept;
+  IntegratorCache& operator=(IntegratorCache&&) noexcept;
+};
+
 /// A simulation state. Create with make_state(); change fixed nodes with the methods below
 /// (they bump fixed_version so implicit integrators refactor).
 struct SimState {
@@ -78,6 +99,7 @@ struct SimState {
   std::string message;           ///< what went wrong (empty when ok)
 
   StepScratch scratch;
+  IntegratorCache integrator_cache;  ///< the implicit integrator's factorisation (integrators.h)
 
   [[nodiscard]] int num_nodes() const { return int(positions.cols()); }
   [[nodiscard]] int num_fixed() const;

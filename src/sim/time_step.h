@@ -5,7 +5,7 @@
 
 #include <limits>
 
-#include "physics/material.h"
+#include "physics/physics_model.h"
 #include "sim/integrator_kind.h"
 
 namespace vx {

@@ -254,7 +254,7 @@ class ElementFinder {
   [[nodiscard]] int owner(const Eigen::Vector3i& v) const {
     if ((v.array() < 0).any() || (v.array() >= m_.grid.dims.array()).any()) return -1;
     // voxel-level models: one element per voxel, anchored at the voxel
-    if (m_.resolution == Resolution::voxel) {
+    if (m_.layout == Layout::voxel) {
       auto it = by_group_.find(group_key(v, 0));
       return it == by_group_.end() ? -1 : it->second;
     }

@@ -21,9 +21,9 @@ struct HandElement {
 /// the builder's rule, still a valid model); each element's vertices are all nodes on its
 /// closed region, in lattice order (as the builder orders them).
 inline Model make_hand_model(const std::vector<HandElement>& elements, const GridGeometry& grid,
-                             Resolution resolution = Resolution::gradational) {
+                             Layout layout = Layout::gradational) {
   Model m;
-  m.resolution = resolution;
+  m.layout = layout;
   m.grid = grid;
   const Eigen::Vector3i L = grid.dims.array() + 1;
   const auto key = [&](const Eigen::Vector3i& a) { return a.z() * std::int64_t(L.y() * L.x()) + a.y() * std::int64_t(L.x()) + a.x(); };

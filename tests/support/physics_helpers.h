@@ -11,7 +11,7 @@
 
 #include "model/model.h"
 #include "model/voxel_grid.h"
-#include "physics/material.h"
+#include "physics/physics_model.h"
 #include "sim/state.h"
 
 namespace vx::testing {
@@ -20,7 +20,7 @@ namespace vx::testing {
 /// (not by build_model): nodes on the lattice, x fastest.
 inline Model hand_block(int nx, int ny, int nz, double h = 1.0) {
   Model m;
-  m.resolution = Resolution::voxel;
+  m.layout = Layout::voxel;
   m.grid.dims = {nx, ny, nz};
   m.grid.spacing_mm = Eigen::Vector3d::Constant(h);
   m.grid.origin_mm = Eigen::Vector3d::Constant(0.5 * h);  // voxel (0,0,0) centre: corner 0 at the origin
@@ -60,7 +60,7 @@ inline Model hand_cube(double h = 1.0) { return hand_block(1, 1, 1, h); }
 /// One element whose vertices are the given points (mm); volume = one voxel of edge h.
 inline Model hand_element(const Eigen::Matrix3Xd& points, double h = 1.0) {
   Model m;
-  m.resolution = Resolution::voxel;
+  m.layout = Layout::voxel;
   m.grid.dims = {1, 1, 1};
   m.grid.spacing_mm = Eigen::Vector3d::Constant(h);
   const int n = int(points.cols());

@@ -98,10 +98,10 @@ TEST(GradationalBuilder, CoversEveryTissueVoxelOnceAndSharesNodes) {
     return x * x / 300.0 + y * y / 150.0 + z * z / 100.0 < 1.0 && (h % 11 != 0);
   });
   for (const VoxelGrid* g : {&cube, &sphere, &ring, &blob})
-    for (Resolution r : {Resolution::gradational, Resolution::uniform, Resolution::voxel}) {
+    for (Layout r : {Layout::gradational, Layout::uniform, Layout::voxel}) {
       SCOPED_TRACE(std::string("resolution ") + to_string(r) + ", grid " + std::to_string(g->dims().x()));
       BuildSettings s;
-      s.resolution = r;
+      s.layout = r;
       const Model m = build_model(*g, s);
       EXPECT_EQ(m.validate(), "");
       expect_exact_cover(m, *g);
@@ -170,12 +170,12 @@ TEST(GradationalBuilder, UniformAndVoxelLayouts) {
   const VoxelGrid g = make_sphere(24, 10.2);
   const std::int64_t voxels = g.count();
   BuildSettings s;
-  s.resolution = Resolution::voxel;
+  s.layout = Layout::voxel;
   const Model vox = build_model(g, s);
   EXPECT_EQ(vox.num_elements(), voxels);
   EXPECT_EQ(vox.num_vertex_entries(), 8 * voxels);
   EXPECT_EQ(vox.num_levels(), 1);
-  s.resolution = Resolution::uniform;
+  s.layout = Layout::uniform;
   const Model uni = build_model(g, s);
   EXPECT_EQ(uni.num_levels(), 1);
   // one element per 2x2x2 group holding tissue
@@ -254,6 +254,6 @@ TEST(GradationalBuilder, DeterministicAndRejectsEmpty) {
   EXPECT_TRUE(same_model(build_model(g), build_model(g), 0.0));
   const VoxelGrid empty = make_grid({8, 8, 8}, [](int, int, int) { return false; });
   EXPECT_THROW((void)build_model(empty), Error);
-  EXPECT_THROW((void)parse_resolution("fine"), Error);
-  EXPECT_EQ(parse_resolution("voxel"), Resolution::voxel);
+  EXPECT_THROW((void)parse_layout("fine"), Error);
+  EXPECT_EQ(parse_layout("voxel"), Layout::voxel);
 }

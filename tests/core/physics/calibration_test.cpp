@@ -9,18 +9,19 @@
 
 #include "model/gradational_builder.h"
 #include "sim/integrators.h"
+#include "sim/static_solver.h"
 #include "support/physics_helpers.h"
 
 namespace vx {
 namespace {
 
-constexpr Resolution kLayouts[] = {Resolution::voxel, Resolution::uniform, Resolution::gradational};
+constexpr Layout kLayouts[] = {Layout::voxel, Layout::uniform, Layout::gradational};
 
 /// A W x W x H block of voxels of edge h mm filling its grid.
-Model block(Resolution r, int w, int height, double h = 1.0) {
+Model block(Layout r, int w, int height, double h = 1.0) {
   const VoxelGrid grid = testing::box_grid({w, w, height}, {0, 0, 0}, {w, w, height}, h);
   BuildSettings bs;
-  bs.resolution = r;
+  bs.layout = r;
   return build_model(grid, bs);
 }
 
@@ -66,7 +67,7 @@ TEST(Calibration, StaticCompressionGivesTheSameModulusInEveryLayoutAndMatchesE) 
   mat.youngs_modulus_kpa = 10.0;
   double moduli[3];
   int n = 0;
-  for (Resolution r : kLayouts) {
+  for (Layout r : kLayouts) {
     const Model m = block(r, 16, 32);
     const Compression c = compress(m, mat, 0.01);
     moduli[n++] = c.modulus_kpa;
@@ -91,7 +92,7 @@ TEST(Calibration, GradationalCubesOfEverySizeCompressLikeE) {
   Material mat;
   mat.youngs_modulus_kpa = 10.0;
   for (int n : {16, 24, 32}) {
-    const Model m = block(Resolution::gradational, n, n);
+    const Model m = block(Layout::gradational, n, n);
     ASSERT_GE(m.num_levels(), n == 16 ? 3 : 4);
     const Compression c = compress(m, mat, 0.01);
     std::cout << n << "^3 gradational: " << m.num_elements() << " elements in " << m.num_levels()
@@ -110,7 +111,7 @@ TEST(Calibration, SagUnderOwnWeightMatchesTheBarSolution) {
                           (2.0 * mat.youngs_modulus_kpa * kKpaToNPerMm2);
   double sags[3];
   int n = 0;
-  for (Resolution r : kLayouts) {
+  for (Layout r : kLayouts) {
     const Model m = block(r, 16, int(height));
     auto p = make_physics_model(m, mat);
     SimState s = make_state(p);
@@ -135,7 +136,7 @@ TEST(Calibration, SagUnderOwnWeightMatchesTheBarSolution) {
 TEST(Calibration, VolumeTermBulgesACompressedBlockByPoissonsRatio) {
   // a bar 4x as tall as wide, clamped ends: away from the ends the state is near uniaxial
   // stress, so the mid-height width grows by nu * axial strain and stress = E * strain
-  for (Resolution r : {Resolution::voxel, Resolution::gradational}) {
+  for (Layout r : {Layout::voxel, Layout::gradational}) {
     for (double nu : {0.3, 0.45}) {
       Material mat;
       mat.youngs_modulus_kpa = 10.0;

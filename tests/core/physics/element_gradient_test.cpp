@@ -11,7 +11,7 @@
 
 #include "model/gradational_builder.h"
 #include "physics/element_gradient.h"
-#include "physics/material.h"
+#include "physics/physics_model.h"
 #include "support/builder_checks.h"
 
 namespace vx {
@@ -102,11 +102,11 @@ void expect_consistent(const Model& m, const std::string& what, bool exact) {
 
 TEST(ElementGradient, PassesThePatchTestOnEveryShapeAndLayout) {
   for (const Shape& s : shapes())
-    for (Resolution r : {Resolution::voxel, Resolution::uniform, Resolution::gradational}) {
+    for (Layout r : {Layout::voxel, Layout::uniform, Layout::gradational}) {
       BuildSettings bs;
-      bs.resolution = r;
+      bs.layout = r;
       expect_consistent(build_model(s.grid, bs), s.name + " " + to_string(r),
-                        s.name == "cube" || r == Resolution::voxel);
+                        s.name == "cube" || r == Layout::voxel);
     }
 }
 
@@ -121,7 +121,7 @@ TEST(ElementGradient, HoldsForAnisotropicRotatedVoxels) {
     for (int j = 0; j < 16; ++j)
       for (int i = 0; i < 20; ++i) grid.set(i, j, k, (i - 9.5) * (i - 9.5) / 90 + (j - 7.5) * (j - 7.5) / 60 + (k - 5.5) * (k - 5.5) / 30 < 1);
   BuildSettings bs;
-  bs.resolution = Resolution::gradational;
+  bs.layout = Layout::gradational;
   expect_consistent(build_model(grid, bs), "anisotropic ellipsoid", false);
   // a box of anisotropic, rotated voxels: exact
   VoxelGrid box(geo);
@@ -135,7 +135,7 @@ TEST(ElementGradient, EqualsThePapersLeastSquaresFitOnAnEightVertexCube) {
   // one voxel: g_i = C0^{-1} w_i R0_i = (3 / S) R0_i, S = 6 h^2 (for h = 2: S = 24)
   const VoxelGrid one = make_grid({1, 1, 1}, [](int, int, int) { return true; }, 2.0);
   BuildSettings bs;
-  bs.resolution = Resolution::voxel;
+  bs.layout = Layout::voxel;
   const Model m = build_model(one, bs);
   const ElementGradients g = compute_element_gradients(m);
   for (int j = 0; j < 8; ++j)

@@ -381,7 +381,7 @@ TEST(Elements, PackedKernelMatchesThePlainFormulasAndTheReferenceKernel) {
   mat.damping_ratio = 0.3;
   mat.poisson_ratio = 0.35;
   BuildSettings bs;
-  bs.resolution = Resolution::gradational;
+  bs.layout = Layout::gradational;
   auto f = make(build_model(testing::ball_grid(14, 6.0), bs), mat);
   const PhysicsModel& p = *f.physics;
   const Model& m = *p.model;
@@ -451,7 +451,7 @@ Fixture batched_ball(double amplitude, unsigned seed) {
   Material mat;
   mat.damping_ratio = 0.3;
   BuildSettings bs;
-  bs.resolution = Resolution::gradational;
+  bs.layout = Layout::gradational;
   auto f = make(build_model(testing::ball_grid(14, 6.0), bs), mat);
   const Model& m = *f.physics->model;
   std::mt19937 rng(seed);

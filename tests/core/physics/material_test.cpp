@@ -1,7 +1,7 @@
 // Material validation and per-element calibration: E = 2k/h for the 8-vertex cube, lumped
 // masses, damping ratio, per-element overrides, and the affine-strain energy of every layout
 // against continuum elasticity.
-#include "physics/material.h"
+#include "physics/physics_model.h"
 
 #include <gtest/gtest.h>
 
@@ -118,9 +118,9 @@ TEST(Material, EveryLayoutRepresentsTheSameMaterial) {
   uniaxial(2, 2) = 1e-4;
   Eigen::Matrix3d shear = Eigen::Matrix3d::Zero();
   shear(0, 2) = 1e-4;
-  for (Resolution r : {Resolution::voxel, Resolution::uniform, Resolution::gradational}) {
+  for (Layout r : {Layout::voxel, Layout::uniform, Layout::gradational}) {
     BuildSettings bs;
-    bs.resolution = r;
+    bs.layout = r;
     const Model m = build_model(grid, bs);
     ASSERT_EQ(m.validate(), "");
     EXPECT_NEAR(m.total_volume_mm3(), 16 * 16 * 24 * 0.125, 1e-9);
@@ -128,7 +128,7 @@ TEST(Material, EveryLayoutRepresentsTheSameMaterial) {
       const double ratio = affine_energy_ratio(m, Material{}, eps);
       // the voxel layout is exact; with the isotropic vertex weights so are the others where
       // every element could be made isotropic (here all); within 2 % in any case
-      EXPECT_NEAR(ratio, 1.0, r == Resolution::voxel ? 1e-9 : 0.02) << to_string(r) << "\n" << eps;
+      EXPECT_NEAR(ratio, 1.0, r == Layout::voxel ? 1e-9 : 0.02) << to_string(r) << "\n" << eps;
       std::cout << to_string(r) << " energy ratio " << ratio << "\n";
     }
   }

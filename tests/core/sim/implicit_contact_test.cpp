@@ -23,14 +23,14 @@ using namespace vx;
 namespace {
 
 /// An all-tissue block of nx x ny x nz voxels of 1 mm spanning [0, n] mm on each axis.
-std::shared_ptr<const Model> block_model(int nx, int ny, int nz, Resolution r) {
+std::shared_ptr<const Model> block_model(int nx, int ny, int nz, Layout r) {
   GridGeometry g;
   g.dims = {nx, ny, nz};
   g.origin_mm = {0.5, 0.5, 0.5};
   VoxelGrid grid(g);
   for (auto& v : grid.data()) v = 1;
   BuildSettings b;
-  b.resolution = r;
+  b.layout = r;
   return std::make_shared<const Model>(build_model(grid, b));
 }
 
@@ -60,7 +60,7 @@ constexpr double kR = 4.0, kTop = 8.0, kGap = 0.2, kDepth = 2.0;
 constexpr double kPress = 0.1, kHold = 0.2, kLift = 0.25, kEnd = 0.3;
 
 std::shared_ptr<const PhysicsModel> press_block() {
-  static const auto phys = physics_of(block_model(16, 16, 8, Resolution::gradational), 5.0, 0.1);
+  static const auto phys = physics_of(block_model(16, 16, 8, Layout::gradational), 5.0, 0.1);
   return phys;
 }
 
@@ -188,7 +188,7 @@ TEST(ImplicitContact, PressForceMatchesTheSymplecticReferenceAtLongSteps) {
 // implicit step of 50 ms per 0.05 s of press, held; the force comes from the multipliers alone.
 // Also: the multipliers are >= 0 and balance the base's reaction.
 TEST(ImplicitContact, PlateHeldByTheConstraintGivesEAStrain) {
-  const auto phys = physics_of(block_model(12, 12, 8, Resolution::uniform), 10.0, 0.3);
+  const auto phys = physics_of(block_model(12, 12, 8, Layout::uniform), 10.0, 0.3);
   SimulationSettings s;
   s.integrator.kind = IntegratorKind::implicit;
   s.integrator.time_step_s = 0.05;
@@ -246,7 +246,7 @@ class PlateProvider final : public ContactProvider {
 // The integrator with a provider of its own: the multipliers are >= 0 and complementary (a
 // node with a force lies on the plate, no node is above it), and steady steps do not allocate.
 TEST(ImplicitContact, MultipliersArePositiveComplementaryAndStepsDoNotAllocate) {
-  const auto phys = physics_of(block_model(10, 10, 6, Resolution::gradational), 5.0, 0.1);
+  const auto phys = physics_of(block_model(10, 10, 6, Layout::gradational), 5.0, 0.1);
   SimState state = make_state(phys);
   state.fix_nodes(nodes_on_face(*phys->model, BoxFace::z_min));
   IntegratorSettings set;
@@ -307,7 +307,7 @@ TEST(ImplicitContact, SameResultsOnOneAndTwoThreads) {
 // Walls: a block dropped onto the workspace floor under gravity comes to rest on it with the
 // floor carrying its weight (the implicit path's wall force, from the multipliers).
 TEST(ImplicitContact, FloorCarriesTheWeight) {
-  const auto phys = physics_of(block_model(6, 6, 4, Resolution::uniform), 10.0, 0.3);
+  const auto phys = physics_of(block_model(6, 6, 4, Layout::uniform), 10.0, 0.3);
   SimulationSettings s;
   s.integrator.kind = IntegratorKind::implicit;
   s.integrator.time_step_s = 5e-3;

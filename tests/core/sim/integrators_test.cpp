@@ -3,6 +3,7 @@
 // across thread counts, NaN/runaway detection, fixed and kinematic nodes, gravity, and
 // recovery of inverted and crushed elements.
 #include "sim/integrators.h"
+#include "sim/static_solver.h"
 
 #include <gtest/gtest.h>
 
@@ -180,7 +181,7 @@ TEST(Integrators, ExplicitEulerEstimateHoldsOnTheGradationalLayout) {
   // estimate must not exceed the measured limit, and not be far below it (measured 3.1x, with
   // the estimate's 10 % margin). The element-wise c / k_e it replaced was 3.6x above the limit.
   BuildSettings bs;
-  bs.resolution = Resolution::gradational;
+  bs.layout = Layout::gradational;
   const Model m = build_model(testing::ball_grid(12, 5.0), bs);
   ASSERT_GT(m.num_levels(), 1);
   const Material mat = soft(0.1);

@@ -45,7 +45,7 @@ TEST(SimulationSlow, HertzOnTheVoxelLayoutMatchesTheFiniteLayerSolution) {
   VoxelGrid grid(g);
   for (auto& v : grid.data()) v = 1;
   BuildSettings b;
-  b.resolution = Resolution::voxel;
+  b.layout = Layout::voxel;
   auto model = std::make_shared<const Model>(build_model(grid, b));
   Material mat;
   mat.youngs_modulus_kpa = 10.0;

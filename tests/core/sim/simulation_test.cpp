@@ -17,14 +17,14 @@ using namespace vx;
 namespace {
 
 /// An all-tissue block of nx x ny x nz voxels of 1 mm spanning [0, n] mm on each axis.
-std::shared_ptr<const Model> block_model(int nx, int ny, int nz, Resolution r = Resolution::gradational) {
+std::shared_ptr<const Model> block_model(int nx, int ny, int nz, Layout r = Layout::gradational) {
   GridGeometry g;
   g.dims = {nx, ny, nz};
   g.origin_mm = {0.5, 0.5, 0.5};
   VoxelGrid grid(g);
   for (auto& v : grid.data()) v = 1;
   BuildSettings b;
-  b.resolution = r;
+  b.layout = r;
   return std::make_shared<const Model>(build_model(grid, b));
 }
 
@@ -94,7 +94,7 @@ double hertz_bonded_layer_n(double e_kpa, double nu, double r, double d, double 
 /// Presses a ball of radius R 2 mm into the top of a 40 x 40 x 20 mm block (1 mm voxels, base
 /// fixed, E = 10 kPa, Poisson 0) at 10 mm/s and returns (depth, mean force) per bin of 32 steps
 /// (the raw force jitters from step to step, paper fig. 10).
-std::vector<std::pair<double, double>> indent_block(Resolution r, double restitution, int threads = 1) {
+std::vector<std::pair<double, double>> indent_block(Layout r, double restitution, int threads = 1) {
   auto phys = physics_of(block_model(40, 40, 20, r), 10.0);
   SimulationSettings s;
   s.integrator = symplectic(*phys);
@@ -157,7 +157,7 @@ double loglog_slope(const std::vector<std::pair<double, double>>& p, double x_mi
 // [-5 %, +28 %] of the reference for 0.5 <= d <= 2 mm, and the force must grow like d^1.5:
 // log-log slope of F/c(chi) in 1.5 +- 0.1 (measured 1.44; 1.47 for the voxel layout).
 TEST(Simulation, HertzIndentationOfABlock) {
-  const auto curve = indent_block(Resolution::gradational, 1.0);
+  const auto curve = indent_block(Layout::gradational, 1.0);
   std::vector<std::pair<double, double>> reduced;  // F / c(chi): the half-space equivalent
   double lo = 10, hi = 0;
   for (const auto& [d, f] : curve) {
@@ -184,7 +184,7 @@ TEST(Simulation, HertzIndentationOfABlock) {
 // is held to 15 %: its larger interior elements come out softer in the physics core's
 // calibration (measured -8.6 % to -10.2 % here as that core evolved, and the same in a static
 // solve without any contact, so it is not the contact's doing).
-double plate_compression_ratio(Resolution r) {
+double plate_compression_ratio(Layout r) {
   auto phys = physics_of(block_model(20, 20, 20, r), 10.0, 0.3);
   SimulationSettings s;
   s.integrator = symplectic(*phys);
@@ -216,8 +216,8 @@ double plate_compression_ratio(Resolution r) {
 }
 
 TEST(Simulation, PlateCompressionGivesEAStrain) {
-  EXPECT_NEAR(plate_compression_ratio(Resolution::uniform), 1.0, 0.03);
-  EXPECT_NEAR(plate_compression_ratio(Resolution::gradational), 1.0, 0.15);
+  EXPECT_NEAR(plate_compression_ratio(Layout::uniform), 1.0, 0.03);
+  EXPECT_NEAR(plate_compression_ratio(Layout::gradational), 1.0, 0.15);
 }
 
 // A tap: a ball strikes a free block (no gravity, no fixture) and retreats. The block flies

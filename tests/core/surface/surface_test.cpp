@@ -84,7 +84,7 @@ TEST(Surface, MethodNames) {
 
 TEST(Surface, SingleVoxelStaircaseIsACube) {
   const VoxelGrid g = grid_of({{2, 2, 2}});
-  const Model m = build_model(g, BuildSettings{Resolution::voxel, -1, {}});
+  const Model m = build_model(g, BuildSettings{Layout::voxel, -1, {}});
   const EmbeddedSurface s = make_voxel_surface(m, g, false);
   EXPECT_EQ(s.num_vertices(), 8);
   EXPECT_EQ(s.num_triangles(), 12);
@@ -315,7 +315,7 @@ Eigen::Matrix3Xd probe_points(const Model& m, const EmbeddedSurface& s, double o
 }  // namespace
 
 TEST(SurfaceEmbedding, RestAffineAndRigidMotionAreExact) {
-  for (Resolution res : {Resolution::gradational, Resolution::uniform, Resolution::voxel}) {
+  for (Layout res : {Layout::gradational, Layout::uniform, Layout::voxel}) {
     SCOPED_TRACE(to_string(res));
     VoxelGrid g = make_sphere(22, 8.6);
     GridGeometry geo = g.geometry();

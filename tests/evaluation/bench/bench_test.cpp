@@ -188,7 +188,7 @@ TEST(BenchCsv, ColumnsAndRows) {
   BenchRow ok = point(0.25, 0.0123);
   ok.size = 24;
   ok.voxel_mm = 32.0 / 24;
-  ok.resolution = Resolution::uniform;
+  ok.layout = Layout::uniform;
   ok.integrator = IntegratorKind::symplectic_euler;
   ok.time_step_s = 2.5e-4;
   ok.dt_fraction = 0.5;
@@ -235,7 +235,7 @@ TEST(BenchCsv, ColumnsAndRows) {
 TEST(BenchCsv, StepRowsIncludingSkipped) {
   StepBenchmarkRow run;
   run.size = 64;
-  run.resolution = Resolution::voxel;
+  run.layout = Layout::voxel;
   run.integrator = IntegratorKind::explicit_euler;
   run.threads = 1;
   run.elements = 1000;
@@ -262,7 +262,7 @@ TEST(BenchCsv, StepRowsIncludingSkipped) {
 
 TEST(BenchScene, IsAValidSceneOfTheRightGeometry) {
   PalpationSceneSettings s;
-  const json j = palpation_scene_json(s, 8, Resolution::gradational, IntegratorKind::implicit, 2e-3, 1);
+  const json j = palpation_scene_json(s, 8, Layout::gradational, IntegratorKind::implicit, 2e-3, 1);
   const Scene scene = parse_scene(j, fs::temp_directory_path(), "bench scene");
   EXPECT_EQ(scene.integrator, IntegratorKind::implicit);
   EXPECT_DOUBLE_EQ(scene.dt_s, 2e-3);
@@ -277,10 +277,10 @@ TEST(BenchScene, IsAValidSceneOfTheRightGeometry) {
   EXPECT_NEAR(probe.initial_position().z() - s.probe_radius_mm, s.height_mm + s.gap_mm, 1e-9);
   EXPECT_GT(p.fixed_nodes, 0);
   // "auto" when no step is given; odd or tiny grids are refused
-  EXPECT_EQ(palpation_scene_json(s, 8, Resolution::voxel, IntegratorKind::symplectic_euler, 0.0, 1)["integrator"]["dt_s"],
+  EXPECT_EQ(palpation_scene_json(s, 8, Layout::voxel, IntegratorKind::symplectic_euler, 0.0, 1)["integrator"]["dt_s"],
             "auto");
-  EXPECT_THROW((void)palpation_scene_json(s, 9, Resolution::voxel, IntegratorKind::implicit, 1e-3, 1), Error);
-  EXPECT_THROW((void)palpation_scene_json(s, 2, Resolution::voxel, IntegratorKind::implicit, 1e-3, 1), Error);
+  EXPECT_THROW((void)palpation_scene_json(s, 9, Layout::voxel, IntegratorKind::implicit, 1e-3, 1), Error);
+  EXPECT_THROW((void)palpation_scene_json(s, 2, Layout::voxel, IntegratorKind::implicit, 1e-3, 1), Error);
 }
 
 TEST(BenchSettings, InvalidSettingsAreRefused) {
@@ -308,7 +308,7 @@ BenchSettings tiny_bench() {
   BenchSettings s;
   s.run_step = false;
   s.sizes = {8};
-  s.resolutions = {Resolution::gradational, Resolution::voxel};
+  s.resolutions = {Layout::gradational, Layout::voxel};
   s.explicit_fractions = {0.5, 8.0};  // 8x the stable estimate blows up (the estimates are 1.1-3.1x below the limits): an unstable row
   s.implicit_steps_s = {2e-3};
   s.reference_size = 12;
@@ -325,7 +325,7 @@ TEST(BenchRun, TinyBenchMeasuresEveryRunAgainstTheReference) {
   const BenchResult res = run_bench(s);
   // the reference: a real force curve with a positive peak (Hertz for this ball and depth:
   // 4/3 E sqrt(R) d^1.5 = 0.042 N; a thin block fixed at its base is stiffer, a coarse one too)
-  EXPECT_EQ(res.reference.resolution, Resolution::voxel);
+  EXPECT_EQ(res.reference.layout, Layout::voxel);
   EXPECT_EQ(res.reference.size, 12);
   EXPECT_GT(res.reference.peak_force_n, 0.03);
   EXPECT_LT(res.reference.peak_force_n, 0.15);
@@ -369,7 +369,7 @@ TEST(BenchRun, TinyBenchMeasuresEveryRunAgainstTheReference) {
 
 TEST(BenchRun, ReportIsWrittenAllOrNothing) {
   BenchSettings s = tiny_bench();
-  s.resolutions = {Resolution::gradational};
+  s.resolutions = {Layout::gradational};
   s.explicit_fractions = {1.0};
   const BenchResult res = run_bench(s);
   const fs::path dir = fs::temp_directory_path() / ("vx_bench_test_" + std::to_string(::getpid()));

@@ -131,7 +131,7 @@ Model hand_models_mixed() {
 
 TEST_F(ModelIo, SingleCubeElementRoundTripAndVolume) {
   const GridGeometry g = oblique_grid({3, 3, 3});
-  const Model m = make_hand_model({{{1, 1, 1}, 1, 1, 0}}, g, Resolution::voxel);
+  const Model m = make_hand_model({{{1, 1, 1}, 1, 1, 0}}, g, Layout::voxel);
   ASSERT_EQ(m.validate(), "");
   ASSERT_EQ(m.num_nodes(), 8);
   const fs::path p = dir_ / "cube.vtu";
@@ -139,7 +139,7 @@ TEST_F(ModelIo, SingleCubeElementRoundTripAndVolume) {
   EXPECT_EQ(files(), std::vector<std::string>{"cube.vtu"});  // no temporary file left
   const Model back = load_model(p);
   EXPECT_TRUE(same_model(m, back));
-  EXPECT_EQ(back.resolution, Resolution::voxel);
+  EXPECT_EQ(back.layout, Layout::voxel);
   EXPECT_EQ(back.grid, m.grid);  // geometry exact (binary doubles)
   EXPECT_NEAR(back.element_volume_mm3[0], 0.5 * 0.8 * 1.25, 1e-12);
 
@@ -176,7 +176,7 @@ TEST_F(ModelIo, SingleCubeElementRoundTripAndVolume) {
 TEST_F(ModelIo, TwoElementsSharingAFace) {
   GridGeometry g;
   g.dims = {2, 1, 1};
-  const Model m = make_hand_model({{{0, 0, 0}, 1, 1, 0}, {{1, 0, 0}, 1, 1, 0}}, g, Resolution::voxel);
+  const Model m = make_hand_model({{{0, 0, 0}, 1, 1, 0}, {{1, 0, 0}, 1, 1, 0}}, g, Layout::voxel);
   ASSERT_EQ(m.num_nodes(), 12);
   const fs::path p = dir_ / "two.vtu";
   save_model(m, p);
@@ -245,10 +245,10 @@ TEST_F(ModelIo, BuiltModelsRoundTripForEveryResolution) {
     return ((i + j + k) % 3 != 0 && i > 1 && j > 0) || (i < 6 && j < 6 && k < 6);
   });
   for (const VoxelGrid* grid : {&ball, &odd})
-    for (Resolution r : {Resolution::gradational, Resolution::uniform, Resolution::voxel}) {
+    for (Layout r : {Layout::gradational, Layout::uniform, Layout::voxel}) {
       SCOPED_TRACE(std::string(to_string(r)) + (grid == &ball ? " ball" : " odd"));
       BuildSettings s;
-      s.resolution = r;
+      s.layout = r;
       const Model m = build_model(*grid, s);
       const fs::path p = dir_ / (std::string(to_string(r)) + ".vtu");
       save_model(m, p);

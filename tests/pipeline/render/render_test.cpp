@@ -159,7 +159,7 @@ TEST_F(Render, SphereCutawayShowsInnerLevels) {
 TEST_F(Render, SmallHandModel) {
   if (!display_available()) GTEST_SKIP() << "no X display (run under xvfb-run)";
   const Model m = vx::testing::make_hand_model({{{0, 0, 0}, 1, 1, 0}, {{1, 0, 0}, 1, 1, 0}}, vx::testing::oblique_grid({2, 1, 1}),
-                                               Resolution::voxel);
+                                               Layout::voxel);
   RenderSettings s;
   s.width = 640;
   s.height = 480;

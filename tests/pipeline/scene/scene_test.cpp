@@ -74,7 +74,7 @@ fs::path temp_dir(const std::string& name) {
 TEST(Scene, ParsesAValidSceneWithDefaults) {
   const Scene s = parse_scene(base_scene(), ".", "test.json");
   EXPECT_EQ(s.object.source, ObjectSource::box);
-  EXPECT_EQ(s.object.build.resolution, Resolution::gradational);
+  EXPECT_EQ(s.object.build.layout, Layout::gradational);
   EXPECT_DOUBLE_EQ(s.material.base.youngs_modulus_kpa, 10.0);
   EXPECT_EQ(s.integrator, IntegratorKind::symplectic_euler);
   EXPECT_DOUBLE_EQ(s.dt_s, 0.0);  // auto

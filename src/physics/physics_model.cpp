@@ -1,0 +1,240 @@
+#include "physics/physics_model.h"
+
+#include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <cmath>
+
+#include "base/error.h"
+#include "base/parallel.h"
+#include "physics/element_gradient.h"
+#include "physics/elements.h"
+#include "physics/vertex_weights.h"
+
+namespace vx {
+
+double PhysicsModel::total_mass_kg() const {
+  double m = 0;
+  for (double x : node_mass_kg) m += x;
+  return m;
+}
+
+namespace {
+
+void check_field(const std::vector<double>& v, int elements, const char* what) {
+  if (v.empty()) return;
+  if (int(v.size()) != elements)
+    throw Error(std::string("material field: ") + what + " has " + std::to_string(v.size()) +
+                " values, the model has " + std::to_string(elements) + " elements");
+  for (std::size_t e = 0; e < v.size(); ++e)
+    if (!(v[e] > 0) || !std::isfinite(v[e]))
+      throw Error(std::string("material field: ") + what + " of element " + std::to_string(e) + " is " +
+                  std::to_string(v[e]) + ", must be > 0");
+}
+
+/// The inputs of make_physics_model(), checked (throws vx::Error with what is wrong).
+void check_inputs(const Model* model, const Material& material, const MaterialField& field,
+                  const CalibrationOptions& options) {
+  if (!model) throw Error("make_physics_model: no model");
+  if (const std::string bad = validate(material); !bad.empty()) throw Error("material: " + bad);
+  if (!(options.min_weight > 0 && options.min_weight <= 1 && options.max_weight >= 1))
+    throw Error("calibration: weight bounds [" + std::to_string(options.min_weight) + ", " +
+                std::to_string(options.max_weight) + "] must satisfy 0 < min <= 1 <= max");
+  const Model& m = *model;
+  const int ne = m.num_elements(), nn = m.num_nodes();
+  if (ne == 0 || nn == 0) throw Error("make_physics_model: the model has no elements");
+  if (m.rest_offsets.cols() != m.num_vertex_entries() || int(m.element_volume_mm3.size()) != ne)
+    throw Error("make_physics_model: the model is not finalized (call Model::finalize())");
+  if (const std::string bad = m.validate(); !bad.empty()) throw Error("make_physics_model: model: " + bad);
+  check_field(field.youngs_modulus_kpa, ne, "youngs_modulus_kpa");
+  check_field(field.density_kg_m3, ne, "density_kg_m3");
+}
+
+/// Sizes the per-element and per-entry arrays of `p` (p.model and p.material set).
+void allocate(PhysicsModel& p) {
+  const Model& m = *p.model;
+  const std::size_t ne = std::size_t(m.num_elements());
+  const bool volume = p.material.poisson_ratio > 0;
+  p.element_stiffness.resize(ne);
+  p.element_damping.resize(ne);
+  p.element_mass_kg.resize(ne);
+  p.element_spread_mm2.resize(ne);
+  p.element_fit_scale.resize(ne);
+  p.element_affine_stiffness.resize(ne);
+  p.element_spread.resize(ne);
+  if (volume) {
+    p.element_volume_stiffness.resize(ne);
+    p.element_spread_inv_sqrt.resize(ne);
+    p.element_spread_sqrt_det.resize(ne);
+  }
+  p.node_mass_kg.assign(std::size_t(m.num_nodes()), 0.0);
+  const std::int64_t entries = m.num_vertex_entries();
+  p.entry_weight.resize(std::size_t(entries));
+  p.entry_rest.resize(3, entries);
+  p.entry_rest_weighted.resize(3, entries);
+}
+
+/// Per element, in parallel (independent): vertex weights, rest offsets, spread, stiffness,
+/// damping, mass. anisotropy[e] gets the weighted spread's anisotropy; bad[e] = 1 for an element
+/// without rest extent or volume.
+void calibrate_elements(PhysicsModel& p, const MaterialField& field, const CalibrationOptions& options,
+                        std::vector<double>& anisotropy, std::vector<std::uint8_t>& bad) {
+  const Model& m = *p.model;
+  const Material& material = p.material;
+  const int ne = m.num_elements();
+  const bool volume = material.poisson_ratio > 0;
+  anisotropy.assign(std::size_t(ne), 0.0);
+  bad.assign(std::size_t(ne), 0);
+  parallel_for(ne, 64, 0, [&](std::int64_t e0, std::int64_t e1) {
+    for (int e = int(e0); e < int(e1); ++e) {
+      const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+      // vertex weights making the weighted rest spread isotropic
+      Eigen::Matrix3Xd pts(3, n);
+      for (int i = 0; i < n; ++i) pts.col(i) = m.rest_positions.col(m.element_vertices[b + i]);
+      const Eigen::VectorXd w = options.isotropic_weights
+                                    ? isotropic_weights(pts, options.min_weight, options.max_weight)
+                                    : Eigen::VectorXd::Ones(n);
+      const double wsum = w.sum();
+      const Eigen::Vector3d centroid = pts * w / wsum;
+      // rest offsets about the weighted centroid, spread S_e and C0
+      double s = 0;
+      Eigen::Matrix3d c0 = Eigen::Matrix3d::Zero();
+      for (int i = 0; i < n; ++i) {
+        const Eigen::Vector3d r0 = pts.col(i) - centroid;
+        p.entry_weight[std::size_t(b + i)] = w(i);
+        p.entry_rest.col(b + i) = r0;
+        p.entry_rest_weighted.col(b + i) = w(i) * r0;
+        s += w(i) * r0.squaredNorm();
+        c0 += w(i) * r0 * r0.transpose();
+      }
+      anisotropy[std::size_t(e)] = spread_anisotropy(c0);
+      const double vol = m.element_volume_mm3[e];
+      if (!(s > 0) || !(vol > 0)) {
+        bad[std::size_t(e)] = 1;
+        continue;
+      }
+      const double e_kpa = field.youngs_modulus_kpa.empty() ? material.youngs_modulus_kpa : field.youngs_modulus_kpa[e];
+      const double rho = field.density_kg_m3.empty() ? material.density_kg_m3 : field.density_kg_m3[e];
+      const double mu = shear_modulus_n_mm2(e_kpa, material.poisson_ratio);
+      // k_e = 6 mu V / S (see the header's derivation)
+      const double k = 6.0 * mu * vol / s;
+      const double mass_kg = rho * kKgM3ToKgPerMm3 * vol;
+      const double m_unit = mass_kg * kKgToNs2PerMm / wsum;  // per unit weight, N*s^2/mm
+      p.element_stiffness[e] = k;
+      p.element_damping[e] = material.damping_ratio * 2.0 * std::sqrt(k * m_unit);
+      p.element_mass_kg[e] = mass_kg;
+      p.element_spread_mm2[e] = s;
+      p.element_fit_scale[e] = 3.0 / s;
+      p.element_affine_stiffness[e] = 2.0 * mu * vol;
+      p.element_spread[e] = c0;
+      if (volume) {
+        const double lambda = lame_lambda_n_mm2(e_kpa, material.poisson_ratio);
+        p.element_volume_stiffness[e] = 9.0 * lambda * vol / s;
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(c0);
+        const Eigen::Vector3d ev = eig.eigenvalues().cwiseMax(1e-12 * eig.eigenvalues().maxCoeff());
+        p.element_spread_inv_sqrt[e] =
+            eig.eigenvectors() * ev.cwiseSqrt().cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
+        p.element_spread_sqrt_det[e] = std::sqrt(ev.prod());
+      }
+    }
+  });
+}
+
+/// Consistent deformation gradients; the least-squares fit g_i = C0^{-1} w_i R0_i where the
+/// boundary shares cannot be formed (a hand-edited model).
+void set_gradients(PhysicsModel& p, const std::vector<std::uint8_t>& bad) {
+  const Model& m = *p.model;
+  ElementGradients grads = compute_element_gradients(m);
+  p.entry_gradient = std::move(grads.entry_gradient);
+  p.gradient_fallback_elements = grads.fallback_elements;
+  for (int e = 0; e < m.num_elements(); ++e) {
+    if (!grads.element_fallback[std::size_t(e)] || bad[std::size_t(e)]) continue;
+    const Eigen::Matrix3d inv = p.element_spread[std::size_t(e)].inverse();
+    for (int j = m.element_offsets[e]; j < m.element_offsets[e + 1]; ++j)
+      p.entry_gradient.col(j) = inv * p.entry_rest_weighted.col(j);
+  }
+}
+
+/// Serial, in element order: checks, statistics, lumped node masses (deterministic sums).
+void lump_masses(PhysicsModel& p, const std::vector<double>& anisotropy, const std::vector<std::uint8_t>& bad) {
+  const Model& m = *p.model;
+  const int nn = m.num_nodes();
+  for (int e = 0; e < m.num_elements(); ++e) {
+    if (bad[std::size_t(e)])
+      throw Error("make_physics_model: element " + std::to_string(e) + " has no rest extent or volume");
+    p.max_anisotropy = std::max(p.max_anisotropy, anisotropy[std::size_t(e)]);
+    if (anisotropy[std::size_t(e)] > 1e-6) ++p.anisotropic_elements;
+    const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+    double wsum = 0;
+    for (int i = 0; i < n; ++i) wsum += p.entry_weight[std::size_t(b + i)];
+    for (int i = 0; i < n; ++i)
+      p.node_mass_kg[std::size_t(m.element_vertices[b + i])] += p.element_mass_kg[e] * p.entry_weight[std::size_t(b + i)] / wsum;
+  }
+  p.node_mass.resize(std::size_t(nn));
+  p.node_inv_mass.resize(std::size_t(nn));
+  for (int i = 0; i < nn; ++i) {
+    if (!(p.node_mass_kg[i] > 0)) throw Error("make_physics_model: node " + std::to_string(i) + " belongs to no element");
+    p.node_mass[i] = p.node_mass_kg[i] * kKgToNs2PerMm;
+    p.node_inv_mass[i] = 1.0 / p.node_mass[i];
+  }
+}
+
+/// Node -> entries CSR by counting sort (entries stay in increasing order per node), and the
+/// element pass's packed per-entry constants.
+void index_entries(PhysicsModel& p) {
+  const Model& m = *p.model;
+  const int nn = m.num_nodes();
+  p.node_entry_offsets.assign(std::size_t(nn) + 1, 0);
+  for (auto v : m.element_vertices) ++p.node_entry_offsets[std::size_t(v) + 1];
+  for (int i = 0; i < nn; ++i) p.node_entry_offsets[i + 1] += p.node_entry_offsets[i];
+  p.node_entries.resize(m.element_vertices.size());
+  p.entry_slot.resize(m.element_vertices.size());
+  std::vector<std::int32_t> fill(p.node_entry_offsets.begin(), p.node_entry_offsets.end() - 1);
+  for (std::size_t j = 0; j < m.element_vertices.size(); ++j) {
+    const std::int32_t slot = fill[std::size_t(m.element_vertices[j])]++;
+    p.node_entries[std::size_t(slot)] = std::int32_t(j);
+    p.entry_slot[j] = slot;
+  }
+  p.entry_packed.resize(m.element_vertices.size());
+  for (std::size_t j = 0; j < m.element_vertices.size(); ++j) {
+    PackedEntry& pe = p.entry_packed[j];
+    for (int d = 0; d < 3; ++d) {
+      pe.rest_weighted[d] = p.entry_rest_weighted(d, std::int64_t(j));
+      pe.gradient[d] = p.entry_gradient(d, std::int64_t(j));
+    }
+    pe.weight = p.entry_weight[j];
+    pe.vertex = m.element_vertices[j];
+    pe.slot = p.entry_slot[j];
+  }
+}
+
+}  // namespace
+
+std::shared_ptr<const PhysicsModel> make_physics_model(std::shared_ptr<const Model> model_ptr,
+                                                       const Material& material,
+                                                       const MaterialField& field,
+                                                       const CalibrationOptions& options) {
+  check_inputs(model_ptr.get(), material, field, options);
+  auto p = std::make_shared<PhysicsModel>();
+  p->model = std::move(model_ptr);
+  p->material = material;
+  allocate(*p);
+  std::vector<double> anisotropy;
+  std::vector<std::uint8_t> bad;
+  calibrate_elements(*p, field, options, anisotropy, bad);
+  set_gradients(*p, bad);
+  lump_masses(*p, anisotropy, bad);
+  index_entries(*p);
+  build_element_batches(*p, kElementGrain, p->element_batches);
+  // derived constants of the integrators
+  p->damped = std::any_of(p->element_damping.begin(), p->element_damping.end(), [](double c) { return c > 0; });
+  const Eigen::Matrix3Xd& r = p->model->rest_positions;
+  p->rest_diagonal_mm = (r.rowwise().maxCoeff() - r.rowwise().minCoeff()).norm();
+  return p;
+}
+
+std::shared_ptr<const PhysicsModel> make_physics_model(const Model& model, const Material& material,
+                                                       const MaterialField& field, const CalibrationOptions& options) {
+  return make_physics_model(std::make_shared<const Model>(model), material, field, options);
+}
+
+}  // namespace vx

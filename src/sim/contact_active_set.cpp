@@ -1,0 +1,275 @@
+#include "sim/contact_active_set.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "base/parallel.h"
+#include "physics/elements.h"
+
+namespace vx {
+
+namespace {
+
+bool key_less(const ContactConstraint& a, const ContactConstraint& b) {
+  return a.owner != b.owner ? a.owner < b.owner : a.node < b.node;
+}
+
+/// Solves S lambda = d in place (S: n x n row-major, symmetric positive definite; lower
+/// triangle used) by Cholesky. S is the Hadamard product of the normals' Gram matrix and G,
+/// positive definite unless one node has two parallel constraints; a pivot below 1e-12 of its
+/// diagonal (that case) is raised to it, which splits the force between them.
+void dense_solve(double* a, int n, double* b) {
+  for (int j = 0; j < n; ++j) {
+    double piv = a[j * n + j];
+    for (int k = 0; k < j; ++k) piv -= a[j * n + k] * a[j * n + k];
+    const double floor = 1e-12 * std::abs(a[j * n + j]);
+    piv = std::sqrt(std::max(piv, floor > 0 ? floor : 1e-300));
+    a[j * n + j] = piv;
+    for (int i = j + 1; i < n; ++i) {
+      double v = a[i * n + j];
+      for (int k = 0; k < j; ++k) v -= a[i * n + k] * a[j * n + k];
+      a[i * n + j] = v / piv;
+    }
+  }
+  for (int i = 0; i < n; ++i) {
+    double v = b[i];
+    for (int k = 0; k < i; ++k) v -= a[i * n + k] * b[k];
+    b[i] = v / a[i * n + i];
+  }
+  for (int i = n - 1; i >= 0; --i) {
+    double v = b[i];
+    for (int k = i + 1; k < n; ++k) v -= a[k * n + i] * b[k];
+    b[i] = v / a[i * n + i];
+  }
+}
+
+}  // namespace
+
+void ContactActiveSet::bind(const std::vector<int>& free_index, const std::vector<int>& free_nodes) {
+  free_index_ = &free_index;
+  free_nodes_ = &free_nodes;
+  const int nf = num_free();
+  unconstrained_.resize(nf, 3);
+  trial_.resize(3, Eigen::Index(free_index.size()));
+  column_slot_.assign(std::size_t(nf), -1);
+  slot_free_.clear();
+  slot_last_used_.clear();
+  used_slots_ = 0;
+  if (columns_.rows() != nf) columns_.resize(nf, 0);
+}
+
+/// The column slot of free node f, solving its column when it has none (allocates when the
+/// cache grows).
+int ContactActiveSet::column_of(int f, SparseFactor& factor, ContactSolveCounters& counters) {
+  int slot = column_slot_[std::size_t(f)];
+  if (slot < 0) {
+    const int nf = num_free();
+    if (used_slots_ < columns_.cols()) {
+      slot = used_slots_++;
+    } else if (double(columns_.cols()) * nf * sizeof(double) < kColumnBudgetBytes) {
+      const Eigen::Index grow = std::max<Eigen::Index>(16, columns_.cols());
+      columns_.conservativeResize(nf, columns_.cols() + grow);
+      slot = used_slots_++;
+    } else {
+      // full: reuse the least recently used slot (never one of this solve)
+      std::int64_t oldest = solve_count_;
+      for (int k = 0; k < used_slots_; ++k)
+        if (slot_last_used_[std::size_t(k)] < oldest) oldest = slot_last_used_[std::size_t(k)], slot = k;
+      if (slot < 0) {  // all in use now: grow beyond the budget
+        columns_.conservativeResize(nf, columns_.cols() + 16);
+        slot = used_slots_++;
+      } else {
+        column_slot_[std::size_t(slot_free_[std::size_t(slot)])] = -1;
+      }
+    }
+    if (std::size_t(slot) >= slot_free_.size()) {
+      slot_free_.resize(std::size_t(columns_.cols()), -1);
+      slot_last_used_.resize(std::size_t(columns_.cols()), 0);
+    }
+    factor.solve_unit(f, columns_.col(slot).data());
+    column_slot_[std::size_t(f)] = slot;
+    slot_free_[std::size_t(slot)] = f;
+    ++counters.columns;
+  }
+  slot_last_used_[std::size_t(slot)] = solve_count_;
+  return slot;
+}
+
+/// Position of candidate c's node for the current multipliers of the working set.
+Eigen::Vector3d ContactActiveSet::constrained_position(int c) const {
+  const int f = candidate_free_[std::size_t(c)];
+  Eigen::Vector3d xi = unconstrained_.row(f).transpose();
+  for (std::size_t b = 0; b < working_.size(); ++b)
+    xi += columns_(f, working_column_[b]) *
+          Eigen::Vector3d(working_force_[3 * b], working_force_[3 * b + 1], working_force_[3 * b + 2]);
+  return xi;
+}
+
+/// Active-set iteration on the candidates with x_u = unconstrained_; leaves the multipliers in
+/// candidates_[c].force_n (0 off the working set) and working_force_/working_column_ for the
+/// working set. Returns the rounds taken.
+int ContactActiveSet::iterate_working_set(SparseFactor& factor, ContactSolveCounters& counters) {
+  const int nc = int(candidates_.size());
+  int round = 1;
+  for (;; ++round) {
+    working_.clear();
+    for (int c = 0; c < nc; ++c) {
+      candidates_[std::size_t(c)].force_n = 0.0;
+      if (in_working_set_[std::size_t(c)]) working_.push_back(c);
+    }
+    const int nw = int(working_.size());
+    working_column_.resize(std::size_t(nw));
+    working_force_.resize(3 * std::size_t(nw));
+    schur_.resize(std::size_t(nw) * std::size_t(nw));
+    schur_rhs_.resize(std::size_t(nw));
+    for (int a = 0; a < nw; ++a)
+      working_column_[std::size_t(a)] = column_of(candidate_free_[std::size_t(working_[std::size_t(a)])], factor, counters);
+    // S_ab = (n_a . n_b) G_ab, d_a = n_a . (p_a - x_u,a)
+    for (int a = 0; a < nw; ++a) {
+      const ContactConstraint& ca = candidates_[std::size_t(working_[std::size_t(a)])];
+      const int fa = candidate_free_[std::size_t(working_[std::size_t(a)])];
+      for (int b = 0; b <= a; ++b) {
+        const ContactConstraint& cb = candidates_[std::size_t(working_[std::size_t(b)])];
+        schur_[std::size_t(a * nw + b)] = ca.normal.dot(cb.normal) * columns_(fa, working_column_[std::size_t(b)]);
+      }
+      schur_rhs_[std::size_t(a)] = ca.normal.dot(ca.point_mm - unconstrained_.row(fa).transpose());
+    }
+    if (nw > 0) dense_solve(schur_.data(), nw, schur_rhs_.data());
+    // the members that pull leave the working set
+    bool pulled = false;
+    for (int a = 0; a < nw; ++a) {
+      const int c = working_[std::size_t(a)];
+      const double lambda = schur_rhs_[std::size_t(a)];
+      candidates_[std::size_t(c)].force_n = lambda;
+      const Eigen::Vector3d ln = lambda * candidates_[std::size_t(c)].normal;
+      for (int k = 0; k < 3; ++k) working_force_[3 * std::size_t(a) + std::size_t(k)] = ln[k];
+      if (!(lambda >= 0.0)) {  // pulls (or NaN)
+        in_working_set_[std::size_t(c)] = 0;
+        pulled = true;
+      }
+    }
+    if (round >= kMaxRounds) break;
+    if (pulled) continue;
+    // the candidates off the working set that the solution pushes through their surface join it
+    bool added = false;
+    for (int c = 0; c < nc; ++c) {
+      if (in_working_set_[std::size_t(c)]) continue;
+      const ContactConstraint& cc = candidates_[std::size_t(c)];
+      if (cc.normal.dot(constrained_position(c) - cc.point_mm) < -kGapToleranceMm) {
+        in_working_set_[std::size_t(c)] = 1;
+        added = true;
+      }
+    }
+    if (!added) break;
+  }
+  // (not converged within the rounds: keep the multipliers that push; the rest are zero)
+  for (std::size_t a = 0; a < working_.size(); ++a)
+    if (!(candidates_[std::size_t(working_[a])].force_n >= 0.0)) {
+      candidates_[std::size_t(working_[a])].force_n = 0.0;
+      for (int k = 0; k < 3; ++k) working_force_[3 * a + std::size_t(k)] = 0.0;
+    }
+  return round;
+}
+
+/// solution = x_u + sum over the working set of lambda_j n_j G e_j (per free node, parallel).
+void ContactActiveSet::apply_working_forces(Eigen::MatrixX3d& solution, int threads) const {
+  const int nf = num_free();
+  const std::size_t nw = working_.size();
+  if (nw == 0) {
+    solution = unconstrained_;
+    return;
+  }
+  // column by column within a chunk of nodes (contiguous reads; each node sums its terms in
+  // working-set order whatever the chunking)
+  parallel_for(nf, kNodeGrain, threads, [&](std::int64_t lo, std::int64_t hi) {
+    double* s0 = solution.col(0).data();
+    double* s1 = solution.col(1).data();
+    double* s2 = solution.col(2).data();
+    for (std::int64_t f = lo; f < hi; ++f) {
+      s0[f] = unconstrained_(f, 0);
+      s1[f] = unconstrained_(f, 1);
+      s2[f] = unconstrained_(f, 2);
+    }
+    for (std::size_t b = 0; b < nw; ++b) {
+      const double* g = columns_.col(working_column_[b]).data();
+      const double l0 = working_force_[3 * b], l1 = working_force_[3 * b + 1], l2 = working_force_[3 * b + 2];
+      for (std::int64_t f = lo; f < hi; ++f) {
+        s0[f] += g[f] * l0;
+        s1[f] += g[f] * l1;
+        s2[f] += g[f] * l2;
+      }
+    }
+  });
+}
+
+/// Keeps the candidates from `from` on whose nodes are free and records their free indices.
+void ContactActiveSet::index_candidates(std::size_t from) {
+  const std::vector<int>& free_index = *free_index_;
+  std::size_t k = from;
+  for (std::size_t c = from; c < candidates_.size(); ++c)
+    if (candidates_[c].node >= 0 && std::size_t(candidates_[c].node) < free_index.size() &&
+        free_index[std::size_t(candidates_[c].node)] >= 0)
+      candidates_[k++] = candidates_[c];
+  candidates_.resize(k);
+  candidate_free_.resize(k);
+  in_working_set_.resize(k, 0);
+  for (std::size_t c = from; c < k; ++c) candidate_free_[c] = free_index[std::size_t(candidates_[c].node)];
+}
+
+void ContactActiveSet::solve(ContactProvider& provider, const Eigen::Matrix3Xd& x, SparseFactor& factor,
+                             Eigen::MatrixX3d& solution, int threads, ContactSolveCounters& counters) {
+  const std::vector<int>& free_index = *free_index_;
+  const std::vector<int>& free_nodes = *free_nodes_;
+  ++solve_count_;
+  unconstrained_ = solution;
+  // candidates near the surfaces at the current iterate, sorted by (owner, node)
+  candidates_.clear();
+  provider.collect(x, true, candidates_);
+  index_candidates(0);
+  std::sort(candidates_.begin(), candidates_.end(), key_less);
+  for (std::size_t c = 0; c < candidates_.size(); ++c)
+    candidate_free_[c] = free_index[std::size_t(candidates_[c].node)];
+  // warm start: the last solve's active set (both sorted by key)
+  std::fill(in_working_set_.begin(), in_working_set_.end(), std::uint8_t(0));
+  for (std::size_t c = 0, a = 0; c < candidates_.size() && a < active_.size();) {
+    if (key_less(candidates_[c], active_[a])) {
+      ++c;
+    } else if (key_less(active_[a], candidates_[c])) {
+      ++a;
+    } else {
+      in_working_set_[c] = 1;
+      ++c;
+      ++a;
+    }
+  }
+  const std::size_t sorted = candidates_.size();
+  for (int pass = 0;; ++pass) {
+    counters.rounds += iterate_working_set(factor, counters);
+    apply_working_forces(solution, threads);
+    if (pass + 1 >= kMaxPasses) break;
+    // nodes that were not candidates but that the constrained solution puts inside a probe
+    // (they moved farther than the provider's margin in this solve): add them and redo
+    trial_ = x;
+    for (int f = 0; f < num_free(); ++f) trial_.col(free_nodes[std::size_t(f)]) = solution.row(f).transpose();
+    extra_.clear();
+    provider.collect(trial_, false, extra_);
+    const std::size_t before = candidates_.size();
+    for (const ContactConstraint& e : extra_) {
+      const auto end_sorted = candidates_.begin() + std::ptrdiff_t(sorted);
+      const auto it = std::lower_bound(candidates_.begin(), end_sorted, e, key_less);
+      bool known = it != end_sorted && !key_less(e, *it);
+      for (std::size_t c = sorted; c < candidates_.size() && !known; ++c)
+        known = candidates_[c].owner == e.owner && candidates_[c].node == e.node;
+      if (!known) candidates_.push_back(e);
+    }
+    index_candidates(before);
+    if (candidates_.size() == before) break;
+  }
+  // the active set, sorted by key, with the multipliers
+  active_.clear();
+  for (const int c : working_)
+    if (candidates_[std::size_t(c)].force_n > 0.0) active_.push_back(candidates_[std::size_t(c)]);
+  std::sort(active_.begin(), active_.end(), key_less);
+}
+
+}  // namespace vx

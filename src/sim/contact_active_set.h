@@ -1,0 +1,100 @@
+#pragma once
+/// @file contact_active_set.h
+/// The contact constraints of one global step of the projective-dynamics solver
+/// (projective_solver.h), solved exactly on its factor (docs/model.md section 8).
+///
+/// Why inside the solve: after an integrator's step, a post-step projection (contact.h) only sees
+/// the momentum change m (v' - v) / dt of the nodes it moves, which at long implicit steps is a
+/// small part of the elastic reaction (roughly (m/dt^2) / (K + m/dt^2) of it): the nodes relaxed
+/// to the free equilibrium inside the step. So the probes and walls take part in the
+/// minimisation itself: every global step solves
+///   A x = b + sum_i lambda_i n_i e_i^T,  n_i . x_i >= n_i . p_i,  lambda_i >= 0,
+///   lambda_i (n_i . x_i - n_i . p_i) = 0,
+/// with each constraint linearised at the current iterate (the closest surface point p_i and
+/// the outward normal n_i; re-linearised every local/global iteration, so a curved probe is
+/// followed). A acts on each coordinate alike, so with G = A_s^-1 (the scalar matrix),
+///   x = x_u + sum_j lambda_j n_j G e_j,    x_u = A^-1 b (the unconstrained solve),
+/// and the constraints on the working set W give the Schur complement system
+///   S lambda = d,  S_ij = (n_i . n_j) G_ij,  d_i = n_i . (p_i - x_u,i),
+/// exact on the existing factorisation. The columns G e_j are solved once per node and cached
+/// until the matrix is refactored (memory nf doubles each, within kColumnBudgetBytes; the
+/// least recently used are reused beyond it). An active-set iteration keeps lambda >= 0: it
+/// drops the constraints that pull and adds the candidates the solution violates, starting
+/// from the last solve's active set (a warm start that usually converges in 1-2 rounds).
+/// The multipliers are the contact forces (N, A x = b is a force balance). Serial and in a
+/// fixed order: the same result for any thread count.
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <vector>
+
+#include "sim/contact_constraint.h"
+#include "sim/sparse_factor.h"
+
+namespace vx {
+
+/// Work counters of the contact solves (added up over a step).
+struct ContactSolveCounters {
+  int rounds{0};             ///< active-set rounds
+  std::int64_t columns{0};   ///< new columns G e_i solved (each allocates once)
+};
+
+class ContactActiveSet {
+ public:
+  static constexpr int kMaxRounds = 100;           ///< active-set rounds per global solve
+  static constexpr int kMaxPasses = 4;             ///< re-checks for nodes pushed into a probe
+  static constexpr double kGapToleranceMm = 1e-9;  ///< a violation smaller than this is none
+  static constexpr double kColumnBudgetBytes = 256.0 * 1024 * 1024;
+
+  /// Binds the set to a new factor and its free-node numbering (free_index: nodes -> free index
+  /// or -1; free_nodes: free index -> node): the cached columns belong to the old factor.
+  /// Allocates. The warm start is kept (it is keyed by node, not by factor).
+  void bind(const std::vector<int>& free_index, const std::vector<int>& free_nodes);
+  /// Forgets the warm start (the state was reset, replaced, or the provider changed).
+  void forget_warm_start() { active_.clear(); }
+
+  /// Turns the unconstrained solution `solution` (free nodes x 3, mm) of one global step into the
+  /// constrained one. `x` (3 x nodes) is the iterate before this solve, where the provider
+  /// linearises the constraints; `factor` is the global matrix's factor bound by bind().
+  void solve(ContactProvider& provider, const Eigen::Matrix3Xd& x, SparseFactor& factor,
+             Eigen::MatrixX3d& solution, int threads, ContactSolveCounters& counters);
+
+  /// The constraints active after the last solve, sorted by (owner, node), with their
+  /// multipliers (N); the next solve starts from them (warm start).
+  [[nodiscard]] const std::vector<ContactConstraint>& active() const { return active_; }
+
+ private:
+  [[nodiscard]] int num_free() const { return int(free_nodes_->size()); }
+  int column_of(int free, SparseFactor& factor, ContactSolveCounters& counters);
+  [[nodiscard]] Eigen::Vector3d constrained_position(int candidate) const;
+  int iterate_working_set(SparseFactor& factor, ContactSolveCounters& counters);
+  void apply_working_forces(Eigen::MatrixX3d& solution, int threads) const;
+  void index_candidates(std::size_t from);
+
+  const std::vector<int>* free_index_{nullptr};  ///< bound by bind(): nodes -> free index or -1
+  const std::vector<int>* free_nodes_{nullptr};  ///< bound by bind(): free index -> node
+
+  // candidates and the working set of one solve
+  std::vector<ContactConstraint> candidates_;       ///< near the surfaces, sorted by (owner, node)
+  std::vector<ContactConstraint> extra_;            ///< found in a re-check pass
+  std::vector<ContactConstraint> active_;           ///< the last solve's active set (warm start)
+  std::vector<int> candidate_free_;                 ///< candidates: free index of the node
+  std::vector<std::uint8_t> in_working_set_;        ///< candidates: 1 in the working set
+  std::vector<int> working_;                        ///< the working set's candidates
+  std::vector<int> working_column_;                 ///< working set: column slot of the node
+  std::vector<double> working_force_;               ///< working set: lambda n (3 each), N
+  std::vector<double> schur_;                       ///< S, row-major (lower triangle used)
+  std::vector<double> schur_rhs_;                   ///< d, then lambda
+  Eigen::MatrixX3d unconstrained_;                  ///< x_u: the global step's solution without contact
+  Eigen::Matrix3Xd trial_;                          ///< constrained iterate (all nodes) for the re-check
+
+  // cached columns G e_f of the bound factor
+  Eigen::MatrixXd columns_;                   ///< nf x capacity
+  std::vector<int> column_slot_;              ///< free index -> column slot, -1 none
+  std::vector<int> slot_free_;                ///< column slot -> free index
+  std::vector<std::int64_t> slot_last_used_;  ///< column slot -> last solve that used it
+  int used_slots_{0};
+  std::int64_t solve_count_{0};
+};
+
+}  // namespace vx

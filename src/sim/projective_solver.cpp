@@ -1,0 +1,280 @@
+#include "sim/projective_solver.h"
+
+#include <cmath>
+#include <numeric>
+#include <string>
+
+#include "base/error.h"
+#include "base/parallel.h"
+#include "sim/integrators.h"
+#include "sim/state.h"
+
+namespace vx {
+
+ProjectiveSolver::ProjectiveSolver(std::shared_ptr<const PhysicsModel> physics,
+                                   const std::vector<std::uint8_t>& node_fixed, const ProjectiveSetup& setup)
+    : physics_(std::move(physics)), setup_(setup) {
+  const PhysicsModel& p = *physics_;
+  const int nn = p.num_nodes(), ne = p.num_elements();
+  if (int(node_fixed.size()) != nn) throw Error("projective solver: node_fixed has the wrong size");
+  // free and fixed numbering
+  free_index_.assign(std::size_t(nn), -1);
+  fixed_index_.assign(std::size_t(nn), -1);
+  for (int i = 0; i < nn; ++i) {
+    if (node_fixed[std::size_t(i)]) {
+      fixed_index_[std::size_t(i)] = int(fixed_nodes_.size());
+      fixed_nodes_.push_back(i);
+    } else {
+      free_index_[std::size_t(i)] = int(free_nodes_.size());
+      free_nodes_.push_back(i);
+    }
+  }
+  if (!setup_.inertia) check_held();
+  assemble_and_factor();
+  // buffers of a solve
+  const int nf = num_free(), nc = int(fixed_nodes_.size());
+  const std::int64_t entries = p.num_vertex_entries();
+  targets_.resize(3, entries);
+  start_offsets_.resize(3, entries);
+  damping_rotations_.assign(std::size_t(ne), Eigen::Quaterniond::Identity());
+  rhs_const_.resize(nf, 3);
+  rhs_.resize(nf, 3);
+  rhs_previous_.resize(nf, 3);
+  solution_.resize(nf, 3);
+  fixed_positions_.resize(nc, 3);
+  element_chunk_stats_.assign(std::size_t(chunk_count(ne, kElementGrain)), ElementPassStats{});
+  free_chunk_sums_.assign(2 * std::size_t(chunk_count(nf, kNodeGrain)), 0.0);
+  contact_set_.bind(free_index_, free_nodes_);
+}
+
+/// Every connected part of the model must hold a fixed node (static solve).
+void ProjectiveSolver::check_held() const {
+  const PhysicsModel& p = *physics_;
+  const Model& m = *p.model;
+  std::vector<int> parent(std::size_t(p.num_nodes()));
+  std::iota(parent.begin(), parent.end(), 0);
+  const auto find = [&](int a) {
+    while (parent[std::size_t(a)] != a) a = parent[std::size_t(a)] = parent[std::size_t(parent[std::size_t(a)])];
+    return a;
+  };
+  for (int e = 0; e < p.num_elements(); ++e)
+    for (int j = m.element_offsets[e] + 1; j < m.element_offsets[e + 1]; ++j)
+      parent[std::size_t(find(m.element_vertices[j]))] = find(m.element_vertices[m.element_offsets[e]]);
+  std::vector<std::uint8_t> held(std::size_t(p.num_nodes()), 0);
+  for (int i : fixed_nodes_) held[std::size_t(find(i))] = 1;
+  for (int i = 0; i < p.num_nodes(); ++i)
+    if (!held[std::size_t(find(i))])
+      throw Error("static solve: node " + std::to_string(i) +
+                  " belongs to a part of the model that no fixed node holds; fix nodes in every part "
+                  "(e.g. nodes_on_face) before solving");
+}
+
+/// Assembles M/dt^2 + sum_e (K_e + kappa_e (diag(w) - w w^T / W)), split into free-free (factored)
+/// and free-fixed, with kappa_e = k_v,e (+ c_e / dt): the volume and damping terms.
+void ProjectiveSolver::assemble_and_factor() {
+  const PhysicsModel& p = *physics_;
+  const Model& m = *p.model;
+  const int ne = p.num_elements(), nf = num_free(), nc = int(fixed_nodes_.size());
+  const double dt = setup_.time_step_s;
+  centring_weight_.resize(std::size_t(ne));
+  for (int e = 0; e < ne; ++e)
+    centring_weight_[std::size_t(e)] = (p.has_volume_term() ? p.element_volume_stiffness[std::size_t(e)] : 0.0) +
+                                       (setup_.damping ? p.element_damping[std::size_t(e)] / dt : 0.0);
+  std::vector<Eigen::Triplet<double>> tff, tfc;
+  std::size_t guess = 0;
+  for (int e = 0; e < ne; ++e) guess += std::size_t(m.num_vertices(e)) * std::size_t(m.num_vertices(e));
+  tff.reserve(guess + std::size_t(nf));
+  Eigen::MatrixXd ke;
+  for (int e = 0; e < ne; ++e) {
+    const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+    const double kap = centring_weight_[std::size_t(e)];
+    const double* w = p.entry_weight.data() + b;
+    double wsum = 0;
+    for (int i = 0; i < n; ++i) wsum += w[i];
+    element_elastic_matrix(p, e, ke);
+    for (int i = 0; i < n; ++i) {
+      const int fi = free_index_[std::size_t(m.element_vertices[b + i])];
+      if (fi < 0) continue;
+      for (int j = 0; j < n; ++j) {
+        const int nj = m.element_vertices[b + j];
+        const double v = ke(i, j) + kap * ((i == j ? w[i] : 0.0) - w[i] * w[j] / wsum);
+        if (free_index_[std::size_t(nj)] >= 0)
+          tff.emplace_back(fi, free_index_[std::size_t(nj)], v);
+        else
+          tfc.emplace_back(fi, fixed_index_[std::size_t(nj)], v);
+      }
+    }
+  }
+  if (setup_.inertia)
+    for (int f = 0; f < nf; ++f) tff.emplace_back(f, f, p.node_mass[std::size_t(free_nodes_[std::size_t(f)])] / (dt * dt));
+  SparseFactor::Matrix a(nf, nf);
+  a.setFromTriplets(tff.begin(), tff.end());
+  tff.clear();
+  tff.shrink_to_fit();
+  a_free_fixed_.resize(nf, nc);
+  a_free_fixed_.setFromTriplets(tfc.begin(), tfc.end());
+  if (!factor_.compute(a))
+    throw Error("implicit integrator: the system matrix could not be factored (" + std::to_string(nf) +
+                " free nodes); is a part of the model held by nothing?");
+}
+
+void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveIterations& its,
+                             ContactProvider* contact, StepReport& rep) {
+  const int threads = its.threads;
+  // the fixed nodes' coupling: rhs_const -= A_fc x_c
+  if (!fixed_nodes_.empty()) {
+    for (std::size_t c = 0; c < fixed_nodes_.size(); ++c)
+      fixed_positions_.row(Eigen::Index(c)) = x.col(fixed_nodes_[c]).transpose();
+    rhs_const_.noalias() -= a_free_fixed_ * fixed_positions_;
+  }
+  if (setup_.damping) record_start_shape(s.positions, threads);
+  double max_update = std::numeric_limits<double>::infinity();
+  ElementPassStats last;
+  ContactSolveCounters counters;
+  int it = 0;
+  for (; it < its.max_iterations; ++it) {
+    // local: rotation fits and targets; global: right-hand side, solve, contact
+    last = local_step(s, x, its.rotation, threads);
+    gather_rhs(threads);
+    if (it > 0) rep.residual_n = rms_difference(rhs_, rhs_previous_, threads);
+    if (its.tolerance_mm > 0 && it > 0 && max_update <= its.tolerance_mm) break;
+    factor_.solve3(rhs_, solution_);
+    if (contact) contact_set_.solve(*contact, x, factor_, solution_, threads, counters);
+    max_update = scatter(x, threads);
+    rhs_previous_.swap(rhs_);
+  }
+  rep.contact_rounds += counters.rounds;
+  rep.contact_columns += counters.columns;
+  if (contact) rep.contacts = int(contact_set_.active().size());
+  rep.iterations = it;
+  rep.max_update_mm = it > 0 ? max_update : 0.0;
+  rep.inverted_elements = last.inverted;
+  rep.unconverged_rotations = last.unconverged;
+  s.element_stats = last;
+}
+
+/// Relative offsets of the vertices at the start of the step (for the damping term).
+void ProjectiveSolver::record_start_shape(const Eigen::Matrix3Xd& x, int threads) {
+  const PhysicsModel& p = *physics_;
+  const Model& m = *p.model;
+  parallel_for(p.num_elements(), kElementGrain, threads, [&](std::int64_t b, std::int64_t e) {
+    for (std::int64_t el = b; el < e; ++el) {
+      const int o = m.element_offsets[el], n = m.element_offsets[el + 1] - o;
+      Eigen::Vector3d c = Eigen::Vector3d::Zero();
+      double sw = 0;
+      for (int j = o; j < o + n; ++j) {
+        c += p.entry_weight[std::size_t(j)] * x.col(m.element_vertices[j]);
+        sw += p.entry_weight[std::size_t(j)];
+      }
+      c /= sw;
+      for (int j = o; j < o + n; ++j) start_offsets_.col(j) = x.col(m.element_vertices[j]) - c;
+      damping_rotations_[std::size_t(el)] = Eigen::Quaterniond::Identity();
+    }
+  });
+}
+
+/// Local step: per element the rotation fits and the per-entry targets
+/// t_i = 2 mu V Q g_i + w_i (k_v T R0_i + (c/dt) R_d r_i^n)  (w_i: vertex weight, g_i: gradient weight).
+ElementPassStats ProjectiveSolver::local_step(SimState& s, const Eigen::Matrix3Xd& x, const RotationFitSettings& fit,
+                                              int threads) {
+  const PhysicsModel& p = *physics_;
+  const Model& m = *p.model;
+  const bool volume = p.has_volume_term();
+  const bool damping = setup_.damping;
+  const double inv_dt = 1.0 / setup_.time_step_s;
+  parallel_for_chunks(p.num_elements(), kElementGrain, threads, [&](std::int64_t chunk, std::int64_t b, std::int64_t e) {
+    ElementPassStats st;
+    for (std::int64_t el = b; el < e; ++el) {
+      const int o = m.element_offsets[el], n = m.element_offsets[el + 1] - o;
+      // (sum w R0 = sum w r^n = 0: no centring needed)
+      const Eigen::Vector3d x0 = x.col(m.element_vertices[o]);
+      Eigen::Matrix3d a = Eigen::Matrix3d::Zero(), fg = Eigen::Matrix3d::Zero(), ad = Eigen::Matrix3d::Zero();
+      for (int j = o; j < o + n; ++j) {
+        const Eigen::Vector3d y = x.col(m.element_vertices[j]) - x0;
+        fg.noalias() += y * p.entry_gradient.col(j).transpose();
+        if (volume) a.noalias() += y * p.entry_rest_weighted.col(j).transpose();
+        if (damping) ad.noalias() += (p.entry_weight[std::size_t(j)] * y) * start_offsets_.col(j).transpose();
+      }
+      const std::int32_t* slot = p.entry_slot.data();
+      if (!fg.allFinite() || !a.allFinite()) {
+        ++st.non_finite;
+        for (int j = o; j < o + n; ++j) targets_.col(slot[j]).setZero();
+        continue;
+      }
+      bool conv = true;
+      Eigen::Matrix3d rq;
+      st.rotation_iterations += fit_rotation(fg, s.rotations[std::size_t(el)], fit, &conv, &rq);
+      st.unconverged += conv ? 0 : 1;
+      if (fg.determinant() <= 0) ++st.inverted;
+      const Eigen::Matrix3d mg = p.element_affine_stiffness[std::size_t(el)] * rq;
+      Eigen::Matrix3d mq = Eigen::Matrix3d::Zero();
+      if (volume) {
+        const Eigen::Matrix3d& ninv = p.element_spread_inv_sqrt[std::size_t(el)];
+        Eigen::Quaterniond qv = s.rotations[std::size_t(el)];
+        mq = p.element_volume_stiffness[std::size_t(el)] *
+             closest_with_determinant(a * ninv, p.element_spread_sqrt_det[std::size_t(el)], qv, fit) * ninv;
+      }
+      if (damping) {
+        Eigen::Matrix3d rd;
+        fit_rotation(ad, damping_rotations_[std::size_t(el)], fit, nullptr, &rd);
+        const Eigen::Matrix3d md = p.element_damping[std::size_t(el)] * inv_dt * rd;
+        for (int j = o; j < o + n; ++j)
+          targets_.col(slot[j]).noalias() = mg * p.entry_gradient.col(j) + mq * p.entry_rest_weighted.col(j) +
+                                            p.entry_weight[std::size_t(j)] * (md * start_offsets_.col(j));
+      } else {
+        for (int j = o; j < o + n; ++j)
+          targets_.col(slot[j]).noalias() = mg * p.entry_gradient.col(j) + mq * p.entry_rest_weighted.col(j);
+      }
+    }
+    element_chunk_stats_[std::size_t(chunk)] = st;
+  });
+  ElementPassStats total;
+  for (const auto& c : element_chunk_stats_) total.add(c);
+  return total;
+}
+
+/// The global right-hand side: per free node, the constant part plus its targets in entry order.
+void ProjectiveSolver::gather_rhs(int threads) {
+  const PhysicsModel& p = *physics_;
+  parallel_for(num_free(), kNodeGrain, threads, [&](std::int64_t b, std::int64_t e) {
+    for (std::int64_t f = b; f < e; ++f) {
+      const Eigen::Vector3d t = gather_node_force(p, targets_, free_nodes_[std::size_t(f)]);
+      rhs_.row(f) = rhs_const_.row(f) + t.transpose();
+    }
+  });
+}
+
+/// Writes the solution into x; returns the largest node move.
+double ProjectiveSolver::scatter(Eigen::Matrix3Xd& x, int threads) {
+  const int nf = num_free();
+  const std::int64_t chunks = chunk_count(nf, kNodeGrain);
+  parallel_for_chunks(nf, kNodeGrain, threads, [&](std::int64_t c, std::int64_t b, std::int64_t e) {
+    double mx = 0;
+    for (std::int64_t f = b; f < e; ++f) {
+      const int i = free_nodes_[std::size_t(f)];
+      const Eigen::Vector3d nx = solution_.row(f).transpose();
+      mx = std::max(mx, (nx - x.col(i)).squaredNorm());
+      x.col(i) = nx;
+    }
+    free_chunk_sums_[std::size_t(c)] = mx;
+  });
+  double mx = 0;
+  for (std::int64_t c = 0; c < chunks; ++c) mx = std::max(mx, free_chunk_sums_[std::size_t(c)]);
+  return std::sqrt(mx);
+}
+
+double ProjectiveSolver::rms_difference(const Eigen::MatrixX3d& a, const Eigen::MatrixX3d& b, int threads) {
+  const int nf = num_free();
+  if (nf == 0) return 0.0;
+  const std::int64_t chunks = chunk_count(nf, kNodeGrain);
+  parallel_for_chunks(nf, kNodeGrain, threads, [&](std::int64_t c, std::int64_t lo, std::int64_t hi) {
+    double s = 0;
+    for (std::int64_t f = lo; f < hi; ++f) s += (a.row(f) - b.row(f)).squaredNorm();
+    free_chunk_sums_[std::size_t(c)] = s;
+  });
+  double s = 0;
+  for (std::int64_t c = 0; c < chunks; ++c) s += free_chunk_sums_[std::size_t(c)];
+  return std::sqrt(s / nf);
+}
+
+}  // namespace vx

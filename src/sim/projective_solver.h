@@ -1,0 +1,134 @@
+#pragma once
+/// @file projective_solver.h
+/// The projective-dynamics solver (Bouaziz et al. 2014; docs/model.md section 7): the implicit
+/// integrator's step and the static solve. Precompute once (the constructor: number the free
+/// nodes, assemble and factor the constant system matrix), then solve many times (solve():
+/// local/global iterations), as libigl's arap_precomputation / arap_solve.
+///
+/// Each solve minimises over the free nodes
+///   1/(2 dt^2) |x - y|_M^2 + sum_e E_e(x) + sum_e D_e(x) - x . f,
+/// the element energy E_e = mu V |F - Q|^2 + k/2 sum_i w_i |r_i - F R0_i|^2 (elements.h) with
+/// F the consistent gradient, plus the volume term (Poisson ratio > 0) and the damping term
+/// D_e = c_e/(2 dt) min_R sum_i w_i |r_i - R r_i^n|^2 (the vertex motion during the step relative
+/// to the element's best rigid motion: the backward-Euler form of the explicit damping force).
+/// Every term is projective, so the iteration alternates
+///   local:  per element the rotation fits (Q, the volume term's T, the damping's R) and the
+///           per-entry targets t_i = 2 mu V Q g_i + w_i (k_v T R0_i + (c/dt) R r_i^n);
+///   global: A x = b + sum_e (targets gathered per node), with the constant matrix
+///           A = M/dt^2 + sum_e (K_e + (k_v,e + c_e/dt) (diag(w) - w w^T / W)_e)
+///           (K_e: the element's elastic matrix, elements.h), prefactored (sparse_factor.h),
+///           the fixed nodes eliminated (their coupling A_fc x_c moved to the right-hand side).
+/// Without inertia (the static solve) the mass term is absent and every connected part of the
+/// model must hold a fixed node. Contact (contact_active_set.h): the probes and walls are
+/// unilateral node constraints of the same minimisation, solved exactly in every global step.
+///
+/// Allocation: the constructor allocates everything a solve needs, except the contact set's
+/// cache of columns, which grows when a node first touches.
+/// Units: positions mm, forces N, masses N*s^2/mm, dt s.
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "physics/elements.h"
+#include "physics/material.h"
+#include "sim/contact_active_set.h"
+#include "sim/contact_constraint.h"
+#include "sim/sparse_factor.h"
+
+namespace vx {
+
+struct SimState;
+struct StepReport;
+
+/// What the precomputation depends on (a change needs a new solver).
+struct ProjectiveSetup {
+  double time_step_s{1.0e-3};  ///< dt, s (the static solve uses 1)
+  bool inertia{true};          ///< false: the static solve (no mass term)
+  bool damping{false};         ///< the damping term c_e/dt (implicit steps of a damped material)
+
+  [[nodiscard]] bool operator==(const ProjectiveSetup&) const = default;
+};
+
+/// How far a solve iterates.
+struct ProjectiveIterations {
+  int max_iterations{10};      ///< local/global iterations
+  double tolerance_mm{0.0};    ///< > 0: stop once no node moved more than this in an iteration
+  RotationFitSettings rotation;
+  int threads{0};              ///< 0: OpenMP default
+};
+
+class ProjectiveSolver {
+ public:
+  /// Precomputation: numbers the free nodes (node_fixed[i] = 1: kinematic), assembles the
+  /// system matrix of `physics` for `setup` and factors it (allocates). Throws vx::Error when
+  /// the matrix cannot be factored, or (static) when a part of the model holds no fixed node.
+  ProjectiveSolver(std::shared_ptr<const PhysicsModel> physics, const std::vector<std::uint8_t>& node_fixed,
+                   const ProjectiveSetup& setup);
+  ProjectiveSolver(const ProjectiveSolver&) = delete;
+  ProjectiveSolver& operator=(const ProjectiveSolver&) = delete;
+
+  [[nodiscard]] const ProjectiveSetup& setup() const { return setup_; }
+  [[nodiscard]] const PhysicsModel& physics() const { return *physics_; }
+  /// Free nodes in the solver's numbering (free index -> node).
+  [[nodiscard]] const std::vector<int>& free_nodes() const { return free_nodes_; }
+  [[nodiscard]] int num_free() const { return int(free_nodes_.size()); }
+  /// Nonzeros of the Cholesky factor L (the cost of one global solve).
+  [[nodiscard]] std::int64_t factor_nonzeros() const { return factor_.nonzeros(); }
+
+  /// The constant part of the right-hand side (free nodes x 3, N, in free order): inertia
+  /// M y / dt^2 and the external forces. Fill it before each solve().
+  [[nodiscard]] Eigen::MatrixX3d& constant_rhs() { return rhs_const_; }
+
+  /// Solve: local/global iterations from `x` (3 x nodes, mm; in: the start iterate with the
+  /// fixed nodes at their targets; out: the solution). Uses the state's warm-start rotations
+  /// (updated) and, with damping, its positions as the start of the step x_n; sets
+  /// state.element_stats. `contact`: the probes and walls (null: none). Fills the iteration,
+  /// residual and contact fields of `report`.
+  void solve(SimState& state, Eigen::Matrix3Xd& x, const ProjectiveIterations& iterations, ContactProvider* contact,
+             StepReport& report);
+
+  /// The contact constraints active after the last solve, with their forces (N).
+  [[nodiscard]] const std::vector<ContactConstraint>& active_contacts() const { return contact_set_.active(); }
+  /// Forgets the contact warm start (the next solve does not follow the last one).
+  void forget_contacts() { contact_set_.forget_warm_start(); }
+
+ private:
+  void check_held() const;
+  void assemble_and_factor();
+  void record_start_shape(const Eigen::Matrix3Xd& x, int threads);
+  ElementPassStats local_step(SimState& state, const Eigen::Matrix3Xd& x, const RotationFitSettings& fit, int threads);
+  void gather_rhs(int threads);
+  double scatter(Eigen::Matrix3Xd& x, int threads);
+  double rms_difference(const Eigen::MatrixX3d& a, const Eigen::MatrixX3d& b, int threads);
+
+  std::shared_ptr<const PhysicsModel> physics_;
+  ProjectiveSetup setup_;
+
+  // numbering: free and fixed nodes
+  std::vector<int> free_index_;   ///< nodes -> free index, -1 for a fixed node
+  std::vector<int> fixed_index_;  ///< nodes -> fixed index, -1 for a free node
+  std::vector<int> free_nodes_;   ///< free index -> node
+  std::vector<int> fixed_nodes_;  ///< fixed index -> node
+
+  // the global matrix
+  std::vector<double> centring_weight_;   ///< elements: k_v,e (+ c_e/dt) of diag(w) - w w^T / W, N/mm
+  Eigen::SparseMatrix<double> a_free_fixed_;  ///< A_fc: free x fixed coupling
+  SparseFactor factor_;                   ///< A_ff = L D L^T
+
+  // one solve
+  Eigen::Matrix3Xd targets_;              ///< 3 x entries (node-major slots): local-step targets, N
+  Eigen::Matrix3Xd start_offsets_;        ///< 3 x entries: r_i^n, vertex offsets at the step's start (damping)
+  std::vector<Eigen::Quaterniond> damping_rotations_;  ///< elements: R of the damping term (warm start)
+  Eigen::MatrixX3d rhs_const_;            ///< free x 3: constant part of the right-hand side, N
+  Eigen::MatrixX3d rhs_;                  ///< free x 3: this iteration's right-hand side
+  Eigen::MatrixX3d rhs_previous_;         ///< free x 3: the last iteration's (for the residual)
+  Eigen::MatrixX3d solution_;             ///< free x 3: the global step's solution, mm
+  Eigen::MatrixX3d fixed_positions_;      ///< fixed x 3: x_c
+  std::vector<ElementPassStats> element_chunk_stats_;
+  std::vector<double> free_chunk_sums_;
+  ContactActiveSet contact_set_;
+};
+
+}  // namespace vx

@@ -1,0 +1,222 @@
+// The projective-dynamics solver called directly (precompute, then solve; projective_solver.h),
+// its agreement with the implicit integrator and the static solve that wrap it, the residual
+// falling with the iterations, the contact active set against the weight it carries, and the
+// state-owned cache: a copy of a state refactors, one integrator steps two states alike.
+#include "sim/projective_solver.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <iostream>
+
+#include "base/error.h"
+#include "sim/integrators.h"
+#include "sim/state.h"
+#include "sim/static_solver.h"
+#include "support/physics_helpers.h"
+
+namespace vx {
+namespace {
+
+using testing::hand_block;
+
+Material soft(double damping = 0.0) {
+  Material m;
+  m.youngs_modulus_kpa = 5.0;
+  m.density_kg_m3 = 1000.0;
+  m.damping_ratio = damping;
+  return m;
+}
+
+/// A 4 x 4 x 3 block of 2 mm cubes, its base fixed, its other nodes displaced by a smooth field.
+SimState perturbed_block(double damping, double amplitude_mm = 0.3) {
+  auto physics = make_physics_model(hand_block(4, 4, 3, 2.0), soft(damping));
+  SimState s = make_state(physics);
+  s.fix_nodes(nodes_on_face(*physics->model, BoxFace::z_min));
+  for (int i = 0; i < s.num_nodes(); ++i) {
+    if (s.node_fixed[std::size_t(i)]) continue;
+    const Eigen::Vector3d r = s.positions.col(i);
+    s.positions.col(i) += amplitude_mm * Eigen::Vector3d(std::sin(0.4 * r.z()), 0.5 * std::cos(0.3 * r.x()), 0.2 * r.z() / 6);
+  }
+  return s;
+}
+
+/// Fills the solver's constant right-hand side of an implicit step (the integrator's rule) and
+/// returns the start iterate x_n + dt v_n.
+Eigen::Matrix3Xd implicit_start(ProjectiveSolver& solver, const SimState& s, double dt) {
+  const PhysicsModel& p = *s.physics;
+  Eigen::Matrix3Xd x = s.positions + dt * s.velocities;
+  const std::vector<int>& free = solver.free_nodes();
+  for (std::size_t f = 0; f < free.size(); ++f) {
+    const int i = free[f];
+    const double m = p.node_mass[std::size_t(i)];
+    const Eigen::Vector3d y = x.col(i) + dt * dt * (s.gravity_mm_s2 + s.external_forces.col(i) / m);
+    solver.constant_rhs().row(Eigen::Index(f)) = (m / (dt * dt)) * y.transpose();
+  }
+  return x;
+}
+
+TEST(ProjectiveSolver, DirectSolveIsTheImplicitIntegratorsStep) {
+  for (double damping : {0.0, 0.2}) {
+    SCOPED_TRACE(damping);
+    const double dt = 2e-3;
+    SimState direct = perturbed_block(damping);
+    SimState stepped = direct;
+    ProjectiveSetup setup;
+    setup.time_step_s = dt;
+    setup.damping = damping > 0;
+    ProjectiveSolver solver(direct.physics, direct.node_fixed, setup);
+    EXPECT_EQ(solver.num_free(), direct.num_nodes() - direct.num_fixed());
+    EXPECT_GT(solver.factor_nonzeros(), solver.num_free());
+    Eigen::Matrix3Xd x = implicit_start(solver, direct, dt);
+    ProjectiveIterations its;
+    its.max_iterations = 10;
+    StepReport rep;
+    solver.solve(direct, x, its, nullptr, rep);
+    EXPECT_EQ(rep.iterations, 10);
+
+    IntegratorSettings set;
+    set.kind = IntegratorKind::implicit;
+    set.time_step_s = dt;
+    set.max_iterations = 10;
+    auto integ = make_integrator(set);
+    const StepReport r = integ->step(stepped);
+    EXPECT_TRUE(r.refactored);
+    EXPECT_EQ(r.factor_nonzeros, solver.factor_nonzeros());
+    EXPECT_EQ((x - stepped.positions).cwiseAbs().maxCoeff(), 0.0) << "bit for bit";
+  }
+}
+
+TEST(ProjectiveSolver, ResidualFallsWithTheIterationsAndStaticMatchesSolveStatic) {
+  SimState s = perturbed_block(0.0);
+  s.gravity_mm_s2 = Eigen::Vector3d(0, 0, -kStandardGravityMmS2);
+  ProjectiveSetup setup;
+  setup.time_step_s = 1.0;
+  setup.inertia = false;
+  ProjectiveSolver solver(s.physics, s.node_fixed, setup);
+  const auto residual_after = [&](int iterations, Eigen::Matrix3Xd* out) {
+    SimState t = s;
+    const std::vector<int>& free = solver.free_nodes();
+    for (std::size_t f = 0; f < free.size(); ++f)
+      solver.constant_rhs().row(Eigen::Index(f)) =
+          (t.physics->node_mass[std::size_t(free[f])] * t.gravity_mm_s2).transpose();
+    Eigen::Matrix3Xd x = t.positions;
+    ProjectiveIterations its;
+    its.max_iterations = iterations;
+    its.rotation = {20, 1e-12};
+    StepReport rep;
+    solver.solve(t, x, its, nullptr, rep);
+    if (out) *out = x;
+    return rep.residual_n;
+  };
+  const double r2 = residual_after(2, nullptr), r20 = residual_after(20, nullptr);
+  Eigen::Matrix3Xd x200;
+  const double r200 = residual_after(200, &x200);
+  std::cout << "RMS residual per free node: " << r2 << " N (2 iterations), " << r20 << " (20), " << r200 << " (200)\n";
+  EXPECT_GT(r2, 0.0);
+  EXPECT_LT(r20, 0.1 * r2);
+  EXPECT_LT(r200, 1e-6 * r2);
+  // the static solve is the same solver: the same equilibrium
+  SimState t = s;
+  StaticSolveSettings st;
+  st.max_iterations = 200;
+  st.tolerance_mm = 0;
+  solve_static(t, st);
+  EXPECT_LT((t.positions - x200).cwiseAbs().maxCoeff(), 1e-12);
+}
+
+/// A floor at z = 0 under every node (normal +z).
+class Floor final : public ContactProvider {
+ public:
+  void collect(const Eigen::Matrix3Xd& x, bool near, std::vector<ContactConstraint>& out) override {
+    for (int i = 0; i < x.cols(); ++i)
+      if (x(2, i) < (near ? 0.5 : 0.0)) {
+        ContactConstraint c;
+        c.node = i;
+        c.owner = 0;
+        c.point_mm = Eigen::Vector3d(x(0, i), x(1, i), 0.0);
+        c.normal = Eigen::Vector3d::UnitZ();
+        out.push_back(c);
+      }
+  }
+};
+
+TEST(ProjectiveSolver, ContactMultipliersCarryTheWeightAtRest) {
+  // a free block resting on a floor: at equilibrium the multipliers sum to its weight
+  auto physics = make_physics_model(hand_block(3, 3, 2, 2.0), soft(0.5));
+  SimState s = make_state(physics);
+  s.gravity_mm_s2 = Eigen::Vector3d(0, 0, -kStandardGravityMmS2);
+  const double dt = 5e-3;
+  ProjectiveSetup setup;
+  setup.time_step_s = dt;
+  setup.damping = true;
+  ProjectiveSolver solver(s.physics, s.node_fixed, setup);
+  Floor floor;
+  ProjectiveIterations its;
+  its.max_iterations = 30;
+  double carried = 0;
+  for (int step = 0; step < 200; ++step) {
+    Eigen::Matrix3Xd x = implicit_start(solver, s, dt);
+    StepReport rep;
+    solver.solve(s, x, its, &floor, rep);
+    s.velocities = (x - s.positions) / dt;
+    s.positions = x;
+    carried = 0;
+    for (const ContactConstraint& c : solver.active_contacts()) {
+      EXPECT_GE(c.force_n, 0.0);
+      carried += c.force_n;
+    }
+  }
+  const double weight = physics->total_mass_kg() * kStandardGravityMmS2 * 1e-3;  // N
+  std::cout << "floor carries " << carried << " N of a " << weight << " N weight\n";
+  EXPECT_NEAR(carried, weight, 1e-6 * weight);
+  EXPECT_GT(s.positions.row(2).minCoeff(), -1e-9) << "no node below the floor";
+}
+
+TEST(ProjectiveSolver, TheCacheBelongsToTheState) {
+  // a copy of a state has no factor (it refactors) and steps exactly like the original; one
+  // integrator stepping two states in turn gives each what its own integrator would
+  IntegratorSettings set;
+  set.kind = IntegratorKind::implicit;
+  set.time_step_s = 2e-3;
+  SimState a = perturbed_block(0.1);
+  auto shared = make_integrator(set);
+  EXPECT_TRUE(shared->step(a).refactored);
+  EXPECT_FALSE(shared->step(a).refactored);
+  SimState b = a;
+  SimState b_alone = a;
+  b.fix_nodes({0});  // b holds one more node: its own factor
+  b_alone.fix_nodes({0});
+  auto own = make_integrator(set);
+  EXPECT_TRUE(shared->step(b).refactored);
+  EXPECT_TRUE(own->step(b_alone).refactored);
+  SimState a_alone = a;
+  auto own_a = make_integrator(set);
+  for (int k = 0; k < 5; ++k) {
+    EXPECT_FALSE(shared->step(a).refactored);
+    EXPECT_FALSE(shared->step(b).refactored);
+    own->step(b_alone);
+    own_a->step(a_alone);
+  }
+  EXPECT_EQ((a.positions - a_alone.positions).cwiseAbs().maxCoeff(), 0.0);
+  EXPECT_EQ((b.positions - b_alone.positions).cwiseAbs().maxCoeff(), 0.0);
+  // a changed time step or fixed set refactors
+  IntegratorSettings longer = set;
+  longer.time_step_s = 4e-3;
+  EXPECT_TRUE(make_integrator(longer)->step(a).refactored);
+  a.fix_nodes({1});
+  EXPECT_TRUE(shared->step(a).refactored);
+}
+
+TEST(ProjectiveSolver, StaticSolverRefusesAPartHeldByNothing) {
+  auto physics = make_physics_model(hand_block(2, 2, 2, 1.0), soft());
+  std::vector<std::uint8_t> none(std::size_t(physics->num_nodes()), 0);
+  ProjectiveSetup setup;
+  setup.inertia = false;
+  EXPECT_THROW(ProjectiveSolver(physics, none, setup), Error);
+  setup.inertia = true;  // with inertia a free body is fine
+  EXPECT_NO_THROW(ProjectiveSolver(physics, none, setup));
+}
+
+}  // namespace
+}  // namespace vx
