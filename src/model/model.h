@@ -1,6 +1,6 @@
 #pragma once
 /// @file model.h
-/// The immutable elastic model built from a voxel grid (MODEL.md section 3).
+/// The immutable elastic model built from a voxel grid (docs/model.md section 3; the layouts: section 1).
 /// Many simulation states can share one model; nothing here changes during a simulation.
 
 #include <Eigen/Core>

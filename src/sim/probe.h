@@ -1,6 +1,6 @@
 #pragma once
 /// @file probe.h
-/// How a probe moves: a keyframed path, a scripted joystick (paper 4.2: the tool moves with a
+/// How a probe moves (docs/model.md section 8): a keyframed path, a scripted joystick (paper 4.2: the tool moves with a
 /// velocity proportional to the stick's tilt; or an optional position-control mapping), or live
 /// input from outside (the probe app sets a target position or velocity each step).
 ///

@@ -1,7 +1,7 @@
 #pragma once
 /// @file simulation.h
-/// One simulation of an elastic object pressed, tapped and grasped by rigid probes (MODEL.md
-/// section 5). One step:
+/// One simulation of an elastic object pressed, tapped and grasped by rigid probes (docs/model.md
+/// sections 7-9). One step:
 ///
 ///   1. move the probes to the step's end time (path, scripted joystick or live input);
 ///   2. elastic forces, gravity and time integration of the nodes (integrators.h);

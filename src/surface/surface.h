@@ -1,6 +1,6 @@
 #pragma once
 /// @file surface.h
-/// The smoothed surface that follows the deformation (MODEL.md section 4, paper 3.3).
+/// The smoothed surface that follows the deformation (docs/model.md section 10, paper 3.3).
 ///
 /// A surface is a closed triangle mesh whose every vertex is a fixed weighted sum of model
 /// nodes (its embedding). Deforming it for a frame is one gather per vertex plus the vertex

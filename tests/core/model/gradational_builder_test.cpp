@@ -31,7 +31,7 @@ std::vector<std::int64_t> cube_shells(int n) {
 }  // namespace
 
 TEST(GradationalBuilder, PaperCube128Shells) {
-  // paper 3.2 / MODEL.md 3: 23816, 5768, 1352, 296, 56 and 8 elements, level 0 outward in
+  // paper 3.2 / docs/model.md section 3: 23816, 5768, 1352, 296, 56 and 8 elements, level 0 outward in
   const VoxelGrid grid = full_cube(128);
   BuildReport report;
   const Model m = build_model(grid, {}, &report);

@@ -1,4 +1,4 @@
-// The surface that follows the deformation (MODEL.md 4): the staircase, the paper's surface
+// The surface that follows the deformation (docs/model.md section 10): the staircase, the paper's surface
 // with its concave steps hidden, and the embedding of any mesh in the model's nodes.
 #include "surface/surface.h"
 
