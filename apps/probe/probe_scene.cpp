@@ -15,14 +15,14 @@
 #include "model/gradational_builder.h"
 #include "scene/scene.h"
 #include "sim/state.h"
+#include "util/text.h"
 
 namespace vx::probe {
 
 namespace {
 
 std::string lower_extension(const std::filesystem::path& p) {
-  std::string name = p.filename().string();
-  std::transform(name.begin(), name.end(), name.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  const std::string name = lower(p.filename().string());
   if (name.size() > 7 && name.ends_with(".nii.gz")) return ".nii.gz";
   const auto dot = name.rfind('.');
   return dot == std::string::npos ? std::string() : name.substr(dot);

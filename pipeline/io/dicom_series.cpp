@@ -31,6 +31,7 @@
 #include "base/error.h"
 #include "io/dicom_common.h"
 #include "util/progress.h"
+#include "util/text.h"
 
 namespace vx {
 namespace {
@@ -78,18 +79,10 @@ struct FileInfo {
   std::vector<FrameInfo> frames;
 };
 
-std::string quoted(const fs::path& p) { return "'" + p.string() + "'"; }
-
 std::string get_string(DcmItem* item, const DcmTagKey& tag) {
   OFString s;
   if (item && item->findAndGetOFStringArray(tag, s).good()) return std::string(s.c_str());
   return {};
-}
-
-std::string trim(std::string s) {
-  const auto b = s.find_first_not_of(" \t\r\n");
-  if (b == std::string::npos) return {};
-  return s.substr(b, s.find_last_not_of(" \t\r\n") - b + 1);
 }
 
 bool get_int(DcmItem* item, const DcmTagKey& tag, long& out) {

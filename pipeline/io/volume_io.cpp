@@ -59,6 +59,7 @@
 #include "base/error.h"
 #include "io/dicom_series.h"
 #include "util/atomic_file.h"
+#include "util/text.h"
 #include "util/vtk_messages.h"
 
 namespace vx {
@@ -70,22 +71,8 @@ constexpr const char* kSupported =
     "ending in '/', or one .dcm file of the series)";
 constexpr const char* kWritable = ".vti, .mha, .nii.gz, .nii, .nrrd, or a folder path ending in '/' (DICOM)";
 
-std::string quoted(const fs::path& p) { return "'" + p.string() + "'"; }
-
-std::string lower(std::string s) {
-  for (char& c : s) c = char(std::tolower(static_cast<unsigned char>(c)));
-  return s;
-}
-
 bool ends_with(const std::string& s, const std::string& suffix) {
   return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
-}
-
-std::string trim(const std::string& s) {
-  std::size_t a = 0, b = s.size();
-  while (a < b && std::isspace(static_cast<unsigned char>(s[a]))) ++a;
-  while (b > a && std::isspace(static_cast<unsigned char>(s[b - 1]))) --b;
-  return s.substr(a, b - a);
 }
 
 std::vector<std::string> split_ws(const std::string& s) {
