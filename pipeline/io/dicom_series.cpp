@@ -20,7 +20,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <fstream>
 #include <map>
 #include <new>
 #include <numbers>
@@ -120,13 +119,6 @@ DcmItem* find_functional(DcmItem* top, DcmItem* per_frame, DcmItem* shared, cons
   return top->tagExists(attr) ? top : nullptr;
 }
 
-bool has_dicm_magic(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  char buf[132] = {};
-  if (!in.read(buf, sizeof buf)) return false;
-  return std::string(buf + 128, 4) == "DICM";
-}
-
 bool is_ct_sop_class(const std::string& uid) {
   return uid == UID_CTImageStorage || uid == UID_EnhancedCTImageStorage ||
          uid == UID_LegacyConvertedEnhancedCTImageStorage;
@@ -137,7 +129,7 @@ FileInfo read_header(const fs::path& path, bool explicit_input, std::size_t file
   FileInfo f;
   f.path = path;
   f.explicit_input = explicit_input;
-  const bool magic = has_dicm_magic(path);
+  const bool magic = dicom::has_dicm_magic(path);
   DcmFileFormat ff;
   const OFCondition status = ff.loadFile(path.c_str(), EXS_Unknown, EGL_noChange, kHeaderReadLimit, ERM_autoDetect);
   DcmDataset* ds = ff.getDataset();

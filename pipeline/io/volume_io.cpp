@@ -57,6 +57,7 @@
 #include <sstream>
 
 #include "base/error.h"
+#include "io/dicom_common.h"
 #include "io/dicom_series.h"
 #include "util/atomic_file.h"
 #include "util/text.h"
@@ -200,11 +201,6 @@ std::vector<char> read_file_bytes(const fs::path& path, std::uintmax_t offset, s
                             "(the file was cut short; copy or export it again)",
                             quoted(path), count, offset, in.gcount()));
   return data;
-}
-
-bool has_dicm_magic(const fs::path& path) {
-  const std::string s = read_file_prefix(path, 132);
-  return s.size() == 132 && s.compare(128, 4, "DICM") == 0;
 }
 
 /// True when every value is an integer that int16 holds (then files store int16).
@@ -1270,7 +1266,7 @@ Volume read_volume(const fs::path& path, const ReadOptions& options) {
     throw Error("cannot read " + quoted(path) + ": not a regular file");
   if (format.empty()) {
     // DICOM files often have no extension: recognise them by their magic
-    if (has_dicm_magic(path)) return read_dicom_series({path}, options);
+    if (dicom::has_dicm_magic(path)) return read_dicom_series({path}, options);
     throw Error(fmt::format("cannot read {}: unknown volume format '{}' (supported: {})", quoted(path),
                             path.extension().string(), kSupported));
   }
