@@ -15,6 +15,7 @@
 #include "model/gradational_builder.h"
 #include "scene/scene.h"
 #include "sim/state.h"
+#include "sim/time_step.h"
 #include "util/text.h"
 
 namespace vx::probe {
@@ -159,7 +160,7 @@ ProbeScene make_default_scene(std::shared_ptr<const Model> model, std::shared_pt
 
   // explicit-family integrator at half its stable step; the paper's device shaping
   sim.integrator.kind = IntegratorKind::symplectic_euler;
-  sim.integrator.time_step_s = 0.5 * stable_time_step(*scene.physics, IntegratorKind::symplectic_euler);
+  sim.integrator.time_step_s = automatic_time_step(estimate_time_steps(*scene.physics), sim.integrator.kind);
   sim.integrator.threads = 1;
   sim.device = DeviceForceSettings{};
 

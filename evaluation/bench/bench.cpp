@@ -103,7 +103,7 @@ std::vector<std::pair<double, double>> time_steps(const BenchSettings& set, Inte
     for (double dt : set.implicit_steps_s) out.emplace_back(dt, kNaN);
     return out;
   }
-  const double limit = kind == IntegratorKind::explicit_euler ? est.explicit_euler_s : est.symplectic_euler_s;
+  const double limit = est.limit(kind);
   if (limit > 0)
     for (double f : set.explicit_fractions) out.emplace_back(f * limit, f);
   return out;
@@ -501,9 +501,9 @@ BenchResult run_bench(const BenchSettings& set) {
       BenchRow& ref = res.reference;
       describe_model(p, set.reference_size, build_s, set.threads, ref);
       ref.integrator = IntegratorKind::symplectic_euler;
-      ref.dt_stable_estimate_s = est.symplectic_euler_s;
+      ref.dt_stable_estimate_s = est.limit(ref.integrator);
       ref.dt_fraction = set.reference_fraction;
-      ref.time_step_s = set.reference_fraction * est.symplectic_euler_s;
+      ref.time_step_s = set.reference_fraction * ref.dt_stable_estimate_s;
       log(fmt::format("[bench] reference: voxel-level model of {} voxels across ({} elements, {} vertex entries), "
                       "symplectic Euler at {:.2e} s",
                       set.reference_size, ref.elements, ref.vertex_entries, ref.time_step_s));
@@ -537,9 +537,7 @@ BenchResult run_bench(const BenchSettings& set) {
             row.integrator = kind;
             row.time_step_s = dt;
             row.dt_fraction = fraction;
-            row.dt_stable_estimate_s = kind == IntegratorKind::explicit_euler     ? est.explicit_euler_s
-                                       : kind == IntegratorKind::symplectic_euler ? est.symplectic_euler_s
-                                                                                  : est.implicit_s;
+            row.dt_stable_estimate_s = est.limit(kind);
             run_palpation(p, set, kind, dt, row);
             if (row.status == BenchStatus::ok) row.error = force_curve_error(row.curve, res.reference.curve);
             if (row.status == BenchStatus::skipped) res.notes.push_back(row.label() + ": " + row.note);

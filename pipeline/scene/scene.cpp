@@ -14,6 +14,7 @@
 #include "base/error.h"
 #include "convert/threshold.h"
 #include "io/model_io.h"
+#include "sim/time_step.h"
 
 namespace vx {
 namespace fs = std::filesystem;
@@ -894,15 +895,12 @@ PreparedScene prepare_scene(const Scene& scene, const PrepareSceneOptions& optio
   SimulationSettings& s = out.settings;
   s.integrator.kind = scene.integrator;
   const TimeStepEstimate est = estimate_time_steps(*out.physics);
-  out.dt_stable_estimate_s = scene.integrator == IntegratorKind::explicit_euler     ? est.explicit_euler_s
-                             : scene.integrator == IntegratorKind::symplectic_euler ? est.symplectic_euler_s
-                                                                                    : est.implicit_s;
+  out.dt_stable_estimate_s = est.limit(scene.integrator);
+  const double automatic_dt_s = automatic_time_step(est, scene.integrator);
   if (scene.dt_s > 0) {
     s.integrator.time_step_s = scene.dt_s;
-  } else if (scene.integrator == IntegratorKind::implicit) {
-    s.integrator.time_step_s = 0.1 * est.element_period_s;
-  } else if (out.dt_stable_estimate_s > 0) {
-    s.integrator.time_step_s = 0.5 * out.dt_stable_estimate_s;
+  } else if (automatic_dt_s > 0) {
+    s.integrator.time_step_s = automatic_dt_s;
   } else {
     fail("$.integrator", "explicit_euler without damping is unstable at any time step (MODEL.md 2); set material.damping > 0 "
                          "or use symplectic_euler or implicit");
