@@ -391,24 +391,23 @@ int App::run() {
   // the stick mapping: the command line over the scene over the defaults
   control_ = options_.control;
   if (scene_.control_from_scene) {
-    if (!options_.mode_set) control_.mode = scene_.control.mode;
-    if (!options_.speed_set) control_.speed_mm_s = scene_.control.speed_mm_s;
-    if (!options_.range_set) control_.position_range_mm = scene_.control.position_range_mm;
-    if (!options_.deadzone_set) control_.deadzone = scene_.control.deadzone;
+    const JoystickMapping& scene_mapping = scene_.control.mapping;
+    if (!options_.mode_set) control_.mapping.mode = scene_mapping.mode;
+    if (!options_.speed_set) control_.mapping.max_speed_mm_s = scene_mapping.max_speed_mm_s;
+    if (!options_.range_set) control_.mapping.range_mm = scene_mapping.range_mm;
+    if (!options_.deadzone_set) control_.mapping.dead_zone = scene_mapping.dead_zone;
   }
   for (int p = 0; p < std::min(probes_, kMaxSticks); ++p) {
     const Box allowed = p < int(scene_.probe_allowed.size()) ? scene_.probe_allowed[std::size_t(p)] : Box{};
     commanders_.emplace_back(sim->probe(p).pose.position_mm, allowed, control_);
   }
   keyboard_control_ = ControlSettings{};
-  keyboard_control_.mode = control_.mode;
-  keyboard_control_.speed_mm_s = control_.speed_mm_s;
-  keyboard_control_.position_range_mm = control_.position_range_mm;
-  keyboard_control_.deadzone = 0.0;
+  keyboard_control_.mapping = control_.mapping;
+  keyboard_control_.mapping.dead_zone = 0.0;
 
   open_input();
   open_outputs();
-  const std::string control = control_.mode == ControlMode::rate ? "rate control" : "position control";
+  const std::string control = control_.mapping.mode == JoystickMode::rate ? "rate control" : "position control";
   std::string input_line;
   if (script_)
     input_line = fmt::format("{}: {} virtual joystick{} ({})", control, input_->count(), input_->count() > 1 ? "s" : "",

@@ -185,10 +185,7 @@ void make_probes_live(ProbeScene& scene) {
       // the scene's stick mapping of its first live probe sets the app's defaults
       first_live = false;
       scene.control_from_scene = true;
-      scene.control.mode = p.mapping.mode == JoystickMode::rate ? ControlMode::rate : ControlMode::position;
-      scene.control.speed_mm_s = p.mapping.max_speed_mm_s;
-      scene.control.position_range_mm = p.mapping.range_mm;
-      scene.control.deadzone = p.mapping.dead_zone;
+      scene.control.mapping = p.mapping;
     }
     if (p.drive != ProbeDrive::live) {
       p.drive = ProbeDrive::live;

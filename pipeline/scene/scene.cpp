@@ -454,9 +454,11 @@ std::vector<PathKey> read_path(const json& j, const Where& w) {
 /// Joystick mapping keys shared by `joystick` and `live`.
 void read_mapping(const Obj& o, JoystickMapping& m) {
   const std::string mode = o.string("mode", "rate");
-  if (mode == "rate") m.mode = JoystickMode::rate;
-  else if (mode == "position") m.mode = JoystickMode::position;
-  else o.at_where("mode").fail("unknown mode \"" + mode + "\"; use \"rate\" (velocity proportional to tilt, the paper) or \"position\"");
+  try {
+    m.mode = parse_joystick_mode(mode);
+  } catch (const Error&) {
+    o.at_where("mode").fail("unknown mode \"" + mode + "\"; use \"rate\" (velocity proportional to tilt, the paper) or \"position\"");
+  }
   m.max_speed_mm_s = o.number("speed_mm_s", m.max_speed_mm_s);
   require(m.max_speed_mm_s > 0 && m.max_speed_mm_s <= 1e5, o.at_where("speed_mm_s"), "must be > 0 mm/s (speed at full tilt)");
   m.range_mm = o.number("range_mm", m.range_mm);
