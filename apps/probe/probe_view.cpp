@@ -54,6 +54,7 @@
 
 #include "base/error.h"
 #include "io/element_faces.h"
+#include "render/palette.h"
 #include "rate_thread.h"
 #include "util/atomic_file.h"
 
@@ -100,8 +101,14 @@ LevelCells make_level_cells(const Model& model) {
   cells.levels = model.num_levels();
   cells.rest_centroids = model.rest_centroids;
   cells.rest_nodes = model.rest_positions;
-  const double voxel = model.grid.spacing_mm.mean();
-  for (int l = 0; l < cells.levels; ++l) cells.level_size_mm.push_back(voxel * double(2 << l));
+  // the element edge of each level, as the model has it (one voxel in the voxel layout)
+  cells.level_size_mm.assign(std::size_t(cells.levels), 0.0);
+  cells.level_voxels.assign(std::size_t(cells.levels), 0);
+  for (int e = 0; e < ne; ++e) {
+    const auto l = std::size_t(model.element_level[std::size_t(e)]);
+    cells.level_size_mm[l] = model.element_size_mm[std::size_t(e)];
+    cells.level_voxels[l] = model.element_edge_voxels(e);
+  }
   return cells;
 }
 
@@ -118,10 +125,11 @@ constexpr Rgb kToolContact{0.66, 0.77, 0.93};
 constexpr Rgb kBackgroundTop{0.10, 0.12, 0.16};
 constexpr Rgb kBackgroundBottom{0.28, 0.31, 0.36};
 constexpr std::array<Rgb, 2> kProbeColour{Rgb{1.0, 0.62, 0.15}, Rgb{0.30, 0.80, 1.0}};
-// level colours: level 0 (the fine surface shell) first
-constexpr std::array<Rgb, 8> kLevelColour{Rgb{0.99, 0.78, 0.35}, Rgb{0.55, 0.82, 0.45}, Rgb{0.30, 0.70, 0.85},
-                                          Rgb{0.50, 0.45, 0.85}, Rgb{0.85, 0.40, 0.65}, Rgb{0.90, 0.35, 0.30},
-                                          Rgb{0.60, 0.60, 0.60}, Rgb{0.95, 0.95, 0.95}};
+/// The colour of element level `level` (render/palette.h: the same as in pictures).
+Rgb level_rgb(int level) {
+  const std::array<double, 3> c = level_colour(level);
+  return Rgb{c[0], c[1], c[2]};
+}
 
 constexpr const char* kHelp =
     "keys and mouse\n"
@@ -570,7 +578,7 @@ void ProbeView::Impl::build_levels() {
   const int n = std::max(1, c.levels);
   lut->SetNumberOfTableValues(n);
   for (int l = 0; l < n; ++l) {
-    const Rgb& col = kLevelColour[std::size_t(std::min(l, int(kLevelColour.size()) - 1))];
+    const Rgb col = level_rgb(l);
     lut->SetTableValue(l, col.r, col.g, col.b, 1.0);
   }
   lut->SetRange(0, n - 1);
@@ -593,11 +601,10 @@ void ProbeView::Impl::build_levels() {
 
   for (int l = 0; l < c.levels; ++l) {
     auto t = make<vtkTextActor>();
-    const Rgb& col = kLevelColour[std::size_t(std::min(l, int(kLevelColour.size()) - 1))];
     t->SetInput(fmt::format("level {}: elements {:g} mm ({} voxels) wide", l, c.level_size_mm[std::size_t(l)],
-                            2 << l)
+                            c.level_voxels[std::size_t(l)])
                     .c_str());
-    set_text_style(t->GetTextProperty(), 14, col);
+    set_text_style(t->GetTextProperty(), 14, level_rgb(l));
     t->SetVisibility(false);
     renderer->AddViewProp(t);
     level_legend.push_back(t);

@@ -36,6 +36,7 @@
 
 #include "base/error.h"
 #include "io/element_faces.h"
+#include "render/palette.h"
 #include "util/atomic_file.h"
 #include "util/vtk_messages.h"
 
@@ -67,14 +68,6 @@ bool probe_x_display() {
   }
   // libX11 stays loaded: it registers handlers at load time, and VTK uses it anyway
   return ok;
-}
-
-/// Colour of level L: ColorBrewer Set2 (distinct, colour-blind friendly), repeating after 8.
-std::array<double, 3> level_colour(int level) {
-  static constexpr unsigned char set2[8][3] = {{102, 194, 165}, {252, 141, 98}, {141, 160, 203}, {231, 138, 195},
-                                               {166, 216, 84},  {255, 217, 47}, {229, 196, 148}, {179, 179, 179}};
-  const auto* c = set2[level % 8];
-  return {c[0] / 255.0, c[1] / 255.0, c[2] / 255.0};
 }
 
 /// A length with 1, 2 or 5 as its leading digit, at most `mm`.
