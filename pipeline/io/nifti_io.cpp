@@ -28,16 +28,7 @@ Volume read_nifti(const std::filesystem::path& path) {
     throw Error(quoted(path) + " is not a NIfTI file: its 348-byte header is missing or damaged (export it "
                                "again; if it is gzip-compressed it must end in .nii.gz)");
   reader->SetFileName(path.c_str());
-  // the header first: a damaged one must not make VTK allocate terabytes
-  reader->UpdateInformation();
-  if (!messages.failed()) {
-    const int* e = reader->GetDataExtent();
-    (void)checked_voxel_count(extent_dims(e), path);
-    reader->Update();
-  }
-  if (messages.failed() || reader->GetErrorCode() != vtkErrorCode::NoError)
-    throw Error(fmt::format("cannot read {} as NIfTI: {} (the file is damaged or cut short; export it again)",
-                            quoted(path), messages.reason(reader->GetErrorCode())));
+  read_header_then_data(*reader, [&] { return extent_dims(reader->GetDataExtent()); }, messages, path, "NIfTI");
   if (reader->GetTimeDimension() > 1)
     throw Error(fmt::format("{} is a 4D NIfTI with {} volumes; voxelastic reads one 3D volume: extract one "
                             "(e.g. 'fslroi in out 0 1') first",

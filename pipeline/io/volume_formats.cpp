@@ -1,6 +1,7 @@
 #include "io/volume_formats.h"
 
 #include <fmt/format.h>
+#include <vtkAlgorithm.h>
 #include <vtkDataArray.h>
 #include <vtkErrorCode.h>
 #include <vtkFloatArray.h>
@@ -215,6 +216,18 @@ std::string VtkMessages::errors() const {
 
 std::string VtkMessages::reason(unsigned long error_code) const {
   return failed() ? errors() : std::string(vtkErrorCode::GetStringFromErrorCode(error_code));
+}
+
+void read_header_then_data(vtkAlgorithm& reader, const std::function<Eigen::Vector3i()>& header_dims,
+                           const VtkMessages& messages, const fs::path& path, const char* what) {
+  reader.UpdateInformation();
+  if (!messages.failed()) {
+    (void)checked_voxel_count(header_dims(), path);
+    reader.Update();
+  }
+  if (messages.failed() || reader.GetErrorCode() != vtkErrorCode::NoError)
+    throw Error(fmt::format("cannot read {} as {}: {} (the file is damaged or cut short; export it again)", quoted(path),
+                            what, messages.reason(reader.GetErrorCode())));
 }
 
 void VtkMessages::print_warnings(const std::filesystem::path& path) const {

@@ -34,8 +34,12 @@
 #include <vtkDataArray.h>
 #include <vtkSmartPointer.h>
 
+#include <functional>
+
 #include "io/volume.h"
 #include "util/vtk_messages.h"
+
+class vtkAlgorithm;
 
 namespace vx::volume_formats {
 
@@ -140,5 +144,12 @@ class VtkMessages {
  private:
   VtkMessageCapture capture_;
 };
+
+/// Runs a VTK reader whose file name is set: its header first, whose voxel count (from
+/// `header_dims`, asked after the header was read) must pass checked_voxel_count so that a
+/// damaged header cannot make VTK allocate terabytes, then its data. Throws vx::Error "cannot
+/// read PATH as `what`: reason (the file is damaged or cut short; export it again)".
+void read_header_then_data(vtkAlgorithm& reader, const std::function<Eigen::Vector3i()>& header_dims,
+                           const VtkMessages& messages, const std::filesystem::path& path, const char* what);
 
 }  // namespace vx::volume_formats

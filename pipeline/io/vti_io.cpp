@@ -26,18 +26,12 @@ Volume read_vti(const std::filesystem::path& path) {
     throw Error(quoted(path) + " is not a VTK XML image file (.vti): its header is missing or damaged; "
                                "export it again");
   reader->SetFileName(path.c_str());
-  // the header first: a damaged one must not make VTK allocate terabytes
-  reader->UpdateInformation();
-  if (!messages.failed()) {
+  const auto header_dims = [&] {
     int e[6] = {0, -1, 0, -1, 0, -1};
     reader->GetOutputInformation(0)->Get(vtkStreamingDemandDrivenPipeline::WHOLE_EXTENT(), e);
-    (void)checked_voxel_count(extent_dims(e), path);
-    reader->Update();
-  }
-  if (messages.failed() || reader->GetErrorCode() != vtkErrorCode::NoError)
-    throw Error(fmt::format("cannot read {} as a VTK image (.vti): {} (the file is damaged or cut short; "
-                            "export it again)",
-                            quoted(path), messages.reason(reader->GetErrorCode())));
+    return extent_dims(e);
+  };
+  read_header_then_data(*reader, header_dims, messages, path, "a VTK image (.vti)");
   vtkImageData* image = reader->GetOutput();
   int extent[6];
   image->GetExtent(extent);
