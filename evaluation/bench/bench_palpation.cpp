@@ -150,9 +150,9 @@ void describe_model(const PreparedScene& p, int n, double build_s, int threads, 
 }
 
 /// Part B's progress: "[bench 3/40] label: figures (time)" after each run.
-class Progress {
+class RunProgress {
  public:
-  Progress(const BenchSettings& set, const Log& log) : log_(log) {
+  RunProgress(const BenchSettings& set, const Log& log) : log_(log) {
     // count the runs: time steps depend on each model's estimate, but their number does not
     std::size_t per_model = 0;
     for (IntegratorKind kind : kIntegrators) per_model += runs_per_model(set, kind);
@@ -186,7 +186,7 @@ class Progress {
 
 /// The reference run (voxel-level at the reference size, symplectic Euler at a fraction of its
 /// stable step, no time budget) into res.reference; throws vx::Error when it fails.
-void run_reference(const BenchSettings& set, BenchResult& res, const Log& log, Progress& progress) {
+void run_reference(const BenchSettings& set, BenchResult& res, const Log& log, RunProgress& progress) {
   const Clock::time_point t = Clock::now();
   const PreparedScene p = prepare_palpation(set, set.reference_size, Layout::voxel);
   const double build_s = seconds_since(t);
@@ -212,7 +212,7 @@ void run_reference(const BenchSettings& set, BenchResult& res, const Log& log, P
 
 /// Every integrator at each of its time steps on the model of size `n` in `layout`, scored
 /// against the reference, into res.rows.
-void run_model(const BenchSettings& set, int n, Layout layout, BenchResult& res, Progress& progress) {
+void run_model(const BenchSettings& set, int n, Layout layout, BenchResult& res, RunProgress& progress) {
   const Clock::time_point tb = Clock::now();
   const PreparedScene p = prepare_palpation(set, n, layout);
   const double build_s = seconds_since(tb);
@@ -222,7 +222,7 @@ void run_model(const BenchSettings& set, int n, Layout layout, BenchResult& res,
     if (steps.empty()) {
       res.notes.push_back(fmt::format("n={} {}: {} has no stable time step (no damping)", n, to_string(layout),
                                       to_string(kind)));
-      progress.skip(Progress::runs_per_model(set, kind));
+      progress.skip(RunProgress::runs_per_model(set, kind));
     }
     for (const auto& [dt, fraction] : steps) {
       const Clock::time_point t = Clock::now();
@@ -244,7 +244,7 @@ void run_model(const BenchSettings& set, int n, Layout layout, BenchResult& res,
 }  // namespace
 
 void run_palpation_part(const BenchSettings& set, BenchResult& res, const Log& log) {
-  Progress progress(set, log);
+  RunProgress progress(set, log);
   // the reference first: every error is measured against it
   run_reference(set, res, log, progress);
   for (int n : set.sizes)
