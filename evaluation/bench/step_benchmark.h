@@ -20,7 +20,7 @@
 
 namespace vx {
 
-/// A ball phantom: radius n/2 - 1 voxels, centred in an n^3 grid of voxel edge voxel_mm.
+/// A ball phantom: ball_grid(n, n/2 - 1, voxel_mm) (model/voxel_shapes.h); throws for n < 4.
 [[nodiscard]] VoxelGrid make_sphere_grid(int n, double voxel_mm = 1.0);
 
 /// What to benchmark.
