@@ -1,7 +1,7 @@
 #pragma once
 /// @file probe_scene.h
 /// What the probe app runs: a physics model, its deforming surface and the simulation
-/// settings, from a scene file (pipeline/scene.h), or from a volume or a model file with
+/// settings, from a scene file (pipeline/scene/scene.h), or from a volume or a model file with
 /// default palpation settings (a capsule probe above the tissue, the tissue's bottom held
 /// on a table, walls around it). Every probe becomes a `live` probe driven by the app.
 

@@ -119,7 +119,7 @@ void choose_integrator(const Scene& scene, const PrepareSceneOptions& options, c
   } else if (automatic_dt_s > 0) {
     s.integrator.time_step_s = automatic_dt_s;
   } else {
-    errors.fail("$.integrator", "explicit_euler without damping is unstable at any time step (MODEL.md 2); set material.damping > 0 "
+    errors.fail("$.integrator", "explicit_euler without damping is unstable at any time step (docs/model.md section 7); set material.damping > 0 "
                                 "or use symplectic_euler or implicit");
   }
   if (scene.integrator != IntegratorKind::implicit) {
