@@ -295,7 +295,7 @@ void LocalForceRenderer::update_model(const LocalContactModel& model, double now
   if (settings_.blend_s > 0)
     blend_ = settings_.blend_s;
   else if (physics_period_s > 0)
-    blend_ = std::clamp(physics_period_s, 0.005, 0.05);
+    blend_ = std::clamp(physics_period_s, settings_.period_s(), 0.05);
   // what the hand feels now without the damping: the old model's force and what is left of
   // the last offset; the new model starts from the same force
   const double fade = blend_ > 0 ? std::max(0.0, 1.0 - (now_s - offset_start_) / blend_) : 0.0;

@@ -165,7 +165,7 @@ struct HapticCouplingSettings {
   /// beta: virtual damping beta T K (1/2 cancels the hold's energy; below it the force is active)
   double damping_margin{1.0};
   double coupling_stiffness_n_mm{0.0};  ///< k_c; <= 0: from Colgate's condition, b / ((1/2 + beta) T)
-  double blend_s{0.0};                  ///< re-anchoring fade; <= 0: one physics period, in [5, 50] ms
+  double blend_s{0.0};                  ///< re-anchoring fade; <= 0: one physics period (one tick to 50 ms)
   bool energy_guard{true};              ///< the passivity observer and controller
 
   [[nodiscard]] std::string validate() const;

@@ -244,14 +244,18 @@ std::string LocalContactSettings::validate() const {
     err << "max_nodes " << max_nodes << " must be in 1.." << LocalContactSolver::kMaxNodes << "; ";
   if (!std::isfinite(average_s) || average_s > 1.0) err << "average_s must be <= 1 s; ";
   if (!(horizon_s > 0) || !std::isfinite(horizon_s)) err << "horizon_s must be > 0; ";
+  if (!(update_period_s > 0) || !std::isfinite(update_period_s)) err << "update_period_s must be > 0; ";
+  if (!(compliance_scale > 0) || !std::isfinite(compliance_scale)) err << "compliance_scale must be > 0; ";
   if (!std::isfinite(patch_radius_mm)) err << "patch radius must be finite; ";
   return err.str();
 }
 
 bool Simulation::use_integrator_compliance() const {
   return settings_.local_contact && settings_.local_contact->integrator_compliance && integrator_->solves_contact() &&
-         dt_s() >= 0.5 * settings_.local_contact->horizon_s;
+         dt_s() >= 0.5 * settings_.local_contact->update_period_s;
 }
+
+double Simulation::local_compliance_scale() const { return settings_.local_contact->compliance_scale; }
 
 void Simulation::accumulate_local_contact() {
   const double dt = dt_s();
@@ -347,8 +351,9 @@ void Simulation::build_local_contact(int q, LocalContactModel& m) {
                     std::to_string(radius) + " mm around the contact)");
       m.source = ComplianceSource::patch;
     }
+    const double scale = local_compliance_scale();
     for (int i = 0; i < mc; ++i)
-      for (int j = 0; j < mc; ++j) m.compliance(i, j) = m.normal.col(i).dot(m.normal.col(j)) * local_g_(i, j);
+      for (int j = 0; j < mc; ++j) m.compliance(i, j) = scale * m.normal.col(i).dot(m.normal.col(j)) * local_g_(i, j);
   }
   m.valid = true;
   m.step = state_.steps;

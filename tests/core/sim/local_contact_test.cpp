@@ -284,13 +284,14 @@ Eigen::Vector3d tool_at(double depth, double x = 8.0) { return {x, 8.0, kTop + k
 // is then linear in the tool: rotations fitted before the solve); with 10 iterations the
 // rotation fits converge to the nonlinear solution, whose tangent is softer than the
 // projective-dynamics matrix (which leaves out the rotations' derivatives, as a corotational
-// stiffness does): measured 1.22x the full solution's stiffness along the press.
+// stiffness does): 1.22x the full solution's stiffness along the press (a compliance_scale of
+// 1.2 takes it out: 1.00-1.02x).
 TEST(LocalContactModel, ImplicitModelIsTheStepAtTheAnchorAndFollowsSmallMoves) {
   const auto phys = block();
   for (const int iterations : {1, 10}) {
     SimulationSettings s = scene(*phys, IntegratorKind::implicit, 2e-3);
     s.integrator.max_iterations = iterations;
-    s.local_contact->horizon_s = 2e-3;  // one step per update: the integrator's factor
+    s.local_contact->update_period_s = 2e-3;  // one step per update: the integrator's factor
     Simulation a(phys, s);
     move_tool(a, tool_at(1.5), 0.15);
     move_tool(a, tool_at(1.5), 0.05);  // settle
@@ -335,8 +336,9 @@ TEST(LocalContactModel, ImplicitModelIsTheStepAtTheAnchorAndFollowsSmallMoves) {
         // 0.00043 N, 0.2 % of the anchor force)
         EXPECT_LT((local - full).norm(), 0.03 * full.norm() + 0.003 * f0.norm()) << "d " << d.transpose();
       } else if (d.z() != 0) {
-        EXPECT_GT(local.z() / full.z(), 0.95) << "d " << d.transpose();
-        EXPECT_LT(local.z() / full.z(), 1.35) << "d " << d.transpose();
+        // (measured 1.19-1.22)
+        EXPECT_GT(local.z() / full.z(), 1.1) << "d " << d.transpose();
+        EXPECT_LT(local.z() / full.z(), 1.3) << "d " << d.transpose();
       }
     }
   }
@@ -437,11 +439,12 @@ struct LoopResult {
 /// tool at the proxy the device last sent. The energy the hand puts in is the work of the held
 /// force along the device's path: E = -sum_k F_k . (x_{k+1} - x_k).
 LoopResult closed_loop(double device_hz, double physics_hz, double lesion_kpa, double depth_mm, double speed_mm_s,
-                       bool guard = true, double coupling_n_mm = 0.0, double margin = 1.0) {
+                       bool guard = true, double coupling_n_mm = 0.0, double margin = 1.0, double scale = 1.0) {
   const auto phys = block(lesion_kpa, 20.0);
   const double tp = 1.0 / physics_hz, td = 1.0 / device_hz;
   SimulationSettings s = scene(*phys, IntegratorKind::implicit, tp);
-  s.local_contact->horizon_s = tp;
+  s.local_contact->update_period_s = tp;
+  s.local_contact->compliance_scale = scale;
   Simulation sim(phys, s);
   HapticCouplingSettings hs;
   hs.device_rate_hz = device_hz;
@@ -526,6 +529,17 @@ TEST(LocalForceRenderer, PassiveInAClosedLoopAt1kHzAnd250Hz) {
     const LoopResult g = closed_loop(device_hz, 60.0, 2000.0, 2.5, 40.0, true, 50.0, 0.0);
     std::printf("  the same with the guard: least %.3e N mm, at the end %.3e N mm, guard %lld ticks, %.2e N mm\n",
                 g.min_energy_mj, g.final_energy_mj, static_cast<long long>(g.guard_ticks), g.guard_mj);
+    EXPECT_GE(g.min_energy_mj, -1e-12);
+  }
+  // a model softer than the tissue (compliance x 1.2, closer to the converged tangent: more
+  // accurate, docs/probe.md) with its anchor one update late returns more than it took
+  for (const double device_hz : {1000.0, 250.0}) {
+    const LoopResult r = closed_loop(device_hz, 60.0, 2000.0, 2.5, 10.0, false, 0.0, 1.0, 1.2);
+    const LoopResult g = closed_loop(device_hz, 60.0, 2000.0, 2.5, 10.0, true, 0.0, 1.0, 1.2);
+    std::printf("compliance x 1.2, device %4.0f Hz, 10 mm/s: least energy in %.3e N mm; with the guard %.3e N mm "
+                "(%lld ticks, %.2e N mm, largest step %.4f N)\n",
+                device_hz, r.min_energy_mj, g.min_energy_mj, static_cast<long long>(g.guard_ticks), g.guard_mj,
+                g.max_jump_n);
     EXPECT_GE(g.min_energy_mj, -1e-12);
   }
 }
