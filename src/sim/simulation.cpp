@@ -75,9 +75,9 @@ Simulation::Simulation(std::shared_ptr<const PhysicsModel> physics, SimulationSe
   }
 
   // device forces: only with a device (or when told to do all the work)
-  shape_ = settings_.device.has_value() || !settings_.skip_unneeded;
+  shape_ = has_device() || !settings_.skip_unneeded;
   if (shape_) {
-    const DeviceForceSettings dev = settings_.device.value_or(DeviceForceSettings{});
+    const DeviceForceSettings dev = has_device() ? *settings_.device : DeviceForceSettings{};
     shapers_.resize(np);
     for (auto& s : shapers_) s.init(dev, dt_s());
   }
@@ -191,7 +191,7 @@ StepStatus Simulation::step() {
     o.time_s = state_.time_s;
     if (shape_) {
       const Eigen::Vector3d& shaped = shapers_[i].push(raw_[i], state_.time_s);
-      if (settings_.device) {
+      if (has_device()) {
         o.shaped_force_n = shaped;
         o.pulse = shapers_[i].pulse();
       }

@@ -167,7 +167,11 @@ class Simulation {
   [[nodiscard]] const PhysicsModel& physics() const { return *physics_; }
   [[nodiscard]] const SimulationSettings& settings() const { return settings_; }
   [[nodiscard]] const SimulationCounters& counters() const { return counters_; }
-  [[nodiscard]] bool has_device() const { return settings_.device.has_value(); }
+  /// A device with the paper's half sines (a `local` device is the probe app's: it shapes the
+  /// force from the local contact models, and the simulation plays no half sines for it).
+  [[nodiscard]] bool has_device() const {
+    return settings_.device.has_value() && settings_.device->shaping == ForceShaping::paper;
+  }
 
   [[nodiscard]] int num_probes() const { return int(drivers_.size()); }
   /// Probe `i` after the last step (physics thread).
