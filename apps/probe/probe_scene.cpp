@@ -90,9 +90,11 @@ ProbeScene load_scene_file(const std::filesystem::path& path, const DefaultScene
                                     scene.surface->num_triangles()));
   scene.notes.push_back(fmt::format("integrator {} dt = {:.3g} ms{}", to_string(scene.simulation.integrator.kind),
                                     1e3 * scene.simulation.integrator.time_step_s,
-                                    scene.simulation.device ? fmt::format(", device updates every {:g} ms (half sines)",
-                                                                          1e3 * scene.simulation.device->update_interval_s)
-                                                            : std::string(", no device shaping (raw force)")));
+                                    !scene.simulation.device ? std::string(", no device shaping (raw force)")
+                                    : scene.simulation.device->shaping == ForceShaping::local
+                                        ? std::string(", device force from the local contact model")
+                                        : fmt::format(", device updates every {:g} ms (half sines)",
+                                                      1e3 * scene.simulation.device->update_interval_s)));
   for (const auto& w : built.warnings) scene.notes.push_back("warning: " + w);
   make_probes_live(scene);
   return scene;

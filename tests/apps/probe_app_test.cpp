@@ -65,7 +65,7 @@ std::vector<Row> read_log(const fs::path& csv, std::string* header) {
     std::vector<std::string> c;
     std::stringstream ss(line);
     for (std::string v; std::getline(ss, v, ',');) c.push_back(v);
-    if (c.size() != 17) continue;
+    if (c.size() < 17) continue;
     rows.push_back({std::stod(c[1]), std::stod(c[6]), std::stod(c[9]), std::stod(c[10]), std::stod(c[13]),
                     std::stod(c[15]), std::stoi(c[16])});
   }
@@ -188,7 +188,7 @@ TEST_F(ProbeApp, TwoJoysticksGraspWithTwoProbes) {
     std::vector<std::string> c;
     std::stringstream ss(line);
     for (std::string v; std::getline(ss, v, ',');) c.push_back(v);
-    ASSERT_EQ(c.size(), 17u);
+    ASSERT_EQ(c.size(), 31u);
     const int p = std::stoi(c[2]);
     ASSERT_TRUE(p == 0 || p == 1);
     x_end[p] = std::stod(c[13]);
