@@ -53,6 +53,9 @@ struct IntegratorSettings {
   // implicit only
   int max_iterations{10};      ///< local/global iterations per step
   double tolerance_mm{0.0};    ///< > 0: stop early once no node moved more than this in an iteration
+  /// > 0: stop early once the largest force imbalance on a free node is below this, N
+  /// (ProjectiveIterations::residual_tolerance_n)
+  double residual_tolerance_n{0.0};
   StabilityLimits limits;
 };
 
@@ -61,6 +64,7 @@ struct StepReport {
   StepStatus status{StepStatus::ok};
   int iterations{0};               ///< explicit: 1 force evaluation; implicit: global solves done
   double residual_n{0.0};          ///< implicit: RMS force imbalance per free node (N) at the last checked iterate
+  double max_residual_n{0.0};      ///< implicit: the largest force imbalance on a free node (N), same iterate
   double max_update_mm{0.0};       ///< implicit: largest node move of the last iteration, mm
   std::int64_t inverted_elements{0};     ///< elements found inverted or flat in the step
   std::int64_t unconverged_rotations{0}; ///< rotation fits that hit max_iterations

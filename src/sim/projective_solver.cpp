@@ -136,8 +136,13 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
     // local: rotation fits and targets; global: right-hand side, solve, contact
     last = local_step(s, x, its.rotation, threads);
     gather_rhs(threads);
-    if (it > 0) rep.residual_n = rms_difference(rhs_, rhs_previous_, threads);
-    if (its.tolerance_mm > 0 && it > 0 && max_update <= its.tolerance_mm) break;
+    if (it > 0) {
+      const auto [rms, largest] = difference_norms(rhs_, rhs_previous_, threads);
+      rep.residual_n = rms;
+      rep.max_residual_n = largest;
+      if (its.tolerance_mm > 0 && max_update <= its.tolerance_mm) break;
+      if (its.residual_tolerance_n > 0 && largest <= its.residual_tolerance_n) break;
+    }
     factor_.solve3(rhs_, solution_);
     if (contact) contact_set_.solve(*contact, x, factor_, solution_, threads, counters);
     max_update = scatter(x, threads);
@@ -263,18 +268,27 @@ double ProjectiveSolver::scatter(Eigen::Matrix3Xd& x, int threads) {
   return std::sqrt(mx);
 }
 
-double ProjectiveSolver::rms_difference(const Eigen::MatrixX3d& a, const Eigen::MatrixX3d& b, int threads) {
+std::pair<double, double> ProjectiveSolver::difference_norms(const Eigen::MatrixX3d& a, const Eigen::MatrixX3d& b,
+                                                             int threads) {
   const int nf = num_free();
-  if (nf == 0) return 0.0;
+  if (nf == 0) return {0.0, 0.0};
   const std::int64_t chunks = chunk_count(nf, kNodeGrain);
   parallel_for_chunks(nf, kNodeGrain, threads, [&](std::int64_t c, std::int64_t lo, std::int64_t hi) {
-    double s = 0;
-    for (std::int64_t f = lo; f < hi; ++f) s += (a.row(f) - b.row(f)).squaredNorm();
-    free_chunk_sums_[std::size_t(c)] = s;
+    double s = 0, mx = 0;
+    for (std::int64_t f = lo; f < hi; ++f) {
+      const double d2 = (a.row(f) - b.row(f)).squaredNorm();
+      s += d2;
+      mx = std::max(mx, d2);
+    }
+    free_chunk_sums_[2 * std::size_t(c)] = s;
+    free_chunk_sums_[2 * std::size_t(c) + 1] = mx;
   });
-  double s = 0;
-  for (std::int64_t c = 0; c < chunks; ++c) s += free_chunk_sums_[std::size_t(c)];
-  return std::sqrt(s / nf);
+  double s = 0, mx = 0;
+  for (std::int64_t c = 0; c < chunks; ++c) {
+    s += free_chunk_sums_[2 * std::size_t(c)];
+    mx = std::max(mx, free_chunk_sums_[2 * std::size_t(c) + 1]);
+  }
+  return {std::sqrt(s / nf), std::sqrt(mx)};
 }
 
 }  // namespace vx

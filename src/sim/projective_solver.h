@@ -29,6 +29,7 @@
 #include <Eigen/Core>
 #include <cstdint>
 #include <memory>
+#include <utility>
 #include <vector>
 
 #include "physics/elements.h"
@@ -55,6 +56,11 @@ struct ProjectiveSetup {
 struct ProjectiveIterations {
   int max_iterations{10};      ///< local/global iterations
   double tolerance_mm{0.0};    ///< > 0: stop once no node moved more than this in an iteration
+  /// > 0: stop once the largest force imbalance on a free node is below this (N): the residual
+  /// of the step's minimisation at the current iterate, rhs(x_k) - rhs(x_{k-1}) (A x_k =
+  /// rhs(x_{k-1}) after the global solve). Checked before each global solve after the first, so
+  /// a step costs at least two local steps and one solve.
+  double residual_tolerance_n{0.0};
   RotationFitSettings rotation;
   int threads{0};              ///< 0: OpenMP default
 };
@@ -101,7 +107,8 @@ class ProjectiveSolver {
   ElementPassStats local_step(SimState& state, const Eigen::Matrix3Xd& x, const RotationFitSettings& fit, int threads);
   void gather_rhs(int threads);
   double scatter(Eigen::Matrix3Xd& x, int threads);
-  double rms_difference(const Eigen::MatrixX3d& a, const Eigen::MatrixX3d& b, int threads);
+  /// RMS and largest per-node norm of a - b (free nodes), N.
+  std::pair<double, double> difference_norms(const Eigen::MatrixX3d& a, const Eigen::MatrixX3d& b, int threads);
 
   std::shared_ptr<const PhysicsModel> physics_;
   ProjectiveSetup setup_;
@@ -127,7 +134,7 @@ class ProjectiveSolver {
   Eigen::MatrixX3d solution_;             ///< free x 3: the global step's solution, mm
   Eigen::MatrixX3d fixed_positions_;      ///< fixed x 3: x_c
   std::vector<ElementPassStats> element_chunk_stats_;
-  std::vector<double> free_chunk_sums_;
+  std::vector<double> free_chunk_sums_;  ///< per node chunk: 2 partial sums
   ContactActiveSet contact_set_;
 };
 

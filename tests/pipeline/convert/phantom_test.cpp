@@ -38,7 +38,7 @@ std::int64_t count_hu(const Volume& v, float hu) {
 
 TEST(Phantom, NamesAreTheDocumentedOnes) {
   EXPECT_EQ(vx::phantom_names(), (std::vector<std::string>{"sphere", "cube", "ellipsoid", "cylinder", "torus",
-                                                          "block", "block-lesion"}));
+                                                          "block", "block-lesion", "organ"}));
 }
 
 // The voxel count (centres inside) approximates the analytic volume. Flat faces lie on voxel
