@@ -15,6 +15,7 @@
 #include "model/gradational_builder.h"
 #include "scene/scene.h"
 #include "sim/state.h"
+#include "sim/time_step.h"
 
 namespace vx::probe {
 
@@ -157,16 +158,21 @@ ProbeScene make_default_scene(std::shared_ptr<const Model> model, std::shared_pt
   probe.max_speed_mm_s = 150.0;
   sim.probes.push_back(probe);
 
-  // explicit-family integrator at half its stable step; the paper's device shaping
-  sim.integrator.kind = IntegratorKind::symplectic_euler;
-  sim.integrator.time_step_s = 0.5 * stable_time_step(*scene.physics, IntegratorKind::symplectic_euler);
+  // the fast configuration (time_step.h): implicit, 20 ms steps, one iteration each; the
+  // paper's device shaping over two steps
+  sim.integrator.kind = FastConfiguration::kind;
+  sim.integrator.time_step_s = FastConfiguration::time_step_s;
+  sim.integrator.max_iterations = FastConfiguration::iterations;
   sim.integrator.threads = 1;
   sim.device = DeviceForceSettings{};
+  sim.device->update_interval_s = FastConfiguration::device_update_interval_s;
 
   scene.notes.push_back(fmt::format("default palpation scene: E = {:g} kPa, damping ratio {:g}, {} bottom nodes held, "
-                                    "capsule probe r = {:.1f} mm, symplectic Euler dt = {:.3g} ms",
+                                    "capsule probe r = {:.1f} mm, the fast configuration: implicit dt = {:.3g} ms, {} "
+                                    "iteration per step",
                                     material.youngs_modulus_kpa, material.damping_ratio, sim.fixed_nodes.size(),
-                                    probe.geometry.radius_mm, 1e3 * sim.integrator.time_step_s));
+                                    probe.geometry.radius_mm, 1e3 * sim.integrator.time_step_s,
+                                    sim.integrator.max_iterations));
   make_probes_live(scene);
   return scene;
 }

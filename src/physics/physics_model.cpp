@@ -3,6 +3,7 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "base/error.h"
 #include "base/parallel.h"
@@ -194,24 +195,30 @@ void scale_masses(PhysicsModel& p, const MassScaling& ms) {
   if (ms.time_step_s > 0) node_gershgorin_sums(p, sk, sc);
   // the global estimate takes the largest omega^2 and the largest damping rate over all nodes,
   // which may belong to different nodes: a per-node floor for 2 x target gives a little less
-  // globally, so the floor's step is raised until the estimate reaches it (a few passes)
-  double floor_dt = 2.0 * ms.time_step_s;
-  for (int pass = 0; pass < 8; ++pass) {
+  // globally, so the floor's step D is the smallest (bisection) whose estimate reaches it
+  const double want = 2.0 * ms.time_step_s;
+  const auto apply = [&](double d) {
     double w2 = 0, gamma = 0;
     for (int i = 0; i < nn; ++i) {
       const double physical = p.node_mass_kg[std::size_t(i)] * kKgToNs2PerMm;
       double m = physical * ms.factor;
-      if (ms.time_step_s > 0) m = std::max(m, mass_for_time_step(sk[std::size_t(i)], sc[std::size_t(i)], floor_dt));
+      if (d > 0) m = std::max(m, mass_for_time_step(sk[std::size_t(i)], sc[std::size_t(i)], d));
       p.node_mass[std::size_t(i)] = m;
-      if (ms.time_step_s > 0) {
-        w2 = std::max(w2, sk[std::size_t(i)] / m);
-        gamma = std::max(gamma, sc[std::size_t(i)] / m);
-      }
+      w2 = std::max(w2, sk.empty() ? 0.0 : sk[std::size_t(i)] / m);
+      gamma = std::max(gamma, sc.empty() ? 0.0 : sc[std::size_t(i)] / m);
     }
-    if (ms.time_step_s <= 0 || w2 <= 0) break;
-    const double estimate = (std::sqrt(4.0 * w2 + gamma * gamma) - gamma) / w2;
-    if (estimate >= 2.0 * ms.time_step_s * (1.0 - 1e-9)) break;
-    floor_dt *= 2.0 * ms.time_step_s / estimate;
+    return w2 > 0 ? (std::sqrt(4.0 * w2 + gamma * gamma) - gamma) / w2 : std::numeric_limits<double>::infinity();
+  };
+  if (ms.time_step_s > 0 && apply(want) < want) {
+    double lo = want, hi = 2.0 * want;
+    while (apply(hi) < want && hi < 1e6 * want) lo = hi, hi *= 2.0;
+    for (int it = 0; it < 50 && hi - lo > 1e-6 * want; ++it) {
+      const double mid = 0.5 * (lo + hi);
+      (apply(mid) >= want ? hi : lo) = mid;
+    }
+    apply(hi);
+  } else {
+    apply(ms.time_step_s > 0 ? want : 0.0);
   }
   double added = 0;
   for (int i = 0; i < nn; ++i) {
