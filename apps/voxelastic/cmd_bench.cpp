@@ -31,8 +31,8 @@ struct BenchOptions {
   bool quiet{false};
   bool scale{false};
   bool threads_given{false};
-  std::vector<std::string> scale_models;
-  double scale_max_wall_s{0.0};
+  std::vector<std::string> scale_models, scale_configs;
+  double scale_max_wall_s{0.0}, scale_reference_max_wall_s{0.0};
 };
 
 /// `bench --scale`: the real-time factor of each configuration on models of growing size
@@ -50,6 +50,18 @@ void run_scale_command(const BenchOptions& o) {
     set.models = keep;
   }
   if (o.scale_max_wall_s > 0) set.max_wall_s = o.scale_max_wall_s;
+  if (o.scale_reference_max_wall_s > 0) set.reference_max_wall_s = o.scale_reference_max_wall_s;
+  if (!o.scale_configs.empty()) {
+    std::vector<ScaleConfig> keep;
+    for (const auto& c : set.configs)
+      for (const auto& want : o.scale_configs)
+        if (c.name.find(want) != std::string::npos) {
+          keep.push_back(c);
+          break;
+        }
+    if (keep.empty()) throw Error("--scale-configs: no configuration matches");
+    set.configs = keep;
+  }
   if (o.threads_given) set.threads = {o.threads};
   const fs::path dir(o.out);
   std::error_code ec;
@@ -162,6 +174,12 @@ void add_bench_command(CLI::App& app) {
   sub->add_option("--scale-models", opts->scale_models, "with --scale: the models (32, 64, 128, 256, organ)")->delimiter(',');
   sub->add_option("--scale-max-wall-s", opts->scale_max_wall_s,
                   "with --scale: time a run over at most this much wall time (the reference runs to the end)")
+      ->check(CLI::PositiveNumber);
+  sub->add_option("--scale-configs", opts->scale_configs,
+                  "with --scale: only the configurations whose name contains one of these (e.g. reference,implicit)")
+      ->delimiter(',');
+  sub->add_option("--scale-reference-max-wall-s", opts->scale_reference_max_wall_s,
+                  "with --scale: the reference's wall-time budget (default 1800 s; shorter: no error column)")
       ->check(CLI::PositiveNumber);
   sub->callback([opts] { run_bench_command(*opts); });
 }

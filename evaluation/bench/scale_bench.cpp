@@ -41,12 +41,23 @@ ScaleBenchSettings ScaleBenchSettings::standard() {
   implicit10.kind = IntegratorKind::implicit;
   implicit10.time_step_s = 0.01;
   implicit10.max_iterations = 2;
+  ScaleConfig implicit30;
+  implicit30.name = "implicit 30 ms, 1 iteration";
+  implicit30.kind = IntegratorKind::implicit;
+  implicit30.time_step_s = 0.03;
+  implicit30.max_iterations = 1;
   ScaleConfig implicit20;
-  implicit20.name = "implicit 20 ms, 1 iteration";
+  implicit20.name = "implicit 20 ms, 1 iteration (the fast configuration)";
   implicit20.kind = IntegratorKind::implicit;
   implicit20.time_step_s = 0.02;
   implicit20.max_iterations = 1;
-  s.configs = {ref, floor, floor_scale, implicit10, implicit20};
+  ScaleConfig region15 = implicit20;
+  region15.name = "implicit 20 ms, 1 iteration, region 15 mm";
+  region15.region_radius_mm = 15.0;
+  ScaleConfig region30 = implicit20;
+  region30.name = "implicit 20 ms, 1 iteration, region 30 mm";
+  region30.region_radius_mm = 30.0;
+  s.configs = {ref, floor, floor_scale, implicit10, implicit20, implicit30, region15, region30};
   return s;
 }
 
@@ -124,6 +135,7 @@ RunOutput run_one(const ScaleModelSpec& spec, const PreparedScene& prepared,
   ss.integrator.threads = threads;
   ss.integrator.max_iterations = cfg.max_iterations;
   ss.integrator.residual_tolerance_n = cfg.residual_tolerance_n;
+  ss.integrator.region_radius_mm = cfg.region_radius_mm;
   ProbeSettings probe;
   probe.name = "ball";
   probe.geometry.shape = ProbeShape::sphere;

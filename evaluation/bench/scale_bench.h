@@ -35,6 +35,7 @@ struct ScaleConfig {
   MassScaling mass;               ///< mass scaling (none: physical masses)
   int max_iterations{10};         ///< implicit
   double residual_tolerance_n{0}; ///< implicit
+  double region_radius_mm{0};     ///< implicit: regional solves within this distance of the ball (0: everywhere)
   bool reference{false};          ///< the model's reference (the error of the others is against it)
 };
 

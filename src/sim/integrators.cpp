@@ -4,6 +4,8 @@
 #include <atomic>
 #include <cmath>
 #include <sstream>
+#include <cstdio>
+#include <cstdlib>
 
 #include "base/error.h"
 #include "base/parallel.h"
@@ -266,6 +268,7 @@ class ImplicitIntegrator final : public Integrator {
     const double dt = settings_.time_step_s;
     ProjectiveSolver& solver = solver_for(s, rep);
     rep.factor_nonzeros = solver.factor_nonzeros();
+    if (settings_.region_radius_mm > 0 && contact_) update_region(s, solver, rep.refactored);
     if (settings_.track_energy) {
       ElementPassOptions opt;
       opt.damping = false;
@@ -305,6 +308,8 @@ class ImplicitIntegrator final : public Integrator {
     its.rotation = settings_.rotation;
     its.threads = threads;
     solver.solve(s, x, its, contact_, rep);
+    rep.region_elements = solver.region_elements();
+    rep.region_nodes = solver.region_nodes();
     if (contact_) contacts_ = solver.active_contacts();
 
     // velocities, checks, energies
@@ -367,8 +372,35 @@ class ImplicitIntegrator final : public Integrator {
     return *cache.solver;
   }
 
+  /// Regional solves: the free nodes within region_radius_mm of a tool, recomputed when a tool
+  /// has moved a quarter of the radius since (or after a refactorisation).
+  void update_region(SimState& s, ProjectiveSolver& solver, bool refactored) {
+    contact_->focus_points(focus_);
+    if (focus_.empty()) {
+      solver.clear_region();
+      return;
+    }
+    const double r = settings_.region_radius_mm;
+    bool moved = refactored || !solver.has_region() || focus_.size() != centres_.size();
+    for (std::size_t k = 0; k < focus_.size() && !moved; ++k) moved = (focus_[k] - centres_[k]).norm() > 0.25 * r;
+    if (!moved) return;
+    centres_ = focus_;
+    awake_.clear();
+    for (int i = 0; i < s.num_nodes(); ++i) {
+      if (s.node_fixed[std::size_t(i)]) continue;
+      for (const auto& c : centres_)
+        if ((s.positions.col(i) - c).squaredNorm() <= r * r) {
+          awake_.push_back(i);
+          break;
+        }
+    }
+    solver.set_region(awake_);
+  }
+
   ContactProvider* contact_{nullptr};
   std::uint64_t contact_epoch_{0};
+  std::vector<Eigen::Vector3d> focus_, centres_;
+  std::vector<int> awake_;
   std::vector<ContactConstraint> contacts_;  ///< active at the end of the last step
 };
 
@@ -378,6 +410,7 @@ void check_settings(const IntegratorSettings& s) {
   if (s.threads < 0) err << "threads " << s.threads << " must be >= 0 (0: all); ";
   if (s.max_iterations < 1) err << "max_iterations " << s.max_iterations << " must be >= 1; ";
   if (!(s.tolerance_mm >= 0)) err << "tolerance " << s.tolerance_mm << " mm must be >= 0; ";
+  if (!(s.region_radius_mm >= 0)) err << "region radius " << s.region_radius_mm << " mm must be >= 0; ";
   if (!(s.residual_tolerance_n >= 0)) err << "residual tolerance " << s.residual_tolerance_n << " N must be >= 0; ";
   if (s.rotation.max_iterations < 1) err << "rotation max_iterations must be >= 1; ";
   if (!(s.limits.max_speed_mm_s > 0)) err << "max speed must be > 0; ";

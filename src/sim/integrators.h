@@ -56,6 +56,11 @@ struct IntegratorSettings {
   /// > 0: stop early once the largest force imbalance on a free node is below this, N
   /// (ProjectiveIterations::residual_tolerance_n)
   double residual_tolerance_n{0.0};
+  /// > 0 (implicit, with a contact provider that names its tools): regional solves, the
+  /// rotation fits and the global solve only within this distance of a tool, mm
+  /// (ProjectiveSolver::set_region; the rest sleeps). The region follows a tool once it has
+  /// moved a quarter of the radius. 0: every node every step.
+  double region_radius_mm{0.0};
   StabilityLimits limits;
 };
 
@@ -73,6 +78,8 @@ struct StepReport {
   int contacts{0};                 ///< implicit with a contact provider: active constraints at the end
   int contact_rounds{0};           ///< implicit with a contact provider: active-set rounds in the step
   std::int64_t contact_columns{0}; ///< implicit: new columns A^-1 e_i solved in this step (each allocates once)
+  std::int64_t region_elements{0}; ///< implicit with a region: elements computed (0: all)
+  std::int64_t region_nodes{0};    ///< implicit with a region: free nodes solved for (0: all)
 };
 
 /// One time-integration scheme. What it keeps per state between steps lives in the state

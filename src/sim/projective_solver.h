@@ -95,6 +95,24 @@ class ProjectiveSolver {
   void solve(SimState& state, Eigen::Matrix3Xd& x, const ProjectiveIterations& iterations, ContactProvider* contact,
              StepReport& report);
 
+  // --- regional solves (sparse_factor.h: only where the tool is) -----------------------------
+  /// Restricts the following solves to the elements that touch `awake_nodes` (their rotation
+  /// fits and targets) and to the free nodes of those elements and their ancestors in the
+  /// factor's elimination tree (the global solve, exact there); the other nodes sleep at their
+  /// positions, the other elements keep their targets. A full solve (the first after the
+  /// factorisation) sets every node. Without a supernodal factor it does nothing (full solves).
+  /// Allocates; drops the contact columns (they are recomputed for the region).
+  void set_region(const std::vector<int>& awake_nodes);
+  /// Back to full solves.
+  void clear_region();
+  [[nodiscard]] bool has_region() const { return region_; }
+  /// Elements and free nodes the regional solves compute (0 without a region).
+  [[nodiscard]] std::int64_t region_elements() const { return region_ ? std::int64_t(region_elements_.size()) : 0; }
+  [[nodiscard]] std::int64_t region_nodes() const { return region_ ? std::int64_t(factor_.partial_rows().size()) : 0; }
+
+  /// The factor (its backend, size, nonzeros and time).
+  [[nodiscard]] const SparseFactor& factor() const { return factor_; }
+
   /// The contact constraints active after the last solve, with their forces (N).
   [[nodiscard]] const std::vector<ContactConstraint>& active_contacts() const { return contact_set_.active(); }
   /// Forgets the contact warm start (the next solve does not follow the last one).
@@ -105,6 +123,14 @@ class ProjectiveSolver {
   void assemble_and_factor();
   void record_start_shape(const Eigen::Matrix3Xd& x, int threads);
   ElementPassStats local_step(SimState& state, const Eigen::Matrix3Xd& x, const RotationFitSettings& fit, int threads);
+  /// Calls fn(chunk, first, last) over the elements a solve computes: all, or the region's
+  /// (then first..last index region_elements_, and element(k) maps).
+  [[nodiscard]] std::int64_t active_elements() const {
+    return region_ ? std::int64_t(region_elements_.size()) : std::int64_t(physics_->num_elements());
+  }
+  [[nodiscard]] std::int64_t active_element(std::int64_t k) const {
+    return region_ ? std::int64_t(region_elements_[std::size_t(k)]) : k;
+  }
   void gather_rhs(int threads);
   double scatter(Eigen::Matrix3Xd& x, int threads);
   /// RMS and largest per-node norm of a - b (free nodes), N.
@@ -134,6 +160,10 @@ class ProjectiveSolver {
   Eigen::MatrixX3d solution_;             ///< free x 3: the global step's solution, mm
   Eigen::MatrixX3d fixed_positions_;      ///< fixed x 3: x_c
   std::vector<ElementPassStats> element_chunk_stats_;
+  // regional solves
+  bool region_{false};
+  bool targets_valid_{false};  ///< every element's targets computed once (by a full solve)
+  std::vector<int> region_elements_;  ///< ascending
   std::vector<double> free_chunk_sums_;  ///< per node chunk: 2 partial sums
   ContactActiveSet contact_set_;
 };

@@ -182,6 +182,11 @@ void Simulation::ImplicitContact::collect(const Eigen::Matrix3Xd& x, bool near, 
   sim_.contact_.collect(x, sim_.geometry_, sim_.poses_, near, out);
 }
 
+void Simulation::ImplicitContact::focus_points(std::vector<Eigen::Vector3d>& out) {
+  out.clear();
+  for (const ProbeState& p : sim_.poses_) out.push_back(p.position_mm);
+}
+
 void Simulation::take_implicit_contact_forces() {
   // each multiplier is the force of a surface on a node along the surface's normal; the node
   // pushes back: -force_n * normal on the probe (the wall), as the momentum formula of the

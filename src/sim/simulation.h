@@ -155,6 +155,7 @@ class Simulation {
    public:
     explicit ImplicitContact(Simulation& sim) : sim_(sim) {}
     void collect(const Eigen::Matrix3Xd& x, bool near, std::vector<ContactConstraint>& out) override;
+    void focus_points(std::vector<Eigen::Vector3d>& out) override;
 
    private:
     Simulation& sim_;

@@ -12,6 +12,7 @@
 #include "base/error.h"
 #include "model/gradational_builder.h"
 #include "sim/integrators.h"
+#include "sim/projective_solver.h"
 #include "sim/sparse_factor.h"
 #include "sim/state.h"
 #include "sim/static_solver.h"
@@ -230,6 +231,115 @@ TEST(FastConfiguration, OneAndTwoThreadsGiveTheSameBits) {
             << to_string(kind);
     }
   }
+}
+
+}  // namespace
+}  // namespace vx
+
+namespace vx {
+namespace {
+
+TEST(RegionalSolve, PartialSolvesAreExactOnTheirRows) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "needs CHOLMOD (supernodal)";
+  const auto model = ball(16);
+  const auto p = make_physics_model(model, tissue(0.0));
+  const Model& m = *model;
+  std::vector<Eigen::Triplet<double>> t;
+  Eigen::MatrixXd ke;
+  for (int e = 0; e < p->num_elements(); ++e) {
+    element_elastic_matrix(*p, e, ke);
+    const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+    for (int i = 0; i < n; ++i)
+      for (int j = 0; j < n; ++j) t.emplace_back(m.element_vertices[b + i], m.element_vertices[b + j], ke(i, j));
+  }
+  const int nn = m.num_nodes();
+  for (int i = 0; i < nn; ++i) t.emplace_back(i, i, 1e-2 * p->node_mass[std::size_t(i)] / 1e-8);
+  SparseFactor::Matrix a(nn, nn);
+  a.setFromTriplets(t.begin(), t.end());
+  SparseFactor f;
+  ASSERT_TRUE(f.compute(a, SparseFactor::Backend::cholmod));
+  ASSERT_TRUE(f.supports_partial());
+  Eigen::MatrixX3d b = Eigen::MatrixX3d::Random(nn, 3), x(nn, 3), ref(nn, 3);
+  f.solve3(b, x);
+  // the rows near the top: a region
+  const double ztop = m.rest_positions.row(2).maxCoeff();
+  std::vector<int> rows;
+  for (int i = 0; i < nn; ++i)
+    if (m.rest_positions(2, i) > ztop - 4.0) rows.push_back(i);
+  const std::vector<int>& closure = f.set_partial_rows(rows);
+  std::cout << rows.size() << " rows wanted, closure " << closure.size() << " of " << nn << " rows\n";
+  EXPECT_GE(closure.size(), rows.size());
+  EXPECT_LT(closure.size(), std::size_t(nn));
+  for (int round = 0; round < 3; ++round) {
+    // b changes on a few rows of the region and one far away
+    for (int k = 0; k < 5; ++k) b.row(rows[std::size_t(k * 7 % int(rows.size()))]) += Eigen::RowVector3d::Random();
+    b.row(round) += Eigen::RowVector3d::Random();
+    Eigen::MatrixX3d xp = x;
+    const int changed = f.solve3_partial(b, xp);
+    EXPECT_EQ(changed, 6);
+    SparseFactor full;
+    ASSERT_TRUE(full.compute(a, SparseFactor::Backend::cholmod));
+    full.solve3(b, ref);
+    double err = 0;
+    for (int i : closure) err = std::max(err, (xp.row(i) - ref.row(i)).norm());
+    EXPECT_LT(err, 1e-10 * ref.norm()) << "round " << round;
+    // a unit column on the closure
+    std::vector<double> col(static_cast<std::size_t>(nn), 0.0), colref(static_cast<std::size_t>(nn), 0.0);
+    f.solve_unit_partial(rows[0], col.data());
+    full.solve_unit(rows[0], colref.data());
+    double cerr = 0, cmax = 0;
+    for (int i : closure) cerr = std::max(cerr, std::abs(col[std::size_t(i)] - colref[std::size_t(i)])), cmax = std::max(cmax, std::abs(colref[std::size_t(i)]));
+    EXPECT_LT(cerr, 1e-10 * cmax);
+    x = xp;
+  }
+}
+
+}  // namespace
+}  // namespace vx
+
+#include "sim/simulation.h"
+
+namespace vx {
+namespace {
+
+/// A ball pressed 3 mm into the top of a 24-voxel ball by the fast configuration; the force on
+/// it at the end, with regional solves of `radius_mm` (0: none).
+double pressed_force(const std::shared_ptr<const PhysicsModel>& p, double radius_mm, std::int64_t* region_nodes) {
+  SimulationSettings ss;
+  ss.integrator.kind = FastConfiguration::kind;
+  ss.integrator.time_step_s = FastConfiguration::time_step_s;
+  ss.integrator.max_iterations = FastConfiguration::iterations;
+  ss.integrator.region_radius_mm = radius_mm;
+  ss.integrator.threads = 1;
+  ss.fixed_nodes = bottom_cap(*p->model, 3.0);
+  const double ztop = p->model->rest_positions.row(2).maxCoeff();
+  const Eigen::Vector3d c = 0.5 * (p->model->rest_positions.rowwise().minCoeff() + p->model->rest_positions.rowwise().maxCoeff());
+  ProbeSettings probe;
+  probe.name = "ball";
+  probe.geometry.shape = ProbeShape::sphere;
+  probe.geometry.radius_mm = 4.0;
+  probe.path = {{0.0, {c.x(), c.y(), ztop + 4.5}}, {0.5, {c.x(), c.y(), ztop + 1.0}}, {0.7, {c.x() + 1.0, c.y(), ztop + 1.0}}};
+  ss.probes = {probe};
+  Simulation sim(p, ss);
+  while (sim.time_s() < 0.7 - 1e-9 && !sim.failed()) sim.step();
+  EXPECT_FALSE(sim.failed()) << sim.state().message;
+  if (region_nodes) *region_nodes = sim.state().integrator_cache.solver ? sim.state().integrator_cache.solver->region_nodes() : 0;
+  return sim.probe(0).raw_force_n.z();
+}
+
+TEST(RegionalSolve, TheForceOfAPressMatchesTheFullSolve) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "needs CHOLMOD (supernodal)";
+  const auto p = make_physics_model(ball(24), tissue(0.2));
+  std::int64_t all = 0, some = 0;
+  const double full = pressed_force(p, 0.0, nullptr);
+  const double everywhere = pressed_force(p, 100.0, &all);
+  const double region = pressed_force(p, 12.0, &some);
+  std::cout << "force " << full << " N (full solves), " << everywhere << " N (region over everything, " << all
+            << " nodes), " << region << " N (region of 12 mm: " << some << " of " << p->num_nodes() << " nodes)\n";
+  EXPECT_GT(full, 0.01);
+  EXPECT_NEAR(everywhere, full, 1e-8 * full);
+  EXPECT_NEAR(region, full, 0.05 * full);
+  EXPECT_LT(some, all);
 }
 
 }  // namespace
