@@ -16,14 +16,14 @@
 #include "scene/scene.h"
 #include "sim/state.h"
 #include "sim/time_step.h"
+#include "util/text.h"
 
 namespace vx::probe {
 
 namespace {
 
 std::string lower_extension(const std::filesystem::path& p) {
-  std::string name = p.filename().string();
-  std::transform(name.begin(), name.end(), name.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  const std::string name = lower(p.filename().string());
   if (name.size() > 7 && name.ends_with(".nii.gz")) return ".nii.gz";
   const auto dot = name.rfind('.');
   return dot == std::string::npos ? std::string() : name.substr(dot);
@@ -161,7 +161,7 @@ ProbeScene make_default_scene(std::shared_ptr<const Model> model, std::shared_pt
   // the fast configuration (time_step.h): implicit, 20 ms steps, one iteration each; the
   // paper's device shaping over two steps
   sim.integrator.kind = FastConfiguration::kind;
-  sim.integrator.time_step_s = FastConfiguration::time_step_s;
+  sim.integrator.time_step_s = automatic_time_step(estimate_time_steps(*scene.physics), sim.integrator.kind);
   sim.integrator.max_iterations = FastConfiguration::iterations;
   sim.integrator.threads = 1;
   sim.device = DeviceForceSettings{};
@@ -190,10 +190,7 @@ void make_probes_live(ProbeScene& scene) {
       // the scene's stick mapping of its first live probe sets the app's defaults
       first_live = false;
       scene.control_from_scene = true;
-      scene.control.mode = p.mapping.mode == JoystickMode::rate ? ControlMode::rate : ControlMode::position;
-      scene.control.speed_mm_s = p.mapping.max_speed_mm_s;
-      scene.control.position_range_mm = p.mapping.range_mm;
-      scene.control.deadzone = p.mapping.dead_zone;
+      scene.control.mapping = p.mapping;
     }
     if (p.drive != ProbeDrive::live) {
       p.drive = ProbeDrive::live;

@@ -49,7 +49,7 @@
 namespace vx {
 
 /// Everything a simulation needs besides the physics model (plain settings; the scene file
-/// fills them, see pipeline/scene.h).
+/// fills them, see pipeline/scene/scene.h).
 struct SimulationSettings {
   IntegratorSettings integrator;                      ///< kind, time step, threads
   Eigen::Vector3d gravity_mm_s2{Eigen::Vector3d::Zero()};

@@ -11,6 +11,7 @@
 
 #include "base/parallel.h"
 #include "model/gradational_builder.h"
+#include "model/voxel_shapes.h"
 #include "sim/state.h"
 #include "support/physics_helpers.h"
 
@@ -382,7 +383,7 @@ TEST(Elements, PackedKernelMatchesThePlainFormulasAndTheReferenceKernel) {
   mat.poisson_ratio = 0.35;
   BuildSettings bs;
   bs.layout = Layout::gradational;
-  auto f = make(build_model(testing::ball_grid(14, 6.0), bs), mat);
+  auto f = make(build_model(ball_grid(14, 6.0), bs), mat);
   const PhysicsModel& p = *f.physics;
   const Model& m = *p.model;
   ASSERT_GT(m.num_levels(), 1);
@@ -452,7 +453,7 @@ Fixture batched_ball(double amplitude, unsigned seed) {
   mat.damping_ratio = 0.3;
   BuildSettings bs;
   bs.layout = Layout::gradational;
-  auto f = make(build_model(testing::ball_grid(14, 6.0), bs), mat);
+  auto f = make(build_model(ball_grid(14, 6.0), bs), mat);
   const Model& m = *f.physics->model;
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> u(-1.0, 1.0);
