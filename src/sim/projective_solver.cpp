@@ -128,7 +128,8 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
     rhs_const_.noalias() -= a_free_fixed_ * fixed_positions_;
   }
   // the first solve computes every element's targets and the whole solution (a regional solve
-  // needs them all to exist), later ones only the region's
+  // needs them all to exist), and so does the first after the region moved; the others only
+  // the region's
   const bool region = region_;
   if (!targets_valid_) region_ = false;
   if (setup_.damping) record_start_shape(s.positions, threads);
@@ -187,6 +188,9 @@ void ProjectiveSolver::set_region(const std::vector<int>& awake_nodes) {
     if (wanted[std::size_t(free_nodes_[std::size_t(f)])]) rows.push_back(f);
   factor_.set_partial_rows(rows);
   region_ = true;
+  // the next solve is a full one: every element's targets and every node's position brought up
+  // to date (the far field that slept while the tool moved), then regional solves again
+  targets_valid_ = false;
   contact_set_.bind(free_index_, free_nodes_);  // the cached columns hold the old region's rows
   contact_set_.set_partial(true);
 }

@@ -99,8 +99,8 @@ class ProjectiveSolver {
   /// Restricts the following solves to the elements that touch `awake_nodes` (their rotation
   /// fits and targets) and to the free nodes of those elements and their ancestors in the
   /// factor's elimination tree (the global solve, exact there); the other nodes sleep at their
-  /// positions, the other elements keep their targets. A full solve (the first after the
-  /// factorisation) sets every node. Without a supernodal factor it does nothing (full solves).
+  /// positions, the other elements keep their targets. The first solve after the factorisation
+  /// and the first after each set_region() are full: every node and element brought up to date. Without a supernodal factor it does nothing (full solves).
   /// Allocates; drops the contact columns (they are recomputed for the region).
   void set_region(const std::vector<int>& awake_nodes);
   /// Back to full solves.

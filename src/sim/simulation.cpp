@@ -134,8 +134,12 @@ StepStatus Simulation::step() {
   }
 
   // elastic forces, gravity, integration
-  integrator_->step(state_);
+  const StepReport report = integrator_->step(state_);
   if (state_.failed()) return state_.status;
+  if (report.region_elements > 0) {
+    counters_.sleeping_element_updates += physics_->num_elements() - report.region_elements;
+    counters_.sleeping_node_solves += (state_.num_nodes() - state_.num_fixed()) - report.region_nodes;
+  }
 
   // collisions of the nodes near probes and walls
   if (collide_ || !settings_.skip_unneeded) {

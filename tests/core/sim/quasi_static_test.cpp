@@ -33,8 +33,18 @@ Material tissue(double damping) {
 }
 
 /// A gradational ball of `n` voxels across (1 mm), the cap below z_min + 2 mm fixed.
+/// A ball of radius n/2 - 1 voxels centred in an n^3 grid of 1 mm voxels, gradational.
 std::shared_ptr<const Model> ball(int n) {
-  return std::make_shared<const Model>(build_model(testing::ball_grid(n, 0.5 * n - 1.0)));
+  GridGeometry g;
+  g.dims = {n, n, n};
+  g.spacing_mm = Eigen::Vector3d::Ones();
+  VoxelGrid grid(g);
+  const double c = 0.5 * (n - 1), r = 0.5 * n - 1.0;
+  for (int k = 0; k < n; ++k)
+    for (int j = 0; j < n; ++j)
+      for (int i = 0; i < n; ++i)
+        grid.set(i, j, k, (i - c) * (i - c) + (j - c) * (j - c) + (k - c) * (k - c) <= r * r ? 1 : 0);
+  return std::make_shared<const Model>(build_model(grid));
 }
 
 std::vector<int> bottom_cap(const Model& m, double within_mm) {
