@@ -365,7 +365,7 @@ TEST(Phantom, BadSettingsAreRefused) {
         EXPECT_NE(std::string(e.what()).find("8 or more"), std::string::npos) << e.what();
       }
     }
-  EXPECT_EQ(refused, 4);  // ellipsoid and torus at 4 and 6
+  EXPECT_EQ(refused, 6);  // ellipsoid, torus and organ at 4 and 6
 }
 
 }  // namespace
