@@ -6,7 +6,9 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <algorithm>
 #include <cstring>
+#include <utility>
 #include <iostream>
 
 #include "base/error.h"
@@ -350,6 +352,78 @@ TEST(RegionalSolve, TheForceOfAPressMatchesTheFullSolve) {
   EXPECT_NEAR(everywhere, full, 1e-8 * full);
   EXPECT_NEAR(region, full, 0.05 * full);
   EXPECT_LT(some, all);
+}
+
+}  // namespace
+}  // namespace vx
+
+namespace vx {
+namespace {
+
+TEST(RegionalSolve, ASleepingNodeWakesWhenPressed) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "needs CHOLMOD (supernodal)";
+  // a 32-voxel ball; a ball tool presses the top at x = -8 mm, then moves over to x = +8 mm and
+  // presses there; with an 8 mm region, a surface node near x = +8 sleeps (does not move at all)
+  // during the first press and moves when the tool comes to it
+  const auto p = make_physics_model(ball(32), tissue(0.2));
+  const Model& m = *p->model;
+  const Eigen::Vector3d c = 0.5 * (m.rest_positions.rowwise().minCoeff() + m.rest_positions.rowwise().maxCoeff());
+  const double ztop = m.rest_positions.row(2).maxCoeff();
+  // candidates near x = +8 on the top; the one watched is the nearest that the first press's
+  // region leaves asleep (outside the region's closure in the factor)
+  std::vector<std::pair<double, int>> near_plus;
+  for (int i = 0; i < m.num_nodes(); ++i) {
+    const Eigen::Vector3d x = m.rest_positions.col(i);
+    if (x.z() > ztop - 4.0) near_plus.emplace_back(std::hypot(x.x() - (c.x() + 8.0), x.y() - c.y()), i);
+  }
+  std::sort(near_plus.begin(), near_plus.end());
+  int watched = -1;
+  const double z_at = m.rest_positions(2, near_plus.front().second);
+  SimulationSettings ss;
+  ss.integrator.kind = IntegratorKind::implicit;
+  ss.integrator.time_step_s = 0.02;
+  ss.integrator.max_iterations = 1;
+  ss.integrator.region_radius_mm = 8.0;
+  ss.integrator.threads = 1;
+  ss.fixed_nodes = bottom_cap(m, 3.0);
+  ProbeSettings probe;
+  probe.name = "ball";
+  probe.geometry.radius_mm = 3.0;
+  probe.path = {{0.0, {c.x() - 8.0, c.y(), ztop + 3.0}},    {0.4, {c.x() - 8.0, c.y(), ztop + 1.5}},
+                {0.6, {c.x() - 8.0, c.y(), ztop + 5.0}},    {1.2, {c.x() + 8.0, c.y(), z_at + 5.0}},
+                {1.6, {c.x() + 8.0, c.y(), z_at + 1.5}}};
+  ss.probes = {probe};
+  Simulation sim(p, ss);
+  // the first press: after the first step (a full solve), the nodes off the region's closure sleep
+  sim.step();
+  sim.step();
+  {
+    const ProjectiveSolver& solver = *sim.state().integrator_cache.solver;
+    std::vector<std::uint8_t> solved(std::size_t(m.num_nodes()), 0);
+    for (int f : solver.factor().partial_rows()) solved[std::size_t(solver.free_nodes()[std::size_t(f)])] = 1;
+    for (const auto& [d, i] : near_plus)
+      if (!solved[std::size_t(i)] && d < 2.0) {
+        watched = i;
+        break;
+      }
+  }
+  ASSERT_GE(watched, 0) << "no sleeping node near x = +8";
+  const Eigen::Vector3d x0 = sim.state().positions.col(watched);
+  bool stayed = true;
+  while (sim.time_s() < 0.4 - 1e-9 && !sim.failed()) {
+    sim.step();
+    stayed = stayed && sim.state().positions.col(watched) == x0;
+  }
+  EXPECT_TRUE(stayed) << "the node far from the first press moved";
+  EXPECT_GT(sim.counters().sleeping_element_updates, 0);
+  EXPECT_GT(sim.counters().sleeping_node_solves, 0);
+  while (sim.time_s() < 1.6 - 1e-9 && !sim.failed()) sim.step();
+  ASSERT_FALSE(sim.failed()) << sim.state().message;
+  const double moved = (sim.state().positions.col(watched) - x0).norm();
+  std::cout << "watched node " << watched << " moved " << moved << " mm once pressed; force " << sim.probe(0).raw_force_n.z()
+            << " N; sleeping element updates " << sim.counters().sleeping_element_updates << "\n";
+  EXPECT_GT(moved, 0.5);
+  EXPECT_GT(sim.probe(0).raw_force_n.z(), 0.0);
 }
 
 }  // namespace
