@@ -59,6 +59,7 @@ struct ViewSetup {
   std::string input_line;                     ///< HUD: e.g. "rate control: joystick 'X'"
   std::string output_line;                    ///< HUD: e.g. "force out: haptic 'X' + log f.csv"
   bool local_shaping{false};                  ///< the device force is the local contact model's (HUD, plot)
+  std::string physics_line;                   ///< HUD: the configuration the physics runs, e.g. "implicit 20 ms, 1 iteration"
 };
 
 /// Numbers for the heads-up display.
