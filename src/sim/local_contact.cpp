@@ -288,6 +288,7 @@ void LocalForceRenderer::reset() {
   velocity_.setZero();
   guard_ticks_ = 0;
   guard_energy_ = 0.0;
+  guard_last_.setZero();
   out_ = Output{};
 }
 
@@ -336,20 +337,30 @@ const LocalForceRenderer::Output& LocalForceRenderer::tick(const Eigen::Vector3d
   o.offset_n = fade * offset0_;
   o.force_n = o.contact_n + o.damping_n + o.offset_n;
   // the controller: over the coming tick (the device keeping its velocity, with a 20 % margin)
-  // the force may give the hand at most the energy it has put in
+  // the force may give the hand at most 1/n of the energy it has put in (n: the taper's ticks),
+  // so that as the energy runs out the force along the motion fades geometrically, by 1/n per
+  // tick, instead of being cut in one tick; a correction is released by 1/n per tick too
   o.guard_n.setZero();
-  const double v2 = velocity_.squaredNorm();
-  if (settings_.energy_guard && has_last_ && v2 > 0) {
-    const double h = 1.2 * (dt > 0 ? dt : settings_.period_s());
-    const double out = o.force_n.dot(velocity_) * h;  // energy to the hand over the coming tick
-    const double allowed = std::max(0.0, energy_);
-    if (out > allowed) {
-      o.guard_n = -((out - allowed) / (v2 * h)) * velocity_;
-      o.force_n += o.guard_n;
-      ++guard_ticks_;
-      guard_energy_ += out - allowed;
+  if (settings_.energy_guard && has_last_) {
+    const double n = std::max(1.0, kGuardTaper_s / settings_.period_s());
+    Eigen::Vector3d g = (1.0 - 1.0 / n) * guard_last_;
+    const double v2 = velocity_.squaredNorm();
+    if (v2 > 0) {
+      const double h = 1.2 * (dt > 0 ? dt : settings_.period_s());
+      const double out = (o.force_n + g).dot(velocity_) * h;  // energy to the hand over the coming tick
+      const double allowed = std::max(0.0, energy_) / n;
+      if (out > allowed) {
+        g -= ((out - allowed) / (v2 * h)) * velocity_;
+        ++guard_ticks_;
+        guard_energy_ += out - allowed;
+      }
+    }
+    if (g.squaredNorm() > 1e-30) {
+      o.guard_n = g;
+      o.force_n += g;
     }
   }
+  guard_last_ = o.guard_n;
   o.energy_mj = energy_;
   has_last_ = true;
   last_device_ = device_mm;

@@ -541,5 +541,8 @@ TEST(LocalForceRenderer, PassiveInAClosedLoopAt1kHzAnd250Hz) {
                 device_hz, r.min_energy_mj, g.min_energy_mj, static_cast<long long>(g.guard_ticks), g.guard_mj,
                 g.max_jump_n);
     EXPECT_GE(g.min_energy_mj, -1e-12);
+    // the guard fades the force over 10 ms instead of cutting it in a tick (measured: 2.2 % and
+    // 5.7 % of the peak; a cut to what the energy allows in one tick gave 16 % and 11 %)
+    EXPECT_LT(g.max_jump_n, 0.1 * g.peak_force_n) << device_hz << " Hz";
   }
 }
