@@ -9,6 +9,8 @@
 #include <chrono>
 #include <cmath>
 #include <csignal>
+#include <pthread.h>
+#include <sched.h>
 #include <sys/resource.h>
 #include <sys/syscall.h>
 #include <unistd.h>
@@ -231,6 +233,7 @@ class App {
     Eigen::Vector3d anchor_N{Eigen::Vector3d::Zero()};
   };
   std::vector<ModelArrival> arrivals_;
+  std::string device_priority_{"default priority"};  ///< what the device thread got (written by it at its first tick)
   // the device tick's own cost (its CPU time, not the wait)
   double tick_cost_sum_s_{0.0};
   double tick_cost_max_s_{0.0};
@@ -292,6 +295,15 @@ void App::open_outputs() {
   }
   if (outputs_.empty())
     output_notes_.push_back("no force device: forces on the HUD and plot only (--force-log FILE.csv records them)");
+}
+
+/// The calling thread at SCHED_FIFO 1, else nice -10; says which (or that neither was permitted).
+static std::string raise_device_thread_priority() {
+  sched_param sp{};
+  sp.sched_priority = 1;
+  if (pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp) == 0) return "real-time priority (SCHED_FIFO 1)";
+  if (setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), -10) == 0) return "priority nice -10";
+  return "default priority (raising it was not permitted)";
 }
 
 // ---------------------------------------------------------------- physics thread
@@ -842,9 +854,10 @@ int App::finish(ProbeView* view, const GuiLoop& loop, FixedRateThread& physics, 
   summary(wall_s);
   if (view) say(fmt::format("display: {} frames, {:.1f} frames/s", view->frames(), view->frames_per_s()));
   say(fmt::format("device: {} ticks ({:.0f} updates/s, {} late ticks skipped; a tick takes {:.0f} us on average, {:.0f} "
-                  "us at most)",
+                  "us at most; {})",
                   device_ticks_, wall_s > 0 ? double(device_ticks_) / wall_s : 0.0, device.missed(),
-                  device_ticks_ > 0 ? 1e6 * tick_cost_sum_s_ / double(device_ticks_) : 0.0, 1e6 * tick_cost_max_s_));
+                  device_ticks_ > 0 ? 1e6 * tick_cost_sum_s_ / double(device_ticks_) : 0.0, 1e6 * tick_cost_max_s_,
+                  device_priority_));
   for (const auto& o : outputs_.all()) say(fmt::format("  {}: {} device commands", o->describe(), o->device_updates()));
   if (!options_.force_log.empty() && error.empty()) say("force log: " + options_.force_log.string());
   if (!error.empty()) {
@@ -878,7 +891,13 @@ int App::run() {
   start_ = SteadyClock::now();
   set_clock(SimClock{0.0, start_, false});
   FixedRateThread physics("physics", options_.physics_hz, [this](std::int64_t) { physics_tick(); });
-  FixedRateThread device("device", options_.device_hz, [this](std::int64_t) {
+  FixedRateThread device("device", options_.device_hz, [this](std::int64_t tick) {
+    // the device thread has the one hard deadline (a tick every millisecond): it asks for the
+    // lowest real-time priority (SCHED_FIFO 1; it sleeps between ticks, a tick takes tens of
+    // microseconds), else nice -10, else keeps the default (no privilege). On a loaded machine a
+    // thread at the default priority wakes up late often enough to skip 5-15 % of the ticks
+    // (docs/probe.md, "Force shaping").
+    if (tick == 0) device_priority_ = raise_device_thread_priority();
     const auto t0 = SteadyClock::now();
     device_tick();
     const double cost = seconds(SteadyClock::now() - t0);
