@@ -26,6 +26,8 @@
 /// (m_i(x): the tool's outward normal closest to the node's anchor position with the tool at x)
 /// which adds the first-order change of the normals (the tool's geometric stiffness, F d / R
 /// sideways) to the linearisation; W keeps the anchor's normals (the error is second order).
+/// The turn fades out for a node deeper than a quarter of the tool's radius (none at half of
+/// it): far from the anchor the tool's centre or axis can pass a node, whose normal then flips.
 ///
 /// LocalForceRenderer turns it into the force for the hand:
 /// - a virtual coupling, a spring k_c between the device and the tool (proxy): its compliance
