@@ -124,10 +124,11 @@ void read_grid_and_type(const MetaHeader& h, int& ndims, MetaImage& image) {
   const fs::path& path = h.path;
   const auto ndims_v = h.numbers({"NDims"}, 1, "NDims");
   if (!ndims_v) throw Error(quoted(path) + ": MetaImage header has no NDims line (damaged file?)");
-  ndims = int((*ndims_v)[0]);
-  if (ndims != 2 && ndims != 3)
+  const double nd = (*ndims_v)[0];
+  if (nd != 2 && nd != 3)
     throw Error(fmt::format("{}: MetaImage has NDims = {}; voxelastic reads 3D volumes (or one 2D slice)",
-                            quoted(path), ndims));
+                            quoted(path), *h.fields.get({"NDims"})));
+  ndims = int(nd);
   const auto dim_v = h.numbers({"DimSize"}, std::size_t(ndims), "DimSize");
   if (!dim_v) throw Error(quoted(path) + ": MetaImage header has no DimSize line (damaged file?)");
   for (int i = 0; i < ndims; ++i) {
@@ -193,7 +194,12 @@ std::vector<char> read_one_file_voxels(const MetaHeader& h, const std::string& d
                               quoted(path), quoted(data_path)));
     offset = 0;
     if (const auto hs = h.numbers({"HeaderSize"}, 1, "HeaderSize")) {
-      if ((*hs)[0] >= 0) offset = std::uintmax_t((*hs)[0]);
+      const double v = (*hs)[0];
+      if (!(v == -1 || (v >= 0 && v == std::floor(v) && v < 1e15)))
+        throw Error(fmt::format("{}: MetaImage HeaderSize = {} is not a byte count (a whole number >= 0, or -1 for "
+                                "'the data ends the file')",
+                                quoted(path), *h.fields.get({"HeaderSize"})));
+      if (v >= 0) offset = std::uintmax_t(v);
       else if (!compressed && file_size_or_zero(data_path) >= raw_bytes)  // -1: the data ends the file
         offset = file_size_or_zero(data_path) - raw_bytes;
     }
@@ -209,7 +215,12 @@ std::vector<char> read_one_file_voxels(const MetaHeader& h, const std::string& d
   }
   std::uintmax_t packed_bytes = have;
   if (const auto cs = h.numbers({"CompressedDataSize"}, 1, "CompressedDataSize")) {
-    if (have < (*cs)[0])
+    const double c = (*cs)[0];
+    if (!(c >= 1 && c == std::floor(c)))
+      throw Error(fmt::format("{}: MetaImage CompressedDataSize = {} is not a byte count (a whole number >= 1); fix "
+                              "the header or leave the line out",
+                              quoted(path), *h.fields.get({"CompressedDataSize"})));
+    if (double(have) < c)
       throw Error(fmt::format("{} is truncated: the header promises {} bytes of compressed voxel data, the "
                               "file holds {} (copy or export it again)",
                               quoted(path), (*cs)[0], have));
