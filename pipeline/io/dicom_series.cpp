@@ -14,6 +14,7 @@
 #include <dcmtk/dcmdata/dcpixel.h>
 #include <dcmtk/dcmdata/dcpixseq.h>
 #include <dcmtk/dcmdata/dcspchrs.h>
+#include <dcmtk/dcmdata/dcstack.h>
 #include <dcmtk/dcmdata/dcuid.h>
 #include <dcmtk/dcmdata/dcxfer.h>
 #include <fmt/format.h>
@@ -85,8 +86,13 @@ struct FileInfo {
 };
 
 std::string get_string(DcmItem* item, const DcmTagKey& tag) {
+  // text values are short; a longer one is damaged and is not loaded (it would be allocated)
+  constexpr Uint32 kMaxText = 1 << 16;
+  DcmElement* e = nullptr;
   OFString s;
-  if (item && item->findAndGetOFStringArray(tag, s).good()) return std::string(s.c_str());
+  if (item && item->findAndGetElement(tag, e).good() && e && e->getLengthField() <= kMaxText &&
+      e->getOFStringArray(s).good())
+    return std::string(s.c_str());
   return {};
 }
 
@@ -222,7 +228,7 @@ std::string check_frame_count(DcmDataset* ds, const FileInfo& f, long frames, Dc
   }
   const double frame_bytes = double(f.rows) * double(f.cols) * double(std::max(f.samples, 1)) *
                              double(std::max(f.bits_allocated, 1)) / 8.0;
-  const double held = double(element->getLength());
+  const double held = double(element->getLengthField());
   if (double(frames) * frame_bytes > held)
     return fmt::format("it declares {} frame{} of {} x {} pixels ({:.0f} bytes) but its pixel data holds {:.0f} bytes "
                        "(the file is damaged or cut short)",
@@ -239,6 +245,28 @@ FileInfo read_header(const fs::path& path, bool explicit_input, std::size_t file
   DcmFileFormat ff;
   const OFCondition status = ff.loadFile(path.c_str(), EXS_Unknown, EGL_noChange, kHeaderReadLimit, ERM_autoDetect);
   DcmDataset* ds = ff.getDataset();
+  if (ds) {
+    // a value longer than the whole file is a damaged length: reading it (values beyond the
+    // read limit load on first access) would allocate that much, up to 4 GB (found by fuzzing)
+    const std::uintmax_t file_bytes = [&] {
+      std::error_code ec;
+      const auto n = fs::file_size(path, ec);
+      return ec ? std::uintmax_t(0) : n;
+    }();
+    DcmStack stack;
+    while (ds->nextObject(stack, OFTrue).good()) {
+      DcmObject* o = stack.top();
+      // the length field as read (getLength() would load the value to measure it)
+      const Uint32 declared = o ? o->getLengthField() : 0;
+      if (o && o->isLeaf() && declared != DCM_UndefinedLength && std::uintmax_t(declared) > file_bytes) {
+        f.kind = FileKind::broken;
+        f.problem = fmt::format("it is truncated or damaged: element ({:04x},{:04x}) declares {} bytes, more than the "
+                                "whole file ({} bytes)",
+                                o->getGTag(), o->getETag(), declared, file_bytes);
+        return f;
+      }
+    }
+  }
   f.sop_class = trim(get_string(ds, DCM_SOPClassUID));
   f.series_uid = printable(trim(get_string(ds, DCM_SeriesInstanceUID)));
   const bool looks_dicom = magic || !f.sop_class.empty() || !f.series_uid.empty();

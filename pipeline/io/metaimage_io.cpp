@@ -256,6 +256,39 @@ std::vector<float> read_voxels_with_vtk(const fs::path& path, const Eigen::Vecto
   return vtk_array_to_float(array, n, 1.0, 0.0);
 }
 
+/// What metaio (vtkMetaImageReader) gets to read is checked first: it copies header values into
+/// fixed buffers (a long or binary ElementDataFile overflowed one, found by fuzzing) and
+/// allocates the voxels before reading them. Values must be short printable text, and the
+/// voxels must fit in what the header's folder holds (text: two characters a value at least;
+/// compressed: deflate's ~1032:1 at most).
+void check_before_metaio(const MetaHeader& h, const std::string& data_file, bool binary, bool compressed,
+                         std::size_t n, std::uintmax_t raw_bytes) {
+  // metaio's inflate loops for ever on some damaged streams (found by fuzzing): compressed data
+  // is read here only, from one file
+  if (compressed)
+    throw Error(fmt::format("{}: compressed voxel data spread over several files (ElementDataFile = {}) is not "
+                            "supported; save the volume as one .mha (e.g. in 3D Slicer)",
+                            quoted(h.path), data_file.substr(0, 60)));
+  for (const auto& [key, value] : h.fields.values) {
+    const bool text = std::all_of(value.begin(), value.end(), [](char c) {
+      return std::isprint(static_cast<unsigned char>(c)) || c == '\t';
+    });
+    if (!text || value.size() > 200)
+      throw Error(fmt::format("{}: MetaImage field {} is {}; the header is damaged", quoted(h.path), key,
+                              text ? "longer than 200 characters" : "not printable text"));
+  }
+  std::uintmax_t held = 0;
+  std::error_code ec;
+  const fs::path folder = h.path.has_parent_path() ? h.path.parent_path() : fs::path(".");
+  for (fs::directory_iterator it(folder, ec), end; !ec && it != end; it.increment(ec))
+    if (it->is_regular_file(ec)) held += file_size_or_zero(it->path());
+  const double needed = binary ? double(raw_bytes) : 2.0 * double(n);
+  if (needed > (compressed ? 1100.0 : 1.0) * double(held) + 4096.0)
+    throw Error(fmt::format("{}: the header promises {:.0f} bytes of voxels (ElementDataFile = {}), more than the "
+                            "files beside it hold; the header is damaged or files are missing",
+                            quoted(h.path), needed, data_file));
+}
+
 /// ITK's three-letter code for a direction matrix ("RAI" for the identity in LPS).
 std::string meta_orientation_code(const Eigen::Matrix3d& D) {
   std::string code;
@@ -292,6 +325,7 @@ Volume read_mha(const fs::path& path) {
     v.hu = raw_to_float(raw.data(), n, image.scalar, msb != (std::endian::native == std::endian::big));
     return v;
   }
+  check_before_metaio(h, data_file, binary, compressed, n, raw_bytes);
   VtkMessages messages;
   v.hu = read_voxels_with_vtk(path, image.dims, n, messages);
   messages.print_warnings(path);

@@ -804,6 +804,32 @@ TEST_F(DicomSeries, AFieldFolderWithUnrelatedUnreadableFilesStillGivesTheSeries)
   EXPECT_ERROR_HAS(vx::read_dicom_series({dir_ / "field" / "RTPLAN.dcm"}), "RTPLAN.dcm", "truncated");
 }
 
+TEST_F(DicomSeries, AnElementLongerThanTheFileIsNeverLoaded) {
+  // found by fuzzing: a value beyond the header read limit loads on first access, and DCMTK
+  // allocated its declared length (1.4 to 3.7 GB) before finding the file too short
+  SliceSpec spec;
+  write_stack(dir_ / "s", 3, 1.0, spec);
+  write_slice(dir_ / "s" / "damaged.dcm", spec);
+  std::string bytes;
+  {
+    std::ifstream in(dir_ / "s" / "damaged.dcm", std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  // Modality (0008,0060) CS "CT": its 2-byte length becomes 65520, far beyond the file
+  const std::string modality("\x08\x00\x60\x00" "CS\x02\x00", 8);
+  const auto at = bytes.find(modality);
+  ASSERT_NE(at, std::string::npos);
+  bytes[at + 6] = char(0xF0);
+  bytes[at + 7] = char(0xFF);
+  std::ofstream(dir_ / "s" / "damaged.dcm", std::ios::binary) << bytes;
+  EXPECT_ERROR_HAS(vx::read_dicom_series({dir_ / "s" / "damaged.dcm"}), "damaged.dcm",
+                   "element (0008,0060) declares 65520 bytes");
+  // in a folder it is skipped, named, and the series reads
+  ::testing::internal::CaptureStderr();
+  EXPECT_EQ(vx::read_dicom_series({dir_ / "s"}).geometry.dims, Eigen::Vector3i(10, 8, 3));
+  EXPECT_NE(::testing::internal::GetCapturedStderr().find("damaged.dcm"), std::string::npos);
+}
+
 TEST_F(DicomSeries, ModalityLutSequenceGivesTheValues) {
   // no rescale, a Modality LUT instead: stored v -> lut[v - 1000], a non-linear table
   SliceSpec spec;

@@ -777,3 +777,19 @@ TEST(Compression, AnySizeIsFedToZlibInChunksAndComesBackWhole) {
   // an empty input is an empty stream, not an error
   EXPECT_FALSE(vx::deflate_bytes(data.data(), 0, true, 3).empty());
 }
+
+TEST_F(VolumeIo, MetaImageHeadersForMetaioAreCheckedFirst) {
+  // found by fuzzing: a binary ElementDataFile overflowed a buffer inside metaio (strlen), and
+  // damaged compressed data split over files made metaio's inflate loop for ever
+  write_bytes(path("bin.mha"), std::string("ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_SHORT\n"
+                                           "ElementDataFile = LOCA\x01\xff\xfe x y\n") +
+                                   std::string(16, 'x'));
+  expect_error([&] { (void)vx::read_volume(path("bin.mha")); }, {"bin.mha", "ElementDataFile", "not printable"});
+  write_bytes(path("list.mha"), "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_SHORT\n"
+                                "CompressedData = True\nElementDataFile = LIST\na.zraw\nb.zraw\n");
+  expect_error([&] { (void)vx::read_volume(path("list.mha")); }, {"list.mha", "compressed", "several files"});
+  // text voxels need at least two characters each in the file
+  write_bytes(path("text.mha"), "ObjectType = Image\nNDims = 3\nDimSize = 100 100 100\nBinaryData = False\n"
+                                "ElementType = MET_SHORT\nElementDataFile = LOCAL\n1 2 3\n");
+  expect_error([&] { (void)vx::read_volume(path("text.mha")); }, {"text.mha", "more than the files beside it hold"});
+}
