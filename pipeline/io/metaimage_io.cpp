@@ -16,6 +16,7 @@
 #include <algorithm>
 #include <bit>
 #include <cctype>
+#include <cstdlib>
 #include <cmath>
 #include <iostream>
 #include <sstream>
@@ -277,6 +278,32 @@ void check_before_metaio(const MetaHeader& h, const std::string& data_file, bool
       throw Error(fmt::format("{}: MetaImage field {} is {}; the header is damaged", quoted(h.path), key,
                               text ? "longer than 200 characters" : "not printable text"));
   }
+  // ElementDataFile: one file, LIST [ND], or a pattern "name%03d.raw first last step" whose
+  // numbers make one file per slice (metaio divides by the step: 0 was a SIGFPE, found by fuzzing)
+  const std::vector<std::string> words = split_ws(data_file);
+  const auto integer = [](const std::string& w, long& out) {
+    char* end = nullptr;
+    out = std::strtol(w.c_str(), &end, 10);
+    return end != w.c_str() && *end == '\0' && std::abs(out) < 1000000;
+  };
+  bool form_ok = words.size() == 1 && data_file.find('%') == std::string::npos;
+  if (!words.empty() && words[0] == "LIST")
+    form_ok = words.size() == 1 || (words.size() == 2 && (words[1] == "2D" || words[1] == "3D"));
+  if (words.size() == 4) {
+    const auto pct = words[0].find('%');
+    long first = 0, last = 0, step = 0;
+    std::size_t k = pct == std::string::npos ? 0 : pct + 1;
+    while (k < words[0].size() && std::isdigit(static_cast<unsigned char>(words[0][k]))) ++k;
+    const bool one_conversion = pct != std::string::npos && k < words[0].size() && words[0][k] == 'd' &&
+                                words[0].find('%', pct + 1) == std::string::npos;
+    form_ok = one_conversion && integer(words[1], first) && integer(words[2], last) && integer(words[3], step) &&
+              step != 0 && (last - first) / step >= 0 && (last - first) % step == 0 &&
+              (last - first) / step + 1 <= 100000;
+  }
+  if (!form_ok)
+    throw Error(fmt::format("{}: MetaImage ElementDataFile = {} is neither a file name, LOCAL, LIST nor a pattern "
+                            "'name%03d.raw first last step' (step not 0); the header is damaged",
+                            quoted(h.path), data_file.substr(0, 80)));
   std::uintmax_t held = 0;
   std::error_code ec;
   const fs::path folder = h.path.has_parent_path() ? h.path.parent_path() : fs::path(".");

@@ -788,6 +788,13 @@ TEST_F(VolumeIo, MetaImageHeadersForMetaioAreCheckedFirst) {
   write_bytes(path("list.mha"), "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_SHORT\n"
                                 "CompressedData = True\nElementDataFile = LIST\na.zraw\nb.zraw\n");
   expect_error([&] { (void)vx::read_volume(path("list.mha")); }, {"list.mha", "compressed", "several files"});
+  // a file pattern whose step is 0 (metaio divides by it: SIGFPE), and words that are no pattern
+  write_bytes(path("pat.mha"), "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_SHORT\n"
+                               "ElementDataFile = slice%03d.raw 1 2 0\n");
+  expect_error([&] { (void)vx::read_volume(path("pat.mha")); }, {"pat.mha", "ElementDataFile", "step not 0"});
+  write_bytes(path("words.mha"), "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_SHORT\n"
+                                 "ElementDataFile = c LO~~Elem%ntType = MET_SHORT\n");
+  expect_error([&] { (void)vx::read_volume(path("words.mha")); }, {"words.mha", "neither a file name"});
   // text voxels need at least two characters each in the file
   write_bytes(path("text.mha"), "ObjectType = Image\nNDims = 3\nDimSize = 100 100 100\nBinaryData = False\n"
                                 "ElementType = MET_SHORT\nElementDataFile = LOCAL\n1 2 3\n");
