@@ -25,6 +25,7 @@ mode=${1:---smoke}
 launcher=()
 if command -v ccache >/dev/null 2>&1; then
   launcher=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache -DCMAKE_C_COMPILER_LAUNCHER=ccache)
+  export CCACHE_BASEDIR=${CCACHE_BASEDIR:-$PWD}  # paths relative to the clone: another clone hits the cache
 fi
 if ! command -v clang++-14 >/dev/null 2>&1; then
   echo "fuzz: clang++-14 is missing (run scripts/install-deps.sh)" >&2

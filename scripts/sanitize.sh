@@ -10,6 +10,7 @@ jobs=${VX_JOBS:-$(nproc)}
 launcher=()
 if command -v ccache >/dev/null 2>&1; then
   launcher=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache -DCMAKE_C_COMPILER_LAUNCHER=ccache)
+  export CCACHE_BASEDIR=${CCACHE_BASEDIR:-$PWD}  # paths relative to the clone: another clone hits the cache
 fi
 if ! command -v clang++-14 >/dev/null 2>&1; then
   echo "sanitize: clang++-14 is missing (run scripts/install-deps.sh)" >&2
@@ -17,7 +18,7 @@ if ! command -v clang++-14 >/dev/null 2>&1; then
 fi
 cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=None -DCMAKE_C_COMPILER=clang-14 -DCMAKE_CXX_COMPILER=clang++-14 \
   -DCMAKE_CXX_FLAGS="-O1 -g" -DCMAKE_C_FLAGS="-O1 -g" "${launcher[@]}" \
-  -DVOXELASTIC_SANITIZE=ON -DVOXELASTIC_BUILD_MICROBENCH=OFF >"$build_dir.configure.log" 2>&1 || {
+  -DVOXELASTIC_SANITIZE=ON -DVOXELASTIC_BUILD_MICROBENCH=OFF -DVOXELASTIC_BUILD_SLOW_TESTS=OFF >"$build_dir.configure.log" 2>&1 || {
   cat "$build_dir.configure.log" >&2
   echo "sanitize: cmake configure failed (log above)" >&2
   exit 1
