@@ -532,8 +532,9 @@ Scene parse_scene(const std::string& text, const fs::path& base, const std::stri
   json j;
   try {
     j = json::parse(text, nullptr, true, /*ignore_comments=*/true);
-  } catch (const json::parse_error& e) {
-    // e.what(): "[json.exception.parse_error.101] parse error at line 3, column 5: ..."
+  } catch (const json::exception& e) {
+    // e.what(): "[json.exception.parse_error.101] parse error at line 3, column 5: ..." (a number
+    // too large for a double, 1e999, is an out_of_range.406, found by fuzzing)
     std::string msg = e.what();
     if (const auto p = msg.find("] "); p != std::string::npos) msg = msg.substr(p + 2);
     throw Error(name + ": not valid JSON: " + msg);

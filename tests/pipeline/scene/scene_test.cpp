@@ -508,6 +508,13 @@ TEST(SimOutput, ForcesCsvPvdAndSkippingThroughAScene) {
   fs::remove_all(dir);
 }
 
+TEST(Scene, NumbersBeyondADoubleAreInvalidJsonNotAnInternalError) {
+  // found by fuzzing: nlohmann's number overflow is an out_of_range, not a parse_error
+  const std::string e = error_of_text(R"({"duration_s": 22e62222})");
+  EXPECT_CONTAINS(e, "test.json: not valid JSON");
+  EXPECT_CONTAINS(e, "number overflow");
+}
+
 TEST(Scene, RunsThatCannotFinishAreRefused) {
   // dt_s 1e-9 over a second: 1e9 steps, nothing bounded it (issue #17)
   json j = base_scene();
