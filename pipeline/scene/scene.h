@@ -74,6 +74,7 @@ struct Inclusion {
 /// The `material` of a scene.
 struct SceneMaterial {
   Material base;                          ///< homogeneous part
+  MassScaling mass_scaling;               ///< `mass_scaling`: none by default (docs/model.md section 6)
   std::vector<HuModulus> hounsfield;      ///< optional: modulus per voxel from its HU (piecewise linear)
   std::vector<Inclusion> inclusions;      ///< optional: spheres with their own modulus
 };
@@ -108,8 +109,14 @@ struct Scene {
   std::vector<FixedRegion> fixed;
   Eigen::Vector3d gravity_m_s2{0, 0, 0};
   Workspace workspace;
-  IntegratorKind integrator{IntegratorKind::symplectic_euler};
+  /// without an `integrator` key: the fast configuration (FastConfiguration, sim/time_step.h:
+  /// implicit, automatic step, one iteration), or symplectic Euler when the contact has friction
+  IntegratorKind integrator{IntegratorKind::implicit};
+  bool integrator_given{false};      ///< the scene has an `integrator` key
   double dt_s{0.0};                  ///< 0: automatic (automatic_time_step() of sim/time_step.h)
+  int iterations{0};                 ///< implicit: local/global iterations per step (0: 10, or 1 by default)
+  double residual_tolerance_n{0.0};  ///< implicit: stop once the largest force imbalance is below (N)
+  double region_radius_mm{0.0};      ///< implicit: regional solves within this distance of a probe (0: off)
   ContactSettings contact;
   std::optional<DeviceForceSettings> device;
   std::vector<ProbeSettings> probes;
