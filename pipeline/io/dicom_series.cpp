@@ -259,10 +259,26 @@ FileInfo read_header(const fs::path& path, bool explicit_input, std::size_t file
       // the length field as read (getLength() would load the value to measure it)
       const Uint32 declared = o ? o->getLengthField() : 0;
       if (o && o->isLeaf() && declared != DCM_UndefinedLength && std::uintmax_t(declared) > file_bytes) {
-        f.kind = FileKind::broken;
-        f.problem = fmt::format("it is truncated or damaged: element ({:04x},{:04x}) declares {} bytes, more than the "
-                                "whole file ({} bytes)",
-                                o->getGTag(), o->getETag(), declared, file_bytes);
+        // a broken DICOM file, or no DICOM at all (a text file read as a data set): without the
+        // 'DICM' marker, only a SOP Class or Series UID of a sane length makes it DICOM
+        bool uid_elements = false;
+        if (!magic)
+          for (const DcmTagKey& tag : {DCM_SOPClassUID, DCM_SeriesInstanceUID}) {
+            DcmElement* e = nullptr;
+            if (ds->findAndGetElement(tag, e).good() && e && e->getLengthField() > 0 &&
+                e->getLengthField() != DCM_UndefinedLength && std::uintmax_t(e->getLengthField()) <= file_bytes)
+              uid_elements = true;
+          }
+        const std::string what = fmt::format("element ({:04x},{:04x}) declares {} bytes, more than the whole file "
+                                             "({} bytes)",
+                                             o->getGTag(), o->getETag(), declared, file_bytes);
+        if (magic || uid_elements) {
+          f.kind = FileKind::broken;
+          f.problem = "it is truncated or damaged: " + what;
+        } else {
+          f.kind = FileKind::not_dicom;
+          f.problem = "it is not a DICOM file (no 'DICM' marker, and read as a DICOM data set its " + what + ")";
+        }
         return f;
       }
     }
