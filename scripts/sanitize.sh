@@ -30,4 +30,12 @@ cmake --build "$build_dir" -j "$jobs"
 export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:strict_string_checks=1:check_initialization_order=1}
 export LSAN_OPTIONS=${LSAN_OPTIONS:-suppressions=$PWD/tests/sanitizers/lsan.supp:print_suppressions=0}
 export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
-scripts/with-display.sh ctest --test-dir "$build_dir" -LE slow --output-on-failure -j "$jobs" "$@"
+# Tests that draw with OpenGL under Xvfb: Mesa's llvmpipe driver is loaded with dlopen and
+# unloaded at exit, so its few hundred bytes kept for the process's life are reported from an
+# "<unknown module>" that no suppression can name. They run with the leak check off (memory
+# errors and undefined behaviour still fail them), one at a time (a run of them two at a time
+# aborted once under Xvfb, not reproduced in three reruns); every other test runs with it on.
+gl_tests='^Render\.|PictureUnderXvfb|^ProbeView\.|^ProbeApp\.'
+scripts/with-display.sh ctest --test-dir "$build_dir" -LE slow -E "$gl_tests" --output-on-failure -j "$jobs" "$@"
+ASAN_OPTIONS="detect_leaks=0:${ASAN_OPTIONS#detect_leaks=1:}" \
+  scripts/with-display.sh ctest --test-dir "$build_dir" -LE slow -R "$gl_tests" --output-on-failure -j 1 "$@"
