@@ -8,7 +8,12 @@ packages=(
   libeigen3-dev libsuitesparse-dev libmetis-dev libvtk9-dev libdcmtk-dev libsdl2-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   libcli11-dev nlohmann-json3-dev libspdlog-dev libfmt-dev
+  libopenjp2-7-dev
   xvfb xauth x11-utils dicom3tools gnuplot-nox
+  # fuzzing and the sanitizer build (scripts/fuzz.sh, scripts/sanitize.sh): clang with its
+  # sanitizer and libFuzzer runtimes (libclang_rt.fuzzer is in libclang-rt-14-dev), OpenMP for
+  # clang, llvm-symbolizer for readable stacks
+  clang-14 libclang-rt-14-dev libomp-14-dev llvm-14
 )
 
 missing=()

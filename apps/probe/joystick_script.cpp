@@ -57,6 +57,9 @@ JoystickScript JoystickScript::parse(std::string_view text, const std::string& s
       throw Error(where(source, n) + ": expected 't_s stick a0 [a1 a2 a3] [bBITS]', got '" + line + "'");
     if (!parse_double(tok[0], key.t_s) || key.t_s < 0)
       throw Error(where(source, n) + ": time '" + tok[0] + "' is not a number >= 0 (seconds)");
+    if (key.t_s > kMaxScriptTime_s)
+      throw Error(where(source, n) + ": time " + tok[0] + " s is beyond the longest script (" +
+                  std::to_string(int(kMaxScriptTime_s)) + " s, a day and a bit): a run would never end; the unit is s");
     if (tok[1] != "0" && tok[1] != "1")
       throw Error(where(source, n) + ": stick '" + tok[1] + "' must be 0 or 1");
     const int stick = tok[1] == "0" ? 0 : 1;

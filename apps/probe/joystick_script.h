@@ -10,7 +10,8 @@
 ///     0.0    0      0.0   0.0   0.0
 ///     1.5    0      0.5   0.0  -1.0  0.0   b0100
 ///
-/// - `t_s`: time in seconds of simulated time, non-decreasing per stick;
+/// - `t_s`: time in seconds of simulated time, non-decreasing per stick, at most
+///   kMaxScriptTime_s;
 /// - `stick`: 0 or 1 (which virtual joystick, i.e. which probe);
 /// - `a0..a3`: axis values in [-1, 1] (missing axes are 0); a0 = x (right), a1 = y (SDL
 ///   convention: +1 = pulled back towards the user), a2 = twist, a3 = throttle;
@@ -32,6 +33,8 @@ namespace vx::probe {
 inline constexpr int kScriptAxes = 4;
 /// Buttons per virtual joystick.
 inline constexpr int kScriptButtons = 8;
+/// The latest keyframe time a script may have, s (as scenes: a longer run would never end).
+inline constexpr double kMaxScriptTime_s = 1e5;
 /// Most joysticks (probes) the app drives.
 inline constexpr int kMaxSticks = 2;
 

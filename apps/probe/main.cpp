@@ -10,6 +10,8 @@
 #include "base/version.h"
 #include "physics/element_batches.h"
 #include "probe_app.h"
+#include "util/exit_codes.h"
+#include "util/log.h"
 
 int main(int argc, char** argv) {
   using namespace vx::probe;
@@ -35,7 +37,9 @@ int main(int argc, char** argv) {
   g_auto->add_option("--force-log", o.force_log, "record the device force of every device tick to this .csv");
   g_auto->add_flag("--headless", o.headless, "no window: physics, input and force output only (needs --duration or "
                                              "--exit-after-script)");
-  g_auto->add_flag("-q,--quiet", o.quiet, "print errors only");
+  g_auto->add_flag("-q,--quiet", o.quiet, "print only warnings and errors (on stderr)");
+  bool verbose = false;
+  g_auto->add_flag("-v,--verbose", verbose, "also print details (debug level)");
 
   auto* g_in = app.add_option_group("input", "joystick and keyboard");
   auto* opt_control = g_in->add_option("--control", control, "rate (the paper: velocity follows the tilt) or position")
@@ -91,6 +95,7 @@ int main(int argc, char** argv) {
   try {
     (void)vx::best_simd_level();  // a bad VOXELASTIC_SIMD is an error here, not in the physics thread
     app.parse(argc, argv);
+    vx::log::set_level(verbose ? vx::log::Level::debug : o.quiet ? vx::log::Level::warn : vx::log::Level::info);
     o.control.mapping.mode = vx::parse_joystick_mode(control);
     o.mode_set = opt_control->count() > 0;
     o.speed_set = opt_speed->count() > 0;
@@ -111,12 +116,13 @@ int main(int argc, char** argv) {
       throw vx::Error("--size '" + size + "': between 320x240 and 8192x8192");
     return run_probe_app(o);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    // --help and --version exit 0; every usage mistake exits 2, as voxelastic does
+    return app.exit(e) == 0 ? vx::exit_code::ok : vx::exit_code::usage;
   } catch (const vx::Error& e) {
     fmt::print(stderr, "voxelastic-probe: error: {}\n", e.what());
     return kExitError;
   } catch (const std::exception& e) {
-    fmt::print(stderr, "voxelastic-probe: internal error: {}\n", e.what());
-    return kExitError;
+    fmt::print(stderr, "voxelastic-probe: internal error: {} (please report this)\n", e.what());
+    return vx::exit_code::internal;
   }
 }

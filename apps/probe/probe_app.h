@@ -25,13 +25,15 @@
 
 #include "probe_scene.h"
 #include "sim/device_force.h"
+#include "util/exit_codes.h"
 #include "stick_control.h"
 
 namespace vx::probe {
 
-/// Exit codes besides 0 (CLI11 parse errors keep their own codes).
-inline constexpr int kExitError = 1;      ///< bad input, or a failure while running
-inline constexpr int kExitNoDisplay = 2;  ///< no X display (run under xvfb-run or use --headless)
+/// Exit codes besides 0, from the table both programs share (util/exit_codes.h; usage errors
+/// are 2, internal errors 3).
+inline constexpr int kExitError = vx::exit_code::error;            ///< bad input, or a failure while running
+inline constexpr int kExitNoDisplay = vx::exit_code::no_display;  ///< no X display (run under xvfb-run or use --headless)
 
 /// Which device backend to use.
 enum class DeviceChoice : std::uint8_t { automatic, haptic, rumble, none };

@@ -13,6 +13,7 @@
 #include "bench/haptic_accuracy.h"
 #include "bench/scale_bench.h"
 #include "commands.h"
+#include "util/log.h"
 #include "render/plot.h"
 #include "util/atomic_file.h"
 
@@ -125,6 +126,7 @@ void run_bench_command(const BenchOptions& o) {
   check_output_path(dir / "bench.json");
   check_gnuplot();
 
+  if (o.quiet) log::set_level(std::max(log::level(), log::Level::warn));
   if (!o.quiet) {
     set.log = [](const std::string& line) { fmt::print(stderr, "{}\n", line); };
     fmt::print(stderr, "voxelastic bench{}: {} physics thread(s); step sizes {}; palpation sizes {}, reference n = {}\n",

@@ -25,6 +25,7 @@
 #include "model/gradational_builder.h"
 #include "render/render.h"
 #include "util/atomic_file.h"
+#include "util/log.h"
 #include "util/progress.h"
 
 namespace vx::cli {
@@ -68,8 +69,9 @@ class StagedOutputs {
     staged_.emplace_back(tmp, target);
     return tmp;
   }
-  /// Renames every staged file onto its target.
+  /// Renames every staged file onto its target (each flushed to disk first, the folders after).
   void commit() {
+    for (const auto& [tmp, target] : staged_) sync_file(tmp);
     for (std::size_t i = 0; i < staged_.size(); ++i) {
       std::error_code ec;
       fs::rename(staged_[i].first, staged_[i].second, ec);
@@ -80,6 +82,7 @@ class StagedOutputs {
                     "': " + ec.message());
       }
     }
+    for (const auto& [tmp, target] : staged_) sync_folder(target.parent_path());
     staged_.clear();
   }
 
@@ -137,6 +140,7 @@ void run_convert(const ConvertOptions& o) {
   read.series_uid = o.series;
   read.any_modality = o.modality == "any";
   const bool talk = !o.quiet;
+  if (o.quiet) log::set_level(std::max(log::level(), log::Level::warn));  // the readers' notes and progress too
 
   // read the volume
   Progress reading("reading " + fs::path(o.input).filename().string(), talk);
@@ -262,7 +266,7 @@ void add_convert_command(CLI::App& app) {
   sub->add_option("--series", opts->series, "DICOM: SeriesInstanceUID to read (default: the largest CT series)");
   sub->add_option("--modality", opts->modality, "DICOM: ct (CT images only) or any (also MR etc., with a warning)")
       ->check(CLI::IsMember({"ct", "any"}));
-  sub->add_flag("-q,--quiet", opts->quiet, "print nothing but errors");
+  sub->add_flag("-q,--quiet", opts->quiet, "print nothing but warnings and errors (on stderr)");
   sub->callback([opts] { run_convert(*opts); });
 }
 

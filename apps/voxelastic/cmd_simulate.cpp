@@ -2,8 +2,10 @@
 // forces.csv, summary.json, forces.png and (when asked) .pvd series for ParaView.
 #include <fmt/core.h>
 
+#include <atomic>
 #include <chrono>
 #include <cmath>
+#include <csignal>
 #include <filesystem>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -16,11 +18,49 @@
 #include "scene/scene.h"
 #include "sim/simulation.h"
 #include "util/atomic_file.h"
+#include "util/exit_codes.h"
+#include "util/log.h"
 #include "util/progress.h"
 
 namespace vx::cli {
 namespace {
 namespace fs = std::filesystem;
+
+/// Set by the first Ctrl-C (or SIGTERM); the handler then resets itself, so a second Ctrl-C
+/// ends the program at once.
+std::atomic<bool> g_stop{false};
+extern "C" void on_stop_signal(int) { g_stop.store(true); }
+
+/// Catches SIGINT and SIGTERM while alive (once each: SA_RESETHAND), restores them after.
+class StopSignals {
+ public:
+  StopSignals() {
+    g_stop.store(false);
+    struct sigaction sa {};
+    sa.sa_handler = on_stop_signal;
+    sigemptyset(&sa.sa_mask);
+    sa.sa_flags = SA_RESETHAND;
+    sigaction(SIGINT, &sa, &old_int_);
+    sigaction(SIGTERM, &sa, &old_term_);
+  }
+  ~StopSignals() {
+    sigaction(SIGINT, &old_int_, nullptr);
+    sigaction(SIGTERM, &old_term_, nullptr);
+  }
+  StopSignals(const StopSignals&) = delete;
+  StopSignals& operator=(const StopSignals&) = delete;
+  [[nodiscard]] bool stop() const { return g_stop.load(); }
+
+ private:
+  struct sigaction old_int_ {}, old_term_ {};
+};
+
+/// "3 h 20 min", "12 min", "40 s".
+std::string duration_text(double s) {
+  if (s >= 3600) return fmt::format("{:.0f} h {:.0f} min", std::floor(s / 3600), std::fmod(s, 3600) / 60);
+  if (s >= 60) return fmt::format("{:.0f} min", s / 60);
+  return fmt::format("{:.0f} s", s);
+}
 
 struct SimulateOptions {
   std::string scene;
@@ -45,11 +85,11 @@ void run_simulate(const SimulateOptions& o) {
   PrepareSceneOptions popt;
   popt.surface = out.pvd_surface;
   popt.threads_override = o.threads;
+  if (o.quiet) log::set_level(std::max(log::level(), log::Level::warn));
   const PreparedScene prepared = prepare_scene(scene, popt);
-  if (!o.quiet) {
+  if (!o.quiet)
     for (const auto& line : prepared.log) fmt::print("{}\n", line);
-    for (const auto& w : prepared.warnings) fmt::print(stderr, "voxelastic: warning: {}\n", w);
-  }
+  for (const auto& w : prepared.warnings) log::warn("{}", w);  // -q or not: warnings go to stderr
   Simulation sim(prepared.physics, prepared.settings);
   const double dt = sim.dt_s();
   const std::int64_t steps = std::max<std::int64_t>(1, std::int64_t(std::ceil(scene.duration_s / dt - 1e-9)));
@@ -58,22 +98,48 @@ void run_simulate(const SimulateOptions& o) {
                to_string(scene.integrator), sim.num_probes(), scene.workspace.enabled ? ", walls" : "",
                sim.has_device() ? ", device" : "");
 
-  // run, recording what the scene asks for
+  // run, recording what the scene asks for; Ctrl-C stops after the current step and the
+  // outputs up to then are written as for a finished run
   RunOutputs outputs(sim, prepared, out, dir, steps);
   Progress progress("simulate", !o.quiet);
+  const StopSignals signals;
+  bool interrupted = false, estimated = false;
   const auto t0 = std::chrono::steady_clock::now();
   for (std::int64_t k = 1; k <= steps; ++k) {
+    if (signals.stop()) {
+      interrupted = true;
+      break;
+    }
     if (sim.step() != StepStatus::ok) break;
     outputs.after_step(sim, k);
-    if ((k & 63) == 0) progress.update(double(k) / double(steps));
+    if ((k & 63) == 0) {
+      progress.update(double(k) / double(steps));
+      // after two seconds, say how long the whole run will take when that is long
+      const double so_far = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      if (!estimated && so_far > 2.0) {
+        estimated = true;
+        const double total = so_far / double(k) * double(steps);
+        if (total > 120.0)
+          log::info("simulate: about {} for {} steps; Ctrl-C stops early and keeps what is done", duration_text(total),
+                    steps);
+      }
+    }
   }
   const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   progress.done();
 
   // the outputs, summary.json last
+  if (interrupted) outputs.last_frame(sim);
   outputs.finish(sim);
-  write_text_atomically(dir / "summary.json",
-                        run_summary_json(scene, o.scene, prepared, sim, outputs, wall_s).dump(2) + "\n");
+  nlohmann::json summary = run_summary_json(scene, o.scene, prepared, sim, outputs, wall_s);
+  summary["duration_s"] = scene.duration_s;
+  summary["interrupted"] = interrupted;
+  if (interrupted) summary["status"] = "interrupted";
+  write_text_atomically(dir / "summary.json", summary.dump(2) + "\n");
+  if (interrupted)
+    throw Interrupted(fmt::format("interrupted at t = {:.6g} s of {:g} s ({} of {} steps); the outputs up to then are "
+                                  "in {} (summary.json says \"interrupted\": true)",
+                                  sim.time_s(), scene.duration_s, sim.counters().steps, steps, dir.string()));
 
   const SimulationCounters& c = sim.counters();
   const ForceRecorder* recorder = outputs.forces();
@@ -100,7 +166,7 @@ void add_simulate_command(CLI::App& app) {
   sub->add_option("SCENE", opts->scene, "scene file (.json)")->required()->check(CLI::ExistingFile);
   sub->add_option("-o,--out", opts->out, "output folder (created if missing)")->required();
   sub->add_option("--threads", opts->threads, "threads for the physics (0: all cores; default: the scene's)");
-  sub->add_flag("-q,--quiet", opts->quiet, "no progress or summary on the console");
+  sub->add_flag("-q,--quiet", opts->quiet, "no progress or summary on the console (warnings still go to stderr)");
   sub->callback([opts] { run_simulate(*opts); });
 }
 

@@ -13,6 +13,7 @@
 
 #include "base/error.h"
 #include "commands.h"
+#include "util/log.h"
 #include "render/plot.h"
 #include "verify/verify.h"
 
@@ -80,6 +81,7 @@ void run_verify_command(const VerifyOptions& o) {
   run.jobs = o.jobs > 0 ? o.jobs : std::max(1, int(std::thread::hardware_concurrency()));
   run.shard = shard;
   run.only = o.cases;
+  if (o.quiet) log::set_level(std::max(log::level(), log::Level::warn));
   if (!o.quiet) {
     run.progress = [](const std::string& line) { fmt::print(stderr, "verify: {}\n", line); };
     fmt::print(stderr, "verify: {} suite{}: {} cases on {} worker thread(s), one physics thread each -> {}\n", o.suite,

@@ -7,11 +7,22 @@
 #include "base/version.h"
 #include "commands.h"
 #include "physics/element_batches.h"
+#include "util/exit_codes.h"
+#include "util/log.h"
 
 int main(int argc, char** argv) {
   CLI::App app{"voxelastic: CT volumes to gradational-resolution elastic models (units: mm, s, N, kPa, HU)"};
   app.require_subcommand(1);
   app.set_version_flag("--version", std::string("voxelastic ") + vx::kVersion);
+  // -q / -v anywhere on the line (subcommands inherit fallthrough): notes and progress at
+  // info, hidden by -q; warnings and errors always on stderr; details at debug, shown by -v
+  bool quiet = false, verbose = false;
+  app.add_flag("-q,--quiet", quiet, "print only warnings and errors (on stderr) besides the results");
+  app.add_flag("-v,--verbose", verbose, "also print details (debug level)");
+  app.fallthrough();
+  app.parse_complete_callback([&] {
+    vx::log::set_level(verbose ? vx::log::Level::debug : quiet ? vx::log::Level::warn : vx::log::Level::info);
+  });
   vx::cli::add_phantom_command(app);
   vx::cli::add_convert_command(app);
   vx::cli::add_simulate_command(app);
@@ -22,13 +33,16 @@ int main(int argc, char** argv) {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     // --help and --version exit 0; every usage mistake exits 2 (the convention of Unix tools)
-    return app.exit(e) == 0 ? 0 : 2;
+    return app.exit(e) == 0 ? vx::exit_code::ok : vx::exit_code::usage;
+  } catch (const vx::Interrupted& e) {
+    fmt::print(stderr, "voxelastic: {}\n", e.what());
+    return vx::exit_code::interrupted;
   } catch (const vx::Error& e) {
     fmt::print(stderr, "voxelastic: error: {}\n", e.what());
-    return 1;
+    return vx::exit_code::error;
   } catch (const std::exception& e) {
-    fmt::print(stderr, "voxelastic: internal error: {}\n", e.what());
-    return 3;
+    fmt::print(stderr, "voxelastic: internal error: {} (please report this)\n", e.what());
+    return vx::exit_code::internal;
   }
-  return 0;
+  return vx::exit_code::ok;
 }

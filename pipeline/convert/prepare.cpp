@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 #include <nlohmann/json.hpp>
@@ -113,10 +114,22 @@ Volume resample(const Volume& volume, double voxel_mm) {
 
 constexpr int kNeighbours[6][3] = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
 
-/// Floods the 6-connected region of voxels equal to `from` that holds `seed`, setting them to
-/// `to`; returns its size. `queue` is scratch space.
+/// The 26 neighbours of a voxel (faces, edges and corners).
+constexpr auto kNeighbours26 = [] {
+  std::array<std::array<int, 3>, 26> n{};
+  int m = 0;
+  for (int c = -1; c <= 1; ++c)
+    for (int b = -1; b <= 1; ++b)
+      for (int a = -1; a <= 1; ++a)
+        if (a || b || c) n[std::size_t(m++)] = {a, b, c};
+  return n;
+}();
+
+/// Floods the region of voxels equal to `from` that holds `seed`, setting them to `to`;
+/// returns its size. Neighbours share a face (6-connected) or, with `connect26`, also an edge or
+/// a corner. `queue` is scratch space.
 std::int64_t flood(VoxelGrid& grid, std::int64_t seed, std::uint8_t from, std::uint8_t to,
-                   std::vector<std::int64_t>& queue) {
+                   std::vector<std::int64_t>& queue, bool connect26 = false) {
   const Eigen::Vector3i d = grid.dims();
   std::vector<std::uint8_t>& data = grid.data();
   std::int64_t size = 0;
@@ -127,15 +140,19 @@ std::int64_t flood(VoxelGrid& grid, std::int64_t seed, std::uint8_t from, std::u
     queue.pop_back();
     ++size;
     const int i = int(v % d.x()), j = int((v / d.x()) % d.y()), k = int(v / (std::int64_t(d.x()) * d.y()));
-    for (const auto& n : kNeighbours) {
+    const auto visit = [&](const auto& n) {
       const int a = i + n[0], b = j + n[1], c = k + n[2];
-      if (!grid.inside(a, b, c)) continue;
+      if (!grid.inside(a, b, c)) return;
       const std::int64_t w = grid.index(a, b, c);
       if (data[std::size_t(w)] == from) {
         data[std::size_t(w)] = to;
         queue.push_back(w);
       }
-    }
+    };
+    if (connect26)
+      for (const auto& n : kNeighbours26) visit(n);
+    else
+      for (const auto& n : kNeighbours) visit(n);
   }
   return size;
 }
@@ -160,7 +177,10 @@ std::pair<int, std::int64_t> keep_largest_component(VoxelGrid& grid) {
   return {components, total - largest_size};
 }
 
-/// Fills background not 6-connected to the outside of the grid; returns the voxels added.
+/// Fills background not connected to the outside of the grid; returns the voxels added.
+/// Tissue is 6-connected (keep_largest_component), so air is 26-connected: the two are the
+/// complementary pair of digital topology, and air that leaves a cavity only through an edge
+/// or a corner between tissue voxels (a diagonal gap) reaches the outside and is kept.
 /// Works in place: background reached from the grid's faces is marked 2 while flooding.
 std::int64_t fill_holes(VoxelGrid& grid) {
   const Eigen::Vector3i d = grid.dims();
@@ -176,7 +196,7 @@ std::int64_t fill_holes(VoxelGrid& grid) {
           continue;
         }
         const std::int64_t v = grid.index(i, j, k);
-        if (data[std::size_t(v)] == 0) flood(grid, v, 0, 2, queue);
+        if (data[std::size_t(v)] == 0) flood(grid, v, 0, 2, queue, /*connect26=*/true);
       }
   // what the outside did not reach is a cavity
   std::int64_t filled = 0;

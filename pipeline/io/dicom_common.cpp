@@ -16,6 +16,7 @@
 #include <mutex>
 
 #include "base/error.h"
+#include "io/jpeg2000.h"
 #include "util/text.h"
 
 namespace vx::dicom {
@@ -38,6 +39,7 @@ void init_dcmtk() {
     DcmRLEEncoderRegistration::registerCodecs();
     DJEncoderRegistration::registerCodecs();
     DJLSEncoderRegistration::registerCodecs();
+    register_jpeg2000_codecs();  // OpenJPEG: DCMTK 3.6.7 has no JPEG 2000 codec
   });
 }
 

@@ -10,7 +10,8 @@
 namespace vx::dicom {
 
 /// Checks that the DICOM data dictionary is loaded, quiets DCMTK's per-file log output and
-/// registers the RLE, JPEG (incl. lossless) and JPEG-LS decoders and encoders, once.
+/// registers the RLE, JPEG (incl. lossless), JPEG-LS and JPEG 2000 (OpenJPEG) decoders and
+/// encoders, once.
 /// Throws vx::Error when the dictionary is missing (every load would fail otherwise).
 void init_dcmtk();
 

@@ -12,6 +12,9 @@
 #include <dcmtk/dcmdata/dcfilefo.h>
 #include <dcmtk/dcmdata/dcmetinf.h>
 #include <dcmtk/dcmdata/dcpixel.h>
+#include <dcmtk/dcmdata/dcpixseq.h>
+#include <dcmtk/dcmdata/dcspchrs.h>
+#include <dcmtk/dcmdata/dcstack.h>
 #include <dcmtk/dcmdata/dcuid.h>
 #include <dcmtk/dcmdata/dcxfer.h>
 #include <fmt/format.h>
@@ -29,6 +32,7 @@
 
 #include "base/error.h"
 #include "io/dicom_common.h"
+#include "util/log.h"
 #include "util/progress.h"
 #include "util/text.h"
 
@@ -75,12 +79,20 @@ struct FileInfo {
   long padding{0}, padding_limit{0};  ///< raw stored values (sign applied)
   bool localizer{false};
   bool is_ct{false};
+  /// Modality LUT Sequence (0028,3000), when present: stored value v -> lut[clamp(v - lut_first)]
+  std::vector<double> lut;
+  long lut_first{0};
   std::vector<FrameInfo> frames;
 };
 
 std::string get_string(DcmItem* item, const DcmTagKey& tag) {
+  // text values are short; a longer one is damaged and is not loaded (it would be allocated)
+  constexpr Uint32 kMaxText = 1 << 16;
+  DcmElement* e = nullptr;
   OFString s;
-  if (item && item->findAndGetOFStringArray(tag, s).good()) return std::string(s.c_str());
+  if (item && item->findAndGetElement(tag, e).good() && e && e->getLengthField() <= kMaxText &&
+      e->getOFStringArray(s).good())
+    return std::string(s.c_str());
   return {};
 }
 
@@ -95,6 +107,75 @@ bool get_int(DcmItem* item, const DcmTagKey& tag, long& out) {
   Float64 f = 0;
   if (item->findAndGetFloat64(tag, f).good()) return out = long(std::lround(f)), true;
   return false;
+}
+
+/// `s` fit for a terminal: control characters (escape sequences from a hostile file) become '?'.
+std::string printable(std::string s) {
+  for (char& c : s)
+    if ((static_cast<unsigned char>(c) < 0x20 && c != '\t') || c == 0x7f) c = '?';
+  return s;
+}
+
+/// A text element in UTF-8: converted from the data set's Specific Character Set (0008,0005)
+/// when it names one; as stored otherwise or when the conversion fails.
+std::string get_text_utf8(DcmItem* item, const DcmTagKey& tag) {
+  std::string value = trim(get_string(item, tag));
+  OFString charset;
+  if (value.empty() || !item || item->findAndGetOFStringArray(DCM_SpecificCharacterSet, charset).bad() ||
+      charset.empty())
+    return printable(value);
+  DcmSpecificCharacterSet converter;
+  OFString utf8;
+  if (converter.selectCharacterSet(charset).good() && converter.convertString(value.c_str(), utf8).good())
+    value = utf8.c_str();
+  return printable(value);
+}
+
+/// Value `i` of a US or SS element, as stored.
+bool get_int_at(DcmItem* item, const DcmTagKey& tag, unsigned long i, long& out) {
+  Uint16 u = 0;
+  if (item->findAndGetUint16(tag, u, i).good()) return out = u, true;
+  Sint16 s = 0;
+  if (item->findAndGetSint16(tag, s, i).good()) return out = s, true;
+  OFString text;  // other encodings of the value (a string VR, say)
+  if (item->findAndGetOFString(tag, text, i).good()) {
+    char* end = nullptr;
+    const long v = std::strtol(text.c_str(), &end, 10);
+    if (end != text.c_str() && *end == '\0' && v >= -32768 && v <= 65535) return out = v, true;
+  }
+  return false;
+}
+
+/// The Modality LUT Sequence of `ds`, if any, into `f` (stored values must be known: pixel_rep).
+/// Returns "" or what is wrong with it.
+std::string read_modality_lut(DcmItem* ds, FileInfo& f) {
+  DcmItem* item = nullptr;
+  if (ds->findAndGetSequenceItem(DCM_ModalityLUTSequence, item, 0).bad() || !item) return "";
+  long entries = 0, first = 0, bits = 0;
+  if (!get_int_at(item, DCM_LUTDescriptor, 0, entries) || !get_int_at(item, DCM_LUTDescriptor, 1, first) ||
+      !get_int_at(item, DCM_LUTDescriptor, 2, bits))
+    return "its Modality LUT Sequence has no complete LUTDescriptor (0028,3002)";
+  if (entries <= 0) entries += 65536;  // 0 means 2^16 entries (also when read as SS)
+  if (f.pixel_rep == 1 && first >= 0x8000) first -= 0x10000;
+  if (f.pixel_rep == 0 && first < 0) first += 0x10000;
+  if (bits != 8 && bits != 16)
+    return fmt::format("its Modality LUT has {} bits per entry (8 or 16 are defined)", bits);
+  const Uint16* words = nullptr;
+  unsigned long count = 0;
+  if (item->findAndGetUint16Array(DCM_LUTData, words, &count).bad() || !words)
+    return "its Modality LUT Sequence has no LUTData (0028,3006)";
+  f.lut.resize(std::size_t(entries));
+  if (count >= std::size_t(entries)) {
+    for (long e = 0; e < entries; ++e) f.lut[std::size_t(e)] = words[e];
+  } else if (bits == 8 && 2 * count >= std::size_t(entries)) {
+    // 8-bit entries packed two to a word, the first in the low byte
+    for (long e = 0; e < entries; ++e) f.lut[std::size_t(e)] = (words[e / 2] >> (8 * (e % 2))) & 0xFF;
+  } else {
+    f.lut.clear();
+    return fmt::format("its Modality LUT declares {} entries but holds {}", entries, count);
+  }
+  f.lut_first = first;
+  return "";
 }
 
 bool get_doubles(DcmItem* item, const DcmTagKey& tag, double* out, int n) {
@@ -124,6 +205,37 @@ bool is_ct_sop_class(const std::string& uid) {
          uid == UID_LegacyConvertedEnhancedCTImageStorage;
 }
 
+/// "" when the pixel data holds `frames` frames of the file's size (and the per-frame
+/// functional groups describe them all), else what is wrong.
+std::string check_frame_count(DcmDataset* ds, const FileInfo& f, long frames, DcmSequenceOfItems* per_frame_seq) {
+  if (per_frame_seq && long(per_frame_seq->card()) < frames)
+    return fmt::format("it declares {} frames (NumberOfFrames) but its per-frame functional groups describe {}", frames,
+                       per_frame_seq->card());
+  DcmElement* element = nullptr;
+  if (ds->findAndGetElement(DCM_PixelData, element).bad() || !element) return "";
+  const DcmXfer xfer(ds->getOriginalXfer());
+  if (xfer.isEncapsulated()) {
+    // one fragment at least per frame, after the offset table
+    auto* pixels = dynamic_cast<DcmPixelData*>(element);
+    DcmPixelSequence* sequence = nullptr;
+    if (!pixels || pixels->getEncapsulatedRepresentation(xfer.getXfer(), nullptr, sequence).bad() || !sequence)
+      return "its compressed pixel data has no fragments";
+    const long fragments = long(sequence->card()) - 1;
+    if (fragments < frames)
+      return fmt::format("it declares {} frames but its compressed pixel data holds {} fragment{}", frames,
+                         std::max(0L, fragments), fragments == 1 ? "" : "s");
+    return "";
+  }
+  const double frame_bytes = double(f.rows) * double(f.cols) * double(std::max(f.samples, 1)) *
+                             double(std::max(f.bits_allocated, 1)) / 8.0;
+  const double held = double(element->getLengthField());
+  if (double(frames) * frame_bytes > held)
+    return fmt::format("it declares {} frame{} of {} x {} pixels ({:.0f} bytes) but its pixel data holds {:.0f} bytes "
+                       "(the file is damaged or cut short)",
+                       frames, frames == 1 ? "" : "s", f.cols, f.rows, double(frames) * frame_bytes, held);
+  return "";
+}
+
 /// Everything about a file except its pixel values.
 FileInfo read_header(const fs::path& path, bool explicit_input, std::size_t file_index) {
   FileInfo f;
@@ -133,8 +245,46 @@ FileInfo read_header(const fs::path& path, bool explicit_input, std::size_t file
   DcmFileFormat ff;
   const OFCondition status = ff.loadFile(path.c_str(), EXS_Unknown, EGL_noChange, kHeaderReadLimit, ERM_autoDetect);
   DcmDataset* ds = ff.getDataset();
+  if (ds) {
+    // a value longer than the whole file is a damaged length: reading it (values beyond the
+    // read limit load on first access) would allocate that much, up to 4 GB (found by fuzzing)
+    const std::uintmax_t file_bytes = [&] {
+      std::error_code ec;
+      const auto n = fs::file_size(path, ec);
+      return ec ? std::uintmax_t(0) : n;
+    }();
+    DcmStack stack;
+    while (ds->nextObject(stack, OFTrue).good()) {
+      DcmObject* o = stack.top();
+      // the length field as read (getLength() would load the value to measure it)
+      const Uint32 declared = o ? o->getLengthField() : 0;
+      if (o && o->isLeaf() && declared != DCM_UndefinedLength && std::uintmax_t(declared) > file_bytes) {
+        // a broken DICOM file, or no DICOM at all (a text file read as a data set): without the
+        // 'DICM' marker, only a SOP Class or Series UID of a sane length makes it DICOM
+        bool uid_elements = false;
+        if (!magic)
+          for (const DcmTagKey& tag : {DCM_SOPClassUID, DCM_SeriesInstanceUID}) {
+            DcmElement* e = nullptr;
+            if (ds->findAndGetElement(tag, e).good() && e && e->getLengthField() > 0 &&
+                e->getLengthField() != DCM_UndefinedLength && std::uintmax_t(e->getLengthField()) <= file_bytes)
+              uid_elements = true;
+          }
+        const std::string what = fmt::format("element ({:04x},{:04x}) declares {} bytes, more than the whole file "
+                                             "({} bytes)",
+                                             o->getGTag(), o->getETag(), declared, file_bytes);
+        if (magic || uid_elements) {
+          f.kind = FileKind::broken;
+          f.problem = "it is truncated or damaged: " + what;
+        } else {
+          f.kind = FileKind::not_dicom;
+          f.problem = "it is not a DICOM file (no 'DICM' marker, and read as a DICOM data set its " + what + ")";
+        }
+        return f;
+      }
+    }
+  }
   f.sop_class = trim(get_string(ds, DCM_SOPClassUID));
-  f.series_uid = trim(get_string(ds, DCM_SeriesInstanceUID));
+  f.series_uid = printable(trim(get_string(ds, DCM_SeriesInstanceUID)));
   const bool looks_dicom = magic || !f.sop_class.empty() || !f.series_uid.empty();
   if (status.bad()) {
     f.kind = looks_dicom ? FileKind::broken : FileKind::not_dicom;
@@ -148,8 +298,8 @@ FileInfo read_header(const fs::path& path, bool explicit_input, std::size_t file
     return f;
   }
   f.sop_instance = trim(get_string(ds, DCM_SOPInstanceUID));
-  f.modality = trim(get_string(ds, DCM_Modality));
-  f.description = trim(get_string(ds, DCM_SeriesDescription));
+  f.modality = printable(trim(get_string(ds, DCM_Modality)));
+  f.description = get_text_utf8(ds, DCM_SeriesDescription);
   f.is_ct = is_ct_sop_class(f.sop_class);
 
   // transfer syntax: can DCMTK decode it here?
@@ -210,13 +360,34 @@ FileInfo read_header(const fs::path& path, bool explicit_input, std::size_t file
   const std::string image_type = get_string(ds, DCM_ImageType);
   f.localizer = image_type.find("LOCALIZER") != std::string::npos;
 
-  // frames: classic images have one; enhanced ones describe each in functional groups
+  if (const std::string bad = read_modality_lut(ds, f); !bad.empty()) {
+    f.kind = FileKind::broken;
+    f.problem = bad;
+    return f;
+  }
+
+  // frames: classic images have one; enhanced ones describe each in functional groups. The
+  // count must be what the file holds: every declared frame in the pixel data (and described,
+  // when per-frame groups are there), so that a damaged count cannot make us loop or allocate
   long frames = 1;
-  if (get_int(ds, DCM_NumberOfFrames, value) && value > 1) frames = value;
+  if (ds->tagExists(DCM_NumberOfFrames)) {
+    if (!get_int(ds, DCM_NumberOfFrames, value) || value < 1) {
+      f.kind = FileKind::broken;
+      f.problem = fmt::format("its NumberOfFrames (0028,0008) '{}' is not a positive count",
+                              printable(trim(get_string(ds, DCM_NumberOfFrames))));
+      return f;
+    }
+    frames = value;
+  }
   DcmItem* shared = nullptr;
   ds->findAndGetSequenceItem(DCM_SharedFunctionalGroupsSequence, shared, 0);
   DcmSequenceOfItems* per_frame_seq = nullptr;
   ds->findAndGetSequence(DCM_PerFrameFunctionalGroupsSequence, per_frame_seq);
+  if (const std::string bad = check_frame_count(ds, f, frames, per_frame_seq); !bad.empty()) {
+    f.kind = FileKind::broken;
+    f.problem = bad;
+    return f;
+  }
   long base_instance = get_int(ds, DCM_InstanceNumber, value) ? value : 0;
   for (long fr = 0; fr < frames; ++fr) {
     FrameInfo info;
@@ -339,6 +510,9 @@ void frame_to_hu(const FileInfo& f, const FrameInfo& fr, const std::vector<Uint8
     if (f.pixel_rep == 1 && (v & sign_bit)) v -= std::int64_t(1) << bits;
     if (f.has_padding && v >= pad_lo && v <= pad_hi) {
       out[p] = dicom::kAirHu;
+    } else if (!f.lut.empty()) {
+      const std::int64_t e = std::clamp<std::int64_t>(v - f.lut_first, 0, std::int64_t(f.lut.size()) - 1);
+      out[p] = float(f.lut[std::size_t(e)]);
     } else {
       out[p] = float(double(v) * fr.slope + fr.intercept);
     }
@@ -388,11 +562,11 @@ const SeriesInfo& choose_series(const std::map<std::string, SeriesInfo>& all, co
   for (const SeriesInfo* s : series)
     if (s != chosen) others.push_back(s);
   if (!others.empty())
-    std::fprintf(stderr, "DICOM: reading series %s\nDICOM: also found (choose with --series UID):%s\n",
-                 chosen->label().c_str(), list_series(others).c_str());
+    log::info("DICOM: reading series {}\nDICOM: also found (choose with --series UID):{}", chosen->label(),
+              list_series(others));
   if (!chosen->is_ct)
-    std::fprintf(stderr, "DICOM: warning: series %s is %s, not CT: its values are not Hounsfield units, choose the "
-                 "threshold accordingly\n", chosen->uid.c_str(), chosen->modality.empty() ? "of unknown modality" : chosen->modality.c_str());
+    log::warn("DICOM: series {} is {}, not CT: its values are not Hounsfield units, choose the threshold accordingly",
+              chosen->uid, chosen->modality.empty() ? "of unknown modality" : chosen->modality);
   return *chosen;
 }
 
@@ -447,8 +621,9 @@ SliceLayout lay_out_slices(std::vector<FileInfo>& files, std::vector<FrameInfo>&
       throw Error(fmt::format("DICOM: {} has no usable ImagePositionPatient / ImageOrientationPatient, so the slices "
                               "cannot be placed in patient space (the series is incomplete; re-export it)",
                               frame_name(files, *missing)));
-    std::fprintf(stderr, "DICOM: warning: %s has no patient position/orientation; slices are ordered by "
-                 "InstanceNumber and placed on an axis-aligned grid\n", frame_name(files, *missing).c_str());
+    log::warn("DICOM: {} has no patient position/orientation; slices are ordered by InstanceNumber and placed on an "
+              "axis-aligned grid",
+              frame_name(files, *missing));
     std::sort(frames.begin(), frames.end(), [&](const FrameInfo& a, const FrameInfo& b) {
       return a.instance != b.instance ? a.instance < b.instance : files[a.file].path < files[b.file].path;
     });
@@ -473,8 +648,7 @@ SliceLayout lay_out_slices(std::vector<FileInfo>& files, std::vector<FrameInfo>&
                               frame_name(files, fr), fr.row_spacing, fr.col_spacing));
   }
   if (!frames.front().has_spacing)
-    std::fprintf(stderr, "DICOM: warning: no PixelSpacing in %s; assuming 1 mm pixels\n",
-                 frame_name(files, frames.front()).c_str());
+    log::warn("DICOM: no PixelSpacing in {}; assuming 1 mm pixels", frame_name(files, frames.front()));
   if (frames.size() < 2)
     throw Error(fmt::format("DICOM: series {} has a single slice ({}); a 3D model needs at least 2 slices "
                             "(check that the whole series was exported, or choose another with --series)",
@@ -507,7 +681,7 @@ SliceLayout lay_out_slices(std::vector<FileInfo>& files, std::vector<FrameInfo>&
     unique.push_back(fr);
   }
   if (dropped)
-    std::fprintf(stderr, "DICOM: ignored %zu duplicate cop%s of images already read\n", dropped, dropped == 1 ? "y" : "ies");
+    log::info("DICOM: ignored {} duplicate cop{} of images already read", dropped, dropped == 1 ? "y" : "ies");
   frames = std::move(unique);
   if (frames.size() < 2)
     throw Error(fmt::format("DICOM: series {} has a single distinct slice; a 3D model needs at least 2", series.uid));
@@ -556,9 +730,9 @@ SliceLayout lay_out_slices(std::vector<FileInfo>& files, std::vector<FrameInfo>&
     const double span = frames.back().normal_position - frames.front().normal_position;
     const double angle = std::atan2(
         (frames.back().position - frames.front().position - span * normal).norm(), span) * 180.0 / std::numbers::pi;
-    std::fprintf(stderr, "DICOM: series %s is tilted by %.2f degrees (gantry tilt); resampling it onto an "
-                 "orthogonal grid of %d x %d x %d voxels (samples outside the scan become air)\n",
-                 series.uid.c_str(), angle, dims.x(), dims.y(), dims.z());
+    log::warn("DICOM: series {} is tilted by {:.2f} degrees (gantry tilt); resampling it onto an orthogonal grid of "
+              "{} x {} x {} voxels (samples outside the scan become air)",
+              series.uid, angle, dims.x(), dims.y(), dims.z());
   } else {
     for (auto& s : layout.shift) s.setZero();
   }
@@ -616,8 +790,8 @@ std::vector<fs::path> resolve_single_file(const std::vector<fs::path>& inputs_in
       if (one.frames.size() == 1 && !one.series_uid.empty()) {
         const fs::path folder = inputs.front().has_parent_path() ? inputs.front().parent_path() : fs::path(".");
         if (opts.series_uid.empty()) opts.series_uid = one.series_uid;
-        std::fprintf(stderr, "DICOM: %s is one slice; reading its series from folder '%s'\n",
-                     inputs.front().string().c_str(), folder.string().c_str());
+        log::info("DICOM: {} is one slice; reading its series from folder '{}'", inputs.front().string(),
+                  folder.string());
         inputs = {folder};
         where = quoted(folder);
         recursive = false;
@@ -643,33 +817,45 @@ std::vector<FileInfo> read_headers(const std::vector<std::pair<fs::path, bool>>&
   return files;
 }
 
-/// Problems that are fatal whatever the series (named files that are not DICOM, broken files of
-/// unknown series), and notes on the files skipped.
-void check_files(const std::vector<FileInfo>& files, const std::string& where) {
-  std::size_t not_dicom = 0, non_image = 0;
-  const FileInfo* example_not_dicom = nullptr;
+/// Names the files of a list in a warning, the first 20 of them.
+std::string name_files(const std::vector<const FileInfo*>& list) {
+  std::string out;
+  for (std::size_t i = 0; i < list.size() && i < 20; ++i)
+    out += fmt::format("\n  {}: {}", list[i]->path.string(), list[i]->problem);
+  if (list.size() > 20) out += fmt::format("\n  ... and {} more", list.size() - 20);
+  return out;
+}
+
+/// Problems that are fatal whatever the series (named files that are not DICOM or cannot be
+/// read), and the files skipped: not DICOM, DICOM without images, and unreadable files whose
+/// series is unknown (a truncated RT plan beside the CT series, say), each named in a warning.
+/// A missing slice of the series read is still caught by the spacing checks.
+std::vector<const FileInfo*> check_files(const std::vector<FileInfo>& files, const std::string& where) {
+  std::vector<const FileInfo*> not_dicom, unknown_broken;
+  std::size_t non_image = 0;
   for (const FileInfo& f : files) {
-    if (f.kind == FileKind::not_dicom) {
-      if (f.explicit_input) throw Error(fmt::format("DICOM: cannot read {}: {}", quoted(f.path), f.problem));
-      ++not_dicom;
-      if (!example_not_dicom) example_not_dicom = &f;
-    }
+    if ((f.kind == FileKind::not_dicom || (f.kind == FileKind::broken && f.series_uid.empty())) && f.explicit_input)
+      throw Error(fmt::format("DICOM: cannot read {}: {}", quoted(f.path), f.problem));
+    if (f.kind == FileKind::not_dicom) not_dicom.push_back(&f);
     if (f.kind == FileKind::non_image) ++non_image;
-    if (f.kind == FileKind::broken && f.series_uid.empty())
-      throw Error(fmt::format("DICOM: cannot read {}: {}; it is not clear which series it belongs to, so remove or "
-                              "replace it (re-export or copy the series again)",
-                              quoted(f.path), f.problem));
+    if (f.kind == FileKind::broken && f.series_uid.empty()) unknown_broken.push_back(&f);
   }
-  if (not_dicom == files.size())
+  if (not_dicom.size() == files.size())
     throw Error(fmt::format("DICOM: {} holds {} file{}, none of them DICOM (e.g. {}: {}); point to the folder "
                             "that holds the series' .dcm files",
-                            where, files.size(), files.size() == 1 ? "" : "s", quoted(example_not_dicom->path),
-                            example_not_dicom->problem));
-  if (not_dicom)
-    std::fprintf(stderr, "DICOM: skipped %zu file%s that %s not DICOM (e.g. '%s')\n", not_dicom,
-                 not_dicom == 1 ? "" : "s", not_dicom == 1 ? "is" : "are", example_not_dicom->path.string().c_str());
-  if (non_image) std::fprintf(stderr, "DICOM: skipped %zu DICOM file%s without images (reports, DICOMDIR, ...)\n",
-                              non_image, non_image == 1 ? "" : "s");
+                            where, files.size(), files.size() == 1 ? "" : "s", quoted(not_dicom.front()->path),
+                            not_dicom.front()->problem));
+  if (!not_dicom.empty())
+    log::info("DICOM: skipped {} file{} that {} not DICOM:{}", not_dicom.size(), not_dicom.size() == 1 ? "" : "s",
+              not_dicom.size() == 1 ? "is" : "are", name_files(not_dicom));
+  if (!unknown_broken.empty())
+    log::warn("DICOM: skipped {} unreadable DICOM file{} whose series cannot be told (if one belongs to the series "
+              "read, the slice spacing check reports the gap it leaves):{}",
+              unknown_broken.size(), unknown_broken.size() == 1 ? "" : "s", name_files(unknown_broken));
+  if (non_image)
+    log::info("DICOM: skipped {} DICOM file{} without images (reports, DICOMDIR, ...)", non_image,
+              non_image == 1 ? "" : "s");
+  return unknown_broken;
 }
 
 /// The series found, by SeriesInstanceUID (localizers counted apart).
@@ -677,7 +863,7 @@ std::map<std::string, SeriesInfo> group_series(const std::vector<FileInfo>& file
   std::map<std::string, SeriesInfo> all;
   for (std::size_t i = 0; i < files.size(); ++i) {
     const FileInfo& f = files[i];
-    if (f.kind != FileKind::image && f.kind != FileKind::broken) continue;
+    if (f.kind != FileKind::image && !(f.kind == FileKind::broken && !f.series_uid.empty())) continue;
     SeriesInfo& s = all[f.series_uid];
     s.uid = f.series_uid.empty() ? "(no SeriesInstanceUID)" : f.series_uid;
     if (f.localizer) {
@@ -703,14 +889,14 @@ std::vector<FrameInfo> series_frames(const std::vector<FileInfo>& files, const S
                               "remove it",
                               quoted(f.path), series.uid, f.problem));
     if (!f.xfer_decodable)
-      throw Error(fmt::format("DICOM: {} uses transfer syntax '{}' ({}), which DCMTK 3.6.7 cannot decode here "
-                              "(RLE, JPEG incl. lossless and JPEG-LS are supported; JPEG 2000 is not). Convert the "
-                              "series to an uncompressed syntax first, e.g. 'gdcmconv --raw in.dcm out.dcm' (GDCM) "
-                              "or re-export it uncompressed from the PACS",
+      throw Error(fmt::format("DICOM: {} uses transfer syntax '{}' ({}), which voxelastic cannot decode (RLE, JPEG "
+                              "incl. lossless, JPEG-LS and JPEG 2000 are supported). Convert the series to an "
+                              "uncompressed syntax first, e.g. 'gdcmconv --raw in.dcm out.dcm' (GDCM) or re-export it "
+                              "uncompressed from the PACS",
                               quoted(f.path), f.xfer_name, f.xfer_uid));
     if (!f.is_ct && series.is_ct)
-      std::fprintf(stderr, "DICOM: warning: %s in CT series %s is not a CT image (SOP class %s)\n",
-                   f.path.string().c_str(), series.uid.c_str(), f.sop_class.c_str());
+      log::warn("DICOM: {} in CT series {} is not a CT image (SOP class {})", f.path.string(), series.uid,
+                printable(f.sop_class));
     frames.insert(frames.end(), f.frames.begin(), f.frames.end());
   }
   return frames;
@@ -800,20 +986,34 @@ Volume read_dicom_series(const std::vector<fs::path>& inputs, const ReadOptions&
   bool recursive = true;
   const std::vector<fs::path> resolved = resolve_single_file(inputs, opts, where, recursive);
   std::vector<FileInfo> files = read_headers(collect_files(resolved, recursive));
-  check_files(files, where);
+  const std::vector<const FileInfo*> unreadable = check_files(files, where);
   const std::map<std::string, SeriesInfo> all = group_series(files);
   const SeriesInfo& series = choose_series(all, opts, where);
-  std::size_t broken_elsewhere = 0;
-  for (const FileInfo& f : files) broken_elsewhere += f.kind == FileKind::broken && f.series_uid != series.uid;
-  if (broken_elsewhere)
-    std::fprintf(stderr, "DICOM: warning: skipped %zu unreadable file%s of other series\n", broken_elsewhere,
-                 broken_elsewhere == 1 ? "" : "s");
+  std::vector<const FileInfo*> broken_elsewhere;
+  for (const FileInfo& f : files)
+    if (f.kind == FileKind::broken && !f.series_uid.empty() && f.series_uid != series.uid) broken_elsewhere.push_back(&f);
+  if (!broken_elsewhere.empty())
+    log::warn("DICOM: skipped {} unreadable file{} of other series:{}", broken_elsewhere.size(),
+              broken_elsewhere.size() == 1 ? "" : "s", name_files(broken_elsewhere));
   std::vector<FrameInfo> frames = series_frames(files, series);
-  const SliceLayout layout = lay_out_slices(files, frames, series, opts);
-  const bool missing_rescale = std::any_of(frames.begin(), frames.end(), [](const FrameInfo& fr) { return !fr.has_rescale; });
+  const SliceLayout layout = [&] {
+    try {
+      return lay_out_slices(files, frames, series, opts);
+    } catch (const Error& e) {
+      // a gap or an uneven spacing may be a slice among the unreadable files skipped: say which
+      if (unreadable.empty()) throw;
+      throw Error(fmt::format("{}\nDICOM: {} unreadable file{} {} skipped; the missing slice may be among them:{}", e.what(),
+                              unreadable.size(), unreadable.size() == 1 ? "" : "s",
+                              unreadable.size() == 1 ? "was" : "were", name_files(unreadable)));
+    }
+  }();
+  const bool missing_rescale = std::any_of(frames.begin(), frames.end(), [&](const FrameInfo& fr) {
+    return !fr.has_rescale && files[fr.file].lut.empty();
+  });
   if (missing_rescale && series.is_ct)
-    std::fprintf(stderr, "DICOM: warning: some slices of series %s have no RescaleSlope/Intercept; taking stored "
-                 "values as HU (slope 1, intercept 0)\n", series.uid.c_str());
+    log::warn("DICOM: some slices of series {} have no RescaleSlope/Intercept nor Modality LUT; taking stored values "
+              "as HU (slope 1, intercept 0)",
+              series.uid);
   Volume volume = allocate_volume(layout, series);
   read_pixels(files, frames, layout, volume);
   return volume;

@@ -21,7 +21,7 @@ namespace vx {
 struct DicomWriteSettings {
   std::string patient_name{"VOXELASTIC^PHANTOM"};
   std::string series_description{"voxelastic phantom"};
-  std::string transfer_syntax{"explicit-little"};  ///< explicit-little, implicit-little, rle, jpeg-lossless, jpeg-ls-lossless
+  std::string transfer_syntax{"explicit-little"};  ///< explicit-little, implicit-little, rle, jpeg-lossless, jpeg-ls-lossless, jpeg2000-lossless, jpeg2000 (lossy 8:1)
 };
 
 /// Writes `volume` as a CT Image Storage series into `folder` (one file per slice), all or

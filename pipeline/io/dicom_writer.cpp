@@ -23,6 +23,8 @@
 #include "base/error.h"
 #include "io/dicom_common.h"
 #include "io/dicom_series.h"
+#include "io/jpeg2000.h"
+#include "util/atomic_file.h"
 
 namespace vx {
 namespace {
@@ -49,9 +51,16 @@ WriteSyntax pick_syntax(const std::string& name) {
   } else if (name == "jpeg-ls-lossless") {
     s.xfer = EXS_JPEGLSLossless;
     s.parameters = std::make_unique<DJLSRepresentationParameter>(0, OFTrue);
+  } else if (name == "jpeg2000-lossless") {
+    s.xfer = EXS_JPEG2000LosslessOnly;
+    s.parameters = dicom::jpeg2000_parameter(true);
+  } else if (name == "jpeg2000") {
+    s.xfer = EXS_JPEG2000;
+    s.parameters = dicom::jpeg2000_parameter(false, 8.0);
   } else {
     throw Error(fmt::format("DICOM: unknown transfer syntax '{}' for writing; choose explicit-little, "
-                            "implicit-little, rle, jpeg-lossless or jpeg-ls-lossless",
+                            "implicit-little, rle, jpeg-lossless, jpeg-ls-lossless, jpeg2000-lossless or jpeg2000 "
+                            "(lossy, 8:1)",
                             name));
   }
   return s;
@@ -278,7 +287,9 @@ void write_dicom_series(const Volume& volume, const fs::path& folder_in, const D
       const OFCondition status = file.saveFile(path.c_str(), syntax.xfer);
       if (status.bad())
         throw Error(fmt::format("cannot write '{}': {} (disk full?)", path.filename().string(), status.text()));
+      sync_file(path);  // on disk before the folder is renamed into place
     }
+    sync_folder(tmp);
     // into place; an earlier series of ours is swapped out, then removed
     if (replace) {
       fs::rename(folder, old, ec);
@@ -290,6 +301,7 @@ void write_dicom_series(const Volume& volume, const fs::path& folder_in, const D
       if (replace) fs::rename(old, folder, ec);
       throw Error(fmt::format("cannot rename the finished series into place: {}", why));
     }
+    sync_folder(folder.parent_path());
     if (replace) fs::remove_all(old, ec);
   } catch (const std::exception& e) {
     fs::remove_all(tmp, ec);

@@ -16,6 +16,7 @@
 #include <algorithm>
 #include <bit>
 #include <cctype>
+#include <cstdlib>
 #include <cmath>
 #include <iostream>
 #include <sstream>
@@ -124,10 +125,11 @@ void read_grid_and_type(const MetaHeader& h, int& ndims, MetaImage& image) {
   const fs::path& path = h.path;
   const auto ndims_v = h.numbers({"NDims"}, 1, "NDims");
   if (!ndims_v) throw Error(quoted(path) + ": MetaImage header has no NDims line (damaged file?)");
-  ndims = int((*ndims_v)[0]);
-  if (ndims != 2 && ndims != 3)
+  const double nd = (*ndims_v)[0];
+  if (nd != 2 && nd != 3)
     throw Error(fmt::format("{}: MetaImage has NDims = {}; voxelastic reads 3D volumes (or one 2D slice)",
-                            quoted(path), ndims));
+                            quoted(path), *h.fields.get({"NDims"})));
+  ndims = int(nd);
   const auto dim_v = h.numbers({"DimSize"}, std::size_t(ndims), "DimSize");
   if (!dim_v) throw Error(quoted(path) + ": MetaImage header has no DimSize line (damaged file?)");
   for (int i = 0; i < ndims; ++i) {
@@ -193,7 +195,12 @@ std::vector<char> read_one_file_voxels(const MetaHeader& h, const std::string& d
                               quoted(path), quoted(data_path)));
     offset = 0;
     if (const auto hs = h.numbers({"HeaderSize"}, 1, "HeaderSize")) {
-      if ((*hs)[0] >= 0) offset = std::uintmax_t((*hs)[0]);
+      const double v = (*hs)[0];
+      if (!(v == -1 || (v >= 0 && v == std::floor(v) && v < 1e15)))
+        throw Error(fmt::format("{}: MetaImage HeaderSize = {} is not a byte count (a whole number >= 0, or -1 for "
+                                "'the data ends the file')",
+                                quoted(path), *h.fields.get({"HeaderSize"})));
+      if (v >= 0) offset = std::uintmax_t(v);
       else if (!compressed && file_size_or_zero(data_path) >= raw_bytes)  // -1: the data ends the file
         offset = file_size_or_zero(data_path) - raw_bytes;
     }
@@ -209,7 +216,12 @@ std::vector<char> read_one_file_voxels(const MetaHeader& h, const std::string& d
   }
   std::uintmax_t packed_bytes = have;
   if (const auto cs = h.numbers({"CompressedDataSize"}, 1, "CompressedDataSize")) {
-    if (have < (*cs)[0])
+    const double c = (*cs)[0];
+    if (!(c >= 1 && c == std::floor(c)))
+      throw Error(fmt::format("{}: MetaImage CompressedDataSize = {} is not a byte count (a whole number >= 1); fix "
+                              "the header or leave the line out",
+                              quoted(path), *h.fields.get({"CompressedDataSize"})));
+    if (double(have) < c)
       throw Error(fmt::format("{} is truncated: the header promises {} bytes of compressed voxel data, the "
                               "file holds {} (copy or export it again)",
                               quoted(path), (*cs)[0], have));
@@ -243,6 +255,65 @@ std::vector<float> read_voxels_with_vtk(const fs::path& path, const Eigen::Vecto
     throw Error(fmt::format("{}: {} values per voxel; voxelastic needs one (HU)", quoted(path),
                             array->GetNumberOfComponents()));
   return vtk_array_to_float(array, n, 1.0, 0.0);
+}
+
+/// What metaio (vtkMetaImageReader) gets to read is checked first: it copies header values into
+/// fixed buffers (a long or binary ElementDataFile overflowed one, found by fuzzing) and
+/// allocates the voxels before reading them. Values must be short printable text, and the
+/// voxels must fit in what the header's folder holds (text: two characters a value at least;
+/// compressed: deflate's ~1032:1 at most).
+void check_before_metaio(const MetaHeader& h, const std::string& data_file, bool binary, bool compressed,
+                         std::size_t n, std::uintmax_t raw_bytes) {
+  // metaio's inflate loops for ever on some damaged streams (found by fuzzing): compressed data
+  // is read here only, from one file
+  if (compressed)
+    throw Error(fmt::format("{}: compressed voxel data spread over several files (ElementDataFile = {}) is not "
+                            "supported; save the volume as one .mha (e.g. in 3D Slicer)",
+                            quoted(h.path), data_file.substr(0, 60)));
+  for (const auto& [key, value] : h.fields.values) {
+    const bool text = std::all_of(value.begin(), value.end(), [](char c) {
+      return std::isprint(static_cast<unsigned char>(c)) || c == '\t';
+    });
+    if (!text || value.size() > 200)
+      throw Error(fmt::format("{}: MetaImage field {} is {}; the header is damaged", quoted(h.path), key,
+                              text ? "longer than 200 characters" : "not printable text"));
+  }
+  // ElementDataFile: one file, LIST [ND], or a pattern "name%03d.raw first last step" whose
+  // numbers make one file per slice (metaio divides by the step: 0 was a SIGFPE, found by fuzzing)
+  const std::vector<std::string> words = split_ws(data_file);
+  const auto integer = [](const std::string& w, long& out) {
+    char* end = nullptr;
+    out = std::strtol(w.c_str(), &end, 10);
+    return end != w.c_str() && *end == '\0' && std::abs(out) < 1000000;
+  };
+  bool form_ok = words.size() == 1 && data_file.find('%') == std::string::npos;
+  if (!words.empty() && words[0] == "LIST")
+    form_ok = words.size() == 1 || (words.size() == 2 && (words[1] == "2D" || words[1] == "3D"));
+  if (words.size() == 4) {
+    const auto pct = words[0].find('%');
+    long first = 0, last = 0, step = 0;
+    std::size_t k = pct == std::string::npos ? 0 : pct + 1;
+    while (k < words[0].size() && std::isdigit(static_cast<unsigned char>(words[0][k]))) ++k;
+    const bool one_conversion = pct != std::string::npos && k < words[0].size() && words[0][k] == 'd' &&
+                                words[0].find('%', pct + 1) == std::string::npos;
+    form_ok = one_conversion && integer(words[1], first) && integer(words[2], last) && integer(words[3], step) &&
+              step != 0 && (last - first) / step >= 0 && (last - first) % step == 0 &&
+              (last - first) / step + 1 <= 100000;
+  }
+  if (!form_ok)
+    throw Error(fmt::format("{}: MetaImage ElementDataFile = {} is neither a file name, LOCAL, LIST nor a pattern "
+                            "'name%03d.raw first last step' (step not 0); the header is damaged",
+                            quoted(h.path), data_file.substr(0, 80)));
+  std::uintmax_t held = 0;
+  std::error_code ec;
+  const fs::path folder = h.path.has_parent_path() ? h.path.parent_path() : fs::path(".");
+  for (fs::directory_iterator it(folder, ec), end; !ec && it != end; it.increment(ec))
+    if (it->is_regular_file(ec)) held += file_size_or_zero(it->path());
+  const double needed = binary ? double(raw_bytes) : 2.0 * double(n);
+  if (needed > (compressed ? 1100.0 : 1.0) * double(held) + 4096.0)
+    throw Error(fmt::format("{}: the header promises {:.0f} bytes of voxels (ElementDataFile = {}), more than the "
+                            "files beside it hold; the header is damaged or files are missing",
+                            quoted(h.path), needed, data_file));
 }
 
 /// ITK's three-letter code for a direction matrix ("RAI" for the identity in LPS).
@@ -281,6 +352,7 @@ Volume read_mha(const fs::path& path) {
     v.hu = raw_to_float(raw.data(), n, image.scalar, msb != (std::endian::native == std::endian::big));
     return v;
   }
+  check_before_metaio(h, data_file, binary, compressed, n, raw_bytes);
   VtkMessages messages;
   v.hu = read_voxels_with_vtk(path, image.dims, n, messages);
   messages.print_warnings(path);

@@ -86,6 +86,7 @@ vtkSmartPointer<vtkUnstructuredGrid> to_vtk(const Model& m) {
   // the whole model: what it is, and the grid it was built from
   vtkFieldData* fd = ug->GetFieldData();
   add_string(fd, "voxelastic", kMagic);
+  mark_lps(fd);
   auto version = make_array<vtkIntArray>("format_version", 1, 1);
   version->SetValue(0, kFormatVersion);
   fd->AddArray(version);

@@ -19,6 +19,7 @@
 #include "base/error.h"
 #include "io/compression.h"
 #include "io/volume_formats.h"
+#include "util/log.h"
 #include "util/text.h"
 
 namespace vx::volume_formats {
@@ -201,8 +202,7 @@ Eigen::Matrix3d space_to_lps(const NrrdHeader& h) {
   if (s == "right-anterior-superior" || s == "ras") return kRasToLps;
   if (s == "left-anterior-superior" || s == "las") return Eigen::Vector3d(1, -1, 1).asDiagonal();
   if (s == "scanner-xyz" || s == "3d-right-handed") {
-    std::fprintf(stderr, "volume: warning: %s: NRRD space '%s' has no anatomical meaning; taken as LPS\n",
-                 h.path.string().c_str(), space->c_str());
+    log::warn("{}: NRRD space '{}' has no anatomical meaning; taken as LPS", h.path.string(), *space);
     return Eigen::Matrix3d::Identity();
   }
   throw Error(fmt::format("{}: NRRD space '{}' is not supported (use left-posterior-superior, "

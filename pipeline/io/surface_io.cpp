@@ -64,6 +64,7 @@ vtkSmartPointer<vtkPolyData> to_vtk(const EmbeddedSurface& s) {
   // the whole surface: what it is, which model, and the embedding (CSR)
   vtkFieldData* fd = pd->GetFieldData();
   add_string(fd, "voxelastic", kMagic);
+  mark_lps(fd);
   auto version = make_array<vtkIntArray>("format_version", 1, 1);
   version->SetValue(0, kFormatVersion);
   fd->AddArray(version);

@@ -17,6 +17,7 @@
 
 #include "base/error.h"
 #include "io/compression.h"
+#include "util/log.h"
 #include "util/text.h"
 
 namespace vx::volume_formats {
@@ -73,6 +74,10 @@ std::uintmax_t file_size_or_zero(const std::filesystem::path& path) {
 }
 
 std::size_t checked_voxel_count(const Eigen::Vector3i& dims, const std::filesystem::path& path) {
+  if ((dims.array() <= 0).any())
+    throw Error(fmt::format("{}: the header describes an empty or reversed grid of {}x{}x{} voxels; the header is "
+                            "damaged (export the volume again)",
+                            quoted(path), dims.x(), dims.y(), dims.z()));
   const double n = double(dims.x()) * double(dims.y()) * double(dims.z());
   constexpr double kMaxVoxels = 8.0e9;  // 32 GB of float HU
   if (n > kMaxVoxels)
@@ -219,9 +224,11 @@ std::string VtkMessages::reason(unsigned long error_code) const {
 }
 
 void read_header_then_data(vtkAlgorithm& reader, const std::function<Eigen::Vector3i()>& header_dims,
-                           const VtkMessages& messages, const fs::path& path, const char* what) {
+                           const VtkMessages& messages, const fs::path& path, const char* what,
+                           const std::function<void()>& before_data) {
   reader.UpdateInformation();
   if (!messages.failed()) {
+    if (before_data) before_data();
     (void)checked_voxel_count(header_dims(), path);
     reader.Update();
   }
@@ -236,7 +243,7 @@ void VtkMessages::print_warnings(const std::filesystem::path& path) const {
     const std::string line = trim(w.substr(0, w.find('\n')));
     if (line.empty() || std::find(seen.begin(), seen.end(), line) != seen.end()) continue;
     seen.push_back(line);
-    std::fprintf(stderr, "volume: warning: %s: %s\n", path.string().c_str(), line.c_str());
+    log::warn("{}: {}", path.string(), line);
   }
 }
 

@@ -29,6 +29,7 @@
 #include <map>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <vtkDataArray.h>
@@ -52,6 +53,20 @@ void write_vti(const Volume& volume, const std::filesystem::path& tmp);
 void write_mha(const Volume& volume, const std::filesystem::path& tmp);
 [[nodiscard]] Volume read_nifti(const std::filesystem::path& path);  ///< .nii and .nii.gz
 void write_nifti(const Volume& volume, const std::filesystem::path& tmp);
+/// The NIfTI orientation voxelastic follows, as 3D Slicer and ITK do: the qform, unless the
+/// sform is scanner-anatomical (sform_code 1) and has no shear; the one present when only one
+/// is (code > 0); the voxel sizes alone when neither is. `qform`, `sform`: the affine (A: one
+/// voxel step per index axis, t: voxel 0) each gives, RAS mm. `warning` is set when both are
+/// present and put the grid's corners more than 0.01 mm (or 1e-3 voxel) apart.
+struct NiftiAffine {
+  Eigen::Matrix3d A{Eigen::Matrix3d::Identity()};
+  Eigen::Vector3d t{Eigen::Vector3d::Zero()};
+  const char* source{"pixdim"};  ///< "qform", "sform" or "pixdim"
+  std::string warning;
+};
+[[nodiscard]] NiftiAffine choose_nifti_affine(int qform_code, const std::pair<Eigen::Matrix3d, Eigen::Vector3d>& qform,
+                                              int sform_code, const std::pair<Eigen::Matrix3d, Eigen::Vector3d>& sform,
+                                              const Eigen::Vector3i& dims);
 [[nodiscard]] Volume read_nrrd(const std::filesystem::path& path);  ///< .nrrd and .nhdr
 void write_nrrd(const Volume& volume, const std::filesystem::path& tmp);
 
@@ -149,7 +164,9 @@ class VtkMessages {
 /// `header_dims`, asked after the header was read) must pass checked_voxel_count so that a
 /// damaged header cannot make VTK allocate terabytes, then its data. Throws vx::Error "cannot
 /// read PATH as `what`: reason (the file is damaged or cut short; export it again)".
+/// `before_data`, when given, runs between the two and throws for what the reader must not read.
 void read_header_then_data(vtkAlgorithm& reader, const std::function<Eigen::Vector3i()>& header_dims,
-                           const VtkMessages& messages, const std::filesystem::path& path, const char* what);
+                           const VtkMessages& messages, const std::filesystem::path& path, const char* what,
+                           const std::function<void()>& before_data = {});
 
 }  // namespace vx::volume_formats

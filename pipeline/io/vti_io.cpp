@@ -15,6 +15,7 @@
 
 #include "base/error.h"
 #include "io/volume_formats.h"
+#include "io/vti_check.h"
 #include "util/text.h"
 
 namespace vx::volume_formats {
@@ -31,7 +32,8 @@ Volume read_vti(const std::filesystem::path& path) {
     reader->GetOutputInformation(0)->Get(vtkStreamingDemandDrivenPipeline::WHOLE_EXTENT(), e);
     return extent_dims(e);
   };
-  read_header_then_data(*reader, header_dims, messages, path, "a VTK image (.vti)");
+  read_header_then_data(*reader, header_dims, messages, path, "a VTK image (.vti)",
+                        [&] { check_vti_before_reading(*reader, path); });
   vtkImageData* image = reader->GetOutput();
   int extent[6];
   image->GetExtent(extent);

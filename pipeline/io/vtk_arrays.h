@@ -35,6 +35,13 @@ inline void add_string(vtkFieldData* fd, const char* name, const std::string& va
   fd->AddArray(a);
 }
 
+/// Marks a mesh's coordinates as LPS the way 3D Slicer reads it (a field-data string `SPACE`,
+/// following NRRD's naming): Slicer then shows it in place instead of mirroring x and y.
+inline void mark_lps(vtkFieldData* fd) {
+  fd->RemoveArray("SPACE");
+  add_string(fd, "SPACE", "LPS");
+}
+
 /// Inserts one VTK_POLYHEDRON cell per element into `ug` (whose points are the model's nodes):
 /// the cell's point list is the element's vertex list in order, plus its face stream.
 inline void insert_element_polyhedra(const Model& m, vtkUnstructuredGrid* ug) {

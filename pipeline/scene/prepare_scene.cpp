@@ -165,8 +165,13 @@ void choose_integrator(const Scene& scene, const PrepareSceneOptions& options, c
                                        "frictionless and inelastic, solved inside the step); use symplectic_euler to "
                                        "grasp and lift",
                                        scene.contact.friction));
-  if (scene.duration_s / s.integrator.time_step_s > 2e9)
-    errors.fail("$.duration_s", fmt::format("{} s at dt {:.3g} s is more than 2e9 steps", scene.duration_s, s.integrator.time_step_s));
+  // a run must be able to finish: a step of 1e-9 s over a second is 1e9 steps
+  if (const double steps = scene.duration_s / s.integrator.time_step_s; !(steps <= kMaxSceneSteps))
+    errors.fail(scene.dt_s > 0 ? "$.integrator.dt_s" : "$.duration_s",
+                fmt::format("{:g} s in steps of {:.3g} s is {:.3g} steps, more than one run takes ({:.0e}, already many "
+                            "hours for a small model); use a longer dt_s (\"auto\" picks {:.3g} s for this model) or a "
+                            "shorter duration_s",
+                            scene.duration_s, s.integrator.time_step_s, steps, kMaxSceneSteps, automatic_dt_s));
   s.integrator.threads = options.threads_override >= 0 ? options.threads_override : scene.threads;
   s.gravity_mm_s2 = scene.gravity_m_s2 * 1000.0;
 }

@@ -63,6 +63,11 @@ void RunOutputs::write_frame(Simulation& sim) {
     probe_series_->add(sim.time_s());
   }
   ++frames_;
+  last_frame_s_ = sim.time_s();
+}
+
+void RunOutputs::last_frame(Simulation& sim) {
+  if (series_ && sim.time_s() > last_frame_s_) write_frame(sim);
 }
 
 void RunOutputs::after_step(Simulation& sim, std::int64_t k) {

@@ -34,6 +34,9 @@ class RunOutputs {
   /// After step `k` (1-based): a force sample, and a frame every pvd_interval_s (the simulation
   /// is not const: its surface is brought up to date for a frame).
   void after_step(Simulation& sim, std::int64_t k);
+  /// A frame of every series at the simulation's time, unless the last one is there already (a
+  /// run stopped early ends its series where it stopped).
+  void last_frame(Simulation& sim);
   /// After the last step (or a failed one): the last force row, then forces.csv, forces.png
   /// and the .pvd collections that were asked for. Throws vx::Error when a file cannot be written.
   void finish(const Simulation& sim);
@@ -56,6 +59,7 @@ class RunOutputs {
   std::int64_t frame_every_{1};
   bool series_{false};
   std::int64_t frames_{0};
+  double last_frame_s_{-1.0};
   std::optional<ForceRecorder> recorder_;
   std::optional<PvdSeries> model_series_, surface_series_, probe_series_;
   std::unique_ptr<ModelFrameWriter> model_writer_;

@@ -277,6 +277,8 @@ std::vector<PathKey> read_path(const json& j, const Where& w) {
     PathKey key;
     key.t_s = k.required_number("t_s", "the keyframe's time, s");
     require(key.t_s >= 0, k.at_where("t_s"), "must be >= 0 s");
+    require(key.t_s <= kMaxSceneTime_s, k.at_where("t_s"),
+            fmt::format("{} s is beyond the longest scene ({:g} s); the unit is s", key.t_s, kMaxSceneTime_s));
     if (!keys.empty())
       require(key.t_s > keys.back().t_s, k.at_where("t_s"),
               fmt::format("keyframe times must increase ({} s after {} s)", key.t_s, keys.back().t_s));
@@ -376,6 +378,8 @@ ProbeSettings read_probe(const json& j, const Where& w, std::size_t index) {
       JoystickKey key;
       key.t_s = k.required_number("t_s", "the sample's time, s");
       require(key.t_s >= 0, k.at_where("t_s"), "must be >= 0 s");
+      require(key.t_s <= kMaxSceneTime_s, k.at_where("t_s"),
+              fmt::format("{} s is beyond the longest scene ({:g} s); the unit is s", key.t_s, kMaxSceneTime_s));
       if (!p.joystick.empty())
         require(key.t_s > p.joystick.back().t_s, k.at_where("t_s"),
                 fmt::format("sample times must increase ({} s after {} s)", key.t_s, p.joystick.back().t_s));
@@ -550,8 +554,8 @@ Scene parse_scene(const json& j, const fs::path& base, const std::string& name) 
     }
   }
   s.duration_s = o.required_number("duration_s", "how long to simulate, s");
-  require(s.duration_s > 0 && s.duration_s <= 1e5, o.at_where("duration_s"),
-          fmt::format("must be > 0 s (got {}); the unit is s", s.duration_s));
+  require(s.duration_s > 0 && s.duration_s <= kMaxSceneTime_s, o.at_where("duration_s"),
+          fmt::format("must be > 0 s and at most {:g} s (got {}); the unit is s", kMaxSceneTime_s, s.duration_s));
   if (o.has("outputs"))
     s.outputs = read_outputs(Obj(o.at("outputs"), o.at_where("outputs"), {"forces_csv", "forces_interval_s", "plot", "pvd"}));
   s.threads = o.integer("threads", 0);
@@ -563,8 +567,9 @@ Scene parse_scene(const std::string& text, const fs::path& base, const std::stri
   json j;
   try {
     j = json::parse(text, nullptr, true, /*ignore_comments=*/true);
-  } catch (const json::parse_error& e) {
-    // e.what(): "[json.exception.parse_error.101] parse error at line 3, column 5: ..."
+  } catch (const json::exception& e) {
+    // e.what(): "[json.exception.parse_error.101] parse error at line 3, column 5: ..." (a number
+    // too large for a double, 1e999, is an out_of_range.406, found by fuzzing)
     std::string msg = e.what();
     if (const auto p = msg.find("] "); p != std::string::npos) msg = msg.substr(p + 2);
     throw Error(name + ": not valid JSON: " + msg);

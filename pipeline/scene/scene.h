@@ -35,6 +35,12 @@
 
 namespace vx {
 
+/// The longest simulated time a scene may ask for (duration, keyframe times), s: a day and a bit.
+inline constexpr double kMaxSceneTime_s = 1e5;
+/// The most steps one run may take: more cannot finish in any sensible time (1e8 steps of the
+/// smallest model take about 20 minutes); prepare_scene() refuses a scene that needs more.
+inline constexpr double kMaxSceneSteps = 1e8;
+
 /// Where the object comes from.
 enum class ObjectSource : std::uint8_t { phantom, volume, model, box };
 

@@ -194,6 +194,8 @@ vtkSmartPointer<vtkDoubleArray> vectors(const char* name, vtkIdType n) {
 
 template <class Writer, class Data>
 void write_xml(Data* data, const fs::path& path) {
+  // a frame of a series: atomic, not fsynced (hundreds per run; the .pvd is written durably)
+  mark_lps(data->GetFieldData());  // 3D Slicer shows the frames in place
   write_atomically(path, [&](const fs::path& tmp) {
     VtkMessageCapture capture;
     vtkNew<Writer> w;
@@ -203,7 +205,7 @@ void write_xml(Data* data, const fs::path& path) {
     w->SetCompressorTypeToZLib();
     if (w->Write() != 1 || !capture.errors().empty())
       throw Error(fmt::format("cannot write {}: {}", path.string(), capture.first_error("the VTK writer failed")));
-  });
+  }, Durability::process_crash);
 }
 
 }  // namespace

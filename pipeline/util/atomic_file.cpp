@@ -1,5 +1,6 @@
 #include "util/atomic_file.h"
 
+#include <fcntl.h>
 #include <unistd.h>
 
 #include <atomic>
@@ -24,7 +25,22 @@ void check_output_path(const fs::path& path) {
     throw Error("cannot write '" + path.string() + "': it is a folder, give a file name");
 }
 
-void write_atomically(const fs::path& path, const std::function<void(const fs::path&)>& write) {
+void sync_file(const fs::path& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) throw Error("cannot open '" + path.string() + "' to flush it to disk");
+  const int rc = ::fsync(fd);
+  ::close(fd);
+  if (rc != 0) throw Error("cannot flush '" + path.string() + "' to disk (fsync failed: disk full or failing?)");
+}
+
+void sync_folder(const fs::path& folder) {
+  const int fd = ::open(folder.empty() ? "." : folder.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (fd < 0) return;
+  (void)::fsync(fd);
+  ::close(fd);
+}
+
+void write_atomically(const fs::path& path, const std::function<void(const fs::path&)>& write, Durability durability) {
   check_output_path(path);
   static std::atomic<unsigned> counter{0};
   // keep the full extension chain (".nii.gz") so writers that look at it still work
@@ -38,8 +54,10 @@ void write_atomically(const fs::path& path, const std::function<void(const fs::p
   try {
     write(tmp);
     if (!fs::exists(tmp, ec)) throw Error("the writer produced no file");
+    if (durability == Durability::power_loss) sync_file(tmp);  // the data first, then the name
     fs::rename(tmp, path, ec);
     if (ec) throw Error("rename failed: " + ec.message());
+    if (durability == Durability::power_loss) sync_folder(path.parent_path());
   } catch (const std::exception& e) {
     fs::remove(tmp, ec);
     throw Error("could not write '" + path.string() + "': " + e.what());

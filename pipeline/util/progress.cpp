@@ -5,10 +5,12 @@
 #include <algorithm>
 #include <cmath>
 
+#include "util/log.h"
+
 namespace vx {
 
 Progress::Progress(std::string label, bool enabled)
-    : label_(std::move(label)), enabled_(enabled), tty_(::isatty(STDERR_FILENO) != 0),
+    : label_(std::move(label)), enabled_(enabled && log::enabled(log::Level::info)), tty_(::isatty(STDERR_FILENO) != 0),
       start_(std::chrono::steady_clock::now()), last_draw_(start_) {}
 
 Progress::~Progress() {

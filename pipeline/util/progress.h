@@ -8,7 +8,8 @@
 
 namespace vx {
 
-/// Reports progress of one task to stderr. Thread-compatible (call from one thread).
+/// Reports progress of one task to stderr (shown only while the log level shows notes: `-q`
+/// hides it). Thread-compatible (call from one thread).
 class Progress {
  public:
   /// `label` names the task; `enabled` false makes every call a no-op (quiet mode).

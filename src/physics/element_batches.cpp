@@ -409,7 +409,14 @@ bool simd_supported(SimdLevel level) {
   switch (level) {
     case SimdLevel::automatic:
     case SimdLevel::generic: return true;
-#if defined(__x86_64__) && defined(__GNUC__)
+#if defined(__x86_64__) && defined(__clang__)
+    // clang 14 (the fuzz and sanitizer builds) knows no x86-64-vN levels here: their key features
+    case SimdLevel::avx2:
+      return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma") && __builtin_cpu_supports("bmi2");
+    case SimdLevel::avx512:
+      return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
+             __builtin_cpu_supports("avx512dq") && __builtin_cpu_supports("avx512vl");
+#elif defined(__x86_64__) && defined(__GNUC__)
     case SimdLevel::avx2: return __builtin_cpu_supports("x86-64-v3");
     case SimdLevel::avx512: return __builtin_cpu_supports("x86-64-v4");
 #else

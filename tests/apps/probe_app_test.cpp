@@ -89,9 +89,16 @@ double mean_force(const std::vector<Row>& rows, double t0, double t1, double x0,
 
 TEST_F(ProbeApp, WithoutADisplayItSaysSoAndExitsCleanly) {
   const RunResult r = run(q(kScene), "env -u DISPLAY");
-  EXPECT_EQ(r.code, 2) << r.err;
+  EXPECT_EQ(r.code, 4) << r.err;  // exit_codes.h: no_display
   EXPECT_NE(r.err.find("no display"), std::string::npos) << r.err;
   EXPECT_NE(r.err.find("xvfb-run"), std::string::npos) << r.err;
+}
+
+TEST_F(ProbeApp, UsageErrorsExitWith2AsVoxelasticDoes) {
+  // CLI11's own codes (105, 109, ...) used to leak out; the shared table says 2
+  EXPECT_EQ(run("--no-such-option").code, 2);
+  EXPECT_EQ(run("").code, 2);  // INPUT missing
+  EXPECT_EQ(run("--version").code, 0);
 }
 
 TEST_F(ProbeApp, BadInputIsAClearErrorWithExitCode1) {

@@ -234,3 +234,17 @@ TEST(KeyboardStick, KeysAndAutoRepeat) {
   k.clear();
   EXPECT_EQ(k.state().buttons, 0u);
 }
+
+TEST(JoystickScript, KeyframesThatNeverEndAreRefused) {
+  // a keyframe at 1e9 or 1e308 s: --exit-after-script would run for ever (issue #17)
+  for (const char* t : {"1e9", "1e308", "100000.5"}) {
+    try {
+      (void)JoystickScript::parse(std::string("0 0 0\n") + t + " 0 0.5\n", "far.joy");
+      ADD_FAILURE() << t;
+    } catch (const vx::Error& e) {
+      EXPECT_NE(std::string(e.what()).find("far.joy:2"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("beyond the longest script"), std::string::npos) << e.what();
+    }
+  }
+  EXPECT_DOUBLE_EQ(JoystickScript::parse("0 0 0\n100000 0 0.5\n").duration_s(), 1e5);
+}

@@ -90,6 +90,27 @@ TEST(PrepareGrid, FillsClosedCavitiesButNotOpenOnes) {
   EXPECT_EQ(report.tissue_voxels, report.thresholded_voxels + 125);
 }
 
+TEST(PrepareGrid, AirLeavingThroughADiagonalGapIsNotACavity) {
+  // a box with walls 2 voxels thick around a 4^3 = 64-voxel cavity; the cavity reaches the
+  // outside only through two wall voxels that touch at a corner: (7,4,4) opens onto the cavity,
+  // (8,5,5) onto the outside. Tissue is 6-connected, so that corner is a gap, not a wall.
+  Volume v = air_volume({12, 12, 12});
+  fill_box(v, {1, 1, 1}, {9, 9, 9});
+  fill_box(v, {3, 3, 3}, {7, 7, 7}, kAir);
+  at(v, 7, 4, 4) = kAir;
+  at(v, 8, 5, 5) = kAir;
+  vx::PrepareReport report;
+  const VoxelGrid g = vx::prepare_grid(v, soft_tissue(false, true), &report);
+  EXPECT_EQ(report.filled_voxels, 0);
+  EXPECT_EQ(g.at(4, 4, 4), 0);
+  EXPECT_EQ(g.at(7, 4, 4), 0);
+  // close the gap and the same cavity (64 voxels, plus the pocket (7,4,4)) is filled
+  at(v, 8, 5, 5) = kTissue;
+  vx::PrepareReport closed;
+  EXPECT_EQ(vx::prepare_grid(v, soft_tissue(false, true), &closed).at(4, 4, 4), 1);
+  EXPECT_EQ(closed.filled_voxels, 65);
+}
+
 TEST(PrepareGrid, CropKeepsEveryVoxelInPlaceWithAnAirMargin) {
   const Eigen::Matrix3d d = Eigen::AngleAxisd(0.7, Eigen::Vector3d(-1, 2, 0.5).normalized()).toRotationMatrix();
   Volume v = air_volume({20, 15, 12}, {0.7, 0.9, 1.3}, {-40, 25, 110}, d);

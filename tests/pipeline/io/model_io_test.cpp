@@ -12,6 +12,7 @@
 #include <vtkPointData.h>
 #include <vtkPolyData.h>
 #include <vtkPolyhedron.h>
+#include <vtkStringArray.h>
 #include <vtkTriangleFilter.h>
 #include <vtkUnstructuredGrid.h>
 #include <vtkXMLUnstructuredGridReader.h>
@@ -146,6 +147,10 @@ TEST_F(ModelIo, SingleCubeElementRoundTripAndVolume) {
 
   // as VTK sees it: one polyhedron, 6 quads, volume of one voxel
   auto ug = read_vtu(p);
+  // the coordinate system as 3D Slicer reads it (field data SPACE = LPS)
+  auto* space = vtkStringArray::SafeDownCast(ug->GetFieldData()->GetAbstractArray("SPACE"));
+  ASSERT_NE(space, nullptr);
+  EXPECT_EQ(space->GetValue(0), "LPS");
   ASSERT_EQ(ug->GetNumberOfCells(), 1);
   EXPECT_EQ(ug->GetCellType(0), VTK_POLYHEDRON);
   auto* poly = vtkPolyhedron::SafeDownCast(ug->GetCell(0));

@@ -16,6 +16,7 @@
 
 #include "base/error.h"
 #include "convert/phantom.h"
+#include "io/compression.h"
 
 namespace fs = std::filesystem;
 using vx::Error;
@@ -474,7 +475,7 @@ TEST_F(VolumeIo, VtiDirectionAndExtentOffset) {
 }
 
 TEST(VolumeSamples, BundledPhantomSamples) {
-  // samples/*.vti are `voxelastic phantom NAME --size 64` (see samples/README.md)
+  // samples/*.vti and *.nrrd are `voxelastic phantom NAME --size 64` (see samples/README.md)
   for (const char* name : {"sphere", "block-lesion"}) {
     SCOPED_TRACE(name);
     vx::PhantomSettings s;
@@ -482,12 +483,15 @@ TEST(VolumeSamples, BundledPhantomSamples) {
     s.size = 64;
     vx::PhantomShape shape;
     const Volume expected = vx::make_phantom(s, &shape);
-    const fs::path file = fs::path(VX_SAMPLES_DIR) / (std::string(name) + "64.vti");
-    ASSERT_TRUE(fs::exists(file));
-    EXPECT_LT(fs::file_size(file), 1u << 20);
-    const Volume v = vx::read_volume(file);
-    EXPECT_EQ(v.geometry, expected.geometry);
-    EXPECT_EQ(v.hu, expected.hu);
+    // .vti for ParaView, the same volume as .nrrd for 3D Slicer (it lists no .vti among volumes)
+    for (const char* ext : {".vti", ".nrrd"}) {
+      const fs::path file = fs::path(VX_SAMPLES_DIR) / (std::string(name) + "64" + ext);
+      ASSERT_TRUE(fs::exists(file)) << file;
+      EXPECT_LT(fs::file_size(file), 1u << 20);
+      const Volume v = vx::read_volume(file);
+      EXPECT_EQ(v.geometry, expected.geometry) << ext;
+      EXPECT_EQ(v.hu, expected.hu) << ext;
+    }
   }
 }
 
@@ -609,3 +613,190 @@ TEST_F(VolumeIo, FailedWriteLeavesOldFileAlone) {
 }
 
 }  // namespace
+
+// ---------------------------------------------------------------------------------------
+// hostile headers (issue #17): each of these crashed VTK, hung or allocated gigabytes before
+
+namespace {
+
+/// The text of a file.
+std::string read_text(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+/// `text` with its first `from` replaced by `to` (the test fails when `from` is not there).
+std::string edited(std::string text, const std::string& from, const std::string& to) {
+  const auto at = text.find(from);
+  EXPECT_NE(at, std::string::npos) << "'" << from << "' not in the file";
+  if (at != std::string::npos) text.replace(at, from.size(), to);
+  return text;
+}
+
+}  // namespace
+
+TEST_F(VolumeIo, VtiReversedExtentsAreRefusedBeforeVtkReadsThem) {
+  vx::write_volume(test_volume(true), path("good.vti"));
+  const std::string good = read_text(path("good.vti"));
+  ASSERT_NE(good.find("WholeExtent=\"0 6 0 4 0 3\""), std::string::npos);
+  // the whole extent reversed along x (SIGSEGV in vtkXMLStructuredDataReader::ReadSubExtent)
+  write_bytes(path("whole.vti"), edited(good, "WholeExtent=\"0 6", "WholeExtent=\"6 0"));
+  expect_error([&] { (void)vx::read_volume(path("whole.vti")); }, {"whole.vti", "WholeExtent", "reversed along axis x"});
+  // a piece reversed along z, and a piece reaching outside the whole extent
+  write_bytes(path("piece.vti"), edited(good, "Extent=\"0 6 0 4 0 3\"  ", "Extent=\"0 6 0 4 3 0\"  "));
+  expect_error([&] { (void)vx::read_volume(path("piece.vti")); }, {"piece.vti", "reversed along axis z"});
+  write_bytes(path("out.vti"), edited(good, "Piece Extent=\"0 6", "Piece Extent=\"0 9"));
+  expect_error([&] { (void)vx::read_volume(path("out.vti")); }, {"out.vti", "outside WholeExtent"});
+}
+
+TEST_F(VolumeIo, VtiBlockHeadersOfTheWrongWidthOrByteOrderAreRefused) {
+  vx::write_volume(test_volume(true), path("good.vti"));
+  const std::string good = read_text(path("good.vti"));
+  // 64-bit block headers read as 32-bit: a block size of 0 (SIGFPE in ReadCompressedData)
+  write_bytes(path("u32.vti"), edited(good, "header_type=\"UInt64\"", "header_type=\"UInt32\""));
+  expect_error([&] { (void)vx::read_volume(path("u32.vti")); }, {"u32.vti", "header_type", "damaged"});
+  // little-endian sizes read as big-endian: terabytes (std::bad_alloc)
+  write_bytes(path("be.vti"), edited(good, "byte_order=\"LittleEndian\"", "byte_order=\"BigEndian\""));
+  expect_error([&] { (void)vx::read_volume(path("be.vti")); }, {"be.vti", "byte_order"});
+  // the original still reads
+  expect_same(test_volume(true), vx::read_volume(path("good.vti")), 1e-9, 1e-9);
+}
+
+TEST_F(VolumeIo, VtiTrulyBigEndianAndUncompressedStillReads) {
+  // a hand-made big-endian file: uncompressed appended raw data, 32-bit block header
+  const std::vector<std::int16_t> values = ramp(24);
+  std::string data = int16_bytes(values, /*big_endian=*/true);
+  const std::uint32_t n = std::uint32_t(data.size());
+  const std::string size_be{char(n >> 24), char(n >> 16), char(n >> 8), char(n)};
+  const std::string xml =
+      "<?xml version=\"1.0\"?>\n<VTKFile type=\"ImageData\" version=\"1.0\" byte_order=\"BigEndian\" "
+      "header_type=\"UInt32\">\n<ImageData WholeExtent=\"0 2 0 3 0 1\" Origin=\"1 2 3\" Spacing=\"0.5 1 2\">\n"
+      "<Piece Extent=\"0 2 0 3 0 1\"><PointData Scalars=\"HU\">\n"
+      "<DataArray type=\"Int16\" Name=\"HU\" format=\"appended\" offset=\"0\"/>\n"
+      "</PointData><CellData></CellData></Piece></ImageData>\n<AppendedData encoding=\"raw\">\n_";
+  write_bytes(path("be.vti"), xml + size_be + data + "\n</AppendedData></VTKFile>\n");
+  const Volume v = vx::read_volume(path("be.vti"));
+  ASSERT_EQ(v.geometry.dims, Eigen::Vector3i(3, 4, 2));
+  EXPECT_EQ(v.at(2, 3, 1), 23.0f);
+  EXPECT_EQ(v.at(1, 0, 0), 1.0f);
+  // the same file one byte short of its data
+  write_bytes(path("short.vti"), xml + size_be + data.substr(0, data.size() - 1));
+  expect_error([&] { (void)vx::read_volume(path("short.vti")); }, {"short.vti"});
+}
+
+TEST_F(VolumeIo, NiftiZeroDimensionIsRefusedBeforeVtkReadsIt) {
+  // dim[2] or dim[3] = 0 crashed vtkNIFTIImageReader inside gzread (.nii and .nii.gz)
+  for (const int axis : {1, 2}) {
+    NiftiFile f;
+    f.dim[axis] = 0;
+    write_bytes(path("z.nii"), f.bytes(ramp(24)));
+    expect_error([&] { (void)vx::read_volume(path("z.nii")); },
+                 {"z.nii", "dim[" + std::to_string(axis + 1) + "] = 0", "at least one voxel"});
+    const std::string raw = f.bytes(ramp(24));
+    const auto packed = vx::deflate_bytes(raw.data(), raw.size(), /*gzip=*/true);
+    write_bytes(path("z.nii.gz"), std::string(packed.begin(), packed.end()));
+    expect_error([&] { (void)vx::read_volume(path("z.nii.gz")); }, {"z.nii.gz", "at least one voxel"});
+  }
+}
+
+TEST_F(VolumeIo, NiftiUnknownDatatypeAndShortDataAreRefused) {
+  NiftiFile f;
+  f.datatype = 9999;  // VTK allocated 3.3 GB for this before failing
+  write_bytes(path("t.nii"), f.bytes(ramp(24)));
+  expect_error([&] { (void)vx::read_volume(path("t.nii")); }, {"t.nii", "datatype 9999", "not a known data type"});
+  f.datatype = 128;  // RGB24
+  write_bytes(path("rgb.nii"), f.bytes(ramp(24)));
+  expect_error([&] { (void)vx::read_volume(path("rgb.nii")); }, {"rgb.nii", "RGB24", "one value"});
+  NiftiFile g;
+  write_bytes(path("short.nii"), g.bytes(ramp(20)));  // 24 voxels declared
+  expect_error([&] { (void)vx::read_volume(path("short.nii")); }, {"short.nii", "truncated", "48 bytes"});
+}
+
+TEST_F(VolumeIo, NiftiQformAndSformThatDisagreeFollowTheQformAndSaySo) {
+  // qform: identity at RAS (10, 20, 30); sform (code 2, aligned-anatomical): shifted by 5 mm.
+  // 3D Slicer and ITK take the qform unless the sform is scanner-anatomical (code 1).
+  NiftiFile f;
+  f.qform_code = 1;
+  f.qoffset[0] = 10;
+  f.qoffset[1] = 20;
+  f.qoffset[2] = 30;
+  f.sform_code = 2;
+  const float s[3][4] = {{1, 0, 0, 15}, {0, 1, 0, 20}, {0, 0, 1, 30}};
+  std::memcpy(f.srow, s, sizeof s);
+  write_bytes(path("qs.nii"), f.bytes(ramp(24)));
+  ::testing::internal::CaptureStderr();
+  const Volume v = vx::read_volume(path("qs.nii"));
+  const std::string said = ::testing::internal::GetCapturedStderr();
+  EXPECT_LT((v.geometry.index_to_lps({0, 0, 0}) - Eigen::Vector3d(-10, -20, 30)).norm(), 1e-6);
+  EXPECT_NE(said.find("qform (code 1) and sform (code 2) disagree"), std::string::npos) << said;
+  EXPECT_NE(said.find("by up to 5 mm"), std::string::npos) << said;
+  // sform code 1 (scanner-anatomical): the sform, still with the warning
+  f.sform_code = 1;
+  write_bytes(path("qs1.nii"), f.bytes(ramp(24)));
+  ::testing::internal::CaptureStderr();
+  const Volume w = vx::read_volume(path("qs1.nii"));
+  EXPECT_NE(::testing::internal::GetCapturedStderr().find("following the sform"), std::string::npos);
+  EXPECT_LT((w.geometry.index_to_lps({0, 0, 0}) - Eigen::Vector3d(-15, -20, 30)).norm(), 1e-6);
+  // when they agree, nothing is said
+  const float same[3][4] = {{1, 0, 0, 10}, {0, 1, 0, 20}, {0, 0, 1, 30}};
+  std::memcpy(f.srow, same, sizeof same);
+  f.sform_code = 2;
+  write_bytes(path("agree.nii"), f.bytes(ramp(24)));
+  ::testing::internal::CaptureStderr();
+  (void)vx::read_volume(path("agree.nii"));
+  EXPECT_EQ(::testing::internal::GetCapturedStderr().find("disagree"), std::string::npos);
+}
+
+TEST_F(VolumeIo, MetaImageCompressedDataSizeMustBeAByteCount) {
+  // -1 became 2^64 - 1 bytes (std::bad_alloc), NaN undefined behaviour
+  for (const char* bad : {"-1", "nan", "2.5", "0"}) {
+    write_bytes(path("c.mha"), std::string("ObjectType = Image\nNDims = 3\nDimSize = 3 4 2\nElementType = MET_SHORT\n"
+                                           "CompressedData = True\nCompressedDataSize = ") +
+                                   bad + "\nElementDataFile = LOCAL\n" + std::string(40, 'x'));
+    expect_error([&] { (void)vx::read_volume(path("c.mha")); }, {"c.mha", "CompressedDataSize", "byte count"});
+  }
+  write_bytes(path("n.mha"), "NDims = nan\nDimSize = 3 4 2\nElementType = MET_SHORT\nElementDataFile = LOCAL\n");
+  expect_error([&] { (void)vx::read_volume(path("n.mha")); }, {"n.mha", "NDims = nan"});
+}
+
+TEST(Compression, AnySizeIsFedToZlibInChunksAndComesBackWhole) {
+  // zlib's counters are 32-bit: a volume over 4 GiB must be fed in chunks (it was cast to uInt and
+  // written truncated). The same loop, with chunks of a few bytes, on a small buffer:
+  std::vector<unsigned char> data(200000);
+  for (std::size_t i = 0; i < data.size(); ++i) data[i] = static_cast<unsigned char>((i * 7) ^ (i >> 7));
+  for (const bool gzip : {false, true}) {
+    const auto whole = vx::deflate_bytes(data.data(), data.size(), gzip);
+    const auto chunked = vx::deflate_bytes(data.data(), data.size(), gzip, 7);
+    const auto back = vx::inflate_bytes(reinterpret_cast<const char*>(chunked.data()), chunked.size(), data.size(),
+                                        "chunked", 5);
+    ASSERT_EQ(back.size(), data.size());
+    EXPECT_EQ(std::memcmp(back.data(), data.data(), data.size()), 0);
+    const auto back_whole = vx::inflate_bytes(reinterpret_cast<const char*>(whole.data()), whole.size(), data.size(), "w");
+    EXPECT_EQ(std::memcmp(back_whole.data(), data.data(), data.size()), 0);
+  }
+  // an empty input is an empty stream, not an error
+  EXPECT_FALSE(vx::deflate_bytes(data.data(), 0, true, 3).empty());
+}
+
+TEST_F(VolumeIo, MetaImageHeadersForMetaioAreCheckedFirst) {
+  // found by fuzzing: a binary ElementDataFile overflowed a buffer inside metaio (strlen), and
+  // damaged compressed data split over files made metaio's inflate loop for ever
+  write_bytes(path("bin.mha"), std::string("ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_SHORT\n"
+                                           "ElementDataFile = LOCA\x01\xff\xfe x y\n") +
+                                   std::string(16, 'x'));
+  expect_error([&] { (void)vx::read_volume(path("bin.mha")); }, {"bin.mha", "ElementDataFile", "not printable"});
+  write_bytes(path("list.mha"), "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_SHORT\n"
+                                "CompressedData = True\nElementDataFile = LIST\na.zraw\nb.zraw\n");
+  expect_error([&] { (void)vx::read_volume(path("list.mha")); }, {"list.mha", "compressed", "several files"});
+  // a file pattern whose step is 0 (metaio divides by it: SIGFPE), and words that are no pattern
+  write_bytes(path("pat.mha"), "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_SHORT\n"
+                               "ElementDataFile = slice%03d.raw 1 2 0\n");
+  expect_error([&] { (void)vx::read_volume(path("pat.mha")); }, {"pat.mha", "ElementDataFile", "step not 0"});
+  write_bytes(path("words.mha"), "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_SHORT\n"
+                                 "ElementDataFile = c LO~~Elem%ntType = MET_SHORT\n");
+  expect_error([&] { (void)vx::read_volume(path("words.mha")); }, {"words.mha", "neither a file name"});
+  // text voxels need at least two characters each in the file
+  write_bytes(path("text.mha"), "ObjectType = Image\nNDims = 3\nDimSize = 100 100 100\nBinaryData = False\n"
+                                "ElementType = MET_SHORT\nElementDataFile = LOCAL\n1 2 3\n");
+  expect_error([&] { (void)vx::read_volume(path("text.mha")); }, {"text.mha", "more than the files beside it hold"});
+}

@@ -10,6 +10,8 @@
 #include <vtkPolyData.h>
 #include <vtkUnstructuredGrid.h>
 #include <vtkXMLPolyDataReader.h>
+#include <vtkFieldData.h>
+#include <vtkStringArray.h>
 #include <vtkXMLUnstructuredGridReader.h>
 
 #include <cmath>
@@ -508,6 +510,12 @@ TEST(SimOutput, ForcesCsvPvdAndSkippingThroughAScene) {
   pr->Update();
   EXPECT_EQ(pr->GetOutput()->GetNumberOfPoints(), lean_p.surface->num_vertices());
   EXPECT_NE(pr->GetOutput()->GetPointData()->GetArray("displacement_mm"), nullptr);
+  // frames carry their coordinate system as 3D Slicer reads it
+  for (vtkDataObject* frame : {static_cast<vtkDataObject*>(ug), static_cast<vtkDataObject*>(pr->GetOutput())}) {
+    auto* space = vtkStringArray::SafeDownCast(frame->GetFieldData()->GetAbstractArray("SPACE"));
+    ASSERT_NE(space, nullptr);
+    EXPECT_EQ(space->GetValue(0), "LPS");
+  }
   std::ifstream pvd(dir / "model.pvd");
   std::stringstream text;
   text << pvd.rdbuf();
@@ -518,6 +526,39 @@ TEST(SimOutput, ForcesCsvPvdAndSkippingThroughAScene) {
   plot_forces(rec, dir / "forces.png");
   EXPECT_GT(fs::file_size(dir / "forces.png"), 5000u);
   fs::remove_all(dir);
+}
+
+TEST(Scene, NumbersBeyondADoubleAreInvalidJsonNotAnInternalError) {
+  // found by fuzzing: nlohmann's number overflow is an out_of_range, not a parse_error
+  const std::string e = error_of_text(R"({"duration_s": 22e62222})");
+  EXPECT_CONTAINS(e, "test.json: not valid JSON");
+  EXPECT_CONTAINS(e, "number overflow");
+}
+
+TEST(Scene, RunsThatCannotFinishAreRefused) {
+  // dt_s 1e-9 over a second: 1e9 steps, nothing bounded it (issue #17)
+  json j = base_scene();
+  j["integrator"]["dt_s"] = 1e-9;
+  j["duration_s"] = 1.0;
+  j["probes"][0]["path"][1]["t_s"] = 1.0;
+  try {
+    (void)prepare_scene(parse_scene(j, ".", "t.json"));
+    ADD_FAILURE() << "no error";
+  } catch (const Error& e) {
+    EXPECT_CONTAINS(e.what(), "$.integrator.dt_s");
+    EXPECT_CONTAINS(e.what(), "1e+09 steps");
+    EXPECT_CONTAINS(e.what(), "\"auto\" picks");
+  }
+  // keyframes and stick samples far in the future, and durations beyond a day
+  for (const double t : {1e9, 1e308}) {
+    json k = base_scene();
+    k["probes"][0]["path"][1]["t_s"] = t;
+    EXPECT_CONTAINS(error_of(k), "$.probes[0].path[1].t_s");
+    EXPECT_CONTAINS(error_of(k), "beyond the longest scene");
+  }
+  json d = base_scene();
+  d["duration_s"] = 2e5;
+  EXPECT_CONTAINS(error_of(d), "at most 100000 s");
 }
 
 namespace vx {

@@ -1,0 +1,41 @@
+#!/usr/bin/env bash
+# The non-slow tests under AddressSanitizer + UndefinedBehaviorSanitizer (clang-14, -O1), in
+# their own build folder (build-asan). CI runs this after scripts/test.sh; extra arguments go
+# to ctest (e.g. -R volume_io). Any memory error, leak of our own or undefined behaviour fails
+# the test that hit it.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+build_dir=${VX_ASAN_BUILD_DIR:-build-asan}
+jobs=${VX_JOBS:-$(nproc)}
+launcher=()
+if command -v ccache >/dev/null 2>&1; then
+  launcher=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache -DCMAKE_C_COMPILER_LAUNCHER=ccache)
+  export CCACHE_BASEDIR=${CCACHE_BASEDIR:-$PWD}  # paths relative to the clone: another clone hits the cache
+fi
+if ! command -v clang++-14 >/dev/null 2>&1; then
+  echo "sanitize: clang++-14 is missing (run scripts/install-deps.sh)" >&2
+  exit 1
+fi
+cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=None -DCMAKE_C_COMPILER=clang-14 -DCMAKE_CXX_COMPILER=clang++-14 \
+  -DCMAKE_CXX_FLAGS="-O1 -g" -DCMAKE_C_FLAGS="-O1 -g" "${launcher[@]}" \
+  -DVOXELASTIC_SANITIZE=ON -DVOXELASTIC_BUILD_MICROBENCH=OFF -DVOXELASTIC_BUILD_SLOW_TESTS=OFF >"$build_dir.configure.log" 2>&1 || {
+  cat "$build_dir.configure.log" >&2
+  echo "sanitize: cmake configure failed (log above)" >&2
+  exit 1
+}
+rm -f "$build_dir.configure.log"
+echo "sanitize: building with ASan + UBSan into $build_dir/ ..."
+cmake --build "$build_dir" -j "$jobs"
+# leaks: ours count; the ones of the X server client libraries, Mesa and fontconfig under Xvfb do not
+export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:strict_string_checks=1:check_initialization_order=1}
+export LSAN_OPTIONS=${LSAN_OPTIONS:-suppressions=$PWD/tests/sanitizers/lsan.supp:print_suppressions=0}
+export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
+# Tests that draw with OpenGL under Xvfb: Mesa's llvmpipe driver is loaded with dlopen and
+# unloaded at exit, so its few hundred bytes kept for the process's life are reported from an
+# "<unknown module>" that no suppression can name. They run with the leak check off (memory
+# errors and undefined behaviour still fail them), one at a time (a run of them two at a time
+# aborted once under Xvfb, not reproduced in three reruns); every other test runs with it on.
+gl_tests='^Render\.|PictureUnderXvfb|^ProbeView\.|^ProbeApp\.'
+scripts/with-display.sh ctest --test-dir "$build_dir" -LE slow -E "$gl_tests" --output-on-failure -j "$jobs" "$@"
+ASAN_OPTIONS="detect_leaks=0:${ASAN_OPTIONS#detect_leaks=1:}" \
+  scripts/with-display.sh ctest --test-dir "$build_dir" -LE slow -R "$gl_tests" --output-on-failure -j 1 "$@"

@@ -1,0 +1,136 @@
+// What users expect of the command line (issue #17), through the built binaries: -q keeps
+// warnings on stderr and hides notes and progress everywhere (the DICOM reader too), the exit
+// codes of the shared table (util/exit_codes.h), and Ctrl-C in `simulate` leaving a usable .pvd
+// and a summary.json that says where it stopped.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <regex>
+#include <string>
+
+#include "convert/phantom.h"
+#include "io/dicom_series.h"
+#include "support/run_binary.h"
+#include "util/exit_codes.h"
+
+namespace fs = std::filesystem;
+using vx::testing::RunResult;
+using vx::testing::slurp;
+
+namespace {
+
+const fs::path kBinary = fs::path(VX_BINARY_DIR) / "apps" / "voxelastic" / "voxelastic";
+
+class CliConventions : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() /
+           ("vx_cli_conventions_" + std::to_string(::getpid()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override {
+    if (!HasFailure()) fs::remove_all(dir_);
+  }
+  RunResult run(const std::string& args, const std::string& env = "") const {
+    return vx::testing::run_binary(kBinary, args, dir_, dir_, env);
+  }
+  fs::path dir_;
+};
+
+/// A box pressed by a ball for `duration_s`, with .pvd output every `pvd_s`.
+std::string box_scene(double duration_s, double pvd_s, double ball_z_mm = 9.2) {
+  nlohmann::json j = nlohmann::json::parse(R"({
+    "object": {"box_mm": {"min": [0, 0, 0], "max": [12, 12, 6]}, "voxel_mm": 1.0},
+    "material": {"youngs_modulus_kpa": 10, "poisson_ratio": 0, "density_kg_m3": 1000, "damping": 0.1},
+    "fixed": ["z_min"],
+    "probes": [{"name": "ball", "shape": "sphere", "radius_mm": 3, "path": [{"t_s": 0, "position_mm": [6, 6, 9.2]}]}],
+    "outputs": {"plot": false}
+  })");
+  j["duration_s"] = duration_s;
+  j["probes"][0]["path"][0]["position_mm"][2] = ball_z_mm;
+  j["outputs"]["pvd"] = {{"model", true}, {"surface", false}, {"interval_s", pvd_s}};
+  return j.dump(2);
+}
+
+}  // namespace
+
+TEST_F(CliConventions, CtrlCInSimulateKeepsAUsablePvdAndSaysWhereItStopped) {
+  std::ofstream(dir_ / "long.json") << box_scene(1000.0, 0.05);
+  // SIGINT after 6 s (the box is built in well under a second, then it runs)
+  const RunResult r = run("simulate long.json --out out", "timeout --preserve-status -s INT 6");
+  EXPECT_EQ(r.code, vx::exit_code::interrupted) << r.err;
+  EXPECT_NE(r.err.find("interrupted at t = "), std::string::npos) << r.err;
+  // summary.json: interrupted, the time reached
+  const nlohmann::json s = nlohmann::json::parse(slurp(dir_ / "out" / "summary.json"));
+  EXPECT_EQ(s.at("interrupted"), true);
+  EXPECT_EQ(s.at("status"), "interrupted");
+  const double reached = s.at("sim_time_s").get<double>();
+  EXPECT_GT(reached, 0.0);
+  EXPECT_LT(reached, 1000.0);
+  EXPECT_EQ(s.at("duration_s"), 1000.0);
+  // model.pvd lists frames that all exist, the last at (about) the time reached
+  const std::string pvd = slurp(dir_ / "out" / "model.pvd");
+  const std::regex entry(R"re(timestep="([0-9.eE+-]+)"[^>]*file="([^"]+)")re");
+  int frames = 0;
+  double last = -1;
+  for (auto it = std::sregex_iterator(pvd.begin(), pvd.end(), entry); it != std::sregex_iterator(); ++it) {
+    ++frames;
+    last = std::stod((*it)[1]);
+    EXPECT_TRUE(fs::exists(dir_ / "out" / (*it)[2].str())) << (*it)[2];
+  }
+  EXPECT_GE(frames, 2) << pvd;
+  EXPECT_NEAR(last, reached, 1e-7 * (1 + reached));  // the series ends where the run stopped (9 digits)
+  // forces.csv is complete too (header and rows up to the time reached)
+  EXPECT_EQ(slurp(dir_ / "out" / "forces.csv").rfind("time_s,probe,", 0), 0u);
+}
+
+TEST_F(CliConventions, QuietKeepsWarningsOnStderrAndHidesNotes) {
+  // the ball starts inside the box: prepare_scene warns
+  std::ofstream(dir_ / "inside.json") << box_scene(0.002, 0.001, 5.0);
+  RunResult r = run("simulate inside.json --out out -q");
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(r.out, "");
+  EXPECT_NE(r.err.find("warning: probes[0] \"ball\" starts with"), std::string::npos) << r.err;
+  r = run("simulate inside.json --out out2");
+  EXPECT_NE(r.out.find("simulating"), std::string::npos);
+
+  // the DICOM reader's notes: shown without -q, hidden with -q (here: a file that is not DICOM)
+  vx::PhantomSettings ps;
+  ps.name = "cube";
+  ps.size = 8;
+  vx::write_dicom_series(vx::make_phantom(ps), dir_ / "series");
+  std::ofstream(dir_ / "series" / "README.txt") << "notes\n";
+  r = run("convert series -o m.vtu");
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("DICOM: skipped 1 file that is not DICOM"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("README.txt"), std::string::npos) << r.err;
+  r = run("convert series -o m.vtu -q");
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(r.err, "");
+  EXPECT_EQ(r.out, "");
+  // -v: the same run says more than without it, never less
+  r = run("convert series -o m.vtu -v");
+  EXPECT_EQ(r.code, 0) << r.err;
+}
+
+TEST_F(CliConventions, ExitCodesFollowTheSharedTable) {
+  EXPECT_EQ(run("--version").code, vx::exit_code::ok);
+  EXPECT_EQ(run("convert --no-such-option").code, vx::exit_code::usage);
+  EXPECT_EQ(run("convert").code, vx::exit_code::usage);  // INPUT and -o missing
+  const RunResult r = run("convert missing.nrrd -o m.vtu");
+  EXPECT_EQ(r.code, vx::exit_code::error);
+  EXPECT_NE(r.err.find("missing.nrrd"), std::string::npos) << r.err;
+  // a scene that cannot finish is refused up front, with the reason
+  std::ofstream(dir_ / "forever.json") << box_scene(1.0, 0.5);
+  nlohmann::json j = nlohmann::json::parse(slurp(dir_ / "forever.json"));
+  j["integrator"] = {{"type", "symplectic_euler"}, {"dt_s", 1e-9}};
+  std::ofstream(dir_ / "forever.json") << j.dump();
+  const RunResult f = run("simulate forever.json --out out");
+  EXPECT_EQ(f.code, vx::exit_code::error) << f.err;
+  EXPECT_NE(f.err.find("1e+09 steps"), std::string::npos) << f.err;
+}
