@@ -40,11 +40,11 @@ int main(int argc, char** argv) {
   auto* g_in = app.add_option_group("input", "joystick and keyboard");
   auto* opt_control = g_in->add_option("--control", control, "rate (the paper: velocity follows the tilt) or position")
       ->check(CLI::IsMember({"rate", "position"}));
-  auto* opt_speed = g_in->add_option("--speed", o.control.speed_mm_s, "probe speed at full tilt, mm/s")
+  auto* opt_speed = g_in->add_option("--speed", o.control.mapping.max_speed_mm_s, "probe speed at full tilt, mm/s")
                         ->check(CLI::PositiveNumber);
-  auto* opt_range = g_in->add_option("--range", o.control.position_range_mm, "position control: offset at full tilt, mm")
+  auto* opt_range = g_in->add_option("--range", o.control.mapping.range_mm, "position control: offset at full tilt, mm")
       ->check(CLI::PositiveNumber);
-  auto* opt_deadzone = g_in->add_option("--deadzone", o.control.deadzone, "stick dead zone, fraction of full tilt")
+  auto* opt_deadzone = g_in->add_option("--deadzone", o.control.mapping.dead_zone, "stick dead zone, fraction of full tilt")
       ->check(CLI::Range(0.0, 0.9));
   g_in->add_option("--z-axis", o.control.z_axis,
                    "stick axis for the depth motion (e.g. 2 twist, 3 throttle); -1: buttons 0/1 and the hat only")
@@ -85,7 +85,7 @@ int main(int argc, char** argv) {
   try {
     (void)vx::best_simd_level();  // a bad VOXELASTIC_SIMD is an error here, not in the physics thread
     app.parse(argc, argv);
-    o.control.mode = parse_control_mode(control);
+    o.control.mapping.mode = vx::parse_joystick_mode(control);
     o.mode_set = opt_control->count() > 0;
     o.speed_set = opt_speed->count() > 0;
     o.range_set = opt_range->count() > 0;

@@ -95,6 +95,54 @@ class App {
   [[nodiscard]] HudInfo hud(double physics_rate, double rtf, double device_rate);
   void summary(double wall_s);
 
+  // the stages of run()
+  /// The HUD's input and force-output lines.
+  struct IoLines {
+    std::string input, output;
+  };
+  /// The simulation, the stick mapping (command line over scene over defaults), the commanders.
+  void start_simulation();
+  /// Prints what drives the probes and where the force goes; returns the HUD's lines.
+  [[nodiscard]] IoLines describe_io();
+  /// The window (null when headless).
+  [[nodiscard]] std::unique_ptr<ProbeView> open_view(const IoLines& lines);
+  /// What the GUI loop keeps from one pass to the next.
+  struct GuiLoop {
+    GuiLoop(int probes, double fps)
+        : probe_pos(std::size_t(probes), Eigen::Vector3d::Zero()),
+          probe_contacts(std::size_t(probes), 0),
+          frame_period(std::chrono::duration_cast<SteadyClock::duration>(
+              std::chrono::duration<double>(1.0 / std::max(1.0, fps)))) {}
+    RateMeter physics_rate{0.5}, device_rate{0.5};
+    /// real-time factor: simulated over running wall time, per half second (pauses, resets excluded)
+    double rtf{1.0};
+    bool rtf_valid{false};
+    std::int64_t rtf_sim0{0}, rtf_wall0{0};
+    SimulationFrame frame;
+    std::vector<Eigen::Vector3d> probe_pos;
+    std::vector<int> probe_contacts;
+    bool window_closed{false};
+    bool warned_behind{false};
+    SteadyClock::duration frame_period;
+    SteadyClock::time_point next_frame{SteadyClock::now()};
+    SteadyClock::time_point next_report{SteadyClock::now() + std::chrono::seconds(2)};
+  };
+  /// The GUI thread until a quit: rates, then a frame (or a console line when headless).
+  /// Returns the error that ended it ("" for none).
+  [[nodiscard]] std::string run_gui_loop(ProbeView* view, GuiLoop& loop, const FixedRateThread& physics,
+                                         const FixedRateThread& device);
+  /// Physics and device rates, the real-time factor, input messages, the slow-motion warning;
+  /// returns the time they were measured at.
+  SteadyClock::time_point measure_rates(GuiLoop& loop, const FixedRateThread& device);
+  /// One frame of the window; false once the window closed.
+  bool show_frame(ProbeView& view, GuiLoop& loop);
+  /// Headless: a progress line every 2 s (`now`: this pass's time).
+  void report_headless(GuiLoop& loop, SteadyClock::time_point now);
+  /// After the threads stopped: the force outputs closed, the screenshot, the summary; returns
+  /// the exit code.
+  [[nodiscard]] int finish(ProbeView* view, const GuiLoop& loop, FixedRateThread& physics, FixedRateThread& device,
+                           std::string error);
+
   const AppOptions& options_;
   ProbeScene scene_;
   std::unique_ptr<Simulation> sim_;
@@ -379,205 +427,183 @@ void App::summary(double wall_s) {
   }
 }
 
-int App::run() {
+// ---------------------------------------------------------------- the run, stage by stage
+
+void App::start_simulation() {
   // the simulation, with the options that override the scene
   scene_.simulation.integrator.threads = options_.threads;
   sim_ = std::make_unique<Simulation>(scene_.physics, scene_.simulation);
-  Simulation* const sim = sim_.get();
-  probes_ = sim->num_probes();
+  probes_ = sim_->num_probes();
   if (probes_ == 0) throw Error("the scene has no probe to palpate with");
   if (probes_ > kMaxSticks)
     say(fmt::format("note: the scene has {} probes; the app drives the first {}", probes_, kMaxSticks));
   // the stick mapping: the command line over the scene over the defaults
   control_ = options_.control;
   if (scene_.control_from_scene) {
-    if (!options_.mode_set) control_.mode = scene_.control.mode;
-    if (!options_.speed_set) control_.speed_mm_s = scene_.control.speed_mm_s;
-    if (!options_.range_set) control_.position_range_mm = scene_.control.position_range_mm;
-    if (!options_.deadzone_set) control_.deadzone = scene_.control.deadzone;
+    const JoystickMapping& scene_mapping = scene_.control.mapping;
+    if (!options_.mode_set) control_.mapping.mode = scene_mapping.mode;
+    if (!options_.speed_set) control_.mapping.max_speed_mm_s = scene_mapping.max_speed_mm_s;
+    if (!options_.range_set) control_.mapping.range_mm = scene_mapping.range_mm;
+    if (!options_.deadzone_set) control_.mapping.dead_zone = scene_mapping.dead_zone;
   }
   for (int p = 0; p < std::min(probes_, kMaxSticks); ++p) {
     const Box allowed = p < int(scene_.probe_allowed.size()) ? scene_.probe_allowed[std::size_t(p)] : Box{};
-    commanders_.emplace_back(sim->probe(p).pose.position_mm, allowed, control_);
+    commanders_.emplace_back(sim_->probe(p).pose.position_mm, allowed, control_);
   }
   keyboard_control_ = ControlSettings{};
-  keyboard_control_.mode = control_.mode;
-  keyboard_control_.speed_mm_s = control_.speed_mm_s;
-  keyboard_control_.position_range_mm = control_.position_range_mm;
-  keyboard_control_.deadzone = 0.0;
+  keyboard_control_.mapping = control_.mapping;
+  keyboard_control_.mapping.dead_zone = 0.0;
+}
 
-  open_input();
-  open_outputs();
-  const std::string control = control_.mode == ControlMode::rate ? "rate control" : "position control";
-  std::string input_line;
+App::IoLines App::describe_io() {
+  const std::string control = control_.mapping.mode == JoystickMode::rate ? "rate control" : "position control";
+  IoLines lines;
   if (script_)
-    input_line = fmt::format("{}: {} virtual joystick{} ({})", control, input_->count(), input_->count() > 1 ? "s" : "",
-                             options_.joystick_script.filename().string());
+    lines.input = fmt::format("{}: {} virtual joystick{} ({})", control, input_->count(), input_->count() > 1 ? "s" : "",
+                              options_.joystick_script.filename().string());
   else if (input_->count() > 0)
-    input_line = fmt::format("{}: {} + keyboard/mouse", control,
-                             input_->count() > 1 ? "2 joysticks" : "joystick '" + input_->name(0) + "'");
+    lines.input = fmt::format("{}: {} + keyboard/mouse", control,
+                              input_->count() > 1 ? "2 joysticks" : "joystick '" + input_->name(0) + "'");
   else
-    input_line = fmt::format("{}: keyboard and mouse (no joystick)", control);
-  std::string output_line = "force out: ";
-  if (outputs_.empty()) output_line += "none (HUD and plot only)";
-  for (std::size_t i = 0; i < outputs_.all().size(); ++i) output_line += (i ? " + " : "") + outputs_.all()[i]->label();
+    lines.input = fmt::format("{}: keyboard and mouse (no joystick)", control);
+  lines.output = "force out: ";
+  if (outputs_.empty()) lines.output += "none (HUD and plot only)";
+  for (std::size_t i = 0; i < outputs_.all().size(); ++i) lines.output += (i ? " + " : "") + outputs_.all()[i]->label();
   say("input: " + (input_->count() > 0 ? input_->describe() : std::string("keyboard and mouse")) + ", " + control);
   for (const auto& n : output_notes_) say("force: " + n);
   for (const auto& m : input_->take_messages()) say("input: " + m);
+  return lines;
+}
 
-  // the start view: stick axes follow the camera
-  const Eigen::Matrix3d start_basis = start_view_basis(scene_.world_up);
+std::unique_ptr<ProbeView> App::open_view(const IoLines& lines) {
+  if (options_.headless) return nullptr;
+  ViewSetup setup;
+  setup.title = scene_.name;
+  setup.surface_vertices = scene_.surface->rest_vertices;
+  setup.surface_triangles = scene_.surface->triangles;
+  setup.levels = std::make_shared<const LevelCells>(make_level_cells(*scene_.model));
+  for (int p = 0; p < probes_; ++p) {
+    setup.probes.push_back(scene_.simulation.probes[std::size_t(p)].geometry);
+    setup.probe_names.push_back(scene_.simulation.probes[std::size_t(p)].name);
+    setup.probe_start_mm.push_back(sim_->probe(p).pose.position_mm);
+  }
+  setup.walls = scene_.simulation.workspace.enabled;
+  setup.workspace = Box{scene_.simulation.workspace.min_mm, scene_.simulation.workspace.max_mm};
+  setup.world_up = scene_.world_up;
+  setup.width = options_.width;
+  setup.height = options_.height;
+  setup.input_line = lines.input;
+  setup.output_line = lines.output;
+  auto view = std::make_unique<ProbeView>(setup, &keyboard_, [this](ViewAction a) { on_action(a); });
+  if (options_.show_levels) view->toggle_levels();
+  return view;
+}
+
+SteadyClock::time_point App::measure_rates(GuiLoop& loop, const FixedRateThread& device) {
+  const auto now = SteadyClock::now();
+  loop.physics_rate.sample(steps_total_.load(), now);
+  loop.device_rate.sample(device.ticks(), now);
+  if (const std::int64_t w = active_wall_us_.load(), sm = sim_advanced_us_.load(); w - loop.rtf_wall0 >= 500000) {
+    loop.rtf = double(sm - loop.rtf_sim0) / double(w - loop.rtf_wall0);
+    loop.rtf_valid = true;
+    loop.rtf_sim0 = sm;
+    loop.rtf_wall0 = w;
+  }
+  {
+    std::lock_guard lock(device_mutex_);
+    for (const auto& m : messages_) say("input: " + m);
+    messages_.clear();
+  }
+  if (loop.rtf_valid && loop.rtf < 0.9 && lag_drops_.load() > 0 && !paused_.load() && !physics_failed_.load() &&
+      !loop.warned_behind) {
+    say(fmt::format("warning: physics cannot keep real time ({:.2f}x): the simulation runs in slow motion "
+                    "(a smaller model, fewer --threads competitors or a larger time step help)",
+                    loop.rtf));
+    loop.warned_behind = true;
+  }
+  return now;
+}
+
+bool App::show_frame(ProbeView& view, GuiLoop& loop) {
+  if (!view.process_events()) {
+    loop.window_closed = true;
+    request_quit("window closed");
+    return false;
+  }
   {
     std::lock_guard lock(basis_mutex_);
-    basis_ = start_basis;
+    basis_ = view.view_basis();
   }
-
-  // the window (after everything that can fail on bad input)
-  std::unique_ptr<ProbeView> view;
-  if (!options_.headless) {
-    ViewSetup setup;
-    setup.title = scene_.name;
-    setup.surface_vertices = scene_.surface->rest_vertices;
-    setup.surface_triangles = scene_.surface->triangles;
-    setup.levels = std::make_shared<const LevelCells>(make_level_cells(*scene_.model));
-    for (int p = 0; p < probes_; ++p) {
-      setup.probes.push_back(scene_.simulation.probes[std::size_t(p)].geometry);
-      setup.probe_names.push_back(scene_.simulation.probes[std::size_t(p)].name);
-      setup.probe_start_mm.push_back(sim->probe(p).pose.position_mm);
+  // the newest frame, if the physics made one since; never waited for
+  sim_->request_frame();
+  if (sim_->take_frame(loop.frame)) {
+    for (int p = 0; p < probes_ && p < int(loop.frame.probes.size()); ++p) {
+      loop.probe_pos[std::size_t(p)] = loop.frame.probes[std::size_t(p)].pose.position_mm;
+      loop.probe_contacts[std::size_t(p)] = loop.frame.probes[std::size_t(p)].contacts;
     }
-    setup.walls = scene_.simulation.workspace.enabled;
-    setup.workspace = Box{scene_.simulation.workspace.min_mm, scene_.simulation.workspace.max_mm};
-    setup.world_up = scene_.world_up;
-    setup.width = options_.width;
-    setup.height = options_.height;
-    setup.input_line = input_line;
-    setup.output_line = output_line;
-    view = std::make_unique<ProbeView>(setup, &keyboard_, [this](ViewAction a) { on_action(a); });
-    if (options_.show_levels) view->toggle_levels();
+    view.update_geometry(loop.frame.surface_vertices, loop.frame.surface_normals, loop.frame.positions, loop.probe_pos,
+                         loop.probe_contacts);
   }
+  std::vector<PlotSample> samples;
+  {
+    std::lock_guard lock(device_mutex_);
+    samples.swap(plot_pending_);
+  }
+  view.add_plot_samples(samples);
+  view.set_hud(hud(loop.physics_rate.rate(), loop.rtf_valid ? loop.rtf : 1.0, loop.device_rate.rate()));
+  view.render();
+  if (screenshot_requested_.exchange(false)) {
+    const std::string name = fmt::format("voxelastic-probe-{:06d}.png", view.frames());
+    view.save_screenshot(name);
+    say("screenshot: " + name);
+  }
+  if (options_.frames > 0 && view.frames() >= options_.frames)
+    request_quit(fmt::format("{} frames (--frames)", options_.frames));
+  loop.next_frame += loop.frame_period;
+  const auto after = SteadyClock::now();
+  if (loop.next_frame < after) loop.next_frame = after;
+  std::this_thread::sleep_until(loop.next_frame);
+  return true;
+}
 
-  // the threads
-  physics_period_s_ = 1.0 / options_.physics_hz;
-  device_period_s_ = 1.0 / options_.device_hz;
-  start_ = SteadyClock::now();
-  set_clock(SimClock{0.0, start_, false});
-  FixedRateThread physics("physics", options_.physics_hz, [this](std::int64_t) { physics_tick(); });
-  FixedRateThread device("device", options_.device_hz, [this](std::int64_t) { device_tick(); });
-  const auto old_int = std::signal(SIGINT, on_interrupt);
-  const auto old_term = std::signal(SIGTERM, on_interrupt);
-  physics.start();
-  device.start();
-  // the display yields to the physics and the device when the CPU is short (Linux: per thread)
-  if (view) (void)setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 5);
+void App::report_headless(GuiLoop& loop, SteadyClock::time_point now) {
+  {
+    std::lock_guard lock(device_mutex_);
+    plot_pending_.clear();
+  }
+  if (now >= loop.next_report) {
+    say(fmt::format("t = {:.2f} s simulated, physics {:.0f} steps/s ({:.2f}x real time), device {:.0f} updates/s",
+                    double(sim_time_us_.load()) * 1e-6, loop.physics_rate.rate(), loop.rtf, loop.device_rate.rate()));
+    loop.next_report = now + std::chrono::seconds(2);
+  }
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+}
 
+std::string App::run_gui_loop(ProbeView* view, GuiLoop& loop, const FixedRateThread& physics,
+                              const FixedRateThread& device) {
   const bool automated =
       options_.headless || options_.frames > 0 || options_.duration_s > 0 || options_.exit_after_script;
-  RateMeter physics_rate(0.5), device_rate(0.5);
-  // real-time factor: simulated over running wall time, per half second (pauses, resets excluded)
-  double rtf = 1.0;
-  bool rtf_valid = false;
-  std::int64_t rtf_sim0 = 0, rtf_wall0 = 0;
-  SimulationFrame frame;
-  std::vector<Eigen::Vector3d> probe_pos(static_cast<std::size_t>(probes_), Eigen::Vector3d::Zero());
-  std::vector<int> probe_contacts(std::size_t(probes_), 0);
-  std::string error;
-  bool window_closed = false;
-  bool warned_behind = false;
-  const auto frame_period = std::chrono::duration_cast<SteadyClock::duration>(
-      std::chrono::duration<double>(1.0 / std::max(1.0, options_.fps)));
-  auto next_frame = SteadyClock::now();
-  auto next_report = SteadyClock::now() + std::chrono::seconds(2);
   try {
     while (!quit_.load()) {
       if (g_interrupted.load()) request_quit("interrupted");
-      if (physics.failed() || device.failed()) {
-        error = physics.failed() ? physics.error() : device.error();
-        break;
-      }
+      if (physics.failed() || device.failed()) return physics.failed() ? physics.error() : device.error();
       // a scripted or timed run cannot go on without physics (an interactive user can reset)
       if (automated && physics_failed_.load()) break;
-      const auto now = SteadyClock::now();
-      physics_rate.sample(steps_total_.load(), now);
-      device_rate.sample(device.ticks(), now);
-      if (const std::int64_t w = active_wall_us_.load(), sm = sim_advanced_us_.load(); w - rtf_wall0 >= 500000) {
-        rtf = double(sm - rtf_sim0) / double(w - rtf_wall0);
-        rtf_valid = true;
-        rtf_sim0 = sm;
-        rtf_wall0 = w;
-      }
-      {
-        std::lock_guard lock(device_mutex_);
-        for (const auto& m : messages_) say("input: " + m);
-        messages_.clear();
-      }
-      if (rtf_valid && rtf < 0.9 && lag_drops_.load() > 0 && !paused_.load() && !physics_failed_.load() &&
-          !warned_behind) {
-        say(fmt::format("warning: physics cannot keep real time ({:.2f}x): the simulation runs in slow motion "
-                        "(a smaller model, fewer --threads competitors or a larger time step help)",
-                        rtf));
-        warned_behind = true;
-      }
+      const SteadyClock::time_point now = measure_rates(loop, device);
       if (view) {
-        if (!view->process_events()) {
-          window_closed = true;
-          request_quit("window closed");
-          break;
-        }
-        {
-          std::lock_guard lock(basis_mutex_);
-          basis_ = view->view_basis();
-        }
-        // the newest frame, if the physics made one since; never waited for
-        sim->request_frame();
-        if (sim->take_frame(frame)) {
-          for (int p = 0; p < probes_ && p < int(frame.probes.size()); ++p) {
-            probe_pos[std::size_t(p)] = frame.probes[std::size_t(p)].pose.position_mm;
-            probe_contacts[std::size_t(p)] = frame.probes[std::size_t(p)].contacts;
-          }
-          view->update_geometry(frame.surface_vertices, frame.surface_normals, frame.positions, probe_pos,
-                                probe_contacts);
-        }
-        std::vector<PlotSample> samples;
-        {
-          std::lock_guard lock(device_mutex_);
-          samples.swap(plot_pending_);
-        }
-        view->add_plot_samples(samples);
-        view->set_hud(hud(physics_rate.rate(), rtf_valid ? rtf : 1.0, device_rate.rate()));
-        view->render();
-        if (screenshot_requested_.exchange(false)) {
-          const std::string name = fmt::format("voxelastic-probe-{:06d}.png", view->frames());
-          view->save_screenshot(name);
-          say("screenshot: " + name);
-        }
-        if (options_.frames > 0 && view->frames() >= options_.frames)
-          request_quit(fmt::format("{} frames (--frames)", options_.frames));
-        next_frame += frame_period;
-        const auto after = SteadyClock::now();
-        if (next_frame < after) next_frame = after;
-        std::this_thread::sleep_until(next_frame);
+        if (!show_frame(*view, loop)) break;
       } else {
-        {
-          std::lock_guard lock(device_mutex_);
-          plot_pending_.clear();
-        }
-        if (now >= next_report) {
-          say(fmt::format("t = {:.2f} s simulated, physics {:.0f} steps/s ({:.2f}x real time), device {:.0f} updates/s",
-                          double(sim_time_us_.load()) * 1e-6, physics_rate.rate(), rtf, device_rate.rate()));
-          next_report = now + std::chrono::seconds(2);
-        }
-        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+        report_headless(loop, now);
       }
     }
   } catch (const std::exception& e) {
-    error = e.what();
+    return e.what();
   }
+  return {};
+}
 
-  // stop: device first (no more writes), then physics, then zero the force and close files
-  device.stop();
-  physics.stop();
-  std::signal(SIGINT, old_int);
-  std::signal(SIGTERM, old_term);
+int App::finish(ProbeView* view, const GuiLoop& loop, FixedRateThread& physics, FixedRateThread& device,
+                std::string error) {
   const double wall_s = seconds(SteadyClock::now() - start_);
   if (error.empty() && device.failed()) error = device.error();
   if (error.empty() && physics.failed()) error = physics.error();
@@ -586,7 +612,7 @@ int App::run() {
   } catch (const std::exception& e) {
     if (error.empty()) error = e.what();
   }
-  if (view && !window_closed && error.empty() && !options_.screenshot.empty()) {
+  if (view && !loop.window_closed && error.empty() && !options_.screenshot.empty()) {
     try {
       view->save_screenshot(options_.screenshot);
       say("screenshot: " + options_.screenshot.string());
@@ -613,6 +639,45 @@ int App::run() {
     return kExitError;
   }
   return 0;
+}
+
+int App::run() {
+  start_simulation();
+  open_input();
+  open_outputs();
+  const IoLines lines = describe_io();
+
+  // the start view: stick axes follow the camera
+  {
+    std::lock_guard lock(basis_mutex_);
+    basis_ = start_view_basis(scene_.world_up);
+  }
+  // the window (after everything that can fail on bad input)
+  const std::unique_ptr<ProbeView> view = open_view(lines);
+
+  // the threads
+  physics_period_s_ = 1.0 / options_.physics_hz;
+  device_period_s_ = 1.0 / options_.device_hz;
+  start_ = SteadyClock::now();
+  set_clock(SimClock{0.0, start_, false});
+  FixedRateThread physics("physics", options_.physics_hz, [this](std::int64_t) { physics_tick(); });
+  FixedRateThread device("device", options_.device_hz, [this](std::int64_t) { device_tick(); });
+  const auto old_int = std::signal(SIGINT, on_interrupt);
+  const auto old_term = std::signal(SIGTERM, on_interrupt);
+  physics.start();
+  device.start();
+  // the display yields to the physics and the device when the CPU is short (Linux: per thread)
+  if (view) (void)setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 5);
+
+  GuiLoop loop(probes_, options_.fps);
+  std::string error = run_gui_loop(view.get(), loop, physics, device);
+
+  // stop: device first (no more writes), then physics, then zero the force and close files
+  device.stop();
+  physics.stop();
+  std::signal(SIGINT, old_int);
+  std::signal(SIGTERM, old_term);
+  return finish(view.get(), loop, physics, device, std::move(error));
 }
 
 }  // namespace

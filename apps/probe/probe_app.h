@@ -43,8 +43,8 @@ struct AppOptions {
   double max_force_N{2.0};                      ///< device full scale
   double device_update_hz{100.0};               ///< haptic/rumble commands per second at most
   ControlSettings control;
-  /// Which fields of `control` the command line set; the others come from the scene's live
-  /// probe (its mode, speed_mm_s, range_mm, dead_zone) or the defaults.
+  /// Which fields of `control.mapping` the command line set; the others come from the scene's
+  /// live probe (its mode, speed_mm_s, range_mm, dead_zone) or the defaults.
   bool mode_set{false}, speed_set{false}, range_set{false}, deadzone_set{false};
   /// The displayed surface for scene files: iso (smoothed) or paper.
   SurfaceMethod surface_method{SurfaceMethod::iso};

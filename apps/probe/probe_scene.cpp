@@ -15,14 +15,15 @@
 #include "model/gradational_builder.h"
 #include "scene/scene.h"
 #include "sim/state.h"
+#include "sim/time_step.h"
+#include "util/text.h"
 
 namespace vx::probe {
 
 namespace {
 
 std::string lower_extension(const std::filesystem::path& p) {
-  std::string name = p.filename().string();
-  std::transform(name.begin(), name.end(), name.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  const std::string name = lower(p.filename().string());
   if (name.size() > 7 && name.ends_with(".nii.gz")) return ".nii.gz";
   const auto dot = name.rfind('.');
   return dot == std::string::npos ? std::string() : name.substr(dot);
@@ -159,7 +160,7 @@ ProbeScene make_default_scene(std::shared_ptr<const Model> model, std::shared_pt
 
   // explicit-family integrator at half its stable step; the paper's device shaping
   sim.integrator.kind = IntegratorKind::symplectic_euler;
-  sim.integrator.time_step_s = 0.5 * stable_time_step(*scene.physics, IntegratorKind::symplectic_euler);
+  sim.integrator.time_step_s = automatic_time_step(estimate_time_steps(*scene.physics), sim.integrator.kind);
   sim.integrator.threads = 1;
   sim.device = DeviceForceSettings{};
 
@@ -184,10 +185,7 @@ void make_probes_live(ProbeScene& scene) {
       // the scene's stick mapping of its first live probe sets the app's defaults
       first_live = false;
       scene.control_from_scene = true;
-      scene.control.mode = p.mapping.mode == JoystickMode::rate ? ControlMode::rate : ControlMode::position;
-      scene.control.speed_mm_s = p.mapping.max_speed_mm_s;
-      scene.control.position_range_mm = p.mapping.range_mm;
-      scene.control.deadzone = p.mapping.dead_zone;
+      scene.control.mapping = p.mapping;
     }
     if (p.drive != ProbeDrive::live) {
       p.drive = ProbeDrive::live;

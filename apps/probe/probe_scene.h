@@ -1,7 +1,7 @@
 #pragma once
 /// @file probe_scene.h
 /// What the probe app runs: a physics model, its deforming surface and the simulation
-/// settings, from a scene file (pipeline/scene.h), or from a volume or a model file with
+/// settings, from a scene file (pipeline/scene/scene.h), or from a volume or a model file with
 /// default palpation settings (a capsule probe above the tissue, the tissue's bottom held
 /// on a table, walls around it). Every probe becomes a `live` probe driven by the app.
 
@@ -41,7 +41,7 @@ struct ProbeScene {
   Eigen::Vector3d world_up{0.0, -1.0, 0.0};///< up on screen (LPS); default anterior
   std::vector<Box> probe_allowed;          ///< per probe: where its reference point may go
   std::vector<std::string> notes;          ///< what was loaded and decided, for the console
-  ControlSettings control;                 ///< stick mapping defaults (a scene's live probe sets them)
+  ControlSettings control;                 ///< stick mapping defaults (a scene's live probe sets its mapping)
   bool control_from_scene{false};
 };
 
@@ -59,7 +59,8 @@ struct ProbeScene {
 
 /// Turns every probe into a live probe (keeping its shape and start) and fills
 /// `probe_allowed` (the walls shrunk by the probe radius, else the tissue box with margins).
-/// The first probe that was already live gives `control` (mode, speed, range, dead zone).
+/// The first probe that was already live gives `control.mapping` (its JoystickMapping: mode,
+/// speed, range, dead zone).
 void make_probes_live(ProbeScene& scene);
 
 }  // namespace vx::probe

@@ -34,7 +34,8 @@ struct LevelCells {
   std::vector<std::int8_t> poly_level;        ///< polygons: level of their element
   Eigen::Matrix3Xd rest_centroids;            ///< 3 x elements, mm
   Eigen::Matrix3Xd rest_nodes;                ///< 3 x nodes, the model's rest positions, mm
-  std::vector<double> level_size_mm;          ///< levels: element edge, mm
+  std::vector<double> level_size_mm;          ///< levels: element edge, mm (Model::element_size_mm)
+  std::vector<int> level_voxels;              ///< levels: element edge, voxels (Model::element_edge_voxels)
   int levels{0};
 };
 /// Builds the level cells of `model`; throws vx::Error for an inconsistent model.

@@ -20,15 +20,9 @@ constexpr auto kRepeatGrace = std::chrono::milliseconds(60);
 
 }  // namespace
 
-ControlMode parse_control_mode(const std::string& s) {
-  if (s == "rate") return ControlMode::rate;
-  if (s == "position") return ControlMode::position;
-  throw Error("unknown control mode '" + s + "': use rate or position");
-}
-
 Eigen::Vector3d stick_command(const StickState& stick, const ControlSettings& settings) {
   if (!stick.present) return Eigen::Vector3d::Zero();
-  const double dz = std::clamp(settings.deadzone, 0.0, 0.9);
+  const double dz = std::clamp(settings.mapping.dead_zone, 0.0, 0.9);
   Eigen::Vector3d c;
   c.x() = shape_axis(stick.num_axes > 0 ? stick.axes[0] : 0.0, dz);
   c.y() = -shape_axis(stick.num_axes > 1 ? stick.axes[1] : 0.0, dz);  // SDL: +1 = pulled back = down
@@ -59,14 +53,14 @@ LiveCommand ProbeCommander::update(const Eigen::Vector3d& command, const Eigen::
   const Eigen::Vector3d c = command.cwiseMax(-1.0).cwiseMin(1.0);
   const Eigen::Vector3d drag = view_basis * drag_view_mm;
   LiveCommand out;
-  if (settings_.mode == ControlMode::rate) {
+  if (settings_.mapping.mode == JoystickMode::rate) {
     // the paper: velocity proportional to the tilt
-    Eigen::Vector3d v = view_basis * (c * settings_.speed_mm_s);
+    Eigen::Vector3d v = view_basis * (c * settings_.mapping.max_speed_mm_s);
     // a drag is worked off within about 50 ms, at most twice the full-tilt speed
     pending_drag_ += drag;
     if (dt_s > 0 && pending_drag_.norm() > 1e-9) {
       Eigen::Vector3d vd = pending_drag_ / 0.05;
-      const double cap = 2.0 * settings_.speed_mm_s;
+      const double cap = 2.0 * settings_.mapping.max_speed_mm_s;
       if (vd.norm() > cap) vd *= cap / vd.norm();
       if ((vd * dt_s).norm() >= pending_drag_.norm()) vd = pending_drag_ / dt_s;
       pending_drag_ -= vd * dt_s;
@@ -84,12 +78,12 @@ LiveCommand ProbeCommander::update(const Eigen::Vector3d& command, const Eigen::
     // position control: the tilt picks a target around home in the screen plane; depth is
     // absolute with a depth axis and a rate when driven by buttons
     if (settings_.z_axis >= 0)
-      depth_mm_ = c.z() * settings_.position_range_mm;
+      depth_mm_ = c.z() * settings_.mapping.range_mm;
     else
-      depth_mm_ = std::clamp(depth_mm_ + c.z() * settings_.speed_mm_s * dt_s, -settings_.position_range_mm,
-                             settings_.position_range_mm);
+      depth_mm_ = std::clamp(depth_mm_ + c.z() * settings_.mapping.max_speed_mm_s * dt_s, -settings_.mapping.range_mm,
+                             settings_.mapping.range_mm);
     drag_offset_ += drag;
-    const Eigen::Vector3d offset_view(c.x() * settings_.position_range_mm, c.y() * settings_.position_range_mm,
+    const Eigen::Vector3d offset_view(c.x() * settings_.mapping.range_mm, c.y() * settings_.mapping.range_mm,
                                       depth_mm_);
     out.kind = LiveCommand::Kind::position;
     out.value = allowed_.clamp(home_ + drag_offset_ + view_basis * offset_view);

@@ -21,20 +21,16 @@
 
 namespace vx::probe {
 
-/// How the stick moves the probe.
-enum class ControlMode : std::uint8_t {
-  rate,      ///< velocity proportional to tilt (the paper)
-  position,  ///< tilt sets the offset from the home point (moved there at a bounded speed)
-};
-/// Parses "rate" or "position"; throws vx::Error otherwise.
-[[nodiscard]] ControlMode parse_control_mode(const std::string& s);
-
 /// Settings of the stick-to-probe mapping.
 struct ControlSettings {
-  ControlMode mode{ControlMode::rate};
-  double speed_mm_s{25.0};       ///< rate control: speed at full tilt, mm/s; also the top speed in position mode
-  double position_range_mm{30.0};///< position control: offset at full tilt, mm
-  double deadzone{0.08};         ///< tilt below this counts as 0 (stick centre noise)
+  /// The mapping a scene's probe has too (sim/probe.h), with the app's defaults:
+  /// - mode: rate (velocity proportional to tilt, the paper) or position (tilt sets the offset
+  ///   from the home point, moved there at a bounded speed);
+  /// - max_speed_mm_s: rate control's speed at full tilt; also the top speed in position mode;
+  /// - range_mm: position control's offset at full tilt;
+  /// - dead_zone: tilt below this counts as 0 (stick centre noise).
+  /// Its `directions` are not used here: the view basis turns the stick into world motion.
+  JoystickMapping mapping{JoystickMode::rate, Eigen::Matrix3d::Identity(), 25.0, 30.0, 0.08};
   int z_axis{-1};                ///< axis for the third (depth) motion, e.g. 2 = twist, 3 = throttle; -1: buttons/hat only
   bool invert_z_axis{false};     ///< flip the sign of z_axis
   int z_away_button{0};          ///< button that moves the probe away from the user (into the screen)

@@ -1,5 +1,5 @@
 // voxelastic verify [--suite quick|full] [--out DIR] [--jobs N] [--shard I/N] [--case NAME]...:
-// runs the verification suite (pipeline/verify.h) and writes DIR/report.json, DIR/report.md and
+// runs the verification suite (evaluation/verify/verify.h) and writes DIR/report.json, DIR/report.md and
 // DIR/plots/. voxelastic verify-merge DIR... --out DIR: combines the reports of the shards.
 // Exit 0 when every check passed, 1 when one failed (or on an error), 2 for usage errors.
 #include <fmt/core.h>

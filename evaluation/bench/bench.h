@@ -2,7 +2,7 @@
 /// @file bench.h
 /// `voxelastic bench`: run time against error (issue 8) and the cost of one step (issue 4).
 ///
-/// Part A, step cost: src/step_benchmark.h on sphere phantoms of growing size for every
+/// Part A, step cost: evaluation/bench/step_benchmark.h on sphere phantoms of growing size for every
 /// resolution (gradational, uniform, voxel-level) and integrator, with the log-log slope of the
 /// cost per step against the grid size n (the paper: gradational ~ n^2, voxel-level ~ n^3).
 ///

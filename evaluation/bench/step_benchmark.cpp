@@ -8,22 +8,14 @@
 #include "base/error.h"
 #include "base/parallel.h"
 #include "model/gradational_builder.h"
+#include "model/voxel_shapes.h"
 #include "sim/state.h"
 
 namespace vx {
 
 VoxelGrid make_sphere_grid(int n, double voxel_mm) {
   if (n < 4) throw Error("sphere grid: size " + std::to_string(n) + " must be >= 4");
-  GridGeometry g;
-  g.dims = {n, n, n};
-  g.spacing_mm = Eigen::Vector3d::Constant(voxel_mm);
-  VoxelGrid grid(g);
-  const double c = 0.5 * (n - 1), r = 0.5 * n - 1.0;
-  for (int k = 0; k < n; ++k)
-    for (int j = 0; j < n; ++j)
-      for (int i = 0; i < n; ++i)
-        grid.set(i, j, k, (i - c) * (i - c) + (j - c) * (j - c) + (k - c) * (k - c) <= r * r ? 1 : 0);
-  return grid;
+  return ball_grid(n, 0.5 * n - 1.0, voxel_mm);
 }
 
 namespace {

@@ -6,7 +6,7 @@
 /// Scenario: a ball of radius n/2 - 1 voxels in an n^3 grid, its lowest cap of nodes fixed,
 /// under gravity, after a few warm-up steps (so the elements deform and the rotation fits
 /// work every step). Reports wall time per step, per element and per vertex entry (the work
-/// measure of MODEL.md section 3), the threads used, and the real-time factor dt / step time.
+/// measure of docs/model.md section 3), the threads used, and the real-time factor dt / step time.
 
 #include <cstdint>
 #include <functional>
@@ -20,7 +20,7 @@
 
 namespace vx {
 
-/// A ball phantom: radius n/2 - 1 voxels, centred in an n^3 grid of voxel edge voxel_mm.
+/// A ball phantom: ball_grid(n, n/2 - 1, voxel_mm) (model/voxel_shapes.h); throws for n < 4.
 [[nodiscard]] VoxelGrid make_sphere_grid(int n, double voxel_mm = 1.0);
 
 /// What to benchmark.

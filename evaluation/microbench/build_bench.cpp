@@ -4,22 +4,12 @@
 #include <cmath>
 
 #include "model/gradational_builder.h"
+#include "model/voxel_shapes.h"
 
 namespace {
 
-vx::VoxelGrid sphere_grid(int diameter) {
-  // a ball `diameter` voxels across with a 2-voxel air margin
-  const int n = diameter + 4;
-  vx::GridGeometry g;
-  g.dims = {n, n, n};
-  vx::VoxelGrid grid(g);
-  const double c = 0.5 * (n - 1), r = 0.5 * diameter - 0.5;
-  for (int k = 0; k < n; ++k)
-    for (int j = 0; j < n; ++j)
-      for (int i = 0; i < n; ++i)
-        grid.set(i, j, k, (i - c) * (i - c) + (j - c) * (j - c) + (k - c) * (k - c) <= r * r);
-  return grid;
-}
+/// A ball `diameter` voxels across with a 2-voxel air margin.
+vx::VoxelGrid sphere_grid(int diameter) { return vx::ball_grid(diameter + 4, 0.5 * diameter - 0.5); }
 
 void BM_Build(benchmark::State& state, vx::Layout layout) {
   const vx::VoxelGrid grid = sphere_grid(int(state.range(0)));

@@ -5,12 +5,12 @@
 #include <fmt/format.h>
 
 #include <algorithm>
-#include <cctype>
 #include <cmath>
 #include <cstdlib>
 #include <optional>
 
 #include "base/error.h"
+#include "util/text.h"
 
 namespace vx {
 namespace {
@@ -30,18 +30,6 @@ constexpr Preset kPresets[] = {
     {"lung", {-950.0, -400.0}, "aerated lung"},
     {"tissue", {-200.0, kInf}, "everything that is not air"},
 };
-
-std::string trim(const std::string& s) {
-  std::size_t a = 0, b = s.size();
-  while (a < b && std::isspace(static_cast<unsigned char>(s[a]))) ++a;
-  while (b > a && std::isspace(static_cast<unsigned char>(s[b - 1]))) --b;
-  return s.substr(a, b - a);
-}
-
-std::string lower(std::string s) {
-  for (char& c : s) c = char(std::tolower(static_cast<unsigned char>(c)));
-  return s;
-}
 
 /// A whole-string number; "inf", "+inf", "-inf" allowed; empty for anything else.
 std::optional<double> parse_hu(const std::string& text) {

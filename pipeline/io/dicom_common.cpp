@@ -12,9 +12,11 @@
 #include <fmt/format.h>
 
 #include <cmath>
+#include <fstream>
 #include <mutex>
 
 #include "base/error.h"
+#include "util/text.h"
 
 namespace vx::dicom {
 
@@ -47,6 +49,14 @@ std::string format_ds(double value) {
     if (s.size() <= 16) return s;
   }
   throw Error(fmt::format("DICOM: the number {} does not fit a 16-character decimal string", value));
+}
+
+bool has_dicm_magic(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw Error("cannot open " + quoted(path) + " for reading (check its permissions)");
+  char head[132] = {};
+  in.read(head, sizeof head);
+  return in.gcount() == std::streamsize(sizeof head) && std::string(head + 128, 4) == "DICM";
 }
 
 }  // namespace vx::dicom

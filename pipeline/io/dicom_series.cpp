@@ -20,7 +20,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <fstream>
 #include <map>
 #include <new>
 #include <numbers>
@@ -31,6 +30,7 @@
 #include "base/error.h"
 #include "io/dicom_common.h"
 #include "util/progress.h"
+#include "util/text.h"
 
 namespace vx {
 namespace {
@@ -78,18 +78,10 @@ struct FileInfo {
   std::vector<FrameInfo> frames;
 };
 
-std::string quoted(const fs::path& p) { return "'" + p.string() + "'"; }
-
 std::string get_string(DcmItem* item, const DcmTagKey& tag) {
   OFString s;
   if (item && item->findAndGetOFStringArray(tag, s).good()) return std::string(s.c_str());
   return {};
-}
-
-std::string trim(std::string s) {
-  const auto b = s.find_first_not_of(" \t\r\n");
-  if (b == std::string::npos) return {};
-  return s.substr(b, s.find_last_not_of(" \t\r\n") - b + 1);
 }
 
 bool get_int(DcmItem* item, const DcmTagKey& tag, long& out) {
@@ -127,13 +119,6 @@ DcmItem* find_functional(DcmItem* top, DcmItem* per_frame, DcmItem* shared, cons
   return top->tagExists(attr) ? top : nullptr;
 }
 
-bool has_dicm_magic(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  char buf[132] = {};
-  if (!in.read(buf, sizeof buf)) return false;
-  return std::string(buf + 128, 4) == "DICM";
-}
-
 bool is_ct_sop_class(const std::string& uid) {
   return uid == UID_CTImageStorage || uid == UID_EnhancedCTImageStorage ||
          uid == UID_LegacyConvertedEnhancedCTImageStorage;
@@ -144,7 +129,7 @@ FileInfo read_header(const fs::path& path, bool explicit_input, std::size_t file
   FileInfo f;
   f.path = path;
   f.explicit_input = explicit_input;
-  const bool magic = has_dicm_magic(path);
+  const bool magic = dicom::has_dicm_magic(path);
   DcmFileFormat ff;
   const OFCondition status = ff.loadFile(path.c_str(), EXS_Unknown, EGL_noChange, kHeaderReadLimit, ERM_autoDetect);
   DcmDataset* ds = ff.getDataset();
@@ -615,17 +600,12 @@ void place_slice(const SliceLayout& layout, int k, int rows, int cols, const flo
     }
 }
 
-}  // namespace
-
-Volume read_dicom_series(const std::vector<fs::path>& inputs_in, const ReadOptions& options) {
-  dicom::init_dcmtk();
+/// The inputs to read: one single-frame file stands for its series, which is then read from
+/// the file's folder (that folder only, not its subfolders: `recursive` false) with the series
+/// UID set from the file; `where` names the inputs in messages.
+std::vector<fs::path> resolve_single_file(const std::vector<fs::path>& inputs_in, ReadOptions& opts, std::string& where,
+                                          bool& recursive) {
   std::vector<fs::path> inputs = inputs_in;
-  ReadOptions opts = options;
-  std::string where = inputs.size() == 1 ? quoted(inputs.front()) : fmt::format("the {} inputs given", inputs.size());
-
-  // one single-frame file stands for its series: read the series from the file's folder
-  // (that folder only, not its subfolders)
-  bool recursive = true;
   if (inputs.size() == 1) {
     std::error_code ec;
     if (fs::is_regular_file(inputs.front(), ec)) {
@@ -644,9 +624,11 @@ Volume read_dicom_series(const std::vector<fs::path>& inputs_in, const ReadOptio
       }
     }
   }
+  return inputs;
+}
 
-  // header pass
-  const auto listed = collect_files(inputs, recursive);
+/// The header pass: everything about each file but its pixels.
+std::vector<FileInfo> read_headers(const std::vector<std::pair<fs::path, bool>>& listed) {
   std::vector<FileInfo> files;
   files.reserve(listed.size());
   {
@@ -658,7 +640,12 @@ Volume read_dicom_series(const std::vector<fs::path>& inputs_in, const ReadOptio
     progress.done();
   }
 
-  // problems that are fatal whatever the series: named files that are not DICOM, broken files of unknown series
+  return files;
+}
+
+/// Problems that are fatal whatever the series (named files that are not DICOM, broken files of
+/// unknown series), and notes on the files skipped.
+void check_files(const std::vector<FileInfo>& files, const std::string& where) {
   std::size_t not_dicom = 0, non_image = 0;
   const FileInfo* example_not_dicom = nullptr;
   for (const FileInfo& f : files) {
@@ -683,8 +670,10 @@ Volume read_dicom_series(const std::vector<fs::path>& inputs_in, const ReadOptio
                  not_dicom == 1 ? "" : "s", not_dicom == 1 ? "is" : "are", example_not_dicom->path.string().c_str());
   if (non_image) std::fprintf(stderr, "DICOM: skipped %zu DICOM file%s without images (reports, DICOMDIR, ...)\n",
                               non_image, non_image == 1 ? "" : "s");
+}
 
-  // group by series
+/// The series found, by SeriesInstanceUID (localizers counted apart).
+std::map<std::string, SeriesInfo> group_series(const std::vector<FileInfo>& files) {
   std::map<std::string, SeriesInfo> all;
   for (std::size_t i = 0; i < files.size(); ++i) {
     const FileInfo& f = files[i];
@@ -701,14 +690,11 @@ Volume read_dicom_series(const std::vector<fs::path>& inputs_in, const ReadOptio
     if (s.description.empty()) s.description = f.description;
     s.is_ct = s.is_ct || f.is_ct;
   }
-  const SeriesInfo& series = choose_series(all, opts, where);
-  std::size_t broken_elsewhere = 0;
-  for (const FileInfo& f : files) broken_elsewhere += f.kind == FileKind::broken && f.series_uid != series.uid;
-  if (broken_elsewhere)
-    std::fprintf(stderr, "DICOM: warning: skipped %zu unreadable file%s of other series\n", broken_elsewhere,
-                 broken_elsewhere == 1 ? "" : "s");
+  return all;
+}
 
-  // the chosen series must be readable throughout
+/// The frames of the chosen series, which must be readable throughout.
+std::vector<FrameInfo> series_frames(const std::vector<FileInfo>& files, const SeriesInfo& series) {
   std::vector<FrameInfo> frames;
   for (std::size_t i : series.files) {
     const FileInfo& f = files[i];
@@ -727,12 +713,11 @@ Volume read_dicom_series(const std::vector<fs::path>& inputs_in, const ReadOptio
                    f.path.string().c_str(), series.uid.c_str(), f.sop_class.c_str());
     frames.insert(frames.end(), f.frames.begin(), f.frames.end());
   }
-  const SliceLayout layout = lay_out_slices(files, frames, series, opts);
-  const bool missing_rescale = std::any_of(frames.begin(), frames.end(), [](const FrameInfo& fr) { return !fr.has_rescale; });
-  if (missing_rescale && series.is_ct)
-    std::fprintf(stderr, "DICOM: warning: some slices of series %s have no RescaleSlope/Intercept; taking stored "
-                 "values as HU (slope 1, intercept 0)\n", series.uid.c_str());
+  return frames;
+}
 
+/// The volume of the slice layout, filled with air.
+Volume allocate_volume(const SliceLayout& layout, const SeriesInfo& series) {
   // the volume
   Volume volume;
   volume.geometry = layout.geometry;
@@ -745,7 +730,13 @@ Volume read_dicom_series(const std::vector<fs::path>& inputs_in, const ReadOptio
                             double(voxels) * 4e-6));
   }
 
-  // pixel pass: file by file (frames of a file in frame order), each frame straight into its slice
+  return volume;
+}
+
+/// The pixel pass: file by file (frames of a file in frame order), each frame straight into its
+/// slice of `volume`.
+void read_pixels(const std::vector<FileInfo>& files, const std::vector<FrameInfo>& frames, const SliceLayout& layout,
+                 Volume& volume) {
   std::vector<std::vector<std::pair<int, int>>> by_file(files.size());  // (frame, slice)
   for (std::size_t k = 0; k < frames.size(); ++k) by_file[frames[k].file].emplace_back(frames[k].frame, int(k));
   std::vector<const FrameInfo*> frame_of_slice(frames.size());
@@ -798,7 +789,33 @@ Volume read_dicom_series(const std::vector<fs::path>& inputs_in, const ReadOptio
     }
   }
   progress.done();
-  return volume;
 }
 
+}  // namespace
+
+Volume read_dicom_series(const std::vector<fs::path>& inputs, const ReadOptions& options) {
+  dicom::init_dcmtk();
+  ReadOptions opts = options;
+  std::string where = inputs.size() == 1 ? quoted(inputs.front()) : fmt::format("the {} inputs given", inputs.size());
+  bool recursive = true;
+  const std::vector<fs::path> resolved = resolve_single_file(inputs, opts, where, recursive);
+  std::vector<FileInfo> files = read_headers(collect_files(resolved, recursive));
+  check_files(files, where);
+  const std::map<std::string, SeriesInfo> all = group_series(files);
+  const SeriesInfo& series = choose_series(all, opts, where);
+  std::size_t broken_elsewhere = 0;
+  for (const FileInfo& f : files) broken_elsewhere += f.kind == FileKind::broken && f.series_uid != series.uid;
+  if (broken_elsewhere)
+    std::fprintf(stderr, "DICOM: warning: skipped %zu unreadable file%s of other series\n", broken_elsewhere,
+                 broken_elsewhere == 1 ? "" : "s");
+  std::vector<FrameInfo> frames = series_frames(files, series);
+  const SliceLayout layout = lay_out_slices(files, frames, series, opts);
+  const bool missing_rescale = std::any_of(frames.begin(), frames.end(), [](const FrameInfo& fr) { return !fr.has_rescale; });
+  if (missing_rescale && series.is_ct)
+    std::fprintf(stderr, "DICOM: warning: some slices of series %s have no RescaleSlope/Intercept; taking stored "
+                 "values as HU (slope 1, intercept 0)\n", series.uid.c_str());
+  Volume volume = allocate_volume(layout, series);
+  read_pixels(files, frames, layout, volume);
+  return volume;
+}
 }  // namespace vx

@@ -36,6 +36,7 @@
 
 #include "base/error.h"
 #include "io/element_faces.h"
+#include "render/palette.h"
 #include "util/atomic_file.h"
 #include "util/vtk_messages.h"
 
@@ -67,14 +68,6 @@ bool probe_x_display() {
   }
   // libX11 stays loaded: it registers handlers at load time, and VTK uses it anyway
   return ok;
-}
-
-/// Colour of level L: ColorBrewer Set2 (distinct, colour-blind friendly), repeating after 8.
-std::array<double, 3> level_colour(int level) {
-  static constexpr unsigned char set2[8][3] = {{102, 194, 165}, {252, 141, 98}, {141, 160, 203}, {231, 138, 195},
-                                               {166, 216, 84},  {255, 217, 47}, {229, 196, 148}, {179, 179, 179}};
-  const auto* c = set2[level % 8];
-  return {c[0] / 255.0, c[1] / 255.0, c[2] / 255.0};
 }
 
 /// A length with 1, 2 or 5 as its leading digit, at most `mm`.
@@ -129,44 +122,32 @@ vtkSmartPointer<vtkActor2D> make_shape(const std::vector<std::array<double, 2>>&
   return actor;
 }
 
-}  // namespace
+/// Where the model is and how it is seen: the box of its nodes (LPS mm), and the direction
+/// towards the camera (from the patient's front-left and above: LPS -y anterior, +x left, +z
+/// superior).
+struct ModelView {
+  Eigen::Vector3d lo, hi, centre, extent;
+  Eigen::Vector3d view{Eigen::Vector3d(0.9, -1.5, 0.85).normalized()};
+  explicit ModelView(const Model& model)
+      : lo(model.rest_positions.rowwise().minCoeff()),
+        hi(model.rest_positions.rowwise().maxCoeff()),
+        centre(0.5 * (lo + hi)),
+        extent(hi - lo) {}
+};
 
-bool display_available() {
-  static const bool available = probe_x_display();
-  return available;
-}
-
-void render_model_png(const Model& model, const fs::path& png, const RenderSettings& settings) {
-  if (png.extension() != ".png")
-    throw Error("cannot write the picture '" + png.string() + "': use a .png file name");
-  if (settings.width < 200 || settings.height < 150 || settings.width > 8192 || settings.height > 8192)
-    throw Error(fmt::format("picture size {} x {} px is out of range: use 200..8192 x 150..8192", settings.width,
-                            settings.height));
-  if (model.num_elements() == 0) throw Error("cannot draw '" + png.string() + "': the model has no elements");
-  check_output_path(png);
-  if (!display_available())
-    throw Error(
-        "no X display: pictures need an X server (VTK 9.1 on Debian renders through X11 only). Run under "
-        "xvfb-run, e.g. `xvfb-run -a -s \"-screen 0 1280x1024x24\" voxelastic ...`, or leave out the picture "
-        "(--png)");
-
-  // where the model is: the box of its nodes (LPS mm) and its centre
-  const Eigen::Vector3d lo = model.rest_positions.rowwise().minCoeff();
-  const Eigen::Vector3d hi = model.rest_positions.rowwise().maxCoeff();
-  const Eigen::Vector3d centre = 0.5 * (lo + hi);
-  const Eigen::Vector3d extent = hi - lo;
-  // view from the patient's front-left and above (LPS: -y anterior, +x left, +z superior)
-  const Eigen::Vector3d view = Eigen::Vector3d(0.9, -1.5, 0.85).normalized();  // towards the camera
-
-  // the elements' faces, without those whose centroid lies in the octant facing the camera
+/// The elements' faces with their level as cell data, without those whose centroid lies in the
+/// octant facing the camera when `settings.cutaway` (and that leaves some but not all);
+/// `cutaway` says whether it was cut.
+vtkSmartPointer<vtkPolyData> level_faces(const Model& model, const ModelView& mv, const RenderSettings& settings,
+                                         bool& cutaway) {
   const auto cut = [&](int e) {
     if (!settings.cutaway) return false;
-    const Eigen::Vector3d d = model.rest_centroids.col(e) - centre;
-    return d.x() * view.x() > 0 && d.y() * view.y() > 0 && d.z() * view.z() > 0;
+    const Eigen::Vector3d d = model.rest_centroids.col(e) - mv.centre;
+    return d.x() * mv.view.x() > 0 && d.y() * mv.view.y() > 0 && d.z() * mv.view.z() > 0;
   };
   int kept_elements = 0;
   for (int e = 0; e < model.num_elements(); ++e) kept_elements += !cut(e);
-  const bool cutaway = settings.cutaway && kept_elements > 0 && kept_elements < model.num_elements();
+  cutaway = settings.cutaway && kept_elements > 0 && kept_elements < model.num_elements();
 
   vtkNew<vtkPoints> points;
   points->SetDataTypeToDouble();
@@ -187,12 +168,16 @@ void render_model_png(const Model& model, const fs::path& png, const RenderSetti
       levels->InsertNextValue(model.element_level[std::size_t(e)]);
     }
   }
-  vtkNew<vtkPolyData> surface;
+  auto surface = vtkSmartPointer<vtkPolyData>::New();
   surface->SetPoints(points);
   surface->SetPolys(polys);
   surface->GetCellData()->SetScalars(levels);
+  return surface;
+}
 
-  const int num_levels = model.num_levels();
+/// The faces coloured by level (palette.h), flat, with element outlines (thinner when there
+/// are many faces per pixel, so they do not blacken the picture).
+vtkSmartPointer<vtkActor> level_actor(vtkPolyData* surface, int num_levels, const RenderSettings& settings) {
   vtkNew<vtkLookupTable> lut;
   lut->SetNumberOfTableValues(num_levels);
   lut->SetTableRange(0, std::max(num_levels - 1, 1));
@@ -208,64 +193,75 @@ void render_model_png(const Model& model, const fs::path& png, const RenderSetti
   mapper->SetScalarRange(0, std::max(num_levels - 1, 1));
   if (num_levels == 1) mapper->SetScalarRange(0, 1);
   mapper->SetColorModeToMapScalars();
-  vtkNew<vtkActor> actor;
+  auto actor = vtkSmartPointer<vtkActor>::New();
   actor->SetMapper(mapper);
   vtkProperty* prop = actor->GetProperty();
   prop->SetInterpolationToFlat();
   prop->SetAmbient(0.3);
   prop->SetDiffuse(0.75);
   prop->SetSpecular(0.0);
-  // element outlines; thinner when there are many faces so they do not blacken the picture
-  const double faces_per_pixel = double(polys->GetNumberOfCells()) / (double(settings.width) * settings.height);
+  const double faces_per_pixel =
+      double(surface->GetPolys()->GetNumberOfCells()) / (double(settings.width) * settings.height);
   prop->SetEdgeVisibility(true);
   const double edge_grey = faces_per_pixel > 0.02 ? 0.35 : 0.15;
   prop->SetEdgeColor(edge_grey, edge_grey, edge_grey);
   prop->SetLineWidth(1.0f);
+  return actor;
+}
 
-  // text sizes follow the picture size (designed for 1200 x 900)
-  const double font_scale = std::clamp(std::min(settings.width / 1200.0, settings.height / 900.0), 0.5, 4.0);
-  const auto font = [font_scale](int points) { return std::max(8, int(std::lround(points * font_scale))); };
-
-  // layout: a title band on top, the legend on the right, the model in the rest
-  const double legend_x = 0.74, title_y = settings.title.empty() ? 0.93 : 0.88;
+/// The picture's parts: a title band on top, the legend on the right, the model in the rest,
+/// the orientation marker in its corner; sizes in pixels of the model's part.
+struct PictureLayout {
+  double legend_x{0.74}, title_y{0.93};
+  double scene_w{0}, scene_h{0};
+  double font_scale{1.0};  ///< text sizes follow the picture size (designed for 1200 x 900)
   vtkNew<vtkRenderer> scene, band, legend, axes;
-  scene->SetViewport(0.0, 0.0, legend_x, title_y);
-  band->SetViewport(0.0, title_y, 1.0, 1.0);
-  legend->SetViewport(legend_x, 0.0, 1.0, title_y);
-  axes->SetViewport(0.0, 0.0, 0.14 * legend_x, 0.17 * title_y);
-  for (vtkRenderer* r : {scene.Get(), band.Get(), legend.Get()}) r->SetBackground(1.0, 1.0, 1.0);
-  scene->SetBackground(0.97, 0.97, 0.98);
-  scene->SetBackground2(0.86, 0.88, 0.92);
-  scene->GradientBackgroundOn();
-  axes->SetLayer(1);
-  axes->InteractiveOff();
-  scene->AddActor(actor);
 
-  // camera: parallel projection (so the scale bar is exact), framing the model's projection
-  const Eigen::Vector3d up = (Eigen::Vector3d::UnitZ() - view.z() * view).normalized();  // superior up
-  const Eigen::Vector3d right = (-view).cross(up);
+  explicit PictureLayout(const RenderSettings& settings) {
+    title_y = settings.title.empty() ? 0.93 : 0.88;
+    scene_w = settings.width * legend_x;
+    scene_h = settings.height * title_y;
+    font_scale = std::clamp(std::min(settings.width / 1200.0, settings.height / 900.0), 0.5, 4.0);
+    scene->SetViewport(0.0, 0.0, legend_x, title_y);
+    band->SetViewport(0.0, title_y, 1.0, 1.0);
+    legend->SetViewport(legend_x, 0.0, 1.0, title_y);
+    axes->SetViewport(0.0, 0.0, 0.14 * legend_x, 0.17 * title_y);
+    for (vtkRenderer* r : {scene.Get(), band.Get(), legend.Get()}) r->SetBackground(1.0, 1.0, 1.0);
+    scene->SetBackground(0.97, 0.97, 0.98);
+    scene->SetBackground2(0.86, 0.88, 0.92);
+    scene->GradientBackgroundOn();
+    axes->SetLayer(1);
+    axes->InteractiveOff();
+  }
+  [[nodiscard]] int font(int points) const { return std::max(8, int(std::lround(points * font_scale))); }
+};
+
+/// Parallel projection (so the scale bar is exact), framing the model's projection with
+/// margins: 12 % of the height, and room for the axes and the scale bar at the bottom.
+void frame_camera(vtkCamera* camera, const Model& model, const ModelView& mv, const PictureLayout& layout) {
+  const Eigen::Vector3d up = (Eigen::Vector3d::UnitZ() - mv.view.z() * mv.view).normalized();  // superior up
+  const Eigen::Vector3d right = (-mv.view).cross(up);
   Eigen::Vector2d plo(1e300, 1e300), phi(-1e300, -1e300);
   for (int i = 0; i < model.num_nodes(); ++i) {
-    const Eigen::Vector3d d = model.rest_positions.col(i) - centre;
+    const Eigen::Vector3d d = model.rest_positions.col(i) - mv.centre;
     const Eigen::Vector2d q(d.dot(right), d.dot(up));
     plo = plo.cwiseMin(q);
     phi = phi.cwiseMax(q);
   }
   const Eigen::Vector2d pmid = 0.5 * (plo + phi), phalf = 0.5 * (phi - plo);
-  const double scene_w = settings.width * legend_x, scene_h = settings.height * title_y;
-  const double radius = 0.5 * extent.norm() + 1e-6;
-  const Eigen::Vector3d focal = centre + pmid.x() * right + pmid.y() * up;
-  const Eigen::Vector3d eye = focal + view * (4.0 * radius);
-  vtkCamera* camera = scene->GetActiveCamera();
+  const double radius = 0.5 * mv.extent.norm() + 1e-6;
+  const Eigen::Vector3d focal = mv.centre + pmid.x() * right + pmid.y() * up;
+  const Eigen::Vector3d eye = focal + mv.view * (4.0 * radius);
   camera->ParallelProjectionOn();
   camera->SetFocalPoint(focal.data());
   camera->SetPosition(eye.data());
   camera->SetViewUp(up.data());
-  // margins: 12% of the height, and room for the axes and the scale bar at the bottom
-  camera->SetParallelScale(std::max({phalf.y(), phalf.x() * scene_h / scene_w, 1e-6}) * 1.22);
+  camera->SetParallelScale(std::max({phalf.y(), phalf.x() * layout.scene_h / layout.scene_w, 1e-6}) * 1.22);
   camera->SetClippingRange(radius, 7.0 * radius);
+}
 
-  // orientation marker: L, P, S axes turning with the camera
+/// The orientation marker: L, P, S axes turning with the camera.
+void add_orientation_marker(const ModelView& mv, PictureLayout& layout) {
   vtkNew<vtkAxesActor> triad;
   triad->SetXAxisLabelText("L");
   triad->SetYAxisLabelText("P");
@@ -276,37 +272,51 @@ void render_model_png(const Model& model, const fs::path& png, const RenderSetti
     c->GetCaptionTextProperty()->SetColor(0.1, 0.1, 0.1);
     c->GetCaptionTextProperty()->ShadowOff();
     c->GetCaptionTextProperty()->ItalicOff();
-    c->GetCaptionTextProperty()->SetFontSize(font(14));
+    c->GetCaptionTextProperty()->SetFontSize(layout.font(14));
     c->GetTextActor()->SetTextScaleModeToNone();
   }
-  axes->AddActor(triad);
-  vtkCamera* axes_camera = axes->GetActiveCamera();
+  layout.axes->AddActor(triad);
+  vtkCamera* axes_camera = layout.axes->GetActiveCamera();
   axes_camera->SetFocalPoint(0, 0, 0);
-  const Eigen::Vector3d axes_eye = view * 10.0;
+  const Eigen::Vector3d axes_eye = mv.view * 10.0;
   axes_camera->SetPosition(axes_eye.data());
   axes_camera->SetViewUp(0, 0, 1);
-  axes->ResetCamera();
+  layout.axes->ResetCamera();
   axes_camera->Zoom(1.3);
+}
 
-  // scale bar: a round length about a fifth of the model's view, at the bottom right of the scene
-  const double px_per_mm = scene_h / (2.0 * camera->GetParallelScale());
-  const double bar_mm = round_length(0.2 * scene_w / px_per_mm);
-  const double bar_w = bar_mm * px_per_mm / scene_w;  // normalized viewport
+/// A scale bar: a round length about a fifth of the model's view, at the bottom right.
+void add_scale_bar(PictureLayout& layout) {
+  const double px_per_mm = layout.scene_h / (2.0 * layout.scene->GetActiveCamera()->GetParallelScale());
+  const double bar_mm = round_length(0.2 * layout.scene_w / px_per_mm);
+  const double bar_w = bar_mm * px_per_mm / layout.scene_w;  // normalized viewport
   const double bx1 = 0.95, bx0 = bx1 - bar_w, by = 0.06, tick = 0.015;
-  scene->AddActor2D(make_shape({{bx0, by + tick}, {bx0, by}, {bx1, by}, {bx1, by + tick}}, false, {0.1, 0.1, 0.1}, 2.0));
-  scene->AddActor2D(make_text(format_mm(bar_mm), font(16), 0.5 * (bx0 + bx1), by + 0.035, VTK_TEXT_CENTERED));
+  layout.scene->AddActor2D(
+      make_shape({{bx0, by + tick}, {bx0, by}, {bx1, by}, {bx1, by + tick}}, false, {0.1, 0.1, 0.1}, 2.0));
+  layout.scene->AddActor2D(
+      make_text(format_mm(bar_mm), layout.font(16), 0.5 * (bx0 + bx1), by + 0.035, VTK_TEXT_CENTERED));
+}
 
-  // title band
+/// The title band: the title (when given) over the model's layout and size.
+void add_title(const Model& model, const RenderSettings& settings, PictureLayout& layout) {
+  const int num_levels = model.num_levels();
   const std::string what = fmt::format("{} model: {} elements in {} level{}, {} nodes", to_string(model.layout),
                                        model.num_elements(), num_levels, num_levels == 1 ? "" : "s", model.num_nodes());
   if (!settings.title.empty()) {
-    band->AddActor2D(make_text(settings.title, font(24), 0.5, 0.66, VTK_TEXT_CENTERED, true));
-    band->AddActor2D(make_text(what, font(16), 0.5, 0.24, VTK_TEXT_CENTERED, false, 0.3));
+    layout.band->AddActor2D(make_text(settings.title, layout.font(24), 0.5, 0.66, VTK_TEXT_CENTERED, true));
+    layout.band->AddActor2D(make_text(what, layout.font(16), 0.5, 0.24, VTK_TEXT_CENTERED, false, 0.3));
   } else {
-    band->AddActor2D(make_text(what, font(18), 0.5, 0.5, VTK_TEXT_CENTERED, true));
+    layout.band->AddActor2D(make_text(what, layout.font(18), 0.5, 0.5, VTK_TEXT_CENTERED, true));
   }
+}
 
-  // legend: one swatch per level, with its element count and element size
+/// The legend: one swatch per level with its element count and element size, then the
+/// tissue's extent, the voxel size and how the model is seen.
+void add_legend(const Model& model, const ModelView& mv, bool cutaway, const RenderSettings& settings,
+                PictureLayout& layout) {
+  vtkRenderer* legend = layout.legend;
+  const auto font = [&](int points) { return layout.font(points); };
+  const int num_levels = model.num_levels();
   const std::vector<std::int64_t> per_level = model.elements_per_level();
   std::vector<double> size_mm(std::size_t(num_levels), 0.0);
   for (int e = 0; e < model.num_elements(); ++e) size_mm[std::size_t(model.element_level[std::size_t(e)])] = model.element_size_mm[std::size_t(e)];
@@ -316,7 +326,7 @@ void render_model_png(const Model& model, const fs::path& png, const RenderSetti
   legend->AddActor2D(make_text("(count, element edge)", font(14), 0.08, y - 0.035, VTK_TEXT_LEFT, false, 0.35));
   y -= 0.035 + line;
   // square swatches: half height in the legend's normalized height, width converted by its aspect
-  const double half = 0.28 * line, sw = 2.0 * half * scene_h / (settings.width * (1.0 - legend_x));
+  const double half = 0.28 * line, sw = 2.0 * half * layout.scene_h / (settings.width * (1.0 - layout.legend_x));
   for (int l = 0; l < num_levels; ++l, y -= line) {
     legend->AddActor2D(make_shape({{0.08, y - half}, {0.08 + sw, y - half}, {0.08 + sw, y + half}, {0.08, y + half}}, true, level_colour(l)));
     legend->AddActor2D(make_shape({{0.08, y - half}, {0.08 + sw, y - half}, {0.08 + sw, y + half}, {0.08, y + half}, {0.08, y - half}}, false, {0.2, 0.2, 0.2}));
@@ -327,7 +337,7 @@ void render_model_png(const Model& model, const fs::path& png, const RenderSetti
   y -= 0.5 * line;
   legend->AddActor2D(make_text("tissue extent (mm)", font(15), 0.08, y, VTK_TEXT_LEFT, true));
   y -= 0.04;
-  legend->AddActor2D(make_text(fmt::format("R-L {:.1f}, A-P {:.1f}, I-S {:.1f}", extent.x(), extent.y(), extent.z()), font(14), 0.08, y, VTK_TEXT_LEFT));
+  legend->AddActor2D(make_text(fmt::format("R-L {:.1f}, A-P {:.1f}, I-S {:.1f}", mv.extent.x(), mv.extent.y(), mv.extent.z()), font(14), 0.08, y, VTK_TEXT_LEFT));
   y -= 0.04;
   legend->AddActor2D(make_text(fmt::format("voxel {:.3g} x {:.3g} x {:.3g} mm", model.grid.spacing_mm.x(), model.grid.spacing_mm.y(), model.grid.spacing_mm.z()), font(14), 0.08, y, VTK_TEXT_LEFT));
   y -= 0.06;
@@ -338,15 +348,18 @@ void render_model_png(const Model& model, const fs::path& png, const RenderSetti
     y -= 0.04;
     legend->AddActor2D(make_text("to show the inner levels", font(14), 0.08, y, VTK_TEXT_LEFT, false, 0.35));
   }
+}
 
-  // render off screen and save
+/// Renders the picture's parts off screen and writes the PNG atomically.
+void save_picture(PictureLayout& layout, const RenderSettings& settings, const fs::path& png) {
   const VtkMessageCapture vtk_messages;
   vtkNew<vtkRenderWindow> window;
   window->SetOffScreenRendering(1);
   window->SetMultiSamples(8);
   window->SetNumberOfLayers(2);
   window->SetSize(settings.width, settings.height);
-  for (vtkRenderer* r : {scene.Get(), band.Get(), legend.Get(), axes.Get()}) window->AddRenderer(r);
+  for (vtkRenderer* r : {layout.scene.Get(), layout.band.Get(), layout.legend.Get(), layout.axes.Get()})
+    window->AddRenderer(r);
   window->Render();
   vtkNew<vtkWindowToImageFilter> grab;
   grab->SetInput(window);
@@ -363,6 +376,41 @@ void render_model_png(const Model& model, const fs::path& png, const RenderSetti
     writer->Write();
     if (!vtk_messages.errors().empty()) throw Error("VTK could not write the PNG: " + vtk_messages.errors().front());
   });
+}
+
+}  // namespace
+
+bool display_available() {
+  static const bool available = probe_x_display();
+  return available;
+}
+
+
+void render_model_png(const Model& model, const fs::path& png, const RenderSettings& settings) {
+  if (png.extension() != ".png")
+    throw Error("cannot write the picture '" + png.string() + "': use a .png file name");
+  if (settings.width < 200 || settings.height < 150 || settings.width > 8192 || settings.height > 8192)
+    throw Error(fmt::format("picture size {} x {} px is out of range: use 200..8192 x 150..8192", settings.width,
+                            settings.height));
+  if (model.num_elements() == 0) throw Error("cannot draw '" + png.string() + "': the model has no elements");
+  check_output_path(png);
+  if (!display_available())
+    throw Error(
+        "no X display: pictures need an X server (VTK 9.1 on Debian renders through X11 only). Run under "
+        "xvfb-run, e.g. `xvfb-run -a -s \"-screen 0 1280x1024x24\" voxelastic ...`, or leave out the picture "
+        "(--png)");
+
+  const ModelView mv(model);
+  bool cutaway = false;
+  const vtkSmartPointer<vtkPolyData> faces = level_faces(model, mv, settings, cutaway);
+  PictureLayout layout(settings);
+  layout.scene->AddActor(level_actor(faces, model.num_levels(), settings));
+  frame_camera(layout.scene->GetActiveCamera(), model, mv, layout);
+  add_orientation_marker(mv, layout);
+  add_scale_bar(layout);
+  add_title(model, settings, layout);
+  add_legend(model, mv, cutaway, settings, layout);
+  save_picture(layout, settings, png);
 }
 
 }  // namespace vx

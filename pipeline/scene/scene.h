@@ -103,7 +103,7 @@ struct Scene {
   Eigen::Vector3d gravity_m_s2{0, 0, 0};
   Workspace workspace;
   IntegratorKind integrator{IntegratorKind::symplectic_euler};
-  double dt_s{0.0};                  ///< 0: automatic (half the estimated stable step)
+  double dt_s{0.0};                  ///< 0: automatic (automatic_time_step() of sim/time_step.h)
   ContactSettings contact;
   std::optional<DeviceForceSettings> device;
   std::vector<ProbeSettings> probes;

@@ -211,7 +211,7 @@ void store_elements(const std::vector<ElementSeed>& seeds, const NodeLattice& la
   }
 }
 
-/// The paper's procedure (MODEL.md 3): shells of elements, level by level.
+/// The paper's procedure (docs/model.md section 3): shells of elements, level by level.
 std::vector<ElementSeed> gradational_seeds(const VoxelGrid& grid, int max_level, NodeLattice& lattice,
                                            BuildReport& report, const std::function<void(double)>& progress) {
   std::vector<ElementSeed> seeds;

@@ -1,6 +1,6 @@
 #pragma once
 /// @file gradational_builder.h
-/// Builds the elastic model from a binary voxel grid (MODEL.md section 3, paper 3.1).
+/// Builds the elastic model from a binary voxel grid (docs/model.md section 3, paper 3.1).
 
 #include <cstdint>
 #include <functional>

@@ -72,7 +72,7 @@ void Model::finalize() {
     for (int i = 0; i < n; ++i) rest_offsets.col(b + i) = rest_positions.col(element_vertices[b + i]) - c;
     const double w = element_cell_voxels[e];
     element_volume_mm3[e] = __builtin_popcount(element_cells[e]) * w * w * w * voxel_mm3;
-    element_size_mm[e] = (layout == Layout::voxel ? 1.0 : 2.0) * w * voxel_edge_mm;
+    element_size_mm[e] = element_edge_voxels(e) * voxel_edge_mm;
   }
 }
 

@@ -1,6 +1,6 @@
 #pragma once
 /// @file model.h
-/// The immutable elastic model built from a voxel grid (MODEL.md section 3).
+/// The immutable elastic model built from a voxel grid (docs/model.md section 3; the layouts: section 1).
 /// Many simulation states can share one model; nothing here changes during a simulation.
 
 #include <Eigen/Core>
@@ -50,7 +50,7 @@ struct Model {
   Eigen::Matrix3Xd rest_offsets;          ///< 3 x vertex entries: rest vertex minus element centroid, mm
   Eigen::Matrix3Xd rest_centroids;        ///< 3 x elements, mean of the element's rest vertices, mm
   std::vector<double> element_volume_mm3; ///< elements: volume of the covered tissue, mm^3
-  std::vector<double> element_size_mm;    ///< elements: edge of the element's cube (2 cells), mm (geometric mean over axes)
+  std::vector<double> element_size_mm;    ///< elements: edge of the element's cube (element_edge_voxels), mm (geometric mean over axes)
 
   [[nodiscard]] int num_nodes() const { return int(rest_positions.cols()); }
   [[nodiscard]] int num_elements() const {
@@ -58,6 +58,11 @@ struct Model {
   }
   [[nodiscard]] std::int64_t num_vertex_entries() const { return std::int64_t(element_vertices.size()); }
   [[nodiscard]] int num_vertices(int e) const { return element_offsets[e + 1] - element_offsets[e]; }
+  /// Edge of element e's cube in voxels: 2 cells of element_cell_voxels[e], or the one voxel
+  /// of a voxel-layout element.
+  [[nodiscard]] int element_edge_voxels(int e) const {
+    return (layout == Layout::voxel ? 1 : 2) * element_cell_voxels[std::size_t(e)];
+  }
   /// Number of surface nodes.
   [[nodiscard]] int num_surface_nodes() const;
   /// Highest element level + 1 (0 for an empty model).

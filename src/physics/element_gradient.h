@@ -1,6 +1,7 @@
 #pragma once
 /// @file element_gradient.h
-/// The consistent (boundary-integral) deformation gradient of each element: the operator
+/// The consistent (boundary-integral) deformation gradient of each element (docs/model.md
+/// section 4): the operator
 /// F = sum_i x_i g_i^T that is exact for every affine motion and makes the elastic forces of
 /// neighbouring elements cancel at their shared nodes under a uniform strain (the patch test).
 ///

@@ -1,6 +1,6 @@
 #pragma once
 /// @file elements.h
-/// The local shape-keeping element (MODEL.md section 1, paper 2.3-2.4): rotation fit,
+/// The local shape-keeping element (docs/model.md sections 2, 4 and 5, paper 2.3-2.4): rotation fit,
 /// elastic forces, energy and damping relative to the element's rigid motion.
 ///
 /// For element e with vertices i of weight w_i (material.h: weights that make the rest

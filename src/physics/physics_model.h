@@ -11,7 +11,7 @@
 /// element therefore gets vertex weights w_i (mean 1, as close to 1 as possible, within
 /// [min_weight, max_weight]) that make its weighted spread isotropic about the weighted centroid:
 ///   sum_i w_i R0_i = 0,   C0 = sum_i w_i R0_i R0_i^T = (S / 3) I,   S = sum_i w_i |R0_i|^2.
-/// (MODEL.md's fit A = sum_i m_i r_i R0_i^T is the weighted form.) An 8-vertex cube keeps
+/// (The fit A = sum_i m_i r_i R0_i^T of docs/model.md section 2 is the weighted form.) An 8-vertex cube keeps
 /// w = 1. The element energy becomes E_e = k/2 sum_i w_i |r_i - Q R0_i|^2 with r_i about the
 /// weighted centroid, its force f_i = k w_i (Q R0_i - r_i), and masses and damping follow the
 /// weights, so every vertex of an element vibrates at the same omega_e^2 = k / m_unit.

@@ -1,7 +1,7 @@
 #pragma once
 /// @file contact.h
 /// Collision of the elastic object's nodes with rigid probes and the workspace walls
-/// (MODEL.md section 5, paper 4.1 and 4.3).
+/// (docs/model.md section 8, paper 4.1 and 4.3).
 ///
 /// Each listed node (simulation.h: every free node) that is inside a probe (or outside the
 /// workspace box) is put back on the probe's surface (the wall), and its velocity relative to

@@ -1,6 +1,6 @@
 #pragma once
 /// @file device_force.h
-/// The force a haptic device plays (MODEL.md section 5, paper 4.3, fig. 10).
+/// The force a haptic device plays (docs/model.md section 9, paper 4.3, fig. 10).
 ///
 /// The raw force on a probe (the momentum change of the nodes it hit, per step) jitters from
 /// step to step, and a device can only change its force slowly. So the device force is updated

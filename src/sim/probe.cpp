@@ -4,9 +4,17 @@
 #include <cmath>
 #include <sstream>
 
+#include "base/error.h"
+
 namespace vx {
 
 const char* to_string(JoystickMode m) { return m == JoystickMode::rate ? "rate" : "position"; }
+
+JoystickMode parse_joystick_mode(const std::string& s) {
+  if (s == "rate") return JoystickMode::rate;
+  if (s == "position") return JoystickMode::position;
+  throw Error("unknown joystick mode '" + s + "': use rate or position");
+}
 
 const char* to_string(ProbeDrive d) {
   switch (d) {

@@ -1,6 +1,6 @@
 #pragma once
 /// @file probe.h
-/// How a probe moves: a keyframed path, a scripted joystick (paper 4.2: the tool moves with a
+/// How a probe moves (docs/model.md section 8): a keyframed path, a scripted joystick (paper 4.2: the tool moves with a
 /// velocity proportional to the stick's tilt; or an optional position-control mapping), or live
 /// input from outside (the probe app sets a target position or velocity each step).
 ///
@@ -35,9 +35,13 @@ enum class JoystickMode : std::uint8_t {
   position,  ///< position = start + range * mapped deflection (position control)
 };
 [[nodiscard]] const char* to_string(JoystickMode m);
+/// Parses "rate" or "position"; throws vx::Error otherwise.
+[[nodiscard]] JoystickMode parse_joystick_mode(const std::string& s);
 
 /// The joystick mapping. The deflection of each axis is first cut by the dead zone and
 /// rescaled (|a| <= dead_zone -> 0, |a| = 1 -> 1), then mapped to LPS by `directions`.
+/// The one stick mapping: scripted joysticks and live probes of a scene, and the probe app's
+/// sticks (apps/probe/stick_control.h, which maps by the view instead of `directions`).
 struct JoystickMapping {
   JoystickMode mode{JoystickMode::rate};
   Eigen::Matrix3d directions{Eigen::Matrix3d::Identity()};  ///< column j: LPS direction of axis j (unit or 0)

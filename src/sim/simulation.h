@@ -1,7 +1,7 @@
 #pragma once
 /// @file simulation.h
-/// One simulation of an elastic object pressed, tapped and grasped by rigid probes (MODEL.md
-/// section 5). One step:
+/// One simulation of an elastic object pressed, tapped and grasped by rigid probes (docs/model.md
+/// sections 7-9). One step:
 ///
 ///   1. move the probes to the step's end time (path, scripted joystick or live input);
 ///   2. elastic forces, gravity and time integration of the nodes (integrators.h);
@@ -49,7 +49,7 @@
 namespace vx {
 
 /// Everything a simulation needs besides the physics model (plain settings; the scene file
-/// fills them, see pipeline/scene.h).
+/// fills them, see pipeline/scene/scene.h).
 struct SimulationSettings {
   IntegratorSettings integrator;                      ///< kind, time step, threads
   Eigen::Vector3d gravity_mm_s2{Eigen::Vector3d::Zero()};

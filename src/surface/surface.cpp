@@ -377,83 +377,90 @@ class LatticeMesh {
   std::vector<std::array<int, 3>> tris_;
 };
 
-}  // namespace
 
-EmbeddedSurface make_voxel_surface(const Model& model, const VoxelGrid& grid, bool hide_concave_steps,
-                                   VoxelSurfaceReport* report_out) {
-  const Eigen::Vector3i d = grid.dims();
-  if (d != model.grid.dims || std::int64_t(grid.data().size()) != grid.geometry().voxel_count())
-    throw Error("the voxel grid does not match the model's grid (dims differ)");
-  if (grid.count() != model.covered_voxels())
-    throw Error("the voxel grid does not match the model: " + std::to_string(grid.count()) + " tissue voxels, model covers " +
-                std::to_string(model.covered_voxels()));
-  VoxelSurfaceReport report;
-  const auto voxel_index = [&](const Eigen::Vector3i& v) { return std::size_t(grid.index(v.x(), v.y(), v.z())); };
-  const auto in_grid = [&](const Eigen::Vector3i& v) { return grid.inside(v.x(), v.y(), v.z()); };
-  const auto tissue = [&](const Eigen::Vector3i& v) { return grid.at(v.x(), v.y(), v.z()) != 0; };
-  const auto axis_step = [](int axis) { return Eigen::Vector3i::Unit(axis); };
+/// The voxel grid seen as tissue or not, by lattice coordinates.
+struct VoxelAccess {
+  const VoxelGrid& grid;
+  [[nodiscard]] std::size_t index(const Eigen::Vector3i& v) const { return std::size_t(grid.index(v.x(), v.y(), v.z())); }
+  [[nodiscard]] bool inside(const Eigen::Vector3i& v) const { return grid.inside(v.x(), v.y(), v.z()); }
+  [[nodiscard]] bool tissue(const Eigen::Vector3i& v) const { return grid.at(v.x(), v.y(), v.z()) != 0; }
+};
 
-  // voxels that can hold surface: the tissue box plus one voxel, within the grid
-  Eigen::Vector3i lo, hi;
-  grid.tissue_bounds(lo, hi);
-  const Eigen::Vector3i box_lo = (lo.array() - 1).max(0).matrix(), box_hi = hi.array().min(d.array() - 1).matrix();  // inclusive
+Eigen::Vector3i axis_step(int axis) { return Eigen::Vector3i::Unit(axis); }
 
-  // fills: for each empty voxel touching tissue across two perpendicular faces, the set of its
-  // corners on its tissue faces (the fill is their convex hull); 0 = no fill
-  std::vector<std::uint8_t> fill(hide_concave_steps ? std::size_t(grid.geometry().voxel_count()) : 0, 0);
-  if (hide_concave_steps) {
-    for (int k = box_lo.z(); k <= box_hi.z(); ++k)
-      for (int j = box_lo.y(); j <= box_hi.y(); ++j)
-        for (int i = box_lo.x(); i <= box_hi.x(); ++i) {
-          const Eigen::Vector3i v(i, j, k);
-          if (tissue(v)) continue;
-          int faces = 0;
-          for (int f = 0; f < 6; ++f)
-            if (tissue(v + (f % 2 ? 1 : -1) * axis_step(f / 2))) faces |= 1 << f;
-          std::uint8_t corners = 0;
-          for (int f = 0; f < 6; ++f)
-            for (int g = f + 1; g < 6; ++g)
-              if ((faces >> f & 1) && (faces >> g & 1) && f / 2 != g / 2) corners |= face_corners(f) | face_corners(g);
-          fill[voxel_index(v)] = corners;
-        }
-    // two face-adjacent fills whose traces on the shared face are triangles on crossing
-    // diagonals would leave a point off the lattice: leave both out (keep the staircase there)
-    std::vector<std::size_t> drop;
-    for (int k = box_lo.z(); k <= box_hi.z(); ++k)
-      for (int j = box_lo.y(); j <= box_hi.y(); ++j)
-        for (int i = box_lo.x(); i <= box_hi.x(); ++i) {
-          const Eigen::Vector3i v(i, j, k);
-          const std::uint8_t cv = fill[voxel_index(v)];
-          if (!cv) continue;
-          for (int axis = 0; axis < 3; ++axis) {
-            const Eigen::Vector3i n = v + axis_step(axis);
-            if (!in_grid(n) || !fill[voxel_index(n)]) continue;
-            const std::uint8_t cn = fill[voxel_index(n)];
-            // missing corner of each trace, as the lattice offset within the shared face
-            const std::uint8_t tv = cv & face_corners(2 * axis + 1), tn = cn & face_corners(2 * axis);
-            if (__builtin_popcount(tv) != 3 || __builtin_popcount(tn) != 3) continue;
-            const Eigen::Vector3i mv = corner_offset(__builtin_ctz(face_corners(2 * axis + 1) & ~tv));
-            const Eigen::Vector3i mn = corner_offset(__builtin_ctz(face_corners(2 * axis) & ~tn));
-            const int differ = (mv - mn).cwiseAbs().sum() - 1;  // along the face: 0 same, 1 adjacent, 2 opposite
-            if (differ == 1) {
-              drop.push_back(voxel_index(v));
-              drop.push_back(voxel_index(n));
-            }
+/// Fills of the concave steps (the paper's 3.3): for each empty voxel of the box [box_lo, box_hi]
+/// touching tissue across two perpendicular faces, the set of its corners on its tissue faces
+/// (the fill is their convex hull); 0 = no fill. One value per grid voxel.
+std::vector<std::uint8_t> concave_step_fills(const VoxelAccess& g, const Eigen::Vector3i& box_lo,
+                                             const Eigen::Vector3i& box_hi, VoxelSurfaceReport& report) {
+  std::vector<std::uint8_t> fill(std::size_t(g.grid.geometry().voxel_count()), 0);
+  for (int k = box_lo.z(); k <= box_hi.z(); ++k)
+    for (int j = box_lo.y(); j <= box_hi.y(); ++j)
+      for (int i = box_lo.x(); i <= box_hi.x(); ++i) {
+        const Eigen::Vector3i v(i, j, k);
+        if (g.tissue(v)) continue;
+        int faces = 0;
+        for (int f = 0; f < 6; ++f)
+          if (g.tissue(v + (f % 2 ? 1 : -1) * axis_step(f / 2))) faces |= 1 << f;
+        std::uint8_t corners = 0;
+        for (int f = 0; f < 6; ++f)
+          for (int h = f + 1; h < 6; ++h)
+            if ((faces >> f & 1) && (faces >> h & 1) && f / 2 != h / 2) corners |= face_corners(f) | face_corners(h);
+        fill[g.index(v)] = corners;
+      }
+  // two face-adjacent fills whose traces on the shared face are triangles on crossing
+  // diagonals would leave a point off the lattice: leave both out (keep the staircase there)
+  std::vector<std::size_t> drop;
+  for (int k = box_lo.z(); k <= box_hi.z(); ++k)
+    for (int j = box_lo.y(); j <= box_hi.y(); ++j)
+      for (int i = box_lo.x(); i <= box_hi.x(); ++i) {
+        const Eigen::Vector3i v(i, j, k);
+        const std::uint8_t cv = fill[g.index(v)];
+        if (!cv) continue;
+        for (int axis = 0; axis < 3; ++axis) {
+          const Eigen::Vector3i n = v + axis_step(axis);
+          if (!g.inside(n) || !fill[g.index(n)]) continue;
+          const std::uint8_t cn = fill[g.index(n)];
+          // missing corner of each trace, as the lattice offset within the shared face
+          const std::uint8_t tv = cv & face_corners(2 * axis + 1), tn = cn & face_corners(2 * axis);
+          if (__builtin_popcount(tv) != 3 || __builtin_popcount(tn) != 3) continue;
+          const Eigen::Vector3i mv = corner_offset(__builtin_ctz(face_corners(2 * axis + 1) & ~tv));
+          const Eigen::Vector3i mn = corner_offset(__builtin_ctz(face_corners(2 * axis) & ~tn));
+          const int differ = (mv - mn).cwiseAbs().sum() - 1;  // along the face: 0 same, 1 adjacent, 2 opposite
+          if (differ == 1) {
+            drop.push_back(g.index(v));
+            drop.push_back(g.index(n));
           }
         }
-    std::sort(drop.begin(), drop.end());
-    drop.erase(std::unique(drop.begin(), drop.end()), drop.end());
-    for (std::size_t x : drop) fill[x] = 0;
-    report.dropped_fills = std::int64_t(drop.size());
-  }
-  const auto fill_of = [&](const Eigen::Vector3i& v) -> std::uint8_t {
-    return hide_concave_steps && in_grid(v) ? fill[voxel_index(v)] : 0;
-  };
+      }
+  std::sort(drop.begin(), drop.end());
+  drop.erase(std::unique(drop.begin(), drop.end()), drop.end());
+  for (std::size_t x : drop) fill[x] = 0;
+  report.dropped_fills = std::int64_t(drop.size());
+  return fill;
+}
 
-  LatticeMesh mesh(d);
-  // on each voxel face, compare the solid traces of the two voxels (tissue: the whole face;
-  // a fill: the hull of its corners on the face; else nothing) and keep what is solid on one
-  // side only, facing the other side
+/// What one side of a voxel face holds and the other does not (4-bit traces over the face's
+/// points pu + 2 pw): nothing, the square, or a half square (for two half squares on one
+/// diagonal, each side keeps its own half).
+int region_only(int x, int y) {
+  if (x == 0 || x == y || y == 0xF) return 0;
+  if (y == 0) return x;
+  const int my = __builtin_ctz(~y & 0xF);  // y is a half square missing corner my
+  if (x == 0xF) return 0xF & ~(1 << (3 - my));  // the other half: my and its two neighbours
+  const int mx = __builtin_ctz(~x & 0xF);
+  if (mx + my == 3) return x;  // halves of the same diagonal: x is wholly outside y
+  throw Error("internal: crossing half-square traces on a voxel face");
+}
+
+/// On each voxel face of the box, compares the solid traces of the two voxels (tissue: the whole
+/// face; a fill: the hull of its corners on the face; else nothing) and adds what is solid on one
+/// side only, facing the other side. `fill` is empty without fills (the staircase).
+void add_boundary_faces(const VoxelAccess& g, const std::vector<std::uint8_t>& fill, const Eigen::Vector3i& box_lo,
+                        const Eigen::Vector3i& box_hi, LatticeMesh& mesh, VoxelSurfaceReport& report) {
+  const auto fill_of = [&](const Eigen::Vector3i& v) -> std::uint8_t {
+    return !fill.empty() && g.inside(v) ? fill[g.index(v)] : 0;
+  };
   for (int axis = 0; axis < 3; ++axis) {
     const int u = (axis + 1) % 3, w = (axis + 2) % 3;
     const Eigen::Vector3i e = axis_step(axis);
@@ -461,8 +468,8 @@ EmbeddedSurface make_voxel_surface(const Model& model, const VoxelGrid& grid, bo
     stop[axis] += 1;  // faces from the low side of box_lo to the high side of box_hi
     // trace of voxel v on its face at side s of this axis: 4-bit set over face points (pu + 2 pw)
     const auto trace = [&](const Eigen::Vector3i& v, int side) -> int {
-      if (!in_grid(v)) return 0;
-      if (tissue(v)) return 0xF;
+      if (!g.inside(v)) return 0;
+      if (g.tissue(v)) return 0xF;
       const std::uint8_t c = fill_of(v);
       int t = 0;
       for (int q = 0; q < 4; ++q) {
@@ -479,7 +486,7 @@ EmbeddedSurface make_voxel_surface(const Model& model, const VoxelGrid& grid, bo
         for (int i = start.x(); i <= stop.x(); ++i) {
           const Eigen::Vector3i p(i, j, k);  // the voxel on the high side; the face's lowest corner
           const Eigen::Vector3i a = p - e;   // the voxel on the low side
-          const bool ta = in_grid(a) && tissue(a), tb = in_grid(p) && tissue(p);
+          const bool ta = g.inside(a) && g.tissue(a), tb = g.inside(p) && g.tissue(p);
           report.boundary_faces += ta != tb;
           const int sa = trace(a, 1), sb = trace(p, 0);
           if (sa == sb) continue;
@@ -501,40 +508,34 @@ EmbeddedSurface make_voxel_surface(const Model& model, const VoxelGrid& grid, bo
               mesh.add(point(q[0]), point(q[1]), point(q[2]), out);
             }
           };
-          // what one side holds and the other does not: nothing, the square, or a half square
-          // (for two half squares on one diagonal, each side keeps its own half)
-          const auto region_only = [](int x, int y) -> int {
-            if (x == 0 || x == y || y == 0xF) return 0;
-            if (y == 0) return x;
-            const int my = __builtin_ctz(~y & 0xF);  // y is a half square missing corner my
-            if (x == 0xF) return 0xF & ~(1 << (3 - my));  // the other half: my and its two neighbours
-            const int mx = __builtin_ctz(~x & 0xF);
-            if (mx + my == 3) return x;  // halves of the same diagonal: x is wholly outside y
-            throw Error("internal: crossing half-square traces on a voxel face");
-          };
           const int a_only = region_only(sa, sb), b_only = region_only(sb, sa);
           if (a_only) emit(a_only, e);
           if (b_only) emit(b_only, -e);
         }
   }
-  // the hull faces inside each fill
-  if (hide_concave_steps)
-    for (int k = box_lo.z(); k <= box_hi.z(); ++k)
-      for (int j = box_lo.y(); j <= box_hi.y(); ++j)
-        for (int i = box_lo.x(); i <= box_hi.x(); ++i) {
-          const Eigen::Vector3i v(i, j, k);
-          const std::uint8_t c = fill[voxel_index(v)];
-          if (!c) continue;
-          const int n = __builtin_popcount(c);
-          (n == 8 ? report.filled_voxels : n == 7 ? report.filled_corners : report.filled_steps)++;
-          for (const auto& t : hull_inner_faces(c))
-            mesh.add(v + corner_offset(t[0]), v + corner_offset(t[1]), v + corner_offset(t[2]));
-        }
+}
 
-  // vertices are surface nodes
+/// Adds the hull faces inside each fill.
+void add_fill_faces(const VoxelAccess& g, const std::vector<std::uint8_t>& fill, const Eigen::Vector3i& box_lo,
+                    const Eigen::Vector3i& box_hi, LatticeMesh& mesh, VoxelSurfaceReport& report) {
+  for (int k = box_lo.z(); k <= box_hi.z(); ++k)
+    for (int j = box_lo.y(); j <= box_hi.y(); ++j)
+      for (int i = box_lo.x(); i <= box_hi.x(); ++i) {
+        const Eigen::Vector3i v(i, j, k);
+        const std::uint8_t c = fill[g.index(v)];
+        if (!c) continue;
+        const int n = __builtin_popcount(c);
+        (n == 8 ? report.filled_voxels : n == 7 ? report.filled_corners : report.filled_steps)++;
+        for (const auto& t : hull_inner_faces(c))
+          mesh.add(v + corner_offset(t[0]), v + corner_offset(t[1]), v + corner_offset(t[2]));
+      }
+}
+
+/// The lattice mesh as a surface whose vertices are the model's surface nodes.
+EmbeddedSurface embed_on_surface_nodes(const Model& model, const LatticeMesh& mesh, SurfaceMethod method) {
   const NodeFinder nodes(model, true);
   EmbeddedSurface s;
-  s.method = hide_concave_steps ? SurfaceMethod::paper : SurfaceMethod::staircase;
+  s.method = method;
   s.model_nodes = model.num_nodes();
   const int nv = int(mesh.points().size()), nt = int(mesh.triangles().size());
   s.rest_vertices.resize(3, nv);
@@ -560,6 +561,32 @@ EmbeddedSurface make_voxel_surface(const Model& model, const VoxelGrid& grid, bo
     s.triangles.col(t) = mirrored ? Eigen::Vector3i(tri[0], tri[2], tri[1]) : Eigen::Vector3i(tri[0], tri[1], tri[2]);
   }
   s.finalize();
+  return s;
+}
+
+}  // namespace
+
+EmbeddedSurface make_voxel_surface(const Model& model, const VoxelGrid& grid, bool hide_concave_steps,
+                                   VoxelSurfaceReport* report_out) {
+  const Eigen::Vector3i d = grid.dims();
+  if (d != model.grid.dims || std::int64_t(grid.data().size()) != grid.geometry().voxel_count())
+    throw Error("the voxel grid does not match the model's grid (dims differ)");
+  if (grid.count() != model.covered_voxels())
+    throw Error("the voxel grid does not match the model: " + std::to_string(grid.count()) + " tissue voxels, model covers " +
+                std::to_string(model.covered_voxels()));
+  VoxelSurfaceReport report;
+  const VoxelAccess g{grid};
+  // voxels that can hold surface: the tissue box plus one voxel, within the grid (inclusive)
+  Eigen::Vector3i lo, hi;
+  grid.tissue_bounds(lo, hi);
+  const Eigen::Vector3i box_lo = (lo.array() - 1).max(0).matrix(), box_hi = hi.array().min(d.array() - 1).matrix();
+  // the paper's fills of the concave steps, the faces between solid and empty, the fills' faces
+  const std::vector<std::uint8_t> fill =
+      hide_concave_steps ? concave_step_fills(g, box_lo, box_hi, report) : std::vector<std::uint8_t>{};
+  LatticeMesh mesh(d);
+  add_boundary_faces(g, fill, box_lo, box_hi, mesh, report);
+  if (hide_concave_steps) add_fill_faces(g, fill, box_lo, box_hi, mesh, report);
+  EmbeddedSurface s = embed_on_surface_nodes(model, mesh, hide_concave_steps ? SurfaceMethod::paper : SurfaceMethod::staircase);
   if (report_out) *report_out = report;
   return s;
 }

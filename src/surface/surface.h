@@ -1,6 +1,6 @@
 #pragma once
 /// @file surface.h
-/// The smoothed surface that follows the deformation (MODEL.md section 4, paper 3.3).
+/// The smoothed surface that follows the deformation (docs/model.md section 10, paper 3.3).
 ///
 /// A surface is a closed triangle mesh whose every vertex is a fixed weighted sum of model
 /// nodes (its embedding). Deforming it for a frame is one gather per vertex plus the vertex
@@ -13,7 +13,7 @@
 ///   staircase) is filled with the convex hull of its corners that lie on those tissue faces,
 ///   so the step is spanned by one flat face (see make_voxel_surface). Vertices are model
 ///   surface nodes (voxel corners), each embedded with weight 1: deforming is an exact gather.
-/// - `iso`: an iso-surface of the volume, smoothed (pipeline/iso_surface.h), each vertex
+/// - `iso`: an iso-surface of the volume, smoothed (pipeline/convert/iso_surface.h), each vertex
 ///   embedded by trilinear interpolation in its voxel cell over the cell's 8 lattice points,
 ///   where a lattice point that is not a node is interpolated in (or extrapolated from) the
 ///   element that holds it or is nearest (see embed_surface). Exact for affine motion of the

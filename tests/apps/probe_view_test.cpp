@@ -40,6 +40,7 @@ TEST(LevelCells, EveryElementIsClosedPolygonsOfItsOwnPoints) {
   EXPECT_EQ(c.levels, model.num_levels());
   EXPECT_EQ(int(c.level_size_mm.size()), c.levels);
   EXPECT_DOUBLE_EQ(c.level_size_mm[0], 4.0);  // level 0: 2 voxels of 2 mm
+  EXPECT_EQ(c.level_voxels[0], 2);
   EXPECT_EQ(c.poly_level.size() + 1, c.poly_offsets.size());
   for (int e = 0; e < model.num_elements(); ++e) {
     // a closed cube-like element has at least 6 faces; its polygons use its own points only
@@ -51,6 +52,29 @@ TEST(LevelCells, EveryElementIsClosedPolygonsOfItsOwnPoints) {
         EXPECT_LT(c.poly_points[std::size_t(k)], c.element_offsets[std::size_t(e) + 1]);
       }
     }
+  }
+}
+
+TEST(LevelCells, LevelSizesAreTheModelsElementSizes) {
+  // the voxel layout's elements are one voxel wide (not the 2 of a gradational level 0), and an
+  // anisotropic grid's element edge is the model's (the geometric mean of the spacings)
+  vx::GridGeometry g = block_grid().geometry();
+  g.spacing_mm = {1.0, 2.0, 4.0};
+  vx::VoxelGrid grid(g);
+  grid.data() = block_grid().data();
+  for (vx::Layout layout : {vx::Layout::voxel, vx::Layout::uniform, vx::Layout::gradational}) {
+    vx::BuildSettings b;
+    b.layout = layout;
+    const vx::Model model = vx::build_model(grid, b);
+    const LevelCells c = make_level_cells(model);
+    ASSERT_EQ(int(c.level_voxels.size()), c.levels);
+    for (int e = 0; e < model.num_elements(); ++e) {
+      const auto l = std::size_t(model.element_level[std::size_t(e)]);
+      EXPECT_DOUBLE_EQ(c.level_size_mm[l], model.element_size_mm[std::size_t(e)]) << to_string(layout);
+      EXPECT_EQ(c.level_voxels[l], model.element_edge_voxels(e)) << to_string(layout);
+    }
+    EXPECT_EQ(c.level_voxels[0], layout == vx::Layout::voxel ? 1 : 2) << to_string(layout);
+    EXPECT_DOUBLE_EQ(c.level_size_mm[0], c.level_voxels[0] * 2.0) << to_string(layout);  // cbrt(1 * 2 * 4) = 2
   }
 }
 

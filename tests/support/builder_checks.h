@@ -27,14 +27,6 @@ inline VoxelGrid make_grid(const Eigen::Vector3i& dims, const std::function<bool
   return grid;
 }
 
-/// A ball of radius r voxels centred in an n^3 grid.
-inline VoxelGrid make_sphere(int n, double r) {
-  const double c = 0.5 * (n - 1);
-  return make_grid({n, n, n}, [&](int i, int j, int k) {
-    return (i - c) * (i - c) + (j - c) * (j - c) + (k - c) * (k - c) <= r * r;
-  });
-}
-
 /// For every voxel, the element covering it (-1 none); fails the test on double coverage.
 inline std::vector<int> voxel_owner(const Model& m) {
   const Eigen::Vector3i d = m.grid.dims;

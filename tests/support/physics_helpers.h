@@ -1,7 +1,7 @@
 #pragma once
 // Hand-made models and small utilities for the physics tests (elements, integrators,
 // calibration): one 8-vertex cube, a block of cubes, one element with arbitrary vertices,
-// and voxel blocks for build_model.
+// and voxel blocks for build_model (balls: model/voxel_shapes.h).
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
@@ -87,20 +87,6 @@ inline VoxelGrid box_grid(const Eigen::Vector3i& dims, const Eigen::Vector3i& lo
   for (int k = lo.z(); k < hi.z(); ++k)
     for (int j = lo.y(); j < hi.y(); ++j)
       for (int i = lo.x(); i < hi.x(); ++i) grid.set(i, j, k, 1);
-  return grid;
-}
-
-/// A ball of radius r voxels centred in an n^3 grid of voxel edge h mm.
-inline VoxelGrid ball_grid(int n, double r, double h = 1.0) {
-  GridGeometry g;
-  g.dims = {n, n, n};
-  g.spacing_mm = Eigen::Vector3d::Constant(h);
-  VoxelGrid grid(g);
-  const double c = 0.5 * (n - 1);
-  for (int k = 0; k < n; ++k)
-    for (int j = 0; j < n; ++j)
-      for (int i = 0; i < n; ++i)
-        grid.set(i, j, k, (i - c) * (i - c) + (j - c) * (j - c) + (k - c) * (k - c) <= r * r ? 1 : 0);
   return grid;
 }
 

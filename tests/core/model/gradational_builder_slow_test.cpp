@@ -2,13 +2,14 @@
 #include <gtest/gtest.h>
 
 #include "model/gradational_builder.h"
+#include "model/voxel_shapes.h"
 #include "support/builder_checks.h"
 
 using namespace vx;
 
 TEST(GradationalBuilderSlow, Sphere128ReductionAndCover) {
   // a sphere 128 voxels across (radius 63.5 in a grid with a 2-voxel air margin)
-  const VoxelGrid g = vx::testing::make_sphere(132, 63.5);
+  const VoxelGrid g = vx::ball_grid(132, 63.5);
   BuildReport report;
   const Model m = build_model(g, {}, &report);
   vx::testing::expect_exact_cover(m, g);

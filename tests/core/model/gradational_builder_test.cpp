@@ -1,4 +1,5 @@
 #include "model/gradational_builder.h"
+#include "model/voxel_shapes.h"
 
 #include <gtest/gtest.h>
 
@@ -11,7 +12,6 @@ using namespace vx;
 using vx::testing::expect_exact_cover;
 using vx::testing::expect_nodes_shared;
 using vx::testing::make_grid;
-using vx::testing::make_sphere;
 using vx::testing::max_neighbour_level_jump;
 
 namespace {
@@ -31,7 +31,7 @@ std::vector<std::int64_t> cube_shells(int n) {
 }  // namespace
 
 TEST(GradationalBuilder, PaperCube128Shells) {
-  // paper 3.2 / MODEL.md 3: 23816, 5768, 1352, 296, 56 and 8 elements, level 0 outward in
+  // paper 3.2 / docs/model.md section 3: 23816, 5768, 1352, 296, 56 and 8 elements, level 0 outward in
   const VoxelGrid grid = full_cube(128);
   BuildReport report;
   const Model m = build_model(grid, {}, &report);
@@ -85,7 +85,7 @@ TEST(GradationalBuilder, LevelZeroFaceElementHasThirteenVertices) {
 
 TEST(GradationalBuilder, CoversEveryTissueVoxelOnceAndSharesNodes) {
   const VoxelGrid cube = full_cube(32);
-  const VoxelGrid sphere = make_sphere(40, 17.3);
+  const VoxelGrid sphere = ball_grid(40, 17.3);
   // a torus-like ring and an irregular blob with holes and thin parts
   const VoxelGrid ring = make_grid({44, 44, 20}, [](int i, int j, int k) {
     const double x = i - 21.5, y = j - 21.5, z = k - 9.5;
@@ -167,7 +167,7 @@ TEST(GradationalBuilder, PartlyFilledGroupsAtHigherLevels) {
 }
 
 TEST(GradationalBuilder, UniformAndVoxelLayouts) {
-  const VoxelGrid g = make_sphere(24, 10.2);
+  const VoxelGrid g = ball_grid(24, 10.2);
   const std::int64_t voxels = g.count();
   BuildSettings s;
   s.layout = Layout::voxel;
@@ -199,7 +199,7 @@ TEST(GradationalBuilder, ReductionAgainstVoxelModelGrowsLikeN) {
   // cost falls by about 3/n: the ratio 8*voxels/entries roughly doubles when n doubles
   double previous = 0;
   for (int n : {16, 32, 64}) {
-    const VoxelGrid g = make_sphere(n, 0.4 * n);
+    const VoxelGrid g = ball_grid(n, 0.4 * n);
     const Model m = build_model(g);
     const double ratio = 8.0 * double(g.count()) / double(m.num_vertex_entries());
     if (previous > 0) {
@@ -250,7 +250,7 @@ TEST(GradationalBuilder, GeometryAndSurfaceNodes) {
 }
 
 TEST(GradationalBuilder, DeterministicAndRejectsEmpty) {
-  const VoxelGrid g = make_sphere(20, 8.0);
+  const VoxelGrid g = ball_grid(20, 8.0);
   EXPECT_TRUE(same_model(build_model(g), build_model(g), 0.0));
   const VoxelGrid empty = make_grid({8, 8, 8}, [](int, int, int) { return false; });
   EXPECT_THROW((void)build_model(empty), Error);

@@ -10,6 +10,7 @@
 #include <string>
 
 #include "model/gradational_builder.h"
+#include "model/voxel_shapes.h"
 #include "physics/element_gradient.h"
 #include "physics/physics_model.h"
 #include "support/builder_checks.h"
@@ -27,7 +28,7 @@ struct Shape {
 std::vector<Shape> shapes() {
   std::vector<Shape> out;
   out.push_back({"cube", make_grid({24, 24, 24}, [](int, int, int) { return true; })});
-  out.push_back({"ball", testing::make_sphere(30, 13.2)});
+  out.push_back({"ball", ball_grid(30, 13.2)});
   out.push_back({"ring", make_grid({40, 40, 16}, [](int i, int j, int k) {
                    const double x = i - 19.5, y = j - 19.5, z = k - 7.5;
                    const double q = std::sqrt(x * x + y * y) - 12.0;

@@ -13,6 +13,7 @@
 
 #include "base/error.h"
 #include "model/gradational_builder.h"
+#include "model/voxel_shapes.h"
 #include "physics/elements.h"
 #include "sim/integrators.h"
 #include "sim/static_solver.h"
@@ -168,7 +169,7 @@ TEST(HourglassElement, ThePaperOptionIsThePapersElement) {
 Model ball() {
   BuildSettings bs;
   bs.layout = Layout::gradational;
-  return build_model(testing::ball_grid(16, 7.0), bs);
+  return build_model(ball_grid(16, 7.0), bs);
 }
 
 TEST(HourglassElement, AffineMotionGivesThePapersForcesAndAUniformStrainIsAnEquilibrium) {

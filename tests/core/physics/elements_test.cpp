@@ -11,6 +11,7 @@
 
 #include "base/parallel.h"
 #include "model/gradational_builder.h"
+#include "model/voxel_shapes.h"
 #include "sim/state.h"
 #include "support/physics_helpers.h"
 
@@ -392,7 +393,7 @@ TEST_P(PackedKernel, MatchesThePlainFormulasAndTheReferenceKernel) {
   mat.poisson_ratio = 0.35;
   BuildSettings bs;
   bs.layout = Layout::gradational;
-  auto f = make(build_model(testing::ball_grid(14, 6.0), bs), mat, GetParam());
+  auto f = make(build_model(ball_grid(14, 6.0), bs), mat, GetParam());
   ASSERT_EQ(f.physics->has_bending_modes(), GetParam() == ElementKind::hourglass);
   const PhysicsModel& p = *f.physics;
   const Model& m = *p.model;
@@ -465,7 +466,7 @@ Fixture batched_ball(double amplitude, unsigned seed, ElementKind element = Cali
   mat.damping_ratio = 0.3;
   BuildSettings bs;
   bs.layout = Layout::gradational;
-  auto f = make(build_model(testing::ball_grid(14, 6.0), bs), mat, element);
+  auto f = make(build_model(ball_grid(14, 6.0), bs), mat, element);
   const Model& m = *f.physics->model;
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> u(-1.0, 1.0);

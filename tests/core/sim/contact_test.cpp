@@ -356,6 +356,9 @@ TEST(ProbeDriver, JoystickPositionControlAndDeadZone) {
   ProbeDriver d(s);
   for (int k = 1; k <= 100; ++k) d.advance(k * 0.01, 0.01);
   EXPECT_TRUE(d.state().position_mm.isApprox(Eigen::Vector3d(10, 0, 0)));
+  EXPECT_EQ(parse_joystick_mode("rate"), JoystickMode::rate);
+  EXPECT_EQ(parse_joystick_mode(to_string(JoystickMode::position)), JoystickMode::position);
+  EXPECT_THROW((void)parse_joystick_mode("joy"), Error);
 }
 
 TEST(ProbeDriver, LiveTargetsAreSpeedLimited) {

@@ -16,6 +16,7 @@
 
 #include "base/error.h"
 #include "model/gradational_builder.h"
+#include "model/voxel_shapes.h"
 #include "support/physics_helpers.h"
 
 #include "support/allocation_counter.h"
@@ -182,7 +183,7 @@ TEST(Integrators, ExplicitEulerEstimateHoldsOnTheGradationalLayout) {
   // the estimate's 10 % margin). The element-wise c / k_e it replaced was 3.6x above the limit.
   BuildSettings bs;
   bs.layout = Layout::gradational;
-  const Model m = build_model(testing::ball_grid(12, 5.0), bs);
+  const Model m = build_model(ball_grid(12, 5.0), bs);
   ASSERT_GT(m.num_levels(), 1);
   const Material mat = soft(0.1);
   const double est = stable_time_step(*make_physics_model(m, mat), IntegratorKind::explicit_euler);

@@ -1,4 +1,4 @@
-// The surface that follows the deformation (MODEL.md 4): the staircase, the paper's surface
+// The surface that follows the deformation (docs/model.md section 10): the staircase, the paper's surface
 // with its concave steps hidden, and the embedding of any mesh in the model's nodes.
 #include "surface/surface.h"
 
@@ -13,11 +13,11 @@
 
 #include "base/error.h"
 #include "model/gradational_builder.h"
+#include "model/voxel_shapes.h"
 #include "support/builder_checks.h"
 
 using namespace vx;
 using vx::testing::make_grid;
-using vx::testing::make_sphere;
 
 namespace {
 
@@ -152,7 +152,7 @@ TEST(Surface, GrooveIsFilled) {
 }
 
 TEST(Surface, StaircaseAndPaperOfSphereAreClosedWithExactVolumes) {
-  const VoxelGrid g = make_sphere(24, 9.3);
+  const VoxelGrid g = ball_grid(24, 9.3);
   const Model m = build_model(g);
   const double voxels = double(g.count());
   const EmbeddedSurface st = make_voxel_surface(m, g, false);
@@ -185,7 +185,7 @@ TEST(Surface, PaperSurfaceTradesAnOutwardBiasForSmootherNormals) {
   // the staircase (a bias of about a quarter voxel, so a larger mean distance)
   const int n = 40;
   const double r = 15.2, c = 0.5 * (n - 1);
-  const VoxelGrid g = make_sphere(n, r);
+  const VoxelGrid g = ball_grid(n, r);
   const Model m = build_model(g);
   struct Figures {
     double mean = 0, bias = 0, deepest = 0, normal_deg = 0;
@@ -254,7 +254,7 @@ TEST(Surface, TissueOnTheGridBorderIsClosed) {
 }
 
 TEST(Surface, MirroredAndAnisotropicGeometryKeepsTheSurfaceOutward) {
-  VoxelGrid g = make_sphere(16, 6.1);
+  VoxelGrid g = ball_grid(16, 6.1);
   GridGeometry geo = g.geometry();
   geo.spacing_mm = {0.7, 1.1, 2.5};
   geo.origin_mm = {-120.0, 35.0, 410.0};
@@ -271,14 +271,14 @@ TEST(Surface, MirroredAndAnisotropicGeometryKeepsTheSurfaceOutward) {
 }
 
 TEST(Surface, GridMustMatchTheModel) {
-  const VoxelGrid g = make_sphere(12, 4.0);
+  const VoxelGrid g = ball_grid(12, 4.0);
   const Model m = build_model(g);
-  EXPECT_THROW((void)make_voxel_surface(m, make_sphere(12, 3.0), true), Error);
-  EXPECT_THROW((void)make_voxel_surface(m, make_sphere(14, 4.0), true), Error);
+  EXPECT_THROW((void)make_voxel_surface(m, ball_grid(12, 3.0), true), Error);
+  EXPECT_THROW((void)make_voxel_surface(m, ball_grid(14, 4.0), true), Error);
 }
 
 TEST(Surface, PaperSurfaceFollowsTheNodesExactly) {
-  const VoxelGrid g = make_sphere(20, 7.4);
+  const VoxelGrid g = ball_grid(20, 7.4);
   const Model m = build_model(g);
   const EmbeddedSurface s = make_voxel_surface(m, g, true);
   std::mt19937 rng(3);
@@ -317,7 +317,7 @@ Eigen::Matrix3Xd probe_points(const Model& m, const EmbeddedSurface& s, double o
 TEST(SurfaceEmbedding, RestAffineAndRigidMotionAreExact) {
   for (Layout res : {Layout::gradational, Layout::uniform, Layout::voxel}) {
     SCOPED_TRACE(to_string(res));
-    VoxelGrid g = make_sphere(22, 8.6);
+    VoxelGrid g = ball_grid(22, 8.6);
     GridGeometry geo = g.geometry();
     geo.spacing_mm = {0.8, 0.9, 1.3};
     geo.origin_mm = {-80.0, 20.0, 300.0};
@@ -352,7 +352,7 @@ TEST(SurfaceEmbedding, RestAffineAndRigidMotionAreExact) {
 TEST(SurfaceEmbedding, IsContinuousAcrossCellsAndElements) {
   // under a random (non-affine) motion of the nodes, points close together stay close: walk
   // along lines through the boundary region in tiny steps and bound the jump per step
-  const VoxelGrid g = make_sphere(26, 10.2);
+  const VoxelGrid g = ball_grid(26, 10.2);
   const Model m = build_model(g);
   std::mt19937 rng(11);
   std::normal_distribution<double> nd(0.0, 0.25);
@@ -376,7 +376,7 @@ TEST(SurfaceEmbedding, IsContinuousAcrossCellsAndElements) {
 }
 
 TEST(SurfaceEmbedding, FarPointsAreRejected) {
-  const VoxelGrid g = make_sphere(30, 4.0);
+  const VoxelGrid g = ball_grid(30, 4.0);
   const Model m = build_model(g);
   Eigen::Matrix3Xd p(3, 1);
   p.col(0) = m.grid.index_to_lps(Eigen::Vector3d(1, 1, 1));  // about 13 voxels from the ball
@@ -384,7 +384,7 @@ TEST(SurfaceEmbedding, FarPointsAreRejected) {
 }
 
 TEST(SurfaceDeform, SameResultForAnyThreadCountAndNoReallocation) {
-  const VoxelGrid g = make_sphere(40, 16.0);
+  const VoxelGrid g = ball_grid(40, 16.0);
   const Model m = build_model(g);
   const EmbeddedSurface paper = make_voxel_surface(m, g, true);
   const EmbeddedSurface s = embed_surface(m, probe_points(m, paper, 0.3, 0, 1), paper.triangles, SurfaceMethod::iso);
@@ -422,7 +422,7 @@ TEST(SurfaceDeform, IndentationInvertsNoTriangle) {
   // press a smooth bump (3 voxels deep, 4 voxels wide) into the top of a sphere: every
   // triangle of the paper surface and of an embedded offset surface keeps its orientation
   const int n = 36;
-  const VoxelGrid g = make_sphere(n, 14.0);
+  const VoxelGrid g = ball_grid(n, 14.0);
   const Model m = build_model(g);
   const double c = 0.5 * (n - 1);
   const Eigen::Vector3d top = m.grid.index_to_lps(Eigen::Vector3d(c, c, c + 14.0));

@@ -1,4 +1,4 @@
-// pipeline/bench.h: the Pareto front, the force-curve error, the best configuration for real
+// evaluation/bench/bench.h: the Pareto front, the force-curve error, the best configuration for real
 // time, the log-log slope, the CSV files, the palpation scene, and a small real bench written
 // all-or-nothing.
 #include "bench/bench.h"

@@ -1,4 +1,4 @@
-// Accuracy of the three surfaces against the analytic phantoms (MODEL.md 4): distance from the
+// Accuracy of the three surfaces against the analytic phantoms (docs/model.md section 10): distance from the
 // true shape (mm and voxels), enclosed-volume error and normal error, measured and pinned.
 #include "verify/surface_accuracy.h"
 

@@ -1,4 +1,4 @@
-// The machinery of `voxelastic verify` (pipeline/verify.h): checks and their rules, suites and
+// The machinery of `voxelastic verify` (evaluation/verify/verify.h): checks and their rules, suites and
 // shards, report.json round trips, merging partial reports, report.md, the staged output folder,
 // and one real case run end to end.
 #include "verify/verify.h"

@@ -27,6 +27,7 @@
 
 #include "base/error.h"
 #include "model/gradational_builder.h"
+#include "model/voxel_shapes.h"
 #include "support/builder_checks.h"
 #include "support/model_test_models.h"
 
@@ -240,7 +241,7 @@ TEST_F(ModelIo, HangingNodesPartialAndDiagonalElements) {
 
 TEST_F(ModelIo, BuiltModelsRoundTripForEveryResolution) {
   // a ball and a shape with a hole and diagonal contacts, through the real builder
-  const VoxelGrid ball = vx::testing::make_sphere(20, 8.3);
+  const VoxelGrid ball = vx::ball_grid(20, 8.3);
   const VoxelGrid odd = vx::testing::make_grid({13, 11, 9}, [](int i, int j, int k) {
     return ((i + j + k) % 3 != 0 && i > 1 && j > 0) || (i < 6 && j < 6 && k < 6);
   });

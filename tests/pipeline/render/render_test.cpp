@@ -13,6 +13,7 @@
 
 #include "base/error.h"
 #include "model/gradational_builder.h"
+#include "model/voxel_shapes.h"
 #include "support/builder_checks.h"
 #include "support/model_test_models.h"
 
@@ -89,7 +90,7 @@ std::array<int, 3> level_pixels(const Picture& pic) {
 }
 
 Model sphere_model() {
-  return build_model(vx::testing::make_sphere(28, 12.6));
+  return build_model(vx::ball_grid(28, 12.6));
 }
 
 }  // namespace

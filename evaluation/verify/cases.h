@@ -1,0 +1,58 @@
+#pragma once
+/// @file cases.h
+/// Private to evaluation/verify: the case functions that verify_cases.cpp lists, one file per
+/// theme. Each builds a small synthetic object, measures one effect on the elastic model and
+/// records checks against theory and plots into its VerifyContext (verify.h); the table in
+/// verify_cases.cpp says what each checks and why its tolerances are what they are.
+
+#include <vector>
+
+#include "model/model.h"
+#include "sim/integrator_kind.h"
+#include "verify/verify.h"
+
+namespace vx::cases {
+
+// geometry_cases.cpp
+/// Element and vertex-entry counts of all-tissue cubes and sphere phantoms against the paper.
+void run_model_counts(VerifyContext& ctx);
+/// Iso-surface and voxel staircase of the analytic phantoms against their exact shapes.
+void run_geometry(VerifyContext& ctx);
+
+// statics_cases.cpp
+/// Plate compression of a cube in layout `r`: E measured within `tolerance` (a ratio).
+void run_compression(VerifyContext& ctx, Layout r, double tolerance);
+/// Hertz indentation on layout `r` at the voxel sizes `voxels_mm` (coarse to fine): the modulus
+/// and exponent checked at the finest; with two sizes or more, the modulus error must not grow.
+void run_hertz(VerifyContext& ctx, Layout r, const std::vector<double>& voxels_mm, double modulus_tolerance,
+               double exponent_tolerance);
+/// A cantilever under its own weight at the voxel sizes `voxels_mm`: convergence, and the finest
+/// within `tolerance` of beam theory.
+void run_cantilever(VerifyContext& ctx, Layout r, const std::vector<double>& voxels_mm, double tolerance);
+/// One indentation on the three layouts, against the voxel-level model.
+void run_layouts(VerifyContext& ctx);
+
+// dynamics_cases.cpp
+/// The first axial frequency of a fixed-free bar (section `section_voxels` voxels of `h` mm).
+void run_frequency(VerifyContext& ctx, Layout r, int section_voxels, double h);
+/// Convergence in the time step of the three integrators (first order).
+void run_convergence_dt(VerifyContext& ctx);
+/// The largest stable step of `kind` against the modulus and its estimate; with `implicit`,
+/// also the implicit integrator far above the explicit limits.
+void run_stability_dt(VerifyContext& ctx, IntegratorKind kind, bool implicit);
+/// One long run of the energy case.
+struct EnergyRun {
+  IntegratorKind kind;
+  double damping, dt_factor;  ///< dt_factor: of the integrator's estimated stable step (implicit: of symplectic's)
+  const char* label;
+};
+/// Long runs of a released bar: the energy stays bounded (and falls when damped).
+void run_energy(VerifyContext& ctx, const std::vector<EnergyRun>& runs);
+
+// robustness_cases.cpp
+/// Extreme inputs recover or are flagged, never NaN.
+void run_extreme(VerifyContext& ctx);
+/// A stiff lesion in a soft block is felt: more force over it than away from it.
+void run_lesion(VerifyContext& ctx);
+
+}  // namespace vx::cases

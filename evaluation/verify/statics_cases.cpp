@@ -1,0 +1,339 @@
+// The verify cases on mechanics against theory: plate compression (stress = E strain), Hertz
+// indentation (finite-layer Hertz), a cantilever under its own weight (Timoshenko), and the
+// three layouts on one indentation against the voxel-level model.
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <map>
+#include <memory>
+#include <string>
+#include <tuple>
+#include <vector>
+
+#include "base/error.h"
+#include "sim/contact.h"
+#include "sim/state.h"
+#include "sim/static_solver.h"
+#include "verify/case_helpers.h"
+#include "verify/cases.h"
+
+namespace vx::cases {
+
+// --- mechanics: plate compression --------------------------------------------------------------
+
+namespace {
+
+/// Clamps the bottom, moves the clamped top down by strain * H, solves statically; returns the
+/// stress (kPa) and sets the lateral strain at mid-height.
+double compression_stress_kpa(const std::shared_ptr<const PhysicsModel>& p, double strain, double* lateral) {
+  const Model& m = *p->model;
+  SimState s = make_state(p);
+  const auto bottom = nodes_on_face(m, BoxFace::z_min), top = nodes_on_face(m, BoxFace::z_max);
+  s.fix_nodes(bottom);
+  s.fix_nodes(top);
+  const double height = rest_max(m, 2) - rest_min(m, 2);
+  for (int i : top) s.positions(2, i) -= strain * height;
+  solve_static(s, static_settings());
+  if (s.failed()) throw Error("static compression failed: " + s.message);
+  const double area = (rest_max(m, 0) - rest_min(m, 0)) * (rest_max(m, 1) - rest_min(m, 1));
+  const double reaction = elastic_force_on(s, top, kThreads).z();
+  if (lateral) {
+    const auto left = nodes_on_face(m, BoxFace::x_min), right = nodes_on_face(m, BoxFace::x_max);
+    const double zmid = rest_min(m, 2) + 0.5 * height;
+    double l = 0, r = 0;
+    int nl = 0, nr = 0;
+    for (int i : left)
+      if (std::abs(m.rest_positions(2, i) - zmid) < 1e-9) l += s.positions(0, i), ++nl;
+    for (int i : right)
+      if (std::abs(m.rest_positions(2, i) - zmid) < 1e-9) r += s.positions(0, i), ++nr;
+    *lateral = (nl && nr) ? (r / nr - l / nl) / (rest_max(m, 0) - rest_min(m, 0)) - 1.0 : std::nan("");
+  }
+  return reaction / area / kKpaToNPerMm2;
+}
+
+}  // namespace
+
+void run_compression(VerifyContext& ctx, Layout r, double tolerance) {
+  const int n = ctx.full() ? 20 : 16;
+  const double e_kpa = 10.0;
+  const auto p = make_physics_model(block_model(r, {n, n, n}, 1.0), tissue(e_kpa));
+  std::vector<double> strain = {0.01, 0.02, 0.03, 0.05}, stress, line;
+  double lateral = 0;
+  for (double eps : strain) stress.push_back(compression_stress_kpa(p, eps, eps == 0.05 ? &lateral : nullptr));
+  const double e_fit = slope_through_origin(strain, stress);
+  double nonlinearity = 0;
+  for (std::size_t i = 0; i < strain.size(); ++i) {
+    nonlinearity = std::max(nonlinearity, std::abs(stress[i] / (e_fit * strain[i]) - 1.0));
+    line.push_back(e_kpa * strain[i]);
+  }
+  ctx.log(fmt::format("{} cube {}^3 ({} elements): stress {:.4g} kPa at 5 % strain, E measured {:.4g} kPa", layout_name(r),
+                      n, p->num_elements(), stress.back(), e_fit));
+  ctx.check("modulus_ratio", e_fit / e_kpa, 1.0, tolerance, "",
+            "E measured (slope of stress against strain) / E set; Poisson 0 makes stress = E strain exact");
+  ctx.check("linearity", nonlinearity, 0.0, 0.01, "",
+            "largest deviation of stress / (E_fit strain) from 1 up to 5 % strain (the element is linear in stretch)",
+            CheckRule::at_most);
+  ctx.check("lateral_strain", lateral, 0.0, 1e-3, "", "mid-height widening at 5 % strain: none at Poisson 0");
+  ctx.plot("stress-strain", "Plate compression: stress against strain, Poisson 0",
+           {{fmt::format("Compression of a {}^3 mm cube, {} layout, E = {} kPa", n, layout_name(r), e_kpa), "strain",
+             "stress, kPa", {{"measured", strain, stress, true}, {"E * strain", strain, line}}}});
+}
+
+// --- mechanics: Hertz indentation --------------------------------------------------------------
+
+namespace {
+
+/// Hertz for a rigid sphere (radius R) pressed d into a layer of thickness h bonded to a rigid
+/// base (Dimitriadis et al., Biophys. J. 82, 2002, eq. 12), N; h -> infinity gives Hertz's
+/// half-space F = 4/3 E/(1 - nu^2) sqrt(R) d^1.5.
+double hertz_bonded_layer_n(double e_kpa, double nu, double r, double d, double h) {
+  const double a0 = -(1.2876 - 1.4678 * nu + 1.3442 * nu * nu) / (1 - nu);
+  const double b0 = (0.6387 - 1.0277 * nu + 1.5164 * nu * nu) / (1 - nu);
+  const double x = std::sqrt(r * d) / h;
+  const double c = 1 - 2 * a0 / kPi * x + 4 * a0 * a0 / (kPi * kPi) * x * x -
+                   8 / (kPi * kPi * kPi) * (a0 * a0 * a0 + 4 * kPi * kPi * b0 / 15) * x * x * x +
+                   16 * a0 / (kPi * kPi * kPi * kPi) * (a0 * a0 * a0 + 3 * kPi * kPi * b0 / 5) * x * x * x * x;
+  return 4.0 / 3.0 * e_kpa * kKpaToNPerMm2 / (1 - nu * nu) * std::sqrt(r) * std::pow(d, 1.5) * c;
+}
+
+/// One Hertz indentation (block `dims_mm`, voxel `voxel_mm`): the force and the references.
+struct HertzRun {
+  int elements{0};
+  double final_depth_mm{0}, final_force_n{0}, final_reference_n{0};
+  double modulus_ratio{0};  ///< E recovered / E set
+  double exponent{0};       ///< log-log slope of the half-space-equivalent force
+  std::vector<double> d15, f, ref, half;
+};
+
+HertzRun hertz_run(Layout r, const Eigen::Vector3d& dims_mm, double voxel_mm, double radius, double depth,
+                   double e_kpa) {
+  const Eigen::Vector3i dims = (dims_mm / voxel_mm).array().round().cast<int>();
+  const double h = dims_mm.z();
+  const auto p = make_physics_model(block_model(r, dims, voxel_mm), tissue(e_kpa));
+  const Indentation ind = indent(p, radius, depth, 0.5 * dims_mm.x(), 0.5 * dims_mm.y());
+  if (!ind.failure.empty()) throw Error("the indentation stopped: " + ind.failure);
+  HertzRun out;
+  out.elements = p->num_elements();
+  std::vector<double> ld, lf, fit_ref, fit_f;
+  for (std::size_t k = 0; k < ind.depth_mm.size(); ++k) {
+    const double d = ind.depth_mm[k];
+    if (d <= 0) continue;
+    const double layer = hertz_bonded_layer_n(e_kpa, 0.0, radius, d, h);
+    const double space = hertz_bonded_layer_n(e_kpa, 0.0, radius, d, 1e12);
+    out.d15.push_back(std::pow(d, 1.5));
+    out.f.push_back(ind.force_n[k]);
+    out.ref.push_back(layer);
+    out.half.push_back(space);
+    // fit from a third of the depth on: below it the contact holds only a handful of nodes
+    if (d >= depth / 3.0 && ind.force_n[k] > 0) {
+      ld.push_back(std::log(d));
+      lf.push_back(std::log(ind.force_n[k] * space / layer));  // half-space equivalent: grows like d^1.5
+      fit_ref.push_back(layer);
+      fit_f.push_back(ind.force_n[k]);
+    }
+  }
+  out.modulus_ratio = slope_through_origin(fit_ref, fit_f);
+  out.exponent = fitted_slope(ld, lf);
+  out.final_depth_mm = ind.depth_mm.empty() ? 0.0 : ind.depth_mm.back();
+  out.final_force_n = out.f.empty() ? 0.0 : out.f.back();
+  out.final_reference_n = out.ref.empty() ? 0.0 : out.ref.back();
+  return out;
+}
+
+}  // namespace
+
+/// Hertz indentation on layout `r` at the voxel sizes `voxels_mm` (coarse to fine): the modulus
+/// and exponent checked at the finest; with two sizes, the modulus error must not grow.
+void run_hertz(VerifyContext& ctx, Layout r, const std::vector<double>& voxels_mm, double modulus_tolerance,
+               double exponent_tolerance) {
+  // quick: 32 x 32 x 16 mm, R 6, 1.5 mm deep; full: the 40 x 40 x 20 mm, R 8, 2 mm of the slow test
+  const bool full = ctx.full();
+  const Eigen::Vector3d dims = full ? Eigen::Vector3d(40, 40, 20) : Eigen::Vector3d(32, 32, 16);
+  const double radius = full ? 8.0 : 6.0, depth = full ? 2.0 : 1.5, e_kpa = 10.0;
+  std::vector<HertzRun> runs;
+  std::vector<PlotSeries> series;
+  for (double h : voxels_mm) {
+    runs.push_back(hertz_run(r, dims, h, radius, depth, e_kpa));
+    const HertzRun& run = runs.back();
+    ctx.log(fmt::format("{} layout, voxel {} mm, {} elements: force {:.4g} N at {:.2f} mm against {:.4g} N "
+                        "(finite-layer Hertz); E recovered {:.4g} kPa, exponent {:.3f}",
+                        layout_name(r), h, run.elements, run.final_force_n, run.final_depth_mm, run.final_reference_n,
+                        run.modulus_ratio * e_kpa, run.exponent));
+    series.push_back({fmt::format("simulated, voxel {} mm", h), run.d15, run.f, true});
+  }
+  const HertzRun& fine = runs.back();
+  ctx.check("modulus_ratio", fine.modulus_ratio, 1.0, modulus_tolerance, "",
+            fmt::format("E recovered by fitting the force to finite-layer Hertz / E set (voxel {} mm)", voxels_mm.back()));
+  ctx.check("exponent", fine.exponent, 1.5, exponent_tolerance, "",
+            "slope of log(half-space-equivalent force) against log(depth): Hertz's 1.5");
+  if (runs.size() >= 2) {
+    const double coarse_err = std::abs(runs[runs.size() - 2].modulus_ratio - 1.0);
+    const double fine_err = std::abs(fine.modulus_ratio - 1.0);
+    ctx.check("error_falls", fine_err - coarse_err, 0.0, 0.0, "",
+              fmt::format("|E error| at voxel {} mm - |E error| at {} mm: halving the voxel must not make it worse",
+                          voxels_mm.back(), voxels_mm[voxels_mm.size() - 2]),
+              CheckRule::at_most);
+  }
+  series.push_back({"Hertz, finite layer (reference)", fine.d15, fine.ref});
+  series.push_back({"Hertz, half-space", fine.d15, fine.half});
+  ctx.plot("force-depth", "Hertz indentation: force against depth^1.5 (a straight line for Hertz)",
+           {{fmt::format("Ball R = {} mm into a {}x{}x{} mm block, {} layout, E = {} kPa", radius, dims.x(), dims.y(),
+                         dims.z(), layout_name(r), e_kpa),
+             "depth^1.5, mm^1.5", "force, N", series}});
+}
+
+// --- mechanics: cantilever bending; convergence in resolution ----------------------------------
+
+namespace {
+
+/// Tip deflection of a beam (length L along x, square section t, voxel h), clamped at x = 0,
+/// under its own weight; mm (downwards positive).
+double cantilever_tip_mm(Layout r, double length, double t, double h, double e_kpa, int* elements) {
+  const Eigen::Vector3i dims(int(std::lround(length / h)), int(std::lround(t / h)), int(std::lround(t / h)));
+  const auto p = make_physics_model(block_model(r, dims, h), tissue(e_kpa));
+  if (elements) *elements = p->num_elements();
+  SimState s = make_state(p);
+  s.fix_nodes(nodes_on_face(*p->model, BoxFace::x_min));
+  s.gravity_mm_s2 = {0, 0, -kStandardGravityMmS2};
+  solve_static(s, static_settings());
+  if (s.failed()) throw Error("static bending failed: " + s.message);
+  return -mean_displacement(s, nodes_on_face(*p->model, BoxFace::x_max), 2);
+}
+
+/// Timoshenko cantilever under uniform load q = rho g A: q L^4 / (8 E I) + q L^2 / (2 kappa G A),
+/// square section t, Poisson 0 (G = E / 2), kappa = 5/6; mm.
+double cantilever_theory_mm(double length, double t, double e_kpa, double density) {
+  const double q = density * kKgM3ToKgPerMm3 * kStandardGravityMmS2 * 1e-3 * t * t;  // N/mm
+  const double e = e_kpa * kKpaToNPerMm2, i = t * t * t * t / 12.0, a = t * t;
+  return q * std::pow(length, 4) / (8 * e * i) + q * length * length / (2 * (5.0 / 6.0) * (e / 2) * a);
+}
+
+}  // namespace
+
+void run_cantilever(VerifyContext& ctx, Layout r, const std::vector<double>& voxels_mm, double tolerance) {
+  const double length = 32.0, t = 4.0, e_kpa = 3000.0;
+  const double theory = cantilever_theory_mm(length, t, e_kpa, 1000.0);
+  std::vector<double> hs, errors, lh, le;
+  for (double h : voxels_mm) {
+    int elements = 0;
+    const double tip = cantilever_tip_mm(r, length, t, h, e_kpa, &elements);
+    const double err = tip / theory - 1.0;
+    ctx.log(fmt::format("{} layout, voxel {} mm ({} elements, {:.0f} across): tip {:.4g} mm, beam theory {:.4g} mm "
+                        "({:+.1f} %)",
+                        layout_name(r), h, elements, t / h, tip, theory, 100 * err));
+    hs.push_back(h);
+    errors.push_back(err);
+    lh.push_back(std::log10(h));
+    le.push_back(std::log10(std::abs(err)));
+  }
+  ctx.check("tip_ratio_finest", 1.0 + errors.back(), 1.0, tolerance, "",
+            fmt::format("tip deflection / Timoshenko beam theory at the finest voxel ({} mm)", hs.back()));
+  for (std::size_t k = 1; k < errors.size(); ++k)
+    ctx.check(fmt::format("error_ratio_{}mm_over_{}mm", hs[k], hs[k - 1]), std::abs(errors[k]) / std::abs(errors[k - 1]),
+              0.0, 0.8, "", "|error| at half the voxel size / |error| before: must fall (convergence in resolution)",
+              CheckRule::at_most);
+  ctx.plot("convergence", "Cantilever under its own weight: tip deflection error against voxel size, log-log",
+           {{fmt::format("Beam {} x {} x {} mm clamped at one end, {} layout, E = {} kPa", length, t, t, layout_name(r),
+                         e_kpa),
+             "log10 voxel size, mm", "log10 |tip / beam theory - 1|", {{"error", lh, le, true}}}});
+}
+
+// --- the three layouts on the same scene -------------------------------------------------------
+
+void run_layouts(VerifyContext& ctx) {
+  // the same indentation (ball R 5, 1.5 mm into a 24 x 24 x 12 mm block) on the three layouts.
+  // The uniform and gradational layouts' smallest elements are 2 voxels wide, so they are run at
+  // 1 mm voxels (the same data as the voxel layout) and at 0.5 mm voxels (the same surface
+  // elements as the voxel layout, the fair comparison of the models)
+  struct Run {
+    Layout r;
+    double voxel_mm;
+    std::shared_ptr<const PhysicsModel> phys;
+    Indentation ind;
+  };
+  std::vector<Run> runs;
+  for (const auto& [r, h] : std::vector<std::pair<Layout, double>>{{Layout::voxel, 1.0},
+                                                                       {Layout::uniform, 1.0},
+                                                                       {Layout::gradational, 1.0},
+                                                                       {Layout::uniform, 0.5},
+                                                                       {Layout::gradational, 0.5}}) {
+    const Eigen::Vector3i dims = (Eigen::Vector3d(24, 24, 12) / h).array().round().cast<int>();
+    Run run{r, h, make_physics_model(block_model(r, dims, h), tissue(10.0)), {}};
+    run.ind = indent(run.phys, 5.0, 1.5, 12, 12);
+    if (!run.ind.failure.empty())
+      throw Error(fmt::format("{} indentation at {} mm voxels stopped: {}", layout_name(r), h, run.ind.failure));
+    runs.push_back(std::move(run));
+  }
+  // vertical displacement of the top nodes on the 1 mm lattice (a 0.5 mm model has a node at
+  // every one of them, at even lattice indices)
+  const auto top_uz = [](const Run& run) {
+    std::map<std::tuple<int, int>, double> uz;
+    const Model& m = *run.phys->model;
+    const double top = rest_max(m, 2);
+    const int step = int(std::lround(1.0 / run.voxel_mm));
+    for (int i = 0; i < m.num_nodes(); ++i)
+      if (std::abs(m.rest_positions(2, i) - top) < 1e-9 && m.node_lattice(0, i) % step == 0 &&
+          m.node_lattice(1, i) % step == 0)
+        uz[{m.node_lattice(0, i) / step, m.node_lattice(1, i) / step}] =
+            run.ind.final_positions(2, i) - m.rest_positions(2, i);
+    return uz;
+  };
+  // forces compared at one depth, the shallowest final depth of the runs: the last 32-step
+  // bin's mean depth depends on the time step (1.45 mm at 1 mm voxels, 1.48 mm at 0.5 mm), and
+  // 2 % more depth is 3 % more force
+  double depth = std::numeric_limits<double>::infinity();
+  for (const Run& run : runs) depth = std::min(depth, run.ind.depth_mm.back());
+  const auto force_at = [depth](const Indentation& ind) {
+    const auto& d = ind.depth_mm;
+    for (std::size_t k = 1; k < d.size(); ++k)
+      if (d[k] >= depth && d[k] > d[k - 1])
+        return ind.force_n[k - 1] + (ind.force_n[k] - ind.force_n[k - 1]) * (depth - d[k - 1]) / (d[k] - d[k - 1]);
+    return ind.force_n.back();
+  };
+  const Run& voxel = runs[0];
+  const auto ref = top_uz(voxel);
+  double ref_max = 0;
+  for (const auto& [k, v] : ref) ref_max = std::max(ref_max, std::abs(v));
+  const double f_ref = force_at(voxel.ind);
+  std::vector<PlotSeries> series;
+  for (const Run& run : runs) {
+    const double f = force_at(run.ind);
+    const std::string name = fmt::format("{}, {} mm voxels", layout_name(run.r), run.voxel_mm);
+    series.push_back({name, run.ind.depth_mm, run.ind.force_n});
+    if (&run == &voxel) continue;
+    const auto uz = top_uz(run);
+    double sq = 0;
+    int n = 0;
+    for (const auto& [k, v] : ref)
+      if (const auto it = uz.find(k); it != uz.end()) sq += (it->second - v) * (it->second - v), ++n;
+    const double rms = n ? std::sqrt(sq / n) / ref_max : std::nan("");
+    ctx.log(fmt::format("{}: {} elements, force {:.4g} N at {:.3f} mm against {:.4g} N (voxel layout, 1 mm): ratio "
+                        "{:.3f}; top displacement RMS difference {:.3g} of the largest ({} nodes)",
+                        name, run.phys->num_elements(), f, depth, f_ref, f / f_ref, rms, n));
+    if (run.voxel_mm != 0.5) continue;
+    // the same surface elements, the same material: the force may differ by the contact's
+    // discretisation (a few %) and the coarser interior (gradational): 10 %
+    ctx.check(layout_name(run.r) + ".force_ratio", f / f_ref, 1.0, 0.10, "",
+              "force at the final depth, 0.5 mm voxels (the voxel layout's element size) / the voxel-level model's "
+              "(at the shallowest final depth of the runs)");
+    ctx.check(layout_name(run.r) + ".displacement_difference", rms, 0.0, 0.10, "",
+              "RMS difference of the top surface's vertical displacement from the voxel-level model's / its largest",
+              CheckRule::at_most);
+  }
+  // the cost of the paper's reduction alone: gradational against uniform on the same voxels
+  for (int k : {0, 1}) {
+    const Run& u = runs[std::size_t(1 + 2 * k)];
+    const Run& g = runs[std::size_t(2 + 2 * k)];
+    ctx.check(fmt::format("gradational_over_uniform_{}mm", u.voxel_mm), force_at(g.ind) / force_at(u.ind), 1.0,
+              0.05, "",
+              fmt::format("force of the gradational / the uniform layout on the same {} mm voxels (same surface "
+                          "elements, coarser interior)",
+                          u.voxel_mm));
+  }
+  ctx.plot("force-depth", "The same indentation on the three layouts: force against depth",
+           {{"Ball R = 5 mm into a 24 x 24 x 12 mm block, E = 10 kPa", "depth, mm", "force, N", series}});
+}
+
+}  // namespace vx::cases

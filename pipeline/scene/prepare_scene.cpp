@@ -1,0 +1,253 @@
+// Building a loaded scene (scene.h): the object and its model, the material per element, the
+// integrator and its time step, the fixed nodes, walls, device and probes, and the surface; with
+// the checks only the built model can make.
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <optional>
+
+#include "base/error.h"
+#include "io/model_io.h"
+#include "scene/scene.h"
+#include "sim/time_step.h"
+
+namespace vx {
+namespace {
+
+/// Where a scene's errors point: "FILE: JSON-PATH: what".
+struct SceneErrors {
+  std::string file;  ///< the scene file, or "scene" when parsed from text
+  [[noreturn]] void fail(const std::string& path, const std::string& what) const {
+    throw Error(file + ": " + path + ": " + what);
+  }
+};
+
+/// The object: a phantom or a volume (thresholded and cleaned up), a model file or a box, and
+/// its model built, with its bounds. Returns the volume when there is one (for the HU table).
+std::optional<Volume> build_object(const Scene& scene, PreparedScene& out) {
+  const SceneObject& obj = scene.object;
+  std::optional<Volume> volume;
+  Model model;
+  switch (obj.source) {
+    case ObjectSource::phantom: {
+      PhantomShape shape;
+      volume = make_phantom(obj.phantom, &shape);
+      out.log.push_back(fmt::format("phantom {} ({}^3 voxels of {:g} mm)", obj.phantom.name, obj.phantom.size,
+                                    obj.phantom.spacing_mm));
+      break;
+    }
+    case ObjectSource::volume:
+      volume = read_volume(obj.path, obj.read);
+      out.log.push_back(fmt::format("volume {} ({}x{}x{} voxels)", obj.path.string(), volume->geometry.dims.x(),
+                                    volume->geometry.dims.y(), volume->geometry.dims.z()));
+      break;
+    case ObjectSource::model:
+      model = load_model(obj.path);
+      out.grid = grid_from_model(model);
+      out.log.push_back(fmt::format("model {} ({} elements)", obj.path.string(), model.num_elements()));
+      break;
+    case ObjectSource::box: {
+      GridGeometry g;
+      const Eigen::Vector3d size = obj.box_max_mm - obj.box_min_mm;
+      for (int c = 0; c < 3; ++c) g.dims[c] = int(std::lround(size[c] / obj.box_voxel_mm));
+      g.spacing_mm = Eigen::Vector3d::Constant(obj.box_voxel_mm);
+      g.origin_mm = obj.box_min_mm + Eigen::Vector3d::Constant(0.5 * obj.box_voxel_mm);
+      out.grid = VoxelGrid(g);
+      std::fill(out.grid.data().begin(), out.grid.data().end(), std::uint8_t(1));
+      out.log.push_back(fmt::format("box {}x{}x{} voxels of {:g} mm", g.dims.x(), g.dims.y(), g.dims.z(), obj.box_voxel_mm));
+      break;
+    }
+  }
+  if (volume) {
+    PrepareReport report;
+    out.grid = prepare_grid(*volume, obj.prepare, &report);
+    out.log.push_back(report.summary());
+  }
+  if (obj.source != ObjectSource::model) {
+    BuildReport report;
+    model = build_model(out.grid, obj.build, &report);
+  }
+  out.model = std::make_shared<const Model>(std::move(model));
+  const Model& m = *out.model;
+  out.bounds_min_mm = m.rest_positions.rowwise().minCoeff();
+  out.bounds_max_mm = m.rest_positions.rowwise().maxCoeff();
+  out.log.push_back(fmt::format("{} model: {} elements, {} nodes, {} vertex entries; bounds [{:.4g}, {:.4g}, {:.4g}] .. "
+                                "[{:.4g}, {:.4g}, {:.4g}] mm",
+                                to_string(m.layout), m.num_elements(), m.num_nodes(), m.num_vertex_entries(),
+                                out.bounds_min_mm.x(), out.bounds_min_mm.y(), out.bounds_min_mm.z(),
+                                out.bounds_max_mm.x(), out.bounds_max_mm.y(), out.bounds_max_mm.z()));
+  return volume;
+}
+
+/// The material per element when heterogeneous (HU table, inclusions), and the physics.
+void calibrate_material(const Scene& scene, const Volume* volume, PreparedScene& out) {
+  const MaterialField field = material_field(*out.model, scene.material, volume);
+  out.physics = make_physics_model(out.model, scene.material.base, field);
+  out.min_modulus_kpa = out.max_modulus_kpa = scene.material.base.youngs_modulus_kpa;
+  if (!field.youngs_modulus_kpa.empty()) {
+    const auto [lo, hi] = std::minmax_element(field.youngs_modulus_kpa.begin(), field.youngs_modulus_kpa.end());
+    out.min_modulus_kpa = *lo;
+    out.max_modulus_kpa = *hi;
+    for (double e : field.youngs_modulus_kpa)
+      if (std::abs(e - scene.material.base.youngs_modulus_kpa) > 1e-12 * scene.material.base.youngs_modulus_kpa)
+        ++out.heterogeneous_elements;
+    out.log.push_back(fmt::format("material: modulus {:.4g} to {:.4g} kPa per element ({} elements differ from {:g} kPa)",
+                                  out.min_modulus_kpa, out.max_modulus_kpa, out.heterogeneous_elements,
+                                  scene.material.base.youngs_modulus_kpa));
+    for (std::size_t i = 0; i < scene.material.inclusions.size(); ++i) {
+      const Inclusion& inc = scene.material.inclusions[i];
+      if ((inc.center_mm.array() + inc.radius_mm < out.bounds_min_mm.array()).any() ||
+          (inc.center_mm.array() - inc.radius_mm > out.bounds_max_mm.array()).any())
+        out.warnings.push_back(fmt::format("material.inclusions[{}] lies outside the object's bounds: it changes nothing", i));
+    }
+  }
+}
+
+/// The integrator: its time step (the scene's, or automatic) checked against the model's
+/// stable step, threads and gravity.
+void choose_integrator(const Scene& scene, const PrepareSceneOptions& options, const SceneErrors& errors,
+                       PreparedScene& out) {
+  SimulationSettings& s = out.settings;
+  s.integrator.kind = scene.integrator;
+  const TimeStepEstimate est = estimate_time_steps(*out.physics);
+  out.dt_stable_estimate_s = est.limit(scene.integrator);
+  const double automatic_dt_s = automatic_time_step(est, scene.integrator);
+  if (scene.dt_s > 0) {
+    s.integrator.time_step_s = scene.dt_s;
+  } else if (automatic_dt_s > 0) {
+    s.integrator.time_step_s = automatic_dt_s;
+  } else {
+    errors.fail("$.integrator", "explicit_euler without damping is unstable at any time step (docs/model.md section 7); set material.damping > 0 "
+                                "or use symplectic_euler or implicit");
+  }
+  if (scene.integrator != IntegratorKind::implicit) {
+    if (out.dt_stable_estimate_s == 0.0)
+      out.warnings.push_back("explicit_euler without damping gains energy every step at any dt_s: the run will blow up");
+    else if (s.integrator.time_step_s > 1.25 * out.dt_stable_estimate_s)
+      // the estimate is close to the real limit (a block blew up at 1.3x within 40 steps)
+      errors.fail("$.integrator.dt_s",
+                  fmt::format("{:.3g} s is {:.2g} times the estimated stable step {:.3g} s of {} for this model and material: the "
+                              "run would blow up within a few steps; use \"auto\" (half the estimate) or at most {:.3g} s, or the "
+                              "implicit integrator",
+                              s.integrator.time_step_s, s.integrator.time_step_s / out.dt_stable_estimate_s,
+                              out.dt_stable_estimate_s, to_string(scene.integrator), out.dt_stable_estimate_s));
+    else if (s.integrator.time_step_s > out.dt_stable_estimate_s)
+      out.warnings.push_back(fmt::format("integrator.dt_s {:.3g} s exceeds the estimated stable step {:.3g} s of {}: the run "
+                                         "may blow up (the summary's \"stable\" will say)",
+                                         s.integrator.time_step_s, out.dt_stable_estimate_s, to_string(scene.integrator)));
+  }
+  if (scene.integrator == IntegratorKind::implicit && scene.contact.friction > 0)
+    out.warnings.push_back(fmt::format("contact.friction {:g} is ignored by the implicit integrator (its contact is "
+                                       "frictionless and inelastic, solved inside the step); use symplectic_euler to "
+                                       "grasp and lift",
+                                       scene.contact.friction));
+  if (scene.duration_s / s.integrator.time_step_s > 2e9)
+    errors.fail("$.duration_s", fmt::format("{} s at dt {:.3g} s is more than 2e9 steps", scene.duration_s, s.integrator.time_step_s));
+  s.integrator.threads = options.threads_override >= 0 ? options.threads_override : scene.threads;
+  s.gravity_mm_s2 = scene.gravity_m_s2 * 1000.0;
+}
+
+/// The nodes the fixed regions hold; returns a flag per node (1: fixed).
+std::vector<std::uint8_t> fix_nodes(const Scene& scene, const SceneErrors& errors, PreparedScene& out) {
+  const Model& m = *out.model;
+  SimulationSettings& s = out.settings;
+  std::vector<std::uint8_t> fixed(std::size_t(m.num_nodes()), 0);
+  for (std::size_t r = 0; r < scene.fixed.size(); ++r) {
+    const FixedRegion& f = scene.fixed[r];
+    const std::vector<int> nodes = f.is_face ? nodes_on_face(m, f.face, std::max(f.within_mm, 1e-6 * m.grid.spacing_mm.minCoeff()))
+                                             : nodes_in_box(m, f.box_min_mm, f.box_max_mm);
+    if (nodes.empty())
+      errors.fail(fmt::format("$.fixed[{}]", r),
+                  fmt::format("\"{}\" holds no node of the object (bounds [{:.4g}, {:.4g}, {:.4g}] .. [{:.4g}, {:.4g}, {:.4g}] mm)",
+                              f.label, out.bounds_min_mm.x(), out.bounds_min_mm.y(), out.bounds_min_mm.z(), out.bounds_max_mm.x(),
+                              out.bounds_max_mm.y(), out.bounds_max_mm.z()));
+    if (f.is_face && nodes.size() < 3)
+      out.warnings.push_back(fmt::format("fixed[{}] \"{}\" holds only {} node(s) (a rounded object touches its bounding box in "
+                                         "a point); use {{\"face\": \"{}\", \"within_mm\": 2}}",
+                                         r, f.label, nodes.size(), f.label));
+    for (int i : nodes) fixed[std::size_t(i)] = 1;
+  }
+  for (int i = 0; i < m.num_nodes(); ++i)
+    if (fixed[std::size_t(i)]) s.fixed_nodes.push_back(i);
+  out.fixed_nodes = int(s.fixed_nodes.size());
+  return fixed;
+}
+
+/// Walls, contact, the device and the probes, checked against the model and the time step (a
+/// probe that would tunnel through the surface, one that starts inside it).
+void place_walls_and_probes(const Scene& scene, const std::vector<std::uint8_t>& fixed, const SceneErrors& errors,
+                            PreparedScene& out) {
+  const Model& m = *out.model;
+  SimulationSettings& s = out.settings;
+  s.workspace = scene.workspace;
+  if (s.workspace.enabled && ((out.bounds_min_mm.array() < s.workspace.min_mm.array()).any() ||
+                              (out.bounds_max_mm.array() > s.workspace.max_mm.array()).any()))
+    out.warnings.push_back("the object does not fit in workspace_mm: the walls push it in at the first step");
+  s.contact = scene.contact;
+  s.device = scene.device;
+  s.probes = scene.probes;
+  const double spacing = m.grid.spacing_mm.minCoeff();
+  const double dt = s.integrator.time_step_s;
+  if (s.device && s.device->update_interval_s < 1.5 * dt)
+    errors.fail("$.device.update_interval_s", fmt::format("{:.3g} s spans less than 2 physics steps of {:.3g} s; a half sine needs "
+                                                          "room: raise it (e.g. 0.02 s) or lower integrator.dt_s",
+                                                          s.device->update_interval_s, dt));
+  const std::vector<std::int32_t> surface_nodes = collidable_nodes(m, fixed);
+  for (std::size_t i = 0; i < s.probes.size(); ++i) {
+    const ProbeSettings& p = s.probes[i];
+    const std::string at = fmt::format("$.probes[{}]", i);
+    const double speed = p.max_scripted_speed_mm_s();
+    if (p.geometry.shape != ProbeShape::plane) {
+      // nodes are pushed to the nearest surface point: a probe moving more than about half its
+      // radius per step would push them out of its far side (tunnelling)
+      if (speed * dt > 0.5 * p.geometry.radius_mm)
+        errors.fail(at, fmt::format("the probe moves up to {:.4g} mm/s, {:.3g} mm per step of {:.3g} s: more than half its radius "
+                                    "({:g} mm), so it would pass through the surface; slow it down or lower integrator.dt_s",
+                                    speed, speed * dt, dt, p.geometry.radius_mm));
+      if (p.geometry.radius_mm < spacing)
+        out.warnings.push_back(fmt::format("probes[{}] \"{}\": radius {:g} mm is below the node spacing {:g} mm; it can pass "
+                                           "between surface nodes",
+                                           i, p.name, p.geometry.radius_mm, spacing));
+    } else if (speed * dt > spacing) {
+      out.warnings.push_back(fmt::format("probes[{}] \"{}\": the plate moves {:.3g} mm per step, more than a voxel", i, p.name,
+                                         speed * dt));
+    }
+    const Eigen::Vector3d start = p.initial_position();
+    int inside = 0;
+    for (const std::int32_t n : surface_nodes)
+      if (probe_signed_distance(p.geometry, start, m.rest_positions.col(n)) < 0) ++inside;
+    if (inside > 0)
+      out.warnings.push_back(fmt::format("probes[{}] \"{}\" starts with {} surface nodes inside it: they are pushed out at "
+                                         "the first step",
+                                         i, p.name, inside));
+  }
+}
+
+}  // namespace
+
+PreparedScene prepare_scene(const Scene& scene, const PrepareSceneOptions& options) {
+  PreparedScene out;
+  const SceneErrors errors{scene.file.empty() ? std::string("scene") : scene.file.string()};
+  const std::optional<Volume> volume = build_object(scene, out);
+  calibrate_material(scene, volume ? &*volume : nullptr, out);
+  choose_integrator(scene, options, errors, out);
+  const std::vector<std::uint8_t> fixed = fix_nodes(scene, errors, out);
+  place_walls_and_probes(scene, fixed, errors, out);
+
+  // the surface, only when someone will show or write it
+  const Model& m = *out.model;
+  if (options.surface) {
+    const bool paper = scene.outputs.surface_method != SurfaceMethod::staircase;
+    VoxelSurfaceReport rep;
+    out.surface = std::make_shared<const EmbeddedSurface>(make_voxel_surface(m, out.grid, paper, &rep));
+    out.log.push_back(fmt::format("surface ({}): {} vertices, {} triangles", to_string(out.surface->method),
+                                  out.surface->num_vertices(), out.surface->num_triangles()));
+  }
+  out.settings.surface = out.surface;
+  out.settings.skip_unneeded = options.skip_unneeded;
+  return out;
+}
+
+}  // namespace vx

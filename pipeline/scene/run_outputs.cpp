@@ -1,0 +1,186 @@
+#include "scene/run_outputs.h"
+
+#include <Eigen/Core>
+#include <algorithm>
+#include <cmath>
+#include <nlohmann/json.hpp>
+
+#include "base/version.h"
+#include "render/plot.h"
+
+namespace vx {
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+
+namespace {
+
+json vec(const Eigen::Vector3d& v) { return json::array({v.x(), v.y(), v.z()}); }
+
+const char* source_name(ObjectSource s) {
+  switch (s) {
+    case ObjectSource::phantom: return "phantom";
+    case ObjectSource::volume: return "volume";
+    case ObjectSource::model: return "model";
+    case ObjectSource::box: return "box";
+  }
+  return "?";
+}
+
+}  // namespace
+
+RunOutputs::RunOutputs(Simulation& sim, const PreparedScene& prepared, const SceneOutputs& outputs,
+                       const fs::path& dir, std::int64_t steps)
+    : dir_(dir), outputs_(outputs), steps_(steps) {
+  // what to record: only what was asked for
+  if (outputs_.forces_csv || outputs_.plot) recorder_.emplace(sim, outputs_.forces_interval_s);
+  series_ = outputs_.pvd_model || outputs_.pvd_surface;
+  if (outputs_.pvd_model) {
+    model_series_.emplace(dir_, "model", "vtu");
+    model_writer_ = std::make_unique<ModelFrameWriter>(*prepared.model);
+  }
+  if (outputs_.pvd_surface) {
+    surface_series_.emplace(dir_, "surface", "vtp");
+    surface_writer_ = std::make_unique<SurfaceFrameWriter>(*prepared.surface);
+  }
+  if (series_ && sim.num_probes() > 0) probe_series_.emplace(dir_, "probes", "vtp");
+  frame_every_ = std::max<std::int64_t>(1, std::llround(outputs_.pvd_interval_s / sim.dt_s()));
+  if (series_) write_frame(sim);
+}
+
+RunOutputs::~RunOutputs() = default;
+
+void RunOutputs::write_frame(Simulation& sim) {
+  if (model_series_) {
+    model_writer_->write(sim.state().positions, sim.state().velocities, model_series_->next_frame_path());
+    model_series_->add(sim.time_s());
+  }
+  if (surface_series_) {
+    surface_writer_->write(sim.surface_vertices(), surface_series_->next_frame_path());
+    surface_series_->add(sim.time_s());
+  }
+  if (probe_series_) {
+    write_probe_frame(sim, probe_series_->next_frame_path());
+    probe_series_->add(sim.time_s());
+  }
+  ++frames_;
+}
+
+void RunOutputs::after_step(Simulation& sim, std::int64_t k) {
+  if (recorder_) recorder_->record(sim);
+  if (series_ && (k % frame_every_ == 0 || k == steps_)) write_frame(sim);
+}
+
+void RunOutputs::finish(const Simulation& sim) {
+  if (recorder_) recorder_->finish(sim);
+  if (outputs_.forces_csv) {
+    recorder_->write_csv(dir_ / "forces.csv");
+    written_.push_back("forces.csv");
+  } else {
+    not_requested_.push_back("forces.csv");
+  }
+  if (outputs_.plot) {
+    plot_forces(*recorder_, dir_ / "forces.png");
+    written_.push_back("forces.png");
+  } else {
+    not_requested_.push_back("forces.png");
+  }
+  for (auto* s : {&model_series_, &surface_series_, &probe_series_})
+    if (*s) {
+      (*s)->finish();
+      written_.push_back((*s)->collection_path().filename().string());
+    }
+  if (!outputs_.pvd_model) not_requested_.push_back("model.pvd");
+  if (!outputs_.pvd_surface) not_requested_.push_back("surface.pvd");
+}
+
+json run_summary_json(const Scene& scene, const fs::path& scene_file, const PreparedScene& prepared,
+                      const Simulation& sim, const RunOutputs& outputs, double wall_s) {
+  const ForceRecorder* recorder = outputs.forces();
+  const SceneOutputs& out = scene.outputs;
+  const double dt = sim.dt_s();
+  const std::int64_t frames = outputs.frames();
+  const bool pvd = outputs.series();
+  const SimulationCounters& c = sim.counters();
+  const Model& m = *prepared.model;
+  const bool stable = !sim.failed() && sim.state().positions.allFinite();
+  json j;
+  j["scene"] = fs::absolute(scene_file).string();
+  j["description"] = scene.description;
+  j["voxelastic_version"] = vx::kVersion;
+  j["steps"] = c.steps;
+  j["sim_time_s"] = sim.time_s();
+  j["wall_s"] = wall_s;
+  j["realtime_factor"] = wall_s > 0 ? sim.time_s() / wall_s : 0.0;
+  j["elements"] = m.num_elements();
+  j["nodes"] = m.num_nodes();
+  j["vertex_entries"] = m.num_vertex_entries();
+  j["surface_nodes"] = m.num_surface_nodes();
+  j["fixed_nodes"] = prepared.fixed_nodes;
+  j["integrator"] = to_string(scene.integrator);
+  j["dt_s"] = dt;
+  j["dt_stable_estimate_s"] = std::isfinite(prepared.dt_stable_estimate_s) ? json(prepared.dt_stable_estimate_s) : json(nullptr);
+  j["threads"] = prepared.settings.integrator.threads;
+  j["stable"] = stable;
+  j["status"] = to_string(sim.state().status);
+  j["message"] = sim.state().message;
+  j["max_force_n"] = recorder ? recorder->max_force_n() : 0.0;
+  j["max_step_force_n"] = recorder ? recorder->max_step_force_n() : 0.0;
+  j["forces_interval_s"] = out.forces_interval_s;
+  j["object"] = {{"source", source_name(scene.object.source)},
+                 {"resolution", to_string(m.layout)},
+                 {"bounds_mm", {{"min", vec(prepared.bounds_min_mm)}, {"max", vec(prepared.bounds_max_mm)}}},
+                 {"mass_kg", prepared.physics->total_mass_kg()},
+                 {"spacing_mm", vec(m.grid.spacing_mm)}};
+  j["material"] = {{"youngs_modulus_kpa", scene.material.base.youngs_modulus_kpa},
+                   {"poisson_ratio", scene.material.base.poisson_ratio},
+                   {"density_kg_m3", scene.material.base.density_kg_m3},
+                   {"damping", scene.material.base.damping_ratio},
+                   {"element_modulus_kpa", {{"min", prepared.min_modulus_kpa}, {"max", prepared.max_modulus_kpa}}},
+                   {"heterogeneous_elements", prepared.heterogeneous_elements}};
+  json probes = json::array();
+  for (int i = 0; i < sim.num_probes(); ++i) {
+    const ProbeSettings& p = prepared.settings.probes[std::size_t(i)];
+    const ProbeOutput& po = sim.probe(i);
+    probes.push_back({{"name", p.name},
+                      {"shape", to_string(p.geometry.shape)},
+                      {"drive", to_string(p.drive)},
+                      {"max_force_n", recorder ? recorder->max_force_n(i) : 0.0},
+                      {"final_position_mm", vec(po.pose.position_mm)},
+                      {"final_force_n", vec(po.raw_force_n)}});
+  }
+  j["probes"] = probes;
+  j["walls"] = scene.workspace.enabled
+                   ? json{{"min_mm", vec(scene.workspace.min_mm)},
+                          {"max_mm", vec(scene.workspace.max_mm)},
+                          {"max_force_n", recorder ? recorder->max_wall_force_n() : 0.0},
+                          {"impulse_n_s", recorder ? vec(recorder->wall_impulse_n_s()) : json(nullptr)}}
+                   : json(nullptr);
+  j["device"] = sim.has_device()
+                    ? json{{"update_interval_s", prepared.settings.device->update_interval_s},
+                           {"average_steps", prepared.settings.device->average_steps},
+                           {"mean_preserving", prepared.settings.device->mean_preserving}}
+                    : json(nullptr);
+  j["work"] = {{"contact_passes", c.contact_passes},
+               {"narrow_phase_tests", c.contact.narrow_tests},
+               {"broad_phase_tests", c.contact.broad_tests},
+               {"broad_phase_rebuilds", c.contact.rebuilds},
+               {"node_contacts", c.contact.contacts},
+               {"wall_contacts", c.contact.wall_contacts},
+               {"device_shaping_steps", c.device_shaping_steps},
+               {"surface_updates", c.surface_updates},
+               {"output_frames", frames},
+               {"force_rows", recorder ? json(recorder->rows().size()) : json(0)}};
+  j["skipped"] = {{"contact_passes", c.contact_passes_skipped},
+                  {"narrow_phase_tests", c.contact.narrow_tests_skipped},
+                  {"device_shaping_steps", c.device_shaping_skipped},
+                  {"surface_updates", c.surface_updates_skipped},
+                  {"steps_without_output_frame", c.steps - std::max<std::int64_t>(0, frames - (pvd ? 1 : 0))},
+                  {"outputs_not_requested", outputs.not_requested()}};
+  j["warnings"] = prepared.warnings;
+  std::vector<std::string> written = outputs.written();
+  written.push_back("summary.json");
+  j["outputs"] = written;
+  return j;
+}
+
+}  // namespace vx
