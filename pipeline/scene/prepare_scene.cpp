@@ -84,7 +84,9 @@ std::optional<Volume> build_object(const Scene& scene, PreparedScene& out) {
 /// The material per element when heterogeneous (HU table, inclusions), and the physics.
 void calibrate_material(const Scene& scene, const Volume* volume, PreparedScene& out) {
   const MaterialField field = material_field(*out.model, scene.material, volume);
-  out.physics = make_physics_model(out.model, scene.material.base, field);
+  CalibrationOptions calibration;
+  calibration.element = scene.material.element;
+  out.physics = make_physics_model(out.model, scene.material.base, field, calibration);
   out.min_modulus_kpa = out.max_modulus_kpa = scene.material.base.youngs_modulus_kpa;
   if (!field.youngs_modulus_kpa.empty()) {
     const auto [lo, hi] = std::minmax_element(field.youngs_modulus_kpa.begin(), field.youngs_modulus_kpa.end());
