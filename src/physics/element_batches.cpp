@@ -190,8 +190,10 @@ VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const 
     a10 += yy * c0; a11 += yy * c1; a12 += yy * c2;
     a20 += yz * c0; a21 += yz * c1; a22 += yz * c2;
   }
-  // the consistent deformation gradient F = sum y g^T (sum g = 0)
+  // the consistent deformation gradient F = sum y g^T (sum g = 0), and (hourglass element)
+  // the bending modes' amplitudes qm = sum y h^T (sum h = 0) in the same loop
   d4 f00{}, f01{}, f02{}, f10{}, f11{}, f12{}, f20{}, f21{}, f22{};
+  d4 qm[3][kBendingModes] = {};
   for (int r = 0; r < nr; ++r) {
     const BatchRow& row = rows[r];
     const d4 yx = ys[r][0], yy = ys[r][1], yz = ys[r][2];
@@ -199,17 +201,13 @@ VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const 
     f00 += yx * g0; f01 += yx * g1; f02 += yx * g2;
     f10 += yy * g0; f11 += yy * g1; f12 += yy * g2;
     f20 += yz * g0; f21 += yz * g1; f22 += yz * g2;
-  }
-  // the bending modes' amplitudes qm = sum y h^T (sum h = 0)
-  d4 qm[3][kBendingModes] = {};
-  if constexpr (kModes) {
-    for (int r = 0; r < nr; ++r) {
+    if constexpr (kModes) {
       const ModeRow& mr = mrows[r];
       for (int p = 0; p < kBendingModes; ++p) {
         const d4 h = load(mr.mode[p]);
-        qm[0][p] += ys[r][0] * h;
-        qm[1][p] += ys[r][1] * h;
-        qm[2][p] += ys[r][2] * h;
+        qm[0][p] += yx * h;
+        qm[1][p] += yy * h;
+        qm[2][p] += yz * h;
       }
     }
   }
