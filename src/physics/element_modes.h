@@ -2,7 +2,8 @@
 /// @file element_modes.h
 /// The bending (hourglass) modes of an element and their calibrated relief: what the
 /// `hourglass` element (ElementKind, physics_model.h; elements.h) takes off the paper's
-/// non-affine penalty so that large elements bend like linear elasticity.
+/// non-affine penalty so that large elements bend like linear elasticity (docs/model.md
+/// section 5, "Bending: the hourglass element"; measured: docs/verify.md, docs/bench.md).
 ///
 /// Why. The paper's element holds every non-affine motion of its vertices with the penalty
 /// k/2 sum_i w_i |r_i - F R0_i|^2. An 8-vertex cube of edge h has 12 non-affine modes: the
