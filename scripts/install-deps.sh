@@ -5,7 +5,7 @@ set -euo pipefail
 
 packages=(
   build-essential cmake pkg-config
-  libeigen3-dev libvtk9-dev libdcmtk-dev libsdl2-dev
+  libeigen3-dev libsuitesparse-dev libmetis-dev libvtk9-dev libdcmtk-dev libsdl2-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   libcli11-dev nlohmann-json3-dev libspdlog-dev libfmt-dev
   xvfb xauth x11-utils dicom3tools gnuplot-nox

@@ -258,10 +258,10 @@ void App::open_outputs() {
 
 void App::physics_tick() {
   const auto now = SteadyClock::now();
-  double dt_wall = physics_started_ ? seconds(now - physics_last_) : 0.0;
+  const double elapsed = physics_started_ ? seconds(now - physics_last_) : 0.0;
   physics_started_ = true;
   physics_last_ = now;
-  dt_wall = std::min(dt_wall, 0.1);  // a long stall is not replayed
+  const double dt_wall = std::min(elapsed, 0.1);  // a long stall is not replayed
   if (reset_requested_.exchange(false)) {
     sim_->reset();
     sim_target_s_ = 0.0;
@@ -281,7 +281,9 @@ void App::physics_tick() {
       lag_drops_.fetch_add(1);
       sim_target_s_ = sim_->time_s();
     }
-    active_wall_us_.fetch_add(std::llround(dt_wall * 1e6), std::memory_order_relaxed);
+    // the real-time factor counts all the wall time that passed (a tick that stepped for a
+    // second counts a second, not the 0.1 s the target advanced by): the HUD tells the truth
+    active_wall_us_.fetch_add(std::llround(elapsed * 1e6), std::memory_order_relaxed);
     sim_advanced_us_.fetch_add(std::llround((sim_->time_s() - t0) * 1e6), std::memory_order_relaxed);
     if (sim_->failed() && !physics_failed_.load()) {
       physics_failure_ = fmt::format("physics stopped at t = {:.3f} s: {} ({}); press r to reset", sim_->time_s(),
@@ -494,6 +496,7 @@ std::unique_ptr<ProbeView> App::open_view(const IoLines& lines) {
   setup.height = options_.height;
   setup.input_line = lines.input;
   setup.output_line = lines.output;
+  setup.physics_line = physics_configuration(scene_.simulation.integrator, *scene_.physics);
   auto view = std::make_unique<ProbeView>(setup, &keyboard_, [this](ViewAction a) { on_action(a); });
   if (options_.show_levels) view->toggle_levels();
   return view;

@@ -88,8 +88,7 @@ ProbeScene load_scene_file(const std::filesystem::path& path, const DefaultScene
   for (const auto& l : built.log) scene.notes.push_back(l);
   scene.notes.push_back(fmt::format("surface: {} ({} triangles)", to_string(scene.surface->method),
                                     scene.surface->num_triangles()));
-  scene.notes.push_back(fmt::format("integrator {} dt = {:.3g} ms{}", to_string(scene.simulation.integrator.kind),
-                                    1e3 * scene.simulation.integrator.time_step_s,
+  scene.notes.push_back(fmt::format("physics: {}{}", physics_configuration(scene.simulation.integrator, *scene.physics),
                                     scene.simulation.device ? fmt::format(", device updates every {:g} ms (half sines)",
                                                                           1e3 * scene.simulation.device->update_interval_s)
                                                             : std::string(", no device shaping (raw force)")));
@@ -158,18 +157,38 @@ ProbeScene make_default_scene(std::shared_ptr<const Model> model, std::shared_pt
   probe.max_speed_mm_s = 150.0;
   sim.probes.push_back(probe);
 
-  // explicit-family integrator at half its stable step; the paper's device shaping
-  sim.integrator.kind = IntegratorKind::symplectic_euler;
+  // the fast configuration (time_step.h): implicit, 20 ms steps, one iteration each; the
+  // paper's device shaping over two steps
+  sim.integrator.kind = FastConfiguration::kind;
   sim.integrator.time_step_s = automatic_time_step(estimate_time_steps(*scene.physics), sim.integrator.kind);
+  sim.integrator.max_iterations = FastConfiguration::iterations;
   sim.integrator.threads = 1;
   sim.device = DeviceForceSettings{};
+  sim.device->update_interval_s = FastConfiguration::device_update_interval_s;
 
   scene.notes.push_back(fmt::format("default palpation scene: E = {:g} kPa, damping ratio {:g}, {} bottom nodes held, "
-                                    "capsule probe r = {:.1f} mm, symplectic Euler dt = {:.3g} ms",
+                                    "capsule probe r = {:.1f} mm, the fast configuration: implicit dt = {:.3g} ms, {} "
+                                    "iteration per step",
                                     material.youngs_modulus_kpa, material.damping_ratio, sim.fixed_nodes.size(),
-                                    probe.geometry.radius_mm, 1e3 * sim.integrator.time_step_s));
+                                    probe.geometry.radius_mm, 1e3 * sim.integrator.time_step_s,
+                                    sim.integrator.max_iterations));
   make_probes_live(scene);
   return scene;
+}
+
+std::string physics_configuration(const IntegratorSettings& in, const PhysicsModel& p) {
+  std::string s = in.kind == IntegratorKind::implicit         ? "implicit"
+                  : in.kind == IntegratorKind::symplectic_euler ? "symplectic Euler"
+                                                                : "explicit Euler";
+  s += in.time_step_s >= 1e-3 ? fmt::format(" {:.3g} ms", 1e3 * in.time_step_s) : fmt::format(" {:.3g} us", 1e6 * in.time_step_s);
+  if (in.kind == IntegratorKind::implicit) {
+    s += fmt::format(", {} iteration{}", in.max_iterations, in.max_iterations == 1 ? "" : "s");
+    if (in.residual_tolerance_n > 0) s += fmt::format(" (to {:.2g} N)", in.residual_tolerance_n);
+    if (in.region_radius_mm > 0) s += fmt::format(", region {:g} mm", in.region_radius_mm);
+  }
+  if (p.mass_scaling.factor != 1.0) s += fmt::format(", mass x{:g}", p.mass_scaling.factor);
+  if (p.mass_scaling.time_step_s > 0) s += fmt::format(", mass floor for {:.3g} ms", 1e3 * p.mass_scaling.time_step_s);
+  return s;
 }
 
 void make_probes_live(ProbeScene& scene) {

@@ -63,4 +63,8 @@ struct ProbeScene {
 /// speed, range, dead zone).
 void make_probes_live(ProbeScene& scene);
 
+/// The physics configuration in a few words (HUD and console), e.g. "implicit 20 ms, 1
+/// iteration" or "symplectic Euler 0.18 ms, mass floor for 0.25 ms".
+[[nodiscard]] std::string physics_configuration(const IntegratorSettings& integrator, const PhysicsModel& physics);
+
 }  // namespace vx::probe

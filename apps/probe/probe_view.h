@@ -58,6 +58,7 @@ struct ViewSetup {
   double plot_window_s{5.0};                  ///< time shown by the force plot
   std::string input_line;                     ///< HUD: e.g. "rate control: joystick 'X'"
   std::string output_line;                    ///< HUD: e.g. "force out: haptic 'X' + log f.csv"
+  std::string physics_line;                   ///< HUD: the configuration the physics runs, e.g. "implicit 20 ms, 1 iteration"
 };
 
 /// Numbers for the heads-up display.

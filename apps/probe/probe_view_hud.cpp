@@ -185,7 +185,8 @@ void ProbeView::Impl::update_plot() {
 void ProbeView::Impl::update_hud_text() {
   const HudInfo& h = hud_info;
   std::string text = fmt::format("{}   t = {:.2f} s{}\n", setup.title, h.sim_s, h.paused ? "   [PAUSED]" : "");
-  text += fmt::format("physics {:.0f} steps/s ({:.2f}x real time)\n", h.physics_steps_per_s, h.real_time_factor);
+  text += fmt::format("physics {:.0f} steps/s ({:.2f}x real time){}\n", h.physics_steps_per_s, h.real_time_factor,
+                      setup.physics_line.empty() ? std::string() : ": " + setup.physics_line);
   text += fmt::format("device {:.0f} updates/s   display {:.1f} frames/s\n", h.device_hz, fps.rate());
   for (int p = 0; p < h.probes && p < 2; ++p) {
     const std::string name = std::size_t(p) < setup.probe_names.size() ? setup.probe_names[std::size_t(p)]

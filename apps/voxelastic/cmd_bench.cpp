@@ -10,6 +10,7 @@
 
 #include "base/error.h"
 #include "bench/bench.h"
+#include "bench/scale_bench.h"
 #include "commands.h"
 #include "render/plot.h"
 #include "util/atomic_file.h"
@@ -29,9 +30,56 @@ struct BenchOptions {
   bool skip_step{false}, skip_palpation{false};
   std::string element, reference_element;
   bool quiet{false};
+  bool scale{false};
+  bool threads_given{false};
+  std::vector<std::string> scale_models, scale_configs;
+  double scale_max_wall_s{0.0}, scale_reference_max_wall_s{0.0};
 };
 
+/// `bench --scale`: the real-time factor of each configuration on models of growing size
+/// (evaluation/bench/scale_bench.h).
+void run_scale_command(const BenchOptions& o) {
+  ScaleBenchSettings set = ScaleBenchSettings::standard();
+  if (!o.scale_models.empty()) {
+    std::vector<ScaleModelSpec> keep;
+    for (const auto& name : o.scale_models) {
+      bool found = false;
+      for (const auto& m : set.models)
+        if (m.name == name || m.name == "sphere " + name) keep.push_back(m), found = true;
+      if (!found) throw Error(fmt::format("--scale-models: unknown model '{}' (32, 64, 128, 256, organ)", name));
+    }
+    set.models = keep;
+  }
+  if (o.scale_max_wall_s > 0) set.max_wall_s = o.scale_max_wall_s;
+  if (o.scale_reference_max_wall_s > 0) set.reference_max_wall_s = o.scale_reference_max_wall_s;
+  if (!o.scale_configs.empty()) {
+    std::vector<ScaleConfig> keep;
+    for (const auto& c : set.configs)
+      for (const auto& want : o.scale_configs)
+        if (c.name.find(want) != std::string::npos) {
+          keep.push_back(c);
+          break;
+        }
+    if (keep.empty()) throw Error("--scale-configs: no configuration matches");
+    set.configs = keep;
+  }
+  if (o.threads_given) set.threads = {o.threads};
+  const fs::path dir(o.out);
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec || !fs::is_directory(dir))
+    throw Error(fmt::format("--out '{}': cannot create the folder ({})", o.out, ec ? ec.message() : "not a folder"));
+  check_output_path(dir / "scale.csv");
+  check_gnuplot();
+  if (!o.quiet) set.log = [](const std::string& line) { fmt::print(stderr, "{}\n", line); };
+  const ScaleBenchResult res = run_scale_bench(set);
+  const std::vector<std::string> written = write_scale_report(res, dir);
+  fmt::print("{}", format_scale_table(res));
+  fmt::print("bench --scale took {:.0f} s; wrote {} to {}\n", res.total_s, fmt::join(written, ", "), dir.string());
+}
+
 void run_bench_command(const BenchOptions& o) {
+  if (o.scale) return run_scale_command(o);
   BenchSettings set = o.quick ? BenchSettings::quick_settings() : BenchSettings{};
   set.threads = o.threads;
   if (!o.sizes.empty()) set.sizes = o.sizes;
@@ -104,7 +152,10 @@ void add_bench_command(CLI::App& app) {
       "bench.md, bench_error.png, bench_cost.png, bench_curves.png) with the best configuration for real time.");
   sub->add_flag("--quick", opts->quick, "the small suite (about 2 minutes on 2 cores; the full one 13 to 17)");
   sub->add_option("-o,--out", opts->out, "output folder (created if missing)")->capture_default_str();
-  sub->add_option("--threads", opts->threads, "physics threads (>= 1)")->capture_default_str()->check(CLI::Range(1, 1024));
+  sub->add_option("--threads", opts->threads, "physics threads (>= 1)")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 1024))
+      ->each([opts](const std::string&) { opts->threads_given = true; });
   sub->add_option("--sizes", opts->sizes, "palpation grid sizes n, voxels across the block, even (e.g. 16,24,32)")
       ->delimiter(',')
       ->check(CLI::Range(8, 256));
@@ -126,6 +177,19 @@ void add_bench_command(CLI::App& app) {
   sub->add_flag("--skip-step", opts->skip_step, "skip the step benchmark (part A)");
   sub->add_flag("--skip-palpation", opts->skip_palpation, "skip run time against error (part B)");
   sub->add_flag("-q,--quiet", opts->quiet, "no progress on stderr");
+  sub->add_flag("--scale", opts->scale,
+                "instead: the real-time factor and force error of each configuration on sphere phantoms 32 to 256 and the "
+                "organ phantom, 1 and 2 threads (DIR/scale.csv, scale.md, scale.png; docs/bench.md)");
+  sub->add_option("--scale-models", opts->scale_models, "with --scale: the models (32, 64, 128, 256, organ)")->delimiter(',');
+  sub->add_option("--scale-max-wall-s", opts->scale_max_wall_s,
+                  "with --scale: time a run over at most this much wall time (the reference runs to the end)")
+      ->check(CLI::PositiveNumber);
+  sub->add_option("--scale-configs", opts->scale_configs,
+                  "with --scale: only the configurations whose name contains one of these (e.g. reference,implicit)")
+      ->delimiter(',');
+  sub->add_option("--scale-reference-max-wall-s", opts->scale_reference_max_wall_s,
+                  "with --scale: the reference's wall-time budget (default 1800 s; shorter: no error column)")
+      ->check(CLI::PositiveNumber);
   sub->callback([opts] { run_bench_command(*opts); });
 }
 

@@ -19,7 +19,7 @@ constexpr double kPi = std::numbers::pi;
 
 const std::vector<std::string>& names() {
   static const std::vector<std::string> n = {"sphere", "cube",  "ellipsoid",   "cylinder",
-                                             "torus",  "block", "block-lesion"};
+                                             "torus",  "block", "block-lesion", "organ"};
   return n;
 }
 
@@ -161,7 +161,7 @@ double PhantomShape::signed_distance_mm(const Eigen::Vector3d& p_mm) const {
     const double q = std::hypot(p.x(), p.y()) - major_radius_mm;
     return std::hypot(q, p.z()) - minor_radius_mm;
   }
-  if (name == "ellipsoid") {
+  if (name == "ellipsoid" || name == "organ") {
     // sort the axes by length, descending, and fold the point into the first octant
     std::array<int, 3> order{0, 1, 2};
     std::sort(order.begin(), order.end(), [&](int a, int b) { return half_extent_mm[a] > half_extent_mm[b]; });
@@ -176,7 +176,7 @@ double PhantomShape::signed_distance_mm(const Eigen::Vector3d& p_mm) const {
 
 double PhantomShape::volume_mm3() const {
   const Eigen::Vector3d& e = half_extent_mm;
-  if (name == "sphere" || name == "ellipsoid") return 4.0 / 3.0 * kPi * e.prod();
+  if (name == "sphere" || name == "ellipsoid" || name == "organ") return 4.0 / 3.0 * kPi * e.prod();
   if (name == "cube" || name == "block" || name == "block-lesion") return 8.0 * e.prod();
   if (name == "cylinder") return kPi * minor_radius_mm * minor_radius_mm * 2.0 * half_length_mm;
   if (name == "torus") return 2.0 * kPi * kPi * major_radius_mm * minor_radius_mm * minor_radius_mm;
@@ -186,7 +186,7 @@ double PhantomShape::volume_mm3() const {
 double PhantomShape::area_mm2() const {
   const Eigen::Vector3d& e = half_extent_mm;
   if (name == "sphere") return 4.0 * kPi * e.x() * e.x();
-  if (name == "ellipsoid") return ellipsoid_area(e);
+  if (name == "ellipsoid" || name == "organ") return ellipsoid_area(e);
   if (name == "cube" || name == "block" || name == "block-lesion")
     return 8.0 * (e.x() * e.y() + e.y() * e.z() + e.z() * e.x());
   if (name == "cylinder")
@@ -228,6 +228,9 @@ Volume make_phantom(const PhantomSettings& s, PhantomShape* shape_out) {
     shape.half_extent_mm = Eigen::Vector3d::Constant(snap_inward(0.35 * scale, n, h));
   } else if (s.name == "ellipsoid") {
     shape.half_extent_mm = Eigen::Vector3d(0.42, 0.30, 0.22) * scale;
+  } else if (s.name == "organ") {
+    // an organ-sized stand-in: 140 x 180 x 150 mm at size 214 and 1 mm voxels
+    shape.half_extent_mm = Eigen::Vector3d(0.42 * 140.0 / 180.0, 0.42, 0.42 * 150.0 / 180.0) * scale;
   } else if (s.name == "cylinder") {
     shape.minor_radius_mm = 0.3 * scale;
     shape.half_length_mm = snap_inward(0.4 * scale, n, h);
@@ -262,7 +265,7 @@ Volume make_phantom(const PhantomSettings& s, PhantomShape* shape_out) {
   const Kind kind = s.name == "sphere"     ? Kind::sphere
                     : s.name == "cylinder" ? Kind::cylinder
                     : s.name == "torus"    ? Kind::torus
-                    : s.name == "ellipsoid" ? Kind::ellipsoid
+                    : (s.name == "ellipsoid" || s.name == "organ") ? Kind::ellipsoid
                                             : Kind::box;
   const auto inside = [&](const Eigen::Vector3d& p) {
     switch (kind) {

@@ -19,11 +19,13 @@ namespace vx {
 /// slightly smaller length so the margin holds): sphere radius 0.4; cube edge 0.7; ellipsoid
 /// semi-axes 0.42 x 0.30 x 0.22 (x, y, z); cylinder along z, radius 0.3, length 0.8; torus in
 /// the xy plane, radii 0.28 and 0.12; block 0.8 x 0.6 x 0.4; block-lesion the block with a
-/// spherical lesion of radius about 0.15 centred off-axis at 60% of the block's height.
+/// spherical lesion of radius about 0.15 centred off-axis at 60% of the block's height; organ an
+/// ellipsoid of semi-axes 0.327 x 0.42 x 0.35 (an organ-sized stand-in: 140 x 180 x 150 mm at
+/// size 214 and 1 mm voxels, about 2 M tissue voxels).
 /// Flat faces (cube, block, cylinder caps) lie on voxel faces (rounded inwards), so their
 /// voxel counts are exact.
 struct PhantomSettings {
-  std::string name{"sphere"};  ///< sphere, cube, ellipsoid, cylinder, torus, block, block-lesion
+  std::string name{"sphere"};  ///< sphere, cube, ellipsoid, cylinder, torus, block, block-lesion, organ
   int size{64};                ///< grid voxels along each axis
   double spacing_mm{1.0};      ///< isotropic voxel size, mm
   double tissue_hu{40.0};      ///< soft tissue

@@ -86,7 +86,13 @@ void calibrate_material(const Scene& scene, const Volume* volume, PreparedScene&
   const MaterialField field = material_field(*out.model, scene.material, volume);
   CalibrationOptions calibration;
   calibration.element = scene.material.element;
+  calibration.mass_scaling = scene.material.mass_scaling;
   out.physics = make_physics_model(out.model, scene.material.base, field, calibration);
+  if (scene.material.mass_scaling.active())
+    out.log.push_back(fmt::format("mass scaling: factor {:g}, floor for a {:.3g} ms step: {} nodes heavier, +{:.3g} % mass",
+                                  scene.material.mass_scaling.factor, 1e3 * scene.material.mass_scaling.time_step_s,
+                                  out.physics->scaled_nodes,
+                                  100.0 * out.physics->added_mass_kg / out.physics->total_mass_kg()));
   out.min_modulus_kpa = out.max_modulus_kpa = scene.material.base.youngs_modulus_kpa;
   if (!field.youngs_modulus_kpa.empty()) {
     const auto [lo, hi] = std::minmax_element(field.youngs_modulus_kpa.begin(), field.youngs_modulus_kpa.end());
@@ -115,7 +121,22 @@ void choose_integrator(const Scene& scene, const PrepareSceneOptions& options, c
   s.integrator.kind = scene.integrator;
   const TimeStepEstimate est = estimate_time_steps(*out.physics);
   out.dt_stable_estimate_s = est.limit(scene.integrator);
-  const double automatic_dt_s = automatic_time_step(est, scene.integrator);
+  double automatic_dt_s = automatic_time_step(est, scene.integrator);
+  if (scene.integrator == IntegratorKind::implicit) {
+    // the fast configuration's step, shortened where a probe would move more than a quarter of
+    // its radius per step or a device update would span fewer than two steps
+    for (const ProbeSettings& p : scene.probes) {
+      const double speed = p.max_scripted_speed_mm_s();
+      if (p.geometry.shape != ProbeShape::plane && speed > 0)
+        automatic_dt_s = std::min(automatic_dt_s, 0.25 * p.geometry.radius_mm / speed);
+    }
+    if (scene.device) automatic_dt_s = std::min(automatic_dt_s, 0.5 * scene.device->update_interval_s);
+    s.integrator.max_iterations = scene.iterations > 0 ? scene.iterations
+                                  : scene.integrator_given ? IntegratorSettings{}.max_iterations
+                                                           : FastConfiguration::iterations;
+    s.integrator.residual_tolerance_n = scene.residual_tolerance_n;
+    s.integrator.region_radius_mm = scene.region_radius_mm;
+  }
   if (scene.dt_s > 0) {
     s.integrator.time_step_s = scene.dt_s;
   } else if (automatic_dt_s > 0) {

@@ -120,6 +120,21 @@ json run_summary_json(const Scene& scene, const fs::path& scene_file, const Prep
   j["dt_s"] = dt;
   j["dt_stable_estimate_s"] = std::isfinite(prepared.dt_stable_estimate_s) ? json(prepared.dt_stable_estimate_s) : json(nullptr);
   j["threads"] = prepared.settings.integrator.threads;
+  {
+    const IntegratorSettings& in = prepared.settings.integrator;
+    json conf = {{"integrator", to_string(in.kind)}, {"dt_s", in.time_step_s}, {"default", !scene.integrator_given}};
+    if (in.kind == IntegratorKind::implicit) {
+      conf["iterations"] = in.max_iterations;
+      conf["residual_tolerance_n"] = in.residual_tolerance_n;
+      conf["region_radius_mm"] = in.region_radius_mm;
+    }
+    const PhysicsModel& p = *prepared.physics;
+    conf["mass_scaling"] = {{"factor", p.mass_scaling.factor},
+                            {"time_step_s", p.mass_scaling.time_step_s},
+                            {"scaled_nodes", p.scaled_nodes},
+                            {"added_mass_kg", p.added_mass_kg}};
+    j["configuration"] = conf;
+  }
   j["stable"] = stable;
   j["status"] = to_string(sim.state().status);
   j["message"] = sim.state().message;
@@ -176,6 +191,8 @@ json run_summary_json(const Scene& scene, const fs::path& scene_file, const Prep
                   {"device_shaping_steps", c.device_shaping_skipped},
                   {"surface_updates", c.surface_updates_skipped},
                   {"steps_without_output_frame", c.steps - std::max<std::int64_t>(0, frames - (pvd ? 1 : 0))},
+                  {"sleeping_element_updates", c.sleeping_element_updates},
+                  {"sleeping_node_solves", c.sleeping_node_solves},
                   {"outputs_not_requested", outputs.not_requested()}};
   j["warnings"] = prepared.warnings;
   std::vector<std::string> written = outputs.written();

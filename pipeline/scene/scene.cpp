@@ -181,6 +181,16 @@ SceneMaterial read_material(const Obj& o, ObjectSource source) {
   require(b.damping_ratio >= 0 && b.damping_ratio <= 10, o.at_where("damping"),
           fmt::format("must be in [0, 10] (got {}): a ratio of each element's critical damping (e.g. 0.1)",
                       b.damping_ratio));
+  if (o.has("mass_scaling")) {
+    const Obj ms(o.at("mass_scaling"), o.at_where("mass_scaling"), {"factor", "time_step_s"});
+    m.mass_scaling.factor = ms.number("factor", 1.0);
+    require(m.mass_scaling.factor >= 1 && m.mass_scaling.factor <= 1e6, ms.at_where("factor"),
+            fmt::format("must be in [1, 1e6] (got {}): every node's mass is multiplied by it", m.mass_scaling.factor));
+    m.mass_scaling.time_step_s = ms.number("time_step_s", 0.0);
+    require(m.mass_scaling.time_step_s >= 0 && m.mass_scaling.time_step_s <= 0.01, ms.at_where("time_step_s"),
+            fmt::format("must be in [0, 0.01] s (got {}): the explicit step the mass floor is for, e.g. 2.5e-4",
+                        m.mass_scaling.time_step_s));
+  }
 
   if (o.has("hounsfield_table")) {
     const Where w = o.at_where("hounsfield_table");
@@ -453,7 +463,7 @@ Scene parse_scene(const json& j, const fs::path& base, const std::string& name) 
   if (o.has("material"))
     s.material = read_material(Obj(o.at("material"), o.at_where("material"),
                                    {"youngs_modulus_kpa", "poisson_ratio", "density_kg_m3", "damping", "element",
-                                    "hounsfield_table", "inclusions"}),
+                                    "mass_scaling", "hounsfield_table", "inclusions"}),
                                s.object.source);
   if (o.has("fixed")) s.fixed = read_fixed(o.at("fixed"), o.at_where("fixed"));
   if (o.has("gravity")) {
@@ -472,7 +482,9 @@ Scene parse_scene(const json& j, const fs::path& base, const std::string& name) 
             "min must be below max on every axis");
   }
   if (o.has("integrator")) {
-    const Obj in(o.at("integrator"), o.at_where("integrator"), {"type", "dt_s"});
+    const Obj in(o.at("integrator"), o.at_where("integrator"),
+                 {"type", "dt_s", "iterations", "residual_tolerance_n", "region_radius_mm"});
+    s.integrator_given = true;
     const std::string t = in.string("type", "symplectic_euler");
     try {
       s.integrator = parse_integrator(t);
@@ -490,6 +502,15 @@ Scene parse_scene(const json& j, const fs::path& base, const std::string& name) 
                 fmt::format("{} s is far too long for a physics step; the unit is s (e.g. 1e-4), or use \"auto\"", s.dt_s));
       }
     }
+    s.iterations = in.integer("iterations", 0);
+    require(s.iterations >= 0 && s.iterations <= 10000, in.at_where("iterations"),
+            "must be in [1, 10000] local/global iterations per step (0: the default, 10)");
+    s.residual_tolerance_n = in.number("residual_tolerance_n", 0.0);
+    require(s.residual_tolerance_n >= 0, in.at_where("residual_tolerance_n"), "must be >= 0 N (0: off)");
+    s.region_radius_mm = in.number("region_radius_mm", 0.0);
+    require(s.region_radius_mm >= 0, in.at_where("region_radius_mm"), "must be >= 0 mm (0: every node every step)");
+    if ((s.iterations > 0 || s.residual_tolerance_n > 0 || s.region_radius_mm > 0) && s.integrator != IntegratorKind::implicit)
+      in.where().fail("iterations, residual_tolerance_n and region_radius_mm are settings of the implicit integrator");
   }
   if (o.has("contact")) {
     const Obj c(o.at("contact"), o.at_where("contact"), {"restitution", "friction", "skin_mm"});
@@ -502,6 +523,9 @@ Scene parse_scene(const json& j, const fs::path& base, const std::string& name) 
     s.contact.skin_mm = c.number("skin_mm", s.contact.skin_mm);
     require(s.contact.skin_mm >= 0, c.at_where("skin_mm"), "must be >= 0 mm (0: automatic)");
   }
+  // without an integrator key: the fast configuration, unless the contact needs friction
+  // (grasping), which only the explicit schemes' contact has
+  if (!s.integrator_given && s.contact.friction > 0) s.integrator = IntegratorKind::symplectic_euler;
   if (o.has("device")) {
     const Obj d(o.at("device"), o.at_where("device"), {"update_interval_s", "average_steps", "mean_preserving"});
     DeviceForceSettings dev;

@@ -69,6 +69,7 @@ struct Inclusion {
 struct SceneMaterial {
   Material base;                          ///< homogeneous part
   ElementKind element{CalibrationOptions{}.element};  ///< "element": hourglass (default) or paper
+  MassScaling mass_scaling;               ///< `mass_scaling`: none by default (docs/model.md section 6)
   std::vector<HuModulus> hounsfield;      ///< optional: modulus per voxel from its HU (piecewise linear)
   std::vector<Inclusion> inclusions;      ///< optional: spheres with their own modulus
 };
@@ -103,8 +104,14 @@ struct Scene {
   std::vector<FixedRegion> fixed;
   Eigen::Vector3d gravity_m_s2{0, 0, 0};
   Workspace workspace;
-  IntegratorKind integrator{IntegratorKind::symplectic_euler};
+  /// without an `integrator` key: the fast configuration (FastConfiguration, sim/time_step.h:
+  /// implicit, automatic step, one iteration), or symplectic Euler when the contact has friction
+  IntegratorKind integrator{IntegratorKind::implicit};
+  bool integrator_given{false};      ///< the scene has an `integrator` key
   double dt_s{0.0};                  ///< 0: automatic (automatic_time_step() of sim/time_step.h)
+  int iterations{0};                 ///< implicit: local/global iterations per step (0: 10, or 1 by default)
+  double residual_tolerance_n{0.0};  ///< implicit: stop once the largest force imbalance is below (N)
+  double region_radius_mm{0.0};      ///< implicit: regional solves within this distance of a probe (0: off)
   ContactSettings contact;
   std::optional<DeviceForceSettings> device;
   std::vector<ProbeSettings> probes;

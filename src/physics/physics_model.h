@@ -80,6 +80,28 @@ enum class ElementKind {
 /// The element named `name` ("paper", "hourglass"); throws vx::Error for another name.
 [[nodiscard]] ElementKind element_kind_from_string(const std::string& name);
 
+/// Mass scaling for quasi-static simulation (docs/model.md section 6): heavier nodes let an
+/// explicit scheme take longer steps. It changes the dynamics, not the statics: every
+/// equilibrium (the force on a slowly pressed tool, a sag under gravity) is the same, because
+/// the elastic forces are unchanged and gravity keeps acting on the physical mass
+/// (PhysicsModel::node_gravity_ratio). A uniform factor s divides every frequency and the wave
+/// speed by sqrt(s) and multiplies the stable explicit step by sqrt(s); the element damping
+/// coefficients c_e stay as calibrated (the viscous force of a given deformation rate is the
+/// same), so the damping rate c/m falls by s and a ring-down lasts up to s times longer. The
+/// floor (`time_step_s`) adds mass only to the nodes whose own stable step is shorter than the
+/// target: the light dense surface vertices of partly filled elements, which set the stable
+/// step of a gradational model and carry little of its mass, so the low modes that a slow
+/// press excites barely change.
+struct MassScaling {
+  double factor{1.0};       ///< every node's mass times this (>= 1)
+  /// > 0: each node's mass is raised, where needed, until its own symplectic Euler step
+  /// (Gershgorin bound, time_step.h) is at least twice this: the automatic explicit step
+  /// ("auto", half the estimate) is then about this long
+  double time_step_s{0.0};
+  [[nodiscard]] bool active() const { return factor != 1.0 || time_step_s > 0.0; }
+  [[nodiscard]] bool operator==(const MassScaling&) const = default;
+};
+
 /// How the per-element calibration is done (defaults: the calibrated model).
 struct CalibrationOptions {
   ElementKind element{ElementKind::hourglass};
@@ -92,6 +114,7 @@ struct CalibrationOptions {
   bool isotropic_weights{true};  ///< false: equal vertex weights (the paper's plain element)
   double min_weight{0.1};        ///< lower bound of a vertex weight (mean weight is 1)
   double max_weight{4.0};        ///< upper bound of a vertex weight
+  MassScaling mass_scaling;      ///< none by default: the physical masses
 };
 
 /// The per-entry constants of the element pass of one vertex entry, packed into one 64-byte
@@ -147,9 +170,15 @@ struct PhysicsModel {
   double rest_diagonal_mm{0.0};   ///< diagonal of the rest positions' bounding box, mm
 
   // nodes
-  std::vector<double> node_mass_kg;  ///< nodes: lumped mass, kg
-  std::vector<double> node_mass;     ///< nodes: lumped mass, N*s^2/mm
+  std::vector<double> node_mass_kg;  ///< nodes: lumped (physical) mass, kg
+  std::vector<double> node_mass;     ///< nodes: inertial mass, N*s^2/mm (the lumped mass, scaled by mass_scaling)
   std::vector<double> node_inv_mass; ///< nodes: 1 / node_mass, mm/(N*s^2)
+  /// nodes: physical / inertial mass (1 without mass scaling): gravity accelerates a node by
+  /// node_gravity_ratio * g, so its weight stays the physical one
+  std::vector<double> node_gravity_ratio;
+  MassScaling mass_scaling;          ///< what was applied
+  double added_mass_kg{0.0};         ///< mass added by the scaling, kg (0 without)
+  std::int64_t scaled_nodes{0};      ///< nodes whose mass the scaling raised
 
   // node -> vertex entries (CSR), entries in increasing order: the deterministic gather.
   // Per-entry buffers of the step (entry forces, projection targets) are stored in this
@@ -172,6 +201,17 @@ struct PhysicsModel {
   /// Total mass, kg.
   [[nodiscard]] double total_mass_kg() const;
 };
+
+/// Per node, the Gershgorin row sums of the linearised system (docs/model.md section 7):
+/// sk_i = sum_e (|K_e| row sum at i + 2 w_i (1 - w_i/W_e) k_v,e) (N/mm; K_e the paper's element
+/// matrix, unrelieved: an upper bound of the hourglass element's) and
+/// sc_i = sum_e 2 w_i (1 - w_i/W_e) c_e (N*s/mm). omega_i^2 <= sk_i / m_i, gamma_i <= sc_i / m_i.
+void node_gershgorin_sums(const PhysicsModel& physics, std::vector<double>& sk, std::vector<double>& sc);
+
+/// The physical mass of node i for a symplectic Euler step of at least `dt` (s) at that node:
+/// m >= D^2 sk / 4 + D sc / 2 with D = dt (the inverse of the undamped-or-damped bound
+/// dt <= (sqrt(4 sk m + sc^2) - sc) / sk), N*s^2/mm.
+[[nodiscard]] double mass_for_time_step(double sk, double sc, double dt);
 
 /// Calibrates `model` (finalized: rest_offsets, element volumes) with `material` and optional
 /// per-element overrides. Throws vx::Error for an invalid material, an override of the wrong

@@ -86,7 +86,10 @@ int ContactActiveSet::column_of(int f, SparseFactor& factor, ContactSolveCounter
       slot_free_.resize(std::size_t(columns_.cols()), -1);
       slot_last_used_.resize(std::size_t(columns_.cols()), 0);
     }
-    factor.solve_unit(f, columns_.col(slot).data());
+    if (partial_)
+      factor.solve_unit_partial(f, columns_.col(slot).data());
+    else
+      factor.solve_unit(f, columns_.col(slot).data());
     column_slot_[std::size_t(f)] = slot;
     slot_free_[std::size_t(slot)] = f;
     ++counters.columns;

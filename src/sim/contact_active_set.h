@@ -50,6 +50,9 @@ class ContactActiveSet {
   /// or -1; free_nodes: free index -> node): the cached columns belong to the old factor.
   /// Allocates. The warm start is kept (it is keyed by node, not by factor).
   void bind(const std::vector<int>& free_index, const std::vector<int>& free_nodes);
+  /// Columns by the factor's regional solves (SparseFactor::solve_unit_partial: exact on the
+  /// region, 0 elsewhere) instead of full ones.
+  void set_partial(bool partial) { partial_ = partial; }
   /// Forgets the warm start (the state was reset, replaced, or the provider changed).
   void forget_warm_start() { active_.clear(); }
 
@@ -71,6 +74,7 @@ class ContactActiveSet {
   void apply_working_forces(Eigen::MatrixX3d& solution, int threads) const;
   void index_candidates(std::size_t from);
 
+  bool partial_{false};
   const std::vector<int>* free_index_{nullptr};  ///< bound by bind(): nodes -> free index or -1
   const std::vector<int>* free_nodes_{nullptr};  ///< bound by bind(): free index -> node
 

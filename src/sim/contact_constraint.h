@@ -34,6 +34,9 @@ class ContactProvider {
   /// provider's margin outside them (candidates that may touch within the step). Each
   /// (owner, node) pair at most once. Must not allocate in steady state.
   virtual void collect(const Eigen::Matrix3Xd& x, bool near, std::vector<ContactConstraint>& out) = 0;
+  /// Where the tools are (mm): the centres of the implicit integrator's regional solves
+  /// (IntegratorSettings::region_radius_mm). None by default.
+  virtual void focus_points(std::vector<Eigen::Vector3d>& out) { out.clear(); }
 };
 
 }  // namespace vx

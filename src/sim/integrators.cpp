@@ -4,6 +4,8 @@
 #include <atomic>
 #include <cmath>
 #include <sstream>
+#include <cstdio>
+#include <cstdlib>
 
 #include "base/error.h"
 #include "base/parallel.h"
@@ -123,7 +125,7 @@ bool blocked(const SimState& s, const IntegratorSettings& set) {
 /// compiler need not reload them through the state's members).
 struct NodePass {
   double dt{0}, max_v2{0}, max_d2{0}, gx{0}, gy{0}, gz{0};
-  const double *ef{}, *xs{}, *vs{}, *fext{}, *rest{}, *mass{}, *inv_mass{};
+  const double *ef{}, *xs{}, *vs{}, *fext{}, *rest{}, *mass{}, *inv_mass{}, *gravity_ratio{};
   double *xo{}, *vo{}, *chunk_sums{};
   const std::uint8_t* fixed{};
   const std::int32_t* noff{};
@@ -145,7 +147,7 @@ void explicit_nodes(const NodePass& n, std::int64_t c, std::int64_t b, std::int6
     const double* r = n.rest + 3 * i;
     if constexpr (kTrack) {
       kin += 0.5 * n.mass[i] * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-      grav -= n.mass[i] * (n.gx * (x[0] - r[0]) + n.gy * (x[1] - r[1]) + n.gz * (x[2] - r[2]));
+      grav -= n.mass[i] * n.gravity_ratio[i] * (n.gx * (x[0] - r[0]) + n.gy * (x[1] - r[1]) + n.gz * (x[2] - r[2]));
     }
     double f0 = n.fext[3 * i], f1 = n.fext[3 * i + 1], f2 = n.fext[3 * i + 2];
     for (std::int32_t j = n.noff[i]; j < n.noff[i + 1]; ++j) {  // contiguous slots
@@ -156,8 +158,9 @@ void explicit_nodes(const NodePass& n, std::int64_t c, std::int64_t b, std::int6
     }
     // a fixed node is kinematic: no acceleration (its forces do not act)
     const bool free = !n.fixed[i];
-    const double im = n.inv_mass[i];
-    const double a0 = free ? f0 * im + n.gx : 0.0, a1 = free ? f1 * im + n.gy : 0.0, a2 = free ? f2 * im + n.gz : 0.0;
+    const double im = n.inv_mass[i], gr = n.gravity_ratio[i];  // gravity: the physical weight
+    const double a0 = free ? f0 * im + gr * n.gx : 0.0, a1 = free ? f1 * im + gr * n.gy : 0.0,
+                 a2 = free ? f2 * im + gr * n.gz : 0.0;
     double nx0, nx1, nx2, nv0, nv1, nv2;
     nv0 = v[0] + dt * a0, nv1 = v[1] + dt * a1, nv2 = v[2] + dt * a2;
     if constexpr (kSymplectic) {
@@ -226,6 +229,7 @@ class ExplicitIntegrator final : public Integrator {
     np.noff = p.node_entry_offsets.data();
     np.mass = p.node_mass.data();
     np.inv_mass = p.node_inv_mass.data();
+    np.gravity_ratio = p.node_gravity_ratio.data();
     np.chunk_flags = s.scratch.node_chunk_flags.data();
     np.chunk_sums = s.scratch.node_chunk_sums.data();
     const auto run = symplectic ? (track ? &explicit_nodes<true, true> : &explicit_nodes<true, false>)
@@ -264,6 +268,7 @@ class ImplicitIntegrator final : public Integrator {
     const double dt = settings_.time_step_s;
     ProjectiveSolver& solver = solver_for(s, rep);
     rep.factor_nonzeros = solver.factor_nonzeros();
+    if (settings_.region_radius_mm > 0 && contact_) update_region(s, solver, rep.refactored);
     if (settings_.track_energy) {
       ElementPassOptions opt;
       opt.damping = false;
@@ -291,16 +296,20 @@ class ImplicitIntegrator final : public Integrator {
         // y = x_n + dt v_n + dt^2 (g + f_ext / m); rhs = M y / dt^2
         // (the iterations start from x_n + dt v_n, not from y: at large dt the dt^2 g of a
         // held body puts y far from the solution)
-        const Eigen::Vector3d y = x.col(i) + dt * dt * (g + s.external_forces.col(i) / mass);
+        const Eigen::Vector3d y =
+            x.col(i) + dt * dt * (p.node_gravity_ratio[std::size_t(i)] * g + s.external_forces.col(i) / mass);
         rc.row(f) = (mass * inv_dt2) * y.transpose();
       }
     });
     ProjectiveIterations its;
     its.max_iterations = settings_.max_iterations;
     its.tolerance_mm = settings_.tolerance_mm;
+    its.residual_tolerance_n = settings_.residual_tolerance_n;
     its.rotation = settings_.rotation;
     its.threads = threads;
     solver.solve(s, x, its, contact_, rep);
+    rep.region_elements = solver.region_elements();
+    rep.region_nodes = solver.region_nodes();
     if (contact_) contacts_ = solver.active_contacts();
 
     // velocities, checks, energies
@@ -315,7 +324,7 @@ class ImplicitIntegrator final : public Integrator {
         const double mass = p.node_mass[std::size_t(i)];
         if (track) {
           kin += 0.5 * mass * s.velocities.col(i).squaredNorm();
-          grav -= mass * g.dot(xs.col(i) - rest.col(i));
+          grav -= mass * p.node_gravity_ratio[std::size_t(i)] * g.dot(xs.col(i) - rest.col(i));
         }
         if (s.node_fixed[std::size_t(i)])
           s.scratch.next_velocities.col(i) = s.velocities.col(i);
@@ -363,8 +372,35 @@ class ImplicitIntegrator final : public Integrator {
     return *cache.solver;
   }
 
+  /// Regional solves: the free nodes within region_radius_mm of a tool, recomputed when a tool
+  /// has moved a quarter of the radius since (or after a refactorisation).
+  void update_region(SimState& s, ProjectiveSolver& solver, bool refactored) {
+    contact_->focus_points(focus_);
+    if (focus_.empty()) {
+      solver.clear_region();
+      return;
+    }
+    const double r = settings_.region_radius_mm;
+    bool moved = refactored || !solver.has_region() || focus_.size() != centres_.size();
+    for (std::size_t k = 0; k < focus_.size() && !moved; ++k) moved = (focus_[k] - centres_[k]).norm() > 0.25 * r;
+    if (!moved) return;
+    centres_ = focus_;
+    awake_.clear();
+    for (int i = 0; i < s.num_nodes(); ++i) {
+      if (s.node_fixed[std::size_t(i)]) continue;
+      for (const auto& c : centres_)
+        if ((s.positions.col(i) - c).squaredNorm() <= r * r) {
+          awake_.push_back(i);
+          break;
+        }
+    }
+    solver.set_region(awake_);
+  }
+
   ContactProvider* contact_{nullptr};
   std::uint64_t contact_epoch_{0};
+  std::vector<Eigen::Vector3d> focus_, centres_;
+  std::vector<int> awake_;
   std::vector<ContactConstraint> contacts_;  ///< active at the end of the last step
 };
 
@@ -374,6 +410,8 @@ void check_settings(const IntegratorSettings& s) {
   if (s.threads < 0) err << "threads " << s.threads << " must be >= 0 (0: all); ";
   if (s.max_iterations < 1) err << "max_iterations " << s.max_iterations << " must be >= 1; ";
   if (!(s.tolerance_mm >= 0)) err << "tolerance " << s.tolerance_mm << " mm must be >= 0; ";
+  if (!(s.region_radius_mm >= 0)) err << "region radius " << s.region_radius_mm << " mm must be >= 0; ";
+  if (!(s.residual_tolerance_n >= 0)) err << "residual tolerance " << s.residual_tolerance_n << " N must be >= 0; ";
   if (s.rotation.max_iterations < 1) err << "rotation max_iterations must be >= 1; ";
   if (!(s.limits.max_speed_mm_s > 0)) err << "max speed must be > 0; ";
   if (!err.str().empty()) throw Error("integrator settings: " + err.str());

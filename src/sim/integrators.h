@@ -53,6 +53,14 @@ struct IntegratorSettings {
   // implicit only
   int max_iterations{10};      ///< local/global iterations per step
   double tolerance_mm{0.0};    ///< > 0: stop early once no node moved more than this in an iteration
+  /// > 0: stop early once the largest force imbalance on a free node is below this, N
+  /// (ProjectiveIterations::residual_tolerance_n)
+  double residual_tolerance_n{0.0};
+  /// > 0 (implicit, with a contact provider that names its tools): regional solves, the
+  /// rotation fits and the global solve only within this distance of a tool, mm
+  /// (ProjectiveSolver::set_region; the rest sleeps). The region follows a tool once it has
+  /// moved a quarter of the radius. 0: every node every step.
+  double region_radius_mm{0.0};
   StabilityLimits limits;
 };
 
@@ -61,6 +69,7 @@ struct StepReport {
   StepStatus status{StepStatus::ok};
   int iterations{0};               ///< explicit: 1 force evaluation; implicit: global solves done
   double residual_n{0.0};          ///< implicit: RMS force imbalance per free node (N) at the last checked iterate
+  double max_residual_n{0.0};      ///< implicit: the largest force imbalance on a free node (N), same iterate
   double max_update_mm{0.0};       ///< implicit: largest node move of the last iteration, mm
   std::int64_t inverted_elements{0};     ///< elements found inverted or flat in the step
   std::int64_t unconverged_rotations{0}; ///< rotation fits that hit max_iterations
@@ -69,6 +78,8 @@ struct StepReport {
   int contacts{0};                 ///< implicit with a contact provider: active constraints at the end
   int contact_rounds{0};           ///< implicit with a contact provider: active-set rounds in the step
   std::int64_t contact_columns{0}; ///< implicit: new columns A^-1 e_i solved in this step (each allocates once)
+  std::int64_t region_elements{0}; ///< implicit with a region: elements computed (0: all)
+  std::int64_t region_nodes{0};    ///< implicit with a region: free nodes solved for (0: all)
 };
 
 /// One time-integration scheme. What it keeps per state between steps lives in the state

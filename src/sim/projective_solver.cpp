@@ -127,6 +127,11 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
       fixed_positions_.row(Eigen::Index(c)) = x.col(fixed_nodes_[c]).transpose();
     rhs_const_.noalias() -= a_free_fixed_ * fixed_positions_;
   }
+  // the first solve computes every element's targets and the whole solution (a regional solve
+  // needs them all to exist), and so does the first after the region moved; the others only
+  // the region's
+  const bool region = region_;
+  if (!targets_valid_) region_ = false;
   if (setup_.damping) record_start_shape(s.positions, threads);
   double max_update = std::numeric_limits<double>::infinity();
   ElementPassStats last;
@@ -136,13 +141,23 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
     // local: rotation fits and targets; global: right-hand side, solve, contact
     last = local_step(s, x, its.rotation, threads);
     gather_rhs(threads);
-    if (it > 0) rep.residual_n = rms_difference(rhs_, rhs_previous_, threads);
-    if (its.tolerance_mm > 0 && it > 0 && max_update <= its.tolerance_mm) break;
-    factor_.solve3(rhs_, solution_);
+    if (it > 0) {
+      const auto [rms, largest] = difference_norms(rhs_, rhs_previous_, threads);
+      rep.residual_n = rms;
+      rep.max_residual_n = largest;
+      if (its.tolerance_mm > 0 && max_update <= its.tolerance_mm) break;
+      if (its.residual_tolerance_n > 0 && largest <= its.residual_tolerance_n) break;
+    }
+    if (region_)
+      factor_.solve3_partial(rhs_, solution_);
+    else
+      factor_.solve3(rhs_, solution_);
     if (contact) contact_set_.solve(*contact, x, factor_, solution_, threads, counters);
     max_update = scatter(x, threads);
     rhs_previous_.swap(rhs_);
   }
+  region_ = region;
+  targets_valid_ = true;
   rep.contact_rounds += counters.rounds;
   rep.contact_columns += counters.columns;
   if (contact) rep.contacts = int(contact_set_.active().size());
@@ -153,12 +168,48 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
   s.element_stats = last;
 }
 
+void ProjectiveSolver::set_region(const std::vector<int>& awake_nodes) {
+  if (!factor_.supports_partial()) return;
+  const PhysicsModel& p = *physics_;
+  const Model& m = *p.model;
+  std::vector<std::uint8_t> awake(std::size_t(p.num_nodes()), 0);
+  for (int i : awake_nodes) awake[std::size_t(i)] = 1;
+  region_elements_.clear();
+  std::vector<std::uint8_t> wanted(std::size_t(p.num_nodes()), 0);
+  for (int e = 0; e < p.num_elements(); ++e) {
+    bool any = false;
+    for (int j = m.element_offsets[e]; j < m.element_offsets[e + 1] && !any; ++j) any = awake[std::size_t(m.element_vertices[j])];
+    if (!any) continue;
+    region_elements_.push_back(e);
+    for (int j = m.element_offsets[e]; j < m.element_offsets[e + 1]; ++j) wanted[std::size_t(m.element_vertices[j])] = 1;
+  }
+  std::vector<int> rows;
+  for (int f = 0; f < num_free(); ++f)
+    if (wanted[std::size_t(free_nodes_[std::size_t(f)])]) rows.push_back(f);
+  factor_.set_partial_rows(rows);
+  region_ = true;
+  // the next solve is a full one: every element's targets and every node's position brought up
+  // to date (the far field that slept while the tool moved), then regional solves again
+  targets_valid_ = false;
+  contact_set_.bind(free_index_, free_nodes_);  // the cached columns hold the old region's rows
+  contact_set_.set_partial(true);
+}
+
+void ProjectiveSolver::clear_region() {
+  if (!region_) return;
+  region_ = false;
+  region_elements_.clear();
+  contact_set_.bind(free_index_, free_nodes_);
+  contact_set_.set_partial(false);
+}
+
 /// Relative offsets of the vertices at the start of the step (for the damping term).
 void ProjectiveSolver::record_start_shape(const Eigen::Matrix3Xd& x, int threads) {
   const PhysicsModel& p = *physics_;
   const Model& m = *p.model;
-  parallel_for(p.num_elements(), kElementGrain, threads, [&](std::int64_t b, std::int64_t e) {
-    for (std::int64_t el = b; el < e; ++el) {
+  parallel_for(active_elements(), kElementGrain, threads, [&](std::int64_t b, std::int64_t e) {
+    for (std::int64_t k = b; k < e; ++k) {
+      const std::int64_t el = active_element(k);
       const int o = m.element_offsets[el], n = m.element_offsets[el + 1] - o;
       Eigen::Vector3d c = Eigen::Vector3d::Zero();
       double sw = 0;
@@ -182,9 +233,11 @@ ElementPassStats ProjectiveSolver::local_step(SimState& s, const Eigen::Matrix3X
   const bool volume = p.has_volume_term();
   const bool damping = setup_.damping;
   const double inv_dt = 1.0 / setup_.time_step_s;
-  parallel_for_chunks(p.num_elements(), kElementGrain, threads, [&](std::int64_t chunk, std::int64_t b, std::int64_t e) {
+  const std::int64_t count = active_elements();
+  parallel_for_chunks(count, kElementGrain, threads, [&](std::int64_t chunk, std::int64_t b, std::int64_t e) {
     ElementPassStats st;
-    for (std::int64_t el = b; el < e; ++el) {
+    for (std::int64_t k = b; k < e; ++k) {
+      const std::int64_t el = active_element(k);
       const int o = m.element_offsets[el], n = m.element_offsets[el + 1] - o;
       // (sum w R0 = sum w r^n = 0: no centring needed)
       const Eigen::Vector3d x0 = x.col(m.element_vertices[o]);
@@ -229,7 +282,7 @@ ElementPassStats ProjectiveSolver::local_step(SimState& s, const Eigen::Matrix3X
     element_chunk_stats_[std::size_t(chunk)] = st;
   });
   ElementPassStats total;
-  for (const auto& c : element_chunk_stats_) total.add(c);
+  for (std::int64_t c = 0; c < chunk_count(count, kElementGrain); ++c) total.add(element_chunk_stats_[std::size_t(c)]);
   return total;
 }
 
@@ -263,18 +316,27 @@ double ProjectiveSolver::scatter(Eigen::Matrix3Xd& x, int threads) {
   return std::sqrt(mx);
 }
 
-double ProjectiveSolver::rms_difference(const Eigen::MatrixX3d& a, const Eigen::MatrixX3d& b, int threads) {
+std::pair<double, double> ProjectiveSolver::difference_norms(const Eigen::MatrixX3d& a, const Eigen::MatrixX3d& b,
+                                                             int threads) {
   const int nf = num_free();
-  if (nf == 0) return 0.0;
+  if (nf == 0) return {0.0, 0.0};
   const std::int64_t chunks = chunk_count(nf, kNodeGrain);
   parallel_for_chunks(nf, kNodeGrain, threads, [&](std::int64_t c, std::int64_t lo, std::int64_t hi) {
-    double s = 0;
-    for (std::int64_t f = lo; f < hi; ++f) s += (a.row(f) - b.row(f)).squaredNorm();
-    free_chunk_sums_[std::size_t(c)] = s;
+    double s = 0, mx = 0;
+    for (std::int64_t f = lo; f < hi; ++f) {
+      const double d2 = (a.row(f) - b.row(f)).squaredNorm();
+      s += d2;
+      mx = std::max(mx, d2);
+    }
+    free_chunk_sums_[2 * std::size_t(c)] = s;
+    free_chunk_sums_[2 * std::size_t(c) + 1] = mx;
   });
-  double s = 0;
-  for (std::int64_t c = 0; c < chunks; ++c) s += free_chunk_sums_[std::size_t(c)];
-  return std::sqrt(s / nf);
+  double s = 0, mx = 0;
+  for (std::int64_t c = 0; c < chunks; ++c) {
+    s += free_chunk_sums_[2 * std::size_t(c)];
+    mx = std::max(mx, free_chunk_sums_[2 * std::size_t(c) + 1]);
+  }
+  return {std::sqrt(s / nf), std::sqrt(mx)};
 }
 
 }  // namespace vx

@@ -29,6 +29,7 @@
 #include <Eigen/Core>
 #include <cstdint>
 #include <memory>
+#include <utility>
 #include <vector>
 
 #include "physics/elements.h"
@@ -55,6 +56,11 @@ struct ProjectiveSetup {
 struct ProjectiveIterations {
   int max_iterations{10};      ///< local/global iterations
   double tolerance_mm{0.0};    ///< > 0: stop once no node moved more than this in an iteration
+  /// > 0: stop once the largest force imbalance on a free node is below this (N): the residual
+  /// of the step's minimisation at the current iterate, rhs(x_k) - rhs(x_{k-1}) (A x_k =
+  /// rhs(x_{k-1}) after the global solve). Checked before each global solve after the first, so
+  /// a step costs at least two local steps and one solve.
+  double residual_tolerance_n{0.0};
   RotationFitSettings rotation;
   int threads{0};              ///< 0: OpenMP default
 };
@@ -89,6 +95,24 @@ class ProjectiveSolver {
   void solve(SimState& state, Eigen::Matrix3Xd& x, const ProjectiveIterations& iterations, ContactProvider* contact,
              StepReport& report);
 
+  // --- regional solves (sparse_factor.h: only where the tool is) -----------------------------
+  /// Restricts the following solves to the elements that touch `awake_nodes` (their rotation
+  /// fits and targets) and to the free nodes of those elements and their ancestors in the
+  /// factor's elimination tree (the global solve, exact there); the other nodes sleep at their
+  /// positions, the other elements keep their targets. The first solve after the factorisation
+  /// and the first after each set_region() are full: every node and element brought up to date. Without a supernodal factor it does nothing (full solves).
+  /// Allocates; drops the contact columns (they are recomputed for the region).
+  void set_region(const std::vector<int>& awake_nodes);
+  /// Back to full solves.
+  void clear_region();
+  [[nodiscard]] bool has_region() const { return region_; }
+  /// Elements and free nodes the regional solves compute (0 without a region).
+  [[nodiscard]] std::int64_t region_elements() const { return region_ ? std::int64_t(region_elements_.size()) : 0; }
+  [[nodiscard]] std::int64_t region_nodes() const { return region_ ? std::int64_t(factor_.partial_rows().size()) : 0; }
+
+  /// The factor (its backend, size, nonzeros and time).
+  [[nodiscard]] const SparseFactor& factor() const { return factor_; }
+
   /// The contact constraints active after the last solve, with their forces (N).
   [[nodiscard]] const std::vector<ContactConstraint>& active_contacts() const { return contact_set_.active(); }
   /// Forgets the contact warm start (the next solve does not follow the last one).
@@ -99,9 +123,18 @@ class ProjectiveSolver {
   void assemble_and_factor();
   void record_start_shape(const Eigen::Matrix3Xd& x, int threads);
   ElementPassStats local_step(SimState& state, const Eigen::Matrix3Xd& x, const RotationFitSettings& fit, int threads);
+  /// Calls fn(chunk, first, last) over the elements a solve computes: all, or the region's
+  /// (then first..last index region_elements_, and element(k) maps).
+  [[nodiscard]] std::int64_t active_elements() const {
+    return region_ ? std::int64_t(region_elements_.size()) : std::int64_t(physics_->num_elements());
+  }
+  [[nodiscard]] std::int64_t active_element(std::int64_t k) const {
+    return region_ ? std::int64_t(region_elements_[std::size_t(k)]) : k;
+  }
   void gather_rhs(int threads);
   double scatter(Eigen::Matrix3Xd& x, int threads);
-  double rms_difference(const Eigen::MatrixX3d& a, const Eigen::MatrixX3d& b, int threads);
+  /// RMS and largest per-node norm of a - b (free nodes), N.
+  std::pair<double, double> difference_norms(const Eigen::MatrixX3d& a, const Eigen::MatrixX3d& b, int threads);
 
   std::shared_ptr<const PhysicsModel> physics_;
   ProjectiveSetup setup_;
@@ -127,7 +160,11 @@ class ProjectiveSolver {
   Eigen::MatrixX3d solution_;             ///< free x 3: the global step's solution, mm
   Eigen::MatrixX3d fixed_positions_;      ///< fixed x 3: x_c
   std::vector<ElementPassStats> element_chunk_stats_;
-  std::vector<double> free_chunk_sums_;
+  // regional solves
+  bool region_{false};
+  bool targets_valid_{false};  ///< every element's targets computed once (by a full solve)
+  std::vector<int> region_elements_;  ///< ascending
+  std::vector<double> free_chunk_sums_;  ///< per node chunk: 2 partial sums
   ContactActiveSet contact_set_;
 };
 

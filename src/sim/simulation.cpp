@@ -134,8 +134,12 @@ StepStatus Simulation::step() {
   }
 
   // elastic forces, gravity, integration
-  integrator_->step(state_);
+  const StepReport report = integrator_->step(state_);
   if (state_.failed()) return state_.status;
+  if (report.region_elements > 0) {
+    counters_.sleeping_element_updates += physics_->num_elements() - report.region_elements;
+    counters_.sleeping_node_solves += (state_.num_nodes() - state_.num_fixed()) - report.region_nodes;
+  }
 
   // collisions of the nodes near probes and walls
   if (collide_ || !settings_.skip_unneeded) {
@@ -180,6 +184,11 @@ StepStatus Simulation::step() {
 
 void Simulation::ImplicitContact::collect(const Eigen::Matrix3Xd& x, bool near, std::vector<ContactConstraint>& out) {
   sim_.contact_.collect(x, sim_.geometry_, sim_.poses_, near, out);
+}
+
+void Simulation::ImplicitContact::focus_points(std::vector<Eigen::Vector3d>& out) {
+  out.clear();
+  for (const ProbeState& p : sim_.poses_) out.push_back(p.position_mm);
 }
 
 void Simulation::take_implicit_contact_forces() {

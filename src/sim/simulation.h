@@ -84,6 +84,10 @@ struct SimulationCounters {
   std::int64_t surface_updates_skipped{0};  ///< steps that ended without one (nobody looked)
   std::int64_t frames_published{0};         ///< frames copied for a display thread
   std::int64_t frames_skipped{0};           ///< steps without a requested frame
+  /// implicit with regional solves (IntegratorSettings::region_radius_mm): element rotation
+  /// fits and node solves left out because they sleep, summed over steps
+  std::int64_t sleeping_element_updates{0};
+  std::int64_t sleeping_node_solves{0};
 };
 
 /// A frame for a display thread.
@@ -155,6 +159,7 @@ class Simulation {
    public:
     explicit ImplicitContact(Simulation& sim) : sim_(sim) {}
     void collect(const Eigen::Matrix3Xd& x, bool near, std::vector<ContactConstraint>& out) override;
+    void focus_points(std::vector<Eigen::Vector3d>& out) override;
 
    private:
     Simulation& sim_;

@@ -1,54 +1,258 @@
 #include "sim/sparse_factor.h"
 
+#include <Eigen/SparseCholesky>
 #include <algorithm>
+#include <numeric>
+#include <chrono>
+#include <cmath>
+#include <cstdlib>
+#include <string>
+
+#ifdef VOXELASTIC_HAVE_METIS
+#include <iostream>  // Eigen's MetisSupport uses std::cerr without including it
+
+#include <Eigen/MetisSupport>
+#endif
+#ifdef VOXELASTIC_HAVE_CHOLMOD
+#include <cholmod.h>
+#endif
 
 namespace vx {
 
-bool SparseFactor::compute(const Matrix& a) {
-  ldlt_.compute(a);
-  if (ldlt_.info() != Eigen::Success) {
+const char* SparseFactor::to_string(Backend b) {
+  switch (b) {
+    case Backend::automatic: return "automatic";
+    case Backend::cholmod: return "cholmod";
+    case Backend::eigen_metis: return "eigen_metis";
+    case Backend::eigen_amd: return "eigen_amd";
+  }
+  return "?";
+}
+
+bool SparseFactor::available(Backend b) {
+  switch (b) {
+    case Backend::automatic:
+    case Backend::eigen_amd: return true;
+    case Backend::cholmod:
+#ifdef VOXELASTIC_HAVE_CHOLMOD
+      return true;
+#else
+      return false;
+#endif
+    case Backend::eigen_metis:
+#ifdef VOXELASTIC_HAVE_METIS
+      return true;
+#else
+      return false;
+#endif
+  }
+  return false;
+}
+
+SparseFactor::Backend SparseFactor::best_backend() {
+  // VOXELASTIC_FACTOR pins the backend (cholmod, eigen_metis, eigen_amd), e.g. to compare them
+  if (const char* env = std::getenv("VOXELASTIC_FACTOR")) {
+    for (Backend b : {Backend::cholmod, Backend::eigen_metis, Backend::eigen_amd})
+      if (std::string(env) == to_string(b) && available(b)) return b;
+  }
+  if (available(Backend::cholmod)) return Backend::cholmod;
+  if (available(Backend::eigen_metis)) return Backend::eigen_metis;
+  return Backend::eigen_amd;
+}
+
+bool SparseFactor::compute(const Matrix& a, Backend backend) {
+  const auto t0 = std::chrono::steady_clock::now();
+  supernodal_ = false;
+  have_forward_ = false;
+  closure_rows_.clear();
+  closure_supers_.clear();
+  closure_columns_ = 0;
+  if (backend == Backend::automatic || !available(backend)) backend = best_backend();
+  size_ = 0;
+  bool ok = false;
+  switch (backend) {
+    case Backend::cholmod: ok = compute_cholmod(a); break;
+    case Backend::eigen_metis: ok = compute_eigen(a, true); break;
+    default: ok = compute_eigen(a, false); break;
+  }
+  factor_s_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  if (!ok) {
     size_ = 0;
-    nonzeros_ = 0;
+    supernodal_ = false;
+    outer_.assign(1, 0);
+    inner_.clear();
+    values_.clear();
     return false;
   }
+  backend_ = backend;
   size_ = int(a.rows());
-  nonzeros_ = ldlt_.matrixL().nestedExpression().nonZeros();
   work3_.assign(3 * std::size_t(size_), 0.0);
   work1_.assign(std::size_t(size_), 0.0);
   return true;
 }
 
+namespace {
+
+/// Copies Eigen's LDL^T (strictly lower L, D, permutation) into the plain arrays.
+template <typename Ldlt>
+bool copy_eigen(const Ldlt& ldlt, int n, std::vector<int>& perm, std::vector<std::int64_t>& outer,
+                std::vector<int>& inner, std::vector<double>& values, std::vector<double>& inv_d) {
+  if (ldlt.info() != Eigen::Success) return false;
+  const auto& l = ldlt.matrixL().nestedExpression();
+  const auto& d = ldlt.vectorD();
+  const auto& p = ldlt.permutationP().indices();
+  perm.resize(std::size_t(n));
+  for (int i = 0; i < n; ++i) perm[std::size_t(i)] = p(i);
+  outer.assign(std::size_t(n) + 1, 0);
+  const auto* lo = l.outerIndexPtr();
+  const auto* nnz = l.innerNonZeroPtr();
+  for (int j = 0; j < n; ++j) outer[std::size_t(j) + 1] = outer[std::size_t(j)] + (nnz ? nnz[j] : lo[j + 1] - lo[j]);
+  inner.resize(std::size_t(outer[std::size_t(n)]));
+  values.resize(std::size_t(outer[std::size_t(n)]));
+  for (int j = 0; j < n; ++j) {
+    const std::int64_t len = outer[std::size_t(j) + 1] - outer[std::size_t(j)];
+    std::copy_n(l.innerIndexPtr() + lo[j], len, inner.begin() + outer[std::size_t(j)]);
+    std::copy_n(l.valuePtr() + lo[j], len, values.begin() + outer[std::size_t(j)]);
+  }
+  inv_d.resize(std::size_t(n));
+  for (int j = 0; j < n; ++j) {
+    if (!(d(j) > 0) || !std::isfinite(d(j))) return false;
+    inv_d[std::size_t(j)] = 1.0 / d(j);
+  }
+  return true;
+}
+
+}  // namespace
+
+bool SparseFactor::compute_eigen(const Matrix& a, bool metis) {
+  const int n = int(a.rows());
+#ifdef VOXELASTIC_HAVE_METIS
+  if (metis) {
+    Eigen::SimplicialLDLT<Matrix, Eigen::Lower, Eigen::MetisOrdering<int>> ldlt(a);
+    return copy_eigen(ldlt, n, perm_, outer_, inner_, values_, inv_d_);
+  }
+#else
+  (void)metis;
+#endif
+  Eigen::SimplicialLDLT<Matrix> ldlt(a);
+  return copy_eigen(ldlt, n, perm_, outer_, inner_, values_, inv_d_);
+}
+
+bool SparseFactor::compute_cholmod(const Matrix& a_in) {
+#ifdef VOXELASTIC_HAVE_CHOLMOD
+  Matrix a = a_in;
+  a.makeCompressed();
+  const int n = int(a.rows());
+  cholmod_common cm;
+  cholmod_start(&cm);
+  cm.print = 0;
+  cm.error_handler = nullptr;
+  cm.supernodal = CHOLMOD_SUPERNODAL;
+  cm.nmethods = 1;
+  cm.method[0].ordering = CHOLMOD_METIS;
+  cm.postorder = 1;
+  cm.quick_return_if_not_posdef = 1;
+  cholmod_sparse view{};
+  view.nrow = std::size_t(n);
+  view.ncol = std::size_t(n);
+  view.nzmax = std::size_t(a.nonZeros());
+  view.p = a.outerIndexPtr();
+  view.i = a.innerIndexPtr();
+  view.x = a.valuePtr();
+  view.stype = -1;  // the lower triangle is read, the upper ignored
+  view.itype = CHOLMOD_INT;
+  view.xtype = CHOLMOD_REAL;
+  view.dtype = CHOLMOD_DOUBLE;
+  view.sorted = 1;
+  view.packed = 1;
+  cholmod_factor* l = cholmod_analyze(&view, &cm);
+  bool ok = l != nullptr;
+  if (ok) ok = cholmod_factorize(&view, l, &cm) && cm.status == CHOLMOD_OK && l->minor == l->n;
+  // keep the supernodal L L^T: its blocks as they are
+  if (ok) ok = l->is_super && l->is_ll;
+  if (ok) {
+    const int ns = int(l->nsuper);
+    const int* sup = static_cast<const int*>(l->super);
+    const int* pi = static_cast<const int*>(l->pi);
+    const int* px = static_cast<const int*>(l->px);
+    const int* ls = static_cast<const int*>(l->s);
+    const double* lx = static_cast<const double*>(l->x);
+    const int* pp = static_cast<const int*>(l->Perm);  // position k holds original row pp[k]
+    perm_.resize(std::size_t(n));
+    for (int k = 0; k < n; ++k) perm_[std::size_t(pp[k])] = k;
+    super_.assign(sup, sup + ns + 1);
+    row_start_.assign(std::size_t(ns) + 1, 0);
+    value_start_.assign(std::size_t(ns) + 1, 0);
+    for (int q = 0; q <= ns; ++q) {
+      row_start_[std::size_t(q)] = pi[q];
+      value_start_[std::size_t(q)] = px[q];
+    }
+    rows_.assign(ls, ls + pi[ns]);
+    values_.assign(lx, lx + px[ns]);
+    column_super_.resize(std::size_t(n));
+    for (int q = 0; q < ns; ++q)
+      for (int j = sup[q]; j < sup[q + 1]; ++j) {
+        column_super_[std::size_t(j)] = q;
+        const double d = lx[px[q] + std::int64_t(j - sup[q]) * (pi[q + 1] - pi[q]) + (j - sup[q])];
+        if (!(d > 0) || !std::isfinite(d)) ok = false;
+      }
+    super_parent_.assign(std::size_t(ns), -1);
+    for (int q = 0; q < ns; ++q) {
+      const int nscol = sup[q + 1] - sup[q], nsrow = pi[q + 1] - pi[q];
+      if (nsrow > nscol) super_parent_[std::size_t(q)] = column_super_[std::size_t(ls[pi[q] + nscol])];
+    }
+    mark_.assign(std::size_t(ns), 0);
+    supernodal_ = true;
+  }
+  if (l) cholmod_free_factor(&l, &cm);
+  cholmod_finish(&cm);
+  return ok;
+#else
+  (void)a_in;
+  return false;
+#endif
+}
+
 void SparseFactor::solve3(const Eigen::MatrixX3d& b, Eigen::MatrixX3d& x) {
   const int n = size_;
-  const auto& perm = ldlt_.permutationP().indices();
   double* w = work3_.data();
   for (int i = 0; i < n; ++i)
-    for (int c = 0; c < 3; ++c) w[3 * perm(i) + c] = b(i, c);
-  solve_in_place<3>(w, 0);
+    for (int c = 0; c < 3; ++c) w[3 * perm_[std::size_t(i)] + c] = b(i, c);
+  if (supernodal_) {
+    // keep b and the forward solution for regional solves
+    last_b_.assign(w, w + 3 * std::size_t(n));
+    all_supers_.resize(super_.size() - 1);
+    for (std::size_t q = 0; q < all_supers_.size(); ++q) all_supers_[q] = int(q);
+    forward_supers<3>(w, all_supers_);
+    forward_.assign(w, w + 3 * std::size_t(n));
+    have_forward_ = true;
+    backward_supers<3>(w, all_supers_);
+  } else {
+    solve_in_place<3>(w, 0);
+  }
   for (int i = 0; i < n; ++i)
-    for (int c = 0; c < 3; ++c) x(i, c) = w[3 * perm(i) + c];
+    for (int c = 0; c < 3; ++c) x(i, c) = w[3 * perm_[std::size_t(i)] + c];
 }
 
 void SparseFactor::solve_unit(int i, double* out) {
   const int n = size_;
-  const auto& perm = ldlt_.permutationP().indices();
   double* w = work1_.data();
   std::fill(work1_.begin(), work1_.end(), 0.0);
-  w[perm(i)] = 1.0;
-  solve_in_place<1>(w, perm(i));
-  for (int k = 0; k < n; ++k) out[k] = w[perm(k)];
+  w[perm_[std::size_t(i)]] = 1.0;
+  if (supernodal_)
+    solve_supernodal<1>(w, perm_[std::size_t(i)]);
+  else
+    solve_in_place<1>(w, perm_[std::size_t(i)]);
+  for (int k = 0; k < n; ++k) out[k] = w[perm_[std::size_t(k)]];
 }
 
 template <int K>
 void SparseFactor::solve_in_place(double* w, int first) const {
   const int n = size_;
-  const auto& l = ldlt_.matrixL().nestedExpression();
-  const auto& d = ldlt_.vectorD();
-  const auto* outer = l.outerIndexPtr();
-  const auto* nnz = l.innerNonZeroPtr();
-  const auto* inner = l.innerIndexPtr();
-  const double* val = l.valuePtr();
-  // forward: L z = w (L is Eigen's strictly lower unit factor)
+  const std::int64_t* outer = outer_.data();
+  const int* inner = inner_.data();
+  const double* val = values_.data();
+  // forward: L z = w (L strictly lower, unit diagonal)
   for (int j = first; j < n; ++j) {
     double wj[K];
     bool zero = true;
@@ -57,23 +261,21 @@ void SparseFactor::solve_in_place(double* w, int first) const {
       zero = zero && wj[c] == 0.0;
     }
     if (zero) continue;  // nothing to carry (sparse right-hand sides)
-    const auto end = nnz ? outer[j] + nnz[j] : outer[j + 1];
-    for (auto p = outer[j]; p < end; ++p) {
+    for (std::int64_t p = outer[j]; p < outer[j + 1]; ++p) {
       double* wi = w + K * std::int64_t(inner[p]);
       for (int c = 0; c < K; ++c) wi[c] -= val[p] * wj[c];
     }
   }
   // diagonal
   for (int j = 0; j < n; ++j) {
-    const double inv = 1.0 / d(j);
+    const double inv = inv_d_[std::size_t(j)];
     for (int c = 0; c < K; ++c) w[K * j + c] *= inv;
   }
   // backward: L^T x = z
   for (int j = n - 1; j >= 0; --j) {
     double wj[K];
     for (int c = 0; c < K; ++c) wj[c] = w[K * j + c];
-    const auto end = nnz ? outer[j] + nnz[j] : outer[j + 1];
-    for (auto p = outer[j]; p < end; ++p) {
+    for (std::int64_t p = outer[j]; p < outer[j + 1]; ++p) {
       const double* wi = w + K * std::int64_t(inner[p]);
       for (int c = 0; c < K; ++c) wj[c] -= val[p] * wi[c];
     }
@@ -81,6 +283,213 @@ void SparseFactor::solve_in_place(double* w, int first) const {
   }
 }
 
+template <int K>
+void SparseFactor::solve_supernodal(double* w, int first) const {
+  const int ns = int(super_.size()) - 1;
+  const int* rows = rows_.data();
+  const double* val = values_.data();
+  // forward: L z = w, supernode by supernode (columns in order), each column streamed once
+  for (int q = first > 0 ? column_super_[std::size_t(first)] : 0; q < ns; ++q) {
+    const int k1 = super_[std::size_t(q)], nscol = super_[std::size_t(q) + 1] - k1;
+    const std::int64_t r0 = row_start_[std::size_t(q)];
+    const int nsrow = int(row_start_[std::size_t(q) + 1] - r0);
+    const double* x = val + value_start_[std::size_t(q)];
+    const int* r = rows + r0;
+    for (int jj = 0; jj < nscol; ++jj) {
+      const double* col = x + std::int64_t(jj) * nsrow;
+      double* wj = w + K * std::int64_t(k1 + jj);
+      bool zero = true;
+      for (int c = 0; c < K; ++c) {
+        wj[c] /= col[jj];
+        zero = zero && wj[c] == 0.0;
+      }
+      if (zero) continue;
+      double v[K];
+      for (int c = 0; c < K; ++c) v[c] = wj[c];
+      for (int ii = jj + 1; ii < nsrow; ++ii) {
+        double* wi = w + K * std::int64_t(r[ii]);
+        const double l = col[ii];
+        for (int c = 0; c < K; ++c) wi[c] -= l * v[c];
+      }
+    }
+  }
+  // backward: L^T x = z
+  for (int q = ns - 1; q >= 0; --q) {
+    const int k1 = super_[std::size_t(q)], nscol = super_[std::size_t(q) + 1] - k1;
+    const std::int64_t r0 = row_start_[std::size_t(q)];
+    const int nsrow = int(row_start_[std::size_t(q) + 1] - r0);
+    const double* x = val + value_start_[std::size_t(q)];
+    const int* r = rows + r0;
+    for (int jj = nscol - 1; jj >= 0; --jj) {
+      const double* col = x + std::int64_t(jj) * nsrow;
+      double acc[K];
+      double* wj = w + K * std::int64_t(k1 + jj);
+      for (int c = 0; c < K; ++c) acc[c] = wj[c];
+      for (int ii = jj + 1; ii < nsrow; ++ii) {
+        const double* wi = w + K * std::int64_t(r[ii]);
+        const double l = col[ii];
+        for (int c = 0; c < K; ++c) acc[c] -= l * wi[c];
+      }
+      for (int c = 0; c < K; ++c) wj[c] = acc[c] / col[jj];
+    }
+  }
+}
+
+template <int K>
+void SparseFactor::forward_supers(double* w, const std::vector<int>& supers) const {
+  const int* rows = rows_.data();
+  const double* val = values_.data();
+  for (const int q : supers) {
+    const int k1 = super_[std::size_t(q)], nscol = super_[std::size_t(q) + 1] - k1;
+    const std::int64_t r0 = row_start_[std::size_t(q)];
+    const int nsrow = int(row_start_[std::size_t(q) + 1] - r0);
+    const double* x = val + value_start_[std::size_t(q)];
+    const int* r = rows + r0;
+    for (int jj = 0; jj < nscol; ++jj) {
+      const double* col = x + std::int64_t(jj) * nsrow;
+      double* wj = w + K * std::int64_t(k1 + jj);
+      bool zero = true;
+      for (int c = 0; c < K; ++c) {
+        wj[c] /= col[jj];
+        zero = zero && wj[c] == 0.0;
+      }
+      if (zero) continue;
+      double v[K];
+      for (int c = 0; c < K; ++c) v[c] = wj[c];
+      for (int ii = jj + 1; ii < nsrow; ++ii) {
+        double* wi = w + K * std::int64_t(r[ii]);
+        const double l = col[ii];
+        for (int c = 0; c < K; ++c) wi[c] -= l * v[c];
+      }
+    }
+  }
+}
+
+template <int K>
+void SparseFactor::backward_supers(double* w, const std::vector<int>& supers) const {
+  const int* rows = rows_.data();
+  const double* val = values_.data();
+  for (auto it = supers.rbegin(); it != supers.rend(); ++it) {
+    const int q = *it;
+    const int k1 = super_[std::size_t(q)], nscol = super_[std::size_t(q) + 1] - k1;
+    const std::int64_t r0 = row_start_[std::size_t(q)];
+    const int nsrow = int(row_start_[std::size_t(q) + 1] - r0);
+    const double* x = val + value_start_[std::size_t(q)];
+    const int* r = rows + r0;
+    for (int jj = nscol - 1; jj >= 0; --jj) {
+      const double* col = x + std::int64_t(jj) * nsrow;
+      double acc[K];
+      double* wj = w + K * std::int64_t(k1 + jj);
+      for (int c = 0; c < K; ++c) acc[c] = wj[c];
+      for (int ii = jj + 1; ii < nsrow; ++ii) {
+        const double* wi = w + K * std::int64_t(r[ii]);
+        const double l = col[ii];
+        for (int c = 0; c < K; ++c) acc[c] -= l * wi[c];
+      }
+      for (int c = 0; c < K; ++c) wj[c] = acc[c] / col[jj];
+    }
+  }
+}
+
+/// Adds the ancestors of `supers` (marked with a new generation) and sorts: a closed set under
+/// the elimination tree's parent, in ascending (forward) order.
+void SparseFactor::ancestors(std::vector<int>& supers) {
+  if (++generation_ == 0) {
+    std::fill(mark_.begin(), mark_.end(), 0u);
+    generation_ = 1;
+  }
+  const std::size_t given = supers.size();
+  std::vector<int> seeds(supers.begin(), supers.end());
+  supers.clear();
+  for (std::size_t k = 0; k < given; ++k)
+    for (int q = seeds[k]; q >= 0 && mark_[std::size_t(q)] != generation_; q = super_parent_[std::size_t(q)]) {
+      mark_[std::size_t(q)] = generation_;
+      supers.push_back(q);
+    }
+  std::sort(supers.begin(), supers.end());
+}
+
+const std::vector<int>& SparseFactor::set_partial_rows(const std::vector<int>& rows) {
+  closure_supers_.clear();
+  closure_rows_.clear();
+  closure_columns_ = 0;
+  if (!supernodal_) return closure_rows_;
+  for (const int i : rows) closure_supers_.push_back(column_super_[std::size_t(perm_[std::size_t(i)])]);
+  ancestors(closure_supers_);
+  std::vector<int> inverse(static_cast<std::size_t>(size_));
+  for (int i = 0; i < size_; ++i) inverse[std::size_t(perm_[std::size_t(i)])] = i;
+  for (const int q : closure_supers_)
+    for (int j = super_[std::size_t(q)]; j < super_[std::size_t(q) + 1]; ++j) closure_rows_.push_back(inverse[std::size_t(j)]);
+  closure_columns_ = std::int64_t(closure_rows_.size());
+  std::sort(closure_rows_.begin(), closure_rows_.end());
+  return closure_rows_;
+}
+
+int SparseFactor::solve3_partial(const Eigen::MatrixX3d& b, Eigen::MatrixX3d& x) {
+  if (!supernodal_ || !have_forward_ || closure_supers_.empty()) {
+    solve3(b, x);
+    return size_;
+  }
+  const int n = size_;
+  double* w = work3_.data();  // zero outside what a pass touches (restored below)
+  // the rows where b changed, exactly, and their supernodes
+  changed_supers_.clear();
+  int changed = 0;
+  for (int i = 0; i < n; ++i) {
+    const int k = perm_[std::size_t(i)];
+    bool diff = false;
+    for (int c = 0; c < 3; ++c) {
+      const double d = b(i, c) - last_b_[3 * std::size_t(k) + std::size_t(c)];
+      w[3 * k + c] = d;
+      diff = diff || d != 0.0;
+    }
+    if (diff) {
+      ++changed;
+      for (int c = 0; c < 3; ++c) last_b_[3 * std::size_t(k) + std::size_t(c)] = b(i, c);
+      changed_supers_.push_back(column_super_[std::size_t(k)]);
+    }
+  }
+  // forward on the changed rows' ancestors: z += L^-1 P (b - last b)
+  if (!changed_supers_.empty()) {
+    ancestors(changed_supers_);
+    forward_supers<3>(w, changed_supers_);
+    for (const int q : changed_supers_)
+      for (int j = super_[std::size_t(q)]; j < super_[std::size_t(q) + 1]; ++j)
+        for (int c = 0; c < 3; ++c) forward_[3 * std::size_t(j) + std::size_t(c)] += w[3 * j + c];
+  }
+  std::fill(work3_.begin(), work3_.end(), 0.0);
+  // backward on the closure
+  for (const int q : closure_supers_)
+    for (int j = super_[std::size_t(q)]; j < super_[std::size_t(q) + 1]; ++j)
+      for (int c = 0; c < 3; ++c) w[3 * j + c] = forward_[3 * std::size_t(j) + std::size_t(c)];
+  backward_supers<3>(w, closure_supers_);
+  for (const int i : closure_rows_)
+    for (int c = 0; c < 3; ++c) x(i, c) = w[3 * perm_[std::size_t(i)] + c];
+  std::fill(work3_.begin(), work3_.end(), 0.0);
+  return changed;
+}
+
+void SparseFactor::solve_unit_partial(int i, double* out) {
+  if (!supernodal_ || closure_supers_.empty()) return solve_unit(i, out);
+  const int n = size_;
+  double* w = work1_.data();
+  std::fill(work1_.begin(), work1_.end(), 0.0);
+  const int k = perm_[std::size_t(i)];
+  w[k] = 1.0;
+  changed_supers_.assign(1, column_super_[std::size_t(k)]);
+  ancestors(changed_supers_);
+  forward_supers<1>(w, changed_supers_);
+  // backward on the closure only (columns of the closure off the ancestors hold 0: right)
+  for (const int q : changed_supers_)
+    if (!std::binary_search(closure_supers_.begin(), closure_supers_.end(), q))
+      for (int j = super_[std::size_t(q)]; j < super_[std::size_t(q) + 1]; ++j) w[j] = 0.0;
+  backward_supers<1>(w, closure_supers_);
+  std::fill(out, out + n, 0.0);
+  for (const int r : closure_rows_) out[r] = w[perm_[std::size_t(r)]];
+}
+
+template void SparseFactor::solve_supernodal<1>(double*, int) const;
+template void SparseFactor::solve_supernodal<3>(double*, int) const;
 template void SparseFactor::solve_in_place<1>(double*, int) const;
 template void SparseFactor::solve_in_place<3>(double*, int) const;
 

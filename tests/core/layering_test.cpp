@@ -2,7 +2,8 @@
 // inside the core base -> model -> physics -> sim (surface beside physics). Includes name the
 // folder ("sim/state.h"), so a reader knows from the line where a header lives; this test reads
 // every source file and forbids every include that runs back up:
-// - the core (src/) includes Eigen and the standard library only: no VTK, SDL2, DCMTK, JSON,
+// - the core (src/) includes Eigen and the standard library only (and, in sim/sparse_factor.cpp,
+//   the sparse Cholesky's CHOLMOD and METIS when the build has them): no VTK, SDL2, DCMTK, JSON,
 //   fmt, nor any pipeline, evaluation or app header;
 // - inside the core, a stage includes only the stages below it;
 // - the pipeline never includes evaluation or app headers;

@@ -38,7 +38,7 @@ std::int64_t count_hu(const Volume& v, float hu) {
 
 TEST(Phantom, NamesAreTheDocumentedOnes) {
   EXPECT_EQ(vx::phantom_names(), (std::vector<std::string>{"sphere", "cube", "ellipsoid", "cylinder", "torus",
-                                                          "block", "block-lesion"}));
+                                                          "block", "block-lesion", "organ"}));
 }
 
 // The voxel count (centres inside) approximates the analytic volume. Flat faces lie on voxel
@@ -365,7 +365,7 @@ TEST(Phantom, BadSettingsAreRefused) {
         EXPECT_NE(std::string(e.what()).find("8 or more"), std::string::npos) << e.what();
       }
     }
-  EXPECT_EQ(refused, 4);  // ellipsoid and torus at 4 and 6
+  EXPECT_EQ(refused, 6);  // ellipsoid, torus and organ at 4 and 6
 }
 
 }  // namespace

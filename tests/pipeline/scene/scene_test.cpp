@@ -1,6 +1,7 @@
 // Scene files: strict validation (JSON paths, wrong units, impossible values), building the
 // object and its heterogeneous material, and the simulate outputs (forces.csv, .pvd, plot).
 #include "scene/scene.h"
+#include "sim/time_step.h"
 
 #include <gtest/gtest.h>
 #include <vtkDataArray.h>
@@ -512,3 +513,46 @@ TEST(SimOutput, ForcesCsvPvdAndSkippingThroughAScene) {
   EXPECT_GT(fs::file_size(dir / "forces.png"), 5000u);
   fs::remove_all(dir);
 }
+
+namespace vx {
+namespace {
+
+TEST(Scene, WithoutAnIntegratorKeyTheFastConfigurationRuns) {
+  // no integrator key: implicit, the automatic step (20 ms, capped by the probe's speed), one
+  // iteration; friction asks for symplectic Euler (grasping)
+  nlohmann::json j = base_scene();
+  j.erase("integrator");
+  PreparedScene p = prepare_scene(parse_scene(j, ".", "t"));
+  EXPECT_EQ(p.settings.integrator.kind, IntegratorKind::implicit);
+  EXPECT_EQ(p.settings.integrator.max_iterations, FastConfiguration::iterations);
+  EXPECT_GT(p.settings.integrator.time_step_s, 0.0);
+  EXPECT_LE(p.settings.integrator.time_step_s, FastConfiguration::time_step_s);
+  for (const auto& probe : p.settings.probes)
+    EXPECT_LE(probe.max_scripted_speed_mm_s() * p.settings.integrator.time_step_s, 0.25 * probe.geometry.radius_mm + 1e-12);
+  j["contact"] = {{"friction", 0.5}};
+  EXPECT_EQ(prepare_scene(parse_scene(j, ".", "t")).settings.integrator.kind, IntegratorKind::symplectic_euler);
+  // the keys of the levers
+  j = base_scene();
+  j["integrator"] = {{"type", "implicit"}, {"dt_s", 0.002}, {"iterations", 3}, {"residual_tolerance_n", 1e-6},
+                     {"region_radius_mm", 12}};
+  j["material"]["mass_scaling"] = {{"factor", 2.0}};
+  p = prepare_scene(parse_scene(j, ".", "t"));
+  EXPECT_EQ(p.settings.integrator.max_iterations, 3);
+  EXPECT_DOUBLE_EQ(p.settings.integrator.residual_tolerance_n, 1e-6);
+  EXPECT_DOUBLE_EQ(p.settings.integrator.region_radius_mm, 12.0);
+  EXPECT_DOUBLE_EQ(p.physics->mass_scaling.factor, 2.0);
+  EXPECT_NEAR(p.physics->added_mass_kg, p.physics->total_mass_kg(), 1e-12);
+  // implicit-only keys on an explicit scheme, and bad values, are errors naming the key
+  j = base_scene();
+  j["integrator"]["iterations"] = 2;
+  EXPECT_CONTAINS(error_of(j), "settings of the implicit integrator");
+  j = base_scene();
+  j["material"]["mass_scaling"] = {{"factor", 0.5}};
+  EXPECT_CONTAINS(error_of(j), "$.material.mass_scaling.factor");
+  j = base_scene();
+  j["material"]["mass_scaling"] = {{"time_step", 1e-4}};
+  EXPECT_CONTAINS(error_of(j), "unknown key");
+}
+
+}  // namespace
+}  // namespace vx

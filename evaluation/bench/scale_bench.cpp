@@ -1,0 +1,337 @@
+#include "bench/scale_bench.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "base/error.h"
+#include "render/plot.h"
+#include "scene/scene.h"
+#include "sim/simulation.h"
+#include "sim/time_step.h"
+#include "util/atomic_file.h"
+
+namespace vx {
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+
+ScaleBenchSettings ScaleBenchSettings::standard() {
+  ScaleBenchSettings s;
+  s.models = {{"sphere 32", "sphere", 32},
+              {"sphere 64", "sphere", 64},
+              {"sphere 128", "sphere", 128},
+              {"sphere 256", "sphere", 256},
+              {"organ", "organ", 214}};
+  ScaleConfig ref;
+  ref.name = "symplectic, auto step (reference)";
+  ref.reference = true;
+  ScaleConfig floor;
+  floor.name = "symplectic, mass floor 0.1 ms";
+  floor.mass.time_step_s = 1e-4;
+  ScaleConfig floor_scale;
+  floor_scale.name = "symplectic, mass floor 0.25 ms";
+  floor_scale.mass.time_step_s = 2.5e-4;
+  ScaleConfig implicit10;
+  implicit10.name = "implicit 10 ms, 2 iterations";
+  implicit10.kind = IntegratorKind::implicit;
+  implicit10.time_step_s = 0.01;
+  implicit10.max_iterations = 2;
+  ScaleConfig implicit30;
+  implicit30.name = "implicit 30 ms, 1 iteration";
+  implicit30.kind = IntegratorKind::implicit;
+  implicit30.time_step_s = 0.03;
+  implicit30.max_iterations = 1;
+  ScaleConfig implicit20;
+  implicit20.name = "implicit 20 ms, 1 iteration (the fast configuration)";
+  implicit20.kind = IntegratorKind::implicit;
+  implicit20.time_step_s = 0.02;
+  implicit20.max_iterations = 1;
+  ScaleConfig region15 = implicit20;
+  region15.name = "implicit 20 ms, 1 iteration, region 15 mm";
+  region15.region_radius_mm = 15.0;
+  ScaleConfig region30 = implicit20;
+  region30.name = "implicit 20 ms, 1 iteration, region 30 mm";
+  region30.region_radius_mm = 30.0;
+  s.configs = {ref, floor, floor_scale, implicit10, implicit20, implicit30, region15, region30};
+  return s;
+}
+
+void ScaleBenchSettings::validate() const {
+  if (models.empty()) throw Error("bench --scale: no models");
+  if (configs.empty()) throw Error("bench --scale: no configurations");
+  for (int t : threads)
+    if (t < 1) throw Error("bench --scale: threads must be >= 1");
+  if (!(max_wall_s > 0)) throw Error("bench --scale: max_wall_s must be > 0");
+}
+
+namespace {
+
+double seconds_since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+/// The model's prepared scene (no probe yet): the phantom at 1 mm, gradational, bottom 3 mm held.
+PreparedScene prepare_model(const ScaleModelSpec& m, const ScaleBenchSettings& s) {
+  json j;
+  j["object"] = {{"phantom", m.phantom}, {"size", m.size}, {"spacing_mm", 1.0}, {"resolution", "gradational"}};
+  j["material"] = {{"youngs_modulus_kpa", s.youngs_modulus_kpa},
+                   {"damping", s.damping_ratio},
+                   {"density_kg_m3", 1000.0},
+                   {"poisson_ratio", 0.0}};
+  j["fixed"] = json::array({{{"face", "z_min"}, {"within_mm", 3.0}}});
+  j["duration_s"] = s.press_s + s.slide_s;
+  j["outputs"] = {{"forces_csv", false}, {"plot", false}};
+  const Scene scene = parse_scene(j, fs::current_path(), "scale bench " + m.name);
+  PrepareSceneOptions opt;
+  opt.threads_override = 1;
+  return prepare_scene(scene, opt);
+}
+
+/// The ball's path: 0.5 mm above the top (the node of the model highest near the centre axis),
+/// pressed depth_mm in press_s, slid slide_mm along x in slide_s.
+std::vector<PathKey> palpation_path(const PreparedScene& p, const ScaleBenchSettings& s) {
+  const Model& m = *p.model;
+  const Eigen::Vector3d c = 0.5 * (p.bounds_min_mm + p.bounds_max_mm);
+  double top = p.bounds_min_mm.z();
+  for (int i = 0; i < m.num_nodes(); ++i) {
+    const Eigen::Vector3d x = m.rest_positions.col(i);
+    if (std::hypot(x.x() - c.x(), x.y() - c.y()) <= s.probe_radius_mm) top = std::max(top, x.z());
+  }
+  const double z0 = top + s.probe_radius_mm + 0.5;
+  const double z1 = top + s.probe_radius_mm - s.depth_mm;
+  return {{0.0, {c.x(), c.y(), z0}},
+          {s.press_s, {c.x(), c.y(), z1}},
+          {s.press_s + s.slide_s, {c.x() + s.slide_mm, c.y(), z1}}};
+}
+
+struct RunOutput {
+  ScaleRow row;
+  std::vector<double> t, f;  ///< force curve: +z force on the ball, mean per interval
+};
+
+RunOutput run_one(const ScaleModelSpec& spec, const PreparedScene& prepared,
+                  const std::shared_ptr<const PhysicsModel>& physics, const ScaleConfig& cfg, int threads,
+                  double max_wall_s, const ScaleBenchSettings& s) {
+  RunOutput out;
+  ScaleRow& row = out.row;
+  row.model = spec.name;
+  row.config = cfg.name;
+  row.threads = threads;
+  const Model& m = *prepared.model;
+  row.elements = m.num_elements();
+  row.nodes = m.num_nodes();
+  row.vertex_entries = m.num_vertex_entries();
+  row.added_mass_rel = physics->added_mass_kg / physics->total_mass_kg();
+
+  SimulationSettings ss = prepared.settings;
+  ss.integrator.kind = cfg.kind;
+  const TimeStepEstimate est = estimate_time_steps(*physics);
+  ss.integrator.time_step_s = cfg.time_step_s > 0 ? cfg.time_step_s : automatic_time_step(est, cfg.kind);
+  ss.integrator.threads = threads;
+  ss.integrator.max_iterations = cfg.max_iterations;
+  ss.integrator.residual_tolerance_n = cfg.residual_tolerance_n;
+  ss.integrator.region_radius_mm = cfg.region_radius_mm;
+  ProbeSettings probe;
+  probe.name = "ball";
+  probe.geometry.shape = ProbeShape::sphere;
+  probe.geometry.radius_mm = s.probe_radius_mm;
+  probe.path = palpation_path(prepared, s);
+  ss.probes = {probe};
+  ss.device.reset();
+  row.time_step_s = ss.integrator.time_step_s;
+
+  const double duration = s.press_s + s.slide_s;
+  const auto t_setup = std::chrono::steady_clock::now();
+  Simulation sim(physics, ss);
+  sim.step();  // the implicit factorisation happens here
+  row.setup_s = seconds_since(t_setup);
+  const auto t0 = std::chrono::steady_clock::now();
+  double next_sample = s.force_interval_s, sum = 0;
+  int count = 0;
+  std::int64_t timed_steps = 0;
+  out.t.push_back(0.0);
+  out.f.push_back(0.0);
+  while (sim.time_s() < duration - 0.5 * sim.dt_s()) {
+    if (sim.step() != StepStatus::ok) break;
+    ++timed_steps;
+    sum += sim.probe(0).raw_force_n.z();
+    ++count;
+    if (sim.time_s() >= next_sample - 0.5 * sim.dt_s()) {
+      out.t.push_back(sim.time_s());
+      out.f.push_back(count ? sum / count : 0.0);
+      sum = 0;
+      count = 0;
+      next_sample += s.force_interval_s;
+    }
+    if ((timed_steps & 7) == 0 && seconds_since(t0) > max_wall_s) break;
+  }
+  row.wall_s = seconds_since(t0);
+  row.steps = sim.steps();
+  row.sim_s = sim.time_s();
+  row.stable = !sim.failed();
+  if (sim.failed()) row.note = sim.state().message;
+  row.complete = row.stable && row.sim_s >= duration - 0.5 * sim.dt_s();
+  const double timed_sim = row.sim_s - ss.integrator.time_step_s;
+  row.step_ms = timed_steps > 0 ? 1e3 * row.wall_s / double(timed_steps) : 0.0;
+  row.steps_per_sim_s = 1.0 / ss.integrator.time_step_s;
+  row.real_time_factor = row.wall_s > 0 ? timed_sim / row.wall_s : 0.0;
+  for (double f : out.f) row.peak_force_n = std::max(row.peak_force_n, f);
+  if (!row.complete && row.stable)
+    row.note = fmt::format("timed over the first {:.3g} s of simulated time ({:.0f} s of wall time)", row.sim_s, row.wall_s);
+  return out;
+}
+
+/// RMS of (curve - reference) at the reference's samples (curve interpolated) / reference peak.
+double rms_error(const std::vector<double>& t, const std::vector<double>& f, const std::vector<double>& rt,
+                 const std::vector<double>& rf) {
+  double peak = 0;
+  for (double v : rf) peak = std::max(peak, v);
+  if (!(peak > 0) || t.size() < 2) return -1.0;
+  double s = 0;
+  for (std::size_t k = 0; k < rt.size(); ++k) {
+    const auto it = std::lower_bound(t.begin(), t.end(), rt[k]);
+    double v;
+    if (it == t.begin()) {
+      v = f.front();
+    } else if (it == t.end()) {
+      v = f.back();
+    } else {
+      const std::size_t j = std::size_t(it - t.begin());
+      const double a = (rt[k] - t[j - 1]) / (t[j] - t[j - 1]);
+      v = (1 - a) * f[j - 1] + a * f[j];
+    }
+    s += (v - rf[k]) * (v - rf[k]);
+  }
+  return std::sqrt(s / double(rt.size())) / peak;
+}
+
+}  // namespace
+
+ScaleBenchResult run_scale_bench(const ScaleBenchSettings& s) {
+  s.validate();
+  const auto t_all = std::chrono::steady_clock::now();
+  ScaleBenchResult res;
+  const auto say = [&](const std::string& line) {
+    if (s.log) s.log(line);
+  };
+  const int most_threads = *std::max_element(s.threads.begin(), s.threads.end());
+  for (const ScaleModelSpec& spec : s.models) {
+    const auto t_build = std::chrono::steady_clock::now();
+    const PreparedScene prepared = prepare_model(spec, s);
+    say(fmt::format("[scale] {}: {} elements, {} nodes, {} vertex entries (built in {:.1f} s)", spec.name,
+                    prepared.model->num_elements(), prepared.model->num_nodes(), prepared.model->num_vertex_entries(),
+                    seconds_since(t_build)));
+    std::vector<double> ref_t, ref_f;
+    // the reference first (its curve judges the others), then the others
+    std::vector<const ScaleConfig*> order;
+    for (const auto& c : s.configs)
+      if (c.reference) order.push_back(&c);
+    for (const auto& c : s.configs)
+      if (!c.reference) order.push_back(&c);
+    for (const ScaleConfig* cfg : order) {
+      std::shared_ptr<const PhysicsModel> physics = prepared.physics;
+      if (cfg->mass.active()) {
+        CalibrationOptions opt;
+        opt.mass_scaling = cfg->mass;
+        physics = make_physics_model(prepared.model, prepared.physics->material, {}, opt);
+      }
+      // the most threads first: the whole run (the force curve); then fewer threads timed over
+      // at most the same wall time
+      std::vector<int> threads = s.threads;
+      std::sort(threads.begin(), threads.end(), std::greater<>());
+      double window = cfg->reference ? s.reference_max_wall_s : s.max_wall_s;
+      double error = -1.0;
+      for (int th : threads) {
+        RunOutput r = run_one(spec, prepared, physics, *cfg, th, window, s);
+        if (th == most_threads) {
+          if (cfg->reference && r.row.complete) {
+            ref_t = r.t;
+            ref_f = r.f;
+          }
+          if (r.row.complete && !ref_t.empty()) error = rms_error(r.t, r.f, ref_t, ref_f);
+          window = std::min(window, std::max(10.0, r.row.wall_s));
+        }
+        r.row.rms_error_rel = error;
+        say(fmt::format("[scale] {} | {} | {} thread(s): dt {:.3g} s, {:.3g} ms per step, real-time factor {:.3g}{}{}",
+                        spec.name, cfg->name, th, r.row.time_step_s, r.row.step_ms, r.row.real_time_factor,
+                        error >= 0 ? fmt::format(", force error {:.2f} %", 100 * error) : std::string(),
+                        r.row.note.empty() ? std::string() : " (" + r.row.note + ")"));
+        res.rows.push_back(std::move(r.row));
+      }
+    }
+  }
+  res.total_s = seconds_since(t_all);
+  return res;
+}
+
+std::string format_scale_table(const ScaleBenchResult& r) {
+  std::ostringstream o;
+  o << "| model | elements / nodes | configuration | threads | dt (ms) | ms per step | steps per sim. s | real-time "
+       "factor | force error (RMS, % of peak) | note |\n|---|---|---|---|---|---|---|---|---|---|\n";
+  for (const auto& x : r.rows)
+    o << fmt::format("| {} | {} / {} | {} | {} | {:.3g} | {:.3g} | {:.0f} | {:.3g} | {} | {} |\n", x.model, x.elements,
+                     x.nodes, x.config, x.threads, 1e3 * x.time_step_s, x.step_ms, x.steps_per_sim_s,
+                     x.real_time_factor, x.rms_error_rel >= 0 ? fmt::format("{:.2f}", 100 * x.rms_error_rel) : "-",
+                     x.stable ? x.note : "unstable: " + x.note);
+  return o.str();
+}
+
+std::vector<std::string> write_scale_report(const ScaleBenchResult& r, const fs::path& dir) {
+  std::vector<std::string> written;
+  {
+    std::ostringstream csv;
+    csv << "model,config,threads,elements,nodes,vertex_entries,time_step_s,steps,sim_s,wall_s,setup_s,step_ms,"
+           "steps_per_sim_s,real_time_factor,rms_error_rel,peak_force_n,added_mass_rel,complete,stable,note\n";
+    for (const auto& x : r.rows)
+      csv << fmt::format("\"{}\",\"{}\",{},{},{},{},{:.6g},{},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{},{:.6g},{:.6g},{},{},\"{}\"\n",
+                         x.model, x.config, x.threads, x.elements, x.nodes, x.vertex_entries, x.time_step_s, x.steps,
+                         x.sim_s, x.wall_s, x.setup_s, x.step_ms, x.steps_per_sim_s, x.real_time_factor,
+                         x.rms_error_rel >= 0 ? fmt::format("{:.6g}", x.rms_error_rel) : "", x.peak_force_n,
+                         x.added_mass_rel, x.complete ? 1 : 0, x.stable ? 1 : 0, x.note);
+    write_text_atomically(dir / "scale.csv", csv.str());
+    written.push_back("scale.csv");
+  }
+  write_text_atomically(dir / "scale.md", "# voxelastic bench --scale\n\n" + format_scale_table(r));
+  written.push_back("scale.md");
+  // real-time factor against elements, one line per configuration and thread count
+  std::map<std::string, PlotSeries> lines;
+  double lo = 1e300, hi = 0;
+  for (const auto& x : r.rows) {
+    if (!x.stable || x.real_time_factor <= 0) continue;
+    const std::string key = fmt::format("{}, {} thread{}", x.config, x.threads, x.threads > 1 ? "s" : "");
+    PlotSeries& ps = lines[key];
+    ps.title = key;
+    ps.with_points = true;
+    ps.dash_type = x.threads > 1 ? 0 : 2;
+    ps.x.push_back(double(x.elements));
+    ps.y.push_back(x.real_time_factor);
+    lo = std::min(lo, double(x.elements));
+    hi = std::max(hi, double(x.elements));
+  }
+  PlotPanel panel;
+  panel.title = "Palpation (press 5 mm, slide 10 mm): real-time factor against model size";
+  panel.xlabel = "elements";
+  panel.ylabel = "simulated s per wall s";
+  panel.log_x = panel.log_y = true;
+  panel.key = "below";
+  for (auto& [k, ps] : lines) panel.series.push_back(ps);
+  if (hi > 0) {
+    PlotSeries rt;
+    rt.title = "real time";
+    rt.x = {lo, hi};
+    rt.y = {1.0, 1.0};
+    rt.color = "#e07000";
+    rt.line_width = 2.5;
+    panel.series.push_back(rt);
+  }
+  plot_png({panel}, dir / "scale.png", 1000, 640);
+  written.push_back("scale.png");
+  return written;
+}
+
+}  // namespace vx

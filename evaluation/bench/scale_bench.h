@@ -1,0 +1,104 @@
+#pragma once
+/// @file scale_bench.h
+/// `voxelastic bench --scale` (docs/bench.md, "Palpation at organ size"): how close each
+/// configuration of the simulation comes to real time on models of growing size, and what force
+/// error it costs. Every model (sphere phantoms 32 to 256 voxels across at 1 mm, and the organ
+/// phantom, an ellipsoid of 140 x 180 x 150 mm) is palpated the same way: a ball pressed 5 mm
+/// into the top in 1 s, then slid 10 mm sideways in 1 s (E 10 kPa, damping ratio 0.2, the bottom
+/// 3 mm held). Per model and configuration: elements, nodes, the step, the wall time per step,
+/// steps per simulated second, the real-time factor (simulated / wall time) on 1 and 2 threads,
+/// and the RMS force error against the model's reference configuration (symplectic Euler at its
+/// automatic step, physical masses) as a fraction of the reference's peak force.
+///
+/// Runs are timed on the whole press-and-slide unless they would take longer than
+/// max_wall_s: then only the first max_wall_s of wall time is run, the factor comes from it
+/// (said in the row's note) and the error is left out. One-thread runs are timed over the same
+/// window as the two-thread runs or less; their forces equal the two-thread ones (tested), so
+/// the error column is the two-thread run's.
+
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "physics/physics_model.h"
+#include "sim/integrator_kind.h"
+
+namespace vx {
+
+/// One way of running the simulation.
+struct ScaleConfig {
+  std::string name;
+  IntegratorKind kind{IntegratorKind::symplectic_euler};
+  double time_step_s{0.0};        ///< 0: automatic (time_step.h) for the (scaled) model
+  MassScaling mass;               ///< mass scaling (none: physical masses)
+  int max_iterations{10};         ///< implicit
+  double residual_tolerance_n{0}; ///< implicit
+  double region_radius_mm{0};     ///< implicit: regional solves within this distance of the ball (0: everywhere)
+  bool reference{false};          ///< the model's reference (the error of the others is against it)
+};
+
+/// One model: a phantom at 1 mm voxels, gradational layout.
+struct ScaleModelSpec {
+  std::string name;     ///< e.g. "sphere 128"
+  std::string phantom;  ///< phantom name (phantom.h)
+  int size{64};         ///< grid voxels per axis
+};
+
+struct ScaleBenchSettings {
+  std::vector<ScaleModelSpec> models;
+  std::vector<ScaleConfig> configs;
+  std::vector<int> threads{1, 2};
+  double youngs_modulus_kpa{10.0};
+  double damping_ratio{0.2};
+  double probe_radius_mm{4.0};
+  double depth_mm{5.0};
+  double slide_mm{10.0};
+  double press_s{1.0};
+  double slide_s{1.0};
+  double max_wall_s{120.0};        ///< per run (the reference runs to the end regardless)
+  double reference_max_wall_s{1800.0};
+  double force_interval_s{0.01};
+  std::function<void(const std::string&)> log;  ///< progress (may be empty)
+
+  /// The default suite: spheres 32, 64, 128, 256 and the organ phantom; the configurations of
+  /// docs/bench.md.
+  [[nodiscard]] static ScaleBenchSettings standard();
+  /// Throws vx::Error for an empty or invalid suite.
+  void validate() const;
+};
+
+struct ScaleRow {
+  std::string model, config;
+  int threads{1};
+  std::int64_t elements{0}, nodes{0}, vertex_entries{0};
+  double time_step_s{0.0};
+  std::int64_t steps{0};
+  double sim_s{0.0}, wall_s{0.0}, setup_s{0.0};
+  double step_ms{0.0};            ///< wall time per step (after the first)
+  double steps_per_sim_s{0.0};
+  double real_time_factor{0.0};   ///< simulated / wall time (>= 1: real time)
+  double rms_error_rel{-1.0};     ///< against the reference, fraction of its peak (-1: not measured)
+  double peak_force_n{0.0};
+  double added_mass_rel{0.0};     ///< mass scaling: added / physical mass
+  bool complete{false};           ///< ran the whole press-and-slide
+  bool stable{true};
+  std::string note;
+};
+
+struct ScaleBenchResult {
+  std::vector<ScaleRow> rows;
+  double total_s{0.0};
+};
+
+[[nodiscard]] ScaleBenchResult run_scale_bench(const ScaleBenchSettings& settings);
+
+/// Writes scale.csv, scale.md and scale.png (real-time factor against elements, one line per
+/// configuration and thread count, with the real-time line) into `dir`; returns the names.
+std::vector<std::string> write_scale_report(const ScaleBenchResult& result, const std::filesystem::path& dir);
+
+/// The table of scale.md.
+[[nodiscard]] std::string format_scale_table(const ScaleBenchResult& result);
+
+}  // namespace vx

@@ -1,0 +1,430 @@
+// The levers of quasi-static palpation (docs/model.md sections 6 and 7, docs/bench.md "Palpation
+// at organ size"): mass scaling changes the dynamics and not the equilibrium, raises the stable
+// step as derived, and keeps gravity's weight physical; the implicit integrator's residual stop
+// reaches its tolerance; the factor backends agree; 1 and 2 threads give the same bits with
+// the fast configuration.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <algorithm>
+#include <cstring>
+#include <utility>
+#include <iostream>
+
+#include "base/error.h"
+#include "model/gradational_builder.h"
+#include "sim/integrators.h"
+#include "sim/projective_solver.h"
+#include "sim/sparse_factor.h"
+#include "sim/state.h"
+#include "sim/static_solver.h"
+#include "sim/time_step.h"
+#include "support/physics_helpers.h"
+
+namespace vx {
+namespace {
+
+using testing::hand_block;
+
+Material tissue(double damping) {
+  Material m;
+  m.youngs_modulus_kpa = 10.0;
+  m.density_kg_m3 = 1000.0;
+  m.damping_ratio = damping;
+  return m;
+}
+
+/// A gradational ball of `n` voxels across (1 mm), the cap below z_min + 2 mm fixed.
+/// A ball of radius n/2 - 1 voxels centred in an n^3 grid of 1 mm voxels, gradational.
+std::shared_ptr<const Model> ball(int n) {
+  GridGeometry g;
+  g.dims = {n, n, n};
+  g.spacing_mm = Eigen::Vector3d::Ones();
+  VoxelGrid grid(g);
+  const double c = 0.5 * (n - 1), r = 0.5 * n - 1.0;
+  for (int k = 0; k < n; ++k)
+    for (int j = 0; j < n; ++j)
+      for (int i = 0; i < n; ++i)
+        grid.set(i, j, k, (i - c) * (i - c) + (j - c) * (j - c) + (k - c) * (k - c) <= r * r ? 1 : 0);
+  return std::make_shared<const Model>(build_model(grid));
+}
+
+std::vector<int> bottom_cap(const Model& m, double within_mm) {
+  const double zmin = m.rest_positions.row(2).minCoeff();
+  std::vector<int> out;
+  for (int i = 0; i < m.num_nodes(); ++i)
+    if (m.rest_positions(2, i) <= zmin + within_mm) out.push_back(i);
+  return out;
+}
+
+/// Runs symplectic Euler at the automatic step from rest under gravity and a push on the top
+/// nodes until `t_end`; returns the positions.
+Eigen::Matrix3Xd settle(const std::shared_ptr<const PhysicsModel>& p, double t_end, int threads = 1) {
+  SimState s = make_state(p);
+  s.fix_nodes(bottom_cap(*p->model, 3.0));
+  s.gravity_mm_s2 = {0, 0, -kStandardGravityMmS2};
+  const double ztop = p->model->rest_positions.row(2).maxCoeff();
+  for (int i = 0; i < s.num_nodes(); ++i)
+    if (p->model->rest_positions(2, i) >= ztop - 1.5) s.external_forces(2, i) = -2e-4;  // N per node
+  IntegratorSettings set;
+  set.kind = IntegratorKind::symplectic_euler;
+  set.time_step_s = automatic_time_step(estimate_time_steps(*p), set.kind);
+  set.threads = threads;
+  auto integ = make_integrator(set);
+  integ->advance(s, int(std::ceil(t_end / set.time_step_s)));
+  EXPECT_FALSE(s.failed()) << s.message;
+  return s.positions;
+}
+
+TEST(MassScaling, RaisesTheStableStepAsDerivedAndKeepsTheWeight) {
+  const auto model = ball(16);
+  const auto plain = make_physics_model(model, tissue(0.2));
+  const TimeStepEstimate e0 = estimate_time_steps(*plain);
+  // a uniform factor s: every frequency / sqrt(s); the (damped) stable step grows by about sqrt(s)
+  CalibrationOptions opt;
+  opt.mass_scaling.factor = 16.0;
+  const auto scaled = make_physics_model(model, tissue(0.2), {}, opt);
+  const TimeStepEstimate e1 = estimate_time_steps(*scaled);
+  std::cout << "stable step " << e0.symplectic_euler_s << " s -> x16 mass " << e1.symplectic_euler_s << " s\n";
+  EXPECT_NEAR(e1.highest_frequency_hz, e0.highest_frequency_hz / 4.0, 1e-9 * e0.highest_frequency_hz);
+  EXPECT_GT(e1.symplectic_euler_s, 3.9 * e0.symplectic_euler_s);
+  EXPECT_NEAR(scaled->added_mass_kg, 15.0 * plain->total_mass_kg(), 1e-9 * plain->total_mass_kg());
+  EXPECT_EQ(scaled->scaled_nodes, scaled->num_nodes());
+  // the floor: only the nodes that need it get mass; the estimate reaches twice the target
+  const double target = e0.symplectic_euler_s;
+  CalibrationOptions fl;
+  fl.mass_scaling.time_step_s = target;
+  const auto floored = make_physics_model(model, tissue(0.2), {}, fl);
+  const TimeStepEstimate e2 = estimate_time_steps(*floored);
+  std::cout << "floor for " << target << " s: stable step " << e2.symplectic_euler_s << " s, " << floored->scaled_nodes
+            << " of " << floored->num_nodes() << " nodes heavier, mass +" << 100 * floored->added_mass_kg / plain->total_mass_kg()
+            << " %\n";
+  EXPECT_GE(e2.symplectic_euler_s, (1.0 - 1e-6) * 2.0 * target);
+  EXPECT_GT(floored->scaled_nodes, 0);
+  EXPECT_LT(floored->scaled_nodes, floored->num_nodes());
+  EXPECT_NEAR(automatic_time_step(e2, IntegratorKind::symplectic_euler), 0.5 * e2.symplectic_euler_s, 1e-15);
+  // gravity acts on the physical mass
+  for (int i = 0; i < floored->num_nodes(); ++i)
+    EXPECT_NEAR(floored->node_mass[std::size_t(i)] * floored->node_gravity_ratio[std::size_t(i)],
+                plain->node_mass[std::size_t(i)], 1e-12 * plain->node_mass[std::size_t(i)]);
+  // invalid settings are refused
+  CalibrationOptions bad;
+  bad.mass_scaling.factor = 0.5;
+  EXPECT_THROW((void)make_physics_model(model, tissue(0.2), {}, bad), Error);
+}
+
+TEST(MassScaling, LeavesTheStaticSolutionUnchanged) {
+  // the equilibrium under gravity and a push on the top: the static solve, and symplectic Euler
+  // run to rest with and without scaling, all agree (scaling changes how it gets there)
+  const auto model = ball(12);
+  const auto plain = make_physics_model(model, tissue(0.5));
+  CalibrationOptions opt;
+  opt.mass_scaling.factor = 4.0;
+  opt.mass_scaling.time_step_s = 2.0 * automatic_time_step(estimate_time_steps(*plain), IntegratorKind::symplectic_euler);
+  const auto scaled = make_physics_model(model, tissue(0.5), {}, opt);
+  SimState st = make_state(scaled);
+  st.fix_nodes(bottom_cap(*model, 3.0));
+  st.gravity_mm_s2 = {0, 0, -kStandardGravityMmS2};
+  const double ztop = model->rest_positions.row(2).maxCoeff();
+  for (int i = 0; i < st.num_nodes(); ++i)
+    if (model->rest_positions(2, i) >= ztop - 1.5) st.external_forces(2, i) = -2e-4;
+  SimState st_plain = st;
+  st_plain.physics = plain;
+  solve_static(st);
+  solve_static(st_plain);
+  const double sag = (st_plain.positions - model->rest_positions).colwise().norm().maxCoeff();
+  EXPECT_LT((st.positions - st_plain.positions).cwiseAbs().maxCoeff(), 1e-9 * std::max(1.0, sag));
+  const Eigen::Matrix3Xd x_plain = settle(plain, 0.6), x_scaled = settle(scaled, 0.6);
+  const double d_plain = (x_plain - st.positions).cwiseAbs().maxCoeff();
+  const double d_scaled = (x_scaled - st.positions).cwiseAbs().maxCoeff();
+  std::cout << "largest displacement " << sag << " mm; dynamic runs at rest differ from the static solution by "
+            << d_plain << " mm (physical masses) and " << d_scaled << " mm (scaled)\n";
+  EXPECT_GT(sag, 0.05);
+  EXPECT_LT(d_plain, 0.02 * sag);
+  EXPECT_LT(d_scaled, 0.02 * sag);
+}
+
+TEST(ImplicitResidual, FallsToItsTolerance) {
+  const auto model = ball(12);
+  const auto p = make_physics_model(model, tissue(0.2));
+  for (double tol : {1e-5, 1e-7}) {
+    SimState s = make_state(p);
+    s.fix_nodes(bottom_cap(*model, 2.0));
+    s.gravity_mm_s2 = {0, 0, -kStandardGravityMmS2};
+    IntegratorSettings set;
+    set.kind = IntegratorKind::implicit;
+    set.time_step_s = 0.02;
+    set.max_iterations = 500;
+    set.residual_tolerance_n = tol;
+    auto integ = make_integrator(set);
+    const StepReport r = integ->step(s);
+    std::cout << "tolerance " << tol << " N: " << r.iterations << " iterations, largest residual " << r.max_residual_n
+              << " N (RMS " << r.residual_n << ")\n";
+    EXPECT_LE(r.max_residual_n, tol);
+    EXPECT_LT(r.iterations, 500);
+    EXPECT_GE(r.iterations, 1);
+    EXPECT_LE(r.residual_n, r.max_residual_n);
+    // the next step starts from the last: warm, fewer iterations
+    const StepReport r2 = integ->step(s);
+    EXPECT_LE(r2.max_residual_n, tol);
+    EXPECT_LE(r2.iterations, r.iterations);
+  }
+}
+
+TEST(SparseFactorBackends, AgreeOnTheSameMatrix) {
+  const Model m = hand_block(6, 5, 4, 1.0);
+  const auto p = make_physics_model(m, tissue(0.0));
+  // the elastic matrix plus a mass term: symmetric positive definite
+  std::vector<Eigen::Triplet<double>> t;
+  Eigen::MatrixXd ke;
+  for (int e = 0; e < p->num_elements(); ++e) {
+    element_elastic_matrix(*p, e, ke);
+    const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+    for (int i = 0; i < n; ++i)
+      for (int j = 0; j < n; ++j) t.emplace_back(m.element_vertices[b + i], m.element_vertices[b + j], ke(i, j));
+  }
+  const int nn = m.num_nodes();
+  for (int i = 0; i < nn; ++i) t.emplace_back(i, i, 1e-3);
+  SparseFactor::Matrix a(nn, nn);
+  a.setFromTriplets(t.begin(), t.end());
+  Eigen::MatrixX3d b = Eigen::MatrixX3d::Random(nn, 3), x(nn, 3), ref(nn, 3);
+  bool first = true;
+  for (auto backend : {SparseFactor::Backend::eigen_amd, SparseFactor::Backend::eigen_metis, SparseFactor::Backend::cholmod}) {
+    if (!SparseFactor::available(backend)) continue;
+    SparseFactor f;
+    ASSERT_TRUE(f.compute(a, backend)) << SparseFactor::to_string(backend);
+    EXPECT_EQ(f.backend(), backend);
+    f.solve3(b, x);
+    const double res = (a * x - b).norm() / b.norm();
+    std::cout << SparseFactor::to_string(backend) << ": " << f.nonzeros() << " nonzeros, relative residual " << res << "\n";
+    EXPECT_LT(res, 1e-10);
+    std::vector<double> col(static_cast<std::size_t>(nn), 0.0);
+    f.solve_unit(7, col.data());
+    const Eigen::VectorXd ax = a * Eigen::Map<Eigen::VectorXd>(col.data(), nn);
+    EXPECT_NEAR(ax(7), 1.0, 1e-9);
+    EXPECT_NEAR(ax.norm(), 1.0, 1e-9);
+    if (first) ref = x, first = false;
+    EXPECT_LT((x - ref).norm(), 1e-9 * ref.norm());
+  }
+  // not positive definite: refused by every backend
+  SparseFactor::Matrix bad = a;
+  bad.coeffRef(3, 3) = -1.0;
+  for (auto backend : {SparseFactor::Backend::eigen_amd, SparseFactor::Backend::cholmod}) {
+    if (!SparseFactor::available(backend)) continue;
+    SparseFactor f;
+    EXPECT_FALSE(f.compute(bad, backend)) << SparseFactor::to_string(backend);
+  }
+}
+
+TEST(FastConfiguration, OneAndTwoThreadsGiveTheSameBits) {
+  const auto model = ball(12);
+  CalibrationOptions opt;
+  opt.mass_scaling.time_step_s = 1e-4;
+  const auto p = make_physics_model(model, tissue(0.2), {}, opt);
+  for (IntegratorKind kind : {IntegratorKind::symplectic_euler, IntegratorKind::implicit}) {
+    Eigen::Matrix3Xd ref;
+    for (int threads : {1, 2}) {
+      SimState s = make_state(p);
+      s.fix_nodes(bottom_cap(*model, 2.0));
+      s.gravity_mm_s2 = {0, 0, -kStandardGravityMmS2};
+      IntegratorSettings set;
+      set.kind = kind;
+      set.threads = threads;
+      set.time_step_s = kind == IntegratorKind::implicit ? 0.01 : 1e-4;
+      set.max_iterations = 3;
+      set.residual_tolerance_n = 1e-9;
+      auto integ = make_integrator(set);
+      integ->advance(s, 20);
+      ASSERT_FALSE(s.failed()) << s.message;
+      if (threads == 1)
+        ref = s.positions;
+      else
+        EXPECT_EQ(std::memcmp(ref.data(), s.positions.data(), sizeof(double) * std::size_t(ref.size())), 0)
+            << to_string(kind);
+    }
+  }
+}
+
+}  // namespace
+}  // namespace vx
+
+namespace vx {
+namespace {
+
+TEST(RegionalSolve, PartialSolvesAreExactOnTheirRows) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "needs CHOLMOD (supernodal)";
+  const auto model = ball(16);
+  const auto p = make_physics_model(model, tissue(0.0));
+  const Model& m = *model;
+  std::vector<Eigen::Triplet<double>> t;
+  Eigen::MatrixXd ke;
+  for (int e = 0; e < p->num_elements(); ++e) {
+    element_elastic_matrix(*p, e, ke);
+    const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+    for (int i = 0; i < n; ++i)
+      for (int j = 0; j < n; ++j) t.emplace_back(m.element_vertices[b + i], m.element_vertices[b + j], ke(i, j));
+  }
+  const int nn = m.num_nodes();
+  for (int i = 0; i < nn; ++i) t.emplace_back(i, i, 1e-2 * p->node_mass[std::size_t(i)] / 1e-8);
+  SparseFactor::Matrix a(nn, nn);
+  a.setFromTriplets(t.begin(), t.end());
+  SparseFactor f;
+  ASSERT_TRUE(f.compute(a, SparseFactor::Backend::cholmod));
+  ASSERT_TRUE(f.supports_partial());
+  Eigen::MatrixX3d b = Eigen::MatrixX3d::Random(nn, 3), x(nn, 3), ref(nn, 3);
+  f.solve3(b, x);
+  // the rows near the top: a region
+  const double ztop = m.rest_positions.row(2).maxCoeff();
+  std::vector<int> rows;
+  for (int i = 0; i < nn; ++i)
+    if (m.rest_positions(2, i) > ztop - 4.0) rows.push_back(i);
+  const std::vector<int>& closure = f.set_partial_rows(rows);
+  std::cout << rows.size() << " rows wanted, closure " << closure.size() << " of " << nn << " rows\n";
+  EXPECT_GE(closure.size(), rows.size());
+  EXPECT_LT(closure.size(), std::size_t(nn));
+  for (int round = 0; round < 3; ++round) {
+    // b changes on a few rows of the region and one far away
+    for (int k = 0; k < 5; ++k) b.row(rows[std::size_t(k * 7 % int(rows.size()))]) += Eigen::RowVector3d::Random();
+    b.row(round) += Eigen::RowVector3d::Random();
+    Eigen::MatrixX3d xp = x;
+    const int changed = f.solve3_partial(b, xp);
+    EXPECT_EQ(changed, 6);
+    SparseFactor full;
+    ASSERT_TRUE(full.compute(a, SparseFactor::Backend::cholmod));
+    full.solve3(b, ref);
+    double err = 0;
+    for (int i : closure) err = std::max(err, (xp.row(i) - ref.row(i)).norm());
+    EXPECT_LT(err, 1e-10 * ref.norm()) << "round " << round;
+    // a unit column on the closure
+    std::vector<double> col(static_cast<std::size_t>(nn), 0.0), colref(static_cast<std::size_t>(nn), 0.0);
+    f.solve_unit_partial(rows[0], col.data());
+    full.solve_unit(rows[0], colref.data());
+    double cerr = 0, cmax = 0;
+    for (int i : closure) cerr = std::max(cerr, std::abs(col[std::size_t(i)] - colref[std::size_t(i)])), cmax = std::max(cmax, std::abs(colref[std::size_t(i)]));
+    EXPECT_LT(cerr, 1e-10 * cmax);
+    x = xp;
+  }
+}
+
+}  // namespace
+}  // namespace vx
+
+#include "sim/simulation.h"
+
+namespace vx {
+namespace {
+
+/// A ball pressed 3 mm into the top of a 24-voxel ball by the fast configuration; the force on
+/// it at the end, with regional solves of `radius_mm` (0: none).
+double pressed_force(const std::shared_ptr<const PhysicsModel>& p, double radius_mm, std::int64_t* region_nodes) {
+  SimulationSettings ss;
+  ss.integrator.kind = FastConfiguration::kind;
+  ss.integrator.time_step_s = FastConfiguration::time_step_s;
+  ss.integrator.max_iterations = FastConfiguration::iterations;
+  ss.integrator.region_radius_mm = radius_mm;
+  ss.integrator.threads = 1;
+  ss.fixed_nodes = bottom_cap(*p->model, 3.0);
+  const double ztop = p->model->rest_positions.row(2).maxCoeff();
+  const Eigen::Vector3d c = 0.5 * (p->model->rest_positions.rowwise().minCoeff() + p->model->rest_positions.rowwise().maxCoeff());
+  ProbeSettings probe;
+  probe.name = "ball";
+  probe.geometry.shape = ProbeShape::sphere;
+  probe.geometry.radius_mm = 4.0;
+  probe.path = {{0.0, {c.x(), c.y(), ztop + 4.5}}, {0.5, {c.x(), c.y(), ztop + 1.0}}, {0.7, {c.x() + 1.0, c.y(), ztop + 1.0}}};
+  ss.probes = {probe};
+  Simulation sim(p, ss);
+  while (sim.time_s() < 0.7 - 1e-9 && !sim.failed()) sim.step();
+  EXPECT_FALSE(sim.failed()) << sim.state().message;
+  if (region_nodes) *region_nodes = sim.state().integrator_cache.solver ? sim.state().integrator_cache.solver->region_nodes() : 0;
+  return sim.probe(0).raw_force_n.z();
+}
+
+TEST(RegionalSolve, TheForceOfAPressMatchesTheFullSolve) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "needs CHOLMOD (supernodal)";
+  const auto p = make_physics_model(ball(24), tissue(0.2));
+  std::int64_t all = 0, some = 0;
+  const double full = pressed_force(p, 0.0, nullptr);
+  const double everywhere = pressed_force(p, 100.0, &all);
+  const double region = pressed_force(p, 12.0, &some);
+  std::cout << "force " << full << " N (full solves), " << everywhere << " N (region over everything, " << all
+            << " nodes), " << region << " N (region of 12 mm: " << some << " of " << p->num_nodes() << " nodes)\n";
+  EXPECT_GT(full, 0.01);
+  EXPECT_NEAR(everywhere, full, 1e-8 * full);
+  EXPECT_NEAR(region, full, 0.05 * full);
+  EXPECT_LT(some, all);
+}
+
+}  // namespace
+}  // namespace vx
+
+namespace vx {
+namespace {
+
+TEST(RegionalSolve, ASleepingNodeWakesWhenPressed) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "needs CHOLMOD (supernodal)";
+  // a 32-voxel ball; a ball tool presses the top at x = -8 mm, then moves over to x = +8 mm and
+  // presses there; with an 8 mm region, a surface node near x = +8 sleeps (does not move at all)
+  // during the first press and moves when the tool comes to it
+  const auto p = make_physics_model(ball(32), tissue(0.2));
+  const Model& m = *p->model;
+  const Eigen::Vector3d c = 0.5 * (m.rest_positions.rowwise().minCoeff() + m.rest_positions.rowwise().maxCoeff());
+  const double ztop = m.rest_positions.row(2).maxCoeff();
+  // candidates near x = +8 on the top; the one watched is the nearest that the first press's
+  // region leaves asleep (outside the region's closure in the factor)
+  std::vector<std::pair<double, int>> near_plus;
+  for (int i = 0; i < m.num_nodes(); ++i) {
+    const Eigen::Vector3d x = m.rest_positions.col(i);
+    if (x.z() > ztop - 4.0) near_plus.emplace_back(std::hypot(x.x() - (c.x() + 8.0), x.y() - c.y()), i);
+  }
+  std::sort(near_plus.begin(), near_plus.end());
+  int watched = -1;
+  const double z_at = m.rest_positions(2, near_plus.front().second);
+  SimulationSettings ss;
+  ss.integrator.kind = IntegratorKind::implicit;
+  ss.integrator.time_step_s = 0.02;
+  ss.integrator.max_iterations = 1;
+  ss.integrator.region_radius_mm = 8.0;
+  ss.integrator.threads = 1;
+  ss.fixed_nodes = bottom_cap(m, 3.0);
+  ProbeSettings probe;
+  probe.name = "ball";
+  probe.geometry.radius_mm = 3.0;
+  probe.path = {{0.0, {c.x() - 8.0, c.y(), ztop + 3.0}},    {0.4, {c.x() - 8.0, c.y(), ztop + 1.5}},
+                {0.6, {c.x() - 8.0, c.y(), ztop + 5.0}},    {1.2, {c.x() + 8.0, c.y(), z_at + 5.0}},
+                {1.6, {c.x() + 8.0, c.y(), z_at + 1.5}}};
+  ss.probes = {probe};
+  Simulation sim(p, ss);
+  // the first press: after the first step (a full solve), the nodes off the region's closure sleep
+  sim.step();
+  sim.step();
+  {
+    const ProjectiveSolver& solver = *sim.state().integrator_cache.solver;
+    std::vector<std::uint8_t> solved(std::size_t(m.num_nodes()), 0);
+    for (int f : solver.factor().partial_rows()) solved[std::size_t(solver.free_nodes()[std::size_t(f)])] = 1;
+    for (const auto& [d, i] : near_plus)
+      if (!solved[std::size_t(i)] && d < 2.0) {
+        watched = i;
+        break;
+      }
+  }
+  ASSERT_GE(watched, 0) << "no sleeping node near x = +8";
+  const Eigen::Vector3d x0 = sim.state().positions.col(watched);
+  bool stayed = true;
+  while (sim.time_s() < 0.4 - 1e-9 && !sim.failed()) {
+    sim.step();
+    stayed = stayed && sim.state().positions.col(watched) == x0;
+  }
+  EXPECT_TRUE(stayed) << "the node far from the first press moved";
+  EXPECT_GT(sim.counters().sleeping_element_updates, 0);
+  EXPECT_GT(sim.counters().sleeping_node_solves, 0);
+  while (sim.time_s() < 1.6 - 1e-9 && !sim.failed()) sim.step();
+  ASSERT_FALSE(sim.failed()) << sim.state().message;
+  const double moved = (sim.state().positions.col(watched) - x0).norm();
+  std::cout << "watched node " << watched << " moved " << moved << " mm once pressed; force " << sim.probe(0).raw_force_n.z()
+            << " N; sleeping element updates " << sim.counters().sleeping_element_updates << "\n";
+  EXPECT_GT(moved, 0.5);
+  EXPECT_GT(sim.probe(0).raw_force_n.z(), 0.0);
+}
+
+}  // namespace
+}  // namespace vx
