@@ -288,6 +288,9 @@ std::vector<ElementSeed> voxel_seeds(const VoxelGrid& grid, NodeLattice& lattice
 }  // namespace
 
 Model build_model(const VoxelGrid& grid, const BuildSettings& settings, BuildReport* report_out) {
+  if (settings.dimensions != 2 && settings.dimensions != 3)
+    throw Error("build settings: dimensions " + std::to_string(settings.dimensions) + " must be 2 or 3");
+  if (settings.dimensions == 2) return build_model_2d(grid, settings, report_out);
   const auto start = std::chrono::steady_clock::now();
   const Eigen::Vector3i& d = grid.dims();
   if ((d.array() <= 0).any() || std::int64_t(grid.data().size()) != grid.geometry().voxel_count())

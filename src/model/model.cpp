@@ -44,7 +44,7 @@ std::int64_t Model::covered_voxels() const {
   std::int64_t n = 0;
   for (int e = 0; e < num_elements(); ++e) {
     const std::int64_t w = element_cell_voxels[e];
-    n += std::int64_t(__builtin_popcount(element_cells[e])) * w * w * w;
+    n += std::int64_t(__builtin_popcount(element_cells[e])) * w * w * cell_depth_voxels(int(w));
   }
   return n;
 }
@@ -62,7 +62,9 @@ void Model::finalize() {
   element_volume_mm3.assign(std::size_t(ne), 0.0);
   element_size_mm.assign(std::size_t(ne), 0.0);
   const double voxel_mm3 = grid.voxel_volume_mm3();
-  const double voxel_edge_mm = std::cbrt(voxel_mm3);
+  // the element's edge: in-plane for a 2D model (the slice thickness is its depth, not its size)
+  const double voxel_edge_mm =
+      is_2d() ? std::sqrt(grid.spacing_mm.x() * grid.spacing_mm.y()) : std::cbrt(voxel_mm3);
   for (int e = 0; e < ne; ++e) {
     const int b = element_offsets[e], n = element_offsets[e + 1] - b;
     Eigen::Vector3d c = Eigen::Vector3d::Zero();
@@ -71,14 +73,21 @@ void Model::finalize() {
     rest_centroids.col(e) = c;
     for (int i = 0; i < n; ++i) rest_offsets.col(b + i) = rest_positions.col(element_vertices[b + i]) - c;
     const double w = element_cell_voxels[e];
-    element_volume_mm3[e] = __builtin_popcount(element_cells[e]) * w * w * w * voxel_mm3;
+    element_volume_mm3[e] = __builtin_popcount(element_cells[e]) * w * w * cell_depth_voxels(int(w)) * voxel_mm3;
     element_size_mm[e] = element_edge_voxels(e) * voxel_edge_mm;
   }
+}
+
+Eigen::Vector3d node_position(const GridGeometry& grid, const Eigen::Vector3i& a, int dimensions) {
+  if (dimensions != 2) return grid.lattice_to_lps(a);
+  return grid.index_to_lps(Eigen::Vector3d(a.x() - 0.5, a.y() - 0.5, 0.0));
 }
 
 std::string Model::validate() const {
   std::ostringstream err;
   const int nn = num_nodes(), ne = num_elements();
+  if (dimensions != 2 && dimensions != 3) err << "dimensions is " << dimensions << " (2 or 3); ";
+  if (dimensions == 2 && grid.dims.z() != 1) err << "a 2D model's grid must be one voxel thick (dims z " << grid.dims.z() << "); ";
   if (node_lattice.cols() != nn) err << "node_lattice has " << node_lattice.cols() << " columns, expected " << nn << "; ";
   if (int(node_surface.size()) != nn) err << "node_surface size " << node_surface.size() << " != nodes " << nn << "; ";
   if (int(element_level.size()) != ne || int(element_cell_voxels.size()) != ne ||
@@ -88,19 +97,21 @@ std::string Model::validate() const {
     err << "element_offsets do not span element_vertices; ";
   for (int e = 0; e < ne && err.tellp() == 0; ++e) {
     const int b = element_offsets[e], n = element_offsets[e + 1] - b;
-    if (n < 4) { err << "element " << e << " has " << n << " vertices (< 4); "; break; }
+    if (n < (dimensions == 2 ? 3 : 4)) { err << "element " << e << " has " << n << " vertices (< " << (dimensions == 2 ? 3 : 4) << "); "; break; }
     std::vector<int> v(element_vertices.begin() + b, element_vertices.begin() + b + n);
     for (int x : v)
       if (x < 0 || x >= nn) { err << "element " << e << " refers to node " << x << " outside 0.." << nn - 1 << "; "; break; }
     std::sort(v.begin(), v.end());
     if (std::adjacent_find(v.begin(), v.end()) != v.end()) err << "element " << e << " repeats a vertex; ";
     if (element_cells[e] == 0) err << "element " << e << " covers no cell; ";
+    if (dimensions == 2 && (element_cells[e] > 0x0F || element_anchor(2, e) != 0))
+      err << "element " << e << " of a 2D model has cells or an anchor off the slice; ";
   }
   return err.str();
 }
 
 bool same_model(const Model& a, const Model& b, double tol_mm) {
-  if (a.layout != b.layout || a.num_nodes() != b.num_nodes() || a.num_elements() != b.num_elements())
+  if (a.layout != b.layout || a.dimensions != b.dimensions || a.num_nodes() != b.num_nodes() || a.num_elements() != b.num_elements())
     return false;
   if (a.grid.dims != b.grid.dims || !a.grid.spacing_mm.isApprox(b.grid.spacing_mm, 1e-12) ||
       (a.grid.origin_mm - b.grid.origin_mm).cwiseAbs().maxCoeff() > tol_mm ||

@@ -29,9 +29,18 @@ enum class Layout : std::uint8_t {
 /// lowest lattice corner is `element_anchor.col(e)`; bit (cx + 2*cy + 4*cz) of
 /// `element_cells[e]` says whether cell (cx,cy,cz) of the group is tissue (is covered).
 /// Voxel-level elements have cell width 1 and only cell (0,0,0).
+///
+/// A 2D model (`dimensions == 2`, docs/model.md section 12) is built from a one-voxel-thick
+/// grid (dims z = 1: one slice): its elements are 2x2 groups of square cells (quadtree), bits
+/// cx + 2*cy of `element_cells`, anchors and node lattice points with z = 0. Its nodes lie on
+/// the slice's centre plane (the plane of the voxel centres, spanned by the grid's first two
+/// direction axes; `node_position`), so positions stay 3 x nodes in LPS mm; a cell of width w
+/// is w x w x 1 voxels, and element volumes are areas times the slice thickness
+/// (grid.spacing_mm.z(), the depth of the plane-stress slab).
 struct Model {
   Layout layout{Layout::gradational};
   GridGeometry grid;                      ///< geometry of the voxel grid the model was built from
+  int dimensions{3};                      ///< 3: a volume model; 2: a slice model (quadtree, planar nodes)
 
   // nodes
   Eigen::Matrix3Xd rest_positions;        ///< 3 x nodes, LPS mm
@@ -51,6 +60,14 @@ struct Model {
   Eigen::Matrix3Xd rest_centroids;        ///< 3 x elements, mean of the element's rest vertices, mm
   std::vector<double> element_volume_mm3; ///< elements: volume of the covered tissue, mm^3
   std::vector<double> element_size_mm;    ///< elements: edge of the element's cube (element_edge_voxels), mm (geometric mean over axes)
+
+  [[nodiscard]] bool is_2d() const { return dimensions == 2; }
+  /// Voxels a cell of width w spans along the grid's third axis: w (3D) or 1 (2D).
+  [[nodiscard]] int cell_depth_voxels(int w) const { return dimensions == 2 ? 1 : w; }
+  /// Cells of a group: 8 (2x2x2) or 4 (2x2).
+  [[nodiscard]] int group_cells() const { return dimensions == 2 ? 4 : 8; }
+  /// Unit normal of a 2D model's plane (the grid's third direction axis), LPS.
+  [[nodiscard]] Eigen::Vector3d plane_normal() const { return grid.direction.col(2).normalized(); }
 
   [[nodiscard]] int num_nodes() const { return int(rest_positions.cols()); }
   [[nodiscard]] int num_elements() const {
@@ -82,6 +99,10 @@ struct Model {
   /// returns an empty string when consistent, else what is wrong.
   [[nodiscard]] std::string validate() const;
 };
+
+/// Rest position (LPS mm) of lattice point a of a model of `dimensions` built on `grid`: the
+/// voxel corner (3D), or for a 2D model the corner projected onto the slice's centre plane.
+[[nodiscard]] Eigen::Vector3d node_position(const GridGeometry& grid, const Eigen::Vector3i& a, int dimensions);
 
 /// True when two models hold the same nodes, elements and rest data (positions within tol_mm).
 [[nodiscard]] bool same_model(const Model& a, const Model& b, double tol_mm = 1e-9);

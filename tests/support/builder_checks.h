@@ -28,15 +28,18 @@ inline VoxelGrid make_grid(const Eigen::Vector3i& dims, const std::function<bool
 }
 
 /// For every voxel, the element covering it (-1 none); fails the test on double coverage.
+/// A 2D model's cells are w x w x 1 voxels (its cells have no z bit).
 inline std::vector<int> voxel_owner(const Model& m) {
   const Eigen::Vector3i d = m.grid.dims;
   std::vector<int> owner(std::size_t(d.prod()), -1);
   for (int e = 0; e < m.num_elements(); ++e) {
     const int w = m.element_cell_voxels[std::size_t(e)];
+    const int depth = m.cell_depth_voxels(w);
     for (int c = 0; c < 8; ++c) {
       if (!(m.element_cells[std::size_t(e)] >> c & 1)) continue;
+      if (m.is_2d() && c >= 4) ADD_FAILURE() << "element " << e << " of a 2D model has a cell off the slice";
       const Eigen::Vector3i lo = m.element_anchor.col(e) + Eigen::Vector3i(c & 1, c >> 1 & 1, c >> 2 & 1) * w;
-      for (int k = lo.z(); k < lo.z() + w; ++k)
+      for (int k = lo.z(); k < lo.z() + depth; ++k)
         for (int j = lo.y(); j < lo.y() + w; ++j)
           for (int i = lo.x(); i < lo.x() + w; ++i) {
             if (i >= d.x() || j >= d.y() || k >= d.z()) {
@@ -73,16 +76,18 @@ inline void expect_nodes_shared(const Model& m) {
   for (int e = 0; e < m.num_elements(); ++e) {
     const int w = m.element_cell_voxels[std::size_t(e)];
     const Eigen::Vector3i A = m.element_anchor.col(e);
+    // a 2D model's lattice is one plane (z = 0): its cells' closures are flat
+    const Eigen::Vector3i extent(w, w, m.is_2d() ? 0 : w);
     const auto on_region = [&](const Eigen::Vector3i& a) {
       for (int c = 0; c < 8; ++c) {
         if (!(m.element_cells[std::size_t(e)] >> c & 1)) continue;
         const Eigen::Vector3i lo = A + Eigen::Vector3i(c & 1, c >> 1 & 1, c >> 2 & 1) * w;
-        if ((a.array() >= lo.array()).all() && (a.array() <= (lo.array() + w)).all()) return true;
+        if ((a.array() >= lo.array()).all() && (a.array() <= (lo + extent).array()).all()) return true;
       }
       return false;
     };
     std::vector<int> expected;
-    for (int z = 0; z <= 2 * w; ++z)
+    for (int z = 0; z <= 2 * extent.z(); ++z)
       for (int y = 0; y <= 2 * w; ++y)
         for (int x = 0; x <= 2 * w; ++x) {
           const Eigen::Vector3i a = A + Eigen::Vector3i(x, y, z);
