@@ -193,7 +193,9 @@ void RumbleForceOutput::stop() {
 
 const char* RecordingForceOutput::header() {
   return "wall_s,sim_s,probe,device_fx_N,device_fy_N,device_fz_N,device_N,raw_fx_N,raw_fy_N,raw_fz_N,raw_N,"
-         "stick_x_N,stick_y_N,tip_x_mm,tip_y_mm,tip_z_mm,contacts";
+         "stick_x_N,stick_y_N,tip_x_mm,tip_y_mm,tip_z_mm,contacts,"
+         "shaping,physics_s,hand_x_mm,hand_y_mm,hand_z_mm,model_fx_N,model_fy_N,model_fz_N,"
+         "anchor_fx_N,anchor_fy_N,anchor_fz_N,update_age_ms,stiffness_N_mm,guard_N";
 }
 
 RecordingForceOutput::RecordingForceOutput(const std::filesystem::path& csv) : path_(csv) {
@@ -227,10 +229,13 @@ void RecordingForceOutput::write(const DeviceTick& tick) {
     const ProbeForce& f = tick.probe[std::size_t(p)];
     fmt::format_to(std::back_inserter(buf),
                    "{:.6f},{:.6f},{},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},"
-                   "{:.4f},{:.4f},{:.4f},{}\n",
+                   "{:.4f},{:.4f},{:.4f},{},{},{:.6f},{:.4f},{:.4f},{:.4f},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},"
+                   "{:.3f},{:.4g},{:.4g}\n",
                    tick.wall_s, tick.sim_s, p, f.device_N.x(), f.device_N.y(), f.device_N.z(), f.device_N.norm(),
                    f.raw_N.x(), f.raw_N.y(), f.raw_N.z(), f.raw_N.norm(), f.stick_N.x(), f.stick_N.y(), f.tip_mm.x(),
-                   f.tip_mm.y(), f.tip_mm.z(), f.contacts);
+                   f.tip_mm.y(), f.tip_mm.z(), f.contacts, tick.local ? "local" : "paper", f.physics_s, f.hand_mm.x(),
+                   f.hand_mm.y(), f.hand_mm.z(), f.model_N.x(), f.model_N.y(), f.model_N.z(), f.anchor_N.x(),
+                   f.anchor_N.y(), f.anchor_N.z(), f.update_age_ms, f.stiffness_N_mm, f.guard_N);
     ++rows_;
   }
   out_.write(buf.data(), std::streamsize(buf.size()));

@@ -26,14 +26,24 @@ struct ProbeForce {
   Eigen::Vector3d device_N{0, 0, 0};  ///< force for the device (shaped), world frame, N
   Eigen::Vector3d raw_N{0, 0, 0};     ///< latest raw reaction sum from the physics, world frame, N
   Eigen::Vector3d stick_N{0, 0, 0};   ///< device_N in the view frame (x right, y up, z away), N
-  Eigen::Vector3d tip_mm{0, 0, 0};    ///< probe reference point (tip), LPS mm
+  Eigen::Vector3d tip_mm{0, 0, 0};    ///< probe reference point (tip), LPS mm (local: the tool, i.e. the proxy)
   int contacts{0};                    ///< surface nodes in contact at the last physics step
+  // what the two shapings are compared by (docs/probe.md, "Force shaping")
+  double physics_s{0.0};              ///< simulated time of the physics' last step, s
+  Eigen::Vector3d hand_mm{0, 0, 0};   ///< the device (hand) position, LPS mm (paper: the tool's)
+  Eigen::Vector3d model_N{0, 0, 0};   ///< local: the local contact model's force at the tool (no damping or offset)
+  Eigen::Vector3d anchor_N{0, 0, 0};  ///< the force the device's update started from: local, the
+                                      ///< physics' force at the model's anchor; paper, the half sine's mean
+  double update_age_ms{0.0};          ///< time since that update reached the device, ms
+  double stiffness_N_mm{0.0};         ///< local: the largest stiffness the hand feels, N/mm
+  double guard_N{0.0};                ///< local: the energy guard's correction, N
 };
 
 /// One device tick: the forces of every probe.
 struct DeviceTick {
   double wall_s{0.0};   ///< wall time since the start, s
-  double sim_s{0.0};    ///< simulated time, s
+  double sim_s{0.0};    ///< paper: simulated time; local: the device's clock (the script's time), s
+  bool local{false};    ///< the shaping: the local contact model (else the paper's half sines)
   int probes{0};        ///< entries used in `probe`
   std::array<ProbeForce, kMaxSticks> probe{};
 };
@@ -129,7 +139,9 @@ class RumbleForceOutput final : public ForceOutput {
 
 /// Records every tick as one CSV row per probe:
 /// `wall_s,sim_s,probe,device_fx_N,device_fy_N,device_fz_N,device_N,raw_fx_N,raw_fy_N,raw_fz_N,raw_N,`
-/// `stick_x_N,stick_y_N,tip_x_mm,tip_y_mm,tip_z_mm,contacts`.
+/// `stick_x_N,stick_y_N,tip_x_mm,tip_y_mm,tip_z_mm,contacts,`
+/// `shaping,physics_s,hand_x_mm,hand_y_mm,hand_z_mm,model_fx_N,model_fy_N,model_fz_N,`
+/// `anchor_fx_N,anchor_fy_N,anchor_fz_N,update_age_ms,stiffness_N_mm,guard_N` (ProbeForce).
 /// The file is written next to the target and renamed into place by stop(): no partial logs.
 class RecordingForceOutput final : public ForceOutput {
  public:

@@ -14,7 +14,7 @@
 int main(int argc, char** argv) {
   using namespace vx::probe;
   AppOptions o;
-  std::string control = "rate", device = "auto", size = "1280x800", surface = "iso";
+  std::string control = "rate", device = "auto", size = "1280x800", surface = "iso", shaping;
 
   CLI::App app{
       "voxelastic-probe: palpate an elastic tissue model with a joystick, keyboard or mouse and feel it through "
@@ -58,10 +58,16 @@ int main(int argc, char** argv) {
   g_out->add_option("--max-force", o.max_force_N, "force at the device's full level, N")->check(CLI::PositiveNumber);
   g_out->add_option("--device-update-rate", o.device_update_hz, "haptic/rumble commands per second at most")
       ->check(CLI::Range(1.0, 1000.0));
+  g_out->add_option("--force-shaping", shaping,
+                    "local (the local contact model at every device tick, the physics at its own rate) or paper (the "
+                    "paper's half sines); default: the scene's device block, else paper")
+      ->check(CLI::IsMember({"local", "paper"}));
 
   auto* g_run = app.add_option_group("timing", "threads and rates");
-  g_run->add_option("--physics-rate", o.physics_hz, "physics thread ticks per second (steps per tick follow dt)")
-      ->check(CLI::Range(50.0, 10000.0));
+  g_run->add_option("--physics-rate", o.physics_hz,
+                    "physics thread ticks per second (steps per tick follow dt); with --force-shaping local down to "
+                    "10 (each tick a physics update)")
+      ->check(CLI::Range(10.0, 10000.0));
   g_run->add_option("--device-rate", o.device_hz, "device thread updates per second (1000 for haptics)")
       ->check(CLI::Range(50.0, 10000.0));
   g_run->add_option("--fps", o.fps, "display frame limit")->check(CLI::Range(1.0, 240.0));
@@ -92,6 +98,7 @@ int main(int argc, char** argv) {
     o.deadzone_set = opt_deadzone->count() > 0;
     o.surface_method = vx::parse_surface_method(surface);
     o.device = parse_device_choice(device);
+    if (!shaping.empty()) o.force_shaping = vx::parse_force_shaping(shaping);
     const auto x = size.find('x');
     try {
       if (x == std::string::npos) throw std::invalid_argument(size);

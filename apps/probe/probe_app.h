@@ -3,11 +3,19 @@
 /// The palpation app: three rates, never waiting on each other.
 ///
 /// - physics thread (fixed tick, default 1 kHz): advances the simulation to the wall clock in
-///   whole steps with a step budget per tick; when it cannot keep up it drops the lag and runs
-///   in slow motion (reported on the HUD and at the end), never bursting;
+///   whole steps with a step budget per tick; when it cannot keep up it drops the lag (paper
+///   shaping: the app runs in slow motion, reported on the HUD and at the end), never bursting;
 /// - device thread (fixed tick, default 1 kHz): reads the joysticks (or plays the script into
-///   the virtual joysticks, in simulated time), sends live probe commands, evaluates the
-///   paper's half-sine device force at its own clock and writes it to the force outputs;
+///   the virtual joysticks), computes the device force and writes it to the force outputs.
+///   Two shapings (docs/probe.md, "Force shaping"):
+///   - paper: the script runs in simulated time; the stick commands go to the simulation's live
+///     probes; the force is the paper's half sine at the device's clock;
+///   - local: the device thread owns the tool: it moves the device (hand) position with the
+///     stick in wall time, evaluates the local contact model the physics last published
+///     (sim/local_contact.h: virtual coupling, damping, re-anchoring, energy guard) at every
+///     tick, and hands the tool (proxy) position to the physics, which moves the simulated tool
+///     there over its next update and publishes a new model. The physics may run at 30-60 Hz
+///     (--physics-rate) or slower than real time: the tool and the force stay real time;
 /// - GUI thread (display rate): window events, the deformed surface (frames requested from the
 ///   physics and taken when ready, never waited for), HUD, force plot, screenshots.
 
@@ -16,6 +24,7 @@
 #include <string>
 
 #include "probe_scene.h"
+#include "sim/device_force.h"
 #include "stick_control.h"
 
 namespace vx::probe {
@@ -42,6 +51,8 @@ struct AppOptions {
   DeviceChoice device{DeviceChoice::automatic};
   double max_force_N{2.0};                      ///< device full scale
   double device_update_hz{100.0};               ///< haptic/rumble commands per second at most
+  /// The device force: the scene's device block decides unless set (else paper).
+  std::optional<ForceShaping> force_shaping;
   ControlSettings control;
   /// Which fields of `control.mapping` the command line set; the others come from the scene's
   /// live probe (its mode, speed_mm_s, range_mm, dead_zone) or the defaults.

@@ -89,9 +89,11 @@ ProbeScene load_scene_file(const std::filesystem::path& path, const DefaultScene
   scene.notes.push_back(fmt::format("surface: {} ({} triangles)", to_string(scene.surface->method),
                                     scene.surface->num_triangles()));
   scene.notes.push_back(fmt::format("physics: {}{}", physics_configuration(scene.simulation.integrator, *scene.physics),
-                                    scene.simulation.device ? fmt::format(", device updates every {:g} ms (half sines)",
-                                                                          1e3 * scene.simulation.device->update_interval_s)
-                                                            : std::string(", no device shaping (raw force)")));
+                                    !scene.simulation.device ? std::string(", no device shaping (raw force)")
+                                    : scene.simulation.device->shaping == ForceShaping::local
+                                        ? std::string(", device force from the local contact model")
+                                        : fmt::format(", device updates every {:g} ms (half sines)",
+                                                      1e3 * scene.simulation.device->update_interval_s)));
   for (const auto& w : built.warnings) scene.notes.push_back("warning: " + w);
   make_probes_live(scene);
   return scene;

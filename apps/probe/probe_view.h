@@ -58,31 +58,35 @@ struct ViewSetup {
   double plot_window_s{5.0};                  ///< time shown by the force plot
   std::string input_line;                     ///< HUD: e.g. "rate control: joystick 'X'"
   std::string output_line;                    ///< HUD: e.g. "force out: haptic 'X' + log f.csv"
+  bool local_shaping{false};                  ///< the device force is the local contact model's (HUD, plot)
   std::string physics_line;                   ///< HUD: the configuration the physics runs, e.g. "implicit 20 ms, 1 iteration"
 };
 
 /// Numbers for the heads-up display.
 struct HudInfo {
-  double sim_s{0.0};
+  double sim_s{0.0};                ///< paper: simulated time; local: the device's clock
   double physics_steps_per_s{0.0};
+  double physics_updates_per_s{0.0};///< local: local contact models published per second (measured)
   double real_time_factor{1.0};     ///< simulated seconds per wall second
   bool behind_real_time{false};     ///< physics cannot keep up
   double device_hz{0.0};
   double device_target_hz{1000.0};  ///< the device thread's rate; below 90% of it the HUD warns
   int probes{0};
-  std::array<double, 2> force_N{};  ///< per probe: |force of the current device update| (the half sine's mean)
+  std::array<double, 2> force_N{};  ///< per probe: paper, |the current update's mean|; local, |the force played|
   std::array<int, 2> contacts{};
+  std::array<int, 2> model_nodes{}; ///< local: nodes of the probe's local contact model
   int active_probe{0};              ///< the keyboard's probe
   bool paused{false};
   std::string status;               ///< an extra line (errors, disconnects), shown in red
 };
 
 /// One point of the force plot (the paper's fig. 10: the raw reaction sum jitters from step to
-/// step; the device plays one half sine per update whose mean is the update's averaged force).
+/// step; the device plays one half sine per update whose mean is the update's averaged force;
+/// local shaping: the local model's force, and the physics' force at its anchor).
 struct PlotSample {
-  double t_s{0.0};                  ///< simulated time
-  std::array<float, 2> device_N{};  ///< |device force| played now (the half sine) per probe
-  std::array<float, 2> mean_N{};    ///< |averaged force of the current device update| per probe
+  double t_s{0.0};                  ///< paper: simulated time; local: the device's clock
+  std::array<float, 2> device_N{};  ///< |device force| played now (the half sine; the local model) per probe
+  std::array<float, 2> mean_N{};    ///< |the current update's force| (the half sine's mean; the anchor's) per probe
   std::array<float, 2> raw_N{};     ///< |raw reaction sum of the last physics step| per probe
 };
 

@@ -83,7 +83,10 @@ void ProbeView::Impl::build_plot() {
     const std::string name =
         p < int(setup.probe_names.size()) ? setup.probe_names[std::size_t(p)] : std::to_string(p);
     const std::string who = np > 1 ? " (" + name + ")" : "";
-    for (const char* name : {"raw sum per step", "half sines played", "device update mean"}) {
+    const std::array<const char*, 3> names =
+        setup.local_shaping ? std::array<const char*, 3>{"raw sum per step", "device (local model, 1 kHz)", "physics update"}
+                            : std::array<const char*, 3>{"raw sum per step", "half sines played", "device update mean"};
+    for (const char* name : names) {
       auto col = make<vtkFloatArray>();
       col->SetName((name + who).c_str());
       table->AddColumn(col);
@@ -113,14 +116,16 @@ void ProbeView::Impl::build_plot() {
     axis->SetBehavior(vtkAxis::AUTO);
   }
   chart->GetAxis(vtkAxis::LEFT)->SetTitle("N");
-  chart->GetAxis(vtkAxis::BOTTOM)->SetTitle("simulated time (s)");
+  chart->GetAxis(vtkAxis::BOTTOM)->SetTitle(setup.local_shaping ? "time (s)" : "simulated time (s)");
   for (int p = 0; p < np; ++p) {
     const Rgb& c = kProbeColour[std::size_t(p)];
     vtkPlot* played = chart->AddPlot(vtkChart::LINE);
     played->SetInputData(table, 0, 2 + 3 * p);
     played->SetColor(c.r, c.g, c.b);
-    played->GetPen()->SetOpacityF(0.35);
-    played->SetWidth(1.0);
+    // the half sines swing through zero 50 times a second: thin and faint; the local model's
+    // force is what the hand feels: drawn over the physics' updates
+    played->GetPen()->SetOpacityF(setup.local_shaping ? 1.0 : 0.35);
+    played->SetWidth(setup.local_shaping ? 2.0 : 1.0);
     vtkPlot* raw = chart->AddPlot(vtkChart::LINE);
     raw->SetInputData(table, 0, 1 + 3 * p);
     raw->SetColor(0.85, 0.87, 0.90);
@@ -130,6 +135,10 @@ void ProbeView::Impl::build_plot() {
     mean->SetInputData(table, 0, 3 + 3 * p);
     mean->SetColor(c.r, c.g, c.b);
     mean->SetWidth(3.0);
+    if (setup.local_shaping) {
+      mean->GetPen()->SetOpacityF(0.45);
+      mean->SetWidth(4.0);
+    }
   }
   auto scene = make<vtkContextScene>();
   scene->AddItem(chart);
@@ -185,22 +194,39 @@ void ProbeView::Impl::update_plot() {
 void ProbeView::Impl::update_hud_text() {
   const HudInfo& h = hud_info;
   std::string text = fmt::format("{}   t = {:.2f} s{}\n", setup.title, h.sim_s, h.paused ? "   [PAUSED]" : "");
-  text += fmt::format("physics {:.0f} steps/s ({:.2f}x real time){}\n", h.physics_steps_per_s, h.real_time_factor,
-                      setup.physics_line.empty() ? std::string() : ": " + setup.physics_line);
-  text += fmt::format("device {:.0f} updates/s   display {:.1f} frames/s\n", h.device_hz, fps.rate());
+  const std::string config = setup.physics_line.empty() ? std::string() : ": " + setup.physics_line;
+  if (setup.local_shaping) {
+    // the physics updates the model; the device computes the force from it at its own rate
+    text += fmt::format("physics {:.0f} updates/s, {:.0f} steps/s (tissue {:.2f}x real time){}\n",
+                        h.physics_updates_per_s, h.physics_steps_per_s, h.real_time_factor, config);
+    text += fmt::format("device {:.0f} forces/s (local contact model)   display {:.1f} frames/s\n", h.device_hz,
+                        fps.rate());
+  } else {
+    text += fmt::format("physics {:.0f} steps/s ({:.2f}x real time){}\n", h.physics_steps_per_s, h.real_time_factor,
+                        config);
+    text += fmt::format("device {:.0f} updates/s   display {:.1f} frames/s\n", h.device_hz, fps.rate());
+  }
   for (int p = 0; p < h.probes && p < 2; ++p) {
     const std::string name = std::size_t(p) < setup.probe_names.size() ? setup.probe_names[std::size_t(p)]
                                                                          : fmt::format("probe {}", p);
-    text += fmt::format("{}{}: force {:.3f} N  ({} nodes in contact)\n", name,
-                        h.probes > 1 && p == h.active_probe ? " [keys]" : "", h.force_N[std::size_t(p)],
-                        h.contacts[std::size_t(p)]);
+    if (setup.local_shaping)
+      text += fmt::format("{}{}: force {:.3f} N  ({} nodes in contact, model of {})\n", name,
+                          h.probes > 1 && p == h.active_probe ? " [keys]" : "", h.force_N[std::size_t(p)],
+                          h.contacts[std::size_t(p)], h.model_nodes[std::size_t(p)]);
+    else
+      text += fmt::format("{}{}: force {:.3f} N  ({} nodes in contact)\n", name,
+                          h.probes > 1 && p == h.active_probe ? " [keys]" : "", h.force_N[std::size_t(p)],
+                          h.contacts[std::size_t(p)]);
   }
   text += setup.input_line;
   if (!setup.output_line.empty()) text += "\n" + setup.output_line;
   hud->SetInput(text.c_str());
   std::string warn;
   if (h.behind_real_time)
-    warn = fmt::format("physics cannot keep real time: {:.2f}x (slow motion)", h.real_time_factor);
+    warn = setup.local_shaping
+               ? fmt::format("tissue behind real time: {:.2f}x (the tool and its force stay real time)",
+                             h.real_time_factor)
+               : fmt::format("physics cannot keep real time: {:.2f}x (slow motion)", h.real_time_factor);
   if (h.device_hz > 0 && h.device_hz < 0.9 * h.device_target_hz) {
     if (!warn.empty()) warn += "\n";
     warn += fmt::format("device thread late: {:.0f} of {:.0f} updates/s", h.device_hz, h.device_target_hz);

@@ -1,8 +1,8 @@
 #pragma once
 /// @file rate_thread.h
 /// The timing scaffolding of the app: a thread that calls its body at a fixed rate (physics,
-/// device), a rate meter for the HUD, and a lock-free triple buffer that hands the newest
-/// result of one thread to another without either ever waiting for the other.
+/// device), a rate meter for the HUD, and (base/triple_buffer.h) the lock-free triple buffer that
+/// hands the newest result of one thread to another without either ever waiting for the other.
 
 #include <atomic>
 #include <chrono>
@@ -11,6 +11,8 @@
 #include <mutex>
 #include <string>
 #include <thread>
+
+#include "base/triple_buffer.h"
 
 namespace vx::probe {
 
@@ -76,40 +78,7 @@ class RateMeter {
   double rate_{0.0};
 };
 
-/// Single producer, single consumer, newest value wins: the producer fills write_buffer() and
-/// publish()es; the consumer calls fetch() and reads read_buffer(). Neither blocks.
-template <class T>
-class TripleBuffer {
- public:
-  /// The producer's buffer (only the producer touches it until publish()).
-  T& write_buffer() { return buffers_[back_]; }
-  /// Makes the write buffer the newest value.
-  void publish() {
-    const int old = state_.exchange(back_ | kFresh, std::memory_order_acq_rel);
-    back_ = old & kIndex;
-  }
-  /// Takes the newest published value if there is one; returns true when it is new.
-  bool fetch() {
-    if (!(state_.load(std::memory_order_relaxed) & kFresh)) return false;
-    const int old = state_.exchange(front_, std::memory_order_acq_rel);
-    front_ = old & kIndex;
-    return true;
-  }
-  /// The consumer's buffer (the newest value fetched).
-  const T& read_buffer() const { return buffers_[front_]; }
-  T& read_buffer() { return buffers_[front_]; }
-  /// Sets all three buffers (before the threads start).
-  void fill(const T& value) {
-    for (auto& b : buffers_) b = value;
-  }
-
- private:
-  static constexpr int kIndex = 3;
-  static constexpr int kFresh = 4;
-  T buffers_[3]{};
-  int back_{0};
-  int front_{1};
-  std::atomic<int> state_{2};
-};
+/// The lock-free hand-over (base/triple_buffer.h), shared with the core.
+using vx::TripleBuffer;
 
 }  // namespace vx::probe

@@ -10,6 +10,7 @@
 
 #include "base/error.h"
 #include "bench/bench.h"
+#include "bench/haptic_accuracy.h"
 #include "bench/scale_bench.h"
 #include "commands.h"
 #include "render/plot.h"
@@ -29,12 +30,34 @@ struct BenchOptions {
   double duration_s{0.0};
   bool skip_step{false}, skip_palpation{false};
   std::string element, reference_element;
+  std::string haptic;  ///< a palpation scene: run the haptic accuracy only
   bool quiet{false};
   bool scale{false};
   bool threads_given{false};
   std::vector<std::string> scale_models, scale_configs;
   double scale_max_wall_s{0.0}, scale_reference_max_wall_s{0.0};
 };
+
+/// `--haptic SCENE`: the local contact model's force at 1 kHz against the full-rate physics
+/// (bench/haptic_accuracy.h; docs/probe.md, "Force shaping").
+void run_haptic_command(const BenchOptions& o) {
+  const fs::path dir(o.out);
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec || !fs::is_directory(dir))
+    throw Error(fmt::format("--out '{}': cannot create the folder ({})", o.out, ec ? ec.message() : "not a folder"));
+  check_output_path(dir / "haptic_accuracy.md");
+  check_gnuplot();
+  HapticAccuracySettings set;
+  set.scene = o.haptic;
+  if (!o.quiet) set.log = [](const std::string& line) { fmt::print(stderr, "{}\n", line); };
+  const HapticAccuracyResult res = run_haptic_accuracy(set);
+  const std::string table = haptic_accuracy_table(res);
+  write_text_atomically(dir / "haptic_accuracy.md", table);
+  plot_haptic_accuracy(res, dir / "haptic_accuracy.png");
+  fmt::print("{}\nhaptic accuracy took {:.0f} s; wrote haptic_accuracy.md, haptic_accuracy.png to {}\n", table, res.wall_s,
+             dir.string());
+}
 
 /// `bench --scale`: the real-time factor of each configuration on models of growing size
 /// (evaluation/bench/scale_bench.h).
@@ -176,6 +199,11 @@ void add_bench_command(CLI::App& app) {
       ->check(CLI::IsMember({"hourglass", "paper"}));
   sub->add_flag("--skip-step", opts->skip_step, "skip the step benchmark (part A)");
   sub->add_flag("--skip-palpation", opts->skip_palpation, "skip run time against error (part B)");
+  sub->add_option("--haptic", opts->haptic,
+                  "only the haptic accuracy on this palpation scene (e.g. samples/scenes/palpation-lesion.json): the "
+                  "local contact model's force at 1 kHz with the physics at 1000, 200, 60 and 30 Hz against the "
+                  "full-rate physics (DIR/haptic_accuracy.md, haptic_accuracy.png)")
+      ->check(CLI::ExistingFile);
   sub->add_flag("-q,--quiet", opts->quiet, "no progress on stderr");
   sub->add_flag("--scale", opts->scale,
                 "instead: the real-time factor and force error of each configuration on sphere phantoms 32 to 256 and the "
@@ -190,7 +218,7 @@ void add_bench_command(CLI::App& app) {
   sub->add_option("--scale-reference-max-wall-s", opts->scale_reference_max_wall_s,
                   "with --scale: the reference's wall-time budget (default 1800 s; shorter: no error column)")
       ->check(CLI::PositiveNumber);
-  sub->callback([opts] { run_bench_command(*opts); });
+  sub->callback([opts] { opts->haptic.empty() ? run_bench_command(*opts) : run_haptic_command(*opts); });
 }
 
 }  // namespace vx::cli

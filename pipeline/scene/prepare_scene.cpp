@@ -213,7 +213,7 @@ void place_walls_and_probes(const Scene& scene, const std::vector<std::uint8_t>&
   s.probes = scene.probes;
   const double spacing = m.grid.spacing_mm.minCoeff();
   const double dt = s.integrator.time_step_s;
-  if (s.device && s.device->update_interval_s < 1.5 * dt)
+  if (s.device && s.device->shaping == ForceShaping::paper && s.device->update_interval_s < 1.5 * dt)
     errors.fail("$.device.update_interval_s", fmt::format("{:.3g} s spans less than 2 physics steps of {:.3g} s; a half sine needs "
                                                           "room: raise it (e.g. 0.02 s) or lower integrator.dt_s",
                                                           s.device->update_interval_s, dt));

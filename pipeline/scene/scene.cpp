@@ -527,7 +527,8 @@ Scene parse_scene(const json& j, const fs::path& base, const std::string& name) 
   // (grasping), which only the explicit schemes' contact has
   if (!s.integrator_given && s.contact.friction > 0) s.integrator = IntegratorKind::symplectic_euler;
   if (o.has("device")) {
-    const Obj d(o.at("device"), o.at_where("device"), {"update_interval_s", "average_steps", "mean_preserving"});
+    const Obj d(o.at("device"), o.at_where("device"),
+                {"update_interval_s", "average_steps", "mean_preserving", "force_shaping", "device_damping_n_s_m"});
     DeviceForceSettings dev;
     dev.update_interval_s = d.number("update_interval_s", dev.update_interval_s);
     require(dev.update_interval_s > 0 && dev.update_interval_s <= 10, d.at_where("update_interval_s"),
@@ -535,6 +536,16 @@ Scene parse_scene(const json& j, const fs::path& base, const std::string& name) 
     dev.average_steps = d.integer("average_steps", dev.average_steps);
     require(dev.average_steps >= 0, d.at_where("average_steps"), "must be >= 0 (0: every step since the last update)");
     dev.mean_preserving = d.boolean("mean_preserving", dev.mean_preserving);
+    if (d.has("force_shaping")) {
+      const std::string f = d.string("force_shaping", "paper");
+      require(f == "paper" || f == "local", d.at_where("force_shaping"),
+              "unknown force shaping \"" + f + "\"; use local (the local contact model at 1 kHz) or paper (half sines)");
+      dev.shaping = parse_force_shaping(f);
+    }
+    const double b = d.number("device_damping_n_s_m", 1e3 * dev.device_damping_n_s_mm);
+    require(b > 0 && b <= 1000, d.at_where("device_damping_n_s_m"),
+            "must be > 0 N s/m (the device's own damping; 1.5 for a modest desktop device)");
+    dev.device_damping_n_s_mm = 1e-3 * b;
     s.device = dev;
   }
   if (o.has("probes")) {

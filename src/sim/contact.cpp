@@ -196,7 +196,7 @@ void ContactSolver::keep_lists_valid(const Eigen::Matrix3Xd& x, const std::vecto
 void ContactSolver::resolve(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const std::vector<double>& mass,
                             const std::vector<ProbeGeometry>& geometry, const std::vector<ProbeState>& probes,
                             double dt, std::vector<Eigen::Vector3d>& probe_force, Eigen::Vector3d& wall_force,
-                            std::vector<int>* probe_contacts) {
+                            std::vector<int>* probe_contacts, std::vector<ContactConstraint>* records) {
   ++step_;
   probe_force.assign(std::size_t(probes_), Eigen::Vector3d::Zero());
   if (probe_contacts) probe_contacts->assign(std::size_t(probes_), 0);
@@ -260,7 +260,17 @@ void ContactSolver::resolve(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const std:
       const double depth = -probe_signed_distance(g, p.position_mm, xi, &surface_point, &normal);
       if (!(depth > 0)) continue;
       x.col(i) = surface_point;
-      impulse += mass[std::size_t(i)] * respond(i, normal, p.velocity_mm_s, p.position_mm, q);
+      const Eigen::Vector3d dp = mass[std::size_t(i)] * respond(i, normal, p.velocity_mm_s, p.position_mm, q);
+      impulse += dp;
+      if (records) {
+        ContactConstraint c;
+        c.node = i;
+        c.owner = q;
+        c.point_mm = surface_point;
+        c.normal = normal;
+        c.force_n = dp.dot(normal) / dt;
+        records->push_back(c);
+      }
       shift = std::max(shift, (x.col(i) - xi).norm());
       ++contacts;
     }

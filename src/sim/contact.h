@@ -113,11 +113,13 @@ class ContactSolver {
 
   /// Moves the listed nodes that entered a probe or left the workspace back onto the surface
   /// and reflects their velocities. `node_mass` in N*s^2/mm. Writes the force of the tissue on
-  /// each probe (N, one per probe) and on the walls.
+  /// each probe (N, one per probe) and on the walls. With `records`, also appends each probe
+  /// contact of the step (node, probe, surface point, outward normal, and as force_n the normal
+  /// momentum change per step of the node, N): the local contact model's per-node forces.
   void resolve(Eigen::Matrix3Xd& positions, Eigen::Matrix3Xd& velocities, const std::vector<double>& node_mass,
                const std::vector<ProbeGeometry>& geometry, const std::vector<ProbeState>& probes, double dt_s,
                std::vector<Eigen::Vector3d>& probe_force_n, Eigen::Vector3d& wall_force_n,
-               std::vector<int>* probe_contacts = nullptr);
+               std::vector<int>* probe_contacts = nullptr, std::vector<ContactConstraint>* records = nullptr);
 
   /// Implicit path: appends a constraint for every listed node that `positions` put inside a
   /// probe or beyond a wall, and with `near` also within near_margin_mm() outside, linearised at

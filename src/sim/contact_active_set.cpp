@@ -219,6 +219,18 @@ void ContactActiveSet::index_candidates(std::size_t from) {
   for (std::size_t c = from; c < k; ++c) candidate_free_[c] = free_index[std::size_t(candidates_[c].node)];
 }
 
+void ContactActiveSet::compliance(const std::vector<int>& free, SparseFactor& factor, Eigen::MatrixXd& g) {
+  ++solve_count_;  // the columns of this call are not reused for one another
+  const int m = int(free.size());
+  g.resize(m, m);
+  ContactSolveCounters counters;
+  std::vector<int> slot(static_cast<std::size_t>(m));
+  for (int a = 0; a < m; ++a) slot[std::size_t(a)] = column_of(free[std::size_t(a)], factor, counters);
+  for (int a = 0; a < m; ++a)
+    for (int b = 0; b < m; ++b) g(b, a) = columns_(free[std::size_t(b)], slot[std::size_t(a)]);
+  g = 0.5 * (g + g.transpose()).eval();
+}
+
 void ContactActiveSet::solve(ContactProvider& provider, const Eigen::Matrix3Xd& x, SparseFactor& factor,
                              Eigen::MatrixX3d& solution, int threads, ContactSolveCounters& counters) {
   const std::vector<int>& free_index = *free_index_;

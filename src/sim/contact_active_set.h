@@ -66,6 +66,11 @@ class ContactActiveSet {
   /// multipliers (N); the next solve starts from them (warm start).
   [[nodiscard]] const std::vector<ContactConstraint>& active() const { return active_; }
 
+  /// g (m x m) = G restricted to the free nodes `free` (free indices): the scalar compliance
+  /// between them, mm/N, from the cached columns (solving the missing ones; allocates when the
+  /// cache grows). The local contact model's compliance (local_contact.h).
+  void compliance(const std::vector<int>& free, SparseFactor& factor, Eigen::MatrixXd& g);
+
  private:
   [[nodiscard]] int num_free() const { return int(free_nodes_->size()); }
   int column_of(int free, SparseFactor& factor, ContactSolveCounters& counters);

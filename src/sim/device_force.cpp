@@ -9,8 +9,18 @@
 
 namespace vx {
 
+const char* to_string(ForceShaping s) { return s == ForceShaping::local ? "local" : "paper"; }
+
+ForceShaping parse_force_shaping(const std::string& s) {
+  if (s == "paper") return ForceShaping::paper;
+  if (s == "local") return ForceShaping::local;
+  throw Error("unknown force shaping \"" + s + "\": use local (the local contact model at 1 kHz) or paper (half sines)");
+}
+
 std::string DeviceForceSettings::validate() const {
   std::ostringstream err;
+  if (!(device_damping_n_s_mm > 0 && std::isfinite(device_damping_n_s_mm)))
+    err << "device damping " << device_damping_n_s_mm << " N s/mm must be > 0; ";
   if (!(update_interval_s > 0 && std::isfinite(update_interval_s)))
     err << "device update interval " << update_interval_s << " s must be > 0 (e.g. 0.02 s for 50 Hz); ";
   if (average_steps < 0) err << "average_steps " << average_steps << " must be >= 0 (0 = the whole interval); ";

@@ -24,11 +24,26 @@
 
 namespace vx {
 
+/// How the probe app makes the device force (docs/probe.md, "Force shaping").
+enum class ForceShaping : std::uint8_t {
+  paper,  ///< the half sines below, evaluated at the device's clock (the paper's 4.3)
+  local,  ///< the local contact model at every device tick (local_contact.h)
+};
+[[nodiscard]] const char* to_string(ForceShaping s);
+/// Parses "paper" or "local"; throws vx::Error otherwise.
+[[nodiscard]] ForceShaping parse_force_shaping(const std::string& s);
+
 /// How a device force is made from the raw force.
 struct DeviceForceSettings {
   double update_interval_s{0.02};  ///< T: time between device updates (the paper's slow update), s
   int average_steps{0};            ///< raw forces averaged per update; 0 = every step since the last update
   bool mean_preserving{true};      ///< half-sine peak pi/2 x the mean (mean kept); false: peak = mean
+  /// The probe app's shaping. The simulation itself always computes the half sines for a
+  /// device; `local` also needs the simulation's local contact models (the app asks for them).
+  ForceShaping shaping{ForceShaping::paper};
+  /// local: the physical damping of the device that sizes the virtual coupling (Colgate's
+  /// condition, HapticCouplingSettings in local_contact.h), N s/mm.
+  double device_damping_n_s_mm{1.5e-3};
 
   /// Empty when valid, else what is wrong.
   [[nodiscard]] std::string validate() const;

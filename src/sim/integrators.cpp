@@ -256,6 +256,10 @@ class ImplicitIntegrator final : public Integrator {
     contacts_.clear();
   }
   [[nodiscard]] const std::vector<ContactConstraint>& contacts() const override { return contacts_; }
+  bool contact_compliance(SimState& s, const std::vector<std::int32_t>& nodes, Eigen::MatrixXd& g) override {
+    if (!s.integrator_cache.solver) return false;
+    return s.integrator_cache.solver->contact_compliance(nodes, g);
+  }
 
   StepReport step(SimState& s) override {
     StepReport rep;

@@ -114,6 +114,13 @@ class Integrator {
   /// Implicit: the constraints active at the end of the last step with their forces (N); empty
   /// for the other integrators and without a provider.
   [[nodiscard]] virtual const std::vector<ContactConstraint>& contacts() const;
+  /// Implicit: g (m x m) = the compliance of one step between the free `nodes` (the inverse of
+  /// its system matrix, mm/N) from the state's factor; false for the other integrators, before
+  /// the first step, or when a node is fixed. For the local contact model (local_contact.h).
+  virtual bool contact_compliance(SimState& /*state*/, const std::vector<std::int32_t>& /*nodes*/,
+                                  Eigen::MatrixXd& /*g*/) {
+    return false;
+  }
 
  protected:
   IntegratorSettings settings_;

@@ -168,6 +168,17 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
   s.element_stats = last;
 }
 
+bool ProjectiveSolver::contact_compliance(const std::vector<std::int32_t>& nodes, Eigen::MatrixXd& g) {
+  std::vector<int> free(nodes.size());
+  for (std::size_t a = 0; a < nodes.size(); ++a) {
+    const int i = nodes[a];
+    if (i < 0 || std::size_t(i) >= free_index_.size() || free_index_[std::size_t(i)] < 0) return false;
+    free[a] = free_index_[std::size_t(i)];
+  }
+  contact_set_.compliance(free, factor_, g);
+  return true;
+}
+
 void ProjectiveSolver::set_region(const std::vector<int>& awake_nodes) {
   if (!factor_.supports_partial()) return;
   const PhysicsModel& p = *physics_;

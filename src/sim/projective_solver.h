@@ -117,6 +117,9 @@ class ProjectiveSolver {
   [[nodiscard]] const std::vector<ContactConstraint>& active_contacts() const { return contact_set_.active(); }
   /// Forgets the contact warm start (the next solve does not follow the last one).
   void forget_contacts() { contact_set_.forget_warm_start(); }
+  /// g (m x m) = (A^-1)_ij between `nodes`, mm/N: the compliance of one step between them (the
+  /// local contact model's, local_contact.h). False when a node is fixed.
+  bool contact_compliance(const std::vector<std::int32_t>& nodes, Eigen::MatrixXd& g);
 
  private:
   void check_held() const;

@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -65,7 +67,7 @@ std::vector<Row> read_log(const fs::path& csv, std::string* header) {
     std::vector<std::string> c;
     std::stringstream ss(line);
     for (std::string v; std::getline(ss, v, ',');) c.push_back(v);
-    if (c.size() != 17) continue;
+    if (c.size() < 17) continue;
     rows.push_back({std::stod(c[1]), std::stod(c[6]), std::stod(c[9]), std::stod(c[10]), std::stod(c[13]),
                     std::stod(c[15]), std::stoi(c[16])});
   }
@@ -155,6 +157,62 @@ TEST_F(ProbeApp, ScriptedPalpationFeelsTheLesion) {
   }
 }
 
+// The same palpation with --force-shaping local and the physics at 60 updates per second: the
+// device force comes from the local contact model at every tick (docs/probe.md, "Force shaping").
+TEST_F(ProbeApp, LocalShapingAtSixtyUpdatesFeelsTheLesionSmoothly) {
+  const fs::path csv = dir_ / "local.csv";
+  const RunResult r = run(q(kScene) + " --headless --virtual-joystick " + q(kScript) +
+                          " --exit-after-script --force-shaping local --physics-rate 60 --force-log " + q(csv));
+  ASSERT_EQ(r.code, 0) << r.out << r.err;
+  EXPECT_NE(r.out.find("local force shaping:"), std::string::npos) << r.out;
+  std::ifstream in(csv);
+  std::string line;
+  std::getline(in, line);
+  EXPECT_NE(line.find(",shaping,physics_s,hand_x_mm,"), std::string::npos) << line;
+  struct L {
+    double t, f, fz, x, tool_z, hand_z;
+    std::string shaping;
+  };
+  std::vector<L> rows;
+  double peak = 0, max_step = 0, last_fx = 0, last_fy = 0, last_fz = 0;
+  while (std::getline(in, line)) {
+    std::vector<std::string> c;
+    std::stringstream ss(line);
+    for (std::string v; std::getline(ss, v, ',');) c.push_back(v);
+    ASSERT_EQ(c.size(), 31u) << line;
+    const double fx = std::stod(c[3]), fy = std::stod(c[4]), fz = std::stod(c[5]);
+    rows.push_back({std::stod(c[1]), std::stod(c[6]), fz, std::stod(c[13]), std::stod(c[15]), std::stod(c[21]), c[17]});
+    peak = std::max(peak, rows.back().f);
+    if (rows.size() > 1)
+      max_step = std::max(max_step, std::sqrt((fx - last_fx) * (fx - last_fx) + (fy - last_fy) * (fy - last_fy) +
+                                              (fz - last_fz) * (fz - last_fz)));
+    last_fx = fx, last_fy = fy, last_fz = fz;
+  }
+  ASSERT_GT(rows.size(), 2000u);
+  EXPECT_EQ(rows.front().shaping, "local");
+  EXPECT_GE(rows.back().t, 9.5);
+  EXPECT_LT(rows.back().f, 1e-9);  // lifted off
+  // over the lesion, against soft tissue (measured 0.18 N, 0.42 N, 0.19 N)
+  const auto mean = [&](double x0, double x1) {
+    double sum = 0;
+    int n = 0;
+    for (const L& row : rows)
+      if (row.t >= 2.0 && row.t <= 7.5 && row.x >= x0 && row.x <= x1) sum += row.f, ++n;
+    return n ? sum / n : -1.0;
+  };
+  const double soft = mean(-13.0, -7.0), lesion = mean(4.0, 8.0);
+  EXPECT_GT(soft, 0.05);
+  EXPECT_GT(lesion, 1.8 * soft) << "soft " << soft << " N, lesion " << lesion << " N";
+  // smooth: no tick-to-tick change above 10 % of the peak (measured 1.0 %; the half sines: 31 %)
+  EXPECT_LT(max_step, 0.1 * peak) << max_step << " N of " << peak << " N";
+  // the virtual coupling (1 N/mm at 1 kHz): the tool rides F/k_c above the hand, plus what the
+  // damping adds while it moves (held still at 1.2-2.0 s: the spring alone)
+  for (const L& row : rows)
+    if (row.t > 1.5 && row.t < 1.95) {
+      EXPECT_NEAR(row.tool_z - row.hand_z, row.fz / 1.0, 0.002) << "t = " << row.t;
+    }
+}
+
 TEST_F(ProbeApp, TwoJoysticksGraspWithTwoProbes) {
   // a block held at its base, squeezed from both sides by two capsules, one per virtual stick
   std::ofstream(dir_ / "grasp.json") << R"({
@@ -188,7 +246,7 @@ TEST_F(ProbeApp, TwoJoysticksGraspWithTwoProbes) {
     std::vector<std::string> c;
     std::stringstream ss(line);
     for (std::string v; std::getline(ss, v, ',');) c.push_back(v);
-    ASSERT_EQ(c.size(), 17u);
+    ASSERT_EQ(c.size(), 31u);
     const int p = std::stoi(c[2]);
     ASSERT_TRUE(p == 0 || p == 1);
     x_end[p] = std::stod(c[13]);

@@ -67,10 +67,11 @@ TEST(RecordingForceOutput, WritesEveryTickAndMovesIntoPlace) {
   std::istringstream cells(last);
   std::vector<std::string> v;
   for (std::string c; std::getline(cells, c, ',');) v.push_back(c);
-  ASSERT_EQ(v.size(), 17u);
+  ASSERT_EQ(v.size(), 31u);
   EXPECT_NEAR(std::stod(v[6]), 4.5, 1e-9);
   EXPECT_NEAR(std::stod(v[10]), 9.0, 1e-9);
   EXPECT_EQ(v[16], "7");
+  EXPECT_EQ(v[17], "paper");  // the shaping of the tick (DeviceTick::local)
 }
 
 TEST(RecordingForceOutput, BadPathsAreClearErrors) {

@@ -243,6 +243,25 @@ TEST(Scene, ImpossibleValuesAreCaught) {
   j = base_scene();
   j["fixed"] = {"bottom"};
   EXPECT_CONTAINS(error_of(j), "$.fixed[0]: unknown face \"bottom\"");
+  j = base_scene();
+  j["device"] = {{"force_shaping", "fast"}};
+  EXPECT_CONTAINS(error_of(j), "$.device.force_shaping: unknown force shaping \"fast\"");
+  j = base_scene();
+  j["device"] = {{"device_damping_n_s_m", 0}};
+  EXPECT_CONTAINS(error_of(j), "$.device.device_damping_n_s_m: must be > 0 N s/m");
+}
+
+TEST(Scene, DeviceBlockPicksTheForceShaping) {
+  json j = base_scene();
+  j["device"] = json::object();
+  Scene s = parse_scene(j, ".", "test.json");
+  ASSERT_TRUE(s.device.has_value());
+  EXPECT_EQ(s.device->shaping, ForceShaping::paper);  // the paper's half sines unless asked
+  EXPECT_DOUBLE_EQ(s.device->device_damping_n_s_mm, 1.5e-3);
+  j["device"] = {{"force_shaping", "local"}, {"device_damping_n_s_m", 3.0}};
+  s = parse_scene(j, ".", "test.json");
+  EXPECT_EQ(s.device->shaping, ForceShaping::local);
+  EXPECT_DOUBLE_EQ(s.device->device_damping_n_s_mm, 3e-3);
 }
 
 TEST(Scene, ShapesAndDrivesAreChecked) {

@@ -1,0 +1,121 @@
+#include "sim/local_compliance.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "base/error.h"
+#include "physics/elements.h"
+
+namespace vx {
+
+void PatchCompliance::init(std::shared_ptr<const PhysicsModel> physics, const std::vector<std::uint8_t>& node_fixed,
+                           double horizon_s) {
+  if (!physics || !physics->model) throw Error("patch compliance: no physics model");
+  if (!(horizon_s > 0) || !std::isfinite(horizon_s)) throw Error("patch compliance: the horizon must be > 0 s");
+  physics_ = std::move(physics);
+  fixed_ = node_fixed;
+  horizon_ = horizon_s;
+  const PhysicsModel& p = *physics_;
+  const Model& m = *p.model;
+  const int nn = p.num_nodes(), ne = p.num_elements();
+  fixed_.resize(std::size_t(nn), 0);
+  const double t = horizon_s;
+  std::vector<Eigen::Triplet<double>> trip;
+  std::size_t guess = std::size_t(nn);
+  for (int e = 0; e < ne; ++e) guess += std::size_t(m.num_vertices(e)) * std::size_t(m.num_vertices(e));
+  trip.reserve(guess);
+  Eigen::MatrixXd ke;
+  for (int e = 0; e < ne; ++e) {
+    const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+    const double kap = (p.has_volume_term() ? p.element_volume_stiffness[std::size_t(e)] : 0.0) +
+                       (p.damped ? p.element_damping[std::size_t(e)] / t : 0.0);
+    const double* w = p.entry_weight.data() + b;
+    double wsum = 0;
+    for (int i = 0; i < n; ++i) wsum += w[i];
+    element_elastic_matrix(p, e, ke);
+    for (int i = 0; i < n; ++i)
+      for (int j = 0; j < n; ++j)
+        trip.emplace_back(m.element_vertices[b + i], m.element_vertices[b + j],
+                          ke(i, j) + kap * ((i == j ? w[i] : 0.0) - w[i] * w[j] / wsum));
+  }
+  for (int i = 0; i < nn; ++i) trip.emplace_back(i, i, p.node_mass[std::size_t(i)] / (t * t));
+  a_.resize(nn, nn);
+  a_.setFromTriplets(trip.begin(), trip.end());
+  patch_index_.assign(std::size_t(nn), -1);
+  has_patch_ = false;
+  refactors_ = 0;
+  columns_solved_ = 0;
+}
+
+bool PatchCompliance::build_patch(const Eigen::Vector3d& centre, double radius_mm) {
+  const PhysicsModel& p = *physics_;
+  const Eigen::Matrix3Xd& rest = p.model->rest_positions;
+  const int nn = p.num_nodes();
+  for (const int i : patch_nodes_) patch_index_[std::size_t(i)] = -1;
+  patch_nodes_.clear();
+  const double r2 = radius_mm * radius_mm;
+  for (int i = 0; i < nn; ++i)
+    if (!fixed_[std::size_t(i)] && (rest.col(i) - centre).squaredNorm() <= r2) {
+      patch_index_[std::size_t(i)] = int(patch_nodes_.size());
+      patch_nodes_.push_back(i);
+    }
+  const int np = int(patch_nodes_.size());
+  // the patch's block of A_T: the nodes beyond it are held
+  std::vector<Eigen::Triplet<double>> trip;
+  for (int k = 0; k < np; ++k) {
+    const int i = patch_nodes_[std::size_t(k)];
+    for (Eigen::SparseMatrix<double>::InnerIterator it(a_, i); it; ++it) {
+      const int j = patch_index_[std::size_t(it.row())];
+      if (j >= 0) trip.emplace_back(j, k, it.value());
+    }
+  }
+  SparseFactor::Matrix a(np, np);
+  a.setFromTriplets(trip.begin(), trip.end());
+  has_patch_ = np > 0 && factor_.compute(a);
+  centre_ = centre;
+  radius_ = radius_mm;
+  column_slot_.assign(std::size_t(np), -1);
+  columns_.resize(np, 0);
+  used_ = 0;
+  ++refactors_;
+  return has_patch_;
+}
+
+bool PatchCompliance::compute(const std::vector<std::int32_t>& nodes, double radius_mm, Eigen::MatrixXd& g) {
+  if (!physics_) return false;
+  const int m = int(nodes.size());
+  g.resize(m, m);
+  if (m == 0) return true;
+  const Eigen::Matrix3Xd& rest = physics_->model->rest_positions;
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+  for (const int i : nodes) {
+    if (i < 0 || i >= physics_->num_nodes() || fixed_[std::size_t(i)]) return false;
+    centre += rest.col(i);
+  }
+  centre /= m;
+  // keep the patch while the contact stays near its centre and inside its inner part
+  bool keep = has_patch_ && radius_ == radius_mm && (centre - centre_).norm() <= 0.25 * radius_mm;
+  for (int a = 0; a < m && keep; ++a)
+    keep = patch_index_[std::size_t(nodes[std::size_t(a)])] >= 0 &&
+           (rest.col(nodes[std::size_t(a)]) - centre_).norm() <= 0.75 * radius_mm;
+  if (!keep && !build_patch(centre, radius_mm)) return false;
+  // columns of the nodes (cached per patch)
+  for (int a = 0; a < m; ++a) {
+    const int k = patch_index_[std::size_t(nodes[std::size_t(a)])];
+    if (k < 0) return false;  // outside even a fresh patch (a contact wider than the radius)
+    if (column_slot_[std::size_t(k)] < 0) {
+      if (used_ == columns_.cols()) columns_.conservativeResize(Eigen::NoChange, std::max<Eigen::Index>(16, 2 * used_));
+      factor_.solve_unit(k, columns_.col(used_).data());
+      column_slot_[std::size_t(k)] = used_++;
+      ++columns_solved_;
+    }
+  }
+  for (int a = 0; a < m; ++a) {
+    const int slot_a = column_slot_[std::size_t(patch_index_[std::size_t(nodes[std::size_t(a)])])];
+    for (int b = 0; b < m; ++b) g(b, a) = columns_(patch_index_[std::size_t(nodes[std::size_t(b)])], slot_a);
+  }
+  g = 0.5 * (g + g.transpose()).eval();  // symmetric to the last bit
+  return true;
+}
+
+}  // namespace vx

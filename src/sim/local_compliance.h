@@ -1,0 +1,69 @@
+#pragma once
+/// @file local_compliance.h
+/// The tissue compliance between contact nodes for the local contact model (local_contact.h)
+/// when the integrator has no factor of its own (the explicit integrators), or when asked for.
+///
+/// The matrix is the implicit integrator's (projective_solver.h) at a time horizon T:
+///     A_T = M / T^2 + sum_e (K_e + (k_v,e + c_e / T) (diag(w) - w w^T / W)_e),
+/// the same scalar matrix for x, y and z, constant (built on the rest shape), so
+/// C_ij = (A_T^-1)_ij I. T is the time the local model has to carry the force (about one
+/// physics period): the tissue's inertia and damping over T stiffen it a little, and keep A_T
+/// positive definite when nothing is held. Inverting A_T on the whole model is what the implicit
+/// integrator's factor does; here only a patch is factored: the free nodes within `radius_mm`
+/// (rest positions) of the contact, the nodes beyond it held. Holding the patch's border makes
+/// the tissue a little stiffer than the whole model (docs/probe.md measures by how much); a
+/// radius beyond the model gives the whole model. The factor and its columns are kept while the
+/// contact stays within a quarter of the radius of the patch's centre.
+///
+/// Units: mm, s, N; compliance mm/N.
+
+#include <Eigen/Core>
+#include <Eigen/SparseCore>
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "physics/physics_model.h"
+#include "sim/sparse_factor.h"
+
+namespace vx {
+
+class PatchCompliance {
+ public:
+  /// Assembles A_T over the whole model (not factored). `node_fixed`: nodes held (never in a patch).
+  void init(std::shared_ptr<const PhysicsModel> physics, const std::vector<std::uint8_t>& node_fixed,
+            double horizon_s);
+  [[nodiscard]] bool ready() const { return bool(physics_); }
+
+  /// g (m x m) = the scalar compliance between `nodes` (free nodes), mm/N, from the patch of
+  /// radius `radius_mm` around their mean rest position. Allocates when it refactors or caches a
+  /// new column. Returns false when a node is held or the patch cannot be factored.
+  bool compute(const std::vector<std::int32_t>& nodes, double radius_mm, Eigen::MatrixXd& g);
+
+  [[nodiscard]] int patch_nodes() const { return int(patch_nodes_.size()); }
+  [[nodiscard]] std::int64_t refactors() const { return refactors_; }
+  [[nodiscard]] std::int64_t columns_solved() const { return columns_solved_; }
+  [[nodiscard]] double horizon_s() const { return horizon_; }
+
+ private:
+  bool build_patch(const Eigen::Vector3d& centre, double radius_mm);
+
+  std::shared_ptr<const PhysicsModel> physics_;
+  std::vector<std::uint8_t> fixed_;
+  double horizon_{0.02};
+  Eigen::SparseMatrix<double> a_;       ///< all nodes x all nodes, A_T (both triangles)
+  // the patch
+  bool has_patch_{false};
+  Eigen::Vector3d centre_{Eigen::Vector3d::Zero()};
+  double radius_{0.0};
+  std::vector<int> patch_index_;        ///< nodes -> patch index or -1
+  std::vector<int> patch_nodes_;        ///< patch index -> node
+  SparseFactor factor_;
+  std::vector<int> column_slot_;        ///< patch index -> column slot or -1
+  Eigen::MatrixXd columns_;             ///< patch nodes x slots
+  int used_{0};
+  std::int64_t refactors_{0};
+  std::int64_t columns_solved_{0};
+};
+
+}  // namespace vx
