@@ -30,6 +30,7 @@ struct BenchOptions {
   double max_run_s{0.0};
   double duration_s{0.0};
   bool skip_step{false}, skip_palpation{false};
+  std::string element, reference_element;
   std::string haptic;  ///< a palpation scene: run the haptic accuracy only
   bool quiet{false};
   bool scale{false};
@@ -113,6 +114,8 @@ void run_bench_command(const BenchOptions& o) {
     set.scene.duration_s = o.duration_s;
     set.scene.press_s = 0.5 * o.duration_s;
   }
+  if (!o.element.empty()) set.scene.element = element_kind_from_string(o.element);
+  if (!o.reference_element.empty()) set.reference_element = element_kind_from_string(o.reference_element);
   set.run_step = !o.skip_step;
   set.run_palpation = !o.skip_palpation;
   set.validate();
@@ -190,6 +193,12 @@ void add_bench_command(CLI::App& app) {
       ->check(CLI::PositiveNumber);
   sub->add_option("--duration", opts->duration_s, "simulated time of the palpation scene, s (press half, lift half)")
       ->check(CLI::Range(0.02, 10.0));
+  sub->add_option("--element", opts->element,
+                  "the element of every model: hourglass (default) or paper (the paper's element, for comparison)")
+      ->check(CLI::IsMember({"hourglass", "paper"}));
+  sub->add_option("--reference-element", opts->reference_element,
+                  "the element of part B's reference (default: that of --element)")
+      ->check(CLI::IsMember({"hourglass", "paper"}));
   sub->add_flag("--skip-step", opts->skip_step, "skip the step benchmark (part A)");
   sub->add_flag("--skip-palpation", opts->skip_palpation, "skip run time against error (part B)");
   sub->add_option("--haptic", opts->haptic,

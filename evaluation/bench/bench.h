@@ -22,6 +22,7 @@
 #include <functional>
 #include <limits>
 #include <nlohmann/json_fwd.hpp>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -45,6 +46,7 @@ struct PalpationSceneSettings {
   double press_s{0.15};
   double duration_s{0.3};
   Material material{5.0, 1000.0, 0.1, 0.0};  ///< soft tissue, E = 5 kPa, damping ratio 0.1
+  ElementKind element{CalibrationOptions{}.element};  ///< the element of every model (physics_model.h)
   double force_interval_s{2e-3};            ///< force curve sampling (rows average the steps between them)
 };
 
@@ -148,6 +150,8 @@ struct BenchSettings {
   int implicit_iterations{10};
   int reference_size{48};                           ///< the reference: voxel-level at this size...
   double reference_fraction{0.25};                  ///< ...symplectic Euler at this fraction of its estimate
+  /// ...with this element (unset: scene.element, the runs' element)
+  std::optional<ElementKind> reference_element;
   double max_run_s{90.0};                           ///< runs predicted longer than this are skipped (noted)
   std::function<void(const std::string&)> log;      ///< progress lines (may be empty)
 

@@ -39,7 +39,8 @@ json palpation_scene_json(const PalpationSceneSettings& s, int n, Layout layout,
   j["material"] = {{"youngs_modulus_kpa", s.material.youngs_modulus_kpa},
                    {"poisson_ratio", s.material.poisson_ratio},
                    {"density_kg_m3", s.material.density_kg_m3},
-                   {"damping", s.material.damping_ratio}};
+                   {"damping", s.material.damping_ratio},
+                   {"element", to_string(s.element)}};
   j["fixed"] = {"z_min"};
   j["integrator"] = {{"type", to_string(integrator)}, {"dt_s", time_step_s > 0 ? json(time_step_s) : json("auto")}};
   j["probes"] = json::array({{{"name", "tip"},
@@ -188,7 +189,9 @@ class RunProgress {
 /// stable step, no time budget) into res.reference; throws vx::Error when it fails.
 void run_reference(const BenchSettings& set, BenchResult& res, const Log& log, RunProgress& progress) {
   const Clock::time_point t = Clock::now();
-  const PreparedScene p = prepare_palpation(set, set.reference_size, Layout::voxel);
+  BenchSettings with_element = set;
+  if (set.reference_element) with_element.scene.element = *set.reference_element;
+  const PreparedScene p = prepare_palpation(with_element, set.reference_size, Layout::voxel);
   const double build_s = seconds_since(t);
   const TimeStepEstimate est = estimate_time_steps(*p.physics);
   BenchRow& ref = res.reference;
@@ -197,9 +200,10 @@ void run_reference(const BenchSettings& set, BenchResult& res, const Log& log, R
   ref.dt_stable_estimate_s = est.limit(ref.integrator);
   ref.dt_fraction = set.reference_fraction;
   ref.time_step_s = set.reference_fraction * ref.dt_stable_estimate_s;
-  log(fmt::format("[bench] reference: voxel-level model of {} voxels across ({} elements, {} vertex entries), "
-                  "symplectic Euler at {:.2e} s",
-                  set.reference_size, ref.elements, ref.vertex_entries, ref.time_step_s));
+  log(fmt::format("[bench] reference: voxel-level model of {} voxels across ({} elements, {} vertex entries, {} "
+                  "element), symplectic Euler at {:.2e} s",
+                  set.reference_size, ref.elements, ref.vertex_entries, to_string(with_element.scene.element),
+                  ref.time_step_s));
   BenchSettings unlimited = set;
   unlimited.max_run_s = std::numeric_limits<double>::infinity();  // the reference must run
   run_palpation(p, unlimited, ref.integrator, ref.time_step_s, ref);

@@ -104,8 +104,10 @@ json step_row_json(const StepBenchmarkRow& r) {
 }
 
 /// The scene that re-runs a row with `voxelastic simulate`.
-json row_scene(const BenchSettings& s, const BenchRow& r) {
-  return palpation_scene_json(s.scene, r.size, r.layout, r.integrator, r.time_step_s, r.threads);
+json row_scene(const BenchSettings& s, const BenchRow& r, bool reference = false) {
+  PalpationSceneSettings scene = s.scene;
+  if (reference && s.reference_element) scene.element = *s.reference_element;
+  return palpation_scene_json(scene, r.size, r.layout, r.integrator, r.time_step_s, r.threads);
 }
 
 std::string sps(double v) { return std::isfinite(v) ? fmt::format("{:.3g}", v) : std::string("-"); }
@@ -193,6 +195,8 @@ json bench_json(const BenchResult& res) {
                   {"youngs_modulus_kpa", sc.material.youngs_modulus_kpa},
                   {"density_kg_m3", sc.material.density_kg_m3},
                   {"damping", sc.material.damping_ratio},
+                  {"element", to_string(sc.element)},
+                  {"reference_element", to_string(s.reference_element.value_or(sc.element))},
                   {"force_interval_s", sc.force_interval_s},
                   {"force", "z component of the tissue's force on the probe (N, +z up), rows averaged over the steps "
                             "between them"},
@@ -204,7 +208,7 @@ json bench_json(const BenchResult& res) {
     j["implicit_iterations"] = s.implicit_iterations;
     j["max_run_s"] = s.max_run_s;
     json ref = row_json(res.reference);
-    ref["scene"] = row_scene(s, res.reference);
+    ref["scene"] = row_scene(s, res.reference, true);
     ref["curve"] = {{"time_s", res.reference.curve.time_s}, {"force_n", res.reference.curve.force_n}};
     j["reference"] = ref;
     json rows = json::array();
@@ -364,7 +368,7 @@ std::vector<std::string> write_bench_report(const BenchResult& res, const fs::pa
       names.push_back("bench_cost.png");
       bench_parts::plot_curves(res, staging / "bench_curves.png");
       names.push_back("bench_curves.png");
-      write_text_atomically(staging / "reference_scene.json", row_scene(res.settings, res.reference).dump(2) + "\n");
+      write_text_atomically(staging / "reference_scene.json", row_scene(res.settings, res.reference, true).dump(2) + "\n");
       names.push_back("reference_scene.json");
       if (res.best >= 0) {
         write_text_atomically(staging / "best_scene.json",

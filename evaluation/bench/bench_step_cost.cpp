@@ -25,6 +25,7 @@ void run_step_cost(const BenchSettings& set, BenchResult& res, const Log& log) {
     ++k;
     StepBenchmarkSettings ss;
     ss.layout = p.r;
+    ss.element = set.scene.element;
     ss.threads = set.threads;
     ss.min_time_s = set.step_min_time_s;
     ss.implicit_max_size = p.implicit_max;

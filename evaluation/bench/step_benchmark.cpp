@@ -39,7 +39,9 @@ std::vector<StepBenchmarkRow> run_step_benchmark(const StepBenchmarkSettings& se
     BuildSettings bs;
     bs.layout = set.layout;
     auto model = std::make_shared<const Model>(build_model(make_sphere_grid(n, set.voxel_mm), bs));
-    auto physics = make_physics_model(model, set.material);
+    CalibrationOptions calibration;
+    calibration.element = set.element;
+    auto physics = make_physics_model(model, set.material, {}, calibration);
     const double build_s = seconds_since(t0);
     log("sphere " + std::to_string(n) + ": " + std::to_string(model->num_elements()) + " elements, " +
         std::to_string(model->num_vertex_entries()) + " vertex entries, built in " + std::to_string(build_s) + " s");

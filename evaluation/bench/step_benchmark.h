@@ -30,6 +30,7 @@ struct StepBenchmarkSettings {
                                           IntegratorKind::implicit};
   Layout layout{Layout::gradational};
   Material material{5.0, 1000.0, 0.1, 0.0};  ///< soft tissue, E = 5 kPa
+  ElementKind element{CalibrationOptions{}.element};  ///< the element (physics_model.h)
   double voxel_mm{1.0};
   int threads{0};                ///< 0: OpenMP default
   double min_time_s{0.5};        ///< time each case at least this long

@@ -2,6 +2,7 @@
 // (the gradational model of a ball of radius n/2 - 1 voxels, lowest cap fixed, under gravity).
 // Counters: ns per element and per vertex entry, threads, model size, real-time factor.
 // element_pass/<kernel>/n: the element pass alone with each kernel, side by side.
+// element/<pass or step>/<element>/n: the paper's element against the hourglass one.
 //   voxelastic_bench_step [--benchmark_filter=...]   (OMP_NUM_THREADS sets the threads)
 // Targets (issue): explicit step of the 128^3 sphere (~19k elements, ~270k entries) < 1 ms on
 // 2 cores; ns/entry flat from 32^3 to 256^3; implicit 128^3 at dt = 1 ms in real time.
@@ -23,14 +24,16 @@ namespace {
 
 using namespace vx;
 
-/// Calibrated sphere models, built once per size.
-const std::shared_ptr<const PhysicsModel>& sphere(int n) {
-  static std::map<int, std::shared_ptr<const PhysicsModel>> cache;
-  auto it = cache.find(n);
+/// Calibrated sphere models, built once per size and element.
+const std::shared_ptr<const PhysicsModel>& sphere(int n, ElementKind element = CalibrationOptions{}.element) {
+  static std::map<std::pair<int, ElementKind>, std::shared_ptr<const PhysicsModel>> cache;
+  auto it = cache.find({n, element});
   if (it == cache.end()) {
     const StepBenchmarkSettings defaults;
     auto model = std::make_shared<const Model>(build_model(make_sphere_grid(n)));
-    it = cache.emplace(n, make_physics_model(model, defaults.material)).first;
+    CalibrationOptions opt;
+    opt.element = element;
+    it = cache.emplace(std::make_pair(n, element), make_physics_model(model, defaults.material, {}, opt)).first;
   }
   return it->second;
 }
@@ -55,8 +58,8 @@ void size_counters(benchmark::State& bs, const Model& model, double ns) {
   bs.counters["ns_per_entry"] = ns / double(model.num_vertex_entries());
 }
 
-void step(benchmark::State& bs, IntegratorKind kind, int n) {
-  const auto& physics = sphere(n);
+void step(benchmark::State& bs, IntegratorKind kind, int n, ElementKind element = CalibrationOptions{}.element) {
+  const auto& physics = sphere(n, element);
   const Model& model = *physics->model;
   SimState s = sphere_state(physics);
   IntegratorSettings is;
@@ -88,8 +91,9 @@ void step(benchmark::State& bs, IntegratorKind kind, int n) {
 
 /// The element pass alone (elastic and damping forces of every element, as in an explicit
 /// step), with the given kernel: the packed kernel against the reference side by side.
-void element_pass(benchmark::State& bs, ElementKernel kernel, SimdLevel simd, int n) {
-  const auto& physics = sphere(n);
+void element_pass(benchmark::State& bs, ElementKernel kernel, SimdLevel simd, int n,
+                  ElementKind element = CalibrationOptions{}.element) {
+  const auto& physics = sphere(n, element);
   const Model& model = *physics->model;
   SimState s = sphere_state(physics);
   IntegratorSettings is;
@@ -154,6 +158,22 @@ int main(int argc, char** argv) {
           ->Unit(benchmark::kMillisecond)
           ->UseRealTime()
           ->MinTime(0.5);
+    }
+  // the paper's element against the hourglass one (element_modes.h): the element pass with the
+  // packed kernel and the batched one (the widest instruction set), and a symplectic step,
+  // interleaved per size
+  for (int n : {32, 64, 128, 256})
+    for (const ElementKind element : {ElementKind::paper, ElementKind::hourglass}) {
+      const std::string tail = std::string("/") + to_string(element) + "/" + std::to_string(n);
+      benchmark::RegisterBenchmark(("element/packed" + tail).c_str(), [element, n](benchmark::State& bs) {
+        element_pass(bs, ElementKernel::packed, SimdLevel::automatic, n, element);
+      })->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(0.5);
+      benchmark::RegisterBenchmark(("element/batched" + tail).c_str(), [element, n](benchmark::State& bs) {
+        element_pass(bs, ElementKernel::batched, SimdLevel::automatic, n, element);
+      })->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(0.5);
+      benchmark::RegisterBenchmark(("element/step_symplectic" + tail).c_str(), [element, n](benchmark::State& bs) {
+        step(bs, IntegratorKind::symplectic_euler, n, element);
+      })->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(0.5);
     }
   benchmark::Initialize(&argc, argv);
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;

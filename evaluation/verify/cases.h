@@ -23,9 +23,11 @@ void run_geometry(VerifyContext& ctx);
 /// Plate compression of a cube in layout `r`: E measured within `tolerance` (a ratio).
 void run_compression(VerifyContext& ctx, Layout r, double tolerance);
 /// Hertz indentation on layout `r` at the voxel sizes `voxels_mm` (coarse to fine): the modulus
-/// and exponent checked at the finest; with two sizes or more, the modulus error must not grow.
+/// (at the finest and at every size of 0.5 mm or less) and the exponent (at the finest); with two
+/// sizes or more, the modulus error must not grow; `against_voxel_layout`: the modulus must come
+/// closer to the voxel layout's (1 mm) with every halving and end within 3 % of it.
 void run_hertz(VerifyContext& ctx, Layout r, const std::vector<double>& voxels_mm, double modulus_tolerance,
-               double exponent_tolerance);
+               double exponent_tolerance, bool against_voxel_layout = false);
 /// A cantilever under its own weight at the voxel sizes `voxels_mm`: convergence, and the finest
 /// within `tolerance` of beam theory.
 void run_cantilever(VerifyContext& ctx, Layout r, const std::vector<double>& voxels_mm, double tolerance);

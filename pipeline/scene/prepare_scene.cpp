@@ -85,6 +85,7 @@ std::optional<Volume> build_object(const Scene& scene, PreparedScene& out) {
 void calibrate_material(const Scene& scene, const Volume* volume, PreparedScene& out) {
   const MaterialField field = material_field(*out.model, scene.material, volume);
   CalibrationOptions calibration;
+  calibration.element = scene.material.element;
   calibration.mass_scaling = scene.material.mass_scaling;
   out.physics = make_physics_model(out.model, scene.material.base, field, calibration);
   if (scene.material.mass_scaling.active())

@@ -155,6 +155,7 @@ json run_summary_json(const Scene& scene, const fs::path& scene_file, const Prep
                    {"poisson_ratio", scene.material.base.poisson_ratio},
                    {"density_kg_m3", scene.material.base.density_kg_m3},
                    {"damping", scene.material.base.damping_ratio},
+                   {"element", to_string(scene.material.element)},
                    {"element_modulus_kpa", {{"min", prepared.min_modulus_kpa}, {"max", prepared.max_modulus_kpa}}},
                    {"heterogeneous_elements", prepared.heterogeneous_elements}};
   json probes = json::array();

@@ -167,6 +167,16 @@ SceneMaterial read_material(const Obj& o, ObjectSource source) {
                       b.density_kg_m3));
   require(b.density_kg_m3 <= 25000, o.at_where("density_kg_m3"),
           fmt::format("{} kg/m^3 is denser than any material; the unit is kg/m^3", b.density_kg_m3));
+  if (o.has("element")) {
+    const std::string e = o.string("element", to_string(m.element));
+    try {
+      m.element = element_kind_from_string(e);
+    } catch (const Error&) {
+      o.at_where("element").fail("unknown element \"" + e +
+                                 "\"; use hourglass (the default: bending modes at linear elasticity's stiffness) or "
+                                 "paper (the paper's element, stiffer in bending)");
+    }
+  }
   b.damping_ratio = o.number("damping", b.damping_ratio);
   require(b.damping_ratio >= 0 && b.damping_ratio <= 10, o.at_where("damping"),
           fmt::format("must be in [0, 10] (got {}): a ratio of each element's critical damping (e.g. 0.1)",
@@ -456,7 +466,7 @@ Scene parse_scene(const json& j, const fs::path& base, const std::string& name) 
                          base);
   if (o.has("material"))
     s.material = read_material(Obj(o.at("material"), o.at_where("material"),
-                                   {"youngs_modulus_kpa", "poisson_ratio", "density_kg_m3", "damping",
+                                   {"youngs_modulus_kpa", "poisson_ratio", "density_kg_m3", "damping", "element",
                                     "mass_scaling", "hounsfield_table", "inclusions"}),
                                s.object.source);
   if (o.has("fixed")) s.fixed = read_fixed(o.at("fixed"), o.at_where("fixed"));

@@ -74,6 +74,7 @@ struct Inclusion {
 /// The `material` of a scene.
 struct SceneMaterial {
   Material base;                          ///< homogeneous part
+  ElementKind element{CalibrationOptions{}.element};  ///< "element": hourglass (default) or paper
   MassScaling mass_scaling;               ///< `mass_scaling`: none by default (docs/model.md section 6)
   std::vector<HuModulus> hounsfield;      ///< optional: modulus per voxel from its HU (piecewise linear)
   std::vector<Inclusion> inclusions;      ///< optional: spheres with their own modulus

@@ -53,6 +53,7 @@ void build_element_batches(const PhysicsModel& p, std::int64_t window, ElementBa
       bt.first_row = std::int32_t(out.rows.size());
       for (int r = 0; r < bt.rows; ++r) {
         BatchRow row{};
+        ModeRow mrow{};
         for (int l = 0; l < kBatchLanes; ++l) {
           const std::int32_t b = m.element_offsets[std::size_t(src[l])];
           row.slot[l] = -1;
@@ -66,8 +67,11 @@ void build_element_batches(const PhysicsModel& p, std::int64_t window, ElementBa
           row.weight[l] = p.entry_weight[j];
           row.vertex[l] = m.element_vertices[j];
           if (l < lanes) row.slot[l] = p.entry_slot[j];
+          if (p.has_bending_modes())
+            for (int d = 0; d < kBendingModes; ++d) mrow.mode[d][l] = p.entry_modes(d, std::int64_t(j));
         }
         out.rows.push_back(row);
+        if (p.has_bending_modes()) out.mode_rows.push_back(mrow);
       }
       out.batches.push_back(bt);
     }
@@ -158,9 +162,9 @@ VX_INLINE FitProbe probe_fit(const Mat3& an, d4 qx, d4 qy, d4 qz, d4 qw) {
 }
 
 /// One batch: the packed kernel's arithmetic (elements.cpp) with one element per lane.
-template <bool kDamping>
-VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const double* xs, const double* vs,
-                            Eigen::Quaterniond* rot, double* ef, const RotationFitSettings& fit,
+template <bool kDamping, bool kModes>
+VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const ModeRow* mrows, const double* xs,
+                            const double* vs, Eigen::Quaterniond* rot, double* ef, const RotationFitSettings& fit,
                             ElementPassStats& st) {
   const int nr = bt.rows;
   d4 ys[kBatchMaxRows][3];                      // positions relative to each lane's first node
@@ -186,8 +190,10 @@ VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const 
     a10 += yy * c0; a11 += yy * c1; a12 += yy * c2;
     a20 += yz * c0; a21 += yz * c1; a22 += yz * c2;
   }
-  // the consistent deformation gradient F = sum y g^T (sum g = 0)
+  // the consistent deformation gradient F = sum y g^T (sum g = 0), and (hourglass element)
+  // the bending modes' amplitudes qm = sum y h^T (sum h = 0) in the same loop
   d4 f00{}, f01{}, f02{}, f10{}, f11{}, f12{}, f20{}, f21{}, f22{};
+  d4 qm[3][kBendingModes] = {};
   for (int r = 0; r < nr; ++r) {
     const BatchRow& row = rows[r];
     const d4 yx = ys[r][0], yy = ys[r][1], yz = ys[r][2];
@@ -195,6 +201,15 @@ VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const 
     f00 += yx * g0; f01 += yx * g1; f02 += yx * g2;
     f10 += yy * g0; f11 += yy * g1; f12 += yy * g2;
     f20 += yz * g0; f21 += yz * g1; f22 += yz * g2;
+    if constexpr (kModes) {
+      const ModeRow& mr = mrows[r];
+      for (int p = 0; p < kBendingModes; ++p) {
+        const d4 h = load(mr.mode[p]);
+        qm[0][p] += yx * h;
+        qm[1][p] += yy * h;
+        qm[2][p] += yz * h;
+      }
+    }
   }
   // the sums of the rigid velocity fit (damping)
   RigidSums<d4> rs;
@@ -344,6 +359,19 @@ VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const 
     o0 += gm[0] * g0 + gm[1] * g1 + gm[2] * g2;
     o1 += gm[3] * g0 + gm[4] * g1 + gm[5] * g2;
     o2 += gm[6] * g0 + gm[7] * g1 + gm[8] * g2;
+    if constexpr (kModes) {
+      const ModeRow& mr = mrows[r];
+      d4 m0{}, m1{}, m2{};
+      for (int p = 0; p < kBendingModes; ++p) {
+        const d4 h = load(mr.mode[p]);
+        m0 += qm[0][p] * h;
+        m1 += qm[1][p] * h;
+        m2 += qm[2][p] * h;
+      }
+      o0 += m0;
+      o1 += m1;
+      o2 += m2;
+    }
     if constexpr (kDamping) {
       const d4 cw = cd * w;
       o0 += cw * (ux + wy * rz - wz * ry - vel[r][0]);
@@ -364,12 +392,13 @@ VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const 
 /// nodes and force slots as well was slower (measured: those lines are mostly cached already).
 constexpr int kPrefetchRows = 8;
 
-template <bool kDamping>
+template <bool kDamping, bool kModes>
 VX_INLINE void batch_range(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot,
                            double* ef, std::int64_t b0, std::int64_t b1, const RotationFitSettings& fit,
                            ElementPassStats& st) {
   const ElementBatch* batches = phys.element_batches.batches.data();
   const BatchRow* rows = phys.element_batches.rows.data();
+  const ModeRow* mrows = phys.element_batches.mode_rows.data();
   for (std::int64_t b = b0; b < b1; ++b) {
     if (b + kPrefetchRows < b1) {  // the rows of a batch further ahead (a stream the hardware
                                    // prefetcher follows too late between the gathers)
@@ -377,9 +406,15 @@ VX_INLINE void batch_range(const PhysicsModel& phys, const double* xs, const dou
       const char* p0 = reinterpret_cast<const char*>(rows + far.first_row);
       const char* p1 = reinterpret_cast<const char*>(rows + far.first_row + far.rows);
       for (; p0 < p1; p0 += 64) __builtin_prefetch(p0, 0);
+      if constexpr (kModes) {
+        const char* m0 = reinterpret_cast<const char*>(mrows + far.first_row);
+        const char* m1 = reinterpret_cast<const char*>(mrows + far.first_row + far.rows);
+        for (; m0 < m1; m0 += 64) __builtin_prefetch(m0, 0);
+      }
       __builtin_prefetch(&batches[b + kPrefetchRows + 1], 0);
     }
-    batch_forces<kDamping>(batches[b], rows + batches[b].first_row, xs, vs, rot, ef, fit, st);
+    batch_forces<kDamping, kModes>(batches[b], rows + batches[b].first_row,
+                                   kModes ? mrows + batches[b].first_row : nullptr, xs, vs, rot, ef, fit, st);
   }
 }
 
@@ -391,10 +426,15 @@ VX_INLINE void batch_range(const PhysicsModel& phys, const double* xs, const dou
   attributes void name(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot, \
                        double* ef, std::int64_t b0, std::int64_t b1, const RotationFitSettings& fit,          \
                        bool damping, ElementPassStats& st) {                                                 \
-    if (damping)                                                                                             \
-      batch_range<true>(phys, xs, vs, rot, ef, b0, b1, fit, st);                                             \
+    const bool modes = !phys.element_batches.mode_rows.empty();                                              \
+    if (damping && modes)                                                                                    \
+      batch_range<true, true>(phys, xs, vs, rot, ef, b0, b1, fit, st);                                       \
+    else if (damping)                                                                                        \
+      batch_range<true, false>(phys, xs, vs, rot, ef, b0, b1, fit, st);                                      \
+    else if (modes)                                                                                          \
+      batch_range<false, true>(phys, xs, vs, rot, ef, b0, b1, fit, st);                                      \
     else                                                                                                     \
-      batch_range<false>(phys, xs, vs, rot, ef, b0, b1, fit, st);                                            \
+      batch_range<false, false>(phys, xs, vs, rot, ef, b0, b1, fit, st);                                     \
   }
 
 namespace {

@@ -22,6 +22,8 @@
 #include <cstdint>
 #include <vector>
 
+#include "physics/element_modes.h"
+
 namespace vx {
 
 struct PhysicsModel;
@@ -43,6 +45,13 @@ struct alignas(64) BatchRow {
 };
 static_assert(sizeof(BatchRow) == 256);
 
+/// Row r of a batch's bending-mode weights (hourglass element, element_modes.h), parallel to
+/// its BatchRow: h_pr per mode p and lane (0 in padding).
+struct alignas(64) ModeRow {
+  double mode[kBendingModes][kBatchLanes];  ///< sqrt(N/mm)
+};
+static_assert(sizeof(ModeRow) == 128);
+
 /// The per-element constants of one batch, per lane.
 struct alignas(64) ElementBatch {
   double stiffness[kBatchLanes];         ///< k_e, N/mm
@@ -59,6 +68,8 @@ struct alignas(64) ElementBatch {
 struct ElementBatches {
   std::vector<ElementBatch> batches;
   std::vector<BatchRow> rows;
+  /// the bending-mode weights of every row (parallel to rows); empty for the paper's element
+  std::vector<ModeRow> mode_rows;
   /// Batches of window w (elements [w kElementGrain, (w+1) kElementGrain)):
   /// [window_offsets[w], window_offsets[w+1]).
   std::vector<std::int32_t> window_offsets;

@@ -253,7 +253,19 @@ struct ElementMatrices {
   }
 };
 
-template <bool kDamping, bool kEnergy, bool kVolume>
+/// The bending modes' amplitudes qm = sum_i y_i h_i^T (3 x kBendingModes) of one element's
+/// entries [b, b + n) (y: positions relative to x0; sum h = 0), and their force sum_p qm_p h_pi.
+inline Eigen::Matrix<double, 3, kBendingModes> mode_amplitudes(const PhysicsModel& phys, const double* xs,
+                                                               const std::int32_t* vert, int b, int n,
+                                                               const Eigen::Vector3d& x0) {
+  Eigen::Matrix<double, 3, kBendingModes> qm = Eigen::Matrix<double, 3, kBendingModes>::Zero();
+  for (int j = b; j < b + n; ++j)
+    qm.noalias() += (Eigen::Map<const Eigen::Vector3d>(xs + 3 * std::int64_t(vert[j])) - x0) *
+                    phys.entry_modes.col(j).transpose();
+  return qm;
+}
+
+template <bool kDamping, bool kEnergy, bool kVolume, bool kModes>
 void element_range_reference(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot,
                    double* ef, double* energy_out, std::int64_t e0, std::int64_t e1,
                    const RotationFitSettings& fit, ElementPassStats& st) {
@@ -324,6 +336,15 @@ void element_range_reference(const PhysicsModel& phys, const double* xs, const d
         out[2] = m20 * r0[0] + m21 * r0[1] + m22 * r0[2] - kw * (xp[2] - cz);
       }
     }
+    // pass 2c: the bending modes' relief, f += sum_p qm_p h_p
+    Eigen::Matrix<double, 3, kBendingModes> qm;
+    if constexpr (kModes) {
+      qm = mode_amplitudes(phys, xs, vert, b, n, Eigen::Vector3d(ox, oy, oz));
+      for (int j = b; j < b + n; ++j) {
+        double* out = ef + 3 * std::int64_t(slot[j]);
+        Eigen::Map<Eigen::Vector3d>(out) += qm * phys.entry_modes.col(j);
+      }
+    }
     // pass 2b: f += G g
     {
       const double g00 = gm(0, 0), g01 = gm(0, 1), g02 = gm(0, 2), g10 = gm(1, 0), g11 = gm(1, 1),
@@ -371,6 +392,7 @@ void element_range_reference(const PhysicsModel& phys, const double* xs, const d
         en += 0.5 * k * wts[j] * (fg * rr - r).squaredNorm();
         if constexpr (kVolume) en += 0.5 * wv * wts[j] * (t * rr - r).squaredNorm();
       }
+      if constexpr (kModes) en -= 0.5 * qm.squaredNorm();
       energy_out[e] = en;
       st.elastic_energy += en;
     }
@@ -394,7 +416,7 @@ using Row6 = Eigen::Array<double, 6, 1>;
 /// waits on memory (the scattered writes into the node-major force buffer, the five streams of
 /// constants); 0.92-0.96x on 32^3 and 64^3, where both are bound by arithmetic. The software
 /// prefetches ahead of the current element: about 15 % on 256^3, within the noise below.
-template <bool kDamping, bool kEnergy, bool kVolume>
+template <bool kDamping, bool kEnergy, bool kVolume, bool kModes>
 void element_range_packed(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot,
                           double* ef, double* energy_out, std::int64_t e0, std::int64_t e1,
                           const RotationFitSettings& fit, ElementPassStats& st) {
@@ -464,6 +486,9 @@ void element_range_packed(const PhysicsModel& phys, const double* xs, const doub
     const ElementMatrices<kVolume> em(phys, e, a, fg, rot[e], fit, st);
     const Eigen::Matrix3d &q = em.q, &gm = em.gm, &mq = em.mq, &t = em.t;
     const double k = em.k, ktot = em.ktot, wv = em.wv;
+    // the bending modes' amplitudes (a loop of its own: a separate stream of constants)
+    Eigen::Matrix<double, 3, kBendingModes> qm;
+    if constexpr (kModes) qm = mode_amplitudes(phys, xs, m.element_vertices.data(), b, n, Eigen::Vector3d(ox, oy, oz));
     // the rigid velocity fit about the centroid (damping)
     double cd = 0, wx = 0, wy = 0, wz = 0, ux = 0, uy = 0, uz = 0;
     if constexpr (kDamping) {
@@ -494,6 +519,12 @@ void element_range_packed(const PhysicsModel& phys, const double* xs, const doub
         o0 += g00 * g[0] + g01 * g[1] + g02 * g[2];
         o1 += g10 * g[0] + g11 * g[1] + g12 * g[2];
         o2 += g20 * g[0] + g21 * g[1] + g22 * g[2];
+        if constexpr (kModes) {
+          const Eigen::Vector3d fm = qm * phys.entry_modes.col(b + j);
+          o0 += fm.x();
+          o1 += fm.y();
+          o2 += fm.z();
+        }
         if constexpr (kDamping) {
           const double* vp = vs + 3 * std::int64_t(en.vertex);
           const double cw = cd * en.weight;
@@ -516,6 +547,7 @@ void element_range_packed(const PhysicsModel& phys, const double* xs, const doub
         en += 0.5 * k * pe[j].weight * (fg * rr - r).squaredNorm();
         if constexpr (kVolume) en += 0.5 * wv * pe[j].weight * (t * rr - r).squaredNorm();
       }
+      if constexpr (kModes) en -= 0.5 * qm.squaredNorm();
       energy_out[e] = en;
       st.elastic_energy += en;
     }
@@ -525,28 +557,33 @@ void element_range_packed(const PhysicsModel& phys, const double* xs, const doub
 using RangeFn = void (*)(const PhysicsModel&, const double*, const double*, Eigen::Quaterniond*, double*, double*,
                          std::int64_t, std::int64_t, const RotationFitSettings&, ElementPassStats&);
 
-template <template <bool, bool, bool> class Kernel>
+template <template <bool, bool, bool, bool> class Kernel, bool kModes>
 RangeFn pick_range(bool damping, bool energy, bool volume) {
   const int key = (damping ? 1 : 0) | (energy ? 2 : 0) | (volume ? 4 : 0);
   switch (key) {
-    case 0: return Kernel<false, false, false>::run;
-    case 1: return Kernel<true, false, false>::run;
-    case 2: return Kernel<false, true, false>::run;
-    case 3: return Kernel<true, true, false>::run;
-    case 4: return Kernel<false, false, true>::run;
-    case 5: return Kernel<true, false, true>::run;
-    case 6: return Kernel<false, true, true>::run;
-    default: return Kernel<true, true, true>::run;
+    case 0: return Kernel<false, false, false, kModes>::run;
+    case 1: return Kernel<true, false, false, kModes>::run;
+    case 2: return Kernel<false, true, false, kModes>::run;
+    case 3: return Kernel<true, true, false, kModes>::run;
+    case 4: return Kernel<false, false, true, kModes>::run;
+    case 5: return Kernel<true, false, true, kModes>::run;
+    case 6: return Kernel<false, true, true, kModes>::run;
+    default: return Kernel<true, true, true, kModes>::run;
   }
 }
 
-template <bool kDamping, bool kEnergy, bool kVolume>
+template <template <bool, bool, bool, bool> class Kernel>
+RangeFn pick_range(bool damping, bool energy, bool volume, bool modes) {
+  return modes ? pick_range<Kernel, true>(damping, energy, volume) : pick_range<Kernel, false>(damping, energy, volume);
+}
+
+template <bool kDamping, bool kEnergy, bool kVolume, bool kModes>
 struct ReferenceKernel {
-  static constexpr RangeFn run = &element_range_reference<kDamping, kEnergy, kVolume>;
+  static constexpr RangeFn run = &element_range_reference<kDamping, kEnergy, kVolume, kModes>;
 };
-template <bool kDamping, bool kEnergy, bool kVolume>
+template <bool kDamping, bool kEnergy, bool kVolume, bool kModes>
 struct PackedKernel {
-  static constexpr RangeFn run = &element_range_packed<kDamping, kEnergy, kVolume>;
+  static constexpr RangeFn run = &element_range_packed<kDamping, kEnergy, kVolume, kModes>;
 };
 
 }  // namespace
@@ -570,13 +607,14 @@ ElementPassStats compute_element_forces(const PhysicsModel& phys, const Eigen::M
   const bool packed = options.kernel != ElementKernel::reference &&
                       std::int64_t(phys.entry_packed.size()) == phys.num_vertex_entries();
   const ElementBatches& eb = phys.element_batches;
+  const bool modes = phys.has_bending_modes();
   // automatic on a CPU without AVX2: the packed kernel (the batched one on two-lane SSE2 is
   // slower once the model leaves the cache: element_pass benchmark, batched_generic)
   const bool vector_unit = options.simd != SimdLevel::automatic || best_simd_level() != SimdLevel::generic;
   const bool batched = packed && options.kernel == ElementKernel::batched && vector_unit && !energy &&
                        !phys.has_volume_term() && std::int64_t(eb.window_offsets.size()) == chunks + 1;
-  const RangeFn fn = packed ? pick_range<PackedKernel>(damping, energy, phys.has_volume_term())
-                            : pick_range<ReferenceKernel>(damping, energy, phys.has_volume_term());
+  const RangeFn fn = packed ? pick_range<PackedKernel>(damping, energy, phys.has_volume_term(), modes)
+                            : pick_range<ReferenceKernel>(damping, energy, phys.has_volume_term(), modes);
   const double* xs = positions.data();
   const double* vs = damping ? velocities->data() : nullptr;
   Eigen::Quaterniond* rot = rotations.data();
@@ -610,7 +648,7 @@ void gather_node_forces(const PhysicsModel& phys, const Eigen::Matrix3Xd& entry_
   });
 }
 
-void element_elastic_matrix(const PhysicsModel& phys, int e, Eigen::MatrixXd& k) {
+void element_elastic_matrix(const PhysicsModel& phys, int e, Eigen::MatrixXd& k, bool relieved) {
   const Model& m = *phys.model;
   const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
   const auto g = phys.entry_gradient.middleCols(b, n);
@@ -621,6 +659,10 @@ void element_elastic_matrix(const PhysicsModel& phys, int e, Eigen::MatrixXd& k)
   p.diagonal().array() += 1.0;
   k.noalias() = phys.element_affine_stiffness[std::size_t(e)] * (g.transpose() * g);
   k.noalias() += phys.element_stiffness[std::size_t(e)] * (p.transpose() * w.asDiagonal() * p);
+  if (relieved && phys.has_bending_modes()) {
+    const auto h = phys.entry_modes.middleCols(b, n);
+    k.noalias() -= h.transpose() * h;
+  }
 }
 
 double element_energy(const PhysicsModel& phys, int e, const Eigen::Matrix3Xd& x, Eigen::Quaterniond& q,
@@ -646,6 +688,11 @@ double element_energy(const PhysicsModel& phys, int e, const Eigen::Matrix3Xd& x
   for (int j = b; j < b + n; ++j)
     en += 0.5 * phys.element_stiffness[e] * phys.entry_weight[j] *
           (fg * phys.entry_rest.col(j) - (x.col(m.element_vertices[j]) - c)).squaredNorm();
+  if (phys.has_bending_modes()) {
+    Eigen::Matrix<double, 3, kBendingModes> qm = Eigen::Matrix<double, 3, kBendingModes>::Zero();
+    for (int j = b; j < b + n; ++j) qm += (x.col(m.element_vertices[j]) - c) * phys.entry_modes.col(j).transpose();
+    en -= 0.5 * qm.squaredNorm();
+  }
   if (phys.has_volume_term()) {
     const Eigen::Matrix3d& ninv = phys.element_spread_inv_sqrt[e];
     Eigen::Quaterniond qv = q;

@@ -16,6 +16,11 @@
 ///                                                 because Q is optimal (envelope theorem)
 /// For an 8-vertex cube F = A C0^{-1} and 2 mu V = k S / 3, and this is exactly the paper's
 /// shape-keeping element: E = k/2 sum_i w_i |r_i - Q R0_i|^2, f_i = k w_i (Q R0_i - r_i).
+/// The hourglass element (ElementKind::hourglass, the default; element_modes.h) adds
+///   E  -= 1/2 sum_p |qm_p|^2,  qm_p = sum_i h_pi x_i,   f_i += sum_p qm_p h_pi
+/// with the relief weights h_pi = sqrt(beta_p k) w_i gamma_pi of its bending (hourglass)
+/// patterns gamma_p, orthogonal to the affine motions: its affine response (and everything
+/// above under affine motion) is the paper's, its bending modes get linear elasticity's energy.
 /// The split (affine part on the consistent F, the rest on the vertex fit) only differs where
 /// an element carries its smaller neighbours' nodes, and there it makes a uniform strain an
 /// equilibrium of the whole model (material.h, element_gradient.h).
@@ -149,8 +154,10 @@ void gather_node_forces(const PhysicsModel& physics, const Eigen::Matrix3Xd& ent
 ///   K_ij = 2 mu V g_i . g_j + k sum_l w_l P_li P_lj,  P_lj = delta_lj - w_j / W - R0_l . g_j
 /// (the affine part mu V |F|^2 and the non-affine part k/2 sum_l w_l |r_l - F R0_l|^2). It is
 /// the projective-dynamics system matrix of the element and the Hessian at rest less the
-/// rotation's curvature; rows sum to zero (translations cost nothing).
-void element_elastic_matrix(const PhysicsModel& physics, int element, Eigen::MatrixXd& k);
+/// rotation's curvature; rows sum to zero (translations cost nothing). The hourglass element
+/// (element_modes.h) subtracts its relief sum_p h_p h_p^T, unless `relieved` is false (the
+/// paper's matrix of the same element: an upper bound of it, for the stable-step estimates).
+void element_elastic_matrix(const PhysicsModel& physics, int element, Eigen::MatrixXd& k, bool relieved = true);
 
 /// Elastic energy of one element at `positions` with rotation warm start `q` (updated), N*mm.
 /// Includes the volume term. For tests and diagnostics (not the hot path).

@@ -1,6 +1,7 @@
 #include "physics/physics_model.h"
 
 #include <Eigen/Eigenvalues>
+#include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -13,6 +14,20 @@
 
 namespace vx {
 
+const char* to_string(ElementKind kind) {
+  switch (kind) {
+    case ElementKind::paper: return "paper";
+    case ElementKind::hourglass: return "hourglass";
+  }
+  return "?";
+}
+
+ElementKind element_kind_from_string(const std::string& name) {
+  for (const ElementKind k : {ElementKind::paper, ElementKind::hourglass})
+    if (name == to_string(k)) return k;
+  throw Error("unknown element '" + name + "': choose paper or hourglass");
+}
+
 double PhysicsModel::total_mass_kg() const {
   double m = 0;
   for (double x : node_mass_kg) m += x;
@@ -20,6 +35,9 @@ double PhysicsModel::total_mass_kg() const {
 }
 
 namespace {
+
+/// The largest relief fraction (the element stays positive definite below 1).
+constexpr double kMaxRelief = 0.95;
 
 void check_field(const std::vector<double>& v, int elements, const char* what) {
   if (v.empty()) return;
@@ -44,6 +62,10 @@ void check_inputs(const Model* model, const Material& material, const MaterialFi
   if (!(options.min_weight > 0 && options.min_weight <= 1 && options.max_weight >= 1))
     throw Error("calibration: weight bounds [" + std::to_string(options.min_weight) + ", " +
                 std::to_string(options.max_weight) + "] must satisfy 0 < min <= 1 <= max");
+  if (!(options.bending_relief <= kMaxRelief) || !(options.xyz_relief >= 0.0 && options.xyz_relief <= kMaxRelief))
+    throw Error("calibration: bending relief " + std::to_string(options.bending_relief) + " and xyz relief " +
+                std::to_string(options.xyz_relief) + " must be at most " + std::to_string(kMaxRelief) +
+                " (a negative bending relief: calibrated), the xyz relief at least 0");
   const Model& m = *model;
   const int ne = m.num_elements(), nn = m.num_nodes();
   if (ne == 0 || nn == 0) throw Error("make_physics_model: the model has no elements");
@@ -76,6 +98,7 @@ void allocate(PhysicsModel& p) {
   p.entry_weight.resize(std::size_t(entries));
   p.entry_rest.resize(3, entries);
   p.entry_rest_weighted.resize(3, entries);
+  if (p.element != ElementKind::paper) p.entry_modes.resize(kBendingModes, entries);
 }
 
 /// Per element, in parallel (independent): vertex weights, rest offsets, spread, stiffness,
@@ -126,6 +149,7 @@ void calibrate_elements(PhysicsModel& p, const MaterialField& field, const Calib
       const double m_unit = mass_kg * kKgToNs2PerMm / wsum;  // per unit weight, N*s^2/mm
       p.element_stiffness[e] = k;
       p.element_damping[e] = material.damping_ratio * 2.0 * std::sqrt(k * m_unit);
+
       p.element_mass_kg[e] = mass_kg;
       p.element_spread_mm2[e] = s;
       p.element_fit_scale[e] = 3.0 / s;
@@ -157,6 +181,40 @@ void set_gradients(PhysicsModel& p, const std::vector<std::uint8_t>& bad) {
     for (int j = m.element_offsets[e]; j < m.element_offsets[e + 1]; ++j)
       p.entry_gradient.col(j) = inv * p.entry_rest_weighted.col(j);
   }
+}
+
+/// The hourglass element's relief weights (element_modes.h), per element in its grid axes.
+void set_bending_modes(PhysicsModel& p, const CalibrationOptions& options) {
+  if (p.element == ElementKind::paper) return;
+  const Model& m = *p.model;
+  // the element's axes: the grid's index axes (the nearest orthogonal frame to its direction)
+  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(m.grid.direction, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  const Eigen::Matrix3d to_grid = (svd.matrixU() * svd.matrixV().transpose()).transpose();
+  std::vector<std::uint8_t> clamped(std::size_t(m.num_elements()), 0);
+  parallel_for(m.num_elements(), 64, 0, [&](std::int64_t e0, std::int64_t e1) {
+    for (int e = int(e0); e < int(e1); ++e) {
+      const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+      const Eigen::VectorXd w = Eigen::Map<const Eigen::VectorXd>(p.entry_weight.data() + b, n);
+      const Eigen::Matrix3Xd local = to_grid * p.entry_rest.middleCols(b, n);
+      const ModeWeights gamma = bending_patterns(local, w);
+      const double k = p.element_stiffness[std::size_t(e)];
+      double beta = options.bending_relief;
+      if (beta < 0) {
+        const double vol = m.element_volume_mm3[std::size_t(e)];
+        const double mu = 0.5 * p.element_affine_stiffness[std::size_t(e)] / vol;
+        beta = calibrated_bending_relief(local, w, to_grid * p.entry_gradient.middleCols(b, n), gamma, k, mu, vol,
+                                         options.xyz_relief);
+        if (!(beta >= 0.0 && beta <= kMaxRelief)) {
+          beta = std::isfinite(beta) ? std::clamp(beta, 0.0, kMaxRelief) : 0.0;
+          clamped[std::size_t(e)] = 1;
+        }
+      }
+      const Eigen::Vector4d root(std::sqrt(beta * k), std::sqrt(beta * k), std::sqrt(beta * k),
+                                 std::sqrt(options.xyz_relief * k));
+      p.entry_modes.middleCols(b, n) = root.asDiagonal() * gamma * w.asDiagonal();
+    }
+  });
+  for (const auto c : clamped) p.bending_relief_clamped += c;
 }
 
 /// Serial, in element order: checks, statistics, lumped node masses (deterministic sums).
@@ -276,8 +334,11 @@ void node_gershgorin_sums(const PhysicsModel& p, std::vector<double>& sk, std::v
     double wsum = 0;
     for (int j = b; j < b + n; ++j) wsum += p.entry_weight[std::size_t(j)];
     // the elastic matrix K_e, and 2 w_i (1 - w_i / W) of diag(w) - w w^T / W for the volume
-    // and damping terms
-    element_elastic_matrix(p, e, ke);
+    // and damping terms. The hourglass element's K_e is the paper's less its (positive) relief,
+    // so the paper's K_e bounds its frequencies; its own smaller row sums would raise the
+    // explicit Euler ratio sc / sk above the limit of the modes it does not relieve (measured: a
+    // damped block ran away at 0.9 times that estimate; docs/model.md section 7)
+    element_elastic_matrix(p, e, ke, false);
     for (int j = b; j < b + n; ++j) {
       const double w = p.entry_weight[std::size_t(j)];
       const double row = 2.0 * w * (1.0 - w / wsum);
@@ -300,11 +361,13 @@ std::shared_ptr<const PhysicsModel> make_physics_model(std::shared_ptr<const Mod
   auto p = std::make_shared<PhysicsModel>();
   p->model = std::move(model_ptr);
   p->material = material;
+  p->element = options.element;
   allocate(*p);
   std::vector<double> anisotropy;
   std::vector<std::uint8_t> bad;
   calibrate_elements(*p, field, options, anisotropy, bad);
   set_gradients(*p, bad);
+  set_bending_modes(*p, options);
   lump_masses(*p, anisotropy, bad);
   index_entries(*p);
   build_element_batches(*p, kElementGrain, p->element_batches);

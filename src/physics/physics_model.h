@@ -37,6 +37,11 @@
 /// is an equilibrium of the whole model), which the least-squares fit does not (11 % too soft
 /// on a 32^3 cube; see element_gradient.h).
 ///
+/// The hourglass element (the default, CalibrationOptions::element; element_modes.h) takes a
+/// calibrated fraction of k off the element's bending (hourglass) modes, so that pure bending of
+/// each element has linear elasticity's energy (the paper's penalty gives 3 times it on a cube):
+/// the affine response and every check above are unchanged.
+///
 /// Poisson ratio > 0 (volume preservation): an extra projective term per element,
 ///   E_v = w_v/2 min_{T: det T = 1} sum_i w_i |r_i - T R0_i|^2,
 /// whose small-strain energy is w_v S (tr eps)^2 / 18 for an isotropic spread, i.e. the
@@ -57,10 +62,23 @@
 
 #include "model/model.h"
 #include "physics/element_batches.h"
+#include "physics/element_modes.h"
 #include "physics/material.h"
 #include "physics/vertex_weights.h"
 
 namespace vx {
+
+/// Which element the calibration builds (elements.h).
+enum class ElementKind {
+  paper,      ///< the paper's element: every non-affine mode held by the penalty k
+  hourglass,  ///< the paper's element with its bending (hourglass) modes relieved to the
+              ///< stiffness of linear elasticity (element_modes.h); the same affine response
+};
+
+/// "paper" or "hourglass".
+[[nodiscard]] const char* to_string(ElementKind kind);
+/// The element named `name` ("paper", "hourglass"); throws vx::Error for another name.
+[[nodiscard]] ElementKind element_kind_from_string(const std::string& name);
 
 /// Mass scaling for quasi-static simulation (docs/model.md section 6): heavier nodes let an
 /// explicit scheme take longer steps. It changes the dynamics, not the statics: every
@@ -86,6 +104,13 @@ struct MassScaling {
 
 /// How the per-element calibration is done (defaults: the calibrated model).
 struct CalibrationOptions {
+  ElementKind element{ElementKind::hourglass};
+  /// hourglass: the fraction of the penalty taken off the bilinear bending modes; negative
+  /// (the default): calibrated per element so that pure bending of its box has linear
+  /// elasticity's energy (2/3 on an 8-vertex cube; element_modes.h). At most 0.95.
+  double bending_relief{-1.0};
+  /// hourglass: the fraction taken off the trilinear (xyz) mode: 7/9, the trilinear field's energy.
+  double xyz_relief{7.0 / 9.0};
   bool isotropic_weights{true};  ///< false: equal vertex weights (the paper's plain element)
   double min_weight{0.1};        ///< lower bound of a vertex weight (mean weight is 1)
   double max_weight{4.0};        ///< upper bound of a vertex weight
@@ -127,6 +152,12 @@ struct PhysicsModel {
   Eigen::Matrix3Xd entry_gradient;               ///< 3 x entries: g_i, 1/mm
   std::vector<double> element_affine_stiffness;  ///< elements: 2 mu V_e, N*mm (energy mu V |F - Q|^2)
   std::vector<Eigen::Matrix3d> element_spread;   ///< elements: C0 = sum_i w_i R0_i R0_i^T, mm^2
+  ElementKind element{ElementKind::paper};       ///< the element calibrated
+  /// hourglass element: kBendingModes x entries, the relief weights h_pi = sqrt(beta_p k) w_i
+  /// gamma_pi, sqrt(N/mm) (element_modes.h; the element's energy gets -1/2 sum_p |sum_i h_pi x_i|^2);
+  /// empty for the paper's element
+  ModeWeights entry_modes;
+  std::int64_t bending_relief_clamped{0};  ///< hourglass: elements whose calibrated relief was clamped
   std::int64_t gradient_fallback_elements{0};    ///< elements keeping the least-squares gradient
   /// elements (volume term only): C0^{-1/2}, 3x3 column-major, 1/mm; and sqrt(det C0), mm^3.
   std::vector<Eigen::Matrix3d> element_spread_inv_sqrt;
@@ -166,12 +197,14 @@ struct PhysicsModel {
   [[nodiscard]] int num_elements() const { return model->num_elements(); }
   [[nodiscard]] std::int64_t num_vertex_entries() const { return model->num_vertex_entries(); }
   [[nodiscard]] bool has_volume_term() const { return !element_volume_stiffness.empty(); }
+  [[nodiscard]] bool has_bending_modes() const { return entry_modes.cols() > 0; }
   /// Total mass, kg.
   [[nodiscard]] double total_mass_kg() const;
 };
 
 /// Per node, the Gershgorin row sums of the linearised system (docs/model.md section 7):
-/// sk_i = sum_e (|K_e| row sum at i + 2 w_i (1 - w_i/W_e) k_v,e) (N/mm) and
+/// sk_i = sum_e (|K_e| row sum at i + 2 w_i (1 - w_i/W_e) k_v,e) (N/mm; K_e the paper's element
+/// matrix, unrelieved: an upper bound of the hourglass element's) and
 /// sc_i = sum_e 2 w_i (1 - w_i/W_e) c_e (N*s/mm). omega_i^2 <= sk_i / m_i, gamma_i <= sc_i / m_i.
 void node_gershgorin_sums(const PhysicsModel& physics, std::vector<double>& sk, std::vector<double>& sc);
 

@@ -115,8 +115,10 @@ struct Fixture {
   SimState state;
 };
 
-Fixture make(const Model& m, Material mat = {}) {
-  Fixture f{make_physics_model(m, mat), {}};
+Fixture make(const Model& m, Material mat = {}, ElementKind element = CalibrationOptions{}.element) {
+  CalibrationOptions opt;
+  opt.element = element;
+  Fixture f{make_physics_model(m, mat, {}, opt), {}};
   f.state = make_state(f.physics);
   return f;
 }
@@ -224,6 +226,7 @@ void expect_gradient(const Model& m, const Material& mat, std::uint32_t seed, do
 }
 
 TEST(Elements, ForceIsMinusTheEnergyGradient) {
+  // (the default element, hourglass; element_modes_test checks both elements on gradational models)
   expect_gradient(hand_cube(2.0), {}, 1, 0.5);
   expect_gradient(hand_block(2, 2, 2, 1.0), {}, 2, 0.3);
   expect_gradient(hand_element(irregular_points()), {}, 3, 0.5);
@@ -365,25 +368,33 @@ Eigen::Matrix3Xd plain_entry_forces(const PhysicsModel& p, const Eigen::Matrix3X
       const Eigen::Matrix3d& ninv = p.element_spread_inv_sqrt[e];
       t = closest_with_determinant(a * ninv, p.element_spread_sqrt_det[e], qv, fit) * ninv;
     }
+    // the hourglass element's bending modes: amplitudes qm = sum_j (x_j - c) h_j^T
+    Eigen::Matrix<double, 3, kBendingModes> qm = Eigen::Matrix<double, 3, kBendingModes>::Zero();
+    if (p.has_bending_modes())
+      for (int j = b; j < b + n; ++j) qm += (xe(j) - c) * p.entry_modes.col(j).transpose();
     for (int j = b; j < b + n; ++j) {
       const Eigen::Vector3d r = xe(j) - c, r0 = p.entry_rest.col(j);
       const double w = p.entry_weight[j];
       out.col(j) = k * w * (fg * r0 - r) + gm * p.entry_gradient.col(j) + kv * w * (t * r0 - r) +
                    p.element_damping[e] * w * (vc + omega.cross(r) - ve(j));
+      if (p.has_bending_modes()) out.col(j) += qm * p.entry_modes.col(j);
     }
   }
   return out;
 }
 
-TEST(Elements, PackedKernelMatchesThePlainFormulasAndTheReferenceKernel) {
+class PackedKernel : public ::testing::TestWithParam<ElementKind> {};
+
+TEST_P(PackedKernel, MatchesThePlainFormulasAndTheReferenceKernel) {
   // a gradational ball (elements with extra face vertices, non-uniform weights), with damping
-  // and the volume term, deformed and moving
+  // and the volume term, deformed and moving; the paper's element and the hourglass one
   Material mat;
   mat.damping_ratio = 0.3;
   mat.poisson_ratio = 0.35;
   BuildSettings bs;
   bs.layout = Layout::gradational;
-  auto f = make(build_model(ball_grid(14, 6.0), bs), mat);
+  auto f = make(build_model(ball_grid(14, 6.0), bs), mat, GetParam());
+  ASSERT_EQ(f.physics->has_bending_modes(), GetParam() == ElementKind::hourglass);
   const PhysicsModel& p = *f.physics;
   const Model& m = *p.model;
   ASSERT_GT(m.num_levels(), 1);
@@ -442,18 +453,20 @@ TEST(Elements, PackedKernelMatchesThePlainFormulasAndTheReferenceKernel) {
   }
 }
 
+INSTANTIATE_TEST_SUITE_P(Elements, PackedKernel, ::testing::Values(ElementKind::paper, ElementKind::hourglass),
+                         [](const auto& info) { return std::string(to_string(info.param)); });
 
 // ------------------------------------------------------------------------------------------
 // the batched kernel (element_batches.h)
 
 /// A damped gradational ball (elements with extra face vertices, non-uniform weights), Poisson 0
 /// (the batched kernel's case), its nodes moved by up to `amplitude` mm and moving.
-Fixture batched_ball(double amplitude, unsigned seed) {
+Fixture batched_ball(double amplitude, unsigned seed, ElementKind element = CalibrationOptions{}.element) {
   Material mat;
   mat.damping_ratio = 0.3;
   BuildSettings bs;
   bs.layout = Layout::gradational;
-  auto f = make(build_model(ball_grid(14, 6.0), bs), mat);
+  auto f = make(build_model(ball_grid(14, 6.0), bs), mat, element);
   const Model& m = *f.physics->model;
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> u(-1.0, 1.0);
@@ -545,12 +558,15 @@ TEST(ElementBatches, CoverEveryVertexEntryOnceWithLittlePadding) {
   EXPECT_LT(padded, 1.05);
 }
 
-TEST(ElementBatches, MatchThePackedKernelWithEveryInstructionSet) {
-  std::cout << "this CPU: " << to_string(best_simd_level()) << "\n";
+class BatchedKernel : public ::testing::TestWithParam<ElementKind> {};
+
+TEST_P(BatchedKernel, MatchesThePackedKernelWithEveryInstructionSet) {
+  std::cout << "this CPU: " << to_string(best_simd_level()) << ", element " << to_string(GetParam()) << "\n";
   // 2 mm: some elements inverted
   for (const double amplitude : {0.05, 0.3, 2.0}) {
-    const auto f = batched_ball(amplitude, 21);
+    const auto f = batched_ball(amplitude, 21, GetParam());
     const PhysicsModel& p = *f.physics;
+    ASSERT_EQ(p.element_batches.mode_rows.size(), p.has_bending_modes() ? p.element_batches.rows.size() : 0u);
     // from the rest warm start (many lanes need the scalar fit, fitted tightly here), then again
     // from the fitted rotations with the default tolerance (every lane passes the vectorised
     // test), then a little later (most lanes end with the vectorised Newton step)
@@ -599,6 +615,9 @@ TEST(ElementBatches, MatchThePackedKernelWithEveryInstructionSet) {
     }
   }
 }
+
+INSTANTIATE_TEST_SUITE_P(Elements, BatchedKernel, ::testing::Values(ElementKind::paper, ElementKind::hourglass),
+                         [](const auto& info) { return std::string(to_string(info.param)); });
 
 TEST(ElementBatches, BitIdenticalForOneAndManyThreads) {
   const auto f = batched_ball(0.3, 5);

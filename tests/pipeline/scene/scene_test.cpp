@@ -89,6 +89,19 @@ TEST(Scene, ParsesAValidSceneWithDefaults) {
   EXPECT_TRUE(s.outputs.forces_csv);
   EXPECT_FALSE(s.outputs.pvd_model);
   EXPECT_DOUBLE_EQ(s.duration_s, 0.05);
+  EXPECT_EQ(s.material.element, ElementKind::hourglass);
+}
+
+TEST(Scene, TheElementIsChosenByName) {
+  json j = base_scene();
+  j["material"]["element"] = "paper";
+  const Scene s = parse_scene(j, ".", "t");
+  EXPECT_EQ(s.material.element, ElementKind::paper);
+  EXPECT_EQ(prepare_scene(s).physics->element, ElementKind::paper);
+  j["material"]["element"] = "hourglass";
+  EXPECT_TRUE(prepare_scene(parse_scene(j, ".", "t")).physics->has_bending_modes());
+  j["material"]["element"] = "quadratic";
+  EXPECT_CONTAINS(error_of(j), "$.material.element: unknown element \"quadratic\"");
 }
 
 TEST(Scene, EverySampleSceneLoadsAndPrepares) {
