@@ -267,6 +267,7 @@ ProbeScene load_probe_scene(const std::filesystem::path& input, const DefaultSce
     prep.largest_component = true;
     prep.fill_holes = true;
     prep.voxel_mm = options.voxel_mm;
+    prep.lattice_period = 4;  // the fewest vertex entries (docs/model.md section 3.5)
     PrepareReport report;
     const VoxelGrid grid = prepare_grid(volume, prep, &report);
     BuildReport build;

@@ -616,3 +616,26 @@ TEST(Scene, WithoutAnIntegratorKeyTheFastConfigurationRuns) {
 
 }  // namespace
 }  // namespace vx
+
+TEST(Scene, LatticeOriginKey) {
+  // docs/model.md 3.5: a phantom's grid starts where the model has the fewest vertex entries,
+  // unless "crop" keeps the crop's margin; a box or a model file has no crop to move
+  json j = base_scene();
+  j["object"] = {{"phantom", "cube"}, {"size", 24}, {"spacing_mm", 1.0}};
+  j["fixed"] = json::array();
+  const Scene best = parse_scene(j, ".", "t");
+  EXPECT_EQ(best.object.prepare.lattice_period, 4);
+  j["object"]["lattice_origin"] = "crop";
+  const Scene crop = parse_scene(j, ".", "t");
+  EXPECT_EQ(crop.object.prepare.lattice_period, 0);
+  const PreparedScene pb = prepare_scene(best), pc = prepare_scene(crop);
+  EXPECT_LT(pb.model->num_vertex_entries(), pc.model->num_vertex_entries());
+  EXPECT_EQ(pb.model->covered_voxels(), pc.model->covered_voxels());
+  EXPECT_TRUE(pb.bounds_min_mm.isApprox(pc.bounds_min_mm));
+  EXPECT_TRUE(pb.bounds_max_mm.isApprox(pc.bounds_max_mm));
+  j["object"]["lattice_origin"] = "centre";
+  EXPECT_CONTAINS(error_of(j), "$.object.lattice_origin: unknown lattice origin \"centre\"");
+  j = base_scene();
+  j["object"]["lattice_origin"] = "best";
+  EXPECT_CONTAINS(error_of(j), "lattice_origin does not apply to a box");
+}
