@@ -47,7 +47,7 @@ ScaleBenchSettings ScaleBenchSettings::standard() {
   implicit30.time_step_s = 0.03;
   implicit30.max_iterations = 1;
   ScaleConfig implicit20;
-  implicit20.name = "implicit 20 ms, 1 iteration (the fast configuration)";
+  implicit20.name = "implicit 20 ms, 1 iteration (the fast configuration below 20,000 nodes)";
   implicit20.kind = IntegratorKind::implicit;
   implicit20.time_step_s = 0.02;
   implicit20.max_iterations = 1;
@@ -58,7 +58,7 @@ ScaleBenchSettings ScaleBenchSettings::standard() {
   region30.name = "implicit 20 ms, 1 iteration, region 30 mm";
   region30.region_radius_mm = 30.0;
   ScaleConfig region30_30 = implicit30;
-  region30_30.name = "implicit 30 ms, 1 iteration, region 30 mm";
+  region30_30.name = "implicit 30 ms, 1 iteration, region 30 mm (the fast configuration of larger models)";
   region30_30.region_radius_mm = 30.0;
   s.configs = {ref, floor, floor_scale, implicit10, implicit20, implicit30, region15, region30, region30_30};
   return s;
