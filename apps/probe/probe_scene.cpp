@@ -167,13 +167,23 @@ ProbeScene make_default_scene(std::shared_ptr<const Model> model, std::shared_pt
   sim.integrator.threads = 1;
   sim.device = DeviceForceSettings{};
   sim.device->update_interval_s = FastConfiguration::device_update_interval_s;
+  if (FastConfiguration::large(scene.model->num_nodes())) {
+    // a large model: 30 ms steps with regional solves near the tool (time_step.h)
+    sim.integrator.time_step_s = FastConfiguration::large_model_time_step_s;
+    sim.integrator.region_radius_mm = FastConfiguration::large_model_region_radius_mm;
+    sim.device->update_interval_s = 2.0 * sim.integrator.time_step_s;
+  }
 
   scene.notes.push_back(fmt::format("default palpation scene: E = {:g} kPa, damping ratio {:g}, {} bottom nodes held, "
                                     "capsule probe r = {:.1f} mm, the fast configuration: implicit dt = {:.3g} ms, {} "
-                                    "iteration per step",
+                                    "iteration per step{}",
                                     material.youngs_modulus_kpa, material.damping_ratio, sim.fixed_nodes.size(),
                                     probe.geometry.radius_mm, 1e3 * sim.integrator.time_step_s,
-                                    sim.integrator.max_iterations));
+                                    sim.integrator.max_iterations,
+                                    sim.integrator.region_radius_mm > 0
+                                        ? fmt::format(", regional solves within {:g} mm of the tool",
+                                                      sim.integrator.region_radius_mm)
+                                        : std::string()));
   make_probes_live(scene);
   return scene;
 }
@@ -267,6 +277,7 @@ ProbeScene load_probe_scene(const std::filesystem::path& input, const DefaultSce
     prep.largest_component = true;
     prep.fill_holes = true;
     prep.voxel_mm = options.voxel_mm;
+    prep.lattice_period = 4;  // the fewest vertex entries (docs/model.md section 3.5)
     PrepareReport report;
     const VoxelGrid grid = prepare_grid(volume, prep, &report);
     BuildReport build;

@@ -35,7 +35,7 @@ struct BenchOptions {
   bool quiet{false};
   bool scale{false};
   bool threads_given{false};
-  std::vector<std::string> scale_models, scale_configs;
+  std::vector<std::string> scale_models, scale_configs, scale_lattice_origins;
   double scale_max_wall_s{0.0}, scale_reference_max_wall_s{0.0};
 };
 
@@ -74,6 +74,18 @@ void run_scale_command(const BenchOptions& o) {
     }
     set.models = keep;
   }
+  if (!o.scale_lattice_origins.empty()) {  // each model at each origin, side by side
+    std::vector<ScaleModelSpec> both;
+    for (const auto& m : set.models)
+      for (const auto& origin : o.scale_lattice_origins) {
+        ScaleModelSpec v = m;
+        v.lattice_origin = origin;
+        if (origin == "crop") v.name += " (crop origin)";
+        both.push_back(v);
+      }
+    set.models = both;
+  }
+  set.element = o.element;
   if (o.scale_max_wall_s > 0) set.max_wall_s = o.scale_max_wall_s;
   if (o.scale_reference_max_wall_s > 0) set.reference_max_wall_s = o.scale_reference_max_wall_s;
   if (!o.scale_configs.empty()) {
@@ -217,6 +229,11 @@ void add_bench_command(CLI::App& app) {
   sub->add_option("--scale-configs", opts->scale_configs,
                   "with --scale: only the configurations whose name contains one of these (e.g. reference,implicit)")
       ->delimiter(',');
+  sub->add_option("--scale-lattice-origins", opts->scale_lattice_origins,
+                  "with --scale: run each model with these lattice origins, side by side (best: the fewest vertex "
+                  "entries, the default; crop: the crop's 1-voxel margin; e.g. best,crop)")
+      ->delimiter(',')
+      ->check(CLI::IsMember({"best", "crop"}));
   sub->add_option("--scale-reference-max-wall-s", opts->scale_reference_max_wall_s,
                   "with --scale: the reference's wall-time budget (default 1800 s; shorter: no error column)")
       ->check(CLI::PositiveNumber);

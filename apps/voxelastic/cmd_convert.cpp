@@ -45,6 +45,7 @@ struct ConvertOptions {
   bool largest_component{false};
   bool fill_holes{false};
   bool no_crop{false};
+  std::string lattice_origin{"best"};
   double voxel_mm{0.0};
   std::string series;
   std::string modality{"ct"};
@@ -136,6 +137,8 @@ void run_convert(const ConvertOptions& o) {
   BuildSettings build;
   build.layout = parse_layout(o.layout);
   build.max_level = o.max_level;
+  prep.lattice_period = o.lattice_origin == "best" && prep.crop ? 4 : 0;  // docs/model.md section 3.5
+  prep.lattice_build = build;
   ReadOptions read;
   read.series_uid = o.series;
   read.any_modality = o.modality == "any";
@@ -254,6 +257,10 @@ void add_convert_command(CLI::App& app) {
   sub->add_flag("--largest-component", opts->largest_component, "keep only the largest connected piece of tissue");
   sub->add_flag("--fill-holes", opts->fill_holes, "fill cavities inside the tissue");
   sub->add_flag("--no-crop", opts->no_crop, "keep the whole volume instead of cropping to the tissue");
+  sub->add_option("--lattice-origin", opts->lattice_origin,
+                  "best: start the cropped grid 0-3 air voxels further out, per axis, where the model has the fewest "
+                  "vertex entries (default; docs/model.md 3.5); crop: keep the crop's 1-voxel margin")
+      ->check(CLI::IsMember({"best", "crop"}));
   sub->add_option("--voxel", opts->voxel_mm, "resample to isotropic voxels of this size first, mm")
       ->check(CLI::Validator(
           [](std::string& text) {

@@ -47,7 +47,7 @@ ScaleBenchSettings ScaleBenchSettings::standard() {
   implicit30.time_step_s = 0.03;
   implicit30.max_iterations = 1;
   ScaleConfig implicit20;
-  implicit20.name = "implicit 20 ms, 1 iteration (the fast configuration)";
+  implicit20.name = "implicit 20 ms, 1 iteration (the fast configuration below 20,000 nodes)";
   implicit20.kind = IntegratorKind::implicit;
   implicit20.time_step_s = 0.02;
   implicit20.max_iterations = 1;
@@ -57,13 +57,21 @@ ScaleBenchSettings ScaleBenchSettings::standard() {
   ScaleConfig region30 = implicit20;
   region30.name = "implicit 20 ms, 1 iteration, region 30 mm";
   region30.region_radius_mm = 30.0;
-  s.configs = {ref, floor, floor_scale, implicit10, implicit20, implicit30, region15, region30};
+  ScaleConfig region30_30 = implicit30;
+  region30_30.name = "implicit 30 ms, 1 iteration, region 30 mm (the fast configuration of larger models)";
+  region30_30.region_radius_mm = 30.0;
+  s.configs = {ref, floor, floor_scale, implicit10, implicit20, implicit30, region15, region30, region30_30};
   return s;
 }
 
 void ScaleBenchSettings::validate() const {
   if (models.empty()) throw Error("bench --scale: no models");
   if (configs.empty()) throw Error("bench --scale: no configurations");
+  if (!element.empty() && element != "paper" && element != "hourglass")
+    throw Error("bench --scale: unknown element '" + element + "' (paper or hourglass)");
+  for (const auto& m : models)
+    if (m.lattice_origin != "best" && m.lattice_origin != "crop")
+      throw Error("bench --scale: unknown lattice origin '" + m.lattice_origin + "' (best or crop)");
   for (int t : threads)
     if (t < 1) throw Error("bench --scale: threads must be >= 1");
   if (!(max_wall_s > 0)) throw Error("bench --scale: max_wall_s must be > 0");
@@ -78,11 +86,16 @@ double seconds_since(std::chrono::steady_clock::time_point t0) {
 /// The model's prepared scene (no probe yet): the phantom at 1 mm, gradational, bottom 3 mm held.
 PreparedScene prepare_model(const ScaleModelSpec& m, const ScaleBenchSettings& s) {
   json j;
-  j["object"] = {{"phantom", m.phantom}, {"size", m.size}, {"spacing_mm", 1.0}, {"resolution", "gradational"}};
+  j["object"] = {{"phantom", m.phantom},
+                 {"size", m.size},
+                 {"spacing_mm", 1.0},
+                 {"resolution", "gradational"},
+                 {"lattice_origin", m.lattice_origin}};
   j["material"] = {{"youngs_modulus_kpa", s.youngs_modulus_kpa},
                    {"damping", s.damping_ratio},
                    {"density_kg_m3", 1000.0},
                    {"poisson_ratio", 0.0}};
+  if (!s.element.empty()) j["material"]["element"] = s.element;
   j["fixed"] = json::array({{{"face", "z_min"}, {"within_mm", 3.0}}});
   j["duration_s"] = s.press_s + s.slide_s;
   j["outputs"] = {{"forces_csv", false}, {"plot", false}};

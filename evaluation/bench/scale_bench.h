@@ -44,6 +44,9 @@ struct ScaleModelSpec {
   std::string name;     ///< e.g. "sphere 128"
   std::string phantom;  ///< phantom name (phantom.h)
   int size{64};         ///< grid voxels per axis
+  /// "best": the lattice origin with the fewest vertex entries (docs/model.md 3.5, the default);
+  /// "crop": the crop's 1-voxel margin (the name then says "crop origin")
+  std::string lattice_origin{"best"};
 };
 
 struct ScaleBenchSettings {
@@ -60,6 +63,7 @@ struct ScaleBenchSettings {
   double max_wall_s{120.0};        ///< per run (the reference runs to the end regardless)
   double reference_max_wall_s{1800.0};
   double force_interval_s{0.01};
+  std::string element;             ///< "paper" or "hourglass" (docs/model.md section 5); empty: the default
   std::function<void(const std::string&)> log;  ///< progress (may be empty)
 
   /// The default suite: spheres 32, 64, 128, 256 and the organ phantom; the configurations of

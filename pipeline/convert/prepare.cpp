@@ -11,6 +11,7 @@
 #include <nlohmann/json.hpp>
 
 #include "base/error.h"
+#include "model/lattice_origin.h"
 
 namespace vx {
 namespace {
@@ -282,6 +283,21 @@ VoxelGrid prepare_grid(const Volume& volume_in, const PrepareOptions& options, P
     report.crop_lo = lo - Eigen::Vector3i::Ones();
     report.crop_hi = hi + Eigen::Vector3i::Ones();
     grid = crop(grid, report.crop_lo, report.crop_hi);
+    if (options.lattice_period > 1) {
+      // docs/model.md section 3.5: the same tissue, grouped from another first voxel
+      LatticeShiftReport lattice;
+      const Eigen::Vector3i shift = choose_lattice_shift(grid, options.lattice_build, options.lattice_period, &lattice);
+      report.lattice_shift = shift;
+      report.entries_unshifted = lattice.entries_unshifted;
+      report.entries_chosen = lattice.entries_chosen;
+      report.elements_unshifted = lattice.elements_unshifted;
+      report.elements_chosen = lattice.elements_chosen;
+      report.lattice_s = lattice.seconds;
+      if (!shift.isZero()) {
+        report.crop_lo -= shift;
+        grid = pad_low(grid, shift);
+      }
+    }
   } else {
     report.crop_lo = Eigen::Vector3i::Zero();
     report.crop_hi = grid.dims();
@@ -301,8 +317,14 @@ std::string PrepareReport::summary() const {
   if (filled_voxels > 0) s += fmt::format("holes filled: {} voxels\n", filled_voxels);
   const Eigen::Vector3i size = crop_hi - crop_lo;
   if (crop_lo != Eigen::Vector3i::Zero() || crop_hi != resampled_dims)
-    s += fmt::format("cropped: voxels [{}, {}) x [{}, {}) x [{}, {}) -> {} (1-voxel air margin)\n", crop_lo.x(),
-                     crop_hi.x(), crop_lo.y(), crop_hi.y(), crop_lo.z(), crop_hi.z(), dims_text(size));
+    s += fmt::format("cropped: voxels [{}, {}) x [{}, {}) x [{}, {}) -> {} (1-voxel air margin{})\n", crop_lo.x(),
+                     crop_hi.x(), crop_lo.y(), crop_hi.y(), crop_lo.z(), crop_hi.z(), dims_text(size),
+                     lattice_shift.isZero() ? "" : fmt::format(", {} more before, per axis", dims_text(lattice_shift)));
+  if (entries_unshifted > 0)
+    s += fmt::format("lattice origin: {} elements and {} vertex entries ({:+.1f} %) instead of {} and {}; chosen in "
+                     "{:.2g} s\n",
+                     elements_chosen, entries_chosen, 100.0 * (double(entries_chosen) / double(entries_unshifted) - 1.0),
+                     elements_unshifted, entries_unshifted, lattice_s);
   s += fmt::format("tissue: {} voxels", tissue_voxels);
   return s;
 }
@@ -319,6 +341,13 @@ void PrepareReport::to_json(nlohmann::json& j) const {
                      {"crop_lo", vec(crop_lo)},
                      {"crop_hi", vec(crop_hi)},
                      {"tissue_voxels", tissue_voxels}};
+  if (entries_unshifted > 0)
+    j["lattice_origin"] = {{"shift", vec(lattice_shift)},
+                           {"entries_unshifted", entries_unshifted},
+                           {"entries_chosen", entries_chosen},
+                           {"elements_unshifted", elements_unshifted},
+                           {"elements_chosen", elements_chosen},
+                           {"seconds", lattice_s}};
 }
 
 }  // namespace vx

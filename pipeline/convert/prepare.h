@@ -9,6 +9,7 @@
 
 #include "convert/threshold.h"
 #include "io/volume.h"
+#include "model/gradational_builder.h"
 #include "model/voxel_grid.h"
 
 namespace vx {
@@ -19,6 +20,12 @@ struct PrepareOptions {
   bool fill_holes{false};         ///< fill cavities not connected to the outside
   bool crop{true};                ///< crop the grid to the tissue bounding box (+1 voxel margin)
   double voxel_mm{0.0};           ///< resample the volume to this isotropic voxel size first; 0 = keep
+  /// After cropping, move the grid's first voxel back by 0 .. lattice_period-1 air voxels per
+  /// axis to where the model `lattice_build` describes has the fewest vertex entries
+  /// (model/lattice_origin.h, docs/model.md section 3.5). 0 or 1: keep the 1-voxel margin.
+  /// The commands and scenes use 4; the library's default keeps the grid as cropped.
+  int lattice_period{0};
+  BuildSettings lattice_build;    ///< the model the lattice origin is chosen for (layout, max_level, dimensions)
 };
 
 struct PrepareReport {
@@ -31,6 +38,12 @@ struct PrepareReport {
   std::int64_t filled_voxels{0};             ///< added by hole filling
   Eigen::Vector3i crop_lo{0, 0, 0};          ///< crop box in (resampled) input voxels, lo inclusive
   Eigen::Vector3i crop_hi{0, 0, 0};          ///< hi exclusive
+  Eigen::Vector3i lattice_shift{0, 0, 0};    ///< air voxels added before the 1-voxel margin (crop_lo includes them)
+  std::int64_t entries_unshifted{0};         ///< vertex entries with the 1-voxel margin (0: not chosen)
+  std::int64_t entries_chosen{0};            ///< vertex entries at the chosen lattice origin
+  std::int64_t elements_unshifted{0};
+  std::int64_t elements_chosen{0};
+  double lattice_s{0.0};                     ///< wall time spent choosing, s
   std::int64_t tissue_voxels{0};             ///< final count
   /// One human-readable line per step, for the console.
   [[nodiscard]] std::string summary() const;

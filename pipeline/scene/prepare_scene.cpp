@@ -122,6 +122,10 @@ void choose_integrator(const Scene& scene, const PrepareSceneOptions& options, c
   const TimeStepEstimate est = estimate_time_steps(*out.physics);
   out.dt_stable_estimate_s = est.limit(scene.integrator);
   double automatic_dt_s = automatic_time_step(est, scene.integrator);
+  // no integrator key and a large model: the fast configuration's 30 ms steps with regional solves
+  const bool large = scene.integrator == IntegratorKind::implicit && !scene.integrator_given &&
+                     FastConfiguration::large(out.model->num_nodes());
+  if (large) automatic_dt_s = FastConfiguration::large_model_time_step_s;
   if (scene.integrator == IntegratorKind::implicit) {
     // the fast configuration's step, shortened where a probe would move more than a quarter of
     // its radius per step or a device update would span fewer than two steps
@@ -135,7 +139,13 @@ void choose_integrator(const Scene& scene, const PrepareSceneOptions& options, c
                                   : scene.integrator_given ? IntegratorSettings{}.max_iterations
                                                            : FastConfiguration::iterations;
     s.integrator.residual_tolerance_n = scene.residual_tolerance_n;
-    s.integrator.region_radius_mm = scene.region_radius_mm;
+    s.integrator.region_radius_mm = large ? FastConfiguration::large_model_region_radius_mm : scene.region_radius_mm;
+    if (large)
+      out.log.push_back(fmt::format("the fast configuration of a large model ({} nodes, {} or more): implicit, {:g} ms steps, "
+                                    "regional solves within {:g} mm of a tool (docs/bench.md)",
+                                    out.model->num_nodes(), FastConfiguration::large_model_nodes,
+                                    1e3 * std::min(automatic_dt_s, FastConfiguration::large_model_time_step_s),
+                                    FastConfiguration::large_model_region_radius_mm));
   }
   if (scene.dt_s > 0) {
     s.integrator.time_step_s = scene.dt_s;

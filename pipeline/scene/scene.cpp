@@ -104,7 +104,7 @@ SceneObject read_object(const Obj& o, const fs::path& base) {
     obj.source = ObjectSource::model;
     obj.path = path_of("model");
     for (const char* k : {"threshold", "resolution", "max_level", "largest_component", "fill_holes", "voxel_mm", "crop",
-                          "size", "spacing_mm", "tissue_hu", "air_hu", "lesion_hu", "noise_hu", "seed", "series_uid"})
+                          "lattice_origin", "size", "spacing_mm", "tissue_hu", "air_hu", "lesion_hu", "noise_hu", "seed", "series_uid"})
       o.forbid(k, std::string(k) + " does not apply to a model file: it was set when the model was converted "
                                    "(voxelastic convert)");
   } else {
@@ -125,7 +125,7 @@ SceneObject read_object(const Obj& o, const fs::path& base) {
       require(std::round(n) >= 2, b.where(), fmt::format("the box needs at least 2 voxels along {}", "xyz"[c]));
       require(std::round(n) <= 1024, b.where(), fmt::format("the box is more than 1024 voxels along {}", "xyz"[c]));
     }
-    for (const char* k : {"threshold", "largest_component", "fill_holes", "crop", "size", "spacing_mm", "tissue_hu",
+    for (const char* k : {"threshold", "largest_component", "fill_holes", "crop", "lattice_origin", "size", "spacing_mm", "tissue_hu",
                           "air_hu", "lesion_hu", "noise_hu", "seed", "series_uid"})
       o.forbid(k, std::string(k) + " does not apply to a box (it is all tissue; its voxel size is voxel_mm)");
   }
@@ -136,6 +136,12 @@ SceneObject read_object(const Obj& o, const fs::path& base) {
     obj.prepare.voxel_mm = o.number("voxel_mm", 0.0);
     require(obj.prepare.voxel_mm >= 0 && obj.prepare.voxel_mm <= 50, o.at_where("voxel_mm"),
             "resampling voxel size must be 0 (keep) or up to 50 mm");
+    // docs/model.md section 3.5: the crop's first voxel where the model has the fewest vertex entries
+    const std::string origin = o.string("lattice_origin", "best");
+    if (origin != "best" && origin != "crop")
+      o.at_where("lattice_origin").fail("unknown lattice origin \"" + origin + "\"; use best (the fewest vertex "
+                                        "entries) or crop (the crop's 1-voxel margin)");
+    obj.prepare.lattice_period = origin == "best" && obj.prepare.crop ? 4 : 0;
   }
   if (src != "model") {
     const std::string r = o.string("resolution", "gradational");
@@ -146,6 +152,7 @@ SceneObject read_object(const Obj& o, const fs::path& base) {
     }
     obj.build.max_level = o.integer("max_level", -1);
     require(obj.build.max_level >= -1, o.at_where("max_level"), "must be -1 (no limit) or a level >= 0");
+    obj.prepare.lattice_build = obj.build;
   }
   return obj;
 }
@@ -461,7 +468,7 @@ Scene parse_scene(const json& j, const fs::path& base, const std::string& name) 
     root.fail("missing \"object\": {\"phantom\": NAME}, {\"volume\": PATH}, {\"model\": PATH.vtu} or {\"box_mm\": {..}}");
   s.object = read_object(Obj(o.at("object"), o.at_where("object"),
                              {"phantom", "volume", "model", "box_mm", "voxel_mm", "threshold", "resolution", "max_level",
-                              "largest_component", "fill_holes", "crop", "series_uid", "any_modality", "size",
+                              "largest_component", "fill_holes", "crop", "lattice_origin", "series_uid", "any_modality", "size",
                               "spacing_mm", "tissue_hu", "air_hu", "lesion_hu", "noise_hu", "seed"}),
                          base);
   if (o.has("material"))

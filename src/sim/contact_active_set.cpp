@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "base/parallel.h"
 #include "physics/elements.h"
@@ -55,41 +56,52 @@ void ContactActiveSet::bind(const std::vector<int>& free_index, const std::vecto
   slot_free_.clear();
   slot_last_used_.clear();
   used_slots_ = 0;
-  if (columns_.rows() != nf) columns_.resize(nf, 0);
+  forward_bytes_ = 0;
+  for (auto& z : forward_) z.value.clear();
+  gram_.setConstant(std::numeric_limits<double>::quiet_NaN());
 }
 
-/// The column slot of free node f, solving its column when it has none (allocates when the
+/// The slot of free node f, solving its forward vector when it has none (allocates when the
 /// cache grows).
 int ContactActiveSet::column_of(int f, SparseFactor& factor, ContactSolveCounters& counters) {
   int slot = column_slot_[std::size_t(f)];
   if (slot < 0) {
-    const int nf = num_free();
-    if (used_slots_ < columns_.cols()) {
+    if (used_slots_ < int(forward_.size()) ||
+        (used_slots_ < kMaxSlots && double(forward_bytes_) < kColumnBudgetBytes)) {
       slot = used_slots_++;
-    } else if (double(columns_.cols()) * nf * sizeof(double) < kColumnBudgetBytes) {
-      const Eigen::Index grow = std::max<Eigen::Index>(16, columns_.cols());
-      columns_.conservativeResize(nf, columns_.cols() + grow);
-      slot = used_slots_++;
+      if (slot >= int(forward_.size())) {
+        const int grow = std::max(16, int(forward_.size()));
+        const int capacity = int(forward_.size()) + grow;
+        forward_.resize(std::size_t(capacity));
+        Eigen::MatrixXd g = Eigen::MatrixXd::Constant(capacity, capacity, std::numeric_limits<double>::quiet_NaN());
+        g.topLeftCorner(gram_.rows(), gram_.cols()) = gram_;
+        gram_.swap(g);
+        slot_free_.resize(std::size_t(capacity), -1);
+        slot_last_used_.resize(std::size_t(capacity), 0);
+      }
     } else {
       // full: reuse the least recently used slot (never one of this solve)
       std::int64_t oldest = solve_count_;
       for (int k = 0; k < used_slots_; ++k)
         if (slot_last_used_[std::size_t(k)] < oldest) oldest = slot_last_used_[std::size_t(k)], slot = k;
       if (slot < 0) {  // all in use now: grow beyond the budget
-        columns_.conservativeResize(nf, columns_.cols() + 16);
+        const int capacity = int(forward_.size()) + 16;
+        forward_.resize(std::size_t(capacity));
+        Eigen::MatrixXd g = Eigen::MatrixXd::Constant(capacity, capacity, std::numeric_limits<double>::quiet_NaN());
+        g.topLeftCorner(gram_.rows(), gram_.cols()) = gram_;
+        gram_.swap(g);
+        slot_free_.resize(std::size_t(capacity), -1);
+        slot_last_used_.resize(std::size_t(capacity), 0);
         slot = used_slots_++;
       } else {
         column_slot_[std::size_t(slot_free_[std::size_t(slot)])] = -1;
+        forward_bytes_ -= forward_[std::size_t(slot)].bytes();
+        gram_.row(slot).setConstant(std::numeric_limits<double>::quiet_NaN());
+        gram_.col(slot).setConstant(std::numeric_limits<double>::quiet_NaN());
       }
     }
-    if (std::size_t(slot) >= slot_free_.size()) {
-      slot_free_.resize(std::size_t(columns_.cols()), -1);
-      slot_last_used_.resize(std::size_t(columns_.cols()), 0);
-    }
-    if (partial_)
-      factor.solve_unit_partial(f, columns_.col(slot).data());
-    else
-      factor.solve_unit(f, columns_.col(slot).data());
+    factor.forward_unit(f, forward_[std::size_t(slot)]);  // the factor's rows are the free indices
+    forward_bytes_ += forward_[std::size_t(slot)].bytes();
     column_slot_[std::size_t(f)] = slot;
     slot_free_[std::size_t(slot)] = f;
     ++counters.columns;
@@ -98,12 +110,23 @@ int ContactActiveSet::column_of(int f, SparseFactor& factor, ContactSolveCounter
   return slot;
 }
 
+double ContactActiveSet::gram(int a, int b) {
+  double& g = gram_(a, b);
+  if (std::isnan(g)) {
+    g = SparseFactor::dot(forward_[std::size_t(a)], forward_[std::size_t(b)]);
+    gram_(b, a) = g;
+  }
+  return g;
+}
+
 /// Position of candidate c's node for the current multipliers of the working set.
-Eigen::Vector3d ContactActiveSet::constrained_position(int c) const {
+Eigen::Vector3d ContactActiveSet::constrained_position(int c, SparseFactor& factor, ContactSolveCounters& counters) {
   const int f = candidate_free_[std::size_t(c)];
   Eigen::Vector3d xi = unconstrained_.row(f).transpose();
+  if (working_.empty()) return xi;
+  const int slot = column_of(f, factor, counters);
   for (std::size_t b = 0; b < working_.size(); ++b)
-    xi += columns_(f, working_column_[b]) *
+    xi += gram(slot, working_column_[b]) *
           Eigen::Vector3d(working_force_[3 * b], working_force_[3 * b + 1], working_force_[3 * b + 2]);
   return xi;
 }
@@ -133,7 +156,8 @@ int ContactActiveSet::iterate_working_set(SparseFactor& factor, ContactSolveCoun
       const int fa = candidate_free_[std::size_t(working_[std::size_t(a)])];
       for (int b = 0; b <= a; ++b) {
         const ContactConstraint& cb = candidates_[std::size_t(working_[std::size_t(b)])];
-        schur_[std::size_t(a * nw + b)] = ca.normal.dot(cb.normal) * columns_(fa, working_column_[std::size_t(b)]);
+        schur_[std::size_t(a * nw + b)] =
+            ca.normal.dot(cb.normal) * gram(working_column_[std::size_t(a)], working_column_[std::size_t(b)]);
       }
       schur_rhs_[std::size_t(a)] = ca.normal.dot(ca.point_mm - unconstrained_.row(fa).transpose());
     }
@@ -158,7 +182,7 @@ int ContactActiveSet::iterate_working_set(SparseFactor& factor, ContactSolveCoun
     for (int c = 0; c < nc; ++c) {
       if (in_working_set_[std::size_t(c)]) continue;
       const ContactConstraint& cc = candidates_[std::size_t(c)];
-      if (cc.normal.dot(constrained_position(c) - cc.point_mm) < -kGapToleranceMm) {
+      if (cc.normal.dot(constrained_position(c, factor, counters) - cc.point_mm) < -kGapToleranceMm) {
         in_working_set_[std::size_t(c)] = 1;
         added = true;
       }
@@ -174,35 +198,14 @@ int ContactActiveSet::iterate_working_set(SparseFactor& factor, ContactSolveCoun
   return round;
 }
 
-/// solution = x_u + sum over the working set of lambda_j n_j G e_j (per free node, parallel).
-void ContactActiveSet::apply_working_forces(Eigen::MatrixX3d& solution, int threads) const {
-  const int nf = num_free();
-  const std::size_t nw = working_.size();
-  if (nw == 0) {
-    solution = unconstrained_;
-    return;
-  }
-  // column by column within a chunk of nodes (contiguous reads; each node sums its terms in
-  // working-set order whatever the chunking)
-  parallel_for(nf, kNodeGrain, threads, [&](std::int64_t lo, std::int64_t hi) {
-    double* s0 = solution.col(0).data();
-    double* s1 = solution.col(1).data();
-    double* s2 = solution.col(2).data();
-    for (std::int64_t f = lo; f < hi; ++f) {
-      s0[f] = unconstrained_(f, 0);
-      s1[f] = unconstrained_(f, 1);
-      s2[f] = unconstrained_(f, 2);
-    }
-    for (std::size_t b = 0; b < nw; ++b) {
-      const double* g = columns_.col(working_column_[b]).data();
-      const double l0 = working_force_[3 * b], l1 = working_force_[3 * b + 1], l2 = working_force_[3 * b + 2];
-      for (std::int64_t f = lo; f < hi; ++f) {
-        s0[f] += g[f] * l0;
-        s1[f] += g[f] * l1;
-        s2[f] += g[f] * l2;
-      }
-    }
-  });
+/// solution = x_u + sum over the working set of G e_j lambda_j n_j^T: one backward pass for all
+/// of them (SparseFactor::add_response3), on the region's rows with regional solves.
+void ContactActiveSet::apply_working_forces(Eigen::MatrixX3d& solution, SparseFactor& factor) {
+  solution = unconstrained_;
+  if (working_.empty()) return;
+  working_forward_.clear();
+  for (std::size_t b = 0; b < working_.size(); ++b) working_forward_.push_back(&forward_[std::size_t(working_column_[b])]);
+  factor.add_response3(working_forward_, working_force_, solution, partial_);
 }
 
 /// Keeps the candidates from `from` on whose nodes are free and records their free indices.
@@ -227,12 +230,12 @@ void ContactActiveSet::compliance(const std::vector<int>& free, SparseFactor& fa
   std::vector<int> slot(static_cast<std::size_t>(m));
   for (int a = 0; a < m; ++a) slot[std::size_t(a)] = column_of(free[std::size_t(a)], factor, counters);
   for (int a = 0; a < m; ++a)
-    for (int b = 0; b < m; ++b) g(b, a) = columns_(free[std::size_t(b)], slot[std::size_t(a)]);
-  g = 0.5 * (g + g.transpose()).eval();
+    for (int b = 0; b < m; ++b) g(b, a) = gram(slot[std::size_t(b)], slot[std::size_t(a)]);
 }
 
 void ContactActiveSet::solve(ContactProvider& provider, const Eigen::Matrix3Xd& x, SparseFactor& factor,
                              Eigen::MatrixX3d& solution, int threads, ContactSolveCounters& counters) {
+  (void)threads;  // serial: the backward pass of add_response3 is
   const std::vector<int>& free_index = *free_index_;
   const std::vector<int>& free_nodes = *free_nodes_;
   ++solve_count_;
@@ -260,7 +263,7 @@ void ContactActiveSet::solve(ContactProvider& provider, const Eigen::Matrix3Xd& 
   const std::size_t sorted = candidates_.size();
   for (int pass = 0;; ++pass) {
     counters.rounds += iterate_working_set(factor, counters);
-    apply_working_forces(solution, threads);
+    apply_working_forces(solution, factor);
     if (pass + 1 >= kMaxPasses) break;
     // nodes that were not candidates but that the constrained solution puts inside a probe
     // (they moved farther than the provider's margin in this solve): add them and redo

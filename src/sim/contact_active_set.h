@@ -16,9 +16,15 @@
 ///   x = x_u + sum_j lambda_j n_j G e_j,    x_u = A^-1 b (the unconstrained solve),
 /// and the constraints on the working set W give the Schur complement system
 ///   S lambda = d,  S_ij = (n_i . n_j) G_ij,  d_i = n_i . (p_i - x_u,i),
-/// exact on the existing factorisation. The columns G e_j are solved once per node and cached
-/// until the matrix is refactored (memory nf doubles each, within kColumnBudgetBytes; the
-/// least recently used are reused beyond it). An active-set iteration keeps lambda >= 0: it
+/// exact on the existing factorisation. G is never formed: each node that is a candidate gets
+/// its forward vector z_j = D^-1/2 L^-1 P e_j once (SparseFactor::forward_unit: nonzero only on
+/// its path to the root of the elimination tree), G_ij = z_i . z_j is computed when first needed
+/// and kept in a small matrix between the cached nodes, and the forces of the working set are
+/// applied with one backward pass for all of them (SparseFactor::add_response3). Forward vectors
+/// do not depend on a regional solve's region, so they stay cached until the matrix is
+/// refactored (within kColumnBudgetBytes and kMaxSlots; the least recently used are reused
+/// beyond). Before, each contact node cost a whole column G e_j (a backward pass over the whole
+/// factor or region, n doubles of memory) and every region move dropped them all. An active-set iteration keeps lambda >= 0: it
 /// drops the constraints that pull and adds the candidates the solution violates, starting
 /// from the last solve's active set (a warm start that usually converges in 1-2 rounds).
 /// The multipliers are the contact forces (N, A x = b is a force balance). Serial and in a
@@ -36,7 +42,7 @@ namespace vx {
 /// Work counters of the contact solves (added up over a step).
 struct ContactSolveCounters {
   int rounds{0};             ///< active-set rounds
-  std::int64_t columns{0};   ///< new columns G e_i solved (each allocates once)
+  std::int64_t columns{0};   ///< new forward vectors z_i solved (SparseFactor::forward_unit)
 };
 
 class ContactActiveSet {
@@ -45,13 +51,14 @@ class ContactActiveSet {
   static constexpr int kMaxPasses = 4;             ///< re-checks for nodes pushed into a probe
   static constexpr double kGapToleranceMm = 1e-9;  ///< a violation smaller than this is none
   static constexpr double kColumnBudgetBytes = 256.0 * 1024 * 1024;
+  static constexpr int kMaxSlots = 2048;           ///< cached nodes (the G matrix between them: 32 MB)
 
   /// Binds the set to a new factor and its free-node numbering (free_index: nodes -> free index
   /// or -1; free_nodes: free index -> node): the cached columns belong to the old factor.
   /// Allocates. The warm start is kept (it is keyed by node, not by factor).
   void bind(const std::vector<int>& free_index, const std::vector<int>& free_nodes);
-  /// Columns by the factor's regional solves (SparseFactor::solve_unit_partial: exact on the
-  /// region, 0 elsewhere) instead of full ones.
+  /// Apply the contact forces on the factor's regional rows only (SparseFactor::add_response3
+  /// partial: exact on the region, the rest untouched) instead of on every node.
   void set_partial(bool partial) { partial_ = partial; }
   /// Forgets the warm start (the state was reset, replaced, or the provider changed).
   void forget_warm_start() { active_.clear(); }
@@ -74,9 +81,11 @@ class ContactActiveSet {
  private:
   [[nodiscard]] int num_free() const { return int(free_nodes_->size()); }
   int column_of(int free, SparseFactor& factor, ContactSolveCounters& counters);
-  [[nodiscard]] Eigen::Vector3d constrained_position(int candidate) const;
+  /// G between the nodes of two slots (computed once, then cached).
+  double gram(int slot_a, int slot_b);
+  [[nodiscard]] Eigen::Vector3d constrained_position(int candidate, SparseFactor& factor, ContactSolveCounters& counters);
   int iterate_working_set(SparseFactor& factor, ContactSolveCounters& counters);
-  void apply_working_forces(Eigen::MatrixX3d& solution, int threads) const;
+  void apply_working_forces(Eigen::MatrixX3d& solution, SparseFactor& factor);
   void index_candidates(std::size_t from);
 
   bool partial_{false};
@@ -97,8 +106,11 @@ class ContactActiveSet {
   Eigen::MatrixX3d unconstrained_;                  ///< x_u: the global step's solution without contact
   Eigen::Matrix3Xd trial_;                          ///< constrained iterate (all nodes) for the re-check
 
-  // cached columns G e_f of the bound factor
-  Eigen::MatrixXd columns_;                   ///< nf x capacity
+  // cached forward vectors z_f of the bound factor, and G between them
+  std::vector<SparseFactor::UnitForward> forward_;  ///< slot -> z of its node
+  Eigen::MatrixXd gram_;                      ///< slots x slots, G between their nodes (NaN: not yet)
+  std::size_t forward_bytes_{0};
+  std::vector<const SparseFactor::UnitForward*> working_forward_;  ///< working set: z (for add_response3)
   std::vector<int> column_slot_;              ///< free index -> column slot, -1 none
   std::vector<int> slot_free_;                ///< column slot -> free index
   std::vector<std::int64_t> slot_last_used_;  ///< column slot -> last solve that used it

@@ -152,7 +152,10 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
       factor_.solve3_partial(rhs_, solution_);
     else
       factor_.solve3(rhs_, solution_);
-    if (contact) contact_set_.solve(*contact, x, factor_, solution_, threads, counters);
+    if (contact) {
+      contact_set_.set_partial(region_);  // the full refresh after a region move applies contact everywhere
+      contact_set_.solve(*contact, x, factor_, solution_, threads, counters);
+    }
     max_update = scatter(x, threads);
     rhs_previous_.swap(rhs_);
   }
@@ -202,15 +205,13 @@ void ProjectiveSolver::set_region(const std::vector<int>& awake_nodes) {
   // the next solve is a full one: every element's targets and every node's position brought up
   // to date (the far field that slept while the tool moved), then regional solves again
   targets_valid_ = false;
-  contact_set_.bind(free_index_, free_nodes_);  // the cached columns hold the old region's rows
-  contact_set_.set_partial(true);
+  contact_set_.set_partial(true);  // the cached forward vectors hold for any region
 }
 
 void ProjectiveSolver::clear_region() {
   if (!region_) return;
   region_ = false;
   region_elements_.clear();
-  contact_set_.bind(free_index_, free_nodes_);
   contact_set_.set_partial(false);
 }
 

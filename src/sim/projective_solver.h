@@ -101,7 +101,7 @@ class ProjectiveSolver {
   /// factor's elimination tree (the global solve, exact there); the other nodes sleep at their
   /// positions, the other elements keep their targets. The first solve after the factorisation
   /// and the first after each set_region() are full: every node and element brought up to date. Without a supernodal factor it does nothing (full solves).
-  /// Allocates; drops the contact columns (they are recomputed for the region).
+  /// Allocates. The contact set's cached forward vectors stay (they do not depend on a region).
   void set_region(const std::vector<int>& awake_nodes);
   /// Back to full solves.
   void clear_region();

@@ -88,6 +88,22 @@ bool SparseFactor::compute(const Matrix& a, Backend backend) {
   size_ = int(a.rows());
   work3_.assign(3 * std::size_t(size_), 0.0);
   work1_.assign(std::size_t(size_), 0.0);
+  if (supernodal_) {
+    all_supers_.resize(super_.size() - 1);
+    for (std::size_t q = 0; q < all_supers_.size(); ++q) all_supers_[q] = int(q);
+    path_.reserve(super_.size());
+  } else {
+    // the elimination tree of L: a column's parent is its first row below the diagonal
+    parent_.assign(std::size_t(size_), -1);
+    inv_sqrt_d_.resize(std::size_t(size_));
+    for (int j = 0; j < size_; ++j) {
+      int first = size_;
+      for (std::int64_t p = outer_[std::size_t(j)]; p < outer_[std::size_t(j) + 1]; ++p) first = std::min(first, inner_[std::size_t(p)]);
+      parent_[std::size_t(j)] = first < size_ ? first : -1;
+      inv_sqrt_d_[std::size_t(j)] = std::sqrt(inv_d_[std::size_t(j)]);
+    }
+    path_.reserve(std::size_t(size_));
+  }
   return true;
 }
 
@@ -486,6 +502,125 @@ void SparseFactor::solve_unit_partial(int i, double* out) {
   backward_supers<1>(w, closure_supers_);
   std::fill(out, out + n, 0.0);
   for (const int r : closure_rows_) out[r] = w[perm_[std::size_t(r)]];
+}
+
+void SparseFactor::forward_unit(int i, UnitForward& z) {
+  z.first.clear();
+  z.count.clear();
+  z.offset.clear();
+  z.value.clear();
+  double* w = work1_.data();
+  const int k = perm_[std::size_t(i)];
+  path_.clear();
+  if (supernodal_) {
+    for (int q = column_super_[std::size_t(k)]; q >= 0; q = super_parent_[std::size_t(q)]) path_.push_back(q);
+    std::sort(path_.begin(), path_.end());
+    for (const int q : path_)
+      for (int j = super_[std::size_t(q)]; j < super_[std::size_t(q) + 1]; ++j) w[j] = 0.0;
+    w[k] = 1.0;
+    forward_supers<1>(w, path_);  // writes only the path's columns (a supernode's rows are its ancestors')
+    for (const int q : path_) {
+      const int j0 = super_[std::size_t(q)], nc = super_[std::size_t(q) + 1] - j0;
+      z.first.push_back(j0);
+      z.count.push_back(nc);
+      z.offset.push_back(std::int64_t(z.value.size()));
+      z.value.insert(z.value.end(), w + j0, w + j0 + nc);
+      std::fill(w + j0, w + j0 + nc, 0.0);
+    }
+    return;
+  }
+  // simplicial L D L^T: the path of columns k, parent(k), ... (ascending)
+  for (int j = k; j >= 0; j = parent_[std::size_t(j)]) path_.push_back(j);
+  for (const int j : path_) w[j] = 0.0;
+  w[k] = 1.0;
+  const std::int64_t* outer = outer_.data();
+  const int* inner = inner_.data();
+  const double* val = values_.data();
+  for (const int j : path_) {
+    const double wj = w[j];
+    if (wj == 0.0) continue;
+    for (std::int64_t p = outer[j]; p < outer[j + 1]; ++p) w[inner[p]] -= val[p] * wj;  // rows: j's ancestors
+  }
+  for (const int j : path_) {
+    if (z.first.empty() || z.first.back() + z.count.back() != j) {
+      z.first.push_back(j);
+      z.count.push_back(0);
+      z.offset.push_back(std::int64_t(z.value.size()));
+    }
+    ++z.count.back();
+    z.value.push_back(w[j] * inv_sqrt_d_[std::size_t(j)]);
+    w[j] = 0.0;
+  }
+}
+
+double SparseFactor::dot(const UnitForward& a, const UnitForward& b) {
+  double acc = 0.0;
+  std::size_t i = 0, j = 0;
+  while (i < a.first.size() && j < b.first.size()) {
+    const int a0 = a.first[i], a1 = a0 + a.count[i];
+    const int b0 = b.first[j], b1 = b0 + b.count[j];
+    const int lo = std::max(a0, b0), hi = std::min(a1, b1);
+    if (lo < hi) {
+      const double* x = a.value.data() + a.offset[i] + (lo - a0);
+      const double* y = b.value.data() + b.offset[j] + (lo - b0);
+      double s = 0.0;
+      for (int t = 0; t < hi - lo; ++t) s += x[t] * y[t];
+      acc += s;
+    }
+    if (a1 <= b1) ++i;
+    if (b1 <= a1) ++j;
+  }
+  return acc;
+}
+
+void SparseFactor::add_response3(const std::vector<const UnitForward*>& z, const std::vector<double>& forces3,
+                                 Eigen::MatrixX3d& x, bool partial) {
+  if (z.empty()) return;
+  const int n = size_;
+  std::fill(work3_.begin(), work3_.end(), 0.0);  // (solve3 leaves its solution there)
+  double* w = work3_.data();
+  for (std::size_t k = 0; k < z.size(); ++k) {
+    const UnitForward& zk = *z[k];
+    const double f0 = forces3[3 * k], f1 = forces3[3 * k + 1], f2 = forces3[3 * k + 2];
+    for (std::size_t g = 0; g < zk.first.size(); ++g) {
+      const double* v = zk.value.data() + zk.offset[g];
+      double* wg = w + 3 * std::int64_t(zk.first[g]);
+      for (int t = 0; t < zk.count[g]; ++t) {
+        wg[3 * t] += v[t] * f0;
+        wg[3 * t + 1] += v[t] * f1;
+        wg[3 * t + 2] += v[t] * f2;
+      }
+    }
+  }
+  if (supernodal_) {
+    const bool on_closure = partial && !closure_supers_.empty();
+    backward_supers<3>(w, on_closure ? closure_supers_ : all_supers_);
+    if (on_closure) {
+      for (const int i : closure_rows_)
+        for (int c = 0; c < 3; ++c) x(i, c) += w[3 * perm_[std::size_t(i)] + c];
+    } else {
+      for (int i = 0; i < n; ++i)
+        for (int c = 0; c < 3; ++c) x(i, c) += w[3 * perm_[std::size_t(i)] + c];
+    }
+  } else {
+    // D^-1/2, then L^T x = w
+    for (int j = 0; j < n; ++j)
+      for (int c = 0; c < 3; ++c) w[3 * j + c] *= inv_sqrt_d_[std::size_t(j)];
+    const std::int64_t* outer = outer_.data();
+    const int* inner = inner_.data();
+    const double* val = values_.data();
+    for (int j = n - 1; j >= 0; --j) {
+      double acc[3] = {w[3 * j], w[3 * j + 1], w[3 * j + 2]};
+      for (std::int64_t p = outer[j]; p < outer[j + 1]; ++p) {
+        const double* wi = w + 3 * std::int64_t(inner[p]);
+        for (int c = 0; c < 3; ++c) acc[c] -= val[p] * wi[c];
+      }
+      for (int c = 0; c < 3; ++c) w[3 * j + c] = acc[c];
+    }
+    for (int i = 0; i < n; ++i)
+      for (int c = 0; c < 3; ++c) x(i, c) += w[3 * perm_[std::size_t(i)] + c];
+  }
+  std::fill(work3_.begin(), work3_.end(), 0.0);  // solve3_partial expects it zero
 }
 
 template void SparseFactor::solve_supernodal<1>(double*, int) const;

@@ -63,6 +63,37 @@ class SparseFactor {
   /// out = A^-1 e_i (n values). Allocation-free after compute().
   void solve_unit(int i, double* out);
 
+  // --- forward vectors: the contact set's compliance without whole columns -------------------
+  // With A^-1 = P^T L^-T D^-1 L^-1 P (D = I for the supernodal L L^T), the scaled forward vector
+  //   z_i = D^-1/2 L^-1 P e_i
+  // is nonzero only on the path from e_i's column to the root of the elimination tree (a few
+  // thousand of the factor's positions, against n for a column of A^-1), it does not depend on a
+  // region, and
+  //   (A^-1)_ij = z_i . z_j,     A^-1 sum_k e_k f_k^T = P^T L^-T D^-1/2 sum_k z_k f_k^T,
+  // so the contact set (contact_active_set.h) builds its Schur complement from dot products and
+  // applies the contact forces with one backward pass for all of them (docs/model.md section 8).
+
+  /// z_i in segments of consecutive factored positions (ascending).
+  struct UnitForward {
+    std::vector<int> first;            ///< segment -> first factored position
+    std::vector<int> count;            ///< segment -> positions
+    std::vector<std::int64_t> offset;  ///< segment -> start in value
+    std::vector<double> value;
+    [[nodiscard]] std::size_t bytes() const {
+      return value.size() * sizeof(double) + first.size() * (2 * sizeof(int) + sizeof(std::int64_t));
+    }
+  };
+  /// z = z_i for row i (original numbering). Allocates z's storage when it grows.
+  void forward_unit(int i, UnitForward& z);
+  /// z_a . z_b = (A^-1)_ij.
+  [[nodiscard]] static double dot(const UnitForward& a, const UnitForward& b);
+  /// x += A^-1 sum_k e_(row k) f_k^T for the forces f_k (3 per k, in `forces3`) at the rows whose
+  /// forward vectors are z[k]: on every row, or with `partial` on the closure rows of
+  /// set_partial_rows() only (the others untouched; as solve3_partial). Allocation-free after
+  /// compute().
+  void add_response3(const std::vector<const UnitForward*>& z, const std::vector<double>& forces3,
+                     Eigen::MatrixX3d& x, bool partial);
+
   // --- regional (partial) solves: only where the tool is --------------------------------------
   // With a supernodal factor the solution on a set of rows S is exact without solving for the
   // others: the backward substitution of a column needs only its ancestors in the elimination
@@ -108,6 +139,9 @@ class SparseFactor {
   std::vector<int> inner_;           ///< row of each entry
   std::vector<double> values_;       ///< L entries
   std::vector<double> inv_d_;        ///< 1 / D
+  std::vector<double> inv_sqrt_d_;   ///< D^-1/2 (forward vectors of the simplicial factor)
+  std::vector<int> parent_;          ///< simplicial: column -> parent in the elimination tree (-1: a root)
+  std::vector<int> path_;            ///< forward_unit's path (supernodes or columns)
   // supernodal L L^T (CHOLMOD): supernode s has columns super_[s] .. super_[s+1]-1, rows
   // rows_[row_start_[s] ..] (its own columns first), values values_[value_start_[s] ..]
   // column-major (leading dimension: its row count), diagonal included

@@ -51,6 +51,14 @@ struct FastConfiguration {
   static constexpr int iterations = 1;
   /// the device's force update interval that goes with it (two steps: a half sine spans at least 2)
   static constexpr double device_update_interval_s = 0.04;
+  /// Large models (large_model_nodes nodes or more): 30 ms steps with regional solves within
+  /// 30 mm of a tool. Measured (docs/bench.md): the 128 sphere (60,580 nodes) 1.05x real time on
+  /// one thread, 1.22x on two, at 3.8 % RMS force error, against 0.27-0.32x at 1.8 % for 20 ms
+  /// steps without a region.
+  static constexpr int large_model_nodes = 20000;
+  static constexpr double large_model_time_step_s = 0.03;
+  static constexpr double large_model_region_radius_mm = 30.0;
+  [[nodiscard]] static constexpr bool large(int nodes) { return nodes >= large_model_nodes; }
 };
 
 /// The automatic step ("dt_s": "auto") of `kind`: half the stable estimate for the explicit

@@ -110,10 +110,19 @@ TEST_F(CliConvert, SphereModelAndStats) {
   EXPECT_EQ(j["resolution"], "gradational");
   EXPECT_EQ(j["threshold_hu"][0].get<double>(), -200.0);
   EXPECT_EQ(j["spacing_mm"], nlohmann::json::array({1.0, 1.0, 1.0}));
-  // cropped to the ball with a 1-voxel margin: as wide as the tissue box + 2
+  // cropped to the ball with a 1-voxel margin, plus the lattice origin's shift on the low side
+  // (docs/model.md 3.5): as wide as the tissue box + 2 + shift
   const auto grid = j["grid"].get<std::vector<int>>();
+  const auto shift = j["prepare"]["lattice_origin"]["shift"].get<std::vector<int>>();
   const auto lo = j["bounds_mm"]["min"].get<std::vector<double>>(), hi = j["bounds_mm"]["max"].get<std::vector<double>>();
-  for (int a = 0; a < 3; ++a) EXPECT_NEAR(hi[std::size_t(a)] - lo[std::size_t(a)] + 2.0, grid[std::size_t(a)], 1e-9) << a;
+  for (int a = 0; a < 3; ++a) {
+    EXPECT_GE(shift[std::size_t(a)], 0);
+    EXPECT_LE(shift[std::size_t(a)], 3);
+    EXPECT_NEAR(hi[std::size_t(a)] - lo[std::size_t(a)] + 2.0 + shift[std::size_t(a)], grid[std::size_t(a)], 1e-9) << a;
+  }
+  EXPECT_LE(j["prepare"]["lattice_origin"]["entries_chosen"].get<std::int64_t>(),
+            j["prepare"]["lattice_origin"]["entries_unshifted"].get<std::int64_t>());
+  EXPECT_EQ(j["prepare"]["lattice_origin"]["entries_chosen"], j["vertex_entries"]);
 
   // the file holds the model the numbers describe
   const Model m = load_model(out_ / "model.vtu");

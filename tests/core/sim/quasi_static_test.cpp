@@ -205,6 +205,30 @@ TEST(SparseFactorBackends, AgreeOnTheSameMatrix) {
     EXPECT_NEAR(ax.norm(), 1.0, 1e-9);
     if (first) ref = x, first = false;
     EXPECT_LT((x - ref).norm(), 1e-9 * ref.norm());
+    // forward vectors (the contact set's compliance): z_i . z_j = (A^-1)_ij, and the response
+    // to forces at a few rows is A^-1 of them
+    SparseFactor::UnitForward zi, zj, zk;
+    std::vector<double> colj(static_cast<std::size_t>(nn), 0.0);
+    for (const auto [i, j] : {std::pair{7, 7}, std::pair{7, 40}, std::pair{3, nn - 1}, std::pair{nn / 2, 11}}) {
+      f.forward_unit(i, zi);
+      f.forward_unit(j, zj);
+      f.solve_unit(j, colj.data());
+      EXPECT_NEAR(SparseFactor::dot(zi, zj), colj[std::size_t(i)], 1e-10 * std::abs(colj[std::size_t(j)]))
+          << SparseFactor::to_string(backend) << " " << i << " " << j;
+      EXPECT_LT(zi.value.size(), std::size_t(nn));  // the path, not a whole column
+    }
+    f.forward_unit(3, zi);
+    f.forward_unit(nn - 1, zj);
+    f.forward_unit(nn - 5, zk);
+    const std::vector<const SparseFactor::UnitForward*> zs = {&zi, &zj, &zk};
+    const std::vector<double> forces = {0.1, -0.2, 0.3, 1.0, 0.5, -0.25, -0.7, 0.0, 0.4};
+    Eigen::MatrixX3d resp = Eigen::MatrixX3d::Zero(nn, 3), rhs = Eigen::MatrixX3d::Zero(nn, 3), direct(nn, 3);
+    rhs.row(3) += Eigen::RowVector3d(0.1, -0.2, 0.3);
+    rhs.row(nn - 1) += Eigen::RowVector3d(1.0, 0.5, -0.25);
+    rhs.row(nn - 5) += Eigen::RowVector3d(-0.7, 0.0, 0.4);
+    f.add_response3(zs, forces, resp, false);
+    f.solve3(rhs, direct);
+    EXPECT_LT((resp - direct).norm(), 1e-10 * direct.norm()) << SparseFactor::to_string(backend);
   }
   // not positive definite: refused by every backend
   SparseFactor::Matrix bad = a;
@@ -302,6 +326,23 @@ TEST(RegionalSolve, PartialSolvesAreExactOnTheirRows) {
     double cerr = 0, cmax = 0;
     for (int i : closure) cerr = std::max(cerr, std::abs(col[std::size_t(i)] - colref[std::size_t(i)])), cmax = std::max(cmax, std::abs(colref[std::size_t(i)]));
     EXPECT_LT(cerr, 1e-10 * cmax);
+    // a force at a region row, applied on the closure only: exact there, nothing elsewhere
+    SparseFactor::UnitForward z;
+    f.forward_unit(rows[1], z);
+    Eigen::MatrixX3d part = Eigen::MatrixX3d::Zero(nn, 3), whole = Eigen::MatrixX3d::Zero(nn, 3);
+    f.add_response3({&z}, {0.3, -0.1, 0.2}, part, true);
+    full.add_response3({&z}, {0.3, -0.1, 0.2}, whole, false);
+    std::vector<std::uint8_t> in(static_cast<std::size_t>(nn), 0);
+    for (int i : closure) in[std::size_t(i)] = 1;
+    double perr = 0, outside = 0;
+    for (int i = 0; i < nn; ++i) {
+      if (in[std::size_t(i)])
+        perr = std::max(perr, (part.row(i) - whole.row(i)).norm());
+      else
+        outside = std::max(outside, part.row(i).norm());
+    }
+    EXPECT_LT(perr, 1e-10 * whole.norm());
+    EXPECT_EQ(outside, 0.0);
     x = xp;
   }
 }

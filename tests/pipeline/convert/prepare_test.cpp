@@ -9,6 +9,7 @@
 #include <numbers>
 
 #include "base/error.h"
+#include "model/gradational_builder.h"
 
 using vx::Volume;
 using vx::VoxelGrid;
@@ -255,3 +256,44 @@ TEST(PrepareGrid, ReportSummaryAndJson) {
 }
 
 }  // namespace
+
+TEST(PrepareGrid, LatticeOriginMovesTheFirstVoxelNotTheTissue) {
+  // docs/model.md 3.5: a 20-voxel cube of tissue at voxel 5 of a tilted 30^3 volume; with the
+  // crop's 1-voxel margin the model has more entries than with the best origin, which pads the
+  // grid on its low side and keeps every voxel at its patient position
+  const Eigen::Matrix3d d = Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, -1, 2).normalized()).toRotationMatrix();
+  Volume v = air_volume({30, 30, 30}, {0.8, 0.8, 1.1}, {-10, 5, 60}, d);
+  fill_box(v, {5, 5, 5}, {25, 25, 25});
+  vx::PrepareOptions plain = soft_tissue(false, false, true);
+  vx::PrepareReport r0;
+  const VoxelGrid g0 = vx::prepare_grid(v, plain, &r0);
+  EXPECT_EQ(r0.lattice_shift, Eigen::Vector3i::Zero());
+  EXPECT_EQ(r0.entries_unshifted, 0);  // not chosen
+
+  vx::PrepareOptions best = plain;
+  best.lattice_period = 4;
+  vx::PrepareReport r;
+  const VoxelGrid g = vx::prepare_grid(v, best, &r);
+  const vx::Model m0 = vx::build_model(g0), m = vx::build_model(g);
+  EXPECT_EQ(r.entries_unshifted, m0.num_vertex_entries());
+  EXPECT_EQ(r.entries_chosen, m.num_vertex_entries());
+  EXPECT_LT(m.num_vertex_entries(), m0.num_vertex_entries());
+  EXPECT_EQ(r.elements_chosen, m.num_elements());
+  EXPECT_FALSE(r.lattice_shift.isZero());
+  EXPECT_EQ(r.crop_lo, r0.crop_lo - r.lattice_shift);
+  EXPECT_EQ(g.dims(), g0.dims() + r.lattice_shift);
+  EXPECT_EQ(g.count(), 20 * 20 * 20);
+  EXPECT_EQ(m.covered_voxels(), m0.covered_voxels());
+  // the same voxel at the same place: grid index + shift
+  for (const Eigen::Vector3i ijk : {Eigen::Vector3i(1, 1, 1), Eigen::Vector3i(20, 7, 13)}) {
+    const Eigen::Vector3d before = g0.geometry().index_to_lps(ijk.cast<double>());
+    const Eigen::Vector3d after = g.geometry().index_to_lps((ijk + r.lattice_shift).cast<double>());
+    EXPECT_LT((before - after).norm(), 1e-9);
+    EXPECT_EQ(g.at(ijk.x() + r.lattice_shift.x(), ijk.y() + r.lattice_shift.y(), ijk.z() + r.lattice_shift.z()),
+              g0.at(ijk.x(), ijk.y(), ijk.z()));
+  }
+  EXPECT_NE(r.summary().find("lattice origin:"), std::string::npos);
+  nlohmann::json j;
+  r.to_json(j);
+  EXPECT_EQ(j.at("lattice_origin").at("entries_chosen"), r.entries_chosen);
+}

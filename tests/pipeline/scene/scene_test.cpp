@@ -616,3 +616,53 @@ TEST(Scene, WithoutAnIntegratorKeyTheFastConfigurationRuns) {
 
 }  // namespace
 }  // namespace vx
+
+TEST(Scene, LatticeOriginKey) {
+  // docs/model.md 3.5: a phantom's grid starts where the model has the fewest vertex entries,
+  // unless "crop" keeps the crop's margin; a box or a model file has no crop to move
+  json j = base_scene();
+  j["object"] = {{"phantom", "cube"}, {"size", 24}, {"spacing_mm", 1.0}};
+  j["fixed"] = json::array();
+  const Scene best = parse_scene(j, ".", "t");
+  EXPECT_EQ(best.object.prepare.lattice_period, 4);
+  j["object"]["lattice_origin"] = "crop";
+  const Scene crop = parse_scene(j, ".", "t");
+  EXPECT_EQ(crop.object.prepare.lattice_period, 0);
+  const PreparedScene pb = prepare_scene(best), pc = prepare_scene(crop);
+  EXPECT_LT(pb.model->num_vertex_entries(), pc.model->num_vertex_entries());
+  EXPECT_EQ(pb.model->covered_voxels(), pc.model->covered_voxels());
+  EXPECT_TRUE(pb.bounds_min_mm.isApprox(pc.bounds_min_mm));
+  EXPECT_TRUE(pb.bounds_max_mm.isApprox(pc.bounds_max_mm));
+  j["object"]["lattice_origin"] = "centre";
+  EXPECT_CONTAINS(error_of(j), "$.object.lattice_origin: unknown lattice origin \"centre\"");
+  j = base_scene();
+  j["object"]["lattice_origin"] = "best";
+  EXPECT_CONTAINS(error_of(j), "lattice_origin does not apply to a box");
+}
+
+TEST(Scene, LargeModelsGetRegionalSolvesAtLongerSteps) {
+  // time_step.h FastConfiguration: 20,000 nodes or more and no integrator key: 30 ms steps
+  // (capped by the probe's speed as any automatic step) with regional solves within 30 mm
+  json j = base_scene();
+  j.erase("integrator");
+  j["object"] = {{"phantom", "sphere"}, {"size", 80}, {"spacing_mm", 1.0}};
+  j["fixed"] = json::array({{{"face", "z_min"}, {"within_mm", 3.0}}});
+  j["probes"][0]["path"] = json::array({{{"t_s", 0}, {"position_mm", {0, 0, 45}}}, {{"t_s", 1}, {"position_mm", {0, 0, 40}}}});
+  j["duration_s"] = 1.0;
+  const PreparedScene p = prepare_scene(parse_scene(j, ".", "t"));
+  ASSERT_GE(p.model->num_nodes(), FastConfiguration::large_model_nodes);
+  EXPECT_EQ(p.settings.integrator.kind, IntegratorKind::implicit);
+  EXPECT_DOUBLE_EQ(p.settings.integrator.time_step_s, FastConfiguration::large_model_time_step_s);
+  EXPECT_DOUBLE_EQ(p.settings.integrator.region_radius_mm, FastConfiguration::large_model_region_radius_mm);
+  // an explicit integrator block keeps its own choices
+  j["integrator"] = {{"type", "implicit"}};
+  const PreparedScene q = prepare_scene(parse_scene(j, ".", "t"));
+  EXPECT_DOUBLE_EQ(q.settings.integrator.region_radius_mm, 0.0);
+  EXPECT_DOUBLE_EQ(q.settings.integrator.time_step_s, FastConfiguration::time_step_s);
+  // a small model keeps 20 ms and no region
+  j = base_scene();
+  j.erase("integrator");
+  const PreparedScene small = prepare_scene(parse_scene(j, ".", "t"));
+  EXPECT_LT(small.model->num_nodes(), FastConfiguration::large_model_nodes);
+  EXPECT_DOUBLE_EQ(small.settings.integrator.region_radius_mm, 0.0);
+}
