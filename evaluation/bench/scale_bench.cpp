@@ -64,6 +64,19 @@ ScaleBenchSettings ScaleBenchSettings::standard() {
   return s;
 }
 
+void ScaleBenchSettings::use_implicit_reference() {
+  for (ScaleConfig& c : configs)
+    if (c.reference) {
+      c.name = "implicit 3 ms, iterated to 1e-5 N (reference)";
+      c.kind = IntegratorKind::implicit;
+      c.time_step_s = 0.003;
+      c.mass = MassScaling{};
+      c.max_iterations = 30;
+      c.residual_tolerance_n = 1e-5;
+      c.region_radius_mm = 0.0;
+    }
+}
+
 void ScaleBenchSettings::validate() const {
   if (models.empty()) throw Error("bench --scale: no models");
   if (configs.empty()) throw Error("bench --scale: no configurations");

@@ -2,10 +2,13 @@
 // time, the log-log slope, the CSV files, the palpation scene, and a small real bench written
 // all-or-nothing.
 #include "bench/bench.h"
+#include "bench/scale_bench.h"
+#include "sim/time_step.h"
 
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -400,4 +403,44 @@ TEST(BenchRun, ReportIsWrittenAllOrNothing) {
   EXPECT_THROW(write_bench_report(res, blocked), Error);
   EXPECT_TRUE(fs::is_regular_file(blocked));
   fs::remove_all(dir);
+}
+
+TEST(ScaleBench, ImplicitReferenceAndTheLargeModelConfiguration) {
+  // the standard suite holds the fast configuration of large models (time_step.h); the implicit
+  // reference replaces symplectic Euler where that would take an hour
+  ScaleBenchSettings s = ScaleBenchSettings::standard();
+  const auto large = std::find_if(s.configs.begin(), s.configs.end(),
+                                  [](const ScaleConfig& c) { return c.name.find("larger models") != std::string::npos; });
+  ASSERT_NE(large, s.configs.end());
+  EXPECT_DOUBLE_EQ(large->time_step_s, FastConfiguration::large_model_time_step_s);
+  EXPECT_DOUBLE_EQ(large->region_radius_mm, FastConfiguration::large_model_region_radius_mm);
+  s.use_implicit_reference();
+  const auto ref = std::find_if(s.configs.begin(), s.configs.end(), [](const ScaleConfig& c) { return c.reference; });
+  ASSERT_NE(ref, s.configs.end());
+  EXPECT_EQ(ref->kind, IntegratorKind::implicit);
+  EXPECT_GT(ref->max_iterations, 1);
+  EXPECT_GT(ref->residual_tolerance_n, 0.0);
+
+  // a tiny run: the 32 sphere pressed 2 mm and slid 2 mm in 0.2 s each; the fast configuration
+  // against the implicit reference: a finite error of a few percent, the reference's own zero
+  ScaleBenchSettings t = s;
+  t.models = {{"sphere 32", "sphere", 32}};
+  std::vector<ScaleConfig> keep;
+  for (const ScaleConfig& c : s.configs)
+    if (c.reference || c.name.find("fast configuration below") != std::string::npos) keep.push_back(c);
+  t.configs = keep;
+  t.threads = {1};
+  t.depth_mm = 2.0;
+  t.slide_mm = 2.0;
+  t.press_s = t.slide_s = 0.2;
+  const ScaleBenchResult r = run_scale_bench(t);
+  ASSERT_EQ(r.rows.size(), 2u);
+  EXPECT_NE(r.rows[0].config.find("reference"), std::string::npos);
+  EXPECT_DOUBLE_EQ(r.rows[0].rms_error_rel, 0.0);
+  EXPECT_TRUE(r.rows[1].complete);
+  EXPECT_GT(r.rows[1].rms_error_rel, 0.0);
+  EXPECT_LT(r.rows[1].rms_error_rel, 0.15);
+  EXPECT_GT(r.rows[1].peak_force_n, 0.0);
+  EXPECT_GT(r.rows[1].real_time_factor, 0.0);
+  EXPECT_NEAR(r.rows[1].peak_force_n, r.rows[0].peak_force_n, 0.15 * r.rows[0].peak_force_n);
 }
