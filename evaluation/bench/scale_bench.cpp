@@ -60,7 +60,13 @@ ScaleBenchSettings ScaleBenchSettings::standard() {
   ScaleConfig region30_30 = implicit30;
   region30_30.name = "implicit 30 ms, 1 iteration, region 30 mm (the fast configuration of larger models)";
   region30_30.region_radius_mm = 30.0;
-  s.configs = {ref, floor, floor_scale, implicit10, implicit20, implicit30, region15, region30, region30_30};
+  ScaleConfig region45_30 = implicit30;
+  region45_30.name = "implicit 30 ms, 1 iteration, region 45 mm";
+  region45_30.region_radius_mm = 45.0;
+  ScaleConfig region60_30 = implicit30;
+  region60_30.name = "implicit 30 ms, 1 iteration, region 60 mm";
+  region60_30.region_radius_mm = 60.0;
+  s.configs = {ref, floor, floor_scale, implicit10, implicit20, implicit30, region15, region30, region30_30, region45_30, region60_30};
   return s;
 }
 
