@@ -272,7 +272,8 @@ void check_vti_before_reading(vtkXMLImageDataReader& reader, const fs::path& pat
       const double tuples = set_name == "PointData" ? points : cells;
       for (int d = 0; d < set->GetNumberOfNestedElements(); ++d) {
         vtkXMLDataElement* array = set->GetNestedElement(d);
-        if (std::string(array->GetName()) != "DataArray") continue;
+        // VTK reads both element names: a DataArray, and an Array (vtkAbstractArray) of the same layout
+        if (const std::string tag = array->GetName(); tag != "DataArray" && tag != "Array") continue;
         const std::string name = array->GetAttribute("Name") ? array->GetAttribute("Name") : "(unnamed)";
         const std::string type = array->GetAttribute("type") ? array->GetAttribute("type") : "";
         const int bytes = type_bytes(type);

@@ -662,6 +662,22 @@ TEST_F(VolumeIo, VtiBlockHeadersOfTheWrongWidthOrByteOrderAreRefused) {
   expect_same(test_volume(true), vx::read_volume(path("good.vti")), 1e-9, 1e-9);
 }
 
+TEST_F(VolumeIo, VtiArrayElementsAreCheckedLikeDataArrays) {
+  // found by the CI's fuzz smoke run: VTK reads an <Array> element like a <DataArray>, the
+  // header check skipped it, and its block header (4 TB in one block) reached VTK's allocator
+  // (std::bad_alloc, an internal error)
+  vx::write_volume(test_volume(true), path("good.vti"));
+  const std::string good = read_text(path("good.vti"));
+  ASSERT_NE(good.find("<DataArray"), std::string::npos);
+  const std::string renamed = edited(good, "<DataArray", "<Array");  // appended: a self-closed element
+  write_bytes(path("array.vti"), renamed);
+  // the same element under its other name is checked: a good one still reads ...
+  expect_same(test_volume(true), vx::read_volume(path("array.vti")), 1e-9, 1e-9);
+  // ... and a damaged block header is refused before VTK allocates
+  write_bytes(path("array_be.vti"), edited(renamed, "byte_order=\"LittleEndian\"", "byte_order=\"BigEndian\""));
+  expect_error([&] { (void)vx::read_volume(path("array_be.vti")); }, {"array_be.vti", "byte_order"});
+}
+
 TEST_F(VolumeIo, VtiTrulyBigEndianAndUncompressedStillReads) {
   // a hand-made big-endian file: uncompressed appended raw data, 32-bit block header
   const std::vector<std::int16_t> values = ramp(24);
