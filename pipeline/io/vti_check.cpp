@@ -252,6 +252,74 @@ void check_vti_before_reading(vtkXMLImageDataReader& reader, const fs::path& pat
       appended && appended->GetAttribute("encoding") && std::string(appended->GetAttribute("encoding")) == "base64";
   const std::uintmax_t file_size = file_size_or_zero(path);
 
+  // one data array of `tuples` tuples: its declared size and block header against the file
+  const auto check_array = [&](vtkXMLDataElement* array, double tuples) {
+    // VTK reads both element names: a DataArray, and an Array (vtkAbstractArray) of the same layout
+    if (const std::string tag = array->GetName(); tag != "DataArray" && tag != "Array") return;
+    const std::string name = array->GetAttribute("Name") ? array->GetAttribute("Name") : "(unnamed)";
+    const std::string type = array->GetAttribute("type") ? array->GetAttribute("type") : "";
+    const int bytes = type_bytes(type);
+    if (bytes == 0 && type != "String" && type != "Bit")
+      damaged(path, fmt::format("array '{}' has unknown type \"{}\"", name, type));
+    if (bytes == 0) return;  // strings and bits: not voxel values, VTK checks them itself
+    int components = 1;
+    if (const char* c = array->GetAttribute("NumberOfComponents")) {
+      char* end = nullptr;
+      const long v = std::strtol(c, &end, 10);
+      if (end == c || *end || v < 1 || v > 64)
+        damaged(path, fmt::format("array '{}' has NumberOfComponents=\"{}\"", name, c));
+      components = int(v);
+    }
+    const double needed = tuples * components * bytes;
+    const std::string format = array->GetAttribute("format") ? array->GetAttribute("format") : "";
+    if (format == "ascii") {
+      // parsed number by number, but into an array VTK allocates first: at least one
+      // character and a separator per value must be in the file
+      if (tuples * components * 2 > double(file_size) + 2)
+        damaged(path, fmt::format("array '{}' needs {:.0f} values but the file is {} bytes long", name,
+                                  tuples * components, file_size));
+      return;
+    }
+    if (format == "appended") {
+      if (!appended) damaged(path, fmt::format("array '{}' is appended but the file has no <AppendedData>", name));
+      const char* off = array->GetAttribute("offset");
+      char* end = nullptr;
+      const long long offset = off ? std::strtoll(off, &end, 10) : -1;
+      if (!off || end == off || *end || offset < 0)
+        damaged(path, fmt::format("array '{}' has no valid offset (\"{}\")", name, off ? off : ""));
+      const vtkTypeInt64 start = parser->GetAppendedDataPosition();
+      if (start <= 0 || std::uintmax_t(start) > file_size)
+        damaged(path, "the appended data section has no start marker '_'");
+      // offsets count stored bytes (base64 characters when encoded)
+      const std::uintmax_t at = std::uintmax_t(start) + std::uintmax_t(offset);
+      if (at >= file_size)
+        damaged(path, fmt::format("array '{}' starts at offset {}, beyond the end of the file", name, offset));
+      check_blocks(DataSource(path, at, appended_base64, file_size), l, needed, name, path);
+    } else if (format == "binary") {
+      const vtkTypeInt64 at = InlinePosition::of(array);
+      if (at <= 0 || std::uintmax_t(at) >= file_size) damaged(path, fmt::format("array '{}' has no inline data", name));
+      check_blocks(DataSource(path, std::uintmax_t(at), true, file_size), l, needed, name, path);
+    } else {
+      damaged(path, fmt::format("array '{}' has format=\"{}\" (ascii, binary or appended)", name, format));
+    }
+  };
+
+  // arrays of the image's field data (VTK reads them too): NumberOfTuples says their size
+  for (int f = 0; f < image->GetNumberOfNestedElements(); ++f) {
+    vtkXMLDataElement* set = image->GetNestedElement(f);
+    if (std::string(set->GetName()) != "FieldData") continue;
+    for (int d = 0; d < set->GetNumberOfNestedElements(); ++d) {
+      vtkXMLDataElement* array = set->GetNestedElement(d);
+      const char* n = array->GetAttribute("NumberOfTuples");
+      if (!n) continue;  // VTK reads no tuples without it
+      char* end = nullptr;
+      const double tuples = std::strtod(n, &end);
+      if (end == n || *end || !(tuples >= 0) || tuples > 1e12)
+        damaged(path, fmt::format("a field data array has NumberOfTuples=\"{}\"", n));
+      check_array(array, tuples);
+    }
+  }
+
   for (int p = 0; p < image->GetNumberOfNestedElements(); ++p) {
     vtkXMLDataElement* piece = image->GetNestedElement(p);
     if (std::string(piece->GetName()) != "Piece") continue;
@@ -270,57 +338,7 @@ void check_vti_before_reading(vtkXMLImageDataReader& reader, const fs::path& pat
       const std::string set_name = set->GetName();
       if (set_name != "PointData" && set_name != "CellData") continue;
       const double tuples = set_name == "PointData" ? points : cells;
-      for (int d = 0; d < set->GetNumberOfNestedElements(); ++d) {
-        vtkXMLDataElement* array = set->GetNestedElement(d);
-        // VTK reads both element names: a DataArray, and an Array (vtkAbstractArray) of the same layout
-        if (const std::string tag = array->GetName(); tag != "DataArray" && tag != "Array") continue;
-        const std::string name = array->GetAttribute("Name") ? array->GetAttribute("Name") : "(unnamed)";
-        const std::string type = array->GetAttribute("type") ? array->GetAttribute("type") : "";
-        const int bytes = type_bytes(type);
-        if (bytes == 0 && type != "String" && type != "Bit")
-          damaged(path, fmt::format("array '{}' has unknown type \"{}\"", name, type));
-        if (bytes == 0) continue;  // strings and bits: not voxel values, VTK checks them itself
-        int components = 1;
-        if (const char* c = array->GetAttribute("NumberOfComponents")) {
-          char* end = nullptr;
-          const long v = std::strtol(c, &end, 10);
-          if (end == c || *end || v < 1 || v > 64)
-            damaged(path, fmt::format("array '{}' has NumberOfComponents=\"{}\"", name, c));
-          components = int(v);
-        }
-        const double needed = tuples * components * bytes;
-        const std::string format = array->GetAttribute("format") ? array->GetAttribute("format") : "";
-        if (format == "ascii") {
-          // parsed number by number, but into an array VTK allocates first: at least one
-          // character and a separator per value must be in the file
-          if (tuples * components * 2 > double(file_size) + 2)
-            damaged(path, fmt::format("array '{}' needs {:.0f} values but the file is {} bytes long", name,
-                                      tuples * components, file_size));
-          continue;
-        }
-        if (format == "appended") {
-          if (!appended) damaged(path, fmt::format("array '{}' is appended but the file has no <AppendedData>", name));
-          const char* off = array->GetAttribute("offset");
-          char* end = nullptr;
-          const long long offset = off ? std::strtoll(off, &end, 10) : -1;
-          if (!off || end == off || *end || offset < 0)
-            damaged(path, fmt::format("array '{}' has no valid offset (\"{}\")", name, off ? off : ""));
-          const vtkTypeInt64 start = parser->GetAppendedDataPosition();
-          if (start <= 0 || std::uintmax_t(start) > file_size)
-            damaged(path, "the appended data section has no start marker '_'");
-          // offsets count stored bytes (base64 characters when encoded)
-          const std::uintmax_t at = std::uintmax_t(start) + std::uintmax_t(offset);
-          if (at >= file_size)
-            damaged(path, fmt::format("array '{}' starts at offset {}, beyond the end of the file", name, offset));
-          check_blocks(DataSource(path, at, appended_base64, file_size), l, needed, name, path);
-        } else if (format == "binary") {
-          const vtkTypeInt64 at = InlinePosition::of(array);
-          if (at <= 0 || std::uintmax_t(at) >= file_size) damaged(path, fmt::format("array '{}' has no inline data", name));
-          check_blocks(DataSource(path, std::uintmax_t(at), true, file_size), l, needed, name, path);
-        } else {
-          damaged(path, fmt::format("array '{}' has format=\"{}\" (ascii, binary or appended)", name, format));
-        }
-      }
+      for (int d = 0; d < set->GetNumberOfNestedElements(); ++d) check_array(set->GetNestedElement(d), tuples);
     }
   }
 }

@@ -676,6 +676,17 @@ TEST_F(VolumeIo, VtiArrayElementsAreCheckedLikeDataArrays) {
   // ... and a damaged block header is refused before VTK allocates
   write_bytes(path("array_be.vti"), edited(renamed, "byte_order=\"LittleEndian\"", "byte_order=\"BigEndian\""));
   expect_error([&] { (void)vx::read_volume(path("array_be.vti")); }, {"array_be.vti", "byte_order"});
+  // field data arrays are read by VTK too: one that claims a billion doubles from the HU array's
+  // block header is refused
+  const auto image = good.find("<ImageData");
+  ASSERT_NE(image, std::string::npos);
+  const auto image_end = good.find('>', image);
+  std::string field = good;
+  field.insert(image_end + 1,
+               "\n<FieldData><DataArray type=\"Float64\" Name=\"f\" NumberOfTuples=\"1000000000\" "
+               "format=\"appended\" offset=\"0\"/></FieldData>");
+  write_bytes(path("field.vti"), field);
+  expect_error([&] { (void)vx::read_volume(path("field.vti")); }, {"field.vti", "array 'f'"});
 }
 
 TEST_F(VolumeIo, VtiTrulyBigEndianAndUncompressedStillReads) {
