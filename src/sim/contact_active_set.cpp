@@ -235,7 +235,7 @@ void ContactActiveSet::compliance(const std::vector<int>& free, SparseFactor& fa
 
 void ContactActiveSet::solve(ContactProvider& provider, const Eigen::Matrix3Xd& x, SparseFactor& factor,
                              Eigen::MatrixX3d& solution, int threads, ContactSolveCounters& counters) {
-  (void)threads;  // serial: the backward pass of add_response3 is
+  (void)threads;  // serial now: add_response3 is one backward pass over the factor (the substitutions are serial)
   const std::vector<int>& free_index = *free_index_;
   const std::vector<int>& free_nodes = *free_nodes_;
   ++solve_count_;
