@@ -183,11 +183,80 @@ class FaceSharer {
   std::int64_t irregular_faces_{0};
 };
 
+/// The 2D analogue (a slice model, docs/model.md section 12.2) for element e: each boundary
+/// pixel edge of the element's cells is shared linearly between the nearest vertices of the
+/// element on its line at or before its start and at or after its end (the ends of the
+/// straight boundary run it lies on are corners of the element, hence vertices; a neighbour
+/// across the edge holds the same nodes there, so the two sides' shares are equal and
+/// opposite). The area vector of a pixel edge is its length times the slice thickness, along
+/// the in-plane normal. Returns false when some edge found no bracketing vertices.
+bool share_element_edges_2d(const Model& m, int e, Eigen::Matrix3Xd& area) {
+  const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+  const int w = m.element_cell_voxels[std::size_t(e)];
+  const Eigen::Vector3i group = m.element_anchor.col(e);
+  const std::uint8_t mask = m.element_cells[std::size_t(e)];
+  const int cells = m.layout == Layout::voxel ? 1 : 2;
+  const auto filled = [&](int cx, int cy) {
+    return cx >= 0 && cy >= 0 && cx < cells && cy < cells && (cells == 1 || ((mask >> (cx + 2 * cy)) & 1));
+  };
+  bool ok = true;
+  for (int cy = 0; cy < cells; ++cy)
+    for (int cx = 0; cx < cells; ++cx) {
+      if (!filled(cx, cy)) continue;
+      const Eigen::Vector2i lo(group.x() + w * cx, group.y() + w * cy);
+      for (int axis = 0; axis < 2; ++axis)
+        for (int sign : {-1, 1}) {
+          const int nbx = cx + (axis == 0 ? sign : 0), nby = cy + (axis == 1 ? sign : 0);
+          if (cells == 2 && filled(nbx, nby)) continue;  // inside the element
+          const int along = 1 - axis;
+          const int line = lo(axis) + (sign > 0 ? w : 0);
+          const Eigen::Vector3d face = voxel_face_area(m.grid, axis, sign);
+          for (int q = lo(along); q < lo(along) + w; ++q) {
+            // the nearest vertices on the line at or before q and at or after q + 1
+            int below = -1, above = -1, qb = 0, qa = 0;
+            for (int j = b; j < b + n; ++j) {
+              const Eigen::Vector3i p = m.node_lattice.col(m.element_vertices[j]);
+              if (p(axis) != line) continue;
+              const int t = p(along);
+              if (t <= q && (below < 0 || t > qb)) below = j, qb = t;
+              if (t >= q + 1 && (above < 0 || t < qa)) above = j, qa = t;
+            }
+            if (below < 0 || above < 0) {
+              ok = false;
+              continue;
+            }
+            const double u = (q + 0.5 - qb) / double(qa - qb);
+            area.col(below) += (1.0 - u) * face;
+            area.col(above) += u * face;
+          }
+        }
+    }
+  return ok;
+}
+
 }  // namespace
 
 ElementGradients compute_element_gradients(const Model& m, int threads) {
   const int ne = m.num_elements();
   ElementGradients out;
+  if (m.is_2d()) {
+    out.entry_gradient = Eigen::Matrix3Xd::Zero(3, m.num_vertex_entries());
+    out.element_fallback.assign(std::size_t(ne), 0);
+    out.element_irregular_faces.assign(std::size_t(ne), 0);
+    parallel_for(ne, 64, threads, [&](std::int64_t e0, std::int64_t e1) {
+      for (int e = int(e0); e < int(e1); ++e) {
+        const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+        if (!share_element_edges_2d(m, e, out.entry_gradient)) {
+          out.element_fallback[std::size_t(e)] = 1;
+          out.entry_gradient.middleCols(b, n).setZero();
+          continue;
+        }
+        out.entry_gradient.middleCols(b, n) /= m.element_volume_mm3[std::size_t(e)];
+      }
+    });
+    for (auto f : out.element_fallback) out.fallback_elements += f;
+    return out;
+  }
   out.entry_gradient = Eigen::Matrix3Xd::Zero(3, m.num_vertex_entries());
   out.element_fallback.assign(std::size_t(ne), 0);
   out.element_irregular_faces.assign(std::size_t(ne), 0);

@@ -28,6 +28,9 @@
 /// sides give opposite shares at every shared node: the interior balance is exact. For an
 /// 8-vertex cube g_i = C0^{-1} w_i R0_i, i.e. F equals the paper's fit there.
 ///
+/// A 2D (slice) model shares each boundary pixel edge linearly between the element's nearest
+/// vertices on its line (g_i lies in the slice plane; docs/model.md section 12.2).
+///
 /// Checks (tests/core/element_gradient_test.cpp): sum_i a_i = 0 and sum_i X_i a_i^T = V I per
 /// element; summed over elements the shares vanish at interior nodes and equal the tissue's
 /// boundary area vector at surface nodes.

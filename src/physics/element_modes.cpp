@@ -6,10 +6,10 @@
 
 namespace vx {
 
-ModeWeights bending_patterns(const Eigen::Matrix3Xd& local, const Eigen::VectorXd& w) {
+ModeWeights bending_patterns(const Eigen::Matrix3Xd& local, const Eigen::VectorXd& w, int dimensions) {
   const int n = int(local.cols());
   ModeWeights p = ModeWeights::Zero(kBendingModes, n);
-  if (n < 8) return p;
+  if (n < (dimensions == 2 ? 4 : 8)) return p;
   // box coordinates in [-1, 1]
   const Eigen::Vector3d lo = local.rowwise().minCoeff(), hi = local.rowwise().maxCoeff();
   const Eigen::Vector3d centre = 0.5 * (lo + hi), half = 0.5 * (hi - lo);
@@ -44,14 +44,16 @@ ModeWeights bending_patterns(const Eigen::Matrix3Xd& local, const Eigen::VectorX
 }
 
 double calibrated_bending_relief(const Eigen::Matrix3Xd& local, const Eigen::VectorXd& w, const Eigen::Matrix3Xd& g,
-                                 const ModeWeights& patterns, double k, double mu, double volume, double xyz_relief) {
+                                 const ModeWeights& patterns, double k, double mu, double volume, double xyz_relief,
+                                 int dimensions) {
+  const int axes = dimensions == 2 ? 2 : 3;
   const int n = int(local.cols());
   const Eigen::Vector3d lo = local.rowwise().minCoeff(), hi = local.rowwise().maxCoeff();
   const Eigen::Vector3d centre = 0.5 * (lo + hi), half = 0.5 * (hi - lo);
   const Eigen::MatrixXd wp = patterns * w.asDiagonal();  // sum_i w_i gamma_pi x_i: the modes' amplitudes
   double have = 0, want = 0, relievable = 0;
-  for (int a = 0; a < 3; ++a)
-    for (int c = 0; c < 3; ++c) {
+  for (int a = 0; a < axes; ++a)
+    for (int c = 0; c < axes; ++c) {
       if (a == c) continue;
       // pure bending in the a-c plane about the box centre (unit curvature)
       Eigen::Matrix3Xd u = Eigen::Matrix3Xd::Zero(3, n);

@@ -54,17 +54,21 @@ using ModeWeights = Eigen::Matrix<double, kBendingModes, Eigen::Dynamic>;
 
 /// The w-orthonormal bending patterns gamma_pi of one element: `local` are its vertices' rest
 /// offsets in the element's axes (3 x n, mm; any origin), `w` their weights. Rows of patterns the
-/// vertex set cannot show (fewer than 8 vertices, a flat element) are zero.
-[[nodiscard]] ModeWeights bending_patterns(const Eigen::Matrix3Xd& local, const Eigen::VectorXd& w);
+/// vertex set cannot show (fewer than 8 vertices, a flat element) are zero. dimensions = 2: a
+/// slice element (z = const in `local`, at least 4 vertices): only the xy pattern is non-zero.
+[[nodiscard]] ModeWeights bending_patterns(const Eigen::Matrix3Xd& local, const Eigen::VectorXd& w,
+                                           int dimensions = 3);
 
 /// The fraction of the penalty to take off the bilinear patterns so that the six pure-bending
 /// fields of the element's box get linear elasticity's energy (see above): `local` rest offsets
 /// about the weighted centroid in the element's axes, `gradient` the consistent gradient
 /// weights in the same axes (element_gradient.h), `patterns` from bending_patterns, k the
 /// penalty (N/mm), mu the shear modulus (N/mm^2), volume in mm^3, xyz_relief the fraction
-/// taken off the xyz pattern. Not clamped (the caller clamps).
+/// taken off the xyz pattern. Not clamped (the caller clamps). dimensions = 2: the two in-plane
+/// bending fields of a slice element (plane stress, the same shear energy mu kappa^2 V h_c^2 / 12).
 [[nodiscard]] double calibrated_bending_relief(const Eigen::Matrix3Xd& local, const Eigen::VectorXd& w,
                                                const Eigen::Matrix3Xd& gradient, const ModeWeights& patterns,
-                                               double k, double mu, double volume, double xyz_relief);
+                                               double k, double mu, double volume, double xyz_relief,
+                                               int dimensions = 3);
 
 }  // namespace vx

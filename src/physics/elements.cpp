@@ -197,6 +197,88 @@ Eigen::Matrix3d closest_with_determinant(const Eigen::Matrix3d& b, double det, E
   return rot * eig.eigenvectors() * sp.asDiagonal() * eig.eigenvectors().transpose();
 }
 
+int fit_plane_rotation(const Eigen::Matrix3d& a, const Eigen::Matrix3d& frame, Eigen::Quaterniond& q,
+                       bool* converged, Eigen::Matrix3d* rotation) {
+  const auto e = frame.leftCols<2>();
+  const Eigen::Matrix2d a2 = e.transpose() * a * e;
+  const double c = a2(0, 0) + a2(1, 1), s = a2(1, 0) - a2(0, 1);
+  double theta = 0;
+  if (c * c + s * s > 1e-28 * (a2.squaredNorm() + 1e-300) && std::isfinite(c) && std::isfinite(s)) {
+    theta = std::atan2(s, c);
+    q = Eigen::Quaterniond(Eigen::AngleAxisd(theta, frame.col(2)));
+  } else {
+    // no rotational part (collapsed): keep the warm start's angle about the normal
+    const Eigen::Vector3d rotated = q * frame.col(0);
+    theta = std::atan2(rotated.dot(frame.col(1)), rotated.dot(frame.col(0)));
+  }
+  if (rotation) {
+    Eigen::Matrix2d q2;
+    q2 << std::cos(theta), -std::sin(theta), std::sin(theta), std::cos(theta);
+    *rotation = e * q2 * e.transpose();
+  }
+  if (converged) *converged = true;
+  return 1;
+}
+
+Eigen::Matrix3d closest_with_determinant_in_plane(const Eigen::Matrix3d& b, double det, const Eigen::Matrix3d& frame) {
+  // b2 = R S (R the closed-form best rotation, S = R^T b2 symmetric), S = V diag(sig) V^T;
+  // the closest x on x1 x2 = det (units where det = 1): Newton on the KKT system
+  // x_i - s_i = lambda x_j (j != i), x1 x2 = 1, as closest_with_determinant does in 3D
+  const auto e = frame.leftCols<2>();
+  const Eigen::Matrix2d b2 = e.transpose() * b * e;
+  const double c = b2(0, 0) + b2(1, 1), sn = b2(1, 0) - b2(0, 1);
+  const double theta = (c * c + sn * sn > 0) ? std::atan2(sn, c) : 0.0;
+  Eigen::Matrix2d rot;
+  rot << std::cos(theta), -std::sin(theta), std::sin(theta), std::cos(theta);
+  Eigen::Matrix2d sym = rot.transpose() * b2;
+  sym = 0.5 * (sym + sym.transpose());
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> eig(sym);
+  const double unit = std::sqrt(det);
+  const Eigen::Vector2d s0 = eig.eigenvalues() / unit;
+  const double top = std::max(s0.cwiseAbs().maxCoeff(), 1e-3);
+  Eigen::Vector2d start = s0.cwiseMax(0.1 * top);
+  start /= std::sqrt(start.prod());
+  Eigen::Vector2d x = start;
+  double lambda = 0;
+  bool ok = false;
+  for (int it = 0; it < 30; ++it) {
+    const Eigen::Vector3d r(x.x() - s0.x() - lambda * x.y(), x.y() - s0.y() - lambda * x.x(), x.prod() - 1.0);
+    if (r.cwiseAbs().maxCoeff() < 1e-14) {
+      ok = true;
+      break;
+    }
+    Eigen::Matrix3d jac;
+    jac << 1.0, -lambda, -x.y(),  //
+        -lambda, 1.0, -x.x(),     //
+        x.y(), x.x(), 0.0;
+    const Eigen::Vector3d step = jac.fullPivLu().solve(-r);
+    if (!step.allFinite()) break;
+    x += step.head<2>();
+    lambda += step(2);
+  }
+  if (!ok || (x.array() <= 0).any() || (x - s0).squaredNorm() > (start - s0).squaredNorm()) x = start;
+  const Eigen::Matrix2d x2 = rot * eig.eigenvectors() * (x * unit).asDiagonal() * eig.eigenvectors().transpose();
+  return e * x2 * e.transpose();
+}
+
+int fit_element_rotation(const PhysicsModel& phys, const Eigen::Matrix3d& a, Eigen::Quaterniond& q,
+                         const RotationFitSettings& settings, bool* converged, Eigen::Matrix3d* rotation) {
+  if (phys.is_2d()) return fit_plane_rotation(a, phys.plane_frame, q, converged, rotation);
+  return fit_rotation(a, q, settings, converged, rotation);
+}
+
+Eigen::Matrix3d element_closest_with_determinant(const PhysicsModel& phys, const Eigen::Matrix3d& b, double det,
+                                                 Eigen::Quaterniond& q, const RotationFitSettings& settings) {
+  if (phys.is_2d()) return closest_with_determinant_in_plane(b, det, phys.plane_frame);
+  return closest_with_determinant(b, det, q, settings);
+}
+
+double element_determinant(const PhysicsModel& phys, const Eigen::Matrix3d& f) {
+  if (!phys.is_2d()) return f.determinant();
+  const auto e = phys.plane_frame.leftCols<2>();
+  return (e.transpose() * f * e).determinant();
+}
+
 namespace {
 
 /// The reference element kernel for elements [e0, e1) (ElementKernel::reference): writes 3
@@ -235,9 +317,9 @@ struct ElementMatrices {
   ElementMatrices(const PhysicsModel& phys, std::int64_t e, const Eigen::Matrix3d& a, const Eigen::Matrix3d& fg,
                   Eigen::Quaterniond& rot, const RotationFitSettings& fit, ElementPassStats& st) {
     bool conv = true;
-    st.rotation_iterations += fit_rotation(fg, rot, fit, &conv, &q);
+    st.rotation_iterations += fit_element_rotation(phys, fg, rot, fit, &conv, &q);
     st.unconverged += conv ? 0 : 1;
-    if (fg.determinant() <= 0.0) ++st.inverted;
+    if (element_determinant(phys, fg) <= 0.0) ++st.inverted;
     k = phys.element_stiffness[std::size_t(e)];
     gm = phys.element_affine_stiffness[std::size_t(e)] * (q - fg) + k * (a - fg * phys.element_spread[std::size_t(e)]);
     mq = k * fg;
@@ -246,7 +328,7 @@ struct ElementMatrices {
       wv = phys.element_volume_stiffness[std::size_t(e)];
       const Eigen::Matrix3d& ninv = phys.element_spread_inv_sqrt[std::size_t(e)];
       Eigen::Quaterniond qv = rot;
-      t = closest_with_determinant(a * ninv, phys.element_spread_sqrt_det[std::size_t(e)], qv, fit) * ninv;
+      t = element_closest_with_determinant(phys, a * ninv, phys.element_spread_sqrt_det[std::size_t(e)], qv, fit) * ninv;
       mq += wv * t;
       ktot += wv;
     }
@@ -611,8 +693,10 @@ ElementPassStats compute_element_forces(const PhysicsModel& phys, const Eigen::M
   // automatic on a CPU without AVX2: the packed kernel (the batched one on two-lane SSE2 is
   // slower once the model leaves the cache: element_pass benchmark, batched_generic)
   const bool vector_unit = options.simd != SimdLevel::automatic || best_simd_level() != SimdLevel::generic;
+  // (a 2D model runs the packed kernel: its rotation fit is the closed form of the plane)
   const bool batched = packed && options.kernel == ElementKernel::batched && vector_unit && !energy &&
-                       !phys.has_volume_term() && std::int64_t(eb.window_offsets.size()) == chunks + 1;
+                       !phys.has_volume_term() && !phys.is_2d() &&
+                       std::int64_t(eb.window_offsets.size()) == chunks + 1;
   const RangeFn fn = packed ? pick_range<PackedKernel>(damping, energy, phys.has_volume_term(), modes)
                             : pick_range<ReferenceKernel>(damping, energy, phys.has_volume_term(), modes);
   const double* xs = positions.data();
@@ -682,8 +766,8 @@ double element_energy(const PhysicsModel& phys, int e, const Eigen::Matrix3Xd& x
     a += (x.col(m.element_vertices[j]) - c) * phys.entry_rest_weighted.col(j).transpose();
     fg += (x.col(m.element_vertices[j]) - c) * phys.entry_gradient.col(j).transpose();
   }
-  fit_rotation(fg, q, settings);
-  const Eigen::Matrix3d rq = q.toRotationMatrix();
+  Eigen::Matrix3d rq;
+  fit_element_rotation(phys, fg, q, settings, nullptr, &rq);
   double en = 0.5 * phys.element_affine_stiffness[e] * (fg - rq).squaredNorm();
   for (int j = b; j < b + n; ++j)
     en += 0.5 * phys.element_stiffness[e] * phys.entry_weight[j] *
@@ -696,7 +780,8 @@ double element_energy(const PhysicsModel& phys, int e, const Eigen::Matrix3Xd& x
   if (phys.has_volume_term()) {
     const Eigen::Matrix3d& ninv = phys.element_spread_inv_sqrt[e];
     Eigen::Quaterniond qv = q;
-    const Eigen::Matrix3d t = closest_with_determinant(a * ninv, phys.element_spread_sqrt_det[e], qv, settings) * ninv;
+    const Eigen::Matrix3d t =
+        element_closest_with_determinant(phys, a * ninv, phys.element_spread_sqrt_det[e], qv, settings) * ninv;
     for (int j = b; j < b + n; ++j)
       en += 0.5 * phys.element_volume_stiffness[e] * phys.entry_weight[j] *
             (t * phys.entry_rest.col(j) - (x.col(m.element_vertices[j]) - c)).squaredNorm();

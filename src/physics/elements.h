@@ -77,6 +77,37 @@ int fit_rotation(const Eigen::Matrix3d& a, Eigen::Quaterniond& q, const Rotation
                                                        Eigen::Quaterniond& q,
                                                        const RotationFitSettings& settings);
 
+/// 2D (a slice model, docs/model.md section 12.2): the rotation about the normal of `frame`
+/// (columns: two in-plane axes, the normal; orthonormal, right-handed) maximising tr(Q^T a)
+/// over the in-plane block a2 = E^T a E (E: the first two columns), in closed form:
+/// theta = atan2(a2_10 - a2_01, a2_00 + a2_11), so a proper rotation even for an inverted a2.
+/// q gets the rotation about the normal by theta (kept when a2 has no rotational part: a
+/// collapsed element). *rotation gets E Q2 E^T, the in-plane rotation with a zero normal block
+/// (a slice element has no extent along the normal, so |F - Q|^2 stays the in-plane distance).
+/// Returns 1 (one evaluation); *converged is set to true.
+int fit_plane_rotation(const Eigen::Matrix3d& a, const Eigen::Matrix3d& frame, Eigen::Quaterniond& q,
+                       bool* converged = nullptr, Eigen::Matrix3d* rotation = nullptr);
+
+/// 2D: the closest matrix to `b` in the plane of `frame` (its in-plane block) with in-plane
+/// determinant `det` > 0, as E X2 E^T (zero normal block).
+[[nodiscard]] Eigen::Matrix3d closest_with_determinant_in_plane(const Eigen::Matrix3d& b, double det,
+                                                                const Eigen::Matrix3d& frame);
+
+/// The element's rotation fit for `physics`: fit_rotation for a volume model, fit_plane_rotation
+/// in the slice plane for a 2D model.
+int fit_element_rotation(const PhysicsModel& physics, const Eigen::Matrix3d& a, Eigen::Quaterniond& q,
+                         const RotationFitSettings& settings, bool* converged = nullptr,
+                         Eigen::Matrix3d* rotation = nullptr);
+
+/// The volume term's closest matrix for `physics`: closest_with_determinant for a volume
+/// model, closest_with_determinant_in_plane (the area kept) for a 2D model.
+[[nodiscard]] Eigen::Matrix3d element_closest_with_determinant(const PhysicsModel& physics, const Eigen::Matrix3d& b,
+                                                               double det, Eigen::Quaterniond& q,
+                                                               const RotationFitSettings& settings);
+
+/// det F of an element's deformation gradient (2D: of its in-plane block); <= 0: inverted or flat.
+[[nodiscard]] double element_determinant(const PhysicsModel& physics, const Eigen::Matrix3d& f);
+
 /// Which implementation of the element pass runs; both compute the same forces.
 enum class ElementKernel {
   batched,    ///< the fastest: packed's arithmetic on kBatchLanes elements at once (element_batches.h);

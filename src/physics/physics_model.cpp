@@ -1,6 +1,7 @@
 #include "physics/physics_model.h"
 
 #include <Eigen/Eigenvalues>
+#include <Eigen/QR>
 #include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
@@ -76,6 +77,20 @@ void check_inputs(const Model* model, const Material& material, const MaterialFi
   check_field(field.density_kg_m3, ne, "density_kg_m3");
 }
 
+/// The dimensions and, for a slice model, its plane: the frame of the grid's first two
+/// directions (orthonormalised, right-handed) and the nodes' rest centre plane.
+void set_plane(PhysicsModel& p) {
+  const Model& m = *p.model;
+  p.dimensions = m.dimensions;
+  if (!m.is_2d()) return;
+  const Eigen::Vector3d e1 = m.grid.direction.col(0).normalized();
+  const Eigen::Vector3d e2 = (m.grid.direction.col(1) - e1.dot(m.grid.direction.col(1)) * e1).normalized();
+  p.plane_frame.col(0) = e1;
+  p.plane_frame.col(1) = e2;
+  p.plane_frame.col(2) = e1.cross(e2);
+  p.plane_point_mm = m.rest_positions.rowwise().mean();
+}
+
 /// Sizes the per-element and per-entry arrays of `p` (p.model and p.material set).
 void allocate(PhysicsModel& p) {
   const Model& m = *p.model;
@@ -110,17 +125,20 @@ void calibrate_elements(PhysicsModel& p, const MaterialField& field, const Calib
   const Material& material = p.material;
   const int ne = m.num_elements();
   const bool volume = material.poisson_ratio > 0;
+  const int dims = p.dimensions;
+  const Eigen::Matrix3d& frame = p.plane_frame;  // the identity for a volume model
   anisotropy.assign(std::size_t(ne), 0.0);
   bad.assign(std::size_t(ne), 0);
   parallel_for(ne, 64, 0, [&](std::int64_t e0, std::int64_t e1) {
     for (int e = int(e0); e < int(e1); ++e) {
       const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
-      // vertex weights making the weighted rest spread isotropic
+      // vertex weights making the weighted rest spread isotropic (2D: in the slice plane)
       Eigen::Matrix3Xd pts(3, n);
       for (int i = 0; i < n; ++i) pts.col(i) = m.rest_positions.col(m.element_vertices[b + i]);
-      const Eigen::VectorXd w = options.isotropic_weights
-                                    ? isotropic_weights(pts, options.min_weight, options.max_weight)
-                                    : Eigen::VectorXd::Ones(n);
+      const Eigen::VectorXd w =
+          options.isotropic_weights
+              ? isotropic_weights(frame.transpose() * pts, options.min_weight, options.max_weight, nullptr, dims)
+              : Eigen::VectorXd::Ones(n);
       const double wsum = w.sum();
       const Eigen::Vector3d centroid = pts * w / wsum;
       // rest offsets about the weighted centroid, spread S_e and C0
@@ -134,7 +152,7 @@ void calibrate_elements(PhysicsModel& p, const MaterialField& field, const Calib
         s += w(i) * r0.squaredNorm();
         c0 += w(i) * r0 * r0.transpose();
       }
-      anisotropy[std::size_t(e)] = spread_anisotropy(c0);
+      anisotropy[std::size_t(e)] = spread_anisotropy(frame.transpose() * c0 * frame, dims);
       const double vol = m.element_volume_mm3[e];
       if (!(s > 0) || !(vol > 0)) {
         bad[std::size_t(e)] = 1;
@@ -143,8 +161,8 @@ void calibrate_elements(PhysicsModel& p, const MaterialField& field, const Calib
       const double e_kpa = field.youngs_modulus_kpa.empty() ? material.youngs_modulus_kpa : field.youngs_modulus_kpa[e];
       const double rho = field.density_kg_m3.empty() ? material.density_kg_m3 : field.density_kg_m3[e];
       const double mu = shear_modulus_n_mm2(e_kpa, material.poisson_ratio);
-      // k_e = 6 mu V / S (see the header's derivation)
-      const double k = 6.0 * mu * vol / s;
+      // k_e = 6 mu V / S (see the header's derivation); 2D: 4 mu V / S
+      const double k = (dims == 2 ? 4.0 : 6.0) * mu * vol / s;
       const double mass_kg = rho * kKgM3ToKgPerMm3 * vol;
       const double m_unit = mass_kg * kKgToNs2PerMm / wsum;  // per unit weight, N*s^2/mm
       p.element_stiffness[e] = k;
@@ -152,10 +170,25 @@ void calibrate_elements(PhysicsModel& p, const MaterialField& field, const Calib
 
       p.element_mass_kg[e] = mass_kg;
       p.element_spread_mm2[e] = s;
-      p.element_fit_scale[e] = 3.0 / s;
+      p.element_fit_scale[e] = double(dims) / s;
       p.element_affine_stiffness[e] = 2.0 * mu * vol;
       p.element_spread[e] = c0;
-      if (volume) {
+      if (volume && dims == 2) {
+        // plane stress: lambda* = 2 mu lambda / (lambda + 2 mu); the area term w_v = 4 lambda* V / S;
+        // N = C0^{-1/2} in the plane (the normal's 1 keeps N invertible, and A N has no normal part)
+        const double lambda = lame_lambda_n_mm2(e_kpa, material.poisson_ratio);
+        const double lambda_star = 2.0 * mu * lambda / (lambda + 2.0 * mu);
+        p.element_volume_stiffness[e] = 4.0 * lambda_star * vol / s;
+        const Eigen::Matrix2d c2 = (frame.transpose() * c0 * frame).topLeftCorner<2, 2>();
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> eig(c2);
+        const Eigen::Vector2d ev = eig.eigenvalues().cwiseMax(1e-12 * eig.eigenvalues().maxCoeff());
+        const Eigen::Matrix2d n2 = eig.eigenvectors() * ev.cwiseSqrt().cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
+        Eigen::Matrix3d nl = Eigen::Matrix3d::Zero();
+        nl.topLeftCorner<2, 2>() = n2;
+        nl(2, 2) = 1.0;
+        p.element_spread_inv_sqrt[e] = frame * nl * frame.transpose();
+        p.element_spread_sqrt_det[e] = std::sqrt(ev.prod());
+      } else if (volume) {
         const double lambda = lame_lambda_n_mm2(e_kpa, material.poisson_ratio);
         p.element_volume_stiffness[e] = 9.0 * lambda * vol / s;
         Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(c0);
@@ -177,7 +210,9 @@ void set_gradients(PhysicsModel& p, const std::vector<std::uint8_t>& bad) {
   p.gradient_fallback_elements = grads.fallback_elements;
   for (int e = 0; e < m.num_elements(); ++e) {
     if (!grads.element_fallback[std::size_t(e)] || bad[std::size_t(e)]) continue;
-    const Eigen::Matrix3d inv = p.element_spread[std::size_t(e)].inverse();
+    // 2D: the inverse in the slice plane (C0 has no normal part)
+    const Eigen::Matrix3d inv = p.is_2d() ? Eigen::Matrix3d(p.element_spread[std::size_t(e)].completeOrthogonalDecomposition().pseudoInverse())
+                                          : Eigen::Matrix3d(p.element_spread[std::size_t(e)].inverse());
     for (int j = m.element_offsets[e]; j < m.element_offsets[e + 1]; ++j)
       p.entry_gradient.col(j) = inv * p.entry_rest_weighted.col(j);
   }
@@ -196,14 +231,14 @@ void set_bending_modes(PhysicsModel& p, const CalibrationOptions& options) {
       const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
       const Eigen::VectorXd w = Eigen::Map<const Eigen::VectorXd>(p.entry_weight.data() + b, n);
       const Eigen::Matrix3Xd local = to_grid * p.entry_rest.middleCols(b, n);
-      const ModeWeights gamma = bending_patterns(local, w);
+      const ModeWeights gamma = bending_patterns(local, w, p.dimensions);
       const double k = p.element_stiffness[std::size_t(e)];
       double beta = options.bending_relief;
       if (beta < 0) {
         const double vol = m.element_volume_mm3[std::size_t(e)];
         const double mu = 0.5 * p.element_affine_stiffness[std::size_t(e)] / vol;
         beta = calibrated_bending_relief(local, w, to_grid * p.entry_gradient.middleCols(b, n), gamma, k, mu, vol,
-                                         options.xyz_relief);
+                                         options.xyz_relief, p.dimensions);
         if (!(beta >= 0.0 && beta <= kMaxRelief)) {
           beta = std::isfinite(beta) ? std::clamp(beta, 0.0, kMaxRelief) : 0.0;
           clamped[std::size_t(e)] = 1;
@@ -362,6 +397,7 @@ std::shared_ptr<const PhysicsModel> make_physics_model(std::shared_ptr<const Mod
   p->model = std::move(model_ptr);
   p->material = material;
   p->element = options.element;
+  set_plane(*p);
   allocate(*p);
   std::vector<double> anisotropy;
   std::vector<std::uint8_t> bad;

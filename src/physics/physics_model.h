@@ -42,6 +42,13 @@
 /// each element has linear elasticity's energy (the paper's penalty gives 3 times it on a cube):
 /// the affine response and every check above are unchanged.
 ///
+/// The 2D model (a slice of thickness t, plane stress; docs/model.md section 12.2) uses the same
+/// element in the slice plane: C0 = (S / 2) I_2 in the plane, E_e = k/2 tr(eps^T eps C0) =
+/// (k S / 4) eps:eps = mu V eps:eps, so k_e = 4 mu V_e / S_e (V_e: area times t); the volume term
+/// keeps the area (det T = 1 in the plane) with w_v = 4 lambda* V_e / S_e and the plane-stress
+/// lambda* = 2 mu lambda / (lambda + 2 mu) = E nu / (1 - nu^2); the hourglass element relieves
+/// the one bilinear (xy) pattern of the slice.
+///
 /// Poisson ratio > 0 (volume preservation): an extra projective term per element,
 ///   E_v = w_v/2 min_{T: det T = 1} sum_i w_i |r_i - T R0_i|^2,
 /// whose small-strain energy is w_v S (tr eps)^2 / 18 for an isotropic spread, i.e. the
@@ -135,6 +142,14 @@ static_assert(sizeof(PackedEntry) == 64);
 struct PhysicsModel {
   std::shared_ptr<const Model> model;  ///< the geometry (rest shape, vertex lists)
   Material material;                   ///< the base material (before per-element overrides)
+  /// 3: a volume model; 2: a slice model in plane stress (docs/model.md section 12.2): every
+  /// element quantity lives in the slice plane, the rotation turns about the plane's normal
+  int dimensions{3};
+  /// 2D: an orthonormal right-handed frame, columns: the slice's two in-plane axes and its
+  /// normal (from the grid's directions); the identity for a volume model
+  Eigen::Matrix3d plane_frame{Eigen::Matrix3d::Identity()};
+  /// 2D: a point of the slice plane (the rest centre plane of the nodes), LPS mm
+  Eigen::Vector3d plane_point_mm{Eigen::Vector3d::Zero()};
 
   // vertex entries (parallel to model->element_vertices)
   std::vector<double> entry_weight;   ///< entries: vertex weight w_i (mean 1 per element)
@@ -198,6 +213,9 @@ struct PhysicsModel {
   [[nodiscard]] std::int64_t num_vertex_entries() const { return model->num_vertex_entries(); }
   [[nodiscard]] bool has_volume_term() const { return !element_volume_stiffness.empty(); }
   [[nodiscard]] bool has_bending_modes() const { return entry_modes.cols() > 0; }
+  [[nodiscard]] bool is_2d() const { return dimensions == 2; }
+  /// 2D: the slice plane's unit normal
+  [[nodiscard]] Eigen::Vector3d plane_normal() const { return plane_frame.col(2); }
   /// Total mass, kg.
   [[nodiscard]] double total_mass_kg() const;
 };

@@ -9,7 +9,13 @@
 
 namespace vx {
 
-double spread_anisotropy(const Eigen::Matrix3d& c) {
+double spread_anisotropy(const Eigen::Matrix3d& c, int dimensions) {
+  if (dimensions == 2) {
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> eig(c.topLeftCorner<2, 2>());
+    const Eigen::Vector2d ev = eig.eigenvalues();
+    const double mean = ev.sum() / 2.0;
+    return mean > 0 ? (ev.maxCoeff() - ev.minCoeff()) / mean : 0.0;
+  }
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
   eig.computeDirect(c);
   const Eigen::Vector3d ev = eig.eigenvalues();
@@ -18,8 +24,11 @@ double spread_anisotropy(const Eigen::Matrix3d& c) {
 }
 
 Eigen::VectorXd isotropic_weights(const Eigen::Matrix3Xd& points, double min_weight, double max_weight,
-                                  double* anisotropy) {
+                                  double* anisotropy, int dimensions) {
   const int n = int(points.cols());
+  const bool flat = dimensions == 2;
+  // constraints: sum w = n and the spread's off-diagonals and diagonal differences (3D: xy, xz,
+  // yz, xx - yy, yy - zz; 2D: xy, xx - yy, the other rows zero: their multipliers stay 0)
   Eigen::VectorXd w = Eigen::VectorXd::Ones(n);
   // centred and scaled for conditioning
   Eigen::Matrix3Xd x = points.colwise() - points.rowwise().mean();
@@ -40,15 +49,21 @@ Eigen::VectorXd isotropic_weights(const Eigen::Matrix3Xd& points, double min_wei
       Eigen::Vector3d c;
       central = moments(c);
       Eigen::Matrix<double, 6, 1> g;
-      g << w.sum() - n, central(0, 1), central(0, 2), central(1, 2), central(0, 0) - central(1, 1),
-          central(1, 1) - central(2, 2);
+      if (flat)
+        g << w.sum() - n, central(0, 1), 0.0, 0.0, central(0, 0) - central(1, 1), 0.0;
+      else
+        g << w.sum() - n, central(0, 1), central(0, 2), central(1, 2), central(0, 0) - central(1, 1),
+            central(1, 1) - central(2, 2);
       if (g.cwiseAbs().maxCoeff() < 1e-13) break;
       // Jacobian: d(central)/dw_i = (x_i - c)(x_i - c)^T; entries at the bound do not move
       Eigen::Matrix<double, 6, Eigen::Dynamic> jac(6, n);
       for (int i = 0; i < n; ++i) {
         const Eigen::Vector3d d = x.col(i) - c;
-        jac.col(i) << 1.0, d.x() * d.y(), d.x() * d.z(), d.y() * d.z(), d.x() * d.x() - d.y() * d.y(),
-            d.y() * d.y() - d.z() * d.z();
+        if (flat)
+          jac.col(i) << 1.0, d.x() * d.y(), 0.0, 0.0, d.x() * d.x() - d.y() * d.y(), 0.0;
+        else
+          jac.col(i) << 1.0, d.x() * d.y(), d.x() * d.z(), d.y() * d.z(), d.x() * d.x() - d.y() * d.y(),
+              d.y() * d.y() - d.z() * d.z();
         if (at_bound[std::size_t(i)]) jac.col(i).setZero();
       }
       // least change of w towards 1 that zeroes the linearised constraints
@@ -80,11 +95,11 @@ Eigen::VectorXd isotropic_weights(const Eigen::Matrix3Xd& points, double min_wei
   double aniso = std::numeric_limits<double>::infinity();
   if (w.allFinite() && (w.array() >= min_weight - 1e-9).all() && (w.array() <= max_weight + 1e-9).all()) {
     w *= n / w.sum();
-    aniso = spread_anisotropy(moments(c));
+    aniso = spread_anisotropy(moments(c), dimensions);
   }
   const Eigen::VectorXd weighted = w;
   w.setOnes();
-  const double plain = spread_anisotropy(moments(c));
+  const double plain = spread_anisotropy(moments(c), dimensions);
   if (aniso < plain) {
     w = weighted;
   } else {

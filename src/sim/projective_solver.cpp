@@ -268,20 +268,20 @@ ElementPassStats ProjectiveSolver::local_step(SimState& s, const Eigen::Matrix3X
       }
       bool conv = true;
       Eigen::Matrix3d rq;
-      st.rotation_iterations += fit_rotation(fg, s.rotations[std::size_t(el)], fit, &conv, &rq);
+      st.rotation_iterations += fit_element_rotation(p, fg, s.rotations[std::size_t(el)], fit, &conv, &rq);
       st.unconverged += conv ? 0 : 1;
-      if (fg.determinant() <= 0) ++st.inverted;
+      if (element_determinant(p, fg) <= 0) ++st.inverted;
       const Eigen::Matrix3d mg = p.element_affine_stiffness[std::size_t(el)] * rq;
       Eigen::Matrix3d mq = Eigen::Matrix3d::Zero();
       if (volume) {
         const Eigen::Matrix3d& ninv = p.element_spread_inv_sqrt[std::size_t(el)];
         Eigen::Quaterniond qv = s.rotations[std::size_t(el)];
         mq = p.element_volume_stiffness[std::size_t(el)] *
-             closest_with_determinant(a * ninv, p.element_spread_sqrt_det[std::size_t(el)], qv, fit) * ninv;
+             element_closest_with_determinant(p, a * ninv, p.element_spread_sqrt_det[std::size_t(el)], qv, fit) * ninv;
       }
       if (damping) {
         Eigen::Matrix3d rd;
-        fit_rotation(ad, damping_rotations_[std::size_t(el)], fit, nullptr, &rd);
+        fit_element_rotation(p, ad, damping_rotations_[std::size_t(el)], fit, nullptr, &rd);
         const Eigen::Matrix3d md = p.element_damping[std::size_t(el)] * inv_dt * rd;
         for (int j = o; j < o + n; ++j)
           targets_.col(slot[j]).noalias() = mg * p.entry_gradient.col(j) + mq * p.entry_rest_weighted.col(j) +

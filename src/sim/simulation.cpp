@@ -44,11 +44,31 @@ Simulation::Simulation(std::shared_ptr<const PhysicsModel> physics, SimulationSe
   if (settings_.surface && settings_.surface->model_nodes != nn)
     err << "surface is embedded in a model of " << settings_.surface->model_nodes << " nodes, this one has " << nn
         << "; ";
+  if (physics_->is_2d()) {
+    // a slice model meets each probe in the plane: shapes whose cut by the plane is a circle, a
+    // rounded rod or a line (docs/model.md section 12.2)
+    const Eigen::Vector3d n = physics_->plane_normal();
+    for (std::size_t i = 0; i < settings_.probes.size(); ++i) {
+      const ProbeGeometry& g = settings_.probes[i].geometry;
+      const double along = std::abs(g.axis.normalized().dot(n));
+      const bool ok = g.shape == ProbeShape::sphere || (g.shape == ProbeShape::cylinder && along > 1.0 - 1e-6) ||
+                      ((g.shape == ProbeShape::capsule || g.shape == ProbeShape::plane) && along < 1e-6);
+      if (!ok)
+        err << "probe " << i << " (" << settings_.probes[i].name << "): a " << to_string(g.shape)
+            << " with this axis has no 2D counterpart in a slice model (use a sphere: a circle in the plane; a "
+               "cylinder along the slice normal: a circle; a capsule or plane with its axis in the slice plane); ";
+    }
+  }
   if (const std::string bad = err.str(); !bad.empty()) throw Error("simulation: " + bad);
 
   // state, integrator
   state_ = make_state(physics_);
   state_.gravity_mm_s2 = settings_.gravity_mm_s2;
+  if (physics_->is_2d()) {
+    // plane stress: the slice carries only the in-plane part of gravity
+    const Eigen::Vector3d n = physics_->plane_normal();
+    state_.gravity_mm_s2 -= n * n.dot(state_.gravity_mm_s2);
+  }
   if (!settings_.fixed_nodes.empty()) state_.fix_nodes(settings_.fixed_nodes);
   integrator_ = make_integrator(settings_.integrator);
 
@@ -160,6 +180,7 @@ StepStatus Simulation::step() {
     drivers_[i].advance(t_new, dt);
     poses_[i] = drivers_[i].state();
   }
+  if (physics_->is_2d()) project_probes_to_plane();
 
   // elastic forces, gravity, integration
   const StepReport report = integrator_->step(state_);
@@ -183,6 +204,8 @@ StepStatus Simulation::step() {
   } else {
     ++counters_.contact_passes_skipped;
   }
+
+  if (physics_->is_2d()) hold_plane();
 
   if (settings_.local_contact) accumulate_local_contact();
 
@@ -212,6 +235,26 @@ StepStatus Simulation::step() {
   counters_.surface_updates_skipped = counters_.steps - counters_.surface_updates;
   publish();
   return state_.status;
+}
+
+void Simulation::project_probes_to_plane() {
+  const Eigen::Vector3d n = physics_->plane_normal(), p0 = physics_->plane_point_mm;
+  for (ProbeState& p : poses_) {
+    p.position_mm -= n * n.dot(p.position_mm - p0);
+    p.velocity_mm_s -= n * n.dot(p.velocity_mm_s);
+  }
+}
+
+void Simulation::hold_plane() {
+  const Eigen::Vector3d n = physics_->plane_normal(), p0 = physics_->plane_point_mm;
+  const double d0 = n.dot(p0);
+  Eigen::Matrix3Xd& x = state_.positions;
+  Eigen::Matrix3Xd& v = state_.velocities;
+  for (Eigen::Index i = 0; i < x.cols(); ++i) {
+    x.col(i) -= n * (n.dot(x.col(i)) - d0);
+    v.col(i) -= n * n.dot(v.col(i));
+  }
+  for (auto& f : raw_) f -= n * n.dot(f);
 }
 
 void Simulation::ImplicitContact::collect(const Eigen::Matrix3Xd& x, bool near, std::vector<ContactConstraint>& out) {

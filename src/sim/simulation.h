@@ -235,6 +235,13 @@ class Simulation {
   void publish();
   /// Probe and wall forces from the implicit integrator's contact multipliers.
   void take_implicit_contact_forces();
+  /// 2D (a slice model): the probes' centres on the slice plane (a sphere becomes the circle
+  /// of its radius in the plane)
+  void project_probes_to_plane();
+  /// 2D: every node back on the slice plane, with no velocity along its normal (plane stress:
+  /// the slice does not move out of its plane; the elastic forces never push it out, this
+  /// removes the round-off and what contact constraints along a tilted normal leave)
+  void hold_plane();
   /// Feeds this step's per-node contact forces into the anchor means.
   void accumulate_local_contact();
   /// The local contact models take their compliance from the integrator's factor.
