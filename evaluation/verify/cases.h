@@ -57,4 +57,14 @@ void run_extreme(VerifyContext& ctx);
 /// A stiff lesion in a soft block is felt: more force over it than away from it.
 void run_lesion(VerifyContext& ctx);
 
+// plane_cases.cpp (the 2D slice model, docs/model.md section 12)
+/// Quadtree counts of an all-tissue square (exact rings) and the growth of a disk's work.
+void run_plane_counts(VerifyContext& ctx);
+/// Plate compression of a rectangle in plane stress at Poisson 0, 0.3 and 0.45.
+void run_plane_compression(VerifyContext& ctx);
+/// A cantilever under a tip load against Timoshenko's beam (hourglass and paper element).
+void run_plane_cantilever(VerifyContext& ctx);
+/// A circle pressed into a block: contact half-width against the 2D Hertz solution.
+void run_plane_contact(VerifyContext& ctx);
+
 }  // namespace vx::cases
