@@ -21,6 +21,7 @@ const char* to_string(SurfaceMethod m) {
     case SurfaceMethod::staircase: return "staircase";
     case SurfaceMethod::paper: return "paper";
     case SurfaceMethod::iso: return "iso";
+    case SurfaceMethod::slice: return "slice";
   }
   return "?";
 }

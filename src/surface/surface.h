@@ -37,6 +37,7 @@ enum class SurfaceMethod : std::uint8_t {
   staircase,  ///< raw voxel boundary
   paper,      ///< voxel boundary with the concave steps hidden (paper 3.3)
   iso,        ///< smoothed iso-surface embedded in the elements
+  slice,      ///< a 2D model's slice: the flat sheet of its elements (make_slice_surface)
 };
 [[nodiscard]] const char* to_string(SurfaceMethod m);
 /// Parses "staircase", "paper" or "iso"; throws vx::Error otherwise.
@@ -126,6 +127,16 @@ struct VoxelSurfaceReport {
 /// Throws vx::Error when the grid does not match the model or a vertex is not a node.
 [[nodiscard]] EmbeddedSurface make_voxel_surface(const Model& model, const VoxelGrid& grid, bool hide_concave_steps,
                                                  VoxelSurfaceReport* report = nullptr);
+
+/// The surface of a 2D (slice) model (docs/model.md section 12): the slice itself as a flat
+/// sheet of triangles facing the slice normal, so that everything that shows or writes a
+/// surface shows the deforming slice. Every model node is a vertex (weight 1); each element adds
+/// one vertex inside each edge-connected part of its cells (the centre of the part's kernel: the
+/// part is a square, two squares, an L or four squares, each star-shaped from there), embedded
+/// by the least-squares affine fit over the element's vertices (exact for affine motion), and is
+/// split into the fan of triangles from it to its boundary vertices in counter-clockwise order
+/// seen from the normal. Throws vx::Error for a volume model.
+[[nodiscard]] EmbeddedSurface make_slice_surface(const Model& model);
 
 /// Embeds a triangle mesh given at rest (LPS mm) in the model's nodes.
 ///
