@@ -85,9 +85,11 @@ std::vector<float> resample_axis(const std::vector<float>& in, const Eigen::Vect
 /// The volume resampled to isotropic `voxel_mm` voxels, same direction, physical extent centred.
 Volume resample(const Volume& volume, double voxel_mm) {
   const GridGeometry& g = volume.geometry;
+  // a one-slice volume (a 2D model) keeps its slice: only the in-plane axes are resampled
+  const bool slice = g.dims.z() == 1;
   Eigen::Vector3i dims;
   for (int a = 0; a < 3; ++a)
-    dims[a] = std::max(1, int(std::lround(g.dims[a] * g.spacing_mm[a] / voxel_mm)));
+    dims[a] = slice && a == 2 ? 1 : std::max(1, int(std::lround(g.dims[a] * g.spacing_mm[a] / voxel_mm)));
   if (double(dims.x()) * dims.y() * dims.z() > 2e9)
     throw Error(fmt::format("prepare: a voxel size of {} mm makes {} x {} x {} voxels, too many; choose a larger "
                             "voxel size",
@@ -96,15 +98,17 @@ Volume resample(const Volume& volume, double voxel_mm) {
   out.geometry = g;
   out.geometry.dims = dims;
   out.geometry.spacing_mm = Eigen::Vector3d::Constant(voxel_mm);
+  if (slice) out.geometry.spacing_mm.z() = g.spacing_mm.z();
   // the centre of the grid stays where it was
   const Eigen::Vector3d centre = g.index_to_lps(0.5 * (g.dims.cast<double>() - Eigen::Vector3d::Ones()));
-  out.geometry.origin_mm = centre - g.direction * (0.5 * voxel_mm * (dims.cast<double>() - Eigen::Vector3d::Ones()));
+  out.geometry.origin_mm =
+      centre - g.direction * (0.5 * out.geometry.spacing_mm.cwiseProduct(dims.cast<double>() - Eigen::Vector3d::Ones()));
   // one axis after the other (box and linear filters are separable); the input is never copied
   std::vector<float> values;
   const std::vector<float>* current = &volume.hu;
   Eigen::Vector3i d = g.dims;
   for (int a = 0; a < 3; ++a) {
-    if (dims[a] == d[a] && std::abs(voxel_mm - g.spacing_mm[a]) < 1e-12) continue;
+    if (dims[a] == d[a] && std::abs(out.geometry.spacing_mm[a] - g.spacing_mm[a]) < 1e-12) continue;
     values = resample_axis(*current, d, a, dims[a], voxel_mm / g.spacing_mm[a]);
     current = &values;
     d[a] = dims[a];
@@ -276,17 +280,21 @@ VoxelGrid prepare_grid(const Volume& volume_in, const PrepareOptions& options, P
   // fill cavities
   if (options.fill_holes) report.filled_voxels = fill_holes(grid);
 
-  // crop to the tissue with one voxel of air all round
+  // crop to the tissue with one voxel of air all round (in the slice's plane for a one-slice
+  // volume: it stays one voxel thick, a 2D model)
   if (options.crop) {
     Eigen::Vector3i lo, hi;
     grid.tissue_bounds(lo, hi);
-    report.crop_lo = lo - Eigen::Vector3i::Ones();
-    report.crop_hi = hi + Eigen::Vector3i::Ones();
+    const Eigen::Vector3i margin(1, 1, grid.dims().z() == 1 ? 0 : 1);
+    report.crop_lo = lo - margin;
+    report.crop_hi = hi + margin;
     grid = crop(grid, report.crop_lo, report.crop_hi);
     if (options.lattice_period > 1) {
       // docs/model.md section 3.5: the same tissue, grouped from another first voxel
       LatticeShiftReport lattice;
-      const Eigen::Vector3i shift = choose_lattice_shift(grid, options.lattice_build, options.lattice_period, &lattice);
+      BuildSettings lattice_build = options.lattice_build;
+      if (grid.dims().z() == 1) lattice_build.dimensions = 2;  // a one-slice grid makes a 2D model
+      const Eigen::Vector3i shift = choose_lattice_shift(grid, lattice_build, options.lattice_period, &lattice);
       report.lattice_shift = shift;
       report.entries_unshifted = lattice.entries_unshifted;
       report.entries_chosen = lattice.entries_chosen;

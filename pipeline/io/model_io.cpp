@@ -91,6 +91,9 @@ vtkSmartPointer<vtkUnstructuredGrid> to_vtk(const Model& m) {
   version->SetValue(0, kFormatVersion);
   fd->AddArray(version);
   add_string(fd, "resolution", to_string(m.layout));
+  auto dimensions = make_array<vtkIntArray>("dimensions", 1, 1);  // 3: volume model; 2: slice (format 1 files without it: 3)
+  dimensions->SetValue(0, m.dimensions);
+  fd->AddArray(dimensions);
   auto dims = make_array<vtkIntArray>("grid_dims", 3, 1);
   auto spacing = make_array<vtkDoubleArray>("grid_spacing_mm", 3, 1);
   auto origin = make_array<vtkDoubleArray>("grid_origin_mm", 3, 1);
@@ -193,6 +196,15 @@ Model load_model(const fs::path& path) {
   } catch (const Error& e) {
     throw Error("'" + where + "' is corrupt: " + e.what());
   }
+  if (vtkDataArray* d = fd->GetArray("dimensions")) {
+    if (d->GetNumberOfTuples() != 1 || d->GetNumberOfComponents() != 1)
+      throw Error("'" + where + "' is corrupt: the field array 'dimensions' must hold one value");
+    m.dimensions = as_int(d->GetComponent(0, 0), "dimensions", where);
+    if (m.dimensions != 2 && m.dimensions != 3)
+      throw Error("'" + where + "' is corrupt: field array 'dimensions' is " + std::to_string(m.dimensions) +
+                  " (2: a slice model, 3: a volume model)");
+  }
+  const int cell_type = m.dimensions == 2 ? VTK_POLYGON : VTK_POLYHEDRON;
   vtkDataArray* dims = require(fd, "field", "grid_dims", 3, 1, where);
   vtkDataArray* spacing = require(fd, "field", "grid_spacing_mm", 3, 1, where);
   vtkDataArray* origin = require(fd, "field", "grid_origin_mm", 3, 1, where);
@@ -236,7 +248,7 @@ Model load_model(const fs::path& path) {
   }
   if (!m.rest_positions.allFinite()) throw Error("'" + where + "' is corrupt: a node position is not finite");
 
-  // elements: the polyhedron's point list is the vertex list, in order
+  // elements: the polyhedron's (2D: the polygon's) point list is the vertex list, in order
   m.element_offsets.assign(1, 0);
   m.element_vertices.reserve(std::size_t(ug->GetCells()->GetNumberOfConnectivityIds()));
   m.element_level.resize(std::size_t(ne));
@@ -245,9 +257,10 @@ Model load_model(const fs::path& path) {
   m.element_anchor.resize(3, ne);
   vtkNew<vtkIdList> pts;
   for (vtkIdType e = 0; e < ne; ++e) {
-    if (ug->GetCellType(e) != VTK_POLYHEDRON)
+    if (ug->GetCellType(e) != cell_type)
       throw Error("'" + where + "' is corrupt: cell " + std::to_string(e) + " is VTK cell type " +
-                  std::to_string(ug->GetCellType(e)) + ", expected a polyhedron (42)");
+                  std::to_string(ug->GetCellType(e)) + ", expected " +
+                  (cell_type == VTK_POLYGON ? "a polygon (7) in a 2D model" : "a polyhedron (42)"));
     ug->GetCellPoints(e, pts);
     const int n = int(pts->GetNumberOfIds());
     if (n != as_int(vertex_count->GetComponent(e, 0), "vertex_count", where))

@@ -3,7 +3,10 @@
 /// Saving and loading the elastic model as VTK XML unstructured grid (.vtu), in LPS mm:
 /// one VTK_POLYHEDRON cell per element (its point list is the element's vertex list, in
 /// order), cell data `level`, `cell_voxels`, `cells_mask`, `anchor`, `volume_mm3`; point
-/// data `lattice`, `surface`; field data for the grid geometry and the resolution.
+/// data `lattice`, `surface`; field data for the grid geometry, the resolution and `dimensions`
+/// (2: a slice model, whose elements are VTK_POLYGON cells going round each element
+/// counter-clockwise seen from the slice normal, on the slice's plane in LPS mm; files without
+/// it are volume models).
 
 #include <filesystem>
 

@@ -43,9 +43,21 @@ inline void mark_lps(vtkFieldData* fd) {
 }
 
 /// Inserts one VTK_POLYHEDRON cell per element into `ug` (whose points are the model's nodes):
-/// the cell's point list is the element's vertex list in order, plus its face stream.
+/// the cell's point list is the element's vertex list in order, plus its face stream. A 2D
+/// (slice) model gets one VTK_POLYGON per element instead: its vertex list goes round the
+/// element counter-clockwise (seen from the slice normal; gradational_builder_2d.cpp).
 inline void insert_element_polyhedra(const Model& m, vtkUnstructuredGrid* ug) {
   const int ne = m.num_elements();
+  if (m.is_2d()) {
+    ug->AllocateEstimate(ne, 16);
+    std::vector<vtkIdType> ring;
+    for (int e = 0; e < ne; ++e) {
+      const int b = m.element_offsets[std::size_t(e)], n = m.num_vertices(e);
+      ring.assign(m.element_vertices.begin() + b, m.element_vertices.begin() + b + n);
+      ug->InsertNextCell(VTK_POLYGON, n, ring.data());
+    }
+    return;
+  }
   ug->AllocateEstimate(ne, 64);
   FacePolygons faces;
   std::vector<vtkIdType> ids, stream;

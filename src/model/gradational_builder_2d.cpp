@@ -4,6 +4,7 @@
 // polyhedra; the same rules decide which group gets an element, where vertices go and how
 // levels share their nodes.
 
+#include <algorithm>
 #include <chrono>
 #include <limits>
 #include <string>
@@ -277,6 +278,20 @@ Model build_model_2d(const VoxelGrid& grid, const BuildSettings& settings, Build
     if (model.element_vertices.size() > std::size_t(std::numeric_limits<std::int32_t>::max()))
       throw Error("the model would have more than 2^31 vertex entries: resample the image to larger pixels (--voxel MM)");
     if (settings.progress && (e & 4095) == 0) settings.progress(0.6 + 0.4 * double(e) / double(seeds.size()));
+  }
+  // each element's vertices around its boundary, counter-clockwise (slice_element_parts), so
+  // that a polygon through the vertex list in order is the element (the model file's cells)
+  for (int e = 0; e < model.num_elements(); ++e) {
+    const int b = model.element_offsets[std::size_t(e)], n = model.element_offsets[std::size_t(e) + 1] - b;
+    std::vector<std::int32_t> order;
+    order.reserve(std::size_t(n));
+    for (const SlicePart& part : slice_element_parts(model, e))
+      for (const int node : part.ring)
+        if (std::find(order.begin(), order.end(), node) == order.end()) order.push_back(node);
+    for (int j = b; j < b + n; ++j)  // (every vertex lies on the boundary; kept whatever happens)
+      if (std::find(order.begin(), order.end(), model.element_vertices[std::size_t(j)]) == order.end())
+        order.push_back(model.element_vertices[std::size_t(j)]);
+    std::copy(order.begin(), order.end(), model.element_vertices.begin() + b);
   }
   model.finalize();
   if (settings.progress) settings.progress(1.0);

@@ -78,6 +78,93 @@ void Model::finalize() {
   }
 }
 
+namespace {
+
+/// Edge-connected parts of a 2x2 cell mask (bit cx + 2 cy), each as a mask.
+std::vector<std::uint8_t> cell_parts(std::uint8_t mask) {
+  std::vector<std::uint8_t> parts;
+  std::uint8_t left = mask & 0x0F;
+  while (left) {
+    std::uint8_t part = std::uint8_t(left & -left);  // lowest cell
+    for (bool grew = true; grew;) {
+      grew = false;
+      for (int c = 0; c < 4; ++c) {
+        if (!((left >> c) & 1) || ((part >> c) & 1)) continue;
+        // edge neighbours of cell c: flip x (c ^ 1) or flip y (c ^ 2)
+        if (((part >> (c ^ 1)) & 1) || ((part >> (c ^ 2)) & 1)) {
+          part = std::uint8_t(part | (1u << c));
+          grew = true;
+        }
+      }
+    }
+    parts.push_back(part);
+    left = std::uint8_t(left & ~part);
+  }
+  return parts;
+}
+
+/// The boundary of the part as corner points (cell units) in counter-clockwise order.
+std::vector<Eigen::Vector2i> part_loop(std::uint8_t part) {
+  // directed edges of every cell, counter-clockwise; an edge shared by two cells of the part
+  // appears once each way and cancels
+  std::vector<std::pair<Eigen::Vector2i, Eigen::Vector2i>> edges;
+  for (int c = 0; c < 4; ++c) {
+    if (!((part >> c) & 1)) continue;
+    const Eigen::Vector2i o(c & 1, (c >> 1) & 1);
+    const std::array<Eigen::Vector2i, 4> k = {o, o + Eigen::Vector2i(1, 0), o + Eigen::Vector2i(1, 1),
+                                              o + Eigen::Vector2i(0, 1)};
+    for (int i = 0; i < 4; ++i) {
+      const auto a = k[std::size_t(i)], b = k[std::size_t((i + 1) % 4)];
+      const auto twin = std::find_if(edges.begin(), edges.end(), [&](const auto& e) { return e.first == b && e.second == a; });
+      if (twin != edges.end())
+        edges.erase(twin);
+      else
+        edges.emplace_back(a, b);
+    }
+  }
+  std::vector<Eigen::Vector2i> loop;
+  if (edges.empty()) return loop;
+  Eigen::Vector2i at = edges.front().first;
+  const Eigen::Vector2i start = at;
+  do {
+    loop.push_back(at);
+    const auto next = std::find_if(edges.begin(), edges.end(), [&](const auto& e) { return e.first == at; });
+    if (next == edges.end()) break;
+    at = next->second;
+    edges.erase(next);
+  } while (at != start && loop.size() < 16);
+  return loop;
+}
+
+}  // namespace
+
+std::vector<SlicePart> slice_element_parts(const Model& m, int e) {
+  std::vector<SlicePart> parts;
+  const int b = m.element_offsets[std::size_t(e)], n = m.element_offsets[std::size_t(e) + 1] - b;
+  const int w = m.element_cell_voxels[std::size_t(e)];
+  const Eigen::Vector2i anchor = m.element_anchor.col(e).head<2>();
+  const std::uint8_t mask = m.layout == Layout::voxel ? std::uint8_t(1) : m.element_cells[std::size_t(e)];
+  for (const std::uint8_t cells : cell_parts(mask)) {
+    SlicePart part{cells, {}};
+    const std::vector<Eigen::Vector2i> loop = part_loop(cells);
+    for (std::size_t k = 0; k < loop.size(); ++k) {
+      const Eigen::Vector2i a = anchor + w * loop[k], c = anchor + w * loop[(k + 1) % loop.size()];
+      const Eigen::Vector2i dir = (c - a) / w;  // unit step along the side
+      std::vector<std::pair<int, int>> on_side;  // (distance from a, node)
+      for (int j = b; j < b + n; ++j) {
+        const Eigen::Vector2i p = m.node_lattice.col(m.element_vertices[std::size_t(j)]).head<2>();
+        const Eigen::Vector2i d = p - a;
+        const int t = d.dot(dir);
+        if (t >= 0 && t < w && d == t * dir) on_side.emplace_back(t, m.element_vertices[std::size_t(j)]);
+      }
+      std::sort(on_side.begin(), on_side.end());
+      for (const auto& [t, node] : on_side) part.ring.push_back(node);
+    }
+    parts.push_back(std::move(part));
+  }
+  return parts;
+}
+
 Eigen::Vector3d node_position(const GridGeometry& grid, const Eigen::Vector3i& a, int dimensions) {
   if (dimensions != 2) return grid.lattice_to_lps(a);
   return grid.index_to_lps(Eigen::Vector3d(a.x() - 0.5, a.y() - 0.5, 0.0));

@@ -100,6 +100,18 @@ struct Model {
   [[nodiscard]] std::string validate() const;
 };
 
+/// One edge-connected part of a 2D element's cells (docs/model.md section 12): its cells (bits
+/// cx + 2 cy of the 2x2 group) and the element's vertices (node ids) around it, counter-clockwise
+/// in the lattice's (x, y), i.e. seen from the slice normal e1 x e2, starting at a corner.
+struct SlicePart {
+  std::uint8_t cells{0};
+  std::vector<int> ring;
+};
+
+/// The parts of element e of a 2D model: one for a square, domino, L or full group; two for the
+/// rare group whose two cells touch at a corner only (they share that vertex).
+[[nodiscard]] std::vector<SlicePart> slice_element_parts(const Model& model, int e);
+
 /// Rest position (LPS mm) of lattice point a of a model of `dimensions` built on `grid`: the
 /// voxel corner (3D), or for a 2D model the corner projected onto the slice's centre plane.
 [[nodiscard]] Eigen::Vector3d node_position(const GridGeometry& grid, const Eigen::Vector3i& a, int dimensions);

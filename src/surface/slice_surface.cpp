@@ -13,29 +13,6 @@ namespace vx {
 
 namespace {
 
-/// Edge-connected parts of a 2x2 cell mask (bit cx + 2 cy), each as a mask.
-std::vector<std::uint8_t> cell_parts(std::uint8_t mask) {
-  std::vector<std::uint8_t> parts;
-  std::uint8_t left = mask & 0x0F;
-  while (left) {
-    std::uint8_t part = std::uint8_t(left & -left);  // lowest cell
-    for (bool grew = true; grew;) {
-      grew = false;
-      for (int c = 0; c < 4; ++c) {
-        if (!((left >> c) & 1) || ((part >> c) & 1)) continue;
-        // edge neighbours of cell c: flip x (c ^ 1) or flip y (c ^ 2)
-        if (((part >> (c ^ 1)) & 1) || ((part >> (c ^ 2)) & 1)) {
-          part = std::uint8_t(part | (1u << c));
-          grew = true;
-        }
-      }
-    }
-    parts.push_back(part);
-    left = std::uint8_t(left & ~part);
-  }
-  return parts;
-}
-
 /// The point (in cell units, 0..2) from which the part is star-shaped with no boundary vertex
 /// collinear: a cell's or the union's centre; for an L the centre of its corner cell.
 Eigen::Vector2d part_apex(std::uint8_t part) {
@@ -48,39 +25,6 @@ Eigen::Vector2d part_apex(std::uint8_t part) {
     if (((part >> c) & 1) && ((part >> (c ^ 1)) & 1) && ((part >> (c ^ 2)) & 1))
       return Eigen::Vector2d((c & 1) + 0.5, ((c >> 1) & 1) + 0.5);
   return sum / n;
-}
-
-/// The boundary of the part as corner points (cell units) in counter-clockwise order.
-std::vector<Eigen::Vector2i> part_loop(std::uint8_t part) {
-  // directed edges of every cell, counter-clockwise; an edge shared by two cells of the part
-  // appears once each way and cancels
-  std::vector<std::pair<Eigen::Vector2i, Eigen::Vector2i>> edges;
-  for (int c = 0; c < 4; ++c) {
-    if (!((part >> c) & 1)) continue;
-    const Eigen::Vector2i o(c & 1, (c >> 1) & 1);
-    const std::array<Eigen::Vector2i, 4> k = {o, o + Eigen::Vector2i(1, 0), o + Eigen::Vector2i(1, 1),
-                                              o + Eigen::Vector2i(0, 1)};
-    for (int i = 0; i < 4; ++i) {
-      const auto a = k[std::size_t(i)], b = k[std::size_t((i + 1) % 4)];
-      const auto twin = std::find_if(edges.begin(), edges.end(), [&](const auto& e) { return e.first == b && e.second == a; });
-      if (twin != edges.end())
-        edges.erase(twin);
-      else
-        edges.emplace_back(a, b);
-    }
-  }
-  std::vector<Eigen::Vector2i> loop;
-  if (edges.empty()) return loop;
-  Eigen::Vector2i at = edges.front().first;
-  const Eigen::Vector2i start = at;
-  do {
-    loop.push_back(at);
-    const auto next = std::find_if(edges.begin(), edges.end(), [&](const auto& e) { return e.first == at; });
-    if (next == edges.end()) break;
-    at = next->second;
-    edges.erase(next);
-  } while (at != start && loop.size() < 16);
-  return loop;
 }
 
 }  // namespace
@@ -103,7 +47,6 @@ EmbeddedSurface make_slice_surface(const Model& m) {
     s.embed_offsets.push_back(std::int32_t(s.embed_nodes.size()));
   }
   std::vector<Eigen::Vector3i> tris;
-  const int cells = m.layout == Layout::voxel ? 1 : 2;
   for (int e = 0; e < m.num_elements(); ++e) {
     const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
     const int w = m.element_cell_voxels[std::size_t(e)];
@@ -120,10 +63,9 @@ EmbeddedSurface make_slice_surface(const Model& m) {
       moment += offsets.back() * offsets.back().transpose();
     }
     const Eigen::Matrix2d inv = moment.inverse();
-    const std::uint8_t mask = cells == 1 ? std::uint8_t(1) : m.element_cells[std::size_t(e)];
-    for (const std::uint8_t part : cell_parts(mask)) {
+    for (const SlicePart& part : slice_element_parts(m, e)) {
       // the apex vertex, embedded by the affine fit
-      const Eigen::Vector2d apex_cells = part_apex(part);
+      const Eigen::Vector2d apex_cells = part_apex(part.cells);
       const Eigen::Vector3d apex = m.grid.index_to_lps(
           Eigen::Vector3d(anchor.x() + w * apex_cells.x() - 0.5, anchor.y() + w * apex_cells.y() - 0.5, 0.0));
       const Eigen::Vector2d q(e1.dot(apex - centroid), e2.dot(apex - centroid));
@@ -134,22 +76,7 @@ EmbeddedSurface make_slice_surface(const Model& m) {
         s.embed_weights.push_back(1.0 / n + offsets[std::size_t(j)].dot(inv * q));
       }
       s.embed_offsets.push_back(std::int32_t(s.embed_nodes.size()));
-      // the boundary: the loop's corners with the element's vertices on each side, in order
-      const std::vector<Eigen::Vector2i> loop = part_loop(part);
-      std::vector<int> ring;
-      for (std::size_t k = 0; k < loop.size(); ++k) {
-        const Eigen::Vector2i a = anchor + w * loop[k], c = anchor + w * loop[(k + 1) % loop.size()];
-        const Eigen::Vector2i dir = (c - a) / w;  // unit step along the side
-        std::vector<std::pair<int, int>> on_side;   // (distance from a, node)
-        for (int j = b; j < b + n; ++j) {
-          const Eigen::Vector2i p = m.node_lattice.col(m.element_vertices[j]).head<2>();
-          const Eigen::Vector2i d = p - a;
-          const int t = d.dot(dir);
-          if (t >= 0 && t < w && d == t * dir) on_side.emplace_back(t, m.element_vertices[j]);
-        }
-        std::sort(on_side.begin(), on_side.end());
-        for (const auto& [t, node] : on_side) ring.push_back(node);
-      }
+      const std::vector<int>& ring = part.ring;
       for (std::size_t k = 0; k < ring.size(); ++k)
         tris.emplace_back(apex_id, ring[k], ring[(k + 1) % ring.size()]);
     }

@@ -157,3 +157,24 @@ TEST(GradationalBuilder2d, RefusesThickGridsEmptySlicesAndBadSettings) {
     EXPECT_NE(std::string(e.what()).find("one voxel thick"), std::string::npos) << e.what();
   }
 }
+
+TEST(GradationalBuilder2d, VertexListGoesRoundTheElementCounterClockwise) {
+  // the polygon through each element's vertex list, in order, is the element: its signed area
+  // (shoelace, lattice units) is the area of its cells, for every layout
+  for (const Layout layout : {Layout::gradational, Layout::uniform, Layout::voxel}) {
+    const Model m = build_model(disk(64), settings_2d(layout));
+    for (int e = 0; e < m.num_elements(); ++e) {
+      const int b = m.element_offsets[std::size_t(e)], n = m.element_offsets[std::size_t(e) + 1] - b;
+      double twice = 0;
+      for (int k = 0; k < n; ++k) {
+        const Eigen::Vector3i p = m.node_lattice.col(m.element_vertices[std::size_t(b + k)]);
+        const Eigen::Vector3i q = m.node_lattice.col(m.element_vertices[std::size_t(b + (k + 1) % n)]);
+        twice += double(p.x()) * q.y() - double(q.x()) * p.y();
+      }
+      const int w = m.element_cell_voxels[std::size_t(e)];
+      const int cells = layout == Layout::voxel ? 1 : __builtin_popcount(m.element_cells[std::size_t(e)]);
+      ASSERT_EQ(slice_element_parts(m, e).size(), 1u) << "a disk has no element of two corner-touching cells";
+      EXPECT_DOUBLE_EQ(0.5 * twice, double(cells) * w * w) << to_string(layout) << " element " << e;
+    }
+  }
+}
