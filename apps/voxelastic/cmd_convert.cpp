@@ -156,7 +156,14 @@ void run_convert(const ConvertOptions& o) {
   const VoxelGrid grid = prepare_grid(volume, prep, &prepared);
   preparing.done();
 
-  // build the model
+  // build the model: a one-slice volume makes the 2D (slice) model (docs/model.md section 12)
+  if (grid.dims().z() == 1) {
+    build.dimensions = 2;
+    if (talk)
+      log::info("one slice ({} x {} pixels of {:g} x {:g} mm, {:g} mm thick): building the 2D model (plane stress)",
+                grid.dims().x(), grid.dims().y(), grid.geometry().spacing_mm.x(), grid.geometry().spacing_mm.y(),
+                grid.geometry().spacing_mm.z());
+  }
   BuildReport built;
   Progress building("building the " + o.layout + " model", talk);
   build.progress = [&building](double f) { building.update(f); };
@@ -167,7 +174,9 @@ void run_convert(const ConvertOptions& o) {
   // the smoothed surface, embedded in the model so a simulation can deform it
   EmbeddedSurface surface;
   if (!o.surface.empty()) {
-    Progress surfacing("extracting the " + o.surface_method + " surface", talk);
+    Progress surfacing(model.is_2d() ? std::string("making the slice surface (2D model)")
+                                     : "extracting the " + o.surface_method + " surface",
+                       talk);
     // contour the HU values where they sit on the model's voxels (no resampling) and the window
     // is open above; otherwise the binary grid, which is exactly what the model holds
     const bool use_hu = o.voxel_mm == 0.0 && !std::isfinite(prep.range.hi);
@@ -199,7 +208,7 @@ void run_convert(const ConvertOptions& o) {
     const auto optional = [](const std::string& v) { return v.empty() ? nlohmann::json(nullptr) : nlohmann::json(v); };
     j["outputs"] = {{"model", o.output}, {"stats", o.stats}, {"png", optional(o.png)}, {"surface", optional(o.surface)}};
     if (!o.surface.empty())
-      j["surface"] = {{"method", o.surface_method}, {"vertices", surface.num_vertices()}, {"triangles", surface.num_triangles()}};
+      j["surface"] = {{"method", to_string(surface.method)}, {"vertices", surface.num_vertices()}, {"triangles", surface.num_triangles()}};
     j["voxelastic_version"] = vx::kVersion;
     write_text_atomically(outputs.stage(o.stats), j.dump(2) + "\n");
   }
@@ -222,7 +231,7 @@ void run_convert(const ConvertOptions& o) {
   if (!o.stats.empty()) fmt::print(", {}", o.stats);
   if (!o.png.empty()) fmt::print(", {}", o.png);
   if (!o.surface.empty())
-    fmt::print(", {} ({} surface: {} vertices, {} triangles)", o.surface, o.surface_method, surface.num_vertices(),
+    fmt::print(", {} ({} surface: {} vertices, {} triangles)", o.surface, to_string(surface.method), surface.num_vertices(),
                surface.num_triangles());
   fmt::print("\n");
 }

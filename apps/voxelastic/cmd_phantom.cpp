@@ -35,6 +35,17 @@ void run_phantom(const PhantomOptions& o) {
   write_volume(volume, o.output);
 
   const GridGeometry& g = volume.geometry;
+  if (shape.is_2d()) {
+    fmt::print("phantom {} (one slice, a 2D model): {}x{} pixels of {:g} mm, {:g} mm thick, {} tissue pixels = {:.4g} "
+               "mm^2 (analytic {:.4g} mm^2){} -> {}\n",
+               shape.name, g.dims.x(), g.dims.y(), g.spacing_mm.x(), g.spacing_mm.z(), shape.tissue_voxels,
+               double(shape.tissue_voxels) * g.spacing_mm.x() * g.spacing_mm.y(), shape.area_mm2(),
+               shape.lesion_radius_mm > 0 ? fmt::format(", lesion r {:.3g} mm at {:g} HU ({} pixels)",
+                                                        shape.lesion_radius_mm, o.settings.lesion_hu, shape.lesion_voxels)
+                                          : std::string(),
+               o.output);
+    return;
+  }
   const double voxel_cm3 = double(shape.tissue_voxels) * g.voxel_volume_mm3() / 1000.0;
   const double analytic_cm3 = shape.volume_mm3() / 1000.0;
   std::string lesion;
@@ -59,7 +70,7 @@ void add_phantom_command(CLI::App& app) {
   CLI::App* sub = app.add_subcommand(
       "phantom",
       "Write a synthetic CT volume of a known shape (tissue in air, HU, LPS mm, centred at the origin): the ground "
-      "truth for tests and demos.");
+      "truth for tests and demos. disk, rectangle and disk-lesion are one slice: convert makes them 2D models.");
   sub->add_option("NAME", opts->settings.name, "shape: " + names)->required();
   sub->add_option("-o,--output", opts->output,
                   "volume to write: .vti, .mha, .nii.gz, .nii, .nrrd, or a folder path ending in '/' (DICOM series)")
@@ -70,7 +81,10 @@ void add_phantom_command(CLI::App& app) {
       ->capture_default_str();
   sub->add_option("--seed", opts->settings.seed, "noise seed")->capture_default_str();
   sub->add_option("--tissue-hu", opts->settings.tissue_hu, "value inside the shape, HU")->capture_default_str();
-  sub->add_option("--lesion-hu", opts->settings.lesion_hu, "block-lesion: value inside the lesion, HU")
+  sub->add_option("--lesion-hu", opts->settings.lesion_hu, "block-lesion, disk-lesion: value inside the lesion, HU")
+      ->capture_default_str();
+  sub->add_option("--thickness", opts->settings.thickness_mm,
+                  "disk, rectangle, disk-lesion (one slice, a 2D model): the slice thickness, mm (0: the spacing)")
       ->capture_default_str();
   sub->callback([opts] { run_phantom(*opts); });
 }

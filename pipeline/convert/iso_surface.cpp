@@ -163,11 +163,14 @@ TriangleMesh extract_iso_surface(const VoxelGrid& grid, const Volume* hu, const 
 
 EmbeddedSurface make_surface(const Model& model, const VoxelGrid& grid, const Volume* hu, SurfaceMethod method,
                              const IsoSurfaceSettings& settings) {
+  // a 2D (slice) model's surface is the slice itself, a flat sheet (surface.h)
+  if (model.is_2d()) return make_slice_surface(model);
   if (grid.dims() != model.grid.dims || grid.count() != model.covered_voxels())
     throw Error("cannot make the surface: the voxel grid is not the one the model was built from");
   switch (method) {
     case SurfaceMethod::staircase: return make_voxel_surface(model, grid, false);
     case SurfaceMethod::paper: return make_voxel_surface(model, grid, true);
+    case SurfaceMethod::slice: return make_slice_surface(model);
     case SurfaceMethod::iso: {
       const TriangleMesh mesh = extract_iso_surface(grid, hu, settings);
       return embed_surface(model, mesh.vertices_mm, mesh.triangles, SurfaceMethod::iso);

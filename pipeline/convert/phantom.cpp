@@ -18,8 +18,9 @@ namespace {
 constexpr double kPi = std::numbers::pi;
 
 const std::vector<std::string>& names() {
-  static const std::vector<std::string> n = {"sphere", "cube",  "ellipsoid",   "cylinder",
-                                             "torus",  "block", "block-lesion", "organ"};
+  static const std::vector<std::string> n = {"sphere", "cube",  "ellipsoid",    "cylinder", "torus",
+                                             "block",  "block-lesion", "organ", "disk", "rectangle",
+                                             "disk-lesion"};
   return n;
 }
 
@@ -149,6 +150,13 @@ double snap_inward(double half_mm, int n, double h) {
 std::vector<std::string> phantom_names() { return names(); }
 
 double PhantomShape::signed_distance_mm(const Eigen::Vector3d& p_mm) const {
+  // one-slice (2D) shapes: the distance in the slice plane (z = 0)
+  if (name == "disk" || name == "disk-lesion")
+    return std::hypot(p_mm.x() - center_mm.x(), p_mm.y() - center_mm.y()) - half_extent_mm.x();
+  if (name == "rectangle") {
+    const Eigen::Vector2d q = (p_mm - center_mm).head<2>().cwiseAbs() - half_extent_mm.head<2>();
+    return q.cwiseMax(0.0).norm() + std::min(q.maxCoeff(), 0.0);
+  }
   const Eigen::Vector3d p = p_mm - center_mm;
   if (name == "sphere") return p.norm() - half_extent_mm.x();
   if (name == "cube" || name == "block" || name == "block-lesion") return box_distance(p, half_extent_mm);
@@ -176,6 +184,7 @@ double PhantomShape::signed_distance_mm(const Eigen::Vector3d& p_mm) const {
 
 double PhantomShape::volume_mm3() const {
   const Eigen::Vector3d& e = half_extent_mm;
+  if (is_2d()) return area_mm2() * 2.0 * e.z();  // the slab: the shape's area times the slice thickness
   if (name == "sphere" || name == "ellipsoid" || name == "organ") return 4.0 / 3.0 * kPi * e.prod();
   if (name == "cube" || name == "block" || name == "block-lesion") return 8.0 * e.prod();
   if (name == "cylinder") return kPi * minor_radius_mm * minor_radius_mm * 2.0 * half_length_mm;
@@ -185,6 +194,8 @@ double PhantomShape::volume_mm3() const {
 
 double PhantomShape::area_mm2() const {
   const Eigen::Vector3d& e = half_extent_mm;
+  if (name == "disk" || name == "disk-lesion") return kPi * e.x() * e.x();
+  if (name == "rectangle") return 4.0 * e.x() * e.y();
   if (name == "sphere") return 4.0 * kPi * e.x() * e.x();
   if (name == "ellipsoid" || name == "organ") return ellipsoid_area(e);
   if (name == "cube" || name == "block" || name == "block-lesion")
@@ -203,6 +214,9 @@ Volume make_phantom(const PhantomSettings& s, PhantomShape* shape_out) {
     for (const auto& n : known) list += (list.empty() ? "" : ", ") + n;
     throw Error(fmt::format("unknown phantom '{}' (choose one of: {})", s.name, list));
   }
+  if (!(s.thickness_mm >= 0) || !std::isfinite(s.thickness_mm))
+    throw Error(fmt::format("phantom slice thickness {} mm must be a positive number (0: the pixel spacing)",
+                            s.thickness_mm));
   if (s.size < 4 || s.size > 1024)
     throw Error(fmt::format("phantom size {} voxels is out of range: use 4 to 1024 voxels per axis", s.size));
   if (!std::isfinite(s.spacing_mm) || s.spacing_mm <= 0)
@@ -222,7 +236,23 @@ Volume make_phantom(const PhantomSettings& s, PhantomShape* shape_out) {
   PhantomShape shape;
   shape.name = s.name;
   shape.center_mm = Eigen::Vector3d::Zero();
-  if (s.name == "sphere") {
+  // one-slice (2D) phantoms: an n x n x 1 grid, the slice `thickness` deep
+  const bool flat = shape.is_2d();
+  const int nz = flat ? 1 : n;
+  const double thickness = flat ? (s.thickness_mm > 0 ? s.thickness_mm : h) : h;
+  if (flat) {
+    if (s.name == "rectangle") {
+      shape.half_extent_mm =
+          Eigen::Vector3d(snap_inward(0.4 * scale, n, h), snap_inward(0.25 * scale, n, h), 0.5 * thickness);
+    } else {
+      shape.half_extent_mm = Eigen::Vector3d(0.4 * scale, 0.4 * scale, 0.5 * thickness);
+      if (s.name == "disk-lesion") {
+        // the stiffer inclusion: radius a quarter of the disk's, centred halfway up (+y)
+        shape.lesion_center_mm = Eigen::Vector3d(0.0, 0.5 * shape.half_extent_mm.x(), 0.0);
+        shape.lesion_radius_mm = 0.25 * shape.half_extent_mm.x();
+      }
+    }
+  } else if (s.name == "sphere") {
     shape.half_extent_mm = Eigen::Vector3d::Constant(0.4 * scale);
   } else if (s.name == "cube") {
     shape.half_extent_mm = Eigen::Vector3d::Constant(snap_inward(0.35 * scale, n, h));
@@ -253,16 +283,19 @@ Volume make_phantom(const PhantomSettings& s, PhantomShape* shape_out) {
 
   Volume v;
   GridGeometry& g = v.geometry;
-  g.dims = Eigen::Vector3i::Constant(n);
-  g.spacing_mm = Eigen::Vector3d::Constant(h);
-  g.origin_mm = Eigen::Vector3d::Constant(-0.5 * (n - 1) * h);  // grid centre at (0,0,0)
+  g.dims = Eigen::Vector3i(n, n, nz);
+  g.spacing_mm = Eigen::Vector3d(h, h, thickness);
+  const double corner = -0.5 * (n - 1) * h;  // grid centre at (0,0,0)
+  g.origin_mm = Eigen::Vector3d(corner, corner, flat ? 0.0 : corner);
   g.direction = Eigen::Matrix3d::Identity();
   v.hu.assign(std::size_t(g.voxel_count()), float(s.air_hu));
 
   // voxel centres inside get tissue: the same tests as the signed distance's sign, without
   // its cost (and the ellipsoid by its implicit equation)
-  enum class Kind { sphere, box, cylinder, torus, ellipsoid };
-  const Kind kind = s.name == "sphere"     ? Kind::sphere
+  enum class Kind { sphere, box, cylinder, torus, ellipsoid, disk, rectangle };
+  const Kind kind = (s.name == "disk" || s.name == "disk-lesion") ? Kind::disk
+                    : s.name == "rectangle"  ? Kind::rectangle
+                    : s.name == "sphere"     ? Kind::sphere
                     : s.name == "cylinder" ? Kind::cylinder
                     : s.name == "torus"    ? Kind::torus
                     : (s.name == "ellipsoid" || s.name == "organ") ? Kind::ellipsoid
@@ -279,19 +312,21 @@ Volume make_phantom(const PhantomSettings& s, PhantomShape* shape_out) {
         return q * q + p.z() * p.z() < shape.minor_radius_mm * shape.minor_radius_mm;
       }
       case Kind::ellipsoid: return p.cwiseQuotient(shape.half_extent_mm).squaredNorm() < 1.0;
+      case Kind::disk: return p.head<2>().squaredNorm() < shape.half_extent_mm.x() * shape.half_extent_mm.x();
+      case Kind::rectangle: return (p.head<2>().cwiseAbs().array() < shape.half_extent_mm.head<2>().array()).all();
     }
     return false;
   };
-  const bool has_lesion = s.name == "block-lesion";
+  const bool has_lesion = s.name == "block-lesion" || s.name == "disk-lesion";
   const double lesion_r2 = shape.lesion_radius_mm * shape.lesion_radius_mm;
   std::int64_t tissue = 0, lesion = 0;
 #pragma omp parallel for schedule(static) reduction(+ : tissue, lesion)
-  for (int k = 0; k < n; ++k) {
+  for (int k = 0; k < nz; ++k) {
     for (int j = 0; j < n; ++j) {
       float* row = v.hu.data() + std::size_t(n) * (std::size_t(j) + std::size_t(n) * std::size_t(k));
       for (int i = 0; i < n; ++i) {
         // (2i - (n-1)) h/2: exact mirror images, so the phantom is symmetric to the last bit
-        const Eigen::Vector3d p = Eigen::Vector3d(2 * i - (n - 1), 2 * j - (n - 1), 2 * k - (n - 1)) * (0.5 * h);
+        const Eigen::Vector3d p = Eigen::Vector3d(2 * i - (n - 1), 2 * j - (n - 1), 2 * k - (nz - 1)) * (0.5 * h);
         if (!inside(p)) continue;
         ++tissue;
         if (has_lesion && (p - shape.lesion_center_mm).squaredNorm() < lesion_r2) {

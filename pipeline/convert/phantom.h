@@ -24,13 +24,20 @@ namespace vx {
 /// size 214 and 1 mm voxels, about 2 M tissue voxels).
 /// Flat faces (cube, block, cylinder caps) lie on voxel faces (rounded inwards), so their
 /// voxel counts are exact.
+///
+/// One-slice (2D) phantoms, the paper's 2D case (docs/model.md section 12): a size x size x 1
+/// grid whose slice is `thickness_mm` deep (0: the pixel spacing), the shape in its plane z = 0:
+/// disk radius 0.4; rectangle 0.8 x 0.5 (x, y); disk-lesion the disk with a round lesion of a
+/// quarter of its radius centred halfway from the centre to the top (+y).
 struct PhantomSettings {
   std::string name{"sphere"};  ///< sphere, cube, ellipsoid, cylinder, torus, block, block-lesion, organ
+                               ///< one slice (2D): disk, rectangle, disk-lesion
   int size{64};                ///< grid voxels along each axis
   double spacing_mm{1.0};      ///< isotropic voxel size, mm
   double tissue_hu{40.0};      ///< soft tissue
   double air_hu{-1000.0};      ///< outside
-  double lesion_hu{120.0};     ///< block-lesion: the stiffer inclusion
+  double lesion_hu{120.0};     ///< block-lesion, disk-lesion: the stiffer inclusion
+  double thickness_mm{0.0};    ///< one-slice phantoms: the slice thickness, mm (0: spacing_mm)
   double noise_hu{0.0};        ///< standard deviation of Gaussian noise added, HU; noisy values
                                ///< are rounded to whole HU, as CT stores them
   unsigned seed{1};            ///< noise seed (std::mt19937; the same seed gives the same volume)
@@ -56,8 +63,11 @@ struct PhantomShape {
   [[nodiscard]] bool inside(const Eigen::Vector3d& p_mm) const { return signed_distance_mm(p_mm) < 0; }
   /// Exact enclosed volume, mm^3 (block-lesion: the whole block, lesion included).
   [[nodiscard]] double volume_mm3() const;
-  /// Exact surface area, mm^2 (the ellipsoid's from Legendre's elliptic-integral formula).
+  /// Exact surface area, mm^2 (the ellipsoid's from Legendre's elliptic-integral formula); for a
+  /// one-slice shape the area of the shape in its plane.
   [[nodiscard]] double area_mm2() const;
+  /// A one-slice (2D) shape: disk, rectangle, disk-lesion.
+  [[nodiscard]] bool is_2d() const { return name == "disk" || name == "rectangle" || name == "disk-lesion"; }
 };
 
 /// Names of the phantoms `make_phantom` knows.

@@ -9,6 +9,7 @@ namespace vx {
 ModelStats model_stats(const Model& m) {
   ModelStats s;
   s.layout = to_string(m.layout);
+  s.dimensions = m.dimensions;
   s.grid = m.grid.dims;
   s.spacing_mm = m.grid.spacing_mm;
   s.voxels = m.covered_voxels();
@@ -21,7 +22,7 @@ ModelStats model_stats(const Model& m) {
   s.nodes = m.num_nodes();
   s.surface_nodes = m.num_surface_nodes();
   s.vertex_entries = m.num_vertex_entries();
-  s.voxel_model_vertex_entries = 8 * s.voxels;
+  s.voxel_model_vertex_entries = (m.is_2d() ? 4 : 8) * s.voxels;
   s.reduction = s.vertex_entries > 0 ? double(s.voxel_model_vertex_entries) / double(s.vertex_entries) : 0.0;
   if (m.num_nodes() > 0) {
     s.bounds_min_mm = m.rest_positions.rowwise().minCoeff();
@@ -33,6 +34,7 @@ ModelStats model_stats(const Model& m) {
 void to_json(nlohmann::json& j, const ModelStats& s) {
   const auto vec = [](const auto& v) { return nlohmann::json::array({v.x(), v.y(), v.z()}); };
   j = nlohmann::json{{"resolution", s.layout},
+                     {"dimensions", s.dimensions},
                      {"grid", vec(s.grid)},
                      {"spacing_mm", vec(s.spacing_mm)},
                      {"voxels", s.voxels},
@@ -53,14 +55,23 @@ std::string summary(const ModelStats& s) {
   for (std::size_t l = 0; l < s.elements_per_level.size(); ++l)
     levels += fmt::format("{}level {}: {} ({:.3g} mm)", l ? ", " : "", l, s.elements_per_level[l], s.element_edge_mm[l]);
   std::string out;
-  out += fmt::format("model:          {} resolution, grid {} x {} x {} voxels of {:.3g} x {:.3g} x {:.3g} mm\n",
-                     s.layout, s.grid.x(), s.grid.y(), s.grid.z(), s.spacing_mm.x(), s.spacing_mm.y(),
-                     s.spacing_mm.z());
-  out += fmt::format("tissue:         {} voxels, {:.1f} mm^3 ({:.2f} ml)\n", s.voxels, s.volume_mm3, s.volume_mm3 * 1e-3);
+  if (s.dimensions == 2) {
+    out += fmt::format("model:          2D (slice, plane stress) {} resolution, {} x {} pixels of {:.3g} x {:.3g} mm, "
+                       "{:.3g} mm thick\n",
+                       s.layout, s.grid.x(), s.grid.y(), s.spacing_mm.x(), s.spacing_mm.y(), s.spacing_mm.z());
+    out += fmt::format("tissue:         {} pixels, {:.1f} mm^2 ({:.1f} mm^3 of slice)\n", s.voxels,
+                       s.volume_mm3 / s.spacing_mm.z(), s.volume_mm3);
+  } else {
+    out += fmt::format("model:          {} resolution, grid {} x {} x {} voxels of {:.3g} x {:.3g} x {:.3g} mm\n",
+                       s.layout, s.grid.x(), s.grid.y(), s.grid.z(), s.spacing_mm.x(), s.spacing_mm.y(),
+                       s.spacing_mm.z());
+    out += fmt::format("tissue:         {} voxels, {:.1f} mm^3 ({:.2f} ml)\n", s.voxels, s.volume_mm3, s.volume_mm3 * 1e-3);
+  }
   out += fmt::format("elements:       {} ({})\n", s.elements, levels);
   out += fmt::format("nodes:          {} ({} on the surface)\n", s.nodes, s.surface_nodes);
-  out += fmt::format("vertex entries: {} (voxel-level model: 8 x {} = {}; reduction {:.1f}x)\n", s.vertex_entries,
-                     s.voxels, s.voxel_model_vertex_entries, s.reduction);
+  out += fmt::format("vertex entries: {} ({}-level model: {} x {} = {}; reduction {:.1f}x)\n", s.vertex_entries,
+                     s.dimensions == 2 ? "pixel" : "voxel", s.dimensions == 2 ? 4 : 8, s.voxels,
+                     s.voxel_model_vertex_entries, s.reduction);
   const Eigen::Vector3d size = s.bounds_max_mm - s.bounds_min_mm;
   out += fmt::format("extent:         {:.1f} x {:.1f} x {:.1f} mm (LPS box [{:.1f}, {:.1f}] x [{:.1f}, {:.1f}] x [{:.1f}, {:.1f}])",
                      size.x(), size.y(), size.z(), s.bounds_min_mm.x(), s.bounds_max_mm.x(), s.bounds_min_mm.y(),

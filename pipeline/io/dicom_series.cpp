@@ -56,6 +56,7 @@ struct FrameInfo {
   double row_spacing{1.0};            ///< PixelSpacing[0]: between rows, mm
   double col_spacing{1.0};            ///< PixelSpacing[1]: between columns, mm
   double thickness{0.0};              ///< SliceThickness or SpacingBetweenSlices, mm (fallback only)
+  double slice_thickness{0.0};        ///< SliceThickness, mm (0: absent): a single slice's depth
   double slope{1.0}, intercept{0.0};  ///< rescale to HU
   bool has_rescale{false};
   long instance{0};  ///< InstanceNumber / frame number, for ordering without geometry
@@ -416,6 +417,9 @@ FileInfo read_header(const fs::path& path, bool explicit_input, std::size_t file
       info.row_spacing = v[0];
       info.col_spacing = v[1];
     }
+    if (get_doubles(find_functional(ds, per_frame, shared, DCM_PixelMeasuresSequence, DCM_SliceThickness),
+                    DCM_SliceThickness, v, 1) && v[0] > 0 && std::isfinite(v[0]))
+      info.slice_thickness = v[0];
     if (get_doubles(ds, DCM_SpacingBetweenSlices, v, 1) && v[0] > 0) info.thickness = v[0];
     else if (get_doubles(find_functional(ds, per_frame, shared, DCM_PixelMeasuresSequence, DCM_SliceThickness),
                          DCM_SliceThickness, v, 1) && v[0] > 0)
@@ -649,10 +653,9 @@ SliceLayout lay_out_slices(std::vector<FileInfo>& files, std::vector<FrameInfo>&
   }
   if (!frames.front().has_spacing)
     log::warn("DICOM: no PixelSpacing in {}; assuming 1 mm pixels", frame_name(files, frames.front()));
-  if (frames.size() < 2)
-    throw Error(fmt::format("DICOM: series {} has a single slice ({}); a 3D model needs at least 2 slices "
-                            "(check that the whole series was exported, or choose another with --series)",
-                            series.uid, frame_name(files, frames.front())));
+  if (frames.size() == 1)
+    log::info("DICOM: series {} has a single slice ({}): a one-slice volume, which convert makes a 2D model",
+              series.uid, frame_name(files, frames.front()));
   const Eigen::Vector3d normal = row.cross(col).normalized();
 
   // sort by position along the normal (not InstanceNumber)
@@ -683,13 +686,25 @@ SliceLayout lay_out_slices(std::vector<FileInfo>& files, std::vector<FrameInfo>&
   if (dropped)
     log::info("DICOM: ignored {} duplicate cop{} of images already read", dropped, dropped == 1 ? "y" : "ies");
   frames = std::move(unique);
-  if (frames.size() < 2)
-    throw Error(fmt::format("DICOM: series {} has a single distinct slice; a 3D model needs at least 2", series.uid));
 
-  // spacing: median difference, then every gap checked against it
+  // spacing: median difference, then every gap checked against it. One slice: its depth is the
+  // slice thickness (SliceThickness, else SpacingBetweenSlices, else 1 mm), the thickness of the
+  // 2D model's plane-stress slab (docs/model.md section 12)
   std::vector<double> gaps;
   for (std::size_t k = 1; k < frames.size(); ++k) gaps.push_back(frames[k].normal_position - frames[k - 1].normal_position);
-  const double dz = median(gaps);
+  double dz = 0;
+  if (frames.size() == 1) {
+    const FrameInfo& only = frames.front();
+    dz = only.slice_thickness > 0 ? only.slice_thickness : only.thickness;
+    if (!(dz > 0)) {
+      dz = 1.0;
+      log::warn("DICOM: {} gives no SliceThickness (0018,0050) or SpacingBetweenSlices (0018,0088); assuming a 1 mm "
+                "thick slice (the 2D model's forces scale with it)",
+                frame_name(files, only));
+    }
+  } else {
+    dz = median(gaps);
+  }
   const double tolerance = std::max(0.01, 0.05 * dz);
   for (std::size_t k = 1; k < frames.size(); ++k) {
     const double gap = gaps[k - 1];

@@ -14,6 +14,8 @@
 #include <string>
 
 #include "convert/phantom.h"
+#include "io/model_io.h"
+#include <nlohmann/json.hpp>
 #include "io/volume_io.h"
 #include "support/run_binary.h"
 
@@ -91,6 +93,52 @@ TEST_F(CliPhantom, EveryFormatAndTheLesionOptions) {
     EXPECT_LT((got.geometry.origin_mm - expected.geometry.origin_mm).norm(), 1e-5);
     EXPECT_LT((got.geometry.spacing_mm - expected.geometry.spacing_mm).norm(), 1e-6);
   }
+}
+
+TEST_F(CliPhantom, SlicePhantomsConvertToTheSame2DModelFromEveryFormat) {
+  // the paper's 2D case end to end: a one-slice disk with a lesion in every format (a one-file
+  // DICOM series too) reads back as one slice 2 mm thick and converts to the same 2D model
+  PhantomSettings s;
+  s.name = "disk-lesion";
+  s.size = 48;
+  s.spacing_mm = 0.5;
+  s.thickness_mm = 2.0;
+  PhantomShape shape;
+  const Volume expected = make_phantom(s, &shape);
+  EXPECT_EQ(expected.geometry.dims, Eigen::Vector3i(48, 48, 1));
+  EXPECT_NEAR(double(shape.tissue_voxels) * 0.25, shape.area_mm2(), 0.02 * shape.area_mm2());
+  EXPECT_GT(shape.lesion_voxels, 20);
+  std::set<long> element_counts;
+  for (const std::string out : {"d.mha", "d.nii.gz", "d.nrrd", "d.vti", "series/"}) {
+    SCOPED_TRACE(out);
+    RunResult r = run("phantom disk-lesion --size 48 --spacing 0.5 --thickness 2 -o " + out);
+    ASSERT_EQ(r.code, 0) << r.err;
+    EXPECT_NE(r.out.find("one slice, a 2D model"), std::string::npos) << r.out;
+    const Volume got = read_volume(dir_ / "out" / out);
+    EXPECT_EQ(got.geometry.dims, Eigen::Vector3i(48, 48, 1));
+    EXPECT_NEAR(got.geometry.spacing_mm.z(), 2.0, 1e-6);
+    EXPECT_EQ(got.hu, expected.hu);
+    r = run("convert " + out + " -o m.vtu --stats m.json --surface m.vtp");
+    ASSERT_EQ(r.code, 0) << r.err;
+    EXPECT_NE(r.out.find("2D (slice, plane stress)"), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("slice surface"), std::string::npos) << r.out;
+    std::ifstream in(dir_ / "out" / "m.json");
+    const nlohmann::json stats = nlohmann::json::parse(in);
+    EXPECT_EQ(stats.at("dimensions"), 2);
+    EXPECT_EQ(stats.at("grid")[2], 1);
+    EXPECT_NEAR(stats.at("spacing_mm")[2].get<double>(), 2.0, 1e-6);
+    EXPECT_EQ(stats.at("surface").at("method"), "slice");
+    element_counts.insert(stats.at("elements").get<long>());
+    const Model m = load_model(dir_ / "out" / "m.vtu");
+    EXPECT_EQ(m.dimensions, 2);
+    EXPECT_EQ(m.covered_voxels(), shape.tissue_voxels);
+  }
+  EXPECT_EQ(element_counts.size(), 1u) << "every format gives the same model";
+  // a volume model says 3
+  ASSERT_EQ(run("phantom sphere --size 16 -o s.nrrd").code, 0);
+  ASSERT_EQ(run("convert s.nrrd -o s.vtu --stats s.json").code, 0);
+  std::ifstream in(dir_ / "out" / "s.json");
+  EXPECT_EQ(nlohmann::json::parse(in).at("dimensions"), 3);
 }
 
 /// Expects a failed run with a message containing each needle, and nothing written.
