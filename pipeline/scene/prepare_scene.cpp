@@ -66,8 +66,12 @@ std::optional<Volume> build_object(const Scene& scene, PreparedScene& out) {
     out.log.push_back(report.summary());
   }
   if (obj.source != ObjectSource::model) {
+    // a one-slice object (a one-slice volume, the disk, rectangle and disk-lesion phantoms) makes
+    // the 2D model (docs/model.md section 12)
+    BuildSettings build = obj.build;
+    if (out.grid.dims().z() == 1) build.dimensions = 2;
     BuildReport report;
-    model = build_model(out.grid, obj.build, &report);
+    model = build_model(out.grid, build, &report);
   }
   out.model = std::make_shared<const Model>(std::move(model));
   const Model& m = *out.model;
@@ -194,6 +198,17 @@ std::vector<std::uint8_t> fix_nodes(const Scene& scene, const SceneErrors& error
   std::vector<std::uint8_t> fixed(std::size_t(m.num_nodes()), 0);
   for (std::size_t r = 0; r < scene.fixed.size(); ++r) {
     const FixedRegion& f = scene.fixed[r];
+    if (f.is_face && m.is_2d()) {
+      // the faces across the slice would hold every node of a 2D model
+      const int axis = int(f.face) / 2;
+      const Eigen::Vector3d n = m.grid.direction.col(0).cross(m.grid.direction.col(1)).normalized();
+      if (std::abs(n(axis)) > 0.5)
+        errors.fail(fmt::format("$.fixed[{}]", r),
+                    fmt::format("\"{}\" lies across the slice of a 2D model and would hold all of it; hold an edge of "
+                                "the slice instead (a face along the slice: {})",
+                                f.label, axis == 0 ? "y_min, y_max, z_min, z_max" : axis == 1 ? "x_min, x_max, z_min, z_max"
+                                                                                              : "x_min, x_max, y_min, y_max"));
+    }
     const std::vector<int> nodes = f.is_face ? nodes_on_face(m, f.face, std::max(f.within_mm, 1e-6 * m.grid.spacing_mm.minCoeff()))
                                              : nodes_in_box(m, f.box_min_mm, f.box_max_mm);
     if (nodes.empty())
@@ -226,6 +241,16 @@ void place_walls_and_probes(const Scene& scene, const std::vector<std::uint8_t>&
   s.contact = scene.contact;
   s.device = scene.device;
   s.probes = scene.probes;
+  if (m.is_2d()) {
+    // a 2D model meets each probe in the slice plane (docs/model.md section 12.2)
+    const Eigen::Vector3d n = m.grid.direction.col(0).cross(m.grid.direction.col(1)).normalized();
+    for (std::size_t i = 0; i < s.probes.size(); ++i)
+      if (const std::string bad = slice_probe_problem(s.probes[i].geometry, n); !bad.empty())
+        errors.fail(fmt::format("$.probes[{}]", i),
+                    fmt::format("\"{}\": the object is a 2D model (one slice); {}; a sphere is a circle in the plane "
+                                "of any slice",
+                                s.probes[i].name, bad));
+  }
   const double spacing = m.grid.spacing_mm.minCoeff();
   const double dt = s.integrator.time_step_s;
   if (s.device && s.device->shaping == ForceShaping::paper && s.device->update_interval_s < 1.5 * dt)
@@ -279,7 +304,8 @@ PreparedScene prepare_scene(const Scene& scene, const PrepareSceneOptions& optio
   if (options.surface) {
     const bool paper = scene.outputs.surface_method != SurfaceMethod::staircase;
     VoxelSurfaceReport rep;
-    out.surface = std::make_shared<const EmbeddedSurface>(make_voxel_surface(m, out.grid, paper, &rep));
+    out.surface = std::make_shared<const EmbeddedSurface>(m.is_2d() ? make_slice_surface(m)
+                                                                    : make_voxel_surface(m, out.grid, paper, &rep));
     out.log.push_back(fmt::format("surface ({}): {} vertices, {} triangles", to_string(out.surface->method),
                                   out.surface->num_vertices(), out.surface->num_triangles()));
   }

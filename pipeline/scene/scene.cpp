@@ -88,6 +88,15 @@ SceneObject read_object(const Obj& o, const fs::path& base) {
     obj.phantom.noise_hu = o.number("noise_hu", obj.phantom.noise_hu);
     require(obj.phantom.noise_hu >= 0, o.at_where("noise_hu"), "must be >= 0 HU");
     obj.phantom.seed = unsigned(o.integer("seed", int(obj.phantom.seed)));
+    obj.phantom.thickness_mm = o.number("thickness_mm", 0.0);
+    require(obj.phantom.thickness_mm >= 0 && obj.phantom.thickness_mm <= 50, o.at_where("thickness_mm"),
+            "must be 0 (the spacing) or a slice thickness up to 50 mm");
+    {
+      PhantomShape probe_shape;
+      probe_shape.name = obj.phantom.name;
+      if (!probe_shape.is_2d() && o.has("thickness_mm"))
+        o.at_where("thickness_mm").fail("applies to the one-slice phantoms (disk, rectangle, disk-lesion) only");
+    }
     // between air and tissue by default
     obj.prepare.range = read_threshold({0.5 * (obj.phantom.air_hu + obj.phantom.tissue_hu),
                                         std::numeric_limits<double>::infinity()});
@@ -98,13 +107,14 @@ SceneObject read_object(const Obj& o, const fs::path& base) {
     obj.prepare.range = read_threshold(HuRange{});
     obj.read.series_uid = o.string("series_uid", "");
     obj.read.any_modality = o.boolean("any_modality", false);
-    for (const char* k : {"size", "spacing_mm", "tissue_hu", "air_hu", "lesion_hu", "noise_hu", "seed"})
+    for (const char* k : {"size", "spacing_mm", "tissue_hu", "air_hu", "lesion_hu", "noise_hu", "seed", "thickness_mm"})
       o.forbid(k, std::string(k) + " applies to a \"phantom\" object only");
   } else if (src == "model") {
     obj.source = ObjectSource::model;
     obj.path = path_of("model");
     for (const char* k : {"threshold", "resolution", "max_level", "largest_component", "fill_holes", "voxel_mm", "crop",
-                          "lattice_origin", "size", "spacing_mm", "tissue_hu", "air_hu", "lesion_hu", "noise_hu", "seed", "series_uid"})
+                          "lattice_origin", "size", "spacing_mm", "tissue_hu", "air_hu", "lesion_hu", "noise_hu", "seed", "series_uid",
+                          "thickness_mm"})
       o.forbid(k, std::string(k) + " does not apply to a model file: it was set when the model was converted "
                                    "(voxelastic convert)");
   } else {
@@ -126,7 +136,7 @@ SceneObject read_object(const Obj& o, const fs::path& base) {
       require(std::round(n) <= 1024, b.where(), fmt::format("the box is more than 1024 voxels along {}", "xyz"[c]));
     }
     for (const char* k : {"threshold", "largest_component", "fill_holes", "crop", "lattice_origin", "size", "spacing_mm", "tissue_hu",
-                          "air_hu", "lesion_hu", "noise_hu", "seed", "series_uid"})
+                          "air_hu", "lesion_hu", "noise_hu", "seed", "series_uid", "thickness_mm"})
       o.forbid(k, std::string(k) + " does not apply to a box (it is all tissue; its voxel size is voxel_mm)");
   }
   if (src == "phantom" || src == "volume") {
@@ -469,7 +479,7 @@ Scene parse_scene(const json& j, const fs::path& base, const std::string& name) 
   s.object = read_object(Obj(o.at("object"), o.at_where("object"),
                              {"phantom", "volume", "model", "box_mm", "voxel_mm", "threshold", "resolution", "max_level",
                               "largest_component", "fill_holes", "crop", "lattice_origin", "series_uid", "any_modality", "size",
-                              "spacing_mm", "tissue_hu", "air_hu", "lesion_hu", "noise_hu", "seed"}),
+                              "spacing_mm", "tissue_hu", "air_hu", "lesion_hu", "noise_hu", "seed", "thickness_mm"}),
                          base);
   if (o.has("material"))
     s.material = read_material(Obj(o.at("material"), o.at_where("material"),

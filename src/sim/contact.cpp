@@ -9,6 +9,23 @@
 
 namespace vx {
 
+std::string slice_probe_problem(const ProbeGeometry& g, const Eigen::Vector3d& normal) {
+  const double along = std::abs(g.axis.normalized().dot(normal));
+  switch (g.shape) {
+    case ProbeShape::sphere: return "";
+    case ProbeShape::cylinder:
+      if (along > 1.0 - 1e-6) return "";
+      return "a cylinder meets a slice model only with its axis along the slice normal (a circle in the plane)";
+    case ProbeShape::capsule:
+    case ProbeShape::plane:
+      if (along < 1e-6) return "";
+      return std::string("a ") + to_string(g.shape) + " meets a slice model only with its " +
+             (g.shape == ProbeShape::plane ? "normal" : "axis") + " in the slice plane (a " +
+             (g.shape == ProbeShape::plane ? "straight wall" : "rounded rod") + " in the plane)";
+  }
+  return "unknown shape";
+}
+
 const char* to_string(ProbeShape s) {
   switch (s) {
     case ProbeShape::sphere: return "sphere";

@@ -56,6 +56,12 @@ struct ProbeGeometry {
   [[nodiscard]] std::string validate() const;
 };
 
+/// A 2D (slice) model meets a probe in its cut by the slice plane (docs/model.md section 12.2):
+/// a sphere is a circle; a cylinder along the slice normal a circle too; a capsule or plane whose
+/// axis lies in the slice plane a rounded rod or a straight wall. Empty when `g` has such a cut
+/// for a slice of unit normal `normal`, else what is wrong and what to use instead.
+[[nodiscard]] std::string slice_probe_problem(const ProbeGeometry& g, const Eigen::Vector3d& normal);
+
 /// Where a probe is this step.
 struct ProbeState {
   Eigen::Vector3d position_mm{Eigen::Vector3d::Zero()};

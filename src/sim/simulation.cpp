@@ -48,16 +48,10 @@ Simulation::Simulation(std::shared_ptr<const PhysicsModel> physics, SimulationSe
     // a slice model meets each probe in the plane: shapes whose cut by the plane is a circle, a
     // rounded rod or a line (docs/model.md section 12.2)
     const Eigen::Vector3d n = physics_->plane_normal();
-    for (std::size_t i = 0; i < settings_.probes.size(); ++i) {
-      const ProbeGeometry& g = settings_.probes[i].geometry;
-      const double along = std::abs(g.axis.normalized().dot(n));
-      const bool ok = g.shape == ProbeShape::sphere || (g.shape == ProbeShape::cylinder && along > 1.0 - 1e-6) ||
-                      ((g.shape == ProbeShape::capsule || g.shape == ProbeShape::plane) && along < 1e-6);
-      if (!ok)
-        err << "probe " << i << " (" << settings_.probes[i].name << "): a " << to_string(g.shape)
-            << " with this axis has no 2D counterpart in a slice model (use a sphere: a circle in the plane; a "
-               "cylinder along the slice normal: a circle; a capsule or plane with its axis in the slice plane); ";
-    }
+    for (std::size_t i = 0; i < settings_.probes.size(); ++i)
+      if (const std::string bad = slice_probe_problem(settings_.probes[i].geometry, n); !bad.empty())
+        err << "probe " << i << " (" << settings_.probes[i].name << "): " << bad
+            << "; a sphere is a circle in the plane of any slice; ";
   }
   if (const std::string bad = err.str(); !bad.empty()) throw Error("simulation: " + bad);
 

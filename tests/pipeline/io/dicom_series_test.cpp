@@ -587,8 +587,18 @@ TEST_F(DicomSeries, InconsistentRowsAndColumns) {
 }
 
 TEST_F(DicomSeries, SingleSliceEmptyFolderAndMissingPath) {
-  write_stack(dir_ / "one", 1, 1.0, {});
-  EXPECT_ERROR_HAS(vx::read_dicom_series({dir_ / "one"}), "single slice", "at least 2");
+  // one slice is a one-slice volume (a 2D model): its pixels and orientation as given, its depth
+  // 1 mm when the file names no SliceThickness or SpacingBetweenSlices (a warning says so)
+  SliceSpec one;
+  write_stack(dir_ / "one", 1, 1.0, one);
+  const vx::Volume v = vx::read_dicom_series({dir_ / "one"});
+  EXPECT_EQ(v.geometry.dims.z(), 1);
+  EXPECT_EQ(v.geometry.dims.x(), one.cols);
+  EXPECT_EQ(v.geometry.dims.y(), one.rows);
+  EXPECT_NEAR(v.geometry.spacing_mm.x(), one.col_spacing, 1e-9);
+  EXPECT_NEAR(v.geometry.spacing_mm.y(), one.row_spacing, 1e-9);
+  EXPECT_NEAR(v.geometry.spacing_mm.z(), 1.0, 1e-12);
+  EXPECT_LT((v.geometry.origin_mm - one.position).norm(), 1e-9);
   fs::create_directories(dir_ / "empty");
   EXPECT_ERROR_HAS(vx::read_dicom_series({dir_ / "empty"}), "holds no files");
   EXPECT_ERROR_HAS(vx::read_dicom_series({dir_ / "nowhere"}), "nowhere", "does not exist");

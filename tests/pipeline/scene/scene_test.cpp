@@ -437,6 +437,65 @@ TEST(Scene, FixedFacesOfRoundedObjectsWithin) {
   EXPECT_LT(3 * q.fixed_nodes, p.fixed_nodes);
 }
 
+TEST(Scene, SliceScenesPalpateInThePlaneAndRefuseWhatHasNoCutThere) {
+  // the 2D press sample: a one-slice disk-lesion phantom becomes a 2D model; the circle pressed
+  // over the lesion meets 1.31 times the force of the same press on homogeneous tissue (the
+  // lesion is felt); the force lies in the slice plane
+  const fs::path dir = fs::path(VX_SAMPLES_DIR) / "scenes";
+  json j = json::parse(std::ifstream(dir / "disk_press_2d.json"));
+  j.erase("outputs");
+  const auto press = [&](const json& scene) {
+    PrepareSceneOptions opt;
+    opt.surface = true;
+    const PreparedScene p = prepare_scene(parse_scene(scene, dir, "press.json"), opt);
+    EXPECT_TRUE(p.model->is_2d());
+    EXPECT_EQ(p.model->grid.dims.z(), 1);
+    EXPECT_EQ(p.surface->method, SurfaceMethod::slice);
+    Simulation sim(p.physics, p.settings);
+    while (sim.time_s() < scene.at("duration_s").get<double>() - 0.5 * sim.dt_s()) {
+      EXPECT_EQ(sim.step(), StepStatus::ok);
+      EXPECT_EQ(sim.probe(0).raw_force_n.z(), 0.0);
+    }
+    return sim.probe(0).raw_force_n.y();
+  };
+  const double over = press(j);
+  json homogeneous = j;
+  homogeneous["material"].erase("hounsfield_table");
+  const double plain = press(homogeneous);
+  EXPECT_GT(plain, 0.0);
+  EXPECT_GT(over / plain, 1.15) << "over " << over << " N, homogeneous " << plain << " N";
+  // a face across the slice would hold all of it; a capsule along the normal has no cut
+  json bad = j;
+  bad["fixed"] = {"z_min"};
+  EXPECT_THROW(
+      {
+        try {
+          (void)prepare_scene(parse_scene(bad, dir, "bad.json"));
+        } catch (const Error& e) {
+          EXPECT_NE(std::string(e.what()).find("across the slice"), std::string::npos) << e.what();
+          throw;
+        }
+      },
+      Error);
+  bad = j;
+  bad["probes"][0]["shape"] = "capsule";
+  bad["probes"][0]["axis"] = {0, 0, 1};
+  bad["probes"][0]["length_mm"] = 20;
+  EXPECT_THROW(
+      {
+        try {
+          (void)prepare_scene(parse_scene(bad, dir, "bad.json"));
+        } catch (const Error& e) {
+          EXPECT_NE(std::string(e.what()).find("2D model"), std::string::npos) << e.what();
+          throw;
+        }
+      },
+      Error);
+  // thickness_mm belongs to the one-slice phantoms
+  bad = json::parse(R"({"object": {"phantom": "sphere", "size": 20, "thickness_mm": 2}, "duration_s": 0.01})");
+  EXPECT_THROW((void)parse_scene(bad, ".", "bad.json"), Error);
+}
+
 TEST(Scene, ModelFileObjectRebuildsItsGrid) {
   // grid_from_model covers exactly the voxels of the model it came from
   const PreparedScene p = prepare_scene(parse_scene(json::parse(R"({"object": {"phantom": "torus", "size": 24},
