@@ -702,6 +702,8 @@ std::unique_ptr<ProbeView> App::open_view(const IoLines& lines) {
   setup.walls = scene_.simulation.workspace.enabled;
   setup.workspace = Box{scene_.simulation.workspace.min_mm, scene_.simulation.workspace.max_mm};
   setup.world_up = scene_.world_up;
+  setup.flat = scene_.model->is_2d();
+  if (setup.flat) setup.slice_normal = scene_.model->grid.direction.col(0).cross(scene_.model->grid.direction.col(1)).normalized();
   setup.width = options_.width;
   setup.height = options_.height;
   setup.input_line = lines.input;

@@ -105,7 +105,16 @@ ProbeScene make_default_scene(std::shared_ptr<const Model> model, std::shared_pt
                               const DefaultSceneOptions& options, const Eigen::Vector3d& up_in,
                               const std::string& name) {
   if (!model || model->num_elements() == 0) throw Error("the model has no elements");
-  const Eigen::Vector3d up = up_in.normalized();
+  Eigen::Vector3d up = up_in.normalized();
+  const bool flat = model->is_2d();
+  Eigen::Vector3d normal = Eigen::Vector3d::UnitZ();
+  if (flat) {
+    // a 2D model: "up" in its slice plane (anterior, else superior, projected onto the plane)
+    normal = model->grid.direction.col(0).cross(model->grid.direction.col(1)).normalized();
+    Eigen::Vector3d in_plane = up - normal * normal.dot(up);
+    if (in_plane.norm() < 0.3) in_plane = Eigen::Vector3d::UnitZ() - normal * normal.z();
+    up = in_plane.normalized();
+  }
   ProbeScene scene;
   scene.name = name;
   scene.model = model;
@@ -134,6 +143,14 @@ ProbeScene make_default_scene(std::shared_ptr<const Model> model, std::shared_pt
   sim.workspace.enabled = true;
   sim.workspace.min_mm = lo - 0.35 * extent;
   sim.workspace.max_mm = hi + 0.35 * extent;
+  if (flat) {
+    // the slice has no extent along its normal: walls well clear of it there
+    for (int a = 0; a < 3; ++a)
+      if (std::abs(normal[a]) > 0.5) {
+        sim.workspace.min_mm[a] = std::min(sim.workspace.min_mm[a], lo[a] - 10.0);
+        sim.workspace.max_mm[a] = std::max(sim.workspace.max_mm[a], hi[a] + 10.0);
+      }
+  }
   if (up[up_axis] > 0) {
     sim.workspace.min_mm[up_axis] = lo[up_axis];
     sim.workspace.max_mm[up_axis] = hi[up_axis] + 1.2 * extent[up_axis] + 10.0;
@@ -145,10 +162,11 @@ ProbeScene make_default_scene(std::shared_ptr<const Model> model, std::shared_pt
   // one capsule tool above the top centre, pointing down
   ProbeSettings probe;
   probe.name = "probe0";
-  probe.geometry.shape = ProbeShape::capsule;
+  // a 2D model: a circular tool, the paper's 2D manipulator (a sphere is a circle in the slice)
+  probe.geometry.shape = flat ? ProbeShape::sphere : ProbeShape::capsule;
   double lateral = 1e30;
   for (int a = 0; a < 3; ++a)
-    if (a != up_axis) lateral = std::min(lateral, extent[a]);
+    if (a != up_axis && !(flat && std::abs(normal[a]) > 0.5)) lateral = std::min(lateral, extent[a]);
   probe.geometry.radius_mm = std::clamp(0.06 * lateral, 1.5, 4.0);
   probe.geometry.length_mm = std::max(20.0, 0.9 * extent.maxCoeff());
   probe.geometry.axis = up;
@@ -281,7 +299,9 @@ ProbeScene load_probe_scene(const std::filesystem::path& input, const DefaultSce
     PrepareReport report;
     const VoxelGrid grid = prepare_grid(volume, prep, &report);
     BuildReport build;
-    auto model = std::make_shared<const Model>(build_model(grid, BuildSettings{}, &build));
+    BuildSettings settings;
+    if (grid.dims().z() == 1) settings.dimensions = 2;  // one slice: the 2D model
+    auto model = std::make_shared<const Model>(build_model(grid, settings, &build));
     auto surface = std::make_shared<const EmbeddedSurface>(make_surface(*model, grid, nullptr, options.surface_method));
     ProbeScene scene = make_default_scene(model, surface, options, Eigen::Vector3d(0, -1, 0), name);
     scene.notes.insert(scene.notes.begin(),

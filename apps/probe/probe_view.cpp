@@ -187,18 +187,26 @@ void ProbeView::Impl::camera_to_start() {
   // look from the front (against "away"), 50 degrees above the horizon: the tissue around the
   // tool tip stays in sight
   const double el = 50.0 * M_PI / 180.0;
-  const Eigen::Vector3d dir = (-std::cos(el) * away + std::sin(el) * up).normalized();
+  Eigen::Vector3d dir = (-std::cos(el) * away + std::sin(el) * up).normalized();
+  Eigen::Vector3d view_up = up;
+  if (setup.flat) {
+    // a slice: face on, its own "up" up on screen
+    dir = setup.slice_normal.normalized();
+    view_up = setup.world_up - dir * dir.dot(setup.world_up);
+    if (view_up.norm() < 1e-9) view_up = dir.unitOrthogonal();
+    view_up.normalize();
+  }
   vtkCamera* cam = renderer->GetActiveCamera();
   cam->SetViewAngle(30.0);
   // frame the tissue and the probes' start positions
   double r = radius;
   for (const auto& s : setup.probe_start_mm) r = std::max(r, (s - focus).norm() * 0.8);
-  const Eigen::Vector3d target = focus + 0.15 * r * up;
+  const Eigen::Vector3d target = setup.flat ? focus : Eigen::Vector3d(focus + 0.15 * r * up);
   const double dist = 1.45 * r / std::sin(0.5 * 30.0 * M_PI / 180.0);
   const Eigen::Vector3d pos = target + dist * dir;
   cam->SetFocalPoint(target.data());
   cam->SetPosition(pos.data());
-  cam->SetViewUp(up.data());
+  cam->SetViewUp(view_up.data());
   renderer->ResetCameraClippingRange();
 }
 

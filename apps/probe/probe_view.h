@@ -53,6 +53,10 @@ struct ViewSetup {
   bool walls{false};
   Box workspace;                              ///< the walls (when `walls`)
   Eigen::Vector3d world_up{0, -1, 0};         ///< "up" on screen (LPS; default anterior)
+  /// a 2D (slice) model: the flat view, the camera on the side of `slice_normal` looking at the
+  /// slice face on, `world_up` (in the slice plane) up on screen
+  bool flat{false};
+  Eigen::Vector3d slice_normal{0, 0, 1};
   int width{1280};
   int height{800};
   double plot_window_s{5.0};                  ///< time shown by the force plot

@@ -41,6 +41,14 @@ LevelCells make_level_cells(const Model& model) {
     for (int i = 0; i < n; ++i) cells.point_node.push_back(model.element_vertices[std::size_t(b + i)]);
     cells.element_offsets.push_back(std::int32_t(cells.point_node.size()));
     faces.clear();
+    if (model.is_2d()) {
+      // a 2D element is one polygon: its vertex list goes round it (gradational_builder_2d.cpp)
+      for (int i = 0; i < n; ++i) cells.poly_points.push_back(first_point + i);
+      cells.poly_offsets.push_back(std::int32_t(cells.poly_points.size()));
+      cells.poly_level.push_back(model.element_level[std::size_t(e)]);
+      cells.element_polys.push_back(std::int32_t(cells.poly_level.size()));
+      continue;
+    }
     append_element_faces(model, e, faces);
     for (int f = 0; f < faces.size(); ++f) {
       for (int k = faces.offsets[std::size_t(f)]; k < faces.offsets[std::size_t(f) + 1]; ++k) {
