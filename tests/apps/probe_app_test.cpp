@@ -271,6 +271,31 @@ TEST_F(ProbeApp, TwoJoysticksGraspWithTwoProbes) {
   EXPECT_GT(fx_hold[1] / n_hold[1], 0.01);   // and the right tool to +x
 }
 
+// The 2D sample (a disk of one slice with a lesion): the joystick presses the circular tool into
+// the top of the disk and lifts it; the force is felt, and it and the tool stay in the slice
+// plane (z = 0).
+TEST_F(ProbeApp, SliceModelIsPalpatedInItsPlane) {
+  const fs::path scene = fs::path(VX_SAMPLES_DIR) / "scenes" / "disk_press_2d.json";
+  const fs::path script = fs::path(VX_SAMPLES_DIR) / "scenes" / "disk_press_2d.joy";
+  const fs::path csv = dir_ / "disk.csv";
+  const RunResult r = run(q(scene) + " --headless --virtual-joystick " + q(script) + " --exit-after-script --force-log " +
+                          q(csv));
+  ASSERT_EQ(r.code, 0) << r.out << r.err;
+  const std::vector<Row> rows = read_log(csv, nullptr);
+  ASSERT_GT(rows.size(), 500u);
+  double top = 0;
+  for (const Row& row : rows) {
+    top = std::max(top, row.device_N);
+    EXPECT_EQ(row.raw_fz_N, 0.0) << "t = " << row.sim_s;
+    EXPECT_EQ(row.tip_z, 0.0) << "t = " << row.sim_s;
+  }
+  // measured 0.031 N at about 3 mm (the tissue force on a 2 mm slice)
+  EXPECT_GT(top, 0.015);
+  EXPECT_LT(top, 0.08);
+  EXPECT_EQ(rows.back().contacts, 0);
+  EXPECT_LT(rows.back().device_N, 1e-9);
+}
+
 TEST_F(ProbeApp, WindowScreenshotUnderADisplay) {
   if (!std::getenv("DISPLAY")) GTEST_SKIP() << "no DISPLAY (run under xvfb-run, as scripts/test.sh does)";
   const fs::path png = dir_ / "probe.png";
