@@ -105,7 +105,7 @@ void plot_step(const BenchResult& res, const fs::path& png) {
       w.with_points = true;
       w.color = resolution_color(r);
       for (const auto& row : res.step_rows) {
-        if (row.layout != r || row.integrator != k || row.skipped) continue;
+        if (row.layout != r || row.integrator != k || row.skipped || row.dimensions != 3) continue;
         s.x.push_back(row.size);
         s.y.push_back(row.step_s * 1e3);
         w.x.push_back(row.size);

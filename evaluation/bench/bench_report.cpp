@@ -79,7 +79,8 @@ json row_json(const BenchRow& r) {
 }
 
 json step_row_json(const StepBenchmarkRow& r) {
-  json j = {{"resolution", to_string(r.layout)},
+  json j = {{"resolution", step_row_resolution(r)},
+            {"dimensions", r.dimensions},
             {"size", r.size},
             {"integrator", to_string(r.integrator)},
             {"threads", r.threads},
@@ -121,7 +122,7 @@ std::string step_csv(const std::vector<StepBenchmarkRow>& rows) {
   out << "resolution,size,integrator,threads,elements,nodes,vertex_entries,build_s,setup_s,time_step_s,steps,step_ms,"
          "ns_per_element,ns_per_entry,real_time_factor,iterations,factor_nonzeros,skipped,note\n";
   for (const auto& r : rows) {
-    out << to_string(r.layout) << ',' << r.size << ',' << to_string(r.integrator) << ',' << r.threads << ','
+    out << step_row_resolution(r) << ',' << r.size << ',' << to_string(r.integrator) << ',' << r.threads << ','
         << r.elements << ',' << r.nodes << ',' << r.vertex_entries << ',';
     if (r.skipped) {
       out << ",,,,,,,,,," << "1," << csv_text(r.note) << '\n';
@@ -315,16 +316,18 @@ std::string bench_markdown(const BenchResult& res) {
         "Explicit Euler step time against the sphere size n, log-log slope: gradational {:.2f}, uniform {:.2f}, voxel-level "
         "{:.2f} (the work of a step: ~26 n^2 vertex entries for the gradational model, 8 n^3 for the voxel-level one).\n\n",
         res.step_slope_gradational, res.step_slope_uniform, res.step_slope_voxel);
+    md << "`gradational-2d` is the 2D model (one slice, plane stress; docs/model.md section 12) of a disk n pixels "
+          "across, the same element and integrators: the paper's 2D case.\n\n";
     md << "| resolution | n | integrator | elements | vertex entries | ms per step | ns per entry | real time x | note |\n"
           "|---|---|---|---|---|---|---|---|---|\n";
     for (const auto& r : res.step_rows) {
       if (r.skipped) {
-        md << fmt::format("| {} | {} | {} | {} | {} | - | - | - | {} |\n", to_string(r.layout), r.size,
+        md << fmt::format("| {} | {} | {} | {} | {} | - | - | - | {} |\n", step_row_resolution(r), r.size,
                           to_string(r.integrator), r.elements ? std::to_string(r.elements) : "-",
                           r.vertex_entries ? std::to_string(r.vertex_entries) : "-", r.note);
         continue;
       }
-      md << fmt::format("| {} | {} | {} | {} | {} | {:.3f} | {:.2f} | {:.3g} | {} |\n", to_string(r.layout), r.size,
+      md << fmt::format("| {} | {} | {} | {} | {} | {:.3f} | {:.2f} | {:.3g} | {} |\n", step_row_resolution(r), r.size,
                         to_string(r.integrator), r.elements, r.vertex_entries, r.step_s * 1e3, r.ns_per_entry,
                         r.real_time_factor, r.note);
     }

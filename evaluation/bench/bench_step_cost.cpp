@@ -1,6 +1,7 @@
 // Part A of `voxelastic bench`: the cost of one step (step_benchmark.h) on sphere phantoms for
 // every layout and integrator, models above the settings' sizes skipped (as rows and notes), and
 // the log-log slope of the explicit step's time against the sphere size n.
+#include <algorithm>
 #include <fmt/format.h>
 #include <fmt/ranges.h>
 
@@ -62,10 +63,27 @@ void run_step_cost(const BenchSettings& set, BenchResult& res, const Log& log) {
     log(fmt::format("[step {}/3] {} done in {}", k, to_string(p.r), seconds_text(seconds_since(t))));
     res.step_rows.insert(res.step_rows.end(), rows.begin(), rows.end());
   }
+  // the 2D row: the gradational 2D model of a disk as many pixels across as the largest sphere
+  // (docs/model.md section 12), every integrator
+  if (!set.step_sizes.empty()) {
+    StepBenchmarkSettings ss;
+    ss.layout = Layout::gradational;
+    ss.dimensions = 2;
+    ss.element = set.scene.element;
+    ss.threads = set.threads;
+    ss.min_time_s = set.step_min_time_s;
+    ss.sizes = {*std::max_element(set.step_sizes.begin(), set.step_sizes.end())};
+    ss.implicit_max_size = 1 << 30;  // a slice's factorisation is small
+    ss.log = [&](const std::string& line) { log("[step 2D] " + line); };
+    log(fmt::format("[step 2D] the gradational 2D model of a disk {} pixels across", ss.sizes.front()));
+    const std::vector<StepBenchmarkRow> rows = run_step_benchmark(ss);
+    res.step_rows.insert(res.step_rows.end(), rows.begin(), rows.end());
+  }
   auto slope = [&](Layout r) {
     std::vector<double> x, y;
     for (const auto& row : res.step_rows)
-      if (row.layout == r && row.integrator == IntegratorKind::explicit_euler && !row.skipped && row.step_s > 0) {
+      if (row.layout == r && row.dimensions == 3 && row.integrator == IntegratorKind::explicit_euler && !row.skipped &&
+          row.step_s > 0) {
         x.push_back(row.size);
         y.push_back(row.step_s);
       }

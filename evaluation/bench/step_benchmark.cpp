@@ -26,6 +26,22 @@ double seconds_since(Clock::time_point t) { return std::chrono::duration<double>
 
 }  // namespace
 
+VoxelGrid make_disk_grid(int n, double voxel_mm) {
+  if (n < 4) throw Error("disk grid: size " + std::to_string(n) + " must be >= 4");
+  GridGeometry g;
+  g.dims = {n, n, 1};
+  g.spacing_mm = Eigen::Vector3d::Constant(voxel_mm);
+  VoxelGrid grid(g);
+  const double c = 0.5 * n, r = 0.5 * n - 1.0;
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < n; ++i) grid.set(i, j, 0, (i + 0.5 - c) * (i + 0.5 - c) + (j + 0.5 - c) * (j + 0.5 - c) <= r * r);
+  return grid;
+}
+
+std::string step_row_resolution(const StepBenchmarkRow& row) {
+  return std::string(to_string(row.layout)) + (row.dimensions == 2 ? "-2d" : "");
+}
+
 std::vector<StepBenchmarkRow> run_step_benchmark(const StepBenchmarkSettings& set) {
   if (set.sizes.empty() || set.integrators.empty()) throw Error("step benchmark: no sizes or integrators");
   if (!(set.min_time_s >= 0) || set.min_steps < 1) throw Error("step benchmark: min_time_s >= 0 and min_steps >= 1");
@@ -38,22 +54,30 @@ std::vector<StepBenchmarkRow> run_step_benchmark(const StepBenchmarkSettings& se
     const Clock::time_point t0 = Clock::now();
     BuildSettings bs;
     bs.layout = set.layout;
-    auto model = std::make_shared<const Model>(build_model(make_sphere_grid(n, set.voxel_mm), bs));
+    const bool flat = set.dimensions == 2;
+    bs.dimensions = flat ? 2 : 3;
+    auto model = std::make_shared<const Model>(
+        build_model(flat ? make_disk_grid(n, set.voxel_mm) : make_sphere_grid(n, set.voxel_mm), bs));
     CalibrationOptions calibration;
     calibration.element = set.element;
     auto physics = make_physics_model(model, set.material, {}, calibration);
     const double build_s = seconds_since(t0);
-    log("sphere " + std::to_string(n) + ": " + std::to_string(model->num_elements()) + " elements, " +
+    log((flat ? "2D disk " : "sphere ") + std::to_string(n) + ": " + std::to_string(model->num_elements()) + " elements, " +
         std::to_string(model->num_vertex_entries()) + " vertex entries, built in " + std::to_string(build_s) + " s");
-    // the lowest cap (one voxel high) is held; gravity pulls
-    const double zmin = model->rest_positions.row(2).minCoeff();
-    const std::vector<int> cap = nodes_in_box(*model, Eigen::Vector3d::Constant(-1e30),
-                                              Eigen::Vector3d(1e30, 1e30, zmin + set.voxel_mm * 1.01));
+    // the lowest cap (one voxel high) is held; gravity pulls (a 2D disk: along -y, in its plane)
+    const int down = flat ? 1 : 2;
+    const double low = model->rest_positions.row(down).minCoeff();
+    Eigen::Vector3d cap_top = Eigen::Vector3d::Constant(1e30);
+    cap_top(down) = low + set.voxel_mm * 1.01;
+    const std::vector<int> cap = nodes_in_box(*model, Eigen::Vector3d::Constant(-1e30), cap_top);
+    Eigen::Vector3d gravity = Eigen::Vector3d::Zero();
+    gravity(down) = -kStandardGravityMmS2;
     for (IntegratorKind kind : set.integrators) {
       StepBenchmarkRow row;
       row.size = n;
       row.integrator = kind;
       row.layout = set.layout;
+      row.dimensions = bs.dimensions;
       row.threads = resolve_threads(set.threads);
       row.elements = model->num_elements();
       row.nodes = model->num_nodes();
@@ -67,7 +91,7 @@ std::vector<StepBenchmarkRow> run_step_benchmark(const StepBenchmarkSettings& se
       }
       SimState state = make_state(physics);
       state.fix_nodes(cap);
-      state.gravity_mm_s2 = {0, 0, -kStandardGravityMmS2};
+      state.gravity_mm_s2 = gravity;
       IntegratorSettings is;
       is.kind = kind;
       is.threads = set.threads;

@@ -20,8 +20,16 @@
 
 namespace vx {
 
+struct StepBenchmarkRow;
+
 /// A ball phantom: ball_grid(n, n/2 - 1, voxel_mm) (model/voxel_shapes.h); throws for n < 4.
 [[nodiscard]] VoxelGrid make_sphere_grid(int n, double voxel_mm = 1.0);
+/// Its 2D analogue: a disk of radius n/2 - 1 pixels in an n x n x 1 grid (pixels and slice
+/// thickness voxel_mm); throws for n < 4.
+[[nodiscard]] VoxelGrid make_disk_grid(int n, double voxel_mm = 1.0);
+
+/// "gradational", "uniform", "voxel", with "-2d" for a 2D row.
+[[nodiscard]] std::string step_row_resolution(const StepBenchmarkRow& row);
 
 /// What to benchmark.
 struct StepBenchmarkSettings {
@@ -29,6 +37,9 @@ struct StepBenchmarkSettings {
   std::vector<IntegratorKind> integrators{IntegratorKind::explicit_euler, IntegratorKind::symplectic_euler,
                                           IntegratorKind::implicit};
   Layout layout{Layout::gradational};
+  /// 3: sphere phantoms; 2: the 2D model of a disk n pixels across (one slice of voxel_mm
+  /// thickness, docs/model.md section 12), its lowest cap held, gravity in its plane (-y)
+  int dimensions{3};
   Material material{5.0, 1000.0, 0.1, 0.0};  ///< soft tissue, E = 5 kPa
   ElementKind element{CalibrationOptions{}.element};  ///< the element (physics_model.h)
   double voxel_mm{1.0};
@@ -49,6 +60,7 @@ struct StepBenchmarkRow {
   int size{0};
   IntegratorKind integrator{IntegratorKind::symplectic_euler};
   Layout layout{Layout::gradational};
+  int dimensions{3};        ///< 2: the 2D disk (StepBenchmarkSettings::dimensions)
   int threads{0};
   int elements{0};
   int nodes{0};

@@ -89,9 +89,10 @@ TEST_F(CliBench, QuickSuiteWritesASaneReport) {
               r.out.find("No configuration ran in real time") != std::string::npos)
       << r.out;
 
-  // part A: 3 resolutions x sizes 32, 64 x 3 integrators; the work grows like n^2 against n^3
+  // part A: 3 resolutions x sizes 32, 64 x 3 integrators, and the 2D disk of 64 pixels x 3
+  // integrators; the work grows like n^2 against n^3
   const auto steps = read_csv(slurp(q / "step.csv"));
-  ASSERT_EQ(steps.size(), 18u);
+  ASSERT_EQ(steps.size(), 21u);
   std::map<std::string, std::map<int, double>> entries, step_ms;
   for (const auto& s : steps) {
     EXPECT_EQ(s.at("threads"), "1");
@@ -118,6 +119,13 @@ TEST_F(CliBench, QuickSuiteWritesASaneReport) {
   EXPECT_GT(voxel_growth, 7.5);  // ~8 = 2^3
   EXPECT_LT(voxel_growth, 9.5);
   EXPECT_LT(step_ms["gradational"][64], step_ms["voxel"][64]);
+  // the 2D row: a slice of the same size has far less work than the sphere (its outline, not
+  // its surface), and every integrator ran
+  ASSERT_EQ(entries["gradational-2d"].size(), 1u);
+  EXPECT_LT(entries["gradational-2d"][64], 0.2 * entries["gradational"][64]);
+  int runs_2d = 0;
+  for (const auto& s : steps) runs_2d += s.at("resolution") == "gradational-2d" && s.at("skipped") == "0";
+  EXPECT_EQ(runs_2d, 3);
 
   // part B: 2 sizes x 3 resolutions x (3 explicit + 3 symplectic + 3 implicit) runs
   const auto rows = read_csv(slurp(q / "bench.csv"));
