@@ -38,7 +38,8 @@ std::int64_t count_hu(const Volume& v, float hu) {
 
 TEST(Phantom, NamesAreTheDocumentedOnes) {
   EXPECT_EQ(vx::phantom_names(), (std::vector<std::string>{"sphere", "cube", "ellipsoid", "cylinder", "torus",
-                                                          "block", "block-lesion", "organ"}));
+                                                          "block", "block-lesion", "organ", "disk", "rectangle",
+                                                          "disk-lesion"}));
 }
 
 // The voxel count (centres inside) approximates the analytic volume. Flat faces lie on voxel
@@ -56,12 +57,12 @@ TEST(Phantom, TissueVoxelsMatchAnalyticVolume) {
         EXPECT_EQ(tissue, shape.tissue_voxels);
         const double expected = shape.volume_mm3() / std::pow(spacing, 3);
         const double rel = std::abs(double(tissue) - expected) / expected;
-        const bool flat = name == "cube" || name == "block" || name == "block-lesion";
+        const bool flat = name == "cube" || name == "block" || name == "block-lesion" || name == "rectangle";
         const double tolerance = flat ? 1e-12 : size == 64 ? 0.01 : name == "torus" ? 0.04 : 0.03;
         EXPECT_LT(rel, tolerance) << tissue << " voxels vs " << expected;
         // the count also equals the number of voxel centres with a negative signed distance
         std::int64_t by_distance = 0;
-        for (int k = 0; k < size; ++k)
+        for (int k = 0; k < v.geometry.dims.z(); ++k)  // one slice for disk, rectangle, disk-lesion
           for (int j = 0; j < size; ++j)
             for (int i = 0; i < size; ++i)
               by_distance += shape.signed_distance_mm(v.geometry.index_to_lps(Eigen::Vector3d(i, j, k))) < 0;
@@ -76,27 +77,30 @@ TEST(Phantom, CentredWithAirMargin) {
       PhantomShape shape;
       const Volume v = make_phantom(settings(name, size, 0.8), &shape);
       // geometry: centre of the grid at LPS 0, identity direction, spacing as asked
-      const Eigen::Vector3d centre = v.geometry.index_to_lps(Eigen::Vector3d::Constant(0.5 * (size - 1)));
+      const int nz = v.geometry.dims.z();  // 1 for the one-slice phantoms
+      EXPECT_EQ(nz, shape.is_2d() ? 1 : size);
+      const Eigen::Vector3d centre =
+          v.geometry.index_to_lps(Eigen::Vector3d(0.5 * (size - 1), 0.5 * (size - 1), 0.5 * (nz - 1)));
       EXPECT_LT(centre.norm(), 1e-12);
       EXPECT_EQ(v.geometry.direction, Eigen::Matrix3d::Identity());
       EXPECT_EQ(v.geometry.spacing_mm, Eigen::Vector3d::Constant(0.8));
       // at least 2 voxels of air on every side
       int lo = size, hi = -1;
-      for (int k = 0; k < size; ++k)
+      for (int k = 0; k < nz; ++k)
         for (int j = 0; j < size; ++j)
           for (int i = 0; i < size; ++i)
             if (v.at(i, j, k) != -1000.0f) {
-              lo = std::min({lo, i, j, k});
-              hi = std::max({hi, i, j, k});
+              lo = std::min({lo, i, j, nz == 1 ? size : k});
+              hi = std::max({hi, i, j, nz == 1 ? -1 : k});
             }
       EXPECT_GE(lo, 2);
       EXPECT_LE(hi, size - 3);
       // symmetric about the centre (except the lesion, which is off-centre on purpose)
-      if (name != "block-lesion") {
-        for (int k = 0; k < size; ++k)
+      if (name != "block-lesion" && name != "disk-lesion") {
+        for (int k = 0; k < nz; ++k)
           for (int j = 0; j < size; ++j)
             for (int i = 0; i < size; ++i)
-              ASSERT_EQ(v.at(i, j, k), v.at(size - 1 - i, size - 1 - j, size - 1 - k));
+              ASSERT_EQ(v.at(i, j, k), v.at(size - 1 - i, size - 1 - j, nz - 1 - k));
       }
     }
 }

@@ -146,6 +146,35 @@ TEST_F(VolumeIo, RoundTripEveryFileFormat) {
   EXPECT_TRUE(fs::is_empty(dir_));
 }
 
+TEST_F(VolumeIo, TwoDimensionalImagesReadAsOneSlice) {
+  // a 2D image (NRRD dimension 2, MetaImage NDims 2) is a one-slice volume: its pixels, its
+  // in-plane spacing, a 1 mm slice (the 2D model's thickness, docs/model.md section 12)
+  const int nx = 5, ny = 3;
+  std::string raw;
+  for (int k = 0; k < nx * ny; ++k) {
+    const std::int16_t v = std::int16_t(10 * k - 40);
+    raw.append(reinterpret_cast<const char*>(&v), 2);
+  }
+  std::ofstream(dir_ / "i.nrrd", std::ios::binary)
+      << "NRRD0004\ntype: short\ndimension: 2\nspace: left-posterior-superior\nsizes: 5 3\n"
+         "space directions: (0.5,0,0) (0,0.7,0)\nspace origin: (1,2,3)\nendian: little\nencoding: raw\n\n"
+      << raw;
+  std::ofstream(dir_ / "i.mha", std::ios::binary)
+      << "ObjectType = Image\nNDims = 2\nDimSize = 5 3\nElementSpacing = 0.5 0.7\nOffset = 1 2\n"
+         "ElementType = MET_SHORT\nBinaryData = True\nBinaryDataByteOrderMSB = False\nElementDataFile = LOCAL\n"
+      << raw;
+  for (const char* name : {"i.nrrd", "i.mha"}) {
+    SCOPED_TRACE(name);
+    const Volume v = vx::read_volume(dir_ / name);
+    EXPECT_EQ(v.geometry.dims, Eigen::Vector3i(nx, ny, 1));
+    EXPECT_NEAR(v.geometry.spacing_mm.x(), 0.5, 1e-9);
+    EXPECT_NEAR(v.geometry.spacing_mm.y(), 0.7, 1e-9);
+    EXPECT_NEAR(v.geometry.spacing_mm.z(), 1.0, 1e-9);
+    ASSERT_EQ(v.hu.size(), std::size_t(nx * ny));
+    for (int k = 0; k < nx * ny; ++k) EXPECT_EQ(v.hu[std::size_t(k)], float(10 * k - 40));
+  }
+}
+
 TEST_F(VolumeIo, IntegralVolumesAreStoredAsInt16) {
   // 7*5*4 = 140 voxels: int16 data is 280 bytes, float 560; compression aside the .nii
   // (no compression) tells the type from its size: 352-byte header + data
