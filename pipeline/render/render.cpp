@@ -125,14 +125,22 @@ vtkSmartPointer<vtkActor2D> make_shape(const std::vector<std::array<double, 2>>&
 /// Where the model is and how it is seen: the box of its nodes (LPS mm), and the direction
 /// towards the camera (from the patient's front-left and above: LPS -y anterior, +x left, +z
 /// superior).
+/// A 2D (slice) model is seen face on, from the side opposite its normal e1 x e2 (an axial
+/// slice from the feet, as radiology shows it), superior up (anterior for an axial slice).
 struct ModelView {
   Eigen::Vector3d lo, hi, centre, extent;
   Eigen::Vector3d view{Eigen::Vector3d(0.9, -1.5, 0.85).normalized()};
+  Eigen::Vector3d up{Eigen::Vector3d::UnitZ()};  ///< screen up (before removing its part along view)
   explicit ModelView(const Model& model)
       : lo(model.rest_positions.rowwise().minCoeff()),
         hi(model.rest_positions.rowwise().maxCoeff()),
         centre(0.5 * (lo + hi)),
-        extent(hi - lo) {}
+        extent(hi - lo) {
+    if (model.is_2d()) {
+      view = -model.grid.direction.col(0).cross(model.grid.direction.col(1)).normalized();
+      up = std::abs(view.z()) > 0.9 ? Eigen::Vector3d(0, -1, 0) : Eigen::Vector3d::UnitZ();
+    }
+  }
 };
 
 /// The elements' faces with their level as cell data, without those whose centroid lies in the
@@ -147,7 +155,7 @@ vtkSmartPointer<vtkPolyData> level_faces(const Model& model, const ModelView& mv
   };
   int kept_elements = 0;
   for (int e = 0; e < model.num_elements(); ++e) kept_elements += !cut(e);
-  cutaway = settings.cutaway && kept_elements > 0 && kept_elements < model.num_elements();
+  cutaway = settings.cutaway && !model.is_2d() && kept_elements > 0 && kept_elements < model.num_elements();
 
   vtkNew<vtkPoints> points;
   points->SetDataTypeToDouble();
@@ -160,6 +168,14 @@ vtkSmartPointer<vtkPolyData> level_faces(const Model& model, const ModelView& mv
   std::vector<vtkIdType> ids;
   for (int e = 0; e < model.num_elements(); ++e) {
     if (cutaway && cut(e)) continue;
+    if (model.is_2d()) {
+      // a 2D element is one polygon: its vertex list goes round it
+      const int b = model.element_offsets[std::size_t(e)], n = model.num_vertices(e);
+      ids.assign(model.element_vertices.begin() + b, model.element_vertices.begin() + b + n);
+      polys->InsertNextCell(vtkIdType(ids.size()), ids.data());
+      levels->InsertNextValue(model.element_level[std::size_t(e)]);
+      continue;
+    }
     faces.clear();
     append_element_faces(model, e, faces);
     for (int f = 0; f < faces.size(); ++f) {
@@ -239,7 +255,7 @@ struct PictureLayout {
 /// Parallel projection (so the scale bar is exact), framing the model's projection with
 /// margins: 12 % of the height, and room for the axes and the scale bar at the bottom.
 void frame_camera(vtkCamera* camera, const Model& model, const ModelView& mv, const PictureLayout& layout) {
-  const Eigen::Vector3d up = (Eigen::Vector3d::UnitZ() - mv.view.z() * mv.view).normalized();  // superior up
+  const Eigen::Vector3d up = (mv.up - mv.up.dot(mv.view) * mv.view).normalized();  // superior up (2D: see ModelView)
   const Eigen::Vector3d right = (-mv.view).cross(up);
   Eigen::Vector2d plo(1e300, 1e300), phi(-1e300, -1e300);
   for (int i = 0; i < model.num_nodes(); ++i) {
@@ -280,7 +296,7 @@ void add_orientation_marker(const ModelView& mv, PictureLayout& layout) {
   axes_camera->SetFocalPoint(0, 0, 0);
   const Eigen::Vector3d axes_eye = mv.view * 10.0;
   axes_camera->SetPosition(axes_eye.data());
-  axes_camera->SetViewUp(0, 0, 1);
+  axes_camera->SetViewUp(mv.up.data());
   layout.axes->ResetCamera();
   axes_camera->Zoom(1.3);
 }
@@ -300,7 +316,7 @@ void add_scale_bar(PictureLayout& layout) {
 /// The title band: the title (when given) over the model's layout and size.
 void add_title(const Model& model, const RenderSettings& settings, PictureLayout& layout) {
   const int num_levels = model.num_levels();
-  const std::string what = fmt::format("{} model: {} elements in {} level{}, {} nodes", to_string(model.layout),
+  const std::string what = fmt::format("{}{} model: {} elements in {} level{}, {} nodes", model.is_2d() ? "2D (slice) " : "", to_string(model.layout),
                                        model.num_elements(), num_levels, num_levels == 1 ? "" : "s", model.num_nodes());
   if (!settings.title.empty()) {
     layout.band->AddActor2D(make_text(settings.title, layout.font(24), 0.5, 0.66, VTK_TEXT_CENTERED, true));
@@ -339,9 +355,12 @@ void add_legend(const Model& model, const ModelView& mv, bool cutaway, const Ren
   y -= 0.04;
   legend->AddActor2D(make_text(fmt::format("R-L {:.1f}, A-P {:.1f}, I-S {:.1f}", mv.extent.x(), mv.extent.y(), mv.extent.z()), font(14), 0.08, y, VTK_TEXT_LEFT));
   y -= 0.04;
-  legend->AddActor2D(make_text(fmt::format("voxel {:.3g} x {:.3g} x {:.3g} mm", model.grid.spacing_mm.x(), model.grid.spacing_mm.y(), model.grid.spacing_mm.z()), font(14), 0.08, y, VTK_TEXT_LEFT));
+  if (model.is_2d())
+    legend->AddActor2D(make_text(fmt::format("pixel {:.3g} x {:.3g} mm, slice {:.3g} mm", model.grid.spacing_mm.x(), model.grid.spacing_mm.y(), model.grid.spacing_mm.z()), font(14), 0.08, y, VTK_TEXT_LEFT));
+  else
+    legend->AddActor2D(make_text(fmt::format("voxel {:.3g} x {:.3g} x {:.3g} mm", model.grid.spacing_mm.x(), model.grid.spacing_mm.y(), model.grid.spacing_mm.z()), font(14), 0.08, y, VTK_TEXT_LEFT));
   y -= 0.06;
-  legend->AddActor2D(make_text("view: from front-left, above", font(14), 0.08, y, VTK_TEXT_LEFT, false, 0.35));
+  legend->AddActor2D(make_text(model.is_2d() ? "view: the slice face on" : "view: from front-left, above", font(14), 0.08, y, VTK_TEXT_LEFT, false, 0.35));
   if (cutaway) {
     y -= 0.04;
     legend->AddActor2D(make_text("front-left-top octant cut away", font(14), 0.08, y, VTK_TEXT_LEFT, false, 0.35));

@@ -291,6 +291,16 @@ Model build_model_2d(const VoxelGrid& grid, const BuildSettings& settings, Build
     for (int j = b; j < b + n; ++j)  // (every vertex lies on the boundary; kept whatever happens)
       if (std::find(order.begin(), order.end(), model.element_vertices[std::size_t(j)]) == order.end())
         order.push_back(model.element_vertices[std::size_t(j)]);
+    // start at the group's centre when it is a vertex (the inner corner of an L, the point where
+    // two diagonal cells touch): an L is star-shaped from there, so the fan of triangles from the
+    // first point that VTK draws a polygon with covers it exactly
+    const int w = model.element_cell_voxels[std::size_t(e)];
+    const Eigen::Vector3i centre = model.element_anchor.col(e) + Eigen::Vector3i(w, w, 0);
+    for (std::size_t k = 0; k < order.size(); ++k)
+      if (model.node_lattice.col(order[k]) == centre) {
+        std::rotate(order.begin(), order.begin() + std::ptrdiff_t(k), order.end());
+        break;
+      }
     std::copy(order.begin(), order.end(), model.element_vertices.begin() + b);
   }
   model.finalize();

@@ -175,6 +175,14 @@ TEST(GradationalBuilder2d, VertexListGoesRoundTheElementCounterClockwise) {
       const int cells = layout == Layout::voxel ? 1 : __builtin_popcount(m.element_cells[std::size_t(e)]);
       ASSERT_EQ(slice_element_parts(m, e).size(), 1u) << "a disk has no element of two corner-touching cells";
       EXPECT_DOUBLE_EQ(0.5 * twice, double(cells) * w * w) << to_string(layout) << " element " << e;
+      // the fan from the first vertex (how VTK draws a polygon) has no triangle turned over, so it
+      // covers the element exactly (an L starts at its inner corner)
+      const Eigen::Vector3i p0 = m.node_lattice.col(m.element_vertices[std::size_t(b)]);
+      for (int k = 1; k + 1 < n; ++k) {
+        const Eigen::Vector3i p = m.node_lattice.col(m.element_vertices[std::size_t(b + k)]) - p0;
+        const Eigen::Vector3i q = m.node_lattice.col(m.element_vertices[std::size_t(b + k + 1)]) - p0;
+        EXPECT_GE(double(p.x()) * q.y() - double(q.x()) * p.y(), 0.0) << to_string(layout) << " element " << e;
+      }
     }
   }
 }

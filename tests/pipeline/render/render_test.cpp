@@ -157,6 +157,42 @@ TEST_F(Render, SphereCutawayShowsInnerLevels) {
   EXPECT_GT(in_cut[2], scene_px / 400) << "level 2 seen in the cutaway";
 }
 
+TEST_F(Render, SliceModelIsDrawnFaceOnWithEveryLevel) {
+  // a 2D (slice) model: the slice face on, every level's elements in its colour, their areas in
+  // proportion (the polygons are drawn as VTK fans from their first point, which the builder
+  // puts where every part of an L-shaped element is seen from)
+  if (!display_available()) GTEST_SKIP() << "no X display (run under xvfb-run)";
+  GridGeometry g;
+  g.dims = {48, 48, 1};
+  g.spacing_mm = {0.5, 0.5, 2.0};
+  VoxelGrid grid(g);
+  for (int j = 0; j < 48; ++j)
+    for (int i = 0; i < 48; ++i) grid.set(i, j, 0, (i - 23.5) * (i - 23.5) + (j - 23.5) * (j - 23.5) < 20.0 * 20.0);
+  BuildSettings b;
+  b.dimensions = 2;
+  const Model m = build_model(grid, b);
+  ASSERT_GE(m.num_levels(), 3);
+  RenderSettings s;
+  const fs::path p = dir_ / "slice.png";
+  render_model_png(m, p, s);
+  const Picture pic = read_png(p);
+  const auto px = level_pixels(pic);
+  // drawn area per level against the model's: each level's share of the picture's tissue pixels
+  // within a few % of its share of the tissue area
+  std::vector<double> area(std::size_t(m.num_levels()), 0.0);
+  double total = 0;
+  for (int e = 0; e < m.num_elements(); ++e) {
+    const int l = m.element_level[std::size_t(e)];
+    area[std::size_t(l)] += m.element_volume_mm3[std::size_t(e)];
+    if (l < 3) total += m.element_volume_mm3[std::size_t(e)];  // level_pixels tells levels 0 to 2 apart
+  }
+  double drawn = 0;
+  for (int l = 0; l < 3; ++l) drawn += px[std::size_t(l)];
+  ASSERT_GT(drawn, 0);
+  for (int l = 0; l < 3; ++l)
+    EXPECT_NEAR(px[std::size_t(l)] / drawn, area[std::size_t(l)] / total, 0.06) << "level " << l;  // edges darken small elements more
+}
+
 TEST_F(Render, SmallHandModel) {
   if (!display_available()) GTEST_SKIP() << "no X display (run under xvfb-run)";
   const Model m = vx::testing::make_hand_model({{{0, 0, 0}, 1, 1, 0}, {{1, 0, 0}, 1, 1, 0}}, vx::testing::oblique_grid({2, 1, 1}),
