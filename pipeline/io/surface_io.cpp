@@ -160,7 +160,8 @@ EmbeddedSurface load_surface(const fs::path& path, const Model* model) {
   if (!method || method->GetNumberOfValues() != 1)
     throw Error("'" + where + "' is not a complete voxelastic surface: the field array 'surface_method' is missing");
   try {
-    s.method = parse_surface_method(method->GetValue(0));
+    // "slice": a 2D model's surface (surface.h, make_slice_surface), made, never asked for
+    s.method = method->GetValue(0) == "slice" ? SurfaceMethod::slice : parse_surface_method(method->GetValue(0));
   } catch (const Error& e) {
     throw Error("'" + where + "' is corrupt: " + e.what());
   }

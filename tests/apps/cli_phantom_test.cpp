@@ -15,6 +15,7 @@
 
 #include "convert/phantom.h"
 #include "io/model_io.h"
+#include "io/surface_io.h"
 #include <nlohmann/json.hpp>
 #include "io/volume_io.h"
 #include "support/run_binary.h"
@@ -131,6 +132,9 @@ TEST_F(CliPhantom, SlicePhantomsConvertToTheSame2DModelFromEveryFormat) {
     element_counts.insert(stats.at("elements").get<long>());
     const Model m = load_model(dir_ / "out" / "m.vtu");
     EXPECT_EQ(m.dimensions, 2);
+    const EmbeddedSurface surface = load_surface(dir_ / "out" / "m.vtp", &m);
+    EXPECT_EQ(surface.method, SurfaceMethod::slice);
+    EXPECT_EQ(surface.model_nodes, m.num_nodes());
     EXPECT_EQ(m.covered_voxels(), shape.tissue_voxels);
   }
   EXPECT_EQ(element_counts.size(), 1u) << "every format gives the same model";
