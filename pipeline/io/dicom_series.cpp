@@ -13,6 +13,7 @@
 #include <dcmtk/dcmdata/dcmetinf.h>
 #include <dcmtk/dcmdata/dcpixel.h>
 #include <dcmtk/dcmdata/dcpixseq.h>
+#include <dcmtk/dcmdata/dcpxitem.h>
 #include <dcmtk/dcmdata/dcspchrs.h>
 #include <dcmtk/dcmdata/dcstack.h>
 #include <dcmtk/dcmdata/dcuid.h>
@@ -934,6 +935,51 @@ Volume allocate_volume(const SliceLayout& layout, const SeriesInfo& series) {
   return volume;
 }
 
+/// RLE Lossless (PS3.5 annex G) frames are checked before DCMTK decodes them: DCMTK 3.6.7's
+/// decoder trusts the segment offsets of each fragment's 64-byte header, and an offset beyond the
+/// fragment (or before the previous one) made it read far outside its buffer (a SIGSEGV, found by
+/// the fuzz target fuzz_dicom_series once single-image series were read). Each frame is one
+/// fragment (after the offset table): at least 64 bytes, as many segments as bytes per pixel
+/// (samples x bytes per sample, 1..15), the first at 64, each after the previous and inside it.
+void check_rle_fragments(const FileInfo& f, DcmDataset* ds, DcmPixelData* pixels) {
+  DcmPixelSequence* seq = nullptr;
+  if (pixels->getEncapsulatedRepresentation(ds->getOriginalXfer(), nullptr, seq).bad() || !seq)
+    throw Error(fmt::format("DICOM: {} is RLE compressed but holds no encapsulated pixel data; the file is corrupt",
+                            quoted(f.path)));
+  const unsigned long items = seq->card();
+  if (items < 1 + f.frames.size())
+    throw Error(fmt::format("DICOM: {} is RLE compressed with {} fragment(s) for {} frame(s) (one per frame after the "
+                            "offset table); the file is truncated or corrupt",
+                            quoted(f.path), items == 0 ? 0 : items - 1, f.frames.size()));
+  const std::uint32_t expected = std::uint32_t(std::max(f.samples, 1) * std::max(f.bits_allocated / 8, 1));
+  for (unsigned long i = 1; i < items; ++i) {
+    DcmPixelItem* item = nullptr;
+    Uint8* data = nullptr;
+    if (seq->getItem(item, i).bad() || !item || item->getUint8Array(data).bad())
+      throw Error(fmt::format("DICOM: {}: RLE fragment {} cannot be read; the file is corrupt", quoted(f.path), i));
+    const Uint32 length = item->getLength();
+    const auto bad = [&](const std::string& why) {
+      return Error(fmt::format("DICOM: {}: RLE fragment {} is corrupt ({}); the file cannot be decoded, re-export it",
+                               quoted(f.path), i, why));
+    };
+    if (length < 64 || !data) throw bad(fmt::format("{} bytes, less than its 64-byte header", length));
+    const auto word = [&](int k) {
+      return std::uint32_t(data[4 * k]) | std::uint32_t(data[4 * k + 1]) << 8 | std::uint32_t(data[4 * k + 2]) << 16 |
+             std::uint32_t(data[4 * k + 3]) << 24;
+    };
+    const std::uint32_t segments = word(0);
+    if (segments < 1 || segments > 15 || segments != expected)
+      throw bad(fmt::format("{} segments, {} expected for {} sample(s) of {} bits", segments, expected, f.samples,
+                            f.bits_allocated));
+    if (word(1) != 64) throw bad(fmt::format("the first segment starts at {}, not 64", word(1)));
+    for (std::uint32_t k = 1; k <= segments; ++k) {
+      const std::uint32_t end = k < segments ? word(int(k) + 1) : std::uint32_t(length);
+      if (end <= word(int(k)) || end > length)
+        throw bad(fmt::format("segment {} spans bytes {} to {} of {}", k, word(int(k)), end, length));
+    }
+  }
+}
+
 /// The pixel pass: file by file (frames of a file in frame order), each frame straight into its
 /// slice of `volume`.
 void read_pixels(const std::vector<FileInfo>& files, const std::vector<FrameInfo>& frames, const SliceLayout& layout,
@@ -972,6 +1018,7 @@ void read_pixels(const std::vector<FileInfo>& files, const std::vector<FrameInfo
     if (status.bad() || frame_size < needed)
       throw Error(fmt::format("DICOM: {}: cannot work out the size of a frame ({})", quoted(f.path),
                               status.bad() ? status.text() : "too small"));
+    if (DcmXfer(ds->getOriginalXfer()).getXfer() == EXS_RLELossless) check_rle_fragments(f, ds, pixels);
     buffer.assign(std::size_t(frame_size) + 8, 0);
     slice_hu.resize(std::size_t(f.rows) * std::size_t(f.cols));
     Uint32 start_fragment = 0;

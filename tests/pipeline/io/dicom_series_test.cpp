@@ -605,6 +605,34 @@ TEST_F(DicomSeries, SingleSliceEmptyFolderAndMissingPath) {
   EXPECT_ERROR_HAS(vx::read_dicom_series({}), "no input");
 }
 
+TEST_F(DicomSeries, CorruptRleSegmentOffsetsAreAClearErrorNotACrash) {
+  // the fuzz finding of stop 24 (fuzz_dicom_series): an RLE fragment whose second segment offset
+  // points before the first (0xffffffb0) made DCMTK's decoder read outside its buffer (SIGSEGV);
+  // a single image reaches the decoder since one-slice series are read
+  const Volume v = pattern_volume({6, 5, 1}, {1, 1, 1}, {0, 0, 0});
+  vx::write_dicom_series(v, dir_ / "rle", {.transfer_syntax = "rle"});
+  const std::vector<fs::path> files = files_in(dir_ / "rle");
+  ASSERT_EQ(files.size(), 1u);
+  EXPECT_EQ(vx::read_dicom_series({dir_ / "rle"}).hu, v.hu);  // the valid file reads
+  std::string bytes;
+  {
+    std::ifstream in(files.front(), std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  // the pixel data's first fragment after the (empty) offset table: FE FF 00 E0, its length, the
+  // RLE header (segment count, then offsets)
+  const std::string item("\xfe\xff\x00\xe0", 4);
+  const std::size_t table = bytes.rfind(std::string("\xe0\x7f\x10\x00", 4));
+  ASSERT_NE(table, std::string::npos);
+  const std::size_t first = bytes.find(item, bytes.find(item, table) + 4);
+  ASSERT_NE(first, std::string::npos);
+  const std::size_t header = first + 8;
+  ASSERT_EQ(bytes.substr(header, 8), std::string("\x02\x00\x00\x00\x40\x00\x00\x00", 8));  // 2 segments at 64
+  bytes.replace(header + 8, 4, std::string("\xb0\xff\xff\xff", 4));
+  std::ofstream(files.front(), std::ios::binary | std::ios::trunc) << bytes;
+  EXPECT_ERROR_HAS(vx::read_dicom_series({dir_ / "rle"}), "RLE fragment 1 is corrupt", "segment 1");
+}
+
 TEST_F(DicomSeries, DuplicateMissingAndUnevenSlices) {
   SliceSpec s;
   s.series_uid = uid(SITE_SERIES_UID_ROOT);
