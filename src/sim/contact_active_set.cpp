@@ -61,6 +61,17 @@ void ContactActiveSet::bind(const std::vector<int>& free_index, const std::vecto
   gram_.setConstant(std::numeric_limits<double>::quiet_NaN());
 }
 
+/// Room for `capacity` slots; the cached columns and G entries keep their slots (the new
+/// entries of G are NaN: not yet computed).
+void ContactActiveSet::grow_slots(int capacity) {
+  forward_.resize(std::size_t(capacity));
+  Eigen::MatrixXd g = Eigen::MatrixXd::Constant(capacity, capacity, std::numeric_limits<double>::quiet_NaN());
+  g.topLeftCorner(gram_.rows(), gram_.cols()) = gram_;
+  gram_.swap(g);
+  slot_free_.resize(std::size_t(capacity), -1);
+  slot_last_used_.resize(std::size_t(capacity), 0);
+}
+
 /// The slot of free node f, solving its forward vector when it has none (allocates when the
 /// cache grows).
 int ContactActiveSet::column_of(int f, SparseFactor& factor, ContactSolveCounters& counters) {
@@ -69,29 +80,14 @@ int ContactActiveSet::column_of(int f, SparseFactor& factor, ContactSolveCounter
     if (used_slots_ < int(forward_.size()) ||
         (used_slots_ < kMaxSlots && double(forward_bytes_) < kColumnBudgetBytes)) {
       slot = used_slots_++;
-      if (slot >= int(forward_.size())) {
-        const int grow = std::max(16, int(forward_.size()));
-        const int capacity = int(forward_.size()) + grow;
-        forward_.resize(std::size_t(capacity));
-        Eigen::MatrixXd g = Eigen::MatrixXd::Constant(capacity, capacity, std::numeric_limits<double>::quiet_NaN());
-        g.topLeftCorner(gram_.rows(), gram_.cols()) = gram_;
-        gram_.swap(g);
-        slot_free_.resize(std::size_t(capacity), -1);
-        slot_last_used_.resize(std::size_t(capacity), 0);
-      }
+      if (slot >= int(forward_.size())) grow_slots(int(forward_.size()) + std::max(16, int(forward_.size())));
     } else {
       // full: reuse the least recently used slot (never one of this solve)
       std::int64_t oldest = solve_count_;
       for (int k = 0; k < used_slots_; ++k)
         if (slot_last_used_[std::size_t(k)] < oldest) oldest = slot_last_used_[std::size_t(k)], slot = k;
       if (slot < 0) {  // all in use now: grow beyond the budget
-        const int capacity = int(forward_.size()) + 16;
-        forward_.resize(std::size_t(capacity));
-        Eigen::MatrixXd g = Eigen::MatrixXd::Constant(capacity, capacity, std::numeric_limits<double>::quiet_NaN());
-        g.topLeftCorner(gram_.rows(), gram_.cols()) = gram_;
-        gram_.swap(g);
-        slot_free_.resize(std::size_t(capacity), -1);
-        slot_last_used_.resize(std::size_t(capacity), 0);
+        grow_slots(int(forward_.size()) + 16);
         slot = used_slots_++;
       } else {
         column_slot_[std::size_t(slot_free_[std::size_t(slot)])] = -1;
@@ -234,8 +230,7 @@ void ContactActiveSet::compliance(const std::vector<int>& free, SparseFactor& fa
 }
 
 void ContactActiveSet::solve(ContactProvider& provider, const Eigen::Matrix3Xd& x, SparseFactor& factor,
-                             Eigen::MatrixX3d& solution, int threads, ContactSolveCounters& counters) {
-  (void)threads;  // serial now: add_response3 is one backward pass over the factor (the substitutions are serial)
+                             Eigen::MatrixX3d& solution, ContactSolveCounters& counters) {
   const std::vector<int>& free_index = *free_index_;
   const std::vector<int>& free_nodes = *free_nodes_;
   ++solve_count_;

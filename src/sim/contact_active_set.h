@@ -65,9 +65,10 @@ class ContactActiveSet {
 
   /// Turns the unconstrained solution `solution` (free nodes x 3, mm) of one global step into the
   /// constrained one. `x` (3 x nodes) is the iterate before this solve, where the provider
-  /// linearises the constraints; `factor` is the global matrix's factor bound by bind().
+  /// linearises the constraints; `factor` is the global matrix's factor bound by bind(). Serial:
+  /// the substitutions it runs are serial (SparseFactor::add_response3 is one backward pass).
   void solve(ContactProvider& provider, const Eigen::Matrix3Xd& x, SparseFactor& factor,
-             Eigen::MatrixX3d& solution, int threads, ContactSolveCounters& counters);
+             Eigen::MatrixX3d& solution, ContactSolveCounters& counters);
 
   /// The constraints active after the last solve, sorted by (owner, node), with their
   /// multipliers (N); the next solve starts from them (warm start).
@@ -81,6 +82,7 @@ class ContactActiveSet {
  private:
   [[nodiscard]] int num_free() const { return int(free_nodes_->size()); }
   int column_of(int free, SparseFactor& factor, ContactSolveCounters& counters);
+  void grow_slots(int capacity);
   /// G between the nodes of two slots (computed once, then cached).
   double gram(int slot_a, int slot_b);
   [[nodiscard]] Eigen::Vector3d constrained_position(int candidate, SparseFactor& factor, ContactSolveCounters& counters);

@@ -154,7 +154,7 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
       factor_.solve3(rhs_, solution_);
     if (contact) {
       contact_set_.set_partial(region_);  // the full refresh after a region move applies contact everywhere
-      contact_set_.solve(*contact, x, factor_, solution_, threads, counters);
+      contact_set_.solve(*contact, x, factor_, solution_, counters);
     }
     max_update = scatter(x, threads);
     rhs_previous_.swap(rhs_);
