@@ -6,6 +6,7 @@
 #include <string>
 
 #include "base/error.h"
+#include "model/gradational_builder_2d.h"
 
 namespace vx {
 namespace {
@@ -290,18 +291,30 @@ std::vector<ElementSeed> voxel_seeds(const VoxelGrid& grid, NodeLattice& lattice
 Model build_model(const VoxelGrid& grid, const BuildSettings& settings, BuildReport* report_out) {
   if (settings.dimensions != 2 && settings.dimensions != 3)
     throw Error("build settings: dimensions " + std::to_string(settings.dimensions) + " must be 2 or 3");
-  if (settings.dimensions == 2) return build_model_2d(grid, settings, report_out);
+  const bool flat = settings.dimensions == 2;
   const auto start = std::chrono::steady_clock::now();
   const Eigen::Vector3i& d = grid.dims();
   if ((d.array() <= 0).any() || std::int64_t(grid.data().size()) != grid.geometry().voxel_count())
     throw Error("the voxel grid is empty or inconsistent (dims " + std::to_string(d.x()) + "x" +
                 std::to_string(d.y()) + "x" + std::to_string(d.z()) + ")");
+  if (flat && d.z() != 1)
+    throw Error("a 2D model needs a grid one voxel thick (one slice); this grid has " + std::to_string(d.z()) +
+                " slices");
   if ((grid.geometry().spacing_mm.array() <= 0).any() || !grid.geometry().spacing_mm.allFinite())
-    throw Error("the voxel spacing must be positive and finite");
+    throw Error(flat ? "the voxel spacing (and the slice thickness) must be positive and finite"
+                     : "the voxel spacing must be positive and finite");
   BuildReport report;
   report.tissue_voxels = grid.count();
   if (report.tissue_voxels == 0)
-    throw Error("the voxel grid holds no tissue: nothing to build (check the HU threshold)");
+    throw Error(std::string(flat ? "the slice" : "the voxel grid") +
+                " holds no tissue: nothing to build (check the HU threshold)");
+  const auto finish = [&](Model model) {
+    if (settings.progress) settings.progress(1.0);
+    report.build_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    if (report_out) *report_out = report;
+    return model;
+  };
+  if (flat) return finish(build_model_2d(grid, settings, report));
 
   Model model;
   model.layout = settings.layout;
@@ -322,10 +335,7 @@ Model build_model(const VoxelGrid& grid, const BuildSettings& settings, BuildRep
   number_nodes(lattice, grid, model);
   store_elements(seeds, lattice, model, settings.progress);
   model.finalize();
-  if (settings.progress) settings.progress(1.0);
-  report.build_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  if (report_out) *report_out = report;
-  return model;
+  return finish(std::move(model));
 }
 
 }  // namespace vx

@@ -5,12 +5,11 @@
 // levels share their nodes.
 
 #include <algorithm>
-#include <chrono>
 #include <limits>
 #include <string>
 
 #include "base/error.h"
-#include "model/gradational_builder.h"
+#include "model/gradational_builder_2d.h"
 
 namespace vx {
 namespace {
@@ -236,22 +235,8 @@ std::vector<Seed2> pixel_seeds(const VoxelGrid& grid, NodeLattice2& lattice, Bui
 
 }  // namespace
 
-Model build_model_2d(const VoxelGrid& grid, const BuildSettings& settings, BuildReport* report_out) {
-  const auto start = std::chrono::steady_clock::now();
+Model build_model_2d(const VoxelGrid& grid, const BuildSettings& settings, BuildReport& report) {
   const Eigen::Vector3i& d = grid.dims();
-  if ((d.array() <= 0).any() || std::int64_t(grid.data().size()) != grid.geometry().voxel_count())
-    throw Error("the voxel grid is empty or inconsistent (dims " + std::to_string(d.x()) + "x" +
-                std::to_string(d.y()) + "x" + std::to_string(d.z()) + ")");
-  if (d.z() != 1)
-    throw Error("a 2D model needs a grid one voxel thick (one slice); this grid has " + std::to_string(d.z()) +
-                " slices");
-  if ((grid.geometry().spacing_mm.array() <= 0).any() || !grid.geometry().spacing_mm.allFinite())
-    throw Error("the voxel spacing (and the slice thickness) must be positive and finite");
-  BuildReport report;
-  report.tissue_voxels = grid.count();
-  if (report.tissue_voxels == 0)
-    throw Error("the slice holds no tissue: nothing to build (check the HU threshold)");
-
   Model model;
   model.layout = settings.layout;
   model.grid = grid.geometry();
@@ -304,9 +289,6 @@ Model build_model_2d(const VoxelGrid& grid, const BuildSettings& settings, Build
     std::copy(order.begin(), order.end(), model.element_vertices.begin() + b);
   }
   model.finalize();
-  if (settings.progress) settings.progress(1.0);
-  report.build_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  if (report_out) *report_out = report;
   return model;
 }
 
