@@ -177,20 +177,17 @@ ProbeScene make_default_scene(std::shared_ptr<const Model> model, std::shared_pt
   probe.max_speed_mm_s = 150.0;
   sim.probes.push_back(probe);
 
-  // the fast configuration (time_step.h): implicit, 20 ms steps, one iteration each; the
-  // paper's device shaping over two steps
+  // the fast configuration (time_step.h): implicit, one iteration per step, 20 ms steps (30 ms
+  // with regional solves near the tool for a large model); the paper's device shaping over two
+  // steps
+  const int nodes = scene.model->num_nodes();
   sim.integrator.kind = FastConfiguration::kind;
-  sim.integrator.time_step_s = automatic_time_step(estimate_time_steps(*scene.physics), sim.integrator.kind);
+  sim.integrator.time_step_s = FastConfiguration::time_step_for(nodes);
+  sim.integrator.region_radius_mm = FastConfiguration::region_radius_for(nodes);
   sim.integrator.max_iterations = FastConfiguration::iterations;
   sim.integrator.threads = 1;
   sim.device = DeviceForceSettings{};
-  sim.device->update_interval_s = FastConfiguration::device_update_interval_s;
-  if (FastConfiguration::large(scene.model->num_nodes())) {
-    // a large model: 30 ms steps with regional solves near the tool (time_step.h)
-    sim.integrator.time_step_s = FastConfiguration::large_model_time_step_s;
-    sim.integrator.region_radius_mm = FastConfiguration::large_model_region_radius_mm;
-    sim.device->update_interval_s = 2.0 * sim.integrator.time_step_s;
-  }
+  sim.device->update_interval_s = 2.0 * sim.integrator.time_step_s;
 
   scene.notes.push_back(fmt::format("default palpation scene: E = {:g} kPa, damping ratio {:g}, {} bottom nodes held, "
                                     "capsule probe r = {:.1f} mm, the fast configuration: implicit dt = {:.3g} ms, {} "

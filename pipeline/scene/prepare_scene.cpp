@@ -129,7 +129,7 @@ void choose_integrator(const Scene& scene, const PrepareSceneOptions& options, c
   // no integrator key and a large model: the fast configuration's 30 ms steps with regional solves
   const bool large = scene.integrator == IntegratorKind::implicit && !scene.integrator_given &&
                      FastConfiguration::large(out.model->num_nodes());
-  if (large) automatic_dt_s = FastConfiguration::large_model_time_step_s;
+  if (large) automatic_dt_s = FastConfiguration::time_step_for(out.model->num_nodes());
   if (scene.integrator == IntegratorKind::implicit) {
     // the fast configuration's step, shortened where a probe would move more than a quarter of
     // its radius per step or a device update would span fewer than two steps
@@ -143,7 +143,7 @@ void choose_integrator(const Scene& scene, const PrepareSceneOptions& options, c
                                   : scene.integrator_given ? IntegratorSettings{}.max_iterations
                                                            : FastConfiguration::iterations;
     s.integrator.residual_tolerance_n = scene.residual_tolerance_n;
-    s.integrator.region_radius_mm = large ? FastConfiguration::large_model_region_radius_mm : scene.region_radius_mm;
+    s.integrator.region_radius_mm = large ? FastConfiguration::region_radius_for(out.model->num_nodes()) : scene.region_radius_mm;
     if (large)
       out.log.push_back(fmt::format("the fast configuration of a large model ({} nodes, {} or more): implicit, {:g} ms steps, "
                                     "regional solves within {:g} mm of a tool (docs/bench.md)",

@@ -59,7 +59,17 @@ struct FastConfiguration {
   static constexpr double large_model_time_step_s = 0.03;
   static constexpr double large_model_region_radius_mm = 30.0;
   [[nodiscard]] static constexpr bool large(int nodes) { return nodes >= large_model_nodes; }
+  /// The step of a model with `nodes` nodes: 30 ms for a large model, 20 ms otherwise.
+  [[nodiscard]] static constexpr double time_step_for(int nodes) {
+    return large(nodes) ? large_model_time_step_s : time_step_s;
+  }
+  /// Regional solves within this radius of a tool (mm) for a large model; 0 (none) otherwise.
+  [[nodiscard]] static constexpr double region_radius_for(int nodes) {
+    return large(nodes) ? large_model_region_radius_mm : 0.0;
+  }
 };
+static_assert(FastConfiguration::device_update_interval_s == 2 * FastConfiguration::time_step_s,
+              "the device's update spans two steps");
 
 /// The automatic step ("dt_s": "auto") of `kind`: half the stable estimate for the explicit
 /// integrators (the estimate is close to the real limit: a block blew up at 1.3x within 40
