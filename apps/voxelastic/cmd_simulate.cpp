@@ -6,6 +6,8 @@
 #include <chrono>
 #include <cmath>
 #include <csignal>
+#include <cstdint>
+#include <ctime>
 #include <filesystem>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -26,20 +28,39 @@ namespace vx::cli {
 namespace {
 namespace fs = std::filesystem;
 
-/// Set by the first Ctrl-C (or SIGTERM); the handler then resets itself, so a second Ctrl-C
-/// ends the program at once.
+/// Set by the first Ctrl-C (or SIGTERM); a second one ends the program at once. One stop can
+/// arrive twice (`timeout -s INT`, a CI runner or a shell script signals the process and then its
+/// process group): a second signal within kDuplicateNs of the first is that same stop, not a
+/// second Ctrl-C, and is ignored.
 std::atomic<bool> g_stop{false};
-extern "C" void on_stop_signal(int) { g_stop.store(true); }
+std::atomic<std::int64_t> g_first_stop_ns{0};
+constexpr std::int64_t kDuplicateNs = 500'000'000;
+static_assert(std::atomic<std::int64_t>::is_always_lock_free, "the signal handler needs a lock-free atomic");
 
-/// Catches SIGINT and SIGTERM while alive (once each: SA_RESETHAND), restores them after.
+extern "C" void on_stop_signal(int sig) {
+  timespec ts{};
+  clock_gettime(CLOCK_MONOTONIC, &ts);  // async-signal-safe
+  const std::int64_t now = std::int64_t(ts.tv_sec) * 1'000'000'000 + ts.tv_nsec;
+  const std::int64_t first = g_first_stop_ns.load();
+  if (first == 0) {
+    g_first_stop_ns.store(now);
+    g_stop.store(true);
+  } else if (now - first > kDuplicateNs) {
+    std::signal(sig, SIG_DFL);  // a second Ctrl-C: end now, as the default action would
+    std::raise(sig);
+  }
+}
+
+/// Catches SIGINT and SIGTERM while alive, restores them after.
 class StopSignals {
  public:
   StopSignals() {
     g_stop.store(false);
+    g_first_stop_ns.store(0);
     struct sigaction sa {};
     sa.sa_handler = on_stop_signal;
     sigemptyset(&sa.sa_mask);
-    sa.sa_flags = SA_RESETHAND;
+    sa.sa_flags = 0;
     sigaction(SIGINT, &sa, &old_int_);
     sigaction(SIGTERM, &sa, &old_term_);
   }
