@@ -209,7 +209,7 @@ TEST(SparseFactorBackends, AgreeOnTheSameMatrix) {
     // to forces at a few rows is A^-1 of them
     SparseFactor::UnitForward zi, zj, zk;
     std::vector<double> colj(static_cast<std::size_t>(nn), 0.0);
-    for (const auto [i, j] : {std::pair{7, 7}, std::pair{7, 40}, std::pair{3, nn - 1}, std::pair{nn / 2, 11}}) {
+    for (const auto& [i, j] : {std::pair{7, 7}, std::pair{7, 40}, std::pair{3, nn - 1}, std::pair{nn / 2, 11}}) {
       f.forward_unit(i, zi);
       f.forward_unit(j, zj);
       f.solve_unit(j, colj.data());

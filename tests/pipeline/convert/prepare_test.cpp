@@ -285,7 +285,7 @@ TEST(PrepareGrid, LatticeOriginMovesTheFirstVoxelNotTheTissue) {
   EXPECT_EQ(g.count(), 20 * 20 * 20);
   EXPECT_EQ(m.covered_voxels(), m0.covered_voxels());
   // the same voxel at the same place: grid index + shift
-  for (const Eigen::Vector3i ijk : {Eigen::Vector3i(1, 1, 1), Eigen::Vector3i(20, 7, 13)}) {
+  for (const Eigen::Vector3i& ijk : {Eigen::Vector3i(1, 1, 1), Eigen::Vector3i(20, 7, 13)}) {
     const Eigen::Vector3d before = g0.geometry().index_to_lps(ijk.cast<double>());
     const Eigen::Vector3d after = g.geometry().index_to_lps((ijk + r.lattice_shift).cast<double>());
     EXPECT_LT((before - after).norm(), 1e-9);
