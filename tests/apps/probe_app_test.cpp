@@ -55,6 +55,8 @@ class ProbeApp : public ::testing::Test {
 struct Row {
   double sim_s, device_N, raw_fz_N, raw_N, tip_x, tip_z;
   int contacts;
+  int probe;
+  double raw_fx_N, raw_fy_N, tip_y;
 };
 
 std::vector<Row> read_log(const fs::path& csv, std::string* header) {
@@ -69,7 +71,8 @@ std::vector<Row> read_log(const fs::path& csv, std::string* header) {
     for (std::string v; std::getline(ss, v, ',');) c.push_back(v);
     if (c.size() < 17) continue;
     rows.push_back({std::stod(c[1]), std::stod(c[6]), std::stod(c[9]), std::stod(c[10]), std::stod(c[13]),
-                    std::stod(c[15]), std::stoi(c[16])});
+                    std::stod(c[15]), std::stoi(c[16]), std::stoi(c[2]), std::stod(c[7]), std::stod(c[8]),
+                    std::stod(c[14])});
   }
   return rows;
 }
@@ -294,6 +297,40 @@ TEST_F(ProbeApp, SliceModelIsPalpatedInItsPlane) {
   EXPECT_LT(top, 0.08);
   EXPECT_EQ(rows.back().contacts, 0);
   EXPECT_LT(rows.back().device_N, 1e-9);
+}
+
+// The 2D grasp sample with its two-stick script (one circle per joystick): the circles squeeze
+// the disk, lift it about 11 mm and hold it; while held they carry its weight (1.03 g: 0.0101 N)
+// and squeeze it from both sides, all in the slice plane.
+TEST_F(ProbeApp, SliceGraspWithTwoSticksLiftsTheDisk) {
+  const fs::path scene = fs::path(VX_SAMPLES_DIR) / "scenes" / "disk_grasp_2d.json";
+  const fs::path script = fs::path(VX_SAMPLES_DIR) / "scenes" / "disk_grasp_2d.joy";
+  const fs::path csv = dir_ / "grasp.csv";
+  const RunResult r = run(q(scene) + " --headless --virtual-joystick " + q(script) + " --duration 2.4 --force-log " +
+                          q(csv));
+  ASSERT_EQ(r.code, 0) << r.out << r.err;
+  const std::vector<Row> rows = read_log(csv, nullptr);
+  double fx[2] = {0, 0}, fy = 0, y_end[2] = {0, 0};
+  int n[2] = {0, 0};
+  for (const Row& row : rows) {
+    ASSERT_TRUE(row.probe == 0 || row.probe == 1);
+    EXPECT_EQ(row.tip_z, 0.0) << "t = " << row.sim_s;
+    EXPECT_EQ(row.raw_fz_N, 0.0) << "t = " << row.sim_s;
+    y_end[row.probe] = row.tip_y;
+    if (row.sim_s > 1.5) {  // held (the lift ends at 1.3 s)
+      fx[row.probe] += row.raw_fx_N;
+      fy += row.raw_fy_N;
+      ++n[row.probe];
+    }
+  }
+  ASSERT_GT(n[0], 100);
+  ASSERT_GT(n[1], 100);
+  EXPECT_GT(y_end[0], -1.5 + 9.0);  // lifted (measured 11.4 mm)
+  EXPECT_NEAR(y_end[0], y_end[1], 1e-3);
+  EXPECT_LT(fx[0] / n[0], -0.01);  // squeezed: the disk pushes the left circle to -x (measured 0.022 N)
+  EXPECT_GT(fx[1] / n[1], 0.01);
+  const double carried = -fy / (0.5 * (n[0] + n[1]));  // the two circles' vertical force, mean
+  EXPECT_NEAR(carried, 0.0101, 0.25 * 0.0101) << "the circles carry the disk's weight";
 }
 
 TEST_F(ProbeApp, WindowScreenshotUnderADisplay) {
