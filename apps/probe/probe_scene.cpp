@@ -187,7 +187,7 @@ ProbeScene make_default_scene(std::shared_ptr<const Model> model, std::shared_pt
   sim.integrator.max_iterations = FastConfiguration::iterations;
   sim.integrator.threads = 1;
   sim.device = DeviceForceSettings{};
-  sim.device->update_interval_s = 2.0 * sim.integrator.time_step_s;
+  sim.device->update_interval_s = FastConfiguration::device_update_interval_for(nodes);
 
   scene.notes.push_back(fmt::format("default palpation scene: E = {:g} kPa, damping ratio {:g}, {} bottom nodes held, "
                                     "capsule probe r = {:.1f} mm, the fast configuration: implicit dt = {:.3g} ms, {} "

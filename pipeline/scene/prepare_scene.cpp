@@ -143,7 +143,8 @@ void choose_integrator(const Scene& scene, const PrepareSceneOptions& options, c
                                   : scene.integrator_given ? IntegratorSettings{}.max_iterations
                                                            : FastConfiguration::iterations;
     s.integrator.residual_tolerance_n = scene.residual_tolerance_n;
-    s.integrator.region_radius_mm = large ? FastConfiguration::region_radius_for(out.model->num_nodes()) : scene.region_radius_mm;
+    s.integrator.region_radius_mm =
+        large ? FastConfiguration::region_radius_for(out.model->num_nodes()) : scene.region_radius_mm;
     if (large)
       out.log.push_back(fmt::format("the fast configuration of a large model ({} nodes, {} or more): implicit, {:g} ms steps, "
                                     "regional solves within {:g} mm of a tool (docs/bench.md)",

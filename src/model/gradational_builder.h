@@ -20,7 +20,8 @@ struct BuildSettings {
   /// Called with a fraction in [0,1] as the build advances (may be empty).
   std::function<void(double)> progress;
   /// 3 (default): a volume model; 2: a 2D (quadtree) model of a one-voxel-thick grid
-  /// (gradational_builder_2d.h, docs/model.md section 12.1). Last, so that positional initialisers of the fields above keep meaning.
+  /// (gradational_builder_2d.h, docs/model.md section 12.1). Last, so that positional
+  /// initialisers of the fields above keep meaning.
   int dimensions{3};
 };
 

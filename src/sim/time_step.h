@@ -49,8 +49,6 @@ struct FastConfiguration {
   static constexpr IntegratorKind kind = IntegratorKind::implicit;
   static constexpr double time_step_s = 0.02;
   static constexpr int iterations = 1;
-  /// the device's force update interval that goes with it (two steps: a half sine spans at least 2)
-  static constexpr double device_update_interval_s = 0.04;
   /// Large models (large_model_nodes nodes or more): 30 ms steps with regional solves within
   /// 30 mm of a tool. Measured (docs/bench.md): the 128 sphere (60,580 nodes) 1.05x real time on
   /// one thread, 1.22x on two, at 3.8 % RMS force error, against 0.27-0.32x at 1.8 % for 20 ms
@@ -67,9 +65,10 @@ struct FastConfiguration {
   [[nodiscard]] static constexpr double region_radius_for(int nodes) {
     return large(nodes) ? large_model_region_radius_mm : 0.0;
   }
+  /// The device's force update interval that goes with the step: two steps (a half sine spans
+  /// at least two).
+  [[nodiscard]] static constexpr double device_update_interval_for(int nodes) { return 2.0 * time_step_for(nodes); }
 };
-static_assert(FastConfiguration::device_update_interval_s == 2 * FastConfiguration::time_step_s,
-              "the device's update spans two steps");
 
 /// The automatic step ("dt_s": "auto") of `kind`: half the stable estimate for the explicit
 /// integrators (the estimate is close to the real limit: a block blew up at 1.3x within 40

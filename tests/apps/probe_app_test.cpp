@@ -26,31 +26,6 @@ const fs::path kScript = fs::path(VX_SAMPLES_DIR) / "scenes" / "palpation-lesion
 using vx::testing::RunResult;
 using vx::testing::slurp;
 
-class ProbeApp : public ::testing::Test {
- protected:
-  void SetUp() override {
-    dir_ = fs::temp_directory_path() /
-           ("vx_probe_app_" + std::to_string(::getpid()) + "_" +
-            ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
-
-  // runs the binary with `args` (a shell-quoted string) and an optional environment prefix
-  RunResult run(const std::string& args, const std::string& env = "") const {
-    return vx::testing::run_binary(kBinary, args, dir_, dir_, env);
-  }
-  static std::string q(const fs::path& p) {
-    std::string s(1, '\'');
-    s += p.string();
-    s.push_back('\'');
-    return s;
-  }
-
-  fs::path dir_;
-};
-
 // one row of the force log
 struct Row {
   double sim_s, device_N, raw_fz_N, raw_N, tip_x, tip_z;
@@ -76,6 +51,41 @@ std::vector<Row> read_log(const fs::path& csv, std::string* header) {
   }
   return rows;
 }
+
+class ProbeApp : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() /
+           ("vx_probe_app_" + std::to_string(::getpid()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  // runs the binary with `args` (a shell-quoted string) and an optional environment prefix
+  RunResult run(const std::string& args, const std::string& env = "") const {
+    return vx::testing::run_binary(kBinary, args, dir_, dir_, env);
+  }
+  static std::string q(const fs::path& p) {
+    std::string s(1, '\'');
+    s += p.string();
+    s.push_back('\'');
+    return s;
+  }
+
+  // plays samples/scenes/NAME.json with its NAME.joy headless until `stop` (an option such as
+  // --exit-after-script or --duration S) and returns the force log
+  std::vector<Row> play_sample(const std::string& name, const std::string& stop) const {
+    const fs::path scenes = fs::path(VX_SAMPLES_DIR) / "scenes", csv = dir_ / (name + ".csv");
+    const RunResult r = run(q(scenes / (name + ".json")) + " --headless --virtual-joystick " +
+                            q(scenes / (name + ".joy")) + " " + stop + " --force-log " + q(csv));
+    EXPECT_EQ(r.code, 0) << r.out << r.err;
+    return read_log(csv, nullptr);
+  }
+
+  fs::path dir_;
+};
 
 double mean_force(const std::vector<Row>& rows, double t0, double t1, double x0, double x1) {
   double sum = 0;
@@ -278,13 +288,7 @@ TEST_F(ProbeApp, TwoJoysticksGraspWithTwoProbes) {
 // the top of the disk and lifts it; the force is felt, and it and the tool stay in the slice
 // plane (z = 0).
 TEST_F(ProbeApp, SliceModelIsPalpatedInItsPlane) {
-  const fs::path scene = fs::path(VX_SAMPLES_DIR) / "scenes" / "disk_press_2d.json";
-  const fs::path script = fs::path(VX_SAMPLES_DIR) / "scenes" / "disk_press_2d.joy";
-  const fs::path csv = dir_ / "disk.csv";
-  const RunResult r = run(q(scene) + " --headless --virtual-joystick " + q(script) + " --exit-after-script --force-log " +
-                          q(csv));
-  ASSERT_EQ(r.code, 0) << r.out << r.err;
-  const std::vector<Row> rows = read_log(csv, nullptr);
+  const std::vector<Row> rows = play_sample("disk_press_2d", "--exit-after-script");
   ASSERT_GT(rows.size(), 500u);
   double top = 0;
   for (const Row& row : rows) {
@@ -303,13 +307,7 @@ TEST_F(ProbeApp, SliceModelIsPalpatedInItsPlane) {
 // the disk, lift it about 11 mm and hold it; while held they carry its weight (1.03 g: 0.0101 N)
 // and squeeze it from both sides, all in the slice plane.
 TEST_F(ProbeApp, SliceGraspWithTwoSticksLiftsTheDisk) {
-  const fs::path scene = fs::path(VX_SAMPLES_DIR) / "scenes" / "disk_grasp_2d.json";
-  const fs::path script = fs::path(VX_SAMPLES_DIR) / "scenes" / "disk_grasp_2d.joy";
-  const fs::path csv = dir_ / "grasp.csv";
-  const RunResult r = run(q(scene) + " --headless --virtual-joystick " + q(script) + " --duration 2.4 --force-log " +
-                          q(csv));
-  ASSERT_EQ(r.code, 0) << r.out << r.err;
-  const std::vector<Row> rows = read_log(csv, nullptr);
+  const std::vector<Row> rows = play_sample("disk_grasp_2d", "--duration 2.4");
   double fx[2] = {0, 0}, fy = 0, y_end[2] = {0, 0};
   int n[2] = {0, 0};
   for (const Row& row : rows) {
