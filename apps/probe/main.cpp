@@ -78,6 +78,13 @@ int main(int argc, char** argv) {
   g_run->add_option("--threads", o.threads, "physics threads (0: all cores)")->check(CLI::Range(0, 256));
   g_run->add_option("--size", size, "window size WIDTHxHEIGHT");
   g_run->add_flag("--levels", o.show_levels, "start with the element levels view");
+  // test hooks (hidden: an empty group): a physics slowed on purpose, a slow start-up
+  app.add_option("--test-step-delay", o.test_step_delay_s, "extra wall time per physics step, s")
+      ->check(CLI::Range(0.0, 10.0))
+      ->group("");
+  app.add_option("--test-startup-delay", o.test_startup_delay_s, "extra wall time on the first physics step, s")
+      ->check(CLI::Range(0.0, 60.0))
+      ->group("");
 
   auto* g_scene = app.add_option_group("defaults", "volumes and models (scene files set these themselves)");
   g_scene->add_option("--threshold", o.scene.threshold, "tissue HU window LO[:HI] or preset (volumes)");

@@ -70,6 +70,10 @@ struct AppOptions {
   bool headless{false};                         ///< no window (needs --duration or --exit-after-script)
   bool show_levels{false};                      ///< start with the element levels view
   bool quiet{false};
+  /// Test hooks (hidden options): extra wall time per physics step, and on the first step only
+  /// (a slow start-up), s. The figures the app reports must show them.
+  double test_step_delay_s{0.0};
+  double test_startup_delay_s{0.0};
 };
 
 /// Runs the app; returns the exit code. Throws vx::Error for bad input found before the run.

@@ -72,6 +72,9 @@ struct HudInfo {
   double physics_steps_per_s{0.0};
   double physics_updates_per_s{0.0};///< local: local contact models published per second (measured)
   double real_time_factor{1.0};     ///< simulated seconds per wall second
+  /// The physics' rate as the app words it (real_time_meter.h): "34 steps/s (0.52x real time,
+  /// last 1 s)", or during the start-up "preparing the solver (3.2 s)"; empty: from the numbers
+  std::string physics_rate;
   bool behind_real_time{false};     ///< physics cannot keep up
   double device_hz{0.0};
   double device_target_hz{1000.0};  ///< the device thread's rate; below 90% of it the HUD warns

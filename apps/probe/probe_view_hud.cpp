@@ -197,13 +197,18 @@ void ProbeView::Impl::update_hud_text() {
   const std::string config = setup.physics_line.empty() ? std::string() : ": " + setup.physics_line;
   if (setup.local_shaping) {
     // the physics updates the model; the device computes the force from it at its own rate
-    text += fmt::format("physics {:.0f} updates/s, {:.0f} steps/s (tissue {:.2f}x real time){}\n",
-                        h.physics_updates_per_s, h.physics_steps_per_s, h.real_time_factor, config);
+    const std::string rate = h.physics_rate.empty() ? fmt::format("{:.0f} steps/s (tissue {:.2f}x real time)",
+                                                                   h.physics_steps_per_s, h.real_time_factor)
+                                                     : h.physics_rate;
+    text += fmt::format("physics {:.0f} updates/s, {}{}\n", h.physics_updates_per_s, rate, config);
     text += fmt::format("device {:.0f} forces/s (local contact model)   display {:.1f} frames/s\n", h.device_hz,
                         fps.rate());
   } else {
-    text += fmt::format("physics {:.0f} steps/s ({:.2f}x real time){}\n", h.physics_steps_per_s, h.real_time_factor,
-                        config);
+    const std::string rate =
+        h.physics_rate.empty()
+            ? fmt::format("{:.0f} steps/s ({:.2f}x real time)", h.physics_steps_per_s, h.real_time_factor)
+            : h.physics_rate;
+    text += fmt::format("physics {}{}\n", rate, config);
     text += fmt::format("device {:.0f} updates/s   display {:.1f} frames/s\n", h.device_hz, fps.rate());
   }
   for (int p = 0; p < h.probes && p < 2; ++p) {

@@ -1,0 +1,167 @@
+#pragma once
+/// @file app_shared.h
+/// What the app's three loops share (physics_loop.h, device_loop.h, gui_loop.h), written down in
+/// one place: who writes each field, who reads it, and how it crosses threads.
+///
+///   physics -> device, GUI: `PhysicsReport` (atomics; the clock under a mutex held for a copy);
+///                           the local contact models (Simulation::publish_local_contact /
+///                           take_local_contact: one triple buffer per probe, sim/local_contact.h);
+///                           the deformed surface (Simulation::request_frame / take_frame: a
+///                           triple buffer, never waited for)
+///   device  -> physics:     `tool_targets` (local shaping: the proxy positions, a triple buffer);
+///                           paper shaping: the live stick commands (Simulation::set_live)
+///   device  -> GUI:         `DeviceReport` under its mutex (held only to copy, never while
+///                           rendering or stepping)
+///   GUI     -> device:      the view basis (a mutex held for a copy); the keyboard (KeyboardStick)
+///   GUI     -> all:         `AppControls` (pause, reset, screenshot, quit: atomics)
+
+#include <fmt/core.h>
+
+#include <Eigen/Core>
+
+#include <array>
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "probe_app.h"
+#include "probe_view.h"
+#include "rate_thread.h"
+#include "real_time_meter.h"
+
+namespace vx {
+class Simulation;
+}
+
+namespace vx::probe {
+
+[[nodiscard]] inline double seconds(SteadyClock::duration d) { return std::chrono::duration<double>(d).count(); }
+
+/// Where the physics is: simulated time at a wall instant.
+struct SimClock {
+  double sim_s{0.0};
+  SteadyClock::time_point wall{};
+  bool paused{false};
+};
+
+/// The keys and stop conditions every loop obeys.
+struct AppControls {
+  std::atomic<bool> paused{false};
+  std::atomic<bool> reset_requested{false};  ///< GUI -> physics
+  std::atomic<int> reset_generation{0};      ///< physics -> device: resets done
+  std::atomic<bool> screenshot_requested{false};
+  std::atomic<bool> quit{false};
+
+  /// The first reason given wins.
+  void request_quit(const std::string& why) {
+    std::lock_guard lock(mutex_);
+    if (!quit.exchange(true)) reason_ = why;
+  }
+  [[nodiscard]] std::string quit_reason() const {
+    std::lock_guard lock(mutex_);
+    return reason_;
+  }
+
+ private:
+  mutable std::mutex mutex_;
+  std::string reason_;
+};
+
+/// What the physics loop publishes (written by the physics thread only).
+struct PhysicsReport {
+  std::atomic<std::int64_t> steps{0};             ///< steps taken (all)
+  std::atomic<std::int64_t> sim_time_us{0};       ///< the simulation's time
+  std::atomic<std::int64_t> sim_advanced_us{0};   ///< simulated time advanced (resets excluded)
+  std::atomic<std::int64_t> lag_drops{0};         ///< times it could not keep real time
+  std::atomic<std::int64_t> updates{0};           ///< local: local contact models published
+  /// Start-up: the wall time (since the open) at which the first step completed, and the
+  /// simulated time advanced and steps by then; valid once `started` (release/acquire).
+  std::atomic<bool> started{false};
+  double startup_s{0.0};
+  RateSample at_startup{};
+  std::atomic<bool> failed{false};
+  std::string failure;                            ///< written once before `failed` is set
+
+  [[nodiscard]] SimClock clock() const {
+    std::lock_guard lock(clock_mutex_);
+    return clock_;
+  }
+  void set_clock(const SimClock& c) {
+    std::lock_guard lock(clock_mutex_);
+    clock_ = c;
+  }
+  /// Now, as a rate sample (wall time since `start`).
+  [[nodiscard]] RateSample sample(SteadyClock::time_point start, SteadyClock::time_point now) const {
+    return {seconds(now - start), double(sim_advanced_us.load()) * 1e-6, steps.load()};
+  }
+
+ private:
+  mutable std::mutex clock_mutex_;
+  SimClock clock_;
+};
+
+/// The forces the HUD shows.
+struct HudForces {
+  std::array<double, 2> force_N{};
+  std::array<int, 2> contacts{};
+  std::array<int, 2> model_nodes{};
+};
+
+/// Per probe: the largest forces seen, for the summary.
+struct ForceStats {
+  double max_device_N{0.0};
+  double max_raw_N{0.0};
+  double sum_device_N{0.0};
+  double max_step_N{0.0};  ///< largest tick-to-tick change of the device force
+  Eigen::Vector3d last_N{Eigen::Vector3d::Zero()};
+  std::int64_t samples{0};
+};
+
+/// What the device loop hands the GUI (under `mutex`, held only to copy or swap).
+struct DeviceReport {
+  std::mutex mutex;
+  HudForces hud;
+  std::vector<PlotSample> plot_pending;
+  std::vector<std::string> messages;
+  std::array<ForceStats, 2> stats{};
+  std::atomic<std::int64_t> device_time_us{0};  ///< local: the device's clock
+};
+
+/// Everything the loops share; the app owns it and outlives the threads.
+struct AppShared {
+  AppShared(const AppOptions& o, Simulation& s) : options(o), sim(s) {}
+  const AppOptions& options;
+  Simulation& sim;
+  int probes{0};
+  bool local{false};  ///< local shaping (else the paper's half sines)
+  double physics_period_s{0.001};
+  double device_period_s{0.001};
+  SteadyClock::time_point start{};  ///< the open: the threads started
+
+  AppControls controls;
+  PhysicsReport physics;
+  DeviceReport device;
+  /// local shaping: the tool positions (proxies) the device hands to the physics
+  TripleBuffer<std::array<Eigen::Vector3d, kMaxSticks>> tool_targets;
+
+  [[nodiscard]] Eigen::Matrix3d basis() const {
+    std::lock_guard lock(basis_mutex_);
+    return basis_;
+  }
+  void set_basis(const Eigen::Matrix3d& b) {
+    std::lock_guard lock(basis_mutex_);
+    basis_ = b;
+  }
+  void say(const std::string& line) const {
+    if (!options.quiet) fmt::print("{}\n", line);
+  }
+
+ private:
+  mutable std::mutex basis_mutex_;
+  Eigen::Matrix3d basis_{Eigen::Matrix3d::Identity()};
+};
+
+}  // namespace vx::probe

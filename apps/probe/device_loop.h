@@ -1,0 +1,110 @@
+#pragma once
+/// @file device_loop.h
+/// The device thread's loop (one tick per --device-rate period, 1 kHz for haptics): reads the
+/// joysticks (or plays the script into the virtual joysticks), computes the device force and
+/// writes it to the force outputs. Two shapings (docs/probe.md, "Force shaping"):
+/// - paper: the script runs in simulated time; the stick commands go to the simulation's live
+///   probes; the force is the paper's half sine at the device's clock;
+/// - local: this loop owns the tool: it moves the device (hand) position with the stick in wall
+///   time, evaluates the local contact model the physics last published (sim/local_contact.h)
+///   at every tick, and hands the tool (proxy) position to the physics (`AppShared::tool_targets`).
+/// What the GUI shows goes to `AppShared::device` (app_shared.h).
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "app_shared.h"
+#include "force_output.h"
+#include "joystick_script.h"
+#include "sdl_input.h"
+#include "sim/local_contact.h"
+#include "sim/probe.h"
+#include "stick_control.h"
+
+namespace vx::probe {
+
+/// What the device loop reads and drives; the app owns them.
+struct DeviceParts {
+  SdlInput* input{nullptr};
+  KeyboardStick* keyboard{nullptr};
+  ForceOutputs* outputs{nullptr};
+  std::shared_ptr<const JoystickScript> script;
+  ControlSettings control;           ///< the sticks' mapping
+  ControlSettings keyboard_control;  ///< the keyboard's (no dead zone)
+};
+
+class DeviceLoop {
+ public:
+  DeviceLoop(AppShared& shared, DeviceParts parts);
+  /// A stick commander per probe (first), starting at the probe's position and kept in `allowed`.
+  void add_commander(const Eigen::Vector3d& start_mm, const Box& allowed);
+  /// local shaping: a hand and a force renderer per probe; returns the hand's start position.
+  Eigen::Vector3d add_local_probe(const ProbeSettings& probe, const HapticCouplingSettings& coupling);
+  [[nodiscard]] const LocalForceRenderer& renderer(int p) const { return renderers_[std::size_t(p)]; }
+  [[nodiscard]] std::size_t local_probes() const { return renderers_.size(); }
+
+  /// One tick (the FixedRateThread body); the first tick asks for a real-time priority.
+  void tick(std::int64_t n);
+
+  [[nodiscard]] std::int64_t ticks() const { return ticks_; }
+  [[nodiscard]] double clock_s() const { return clock_s_; }
+  [[nodiscard]] double mean_tick_cost_s() const { return ticks_ > 0 ? cost_sum_s_ / double(ticks_) : 0.0; }
+  [[nodiscard]] double max_tick_cost_s() const { return cost_max_s_; }
+  [[nodiscard]] const std::string& priority() const { return priority_; }
+
+ private:
+  /// One probe's figures of this tick.
+  struct ProbeTick {
+    Eigen::Vector3d cmd{Eigen::Vector3d::Zero()};
+    Eigen::Vector3d drag{Eigen::Vector3d::Zero()};
+    double update_mean_N{0.0};  ///< the HUD's force
+    double plot_mean_N{0.0};    ///< the plot's mean line
+  };
+  /// When the local contact models of one probe arrived.
+  struct ModelArrival {
+    SteadyClock::time_point wall{};
+    double period_s{0.0};  ///< between the last two models (mean), s
+    bool seen{false};
+    int nodes{0};
+    Eigen::Vector3d anchor_N{Eigen::Vector3d::Zero()};
+  };
+
+  // the stages of one tick
+  void run_tick();
+  /// Commanders (and local hands, renderers, the clock) back to the start after a reset.
+  void follow_reset();
+  /// paper: simulated time now, from the physics' last report; local: the device's own clock.
+  [[nodiscard]] double advance_clock(const SimClock& c, SteadyClock::time_point now, double dt);
+  /// The stick of probe p plus, for the active probe, the keyboard and mouse.
+  [[nodiscard]] ProbeTick stick_of(int p);
+  /// local shaping: the hand from the stick, the force from the local contact model, the proxy
+  /// to the physics; fills `f`.
+  void local_probe(int p, ProbeTick& t, double dt, bool paused, double now_s, SteadyClock::time_point wall,
+                   ProbeForce& f);
+  /// paper shaping: the live command to the physics, the half sine at the device's clock.
+  void paper_probe(int p, ProbeTick& t, const ProbeOutput& snap, bool paused, bool sim_paused, double now_s,
+                   ProbeForce& f);
+  /// The HUD's forces, the statistics, a plot point every 4 ms, the input messages.
+  void report(const DeviceTick& tick, const std::array<ProbeTick, kMaxSticks>& t, std::vector<std::string> msgs);
+  /// Stop conditions in the device's time (the script's end, --duration).
+  void check_stop(double now_s);
+
+  AppShared& s_;
+  DeviceParts parts_;
+  std::vector<ProbeCommander> commanders_;
+  Eigen::Matrix3d basis_{Eigen::Matrix3d::Identity()};  ///< this tick's view basis
+  int reset_seen_{0};
+  std::int64_t ticks_{0};
+  SteadyClock::time_point last_{};
+  bool started_{false};
+  double clock_s_{0.0};  ///< local: wall time while running (pauses excluded), s
+  std::vector<ProbeDriver> hands_;  ///< local: the device (hand) position of each probe
+  std::vector<LocalForceRenderer> renderers_;
+  std::vector<ModelArrival> arrivals_;
+  std::string priority_{"default priority"};  ///< what the thread got (at its first tick)
+  double cost_sum_s_{0.0};  ///< the tick's own cost (its CPU time, not the wait)
+  double cost_max_s_{0.0};
+};
+
+}  // namespace vx::probe

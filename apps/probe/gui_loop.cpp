@@ -1,0 +1,183 @@
+#include "gui_loop.h"
+
+#include <algorithm>
+#include <thread>
+
+namespace vx::probe {
+
+GuiLoop::GuiLoop(AppShared& shared, ProbeView* view, KeyboardStick& keyboard)
+    : s_(shared),
+      view_(view),
+      keyboard_(keyboard),
+      probe_pos_(std::size_t(shared.probes), Eigen::Vector3d::Zero()),
+      probe_contacts_(std::size_t(shared.probes), 0),
+      frame_period_(std::chrono::duration_cast<SteadyClock::duration>(
+          std::chrono::duration<double>(1.0 / std::max(1.0, shared.options.fps)))) {}
+
+void GuiLoop::on_action(ViewAction a) {
+  AppControls& c = s_.controls;
+  switch (a) {
+    case ViewAction::quit: c.request_quit("quit key"); break;
+    case ViewAction::pause: c.paused.store(!c.paused.load()); break;
+    case ViewAction::reset_scene: c.reset_requested.store(true); break;
+    case ViewAction::screenshot: c.screenshot_requested.store(true); break;
+    case ViewAction::next_probe:
+      keyboard_.set_active_probe((keyboard_.active_probe() + 1) % std::max(1, s_.probes));
+      break;
+  }
+}
+
+std::string GuiLoop::run(const FixedRateThread& physics, const FixedRateThread& device,
+                         const std::atomic<bool>& interrupted) {
+  const AppOptions& o = s_.options;
+  const bool automated = o.headless || o.frames > 0 || o.duration_s > 0 || o.exit_after_script;
+  last_pass_ = SteadyClock::now();
+  try {
+    while (!s_.controls.quit.load()) {
+      if (interrupted.load()) s_.controls.request_quit("interrupted");
+      if (physics.failed() || device.failed()) return physics.failed() ? physics.error() : device.error();
+      // a scripted or timed run cannot go on without physics (an interactive user can reset)
+      if (automated && s_.physics.failed.load()) break;
+      const SteadyClock::time_point now = measure(device);
+      if (view_) {
+        if (!show_frame(*view_, now)) break;
+      } else {
+        report_headless(now);
+      }
+    }
+  } catch (const std::exception& e) {
+    return e.what();
+  }
+  return {};
+}
+
+SteadyClock::time_point GuiLoop::measure(const FixedRateThread& device) {
+  const auto now = SteadyClock::now();
+  device_rate_.sample(device.ticks(), now);
+  update_rate_.sample(s_.physics.updates.load(), now);
+  // the tissue's rate: simulated over wall time of the same window, from the first completed
+  // step on; a pause (or a failed physics) restarts the window and is not counted
+  const bool started = s_.physics.started.load(std::memory_order_acquire);
+  const bool halted = s_.controls.paused.load() || s_.physics.failed.load();
+  if (started && halted) {
+    paused_s_ += seconds(now - last_pass_);
+    meter_.restart();
+  } else if (started) {
+    meter_.add(s_.physics.sample(s_.start, now));
+  }
+  last_pass_ = now;
+  {
+    std::lock_guard lock(s_.device.mutex);
+    for (const auto& m : s_.device.messages) s_.say("input: " + m);
+    s_.device.messages.clear();
+  }
+  if (started && !halted) warn_if_behind(meter_.over_last(kRateWindow_s));
+  return now;
+}
+
+std::string GuiLoop::physics_rate_text(SteadyClock::time_point now) const {
+  if (!s_.physics.started.load(std::memory_order_acquire))
+    return StartupReport::preparing(seconds(now - s_.start), std::nullopt);
+  return describe_physics_rate(meter_.over_last(kRateWindow_s), kRateWindow_s, s_.local);
+}
+
+void GuiLoop::warn_if_behind(const RateWindow& w) {
+  if (warned_behind_ || !w.full || w.factor() >= 0.9 || s_.physics.lag_drops.load() == 0) return;
+  if (s_.local)
+    s_.say(fmt::format("note: the tissue cannot keep real time ({:.2f}x over the last {:g} s); the tool and its force "
+                       "stay real time (the local contact model carries the force between the physics' updates)",
+                       w.factor(), kRateWindow_s));
+  else
+    s_.say(fmt::format("warning: physics cannot keep real time ({:.2f}x over the last {:g} s): the simulation runs in "
+                       "slow motion (a smaller model, fewer --threads competitors, a larger time step or "
+                       "--force-shaping local help)",
+                       w.factor(), kRateWindow_s));
+  warned_behind_ = true;
+}
+
+HudInfo GuiLoop::hud(SteadyClock::time_point now) {
+  HudInfo h;
+  h.sim_s = double((s_.local ? s_.device.device_time_us : s_.physics.sim_time_us).load()) * 1e-6;
+  const RateWindow w = meter_.over_last(kRateWindow_s);
+  h.physics_steps_per_s = w.steps_per_s();
+  h.physics_updates_per_s = update_rate_.rate();
+  h.real_time_factor = w.factor();
+  h.physics_rate = physics_rate_text(now);
+  h.paused = s_.controls.paused.load();
+  h.behind_real_time =
+      !h.paused && !s_.physics.failed.load() && s_.physics.started.load() && w.full && w.factor() < 0.95;
+  h.device_hz = device_rate_.rate();
+  h.device_target_hz = s_.options.device_hz;
+  h.probes = std::min(s_.probes, 2);
+  h.active_probe = keyboard_.active_probe();
+  if (s_.physics.failed.load()) h.status = s_.physics.failure;
+  std::lock_guard lock(s_.device.mutex);
+  h.force_N = s_.device.hud.force_N;
+  h.contacts = s_.device.hud.contacts;
+  h.model_nodes = s_.device.hud.model_nodes;
+  return h;
+}
+
+void GuiLoop::take_frame(ProbeView& view) {
+  // the newest frame, if the physics made one since; never waited for (no new frame: the
+  // surface is not touched)
+  s_.sim.request_frame();
+  if (!s_.sim.take_frame(frame_)) return;
+  for (int p = 0; p < s_.probes && p < int(frame_.probes.size()); ++p) {
+    probe_pos_[std::size_t(p)] = frame_.probes[std::size_t(p)].pose.position_mm;
+    probe_contacts_[std::size_t(p)] = frame_.probes[std::size_t(p)].contacts;
+  }
+  view.update_geometry(frame_.surface_vertices, frame_.surface_normals, frame_.positions, probe_pos_, probe_contacts_);
+}
+
+bool GuiLoop::show_frame(ProbeView& view, SteadyClock::time_point now) {
+  if (!view.process_events()) {
+    window_closed_ = true;
+    s_.controls.request_quit("window closed");
+    return false;
+  }
+  s_.set_basis(view.view_basis());
+  take_frame(view);
+  std::vector<PlotSample> samples;
+  {
+    std::lock_guard lock(s_.device.mutex);
+    samples.swap(s_.device.plot_pending);
+  }
+  view.add_plot_samples(samples);
+  view.set_hud(hud(now));
+  view.render();  // no lock held: the physics and the device go on meanwhile
+  if (s_.controls.screenshot_requested.exchange(false)) {
+    const std::string name = fmt::format("voxelastic-probe-{:06d}.png", view.frames());
+    view.save_screenshot(name);
+    s_.say("screenshot: " + name);
+  }
+  if (s_.options.frames > 0 && view.frames() >= s_.options.frames)
+    s_.controls.request_quit(fmt::format("{} frames (--frames)", s_.options.frames));
+  // sleep to the next frame deadline (a late frame starts the next period now, never a burst)
+  next_frame_ += frame_period_;
+  const auto after = SteadyClock::now();
+  if (next_frame_ < after) next_frame_ = after;
+  std::this_thread::sleep_until(next_frame_);
+  return true;
+}
+
+void GuiLoop::report_headless(SteadyClock::time_point now) {
+  {
+    std::lock_guard lock(s_.device.mutex);
+    s_.device.plot_pending.clear();
+  }
+  if (now >= next_report_) {
+    const std::string rate = physics_rate_text(now);
+    if (s_.local)
+      s_.say(fmt::format("t = {:.2f} s, physics {:.0f} updates/s, {}, device {:.0f} forces/s",
+                         double(s_.device.device_time_us.load()) * 1e-6, update_rate_.rate(), rate,
+                         device_rate_.rate()));
+    else
+      s_.say(fmt::format("t = {:.2f} s simulated, physics {}, device {:.0f} updates/s",
+                         double(s_.physics.sim_time_us.load()) * 1e-6, rate, device_rate_.rate()));
+    next_report_ = now + std::chrono::seconds(2);
+  }
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+}
+
+}  // namespace vx::probe

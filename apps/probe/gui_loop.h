@@ -1,0 +1,72 @@
+#pragma once
+/// @file gui_loop.h
+/// The GUI thread's loop (the app's main thread, up to --fps passes per second): window events,
+/// the deformed surface (frames requested from the physics and taken when ready, never waited
+/// for), HUD, force plot, screenshots; headless, a status line every 2 s. It measures the rates
+/// the HUD, the status lines and the final line show (real_time_meter.h) and sleeps to its next
+/// frame deadline between passes: it never spins and holds no lock the physics needs while it
+/// renders.
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "app_shared.h"
+#include "probe_view.h"
+#include "real_time_meter.h"
+#include "sim/simulation.h"
+#include "stick_control.h"
+
+namespace vx::probe {
+
+class GuiLoop {
+ public:
+  /// The window over which the HUD and the status lines measure the physics, s.
+  static constexpr double kRateWindow_s = 1.0;
+
+  GuiLoop(AppShared& shared, ProbeView* view, KeyboardStick& keyboard);
+  /// Runs until a quit; returns the error that ended it ("" for none). `interrupted` is polled
+  /// (Ctrl-C, SIGTERM).
+  [[nodiscard]] std::string run(const FixedRateThread& physics, const FixedRateThread& device,
+                                const std::atomic<bool>& interrupted);
+  /// A key's action (the view's callback).
+  void on_action(ViewAction a);
+
+  [[nodiscard]] bool window_closed() const { return window_closed_; }
+  /// Wall time spent paused after the start-up, s (excluded from the final real-time factor).
+  [[nodiscard]] double paused_s() const { return paused_s_; }
+
+ private:
+  /// The rates of this pass (device, updates, the physics' meter), input messages, the
+  /// slow-motion warning; returns the pass's time.
+  SteadyClock::time_point measure(const FixedRateThread& device);
+  /// The physics' rate line: start-up, or steps/s and the real-time factor over the last second.
+  [[nodiscard]] std::string physics_rate_text(SteadyClock::time_point now) const;
+  /// Warns once when the physics cannot keep real time.
+  void warn_if_behind(const RateWindow& w);
+  /// One frame of the window; false once the window closed.
+  bool show_frame(ProbeView& view, SteadyClock::time_point now);
+  /// The newest deformed surface, if the physics made one since the last pass.
+  void take_frame(ProbeView& view);
+  [[nodiscard]] HudInfo hud(SteadyClock::time_point now);
+  /// Headless: a status line every 2 s.
+  void report_headless(SteadyClock::time_point now);
+
+  AppShared& s_;
+  ProbeView* view_;
+  KeyboardStick& keyboard_;
+  RealTimeMeter meter_;
+  RateMeter device_rate_{0.5}, update_rate_{0.5};
+  SimulationFrame frame_;
+  std::vector<Eigen::Vector3d> probe_pos_;
+  std::vector<int> probe_contacts_;
+  bool window_closed_{false};
+  bool warned_behind_{false};
+  double paused_s_{0.0};
+  SteadyClock::time_point last_pass_{};
+  SteadyClock::duration frame_period_;
+  SteadyClock::time_point next_frame_{SteadyClock::now()};
+  SteadyClock::time_point next_report_{SteadyClock::now() + std::chrono::seconds(2)};
+};
+
+}  // namespace vx::probe

@@ -1,0 +1,143 @@
+#include "physics_loop.h"
+
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <thread>
+
+#include "sim/simulation.h"
+
+namespace vx::probe {
+
+void PhysicsLoop::tick() {
+  const auto now = SteadyClock::now();
+  // local shaping: the device thread is the one with a deadline; the physics' updates yield to
+  // it when the CPU is short (Linux: per thread; the display yields more)
+  if (s_.local && !started_) (void)setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 2);
+  apply_reset();
+  Simulation& sim = s_.sim;
+  const bool paused = s_.controls.paused.load();
+  const double elapsed = started_ ? seconds(now - last_) : 0.0;
+  last_ = now;
+  if (!paused && !sim.failed()) {
+    const double t0 = sim.time_s();
+    if (publish(advance(now, elapsed), t0)) {
+      // the start-up ended: real time starts now (its wall time is not replayed, nor a lag)
+      last_ = SteadyClock::now();
+      sim_target_s_ = sim.time_s();
+    }
+  }
+  started_ = true;
+  s_.physics.sim_time_us.store(std::int64_t(std::llround(sim.time_s() * 1e6)), std::memory_order_relaxed);
+  s_.physics.set_clock(SimClock{sim.time_s(), now, paused || sim.failed()});
+}
+
+void PhysicsLoop::apply_reset() {
+  if (!s_.controls.reset_requested.exchange(false)) return;
+  s_.sim.reset();
+  sim_target_s_ = 0.0;
+  s_.controls.reset_generation.fetch_add(1);
+}
+
+int PhysicsLoop::advance(SteadyClock::time_point now, double elapsed) {
+  Simulation& sim = s_.sim;
+  const double period = s_.physics_period_s;
+  const double t0 = sim.time_s();
+  sim_target_s_ += std::min(elapsed, 0.1);  // a long stall is not replayed
+  // at most twice real time per tick: catch up a little, never burst
+  const int budget = std::max(1, int(std::ceil(2.0 * period / sim.dt_s())));
+  int done = 0;
+  if (s_.local) {
+    // the steps the wall clock asks for, as many as fit in one physics period (a slow physics
+    // publishes at its rate and falls behind in simulated time)
+    int want = std::clamp(int(std::floor((sim_target_s_ - t0) / sim.dt_s() + 0.5)), 0, budget);
+    if (step_cost_s_ > 0) want = std::min(want, std::max(1, int(0.9 * period / step_cost_s_)));
+    done = local_update(want, now);
+  } else if (step_delay_s_ > 0 || first_step_delay_s_ > 0) {
+    while (done < budget && !sim.failed() && sim.time_s() < sim_target_s_ - 0.5 * sim.dt_s()) {
+      step_once();
+      ++done;
+    }
+  } else {
+    done = sim.advance_to(sim_target_s_, budget);
+  }
+  const double lag = sim_target_s_ - sim.time_s();
+  if (lag > std::max(0.05, 3.0 * period)) {
+    // cannot keep real time: drop the lag and go on in slow motion (the start-up's lag is the
+    // start-up, not slow motion)
+    lag_dropped_s_ += lag;
+    if (s_.physics.started.load(std::memory_order_relaxed)) s_.physics.lag_drops.fetch_add(1);
+    sim_target_s_ = sim.time_s();
+  }
+  return done;
+}
+
+void PhysicsLoop::step_once() {
+  s_.sim.step();
+  double delay = step_delay_s_;
+  if (first_step_delay_s_ > 0 && !first_step_done_) delay += first_step_delay_s_;
+  first_step_done_ = true;
+  if (delay > 0) std::this_thread::sleep_for(std::chrono::duration<double>(delay));
+}
+
+int PhysicsLoop::local_update(int steps, SteadyClock::time_point start) {
+  if (steps <= 0) return 0;
+  Simulation& sim = s_.sim;
+  // the tool from where the physics has it to where the device last put it, over the update
+  if (s_.tool_targets.fetch()) have_targets_ = true;
+  const std::array<Eigen::Vector3d, kMaxSticks>& to = s_.tool_targets.read_buffer();
+  const int np = std::min(s_.probes, kMaxSticks);
+  std::array<Eigen::Vector3d, kMaxSticks> from{};
+  for (int p = 0; p < np; ++p) from[std::size_t(p)] = sim.probe(p).pose.position_mm;
+  int done = 0;
+  const auto deadline = start + std::chrono::duration_cast<SteadyClock::duration>(
+                                    std::chrono::duration<double>(0.9 * s_.physics_period_s));
+  for (int k = 1; k <= steps && !sim.failed() && !s_.controls.quit.load(std::memory_order_relaxed); ++k) {
+    if (have_targets_)
+      for (int p = 0; p < np; ++p)
+        sim.set_live(p, {LiveCommand::Kind::position,
+                         from[std::size_t(p)] + (to[std::size_t(p)] - from[std::size_t(p)]) * (double(k) / steps)});
+    step_once();
+    ++done;
+    // out of time (the steps took longer than they used to): the tool goes on from where it is
+    // at the next update
+    if (k < steps && SteadyClock::now() >= deadline) break;
+  }
+  if (done > 0) {
+    const double per_step = seconds(SteadyClock::now() - start) / done;
+    step_cost_s_ = step_cost_s_ > 0 ? 0.7 * step_cost_s_ + 0.3 * per_step : per_step;
+  }
+  if (!sim.failed()) {
+    sim.publish_local_contact();
+    s_.physics.updates.fetch_add(1, std::memory_order_relaxed);
+  }
+  return done;
+}
+
+bool PhysicsLoop::publish(int steps, double sim_before_s) {
+  Simulation& sim = s_.sim;
+  PhysicsReport& r = s_.physics;
+  bool just_started = false;
+  const std::int64_t total = r.steps.fetch_add(steps, std::memory_order_relaxed) + steps;
+  const std::int64_t advanced_us = std::llround((sim.time_s() - sim_before_s) * 1e6);
+  const std::int64_t advanced = r.sim_advanced_us.fetch_add(advanced_us, std::memory_order_relaxed) + advanced_us;
+  // the start-up ends with the first completed step (the factorisation happens in it)
+  if (steps > 0 && !r.started.load(std::memory_order_relaxed)) {
+    const auto end = SteadyClock::now();
+    r.startup_s = seconds(end - s_.start);
+    r.at_startup = RateSample{r.startup_s, double(advanced) * 1e-6, total};
+    r.started.store(true, std::memory_order_release);
+    just_started = true;
+  }
+  if (sim.failed() && !r.failed.load()) {
+    r.failure = fmt::format("physics stopped at t = {:.3f} s: {} ({}); press r to reset", sim.time_s(),
+                            to_string(sim.state().status), sim.state().message);
+    r.failed.store(true);
+  }
+  return just_started;
+}
+
+}  // namespace vx::probe
