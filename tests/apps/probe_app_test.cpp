@@ -9,6 +9,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <regex>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -329,6 +330,70 @@ TEST_F(ProbeApp, SliceGraspWithTwoSticksLiftsTheDisk) {
   EXPECT_GT(fx[1] / n[1], 0.01);
   const double carried = -fy / (0.5 * (n[0] + n[1]));  // the two circles' vertical force, mean
   EXPECT_NEAR(carried, 0.0101, 0.25 * 0.0101) << "the circles carry the disk's weight";
+}
+
+// The figures the app reports (docs/probe.md, "Timing"): the final line's real-time factor over
+// the run after the start-up, and the status lines' over the last second.
+struct Figures {
+  double startup_s{-1}, sim_s{-1}, wall_s{-1}, factor{-1}, steps_per_s{-1}, dt_ms{-1};
+  long steps{-1};
+  std::vector<double> status_factors;  // "(0.09x real time, last 1 s)" of each status line
+  std::vector<std::string> status_lines;
+};
+
+Figures read_figures(const std::string& out) {
+  Figures f;
+  std::smatch m;
+  const std::regex last(
+      R"(start-up ([0-9.]+) s \(open to the first physics step\); after it ([0-9.]+) s simulated in ([0-9.]+) s wall )"
+      R"(\(([0-9.]+)x real time[^)]*\); physics ([0-9]+) steps \(([0-9.]+) steps/s after the start-up, )"
+      R"(dt ([0-9.e-]+) ms\))");
+  if (std::regex_search(out, m, last)) {
+    f.startup_s = std::stod(m[1]), f.sim_s = std::stod(m[2]), f.wall_s = std::stod(m[3]), f.factor = std::stod(m[4]);
+    f.steps = std::stol(m[5]), f.steps_per_s = std::stod(m[6]), f.dt_ms = std::stod(m[7]);
+  }
+  std::stringstream ss(out);
+  for (std::string line; std::getline(ss, line);) {
+    if (line.rfind("t = ", 0) != 0) continue;
+    f.status_lines.push_back(line);
+    if (std::regex_search(line, m, std::regex(R"(\(([0-9.]+)x real time, last 1 s\))")))
+      f.status_factors.push_back(std::stod(m[1]));
+  }
+  return f;
+}
+
+// A physics slowed on purpose (2 ms of sleep per 0.18 ms step: at most 0.09x) reads below 1x in
+// the status lines and the final line, and the final factor is steps x dt over the same wall time.
+TEST_F(ProbeApp, SlowedPhysicsReadsBelowRealTime) {
+  const RunResult r = run(q(kScene) + " --headless --duration 0.4 --test-step-delay 0.002");
+  ASSERT_EQ(r.code, 0) << r.out << r.err;
+  const Figures f = read_figures(r.out);
+  ASSERT_GT(f.factor, 0.0) << r.out;
+  EXPECT_LT(f.factor, 0.12) << r.out;  // 0.18 / (2 + step cost) ms per ms
+  EXPECT_NEAR(f.factor, f.sim_s / f.wall_s, 0.01) << r.out;
+  EXPECT_NEAR(f.steps_per_s * f.dt_ms * 1e-3, f.factor, 0.02 * f.factor + 0.005) << r.out;
+  // all the steps (those of the start-up too, a few) times dt over the wall time after it
+  EXPECT_NEAR(double(f.steps) * f.dt_ms * 1e-3 / f.wall_s, f.factor, 0.1 * f.factor) << r.out;
+  EXPECT_GE(f.sim_s, 0.38) << r.out;  // --duration 0.4 of simulated time, less the start-up's step
+  ASSERT_FALSE(f.status_factors.empty()) << r.out;
+  for (const double x : f.status_factors) EXPECT_LT(x, 0.12) << r.out;
+}
+
+// A slow start-up (2.5 s on the first step, as a factorisation takes) is reported as start-up:
+// the status line during it says so, never a real-time factor, and the final line gives it apart.
+TEST_F(ProbeApp, StartUpIsReportedAsStartUp) {
+  const RunResult r = run(q(kScene) + " --headless --duration 0.3 --test-startup-delay 2.5");
+  ASSERT_EQ(r.code, 0) << r.out << r.err;
+  const Figures f = read_figures(r.out);
+  ASSERT_FALSE(f.status_lines.empty()) << r.out;
+  EXPECT_NE(f.status_lines.front().find("preparing the solver ("), std::string::npos) << r.out;
+  EXPECT_EQ(f.status_lines.front().find("real time"), std::string::npos) << r.out;
+  EXPECT_GE(f.startup_s, 2.5) << r.out;
+  EXPECT_LT(f.startup_s, 10.0) << r.out;
+  // the factor is over the run after the start-up only: 0.3 s simulated in its own wall time
+  EXPECT_NEAR(f.factor, f.sim_s / f.wall_s, 0.01) << r.out;
+  EXPECT_GT(f.sim_s, 0.29) << r.out;
+  EXPECT_LT(f.wall_s, 2.5) << r.out;  // not the start-up's 2.5 s plus the run
 }
 
 TEST_F(ProbeApp, WindowScreenshotUnderADisplay) {
