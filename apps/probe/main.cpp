@@ -78,6 +78,9 @@ int main(int argc, char** argv) {
   g_run->add_option("--threads", o.threads, "physics threads (0: all cores)")->check(CLI::Range(0, 256));
   g_run->add_option("--size", size, "window size WIDTHxHEIGHT");
   g_run->add_flag("--levels", o.show_levels, "start with the element levels view");
+  g_run->add_option("--display-triangles", o.scene.display_triangles,
+                    "decimate the displayed surface to about this many triangles when it has more; 0: show it whole")
+      ->check(CLI::NonNegativeNumber);
 
   auto* g_scene = app.add_option_group("defaults", "volumes and models (scene files set these themselves)");
   g_scene->add_option("--threshold", o.scene.threshold, "tissue HU window LO[:HI] or preset (volumes)");
