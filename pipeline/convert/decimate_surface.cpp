@@ -6,6 +6,7 @@
 #include <vtkGenericCell.h>
 #include <vtkIdTypeArray.h>
 #include <vtkNew.h>
+#include <vtkPointData.h>
 #include <vtkPoints.h>
 #include <vtkPolyData.h>
 #include <vtkQuadricDecimation.h>
@@ -51,9 +52,10 @@ vtkSmartPointer<vtkPolyData> to_poly(const Eigen::Matrix3Xd& vertices, const Eig
 
 std::string DecimationReport::summary() const {
   if (!decimated) return fmt::format("display surface: {} triangles (not decimated)", triangles_before);
-  return fmt::format("display surface decimated {} -> {} triangles ({} -> {} vertices; {}) in {:.2f} s + {:.2f} s to "
-                     "embed",
-                     triangles_before, triangles_after, vertices_before, vertices_after, method, decimate_s, embed_s);
+  return fmt::format("display surface decimated {} -> {} triangles ({} -> {} vertices; {}) in {:.2f} s; embedding: {} "
+                     "({:.2f} s)",
+                     triangles_before, triangles_after, vertices_before, vertices_after, method, decimate_s, embedding,
+                     embed_s);
 }
 
 EmbeddedSurface decimate_surface(const Model& model, const EmbeddedSurface& full, const DecimationSettings& settings,
@@ -72,10 +74,17 @@ EmbeddedSurface decimate_surface(const Model& model, const EmbeddedSurface& full
     return full;
   }
 
-  // quadric edge collapses on the rest surface, aimed at the target
+  // the rest surface, each point carrying its vertex id in the full surface
   const auto t0 = std::chrono::steady_clock::now();
   const VtkMessageCapture vtk_messages;
   vtkSmartPointer<vtkPolyData> input = to_poly(full.rest_vertices, full.triangles);
+  {
+    vtkNew<vtkIdTypeArray> ids;
+    ids->SetName("vx_full_vertex");
+    ids->SetNumberOfValues(full.num_vertices());
+    for (vtkIdType v = 0; v < full.num_vertices(); ++v) ids->SetValue(v, v);
+    input->GetPointData()->AddArray(ids);
+  }
   const double reduction = 1.0 - double(settings.target_triangles) / double(full.num_triangles());
   // topology-preserving vertex removal first (vertices stay where they were, on the full
   // surface); should it stop short of the target, quadric edge collapses instead
@@ -129,12 +138,21 @@ EmbeddedSurface decimate_surface(const Model& model, const EmbeddedSurface& full
     }
   }
   Eigen::Matrix3Xd vertices(3, used);
+  // the full surface's vertex each kept point was, when it is one (vertex removal keeps points)
+  auto* ids = vtkIdTypeArray::SafeDownCast(out->GetPointData()->GetArray("vx_full_vertex"));
+  std::vector<std::int32_t> source(std::size_t(used), -1);
   for (vtkIdType p = 0; p < np; ++p) {
     if (new_id[std::size_t(p)] < 0) continue;
     double x[3];
     out->GetPoint(p, x);
-    vertices.col(new_id[std::size_t(p)]) = Eigen::Vector3d(x[0], x[1], x[2]);
+    const int v = new_id[std::size_t(p)];
+    vertices.col(v) = Eigen::Vector3d(x[0], x[1], x[2]);
+    if (ids && ids->GetNumberOfValues() == np) {
+      const vtkIdType f = ids->GetValue(p);
+      if (f >= 0 && f < full.num_vertices() && full.rest_vertices.col(f) == vertices.col(v)) source[std::size_t(v)] = int(f);
+    }
   }
+  const bool all_kept = std::none_of(source.begin(), source.end(), [](std::int32_t f) { return f < 0; });
   Eigen::Matrix3Xi triangles(3, Eigen::Index(tris.size()));
   for (std::size_t t = 0; t < tris.size(); ++t) triangles.col(Eigen::Index(t)) = tris[t];
   // edge collapses keep the orientation; keep it outward should VTK ever flip the mesh
@@ -142,9 +160,29 @@ EmbeddedSurface decimate_surface(const Model& model, const EmbeddedSurface& full
     triangles.row(1).swap(triangles.row(2));
   report.decimate_s = seconds_since(t0);
 
-  // the embedding the iso-surface uses: trilinear in the voxel cell over lattice points
   const auto t1 = std::chrono::steady_clock::now();
-  EmbeddedSurface s = embed_surface(model, vertices, triangles, full.method);
+  EmbeddedSurface s;
+  if (all_kept) {
+    // every vertex is one of the full surface's: its embedding row as it is (no new weights)
+    s.method = full.method;
+    s.model_nodes = full.model_nodes;
+    s.rest_vertices = std::move(vertices);
+    s.triangles = std::move(triangles);
+    s.embed_offsets.assign(1, 0);
+    for (const std::int32_t f : source) {
+      const auto b = full.embed_offsets[std::size_t(f)], e = full.embed_offsets[std::size_t(f) + 1];
+      s.embed_nodes.insert(s.embed_nodes.end(), full.embed_nodes.begin() + b, full.embed_nodes.begin() + e);
+      s.embed_weights.insert(s.embed_weights.end(), full.embed_weights.begin() + b, full.embed_weights.begin() + e);
+      s.embed_offsets.push_back(std::int32_t(s.embed_nodes.size()));
+    }
+    s.finalize();
+    report.embedding = "the full surface's";
+  } else {
+    // moved vertices: the embedding the iso-surface uses (trilinear in the voxel cell over
+    // lattice points, each a node or an element's affine fit)
+    s = embed_surface(model, vertices, triangles, full.method);
+    report.embedding = "embed_surface";
+  }
   report.embed_s = seconds_since(t1);
   report.decimated = true;
   report.triangles_after = s.num_triangles();

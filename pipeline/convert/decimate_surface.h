@@ -1,10 +1,10 @@
 #pragma once
 /// @file decimate_surface.h
 /// A lighter surface for display: the rest-state surface decimated with VTK (vertex removal
-/// that keeps its topology) and embedded in the model's nodes by embed_surface (surface.h), the embedding the
-/// iso-surface uses. The decimated surface therefore deforms exactly like the full one would at
-/// its vertices' rest positions (both reproduce affine motion of the nodes exactly), at a cost
-/// per frame proportional to its own size. A 350,000-triangle brain becomes 100,000 triangles.
+/// that keeps its topology), each kept vertex with its embedding row of the full surface, so the
+/// decimated surface moves exactly as the full one does at those vertices (affine motion of the
+/// nodes exactly affinely), at a cost per frame proportional to its own size. A 350,000-triangle
+/// brain becomes 100,000 triangles.
 
 #include <Eigen/Core>
 #include <string>
@@ -34,6 +34,7 @@ struct DecimationReport {
   double decimate_s{0.0};       ///< wall time of the VTK decimation
   double embed_s{0.0};          ///< wall time of embedding the decimated vertices
   std::string method;           ///< the VTK filter that made it
+  std::string embedding;        ///< "the full surface's" (kept vertices) or "embed_surface" (moved ones)
   /// One line for a log, e.g. "display surface decimated 350768 -> 100002 triangles in 1.9 s".
   [[nodiscard]] std::string summary() const;
 };
@@ -43,7 +44,9 @@ struct DecimationReport {
 /// rest vertices and triangles decimated to the target by vtkDecimatePro with its topology
 /// preserved (vertices removed, the others kept where they are: on the full surface), or, when
 /// that stops more than 10 % above the target, by vtkQuadricDecimation (volume preserved; it may
-/// pinch a narrow slit), and embedded in `model` with embed_surface, keeping `full.method`.
+/// pinch a narrow slit), keeping `full.method`. Kept vertices keep their embedding rows of
+/// `full` (so the decimated surface moves exactly as the full one at those vertices, at no
+/// embedding cost); moved ones (quadric) are embedded with embed_surface.
 /// Triangles stay counter-clockwise seen from outside. Throws vx::Error when `full` does not
 /// belong to `model` or VTK fails.
 [[nodiscard]] EmbeddedSurface decimate_surface(const Model& model, const EmbeddedSurface& full,

@@ -5,7 +5,9 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
+#include <array>
 #include <chrono>
+#include <map>
 #include <cmath>
 
 #include "base/error.h"
@@ -75,6 +77,7 @@ TEST(DecimateSurface, ReachesTheTargetAndStaysClosedAndOutward) {
   EXPECT_NEAR(d.num_triangles(), target, 0.1 * target);
   EXPECT_EQ(d.method, SurfaceMethod::iso);
   EXPECT_EQ(report.method, "vtkDecimatePro, topology preserved");
+  EXPECT_EQ(report.embedding, "the full surface's");
   EXPECT_EQ(d.validate(), "");
   // the topology-preserving decimation keeps this closed surface closed, manifold and oriented
   const MeshTopology full_topo = mesh_topology(f.full.triangles, f.full.num_vertices());
@@ -106,6 +109,24 @@ TEST(DecimateSurface, DecimatedVerticesMoveExactlyAffinely) {
   deform(d, nodes, frame);
   const Eigen::Matrix3Xd expected = (a * d.rest_vertices).colwise() + shift;
   EXPECT_LT((frame.vertices - expected).cwiseAbs().maxCoeff(), 1e-9);
+  // under any motion each decimated vertex is where the full surface's vertex at the same rest
+  // point is (it keeps that vertex's embedding row)
+  Eigen::Matrix3Xd wavy = f.model.rest_positions;
+  for (Eigen::Index n = 0; n < wavy.cols(); ++n) wavy(2, n) += 2.0 * std::sin(0.3 * wavy(0, n)) * std::cos(0.2 * wavy(1, n));
+  SurfaceFrame full_frame;
+  deform(f.full, wavy, full_frame);
+  deform(d, wavy, frame);
+  std::map<std::array<double, 3>, int> full_at;
+  for (int w = 0; w < f.full.num_vertices(); ++w)
+    full_at[{f.full.rest_vertices(0, w), f.full.rest_vertices(1, w), f.full.rest_vertices(2, w)}] = w;
+  int matched = 0;
+  for (int v = 0; v < d.num_vertices(); ++v) {
+    const auto it = full_at.find({d.rest_vertices(0, v), d.rest_vertices(1, v), d.rest_vertices(2, v)});
+    if (it == full_at.end()) continue;
+    EXPECT_LT((frame.vertices.col(v) - full_frame.vertices.col(it->second)).norm(), 1e-12);
+    ++matched;
+  }
+  EXPECT_EQ(matched, d.num_vertices());
   // at rest it is where the decimation put it
   deform(d, f.model.rest_positions, frame);
   EXPECT_LT((frame.vertices - d.rest_vertices).cwiseAbs().maxCoeff(), 1e-9);
