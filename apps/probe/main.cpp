@@ -78,6 +78,9 @@ int main(int argc, char** argv) {
   g_run->add_option("--threads", o.threads, "physics threads (0: all cores)")->check(CLI::Range(0, 256));
   g_run->add_option("--size", size, "window size WIDTHxHEIGHT");
   g_run->add_flag("--levels", o.show_levels, "start with the element levels view");
+  g_run->add_option("--display-triangles", o.scene.display_triangles,
+                    "decimate the displayed surface to about this many triangles when it has more; 0: show it whole")
+      ->check(CLI::NonNegativeNumber);
   // test hooks (hidden: an empty group): a physics slowed on purpose, a slow start-up
   app.add_option("--test-step-delay", o.test_step_delay_s, "extra wall time per physics step, s")
       ->check(CLI::Range(0.0, 10.0))

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "model/model.h"
+#include "model/voxel_grid.h"
 #include "physics/physics_model.h"
 #include "sim/simulation.h"
 #include "stick_control.h"
@@ -29,7 +30,45 @@ struct DefaultSceneOptions {
   /// The displayed, deforming surface: `iso` (smoothed iso-surface embedded in the elements)
   /// or `paper` (the voxel surface with its concave steps hidden, paper 3.3).
   SurfaceMethod surface_method{SurfaceMethod::iso};
+  /// The default support holds every node in this lowest fraction of the tissue's height (an
+  /// organ rests on its lower part in the body; docs/probe.md).
+  double held_fraction{0.25};
+  /// The default tool starts above a point with tissue at least this deep beneath it, mm.
+  double press_depth_mm{5.0};
+  /// Any input: the displayed surface is decimated to about this many triangles when it has
+  /// more (convert/decimate_surface.h); 0 = show the full surface.
+  int display_triangles{100000};
 };
+
+/// Where the default tool starts (default_tool_start).
+struct ToolStart {
+  Eigen::Vector3d start_mm{0, 0, 0};    ///< the tool's reference point (its tip sphere's centre)
+  Eigen::Vector3d surface_mm{0, 0, 0};  ///< the tissue's top on the tool's axis below it
+  double tissue_below_mm{0.0};          ///< tissue under surface_mm along -up, mm (>= the press depth when found)
+  bool found{false};                    ///< false: no column holds the press depth (start above the centre)
+};
+
+/// The start of a tool of radius `radius_mm` pressed straight down (against `up`): above the
+/// highest top of tissue near the top centre (within a lateral radius of the tissue box's
+/// centre, widened until one qualifies) whose column holds tissue at least `press_depth_mm`
+/// deep, and whose neighbours within the tool's radius (else half of it) hold tissue from within
+/// half the press depth of it down to the press depth: a fissure or a hole at the centre is
+/// passed over, and the tool does not sit on its edge. Tissue thinner than the press depth
+/// everywhere: the thickest column near the centre. The start is `clearance_mm` plus the radius
+/// above the highest tissue within the tool's radius.
+/// `grid` is the voxel grid of `model` (grid_from_model).
+[[nodiscard]] ToolStart default_tool_start(const Model& model, const VoxelGrid& grid, const Eigen::Vector3d& up,
+                                           double radius_mm, double press_depth_mm, double clearance_mm);
+
+/// Nodes whose height along `up` lies in the lowest `fraction` of the model's height (the
+/// default support).
+[[nodiscard]] std::vector<int> lower_part_nodes(const Model& model, const Eigen::Vector3d& up, double fraction);
+
+struct ProbeScene;
+/// The displayed surface: decimated to `options.display_triangles` when it has more
+/// (convert/decimate_surface.h), set as the scene's and the simulation's surface (so the
+/// physics deforms only that), with a note saying what was done.
+void use_display_surface(ProbeScene& scene, const DefaultSceneOptions& options);
 
 /// A scene ready to simulate and show.
 struct ProbeScene {
@@ -49,9 +88,10 @@ struct ProbeScene {
 /// folder or file) or a model (`.vtu`). Throws vx::Error with a clear message.
 [[nodiscard]] ProbeScene load_probe_scene(const std::filesystem::path& input, const DefaultSceneOptions& options);
 
-/// Default palpation settings around a built model: bottom nodes fixed (against `up`), walls,
-/// one capsule probe above the top centre, symplectic Euler at half its stable step, a
-/// device with the paper's shaping. Exposed for tests.
+/// Default palpation settings around a built model: the nodes of its lower part held
+/// (lower_part_nodes, against `up`), walls, one capsule tool just above tissue near the top
+/// centre (default_tool_start), the fast implicit configuration, a device with the paper's
+/// shaping. Exposed for tests.
 [[nodiscard]] ProbeScene make_default_scene(std::shared_ptr<const Model> model,
                                             std::shared_ptr<const EmbeddedSurface> surface,
                                             const DefaultSceneOptions& options, const Eigen::Vector3d& up,

@@ -41,6 +41,11 @@ struct LevelCells {
 /// Builds the level cells of `model`; throws vx::Error for an inconsistent model.
 [[nodiscard]] LevelCells make_level_cells(const Model& model);
 
+/// Unit vertex normals (3 x V) of a triangle mesh (3 x V vertices, 3 x T triangles), as the
+/// deforming surface computes them (surface.h: the mean of the unit normals of the triangles
+/// around a vertex). The view lights its rest surface with them until the first frame arrives.
+[[nodiscard]] Eigen::Matrix3Xd vertex_normals(const Eigen::Matrix3Xd& vertices, const Eigen::Matrix3Xi& triangles);
+
 /// What the view shows that does not change during a run.
 struct ViewSetup {
   std::string title;                          ///< shown in the HUD and the window title

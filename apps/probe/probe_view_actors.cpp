@@ -26,6 +26,7 @@
 #include <cmath>
 
 #include "probe_view_impl.h"
+#include "surface/surface.h"
 
 namespace vx::probe {
 namespace {
@@ -88,6 +89,15 @@ Ptr<vtkPolyData> probe_shape(const ProbeGeometry& g, double scene_size) {
 
 }  // namespace
 
+Eigen::Matrix3Xd vertex_normals(const Eigen::Matrix3Xd& vertices, const Eigen::Matrix3Xi& triangles) {
+  // the surface's own normals (the mean of the unit normals of the triangles around a vertex)
+  EmbeddedSurface s;
+  s.rest_vertices = vertices;
+  s.triangles = triangles;
+  s.finalize();
+  return std::move(s.rest_normals);
+}
+
 void ProbeView::Impl::build_tissue() {
   // the tissue surface (points and normals replaced every frame)
   surface = make<vtkPolyData>();
@@ -98,11 +108,15 @@ void ProbeView::Impl::build_tissue() {
     pts->SetNumberOfPoints(nv);
     std::copy_n(setup.surface_vertices.data(), 3 * nv, static_cast<double*>(pts->GetVoidPointer(0)));
     surface->SetPoints(pts);
+    // the rest normals until the physics sends its first frame: with zero normals only the
+    // ambient term lights the tissue (12 %: a large organ whose start-up takes seconds was drawn
+    // almost black until its first step)
     auto normals = make<vtkDoubleArray>();
     normals->SetName("Normals");
     normals->SetNumberOfComponents(3);
     normals->SetNumberOfTuples(nv);
-    std::fill_n(normals->GetPointer(0), 3 * nv, 0.0);
+    const Eigen::Matrix3Xd rest_normals = vertex_normals(setup.surface_vertices, setup.surface_triangles);
+    std::copy_n(rest_normals.data(), 3 * nv, normals->GetPointer(0));
     surface->GetPointData()->SetNormals(normals);
     auto offsets = make<vtkIdTypeArray>();
     auto conn = make<vtkIdTypeArray>();

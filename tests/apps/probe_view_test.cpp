@@ -6,6 +6,10 @@
 #include <cstdlib>
 #include <filesystem>
 
+#include <vtkImageData.h>
+#include <vtkNew.h>
+#include <vtkPNGReader.h>
+
 #include "base/error.h"
 #include "model/gradational_builder.h"
 #include "probe_view.h"
@@ -26,6 +30,72 @@ vx::VoxelGrid block_grid() {
     for (int j = 1; j < 9; ++j)
       for (int i = 1; i < 13; ++i) grid.set(i, j, k, 1);
   return grid;
+}
+
+// a folded ball of about 358,000 triangles (a brain's surface is 350,000): a latitude-longitude
+// sphere of radius 50 mm with two scales of bumps 2.5 and 1.5 mm high, outward
+void folded_ball(Eigen::Matrix3Xd& vertices, Eigen::Matrix3Xi& triangles) {
+  const int nt = 600, np = 300;  // longitudes, latitude bands
+  const auto radius = [](double theta, double phi) {
+    return 50.0 * (1.0 + 0.05 * std::sin(12 * theta) * std::sin(10 * phi) + 0.03 * std::sin(30 * theta) * std::sin(24 * phi));
+  };
+  vertices.resize(3, 2 + nt * (np - 1));
+  vertices.col(0) = Eigen::Vector3d(0, 0, radius(0, 0));
+  vertices.col(1) = Eigen::Vector3d(0, 0, -radius(0, M_PI));
+  const auto id = [&](int band, int i) { return 2 + (band - 1) * nt + (i % nt); };  // band 1..np-1
+  for (int b = 1; b < np; ++b)
+    for (int i = 0; i < nt; ++i) {
+      const double phi = M_PI * b / np, theta = 2 * M_PI * i / nt, r = radius(theta, phi);
+      vertices.col(id(b, i)) = r * Eigen::Vector3d(std::sin(phi) * std::cos(theta), std::sin(phi) * std::sin(theta), std::cos(phi));
+    }
+  std::vector<Eigen::Vector3i> tris;
+  for (int i = 0; i < nt; ++i) {
+    tris.emplace_back(0, id(1, i), id(1, i + 1));
+    tris.emplace_back(1, id(np - 1, i + 1), id(np - 1, i));
+    for (int b = 1; b + 1 < np; ++b) {
+      tris.emplace_back(id(b, i), id(b + 1, i), id(b + 1, i + 1));
+      tris.emplace_back(id(b, i), id(b + 1, i + 1), id(b, i + 1));
+    }
+  }
+  triangles.resize(3, Eigen::Index(tris.size()));
+  for (std::size_t t = 0; t < tris.size(); ++t) triangles.col(Eigen::Index(t)) = tris[t];
+  if (vx::enclosed_volume_mm3(vertices, triangles) < 0) triangles.row(1).swap(triangles.row(2));
+}
+
+// the mean luminance (Rec. 601, 0..255) of the tissue's pixels in a screenshot: reddish pixels
+// (red above blue: the background, walls, tools and HUD are grey-blue or white) in the 3D view,
+// away from its HUD (top) and legend (bottom); `pixels` counts them
+double tissue_luminance(const fs::path& png, int* pixels) {
+  vtkNew<vtkPNGReader> reader;
+  reader->SetFileName(png.string().c_str());
+  reader->Update();
+  vtkImageData* image = reader->GetOutput();
+  int dims[3];
+  image->GetDimensions(dims);
+  const int comps = image->GetNumberOfScalarComponents();
+  double sum = 0.0;
+  int n = 0;
+  for (int y = 60; y < dims[1] - 200; ++y)  // row 0 is the bottom
+    for (int x = 0; x < int(0.66 * dims[0]); ++x) {
+      const auto* p = static_cast<const unsigned char*>(image->GetScalarPointer(x, y, 0));
+      const int r = p[0], g = p[1], b = comps >= 3 ? p[2] : p[0];
+      if (r < b + 6) continue;
+      sum += 0.299 * r + 0.587 * g + 0.114 * b;
+      ++n;
+    }
+  if (pixels) *pixels = n;
+  return n ? sum / n : 0.0;
+}
+
+ViewSetup bare_setup(const Eigen::Matrix3Xd& vertices, const Eigen::Matrix3Xi& triangles) {
+  ViewSetup setup;
+  setup.title = "lit";
+  setup.surface_vertices = vertices;
+  setup.surface_triangles = triangles;
+  setup.world_up = Eigen::Vector3d(0, 0, 1);
+  setup.width = 960;
+  setup.height = 720;
+  return setup;
 }
 
 }  // namespace
@@ -153,4 +223,61 @@ TEST(ProbeView, RendersUpdatesAndWritesScreenshots) {
   view.render();
   fs::remove_all(dir);
   EXPECT_EQ(actions, 0);
+}
+
+// A large folded organ is drawn lit from its first frame, before the physics sends one (its
+// start-up takes seconds): the view starts from the rest normals. It was drawn with zero normals
+// until then, lit by the ambient term alone (mean luminance about 20 of 255, as the 350 k-triangle
+// brain was). The small sample after a real frame is the reference.
+TEST(ProbeView, ALargeFoldedSurfaceIsLitLikeASmallSample) {
+  if (!std::getenv("DISPLAY")) GTEST_SKIP() << "no DISPLAY (VTK 9.1 needs X11; run under xvfb-run)";
+  const fs::path dir = fs::temp_directory_path() / ("vx_probe_view_lit_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+
+  // the small sample, drawn after a frame with its normals
+  const vx::VoxelGrid grid = block_grid();
+  const vx::Model model = vx::build_model(grid);
+  const vx::EmbeddedSurface small = vx::make_voxel_surface(model, grid, true);
+  double small_lum = 0;
+  int small_px = 0;
+  {
+    ProbeView view(bare_setup(small.rest_vertices, small.triangles), nullptr, nullptr);
+    ASSERT_TRUE(view.process_events());
+    Eigen::Matrix3Xd normals;
+    vx::compute_vertex_normals(small, small.rest_vertices, normals);
+    view.update_geometry(small.rest_vertices, normals, Eigen::Matrix3Xd(), {}, {});
+    view.render();
+    view.save_screenshot(dir / "small.png");
+    small_lum = tissue_luminance(dir / "small.png", &small_px);
+  }
+
+  // the large folded ball, drawn before any frame arrived, then after one
+  Eigen::Matrix3Xd vertices;
+  Eigen::Matrix3Xi triangles;
+  folded_ball(vertices, triangles);
+  ASSERT_GT(triangles.cols(), 350000);
+  double first_lum = 0, later_lum = 0;
+  int first_px = 0, later_px = 0;
+  {
+    ProbeView view(bare_setup(vertices, triangles), nullptr, nullptr);
+    ASSERT_TRUE(view.process_events());
+    view.render();
+    view.save_screenshot(dir / "large_first.png");
+    first_lum = tissue_luminance(dir / "large_first.png", &first_px);
+    const Eigen::Matrix3Xd normals = vertex_normals(vertices, triangles);
+    view.update_geometry(vertices, normals, Eigen::Matrix3Xd(), {}, {});
+    view.render();
+    view.save_screenshot(dir / "large_later.png");
+    later_lum = tissue_luminance(dir / "large_later.png", &later_px);
+  }
+  std::printf("[ figures  ] mean tissue luminance: small sample %.1f (%d px), large first frame %.1f (%d px), large "
+              "after a frame %.1f (%d px)\n",
+              small_lum, small_px, first_lum, first_px, later_lum, later_px);
+  ASSERT_GT(small_px, 5000);
+  ASSERT_GT(first_px, 20000);
+  EXPECT_GT(small_lum, 60.0);
+  EXPECT_GT(first_lum, small_lum / 1.5);
+  EXPECT_LT(first_lum, small_lum * 1.5);
+  EXPECT_NEAR(later_lum, first_lum, 0.02 * first_lum);  // the same normals
+  if (!std::getenv("VX_KEEP_SCREENSHOTS")) fs::remove_all(dir);
 }

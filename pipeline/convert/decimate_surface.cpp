@@ -1,0 +1,225 @@
+#include "convert/decimate_surface.h"
+
+#include <fmt/core.h>
+#include <vtkCellArray.h>
+#include <vtkDecimatePro.h>
+#include <vtkGenericCell.h>
+#include <vtkIdTypeArray.h>
+#include <vtkNew.h>
+#include <vtkPointData.h>
+#include <vtkPoints.h>
+#include <vtkPolyData.h>
+#include <vtkQuadricDecimation.h>
+#include <vtkSmartPointer.h>
+#include <vtkStaticCellLocator.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <vector>
+
+#include "base/error.h"
+#include "util/vtk_messages.h"
+
+namespace vx {
+
+namespace {
+
+double seconds_since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+vtkSmartPointer<vtkPolyData> to_poly(const Eigen::Matrix3Xd& vertices, const Eigen::Matrix3Xi& triangles) {
+  auto poly = vtkSmartPointer<vtkPolyData>::New();
+  vtkNew<vtkPoints> pts;
+  pts->SetDataTypeToDouble();
+  pts->SetNumberOfPoints(vertices.cols());
+  std::copy_n(vertices.data(), 3 * vertices.cols(), static_cast<double*>(pts->GetVoidPointer(0)));
+  poly->SetPoints(pts);
+  vtkNew<vtkIdTypeArray> offsets, conn;
+  const vtkIdType nt = triangles.cols();
+  offsets->SetNumberOfValues(nt + 1);
+  conn->SetNumberOfValues(3 * nt);
+  for (vtkIdType t = 0; t <= nt; ++t) offsets->SetValue(t, 3 * t);
+  for (vtkIdType i = 0; i < 3 * nt; ++i) conn->SetValue(i, triangles.data()[i]);
+  vtkNew<vtkCellArray> polys;
+  polys->SetData(offsets, conn);
+  poly->SetPolys(polys);
+  return poly;
+}
+
+}  // namespace
+
+std::string DecimationReport::summary() const {
+  if (!decimated) return fmt::format("display surface: {} triangles (not decimated)", triangles_before);
+  return fmt::format("display surface decimated {} -> {} triangles ({} -> {} vertices; {}) in {:.2f} s; embedding: {} "
+                     "({:.2f} s)",
+                     triangles_before, triangles_after, vertices_before, vertices_after, method, decimate_s, embedding,
+                     embed_s);
+}
+
+EmbeddedSurface decimate_surface(const Model& model, const EmbeddedSurface& full, const DecimationSettings& settings,
+                                 DecimationReport* report_out) {
+  DecimationReport report;
+  report.triangles_before = report.triangles_after = full.num_triangles();
+  report.vertices_before = report.vertices_after = full.num_vertices();
+  if (settings.target_triangles < 0) throw Error("display surface: the target triangle count must be >= 0");
+  if (full.model_nodes != model.num_nodes())
+    throw Error(fmt::format("display surface: the surface is embedded in a model of {} nodes, this one has {}",
+                            full.model_nodes, model.num_nodes()));
+  const bool keep = settings.target_triangles == 0 || full.num_triangles() <= settings.target_triangles ||
+                    full.method == SurfaceMethod::slice || model.is_2d();
+  if (keep) {
+    if (report_out) *report_out = report;
+    return full;
+  }
+
+  // the rest surface, each point carrying its vertex id in the full surface
+  const auto t0 = std::chrono::steady_clock::now();
+  const VtkMessageCapture vtk_messages;
+  vtkSmartPointer<vtkPolyData> input = to_poly(full.rest_vertices, full.triangles);
+  {
+    vtkNew<vtkIdTypeArray> ids;
+    ids->SetName("vx_full_vertex");
+    ids->SetNumberOfValues(full.num_vertices());
+    for (vtkIdType v = 0; v < full.num_vertices(); ++v) ids->SetValue(v, v);
+    input->GetPointData()->AddArray(ids);
+  }
+  const double reduction = 1.0 - double(settings.target_triangles) / double(full.num_triangles());
+  // topology-preserving vertex removal first (vertices stay where they were, on the full
+  // surface); should it stop short of the target, quadric edge collapses instead
+  vtkNew<vtkDecimatePro> pro;
+  pro->SetInputData(input);
+  pro->SetTargetReduction(reduction);
+  pro->PreserveTopologyOn();
+  pro->SplittingOff();
+  pro->BoundaryVertexDeletionOff();
+  pro->SetFeatureAngle(settings.feature_angle_deg);
+  pro->SetMaximumError(VTK_DOUBLE_MAX);
+  pro->Update();
+  vtkPolyDataAlgorithm* decimate = pro;
+  report.method = "vtkDecimatePro, topology preserved";
+  vtkNew<vtkQuadricDecimation> quadric;
+  if (pro->GetOutput()->GetNumberOfPolys() > vtkIdType(1.1 * settings.target_triangles)) {
+    quadric->SetInputData(input);
+    quadric->SetTargetReduction(reduction);
+    quadric->VolumePreservationOn();  // Lindstrom-Turk volume constraint: no shrinking
+    quadric->AttributeErrorMetricOff();
+    quadric->Update();
+    decimate = quadric;
+    report.method = "vtkQuadricDecimation";
+  }
+  vtkPolyData* out = decimate->GetOutput();
+  if (!vtk_messages.errors().empty() || !out || out->GetNumberOfPolys() == 0)
+    throw Error("VTK could not decimate the display surface: " + vtk_messages.first_error("no triangles left"));
+
+  // the triangles (dropping any that repeat a vertex) and the vertices they use, renumbered
+  const vtkIdType np = out->GetNumberOfPoints();
+  std::vector<int> new_id(std::size_t(np), -1);
+  std::vector<Eigen::Vector3i> tris;
+  tris.reserve(std::size_t(out->GetNumberOfPolys()));
+  vtkCellArray* polys = out->GetPolys();
+  polys->InitTraversal();
+  vtkIdType npts = 0;
+  const vtkIdType* pts = nullptr;
+  int used = 0;
+  while (polys->GetNextCell(npts, pts)) {
+    for (vtkIdType t = 1; t + 1 < npts; ++t) {
+      const vtkIdType a = pts[0], b = pts[t], c = pts[t + 1];
+      if (a == b || b == c || c == a) continue;
+      Eigen::Vector3i tri;
+      const vtkIdType corner[3] = {a, b, c};
+      for (int k = 0; k < 3; ++k) {
+        int& id = new_id[std::size_t(corner[k])];
+        if (id < 0) id = used++;
+        tri[k] = id;
+      }
+      tris.push_back(tri);
+    }
+  }
+  Eigen::Matrix3Xd vertices(3, used);
+  // the full surface's vertex each kept point was, when it is one (vertex removal keeps points)
+  auto* ids = vtkIdTypeArray::SafeDownCast(out->GetPointData()->GetArray("vx_full_vertex"));
+  std::vector<std::int32_t> source(std::size_t(used), -1);
+  for (vtkIdType p = 0; p < np; ++p) {
+    if (new_id[std::size_t(p)] < 0) continue;
+    double x[3];
+    out->GetPoint(p, x);
+    const int v = new_id[std::size_t(p)];
+    vertices.col(v) = Eigen::Vector3d(x[0], x[1], x[2]);
+    if (ids && ids->GetNumberOfValues() == np) {
+      const vtkIdType f = ids->GetValue(p);
+      if (f >= 0 && f < full.num_vertices() && full.rest_vertices.col(f) == vertices.col(v)) source[std::size_t(v)] = int(f);
+    }
+  }
+  const bool all_kept = std::none_of(source.begin(), source.end(), [](std::int32_t f) { return f < 0; });
+  Eigen::Matrix3Xi triangles(3, Eigen::Index(tris.size()));
+  for (std::size_t t = 0; t < tris.size(); ++t) triangles.col(Eigen::Index(t)) = tris[t];
+  // edge collapses keep the orientation; keep it outward should VTK ever flip the mesh
+  if ((enclosed_volume_mm3(vertices, triangles) < 0) != (enclosed_volume_mm3(full.rest_vertices, full.triangles) < 0))
+    triangles.row(1).swap(triangles.row(2));
+  report.decimate_s = seconds_since(t0);
+
+  const auto t1 = std::chrono::steady_clock::now();
+  EmbeddedSurface s;
+  if (all_kept) {
+    // every vertex is one of the full surface's: its embedding row as it is (no new weights)
+    s.method = full.method;
+    s.model_nodes = full.model_nodes;
+    s.rest_vertices = std::move(vertices);
+    s.triangles = std::move(triangles);
+    s.embed_offsets.assign(1, 0);
+    for (const std::int32_t f : source) {
+      const auto b = full.embed_offsets[std::size_t(f)], e = full.embed_offsets[std::size_t(f) + 1];
+      s.embed_nodes.insert(s.embed_nodes.end(), full.embed_nodes.begin() + b, full.embed_nodes.begin() + e);
+      s.embed_weights.insert(s.embed_weights.end(), full.embed_weights.begin() + b, full.embed_weights.begin() + e);
+      s.embed_offsets.push_back(std::int32_t(s.embed_nodes.size()));
+    }
+    s.finalize();
+    report.embedding = "the full surface's";
+  } else {
+    // moved vertices: the embedding the iso-surface uses (trilinear in the voxel cell over
+    // lattice points, each a node or an element's affine fit)
+    s = embed_surface(model, vertices, triangles, full.method);
+    report.embedding = "embed_surface";
+  }
+  report.embed_s = seconds_since(t1);
+  report.decimated = true;
+  report.triangles_after = s.num_triangles();
+  report.vertices_after = s.num_vertices();
+  if (report_out) *report_out = report;
+  return s;
+}
+
+MeshDistance mesh_distance_mm(const Eigen::Matrix3Xd& a_vertices, const Eigen::Matrix3Xi& a_triangles,
+                              const Eigen::Matrix3Xd& b_vertices, const Eigen::Matrix3Xi& b_triangles) {
+  if (a_triangles.cols() == 0 || b_triangles.cols() == 0) throw Error("mesh distance: a mesh has no triangles");
+  MeshDistance d;
+  double sum = 0.0;
+  // the largest and summed distance of the vertices of `from` to the triangles of `to`
+  const auto one_way = [&sum](const Eigen::Matrix3Xd& from, const Eigen::Matrix3Xd& to_v, const Eigen::Matrix3Xi& to_t) {
+    vtkSmartPointer<vtkPolyData> to = to_poly(to_v, to_t);
+    vtkNew<vtkStaticCellLocator> locator;
+    locator->SetDataSet(to);
+    locator->BuildLocator();
+    vtkNew<vtkGenericCell> cell;
+    double worst = 0.0;
+    for (Eigen::Index v = 0; v < from.cols(); ++v) {
+      double p[3] = {from(0, v), from(1, v), from(2, v)}, closest[3], d2 = 0.0;
+      vtkIdType cell_id = -1;
+      int sub_id = 0;
+      locator->FindClosestPoint(p, closest, cell, cell_id, sub_id, d2);
+      const double dist = std::sqrt(d2);
+      worst = std::max(worst, dist);
+      sum += dist;
+    }
+    return worst;
+  };
+  d.max_a_to_b_mm = one_way(a_vertices, b_vertices, b_triangles);
+  d.max_b_to_a_mm = one_way(b_vertices, a_vertices, a_triangles);
+  d.max_mm = std::max(d.max_a_to_b_mm, d.max_b_to_a_mm);
+  d.mean_mm = sum / double(a_vertices.cols() + b_vertices.cols());
+  return d;
+}
+
+}  // namespace vx
