@@ -128,9 +128,10 @@ PreparedScene prepare_scale_model(const ScaleModelSpec& m, const ScaleBenchSetti
   if (m.support == "stem") {
     if (!(shape.stem_radius_mm > 0))
       throw Error("bench --scale: " + m.name + ": support 'stem' needs a phantom with a stem (folded), not " + m.phantom);
-    // the stem's bottom 3 mm: a box round its bottom face, half a voxel wider than the stem
+    // the stem's bottom 3 mm: a box round its bottom face, half a voxel wider than the stem and
+    // half a voxel beyond 3 mm (the lowest nodes may lie up to half a voxel below the face)
     const Eigen::Vector3d c = shape.stem_center_mm, r(shape.stem_radius_mm + 0.5, shape.stem_radius_mm + 0.5, 0.5);
-    const Eigen::Vector3d lo = c - r, hi = c + Eigen::Vector3d(r.x(), r.y(), 3.0);
+    const Eigen::Vector3d lo = c - r, hi = c + Eigen::Vector3d(r.x(), r.y(), 3.5);
     j["fixed"] = json::array({{{"box_mm", {{"min", {lo.x(), lo.y(), lo.z()}}, {"max", {hi.x(), hi.y(), hi.z()}}}}}});
   } else if (m.support == "lower third") {
     const double bottom = shape.stem_radius_mm > 0 ? shape.stem_center_mm.z() : shape.center_mm.z() - shape.half_extent_mm.z();
