@@ -71,7 +71,10 @@ void run_scale_command(const BenchOptions& o) {
       bool found = false;
       for (const auto& m : set.models)
         if (m.name == name || m.name == "sphere " + name) keep.push_back(m), found = true;
-      if (!found) throw Error(fmt::format("--scale-models: unknown model '{}' (32, 64, 128, 256, organ)", name));
+      if (!found)
+        throw Error(fmt::format("--scale-models: unknown model '{}' (32, 64, 128, 256, organ, \"folded (stem)\", "
+                                "\"folded (lower third)\")",
+                                name));
     }
     set.models = keep;
   }
@@ -223,8 +226,11 @@ void add_bench_command(CLI::App& app) {
   sub->add_flag("-q,--quiet", opts->quiet, "no progress on stderr");
   sub->add_flag("--scale", opts->scale,
                 "instead: the real-time factor and force error of each configuration on sphere phantoms 32 to 256 and the "
-                "organ phantom, 1 and 2 threads (DIR/scale.csv, scale.md, scale.png; docs/bench.md)");
-  sub->add_option("--scale-models", opts->scale_models, "with --scale: the models (32, 64, 128, 256, organ)")->delimiter(',');
+                "organ and folded phantoms, 1 and 2 threads (DIR/scale.csv, scale.md, scale.png; docs/bench.md)");
+  sub->add_option("--scale-models", opts->scale_models,
+                  "with --scale: the models (32, 64, 128, 256, organ, \"folded (stem)\", \"folded (lower third)\"; "
+                  "default: all)")
+      ->delimiter(',');
   sub->add_option("--scale-max-wall-s", opts->scale_max_wall_s,
                   "with --scale: time a run over at most this much wall time (the reference runs to the end)")
       ->check(CLI::PositiveNumber);

@@ -10,6 +10,7 @@
 #include <sstream>
 
 #include "base/error.h"
+#include "convert/phantom.h"
 #include "render/plot.h"
 #include "scene/scene.h"
 #include "sim/simulation.h"
@@ -27,6 +28,15 @@ ScaleBenchSettings ScaleBenchSettings::standard() {
               {"sphere 128", "sphere", 128},
               {"sphere 256", "sphere", 256},
               {"organ", "organ", 214}};
+  // the brain-like phantom, held at its stem (it hangs from a patch 20 mm across) and over its
+  // lower third; pressed on a gyrus off the fissure
+  ScaleModelSpec folded{"folded (stem)", "folded", 214};
+  folded.support = "stem";
+  folded.press_offset_mm = {19.0, -2.0};
+  s.models.push_back(folded);
+  folded.name = "folded (lower third)";
+  folded.support = "lower third";
+  s.models.push_back(folded);
   ScaleConfig ref;
   ref.name = "symplectic, auto step (reference)";
   ref.reference = true;
@@ -78,9 +88,12 @@ void ScaleBenchSettings::validate() const {
   if (configs.empty()) throw Error("bench --scale: no configurations");
   if (!element.empty() && element != "paper" && element != "hourglass")
     throw Error("bench --scale: unknown element '" + element + "' (paper or hourglass)");
-  for (const auto& m : models)
+  for (const auto& m : models) {
     if (m.lattice_origin != "best" && m.lattice_origin != "crop")
       throw Error("bench --scale: unknown lattice origin '" + m.lattice_origin + "' (best or crop)");
+    if (m.support != "bottom 3 mm" && m.support != "stem" && m.support != "lower third")
+      throw Error("bench --scale: " + m.name + ": unknown support '" + m.support + "' (bottom 3 mm, stem or lower third)");
+  }
   for (int t : threads)
     if (t < 1) throw Error("bench --scale: threads must be >= 1");
   if (!(max_wall_s > 0)) throw Error("bench --scale: max_wall_s must be > 0");
@@ -92,8 +105,9 @@ double seconds_since(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
-/// The model's prepared scene (no probe yet): the phantom at 1 mm, gradational, bottom 3 mm held.
-PreparedScene prepare_model(const ScaleModelSpec& m, const ScaleBenchSettings& s) {
+}  // namespace
+
+PreparedScene prepare_scale_model(const ScaleModelSpec& m, const ScaleBenchSettings& s) {
   json j;
   j["object"] = {{"phantom", m.phantom},
                  {"size", m.size},
@@ -105,7 +119,27 @@ PreparedScene prepare_model(const ScaleModelSpec& m, const ScaleBenchSettings& s
                    {"density_kg_m3", 1000.0},
                    {"poisson_ratio", 0.0}};
   if (!s.element.empty()) j["material"]["element"] = s.element;
-  j["fixed"] = json::array({{{"face", "z_min"}, {"within_mm", 3.0}}});
+  // the support, from the phantom's analytic shape (the model keeps its LPS coordinates)
+  PhantomSettings ps;
+  ps.name = m.phantom;
+  ps.size = m.size;
+  ps.spacing_mm = 1.0;
+  const PhantomShape shape = phantom_shape(ps);
+  if (m.support == "stem") {
+    if (!(shape.stem_radius_mm > 0))
+      throw Error("bench --scale: " + m.name + ": support 'stem' needs a phantom with a stem (folded), not " + m.phantom);
+    // the stem's bottom 3 mm: a box round its bottom face, half a voxel wider than the stem and
+    // half a voxel beyond 3 mm (the lowest nodes may lie up to half a voxel below the face)
+    const Eigen::Vector3d c = shape.stem_center_mm, r(shape.stem_radius_mm + 0.5, shape.stem_radius_mm + 0.5, 0.5);
+    const Eigen::Vector3d lo = c - r, hi = c + Eigen::Vector3d(r.x(), r.y(), 3.5);
+    j["fixed"] = json::array({{{"box_mm", {{"min", {lo.x(), lo.y(), lo.z()}}, {"max", {hi.x(), hi.y(), hi.z()}}}}}});
+  } else if (m.support == "lower third") {
+    const double bottom = shape.stem_radius_mm > 0 ? shape.stem_center_mm.z() : shape.center_mm.z() - shape.half_extent_mm.z();
+    const double top = shape.center_mm.z() + shape.half_extent_mm.z();
+    j["fixed"] = json::array({{{"face", "z_min"}, {"within_mm", (top - bottom) / 3.0}}});
+  } else {
+    j["fixed"] = json::array({{{"face", "z_min"}, {"within_mm", 3.0}}});
+  }
   j["duration_s"] = s.press_s + s.slide_s;
   j["outputs"] = {{"forces_csv", false}, {"plot", false}};
   const Scene scene = parse_scene(j, fs::current_path(), "scale bench " + m.name);
@@ -114,11 +148,10 @@ PreparedScene prepare_model(const ScaleModelSpec& m, const ScaleBenchSettings& s
   return prepare_scene(scene, opt);
 }
 
-/// The ball's path: 0.5 mm above the top (the node of the model highest near the centre axis),
-/// pressed depth_mm in press_s, slid slide_mm along x in slide_s.
-std::vector<PathKey> palpation_path(const PreparedScene& p, const ScaleBenchSettings& s) {
+std::vector<PathKey> scale_palpation_path(const PreparedScene& p, const ScaleModelSpec& spec, const ScaleBenchSettings& s) {
   const Model& m = *p.model;
-  const Eigen::Vector3d c = 0.5 * (p.bounds_min_mm + p.bounds_max_mm);
+  Eigen::Vector3d c = 0.5 * (p.bounds_min_mm + p.bounds_max_mm);
+  c.head<2>() += spec.press_offset_mm;
   double top = p.bounds_min_mm.z();
   for (int i = 0; i < m.num_nodes(); ++i) {
     const Eigen::Vector3d x = m.rest_positions.col(i);
@@ -130,6 +163,8 @@ std::vector<PathKey> palpation_path(const PreparedScene& p, const ScaleBenchSett
           {s.press_s, {c.x(), c.y(), z1}},
           {s.press_s + s.slide_s, {c.x() + s.slide_mm, c.y(), z1}}};
 }
+
+namespace {
 
 struct RunOutput {
   ScaleRow row;
@@ -162,7 +197,7 @@ RunOutput run_one(const ScaleModelSpec& spec, const PreparedScene& prepared,
   probe.name = "ball";
   probe.geometry.shape = ProbeShape::sphere;
   probe.geometry.radius_mm = s.probe_radius_mm;
-  probe.path = palpation_path(prepared, s);
+  probe.path = scale_palpation_path(prepared, spec, s);
   ss.probes = {probe};
   ss.device.reset();
   row.time_step_s = ss.integrator.time_step_s;
@@ -244,7 +279,7 @@ ScaleBenchResult run_scale_bench(const ScaleBenchSettings& s) {
   const int most_threads = *std::max_element(s.threads.begin(), s.threads.end());
   for (const ScaleModelSpec& spec : s.models) {
     const auto t_build = std::chrono::steady_clock::now();
-    const PreparedScene prepared = prepare_model(spec, s);
+    const PreparedScene prepared = prepare_scale_model(spec, s);
     say(fmt::format("[scale] {}: {} elements, {} nodes, {} vertex entries (built in {:.1f} s)", spec.name,
                     prepared.model->num_elements(), prepared.model->num_nodes(), prepared.model->num_vertex_entries(),
                     seconds_since(t_build)));

@@ -2,10 +2,11 @@
 /// @file scale_bench.h
 /// `voxelastic bench --scale` (docs/bench.md, "Palpation at organ size"): how close each
 /// configuration of the simulation comes to real time on models of growing size, and what force
-/// error it costs. Every model (sphere phantoms 32 to 256 voxels across at 1 mm, and the organ
-/// phantom, an ellipsoid of 140 x 180 x 150 mm) is palpated the same way: a ball pressed 5 mm
-/// into the top in 1 s, then slid 10 mm sideways in 1 s (E 10 kPa, damping ratio 0.2, the bottom
-/// 3 mm held). Per model and configuration: elements, nodes, the step, the wall time per step,
+/// error it costs. Every model (sphere phantoms 32 to 256 voxels across at 1 mm, the organ
+/// phantom, an ellipsoid of 140 x 180 x 150 mm, and the folded, brain-like phantom of the same
+/// size) is palpated the same way: a ball pressed 5 mm into the top in 1 s, then slid 10 mm
+/// sideways in 1 s (E 10 kPa, damping ratio 0.2; held by its support: the bottom 3 mm, or the
+/// folded phantom's stem or lower third). Per model and configuration: elements, nodes, the step, the wall time per step,
 /// steps per simulated second, the real-time factor (simulated / wall time) on 1 and 2 threads,
 /// and the RMS force error against the model's reference configuration (symplectic Euler at its
 /// automatic step, physical masses) as a fraction of the reference's peak force.
@@ -23,6 +24,7 @@
 #include <vector>
 
 #include "physics/physics_model.h"
+#include "scene/scene.h"
 #include "sim/integrator_kind.h"
 
 namespace vx {
@@ -47,6 +49,14 @@ struct ScaleModelSpec {
   /// "best": the lattice origin with the fewest vertex entries (docs/model.md 3.5, the default);
   /// "crop": the crop's 1-voxel margin (the name then says "crop origin")
   std::string lattice_origin{"best"};
+  /// What holds the model: "bottom 3 mm" (the nodes within 3 mm of its lowest point, the
+  /// default), "stem" (the bottom 3 mm of the folded phantom's stem, a patch 20 mm across at
+  /// size 214: PhantomShape::stem_center_mm) or "lower third" (every node in the lowest third
+  /// of its height)
+  std::string support{"bottom 3 mm"};
+  /// The ball presses along the vertical through the centre of the model's bounding box moved
+  /// by this much (x, y mm): the folded phantom's is on a gyrus of a hemisphere, off the fissure
+  Eigen::Vector2d press_offset_mm{0, 0};
 };
 
 struct ScaleBenchSettings {
@@ -66,8 +76,9 @@ struct ScaleBenchSettings {
   std::string element;             ///< "paper" or "hourglass" (docs/model.md section 5); empty: the default
   std::function<void(const std::string&)> log;  ///< progress (may be empty)
 
-  /// The default suite: spheres 32, 64, 128, 256 and the organ phantom; the configurations of
-  /// docs/bench.md.
+  /// The default suite: spheres 32, 64, 128, 256, the organ phantom, and the folded phantom
+  /// held at its stem ("folded (stem)") and over its lower third ("folded (lower third)"); the
+  /// configurations of docs/bench.md.
   [[nodiscard]] static ScaleBenchSettings standard();
   /// Replaces the reference (symplectic Euler at its stable step, an hour on the organ) by the
   /// implicit integrator at 3 ms steps iterated to convergence (largest force imbalance below
@@ -101,6 +112,16 @@ struct ScaleBenchResult {
 };
 
 [[nodiscard]] ScaleBenchResult run_scale_bench(const ScaleBenchSettings& settings);
+
+/// The model's prepared scene (no probe yet): the phantom at 1 mm, gradational, its support
+/// held (ScaleModelSpec::support). Throws vx::Error for an unknown support, or "stem" on a
+/// phantom without one.
+[[nodiscard]] PreparedScene prepare_scale_model(const ScaleModelSpec& model, const ScaleBenchSettings& settings);
+
+/// The ball's path: 0.5 mm above the top along the press vertical (the highest node within the
+/// ball's radius of it), pressed depth_mm in press_s, slid slide_mm along +x in slide_s.
+[[nodiscard]] std::vector<PathKey> scale_palpation_path(const PreparedScene& prepared, const ScaleModelSpec& model,
+                                                        const ScaleBenchSettings& settings);
 
 /// Writes scale.csv, scale.md and scale.png (real-time factor against elements, one line per
 /// configuration and thread count, with the real-time line) into `dir`; returns the names.

@@ -33,6 +33,9 @@ void run_hertz(VerifyContext& ctx, Layout r, const std::vector<double>& voxels_m
 void run_cantilever(VerifyContext& ctx, Layout r, const std::vector<double>& voxels_mm, double tolerance);
 /// One indentation on the three layouts, against the voxel-level model.
 void run_layouts(VerifyContext& ctx);
+/// The folded phantom: its model counts at 214 voxels, and hanging from its stem at 107 (the
+/// support carries its weight).
+void run_folded(VerifyContext& ctx);
 
 // dynamics_cases.cpp
 /// The first axial frequency of a fixed-free bar (section `section_voxels` voxels of `h` mm).

@@ -1,6 +1,7 @@
 // The verify cases on mechanics against theory: plate compression (stress = E strain), Hertz
-// indentation (finite-layer Hertz), a cantilever under its own weight (Timoshenko), and the
-// three layouts on one indentation against the voxel-level model.
+// indentation (finite-layer Hertz), a cantilever under its own weight (Timoshenko), the
+// three layouts on one indentation against the voxel-level model, and the folded phantom
+// hanging from its stem (the support carries its weight).
 #include <fmt/format.h>
 
 #include <algorithm>
@@ -13,6 +14,9 @@
 #include <vector>
 
 #include "base/error.h"
+#include "convert/phantom.h"
+#include "convert/threshold.h"
+#include "model/gradational_builder.h"
 #include "sim/contact.h"
 #include "sim/state.h"
 #include "sim/static_solver.h"
@@ -362,6 +366,83 @@ void run_layouts(VerifyContext& ctx) {
   }
   ctx.plot("force-depth", "The same indentation on the three layouts: force against depth",
            {{"Ball R = 5 mm into a 24 x 24 x 12 mm block, E = 10 kPa", "depth, mm", "force, N", series}});
+}
+
+// --- the folded (brain-like) phantom: its counts, and hanging from its stem ---------------------
+
+namespace {
+
+/// The folded phantom's tissue at `size` voxels of 1 mm, thresholded half-way, and its shape.
+VoxelGrid folded_grid(int size, PhantomShape* shape) {
+  PhantomSettings ps;
+  ps.name = "folded";
+  ps.size = size;
+  const Volume v = make_phantom(ps, shape);
+  HuRange r;
+  r.lo = 0.5 * (ps.tissue_hu + ps.air_hu);
+  return threshold(v, r);
+}
+
+}  // namespace
+
+void run_folded(VerifyContext& ctx) {
+  // the counts of the model scenes and the scale bench use: 214 voxels of 1 mm
+  {
+    PhantomShape shape;
+    const VoxelGrid grid = folded_grid(214, &shape);
+    const Model m = build_model(grid);
+    const double surface = double(m.num_surface_nodes()) / double(m.num_nodes());
+    ctx.log(fmt::format("folded phantom 214^3 at 1 mm: {} tissue voxels, {} elements, {} nodes, {} on the surface "
+                        "({:.1f} %)",
+                        grid.count(), m.num_elements(), m.num_nodes(), m.num_surface_nodes(), 100 * surface));
+    ctx.check("elements", double(m.num_elements()), 40000, 0, "", "elements of the gradational model (at least 40,000)",
+              CheckRule::at_least);
+    ctx.check("nodes", double(m.num_nodes()), 200000, 0, "", "nodes (at least 200,000)", CheckRule::at_least);
+    ctx.check("surface_fraction", surface, 0.75, 0, "", "share of the nodes on the surface (at least 3/4: folded)",
+              CheckRule::at_least);
+    ctx.check("volume", m.total_volume_mm3() / double(grid.count()), 1.0, 1e-12, "",
+              "the elements' volume / the tissue voxels' (the gradational model covers every voxel once)");
+  }
+  // hanging from its stem at half the size (107 voxels of 1 mm: 5 mm stem radius): the bottom
+  // 3 mm of the stem held, gravity down, solved to static equilibrium. The support must carry
+  // the whole weight, density x volume x g, and push straight up
+  PhantomShape shape;
+  const VoxelGrid grid = folded_grid(107, &shape);
+  const auto model = std::make_shared<const Model>(build_model(grid));
+  const double e_kpa = 1000.0;  // stiff, so the hemispheres hang near their rest shape
+  const auto p = make_physics_model(model, tissue(e_kpa));
+  std::vector<int> stem;
+  for (int i = 0; i < model->num_nodes(); ++i) {
+    const Eigen::Vector3d x = model->rest_positions.col(i);
+    if (x.z() <= shape.stem_center_mm.z() + 3.0 &&
+        std::hypot(x.x() - shape.stem_center_mm.x(), x.y() - shape.stem_center_mm.y()) <= shape.stem_radius_mm + 0.5)
+      stem.push_back(i);
+  }
+  SimState s = make_state(p);
+  s.fix_nodes(stem);
+  s.gravity_mm_s2 = {0, 0, -kStandardGravityMmS2};
+  StaticSolveSettings st = static_settings();
+  st.tolerance_mm = 1e-7;
+  const StepReport rep = solve_static(s, st);
+  if (s.failed()) throw Error("folded: the static solve failed: " + s.message);
+  // the support's force on the held nodes balances their elastic force and their own weight
+  double held_kg = 0;
+  for (int i : stem) held_kg += p->node_mass_kg[std::size_t(i)];
+  const Eigen::Vector3d g_n = s.gravity_mm_s2 * 1e-3;  // N per kg
+  const Eigen::Vector3d support = -(elastic_force_on(s, stem, kThreads) + held_kg * g_n);
+  const double weight = 1000.0 * kKgM3ToKgPerMm3 * model->total_volume_mm3() * kStandardGravityMmS2 * 1e-3;
+  double sag = 0;
+  for (int i = 0; i < model->num_nodes(); ++i) sag = std::max(sag, -(s.positions.col(i) - model->rest_positions.col(i)).z());
+  ctx.log(fmt::format("folded phantom 107^3 at 1 mm, E = {} kPa: {} nodes, {} held at the stem; weight {:.5g} N; support "
+                      "({:.5g}, {:.5g}, {:.5g}) N; largest sag {:.3g} mm; {} iterations",
+                      e_kpa, model->num_nodes(), stem.size(), weight, support.x(), support.y(), support.z(), sag,
+                      rep.iterations));
+  ctx.check("support_over_weight", support.z() / weight, 1.0, 1e-3, "",
+            "upward force of the stem's support / (density x volume x g) at static equilibrium");
+  ctx.check("support_sideways", std::hypot(support.x(), support.y()) / weight, 0.0, 1e-3, "",
+            "sideways force of the support / weight (gravity is vertical)", CheckRule::at_most);
+  ctx.check("mass", p->total_mass_kg() / (1000.0 * kKgM3ToKgPerMm3 * model->total_volume_mm3()), 1.0, 1e-9, "",
+            "lumped mass / (density x volume)");
 }
 
 }  // namespace vx::cases

@@ -19,8 +19,8 @@ constexpr double kPi = std::numbers::pi;
 
 const std::vector<std::string>& names() {
   static const std::vector<std::string> n = {"sphere", "cube",  "ellipsoid",    "cylinder", "torus",
-                                             "block",  "block-lesion", "organ", "disk", "rectangle",
-                                             "disk-lesion"};
+                                             "block",  "block-lesion", "organ", "folded", "disk",
+                                             "rectangle", "disk-lesion"};
   return n;
 }
 
@@ -145,6 +145,54 @@ double snap_inward(double half_mm, int n, double h) {
   return (k + off) * h;
 }
 
+
+// ---- the folded (brain-like) shape ------------------------------------------------------
+// Every piece below is a 1-Lipschitz function that is zero on its surface, negative inside;
+// max (intersection), min (union) and negation keep that, so the combination is one too.
+
+/// Bound on the gradient of the gyroid's sheet function along the ellipsoid: sqrt(3), the
+/// gyroid's largest gradient (on its sheet it lies between sqrt(2) and sqrt(3)), times 1.1 for
+/// the oblique push along a ray onto an ellipsoid whose axes differ by up to 1.33.
+constexpr double kFoldGradient = 1.7320508075688772 * 1.1;
+
+/// The gyroid, sin x cos y + sin y cos z + sin z cos x: its zero set is a connected,
+/// maze-like sheet (the sulci where it crosses the cortex).
+double gyroid(const Eigen::Vector3d& u) {
+  return std::sin(u.x()) * std::cos(u.y()) + std::sin(u.y()) * std::cos(u.z()) + std::sin(u.z()) * std::cos(u.x());
+}
+
+/// The folded shape's function (phantom.h): negative inside, zero on the surface.
+double folded_distance(const PhantomShape& s, const Eigen::Vector3d& p_mm) {
+  const Eigen::Vector3d p = p_mm - s.center_mm;
+  const Eigen::Vector3d& a = s.half_extent_mm;
+  const double a_min = a.minCoeff();
+  // the body: an ellipsoid's distance bound a_min (|p/a| - 1), gradient a_min/a_max..1
+  const double r = p.cwiseQuotient(a).norm();
+  const double body = a_min * (r - 1.0);
+  // sulci: a slab of half width fold_half_width_mm about the gyroid's sheet, traced on the
+  // ellipsoid (the point pushed along its ray from the centre onto the surface, so the sulcal
+  // walls run straight in and no gyrus hangs over another), fold_depth_mm deep
+  double folded = body;
+  if (body > -s.fold_depth_mm - s.fold_half_width_mm) {
+    const double omega = 2.0 * kPi / s.fold_period_mm;
+    const Eigen::Vector3d q = p / std::max(r, 1e-9);
+    const double wall = std::abs(gyroid(omega * q)) * r / (omega * kFoldGradient) - s.fold_half_width_mm;
+    // no sulcus within fold_depth_mm / 2 of the fissure's wall: an unfolded medial rim holds
+    // every gyrus next to the fissure to the body (sulci crossing it cut off slivers)
+    const double rim = s.fissure_half_width_mm + 0.5 * s.fold_depth_mm - std::abs(p.x());
+    const double sulcus = std::max({wall, -body - s.fold_depth_mm, rim});
+    folded = std::max(body, -sulcus);
+  }
+  // the longitudinal fissure: a slab |x| < fissure half width above fissure_bottom_z_mm
+  const double fissure = std::max(std::abs(p_mm.x() - s.center_mm.x()) - s.fissure_half_width_mm,
+                                  s.fissure_bottom_z_mm - p_mm.z());
+  const double hemispheres = std::max(folded, -fissure);
+  // the stem: a vertical cylinder from stem_center_mm (its bottom face) up into the body
+  const Eigen::Vector3d d = p_mm - s.stem_center_mm;
+  const double stem = std::max(std::hypot(d.x(), d.y()) - s.stem_radius_mm, std::max(-d.z(), d.z() - s.stem_length_mm));
+  return std::min(hemispheres, stem);
+}
+
 }  // namespace
 
 std::vector<std::string> phantom_names() { return names(); }
@@ -157,6 +205,7 @@ double PhantomShape::signed_distance_mm(const Eigen::Vector3d& p_mm) const {
     const Eigen::Vector2d q = (p_mm - center_mm).head<2>().cwiseAbs() - half_extent_mm.head<2>();
     return q.cwiseMax(0.0).norm() + std::min(q.maxCoeff(), 0.0);
   }
+  if (name == "folded") return folded_distance(*this, p_mm);
   const Eigen::Vector3d p = p_mm - center_mm;
   if (name == "sphere") return p.norm() - half_extent_mm.x();
   if (name == "cube" || name == "block" || name == "block-lesion") return box_distance(p, half_extent_mm);
@@ -183,6 +232,7 @@ double PhantomShape::signed_distance_mm(const Eigen::Vector3d& p_mm) const {
 }
 
 double PhantomShape::volume_mm3() const {
+  if (!has_closed_form()) throw Error("PhantomShape: the " + name + " phantom has no closed-form volume; count its voxels");
   const Eigen::Vector3d& e = half_extent_mm;
   if (is_2d()) return area_mm2() * 2.0 * e.z();  // the slab: the shape's area times the slice thickness
   if (name == "sphere" || name == "ellipsoid" || name == "organ") return 4.0 / 3.0 * kPi * e.prod();
@@ -193,6 +243,7 @@ double PhantomShape::volume_mm3() const {
 }
 
 double PhantomShape::area_mm2() const {
+  if (!has_closed_form()) throw Error("PhantomShape: the " + name + " phantom has no closed-form area");
   const Eigen::Vector3d& e = half_extent_mm;
   if (name == "disk" || name == "disk-lesion") return kPi * e.x() * e.x();
   if (name == "rectangle") return 4.0 * e.x() * e.y();
@@ -206,7 +257,7 @@ double PhantomShape::area_mm2() const {
   throw Error("PhantomShape: unknown shape '" + name + "'");
 }
 
-Volume make_phantom(const PhantomSettings& s, PhantomShape* shape_out) {
+PhantomShape phantom_shape(const PhantomSettings& s) {
   // validate
   const auto& known = names();
   if (std::find(known.begin(), known.end(), s.name) == known.end()) {
@@ -238,7 +289,6 @@ Volume make_phantom(const PhantomSettings& s, PhantomShape* shape_out) {
   shape.center_mm = Eigen::Vector3d::Zero();
   // one-slice (2D) phantoms: an n x n x 1 grid, the slice `thickness` deep
   const bool flat = shape.is_2d();
-  const int nz = flat ? 1 : n;
   const double thickness = flat ? (s.thickness_mm > 0 ? s.thickness_mm : h) : h;
   if (flat) {
     if (s.name == "rectangle") {
@@ -261,6 +311,19 @@ Volume make_phantom(const PhantomSettings& s, PhantomShape* shape_out) {
   } else if (s.name == "organ") {
     // an organ-sized stand-in: 140 x 180 x 150 mm at size 214 and 1 mm voxels
     shape.half_extent_mm = Eigen::Vector3d(0.42 * 140.0 / 180.0, 0.42, 0.42 * 150.0 / 180.0) * scale;
+  } else if (s.name == "folded") {
+    // a brain-like stand-in, every length a fraction of the grid's edge (mm at size 214, 1 mm)
+    const double k = scale / 214.0;
+    shape.center_mm = Eigen::Vector3d(0.0, 0.0, 7.0 * k);
+    shape.half_extent_mm = Eigen::Vector3d(70.0, 90.0, 68.0) * k;
+    shape.fold_period_mm = 30.0 * k;
+    shape.fold_half_width_mm = 1.5 * k;
+    shape.fold_depth_mm = 10.0 * k;
+    shape.fissure_half_width_mm = 2.0 * k;
+    shape.fissure_bottom_z_mm = -5.0 * k;
+    shape.stem_center_mm = Eigen::Vector3d(0.0, 0.0, -75.0 * k);
+    shape.stem_radius_mm = 10.0 * k;
+    shape.stem_length_mm = 45.0 * k;
   } else if (s.name == "cylinder") {
     shape.minor_radius_mm = 0.3 * scale;
     shape.half_length_mm = snap_inward(0.4 * scale, n, h);
@@ -280,6 +343,16 @@ Volume make_phantom(const PhantomSettings& s, PhantomShape* shape_out) {
       shape.lesion_radius_mm = std::min(0.15 * scale, 0.9 * (b.z() - shape.lesion_center_mm.z()));
     }
   }
+  return shape;
+}
+
+Volume make_phantom(const PhantomSettings& s, PhantomShape* shape_out) {
+  PhantomShape shape = phantom_shape(s);  // validates the settings
+  const int n = s.size;
+  const double h = s.spacing_mm;
+  const bool flat = shape.is_2d();
+  const int nz = flat ? 1 : n;
+  const double thickness = flat ? (s.thickness_mm > 0 ? s.thickness_mm : h) : h;
 
   Volume v;
   GridGeometry& g = v.geometry;
@@ -292,12 +365,13 @@ Volume make_phantom(const PhantomSettings& s, PhantomShape* shape_out) {
 
   // voxel centres inside get tissue: the same tests as the signed distance's sign, without
   // its cost (and the ellipsoid by its implicit equation)
-  enum class Kind { sphere, box, cylinder, torus, ellipsoid, disk, rectangle };
+  enum class Kind { sphere, box, cylinder, torus, ellipsoid, disk, rectangle, folded };
   const Kind kind = (s.name == "disk" || s.name == "disk-lesion") ? Kind::disk
                     : s.name == "rectangle"  ? Kind::rectangle
                     : s.name == "sphere"     ? Kind::sphere
                     : s.name == "cylinder" ? Kind::cylinder
                     : s.name == "torus"    ? Kind::torus
+                    : s.name == "folded"   ? Kind::folded
                     : (s.name == "ellipsoid" || s.name == "organ") ? Kind::ellipsoid
                                             : Kind::box;
   const auto inside = [&](const Eigen::Vector3d& p) {
@@ -311,6 +385,7 @@ Volume make_phantom(const PhantomSettings& s, PhantomShape* shape_out) {
         const double q = std::hypot(p.x(), p.y()) - shape.major_radius_mm;
         return q * q + p.z() * p.z() < shape.minor_radius_mm * shape.minor_radius_mm;
       }
+      case Kind::folded: return folded_distance(shape, p) < 0;  // the signed distance's own sign
       case Kind::ellipsoid: return p.cwiseQuotient(shape.half_extent_mm).squaredNorm() < 1.0;
       case Kind::disk: return p.head<2>().squaredNorm() < shape.half_extent_mm.x() * shape.half_extent_mm.x();
       case Kind::rectangle: return (p.head<2>().cwiseAbs().array() < shape.half_extent_mm.head<2>().array()).all();

@@ -21,7 +21,17 @@ namespace vx {
 /// the xy plane, radii 0.28 and 0.12; block 0.8 x 0.6 x 0.4; block-lesion the block with a
 /// spherical lesion of radius about 0.15 centred off-axis at 60% of the block's height; organ an
 /// ellipsoid of semi-axes 0.327 x 0.42 x 0.35 (an organ-sized stand-in: 140 x 180 x 150 mm at
-/// size 214 and 1 mm voxels, about 2 M tissue voxels).
+/// size 214 and 1 mm voxels, about 2 M tissue voxels); folded a brain-like stand-in (below).
+///
+/// folded, in mm at size 214 and 1 mm voxels (every length scales with the grid's edge like the
+/// others'): two hemispheres, 140 x 180 x 136 mm (x, y, z), an ellipsoid centred at z = +7 with
+/// a longitudinal fissure 4 mm wide (|x| < 2) from its top down to z = -5, below which they are
+/// joined; the cortex folded into gyri by sulci 3 mm wide and 10 mm deep (10 to 13 mm below the
+/// ellipsoid along its normal), traced by the sheet of a gyroid of period 30 mm pushed along rays
+/// from the centre (so every sulcal wall runs inwards and no gyrus is cut off); and a stem, a
+/// vertical cylinder of radius 10 mm at x = y = 0 from the lowest tissue, z = -75, up into the
+/// body (z = -30; 14 mm of it stand out below the body). Overall 140 x 180 x 150 mm, one
+/// connected piece.
 /// Flat faces (cube, block, cylinder caps) lie on voxel faces (rounded inwards), so their
 /// voxel counts are exact.
 ///
@@ -30,7 +40,7 @@ namespace vx {
 /// disk radius 0.4; rectangle 0.8 x 0.5 (x, y); disk-lesion the disk with a round lesion of a
 /// quarter of its radius centred halfway from the centre to the top (+y).
 struct PhantomSettings {
-  std::string name{"sphere"};  ///< sphere, cube, ellipsoid, cylinder, torus, block, block-lesion, organ
+  std::string name{"sphere"};  ///< sphere, cube, ellipsoid, cylinder, torus, block, block-lesion, organ, folded
                                ///< one slice (2D): disk, rectangle, disk-lesion
   int size{64};                ///< grid voxels along each axis
   double spacing_mm{1.0};      ///< isotropic voxel size, mm
@@ -53,25 +63,51 @@ struct PhantomShape {
   double half_length_mm{0};                 ///< cylinder: half its length along z
   Eigen::Vector3d lesion_center_mm{0, 0, 0};///< block-lesion
   double lesion_radius_mm{0};               ///< block-lesion
+  // folded (brain-like): the body is the ellipsoid center_mm, half_extent_mm
+  double fold_period_mm{0};                 ///< folded: period of the gyroid whose sheet traces the sulci
+  double fold_half_width_mm{0};             ///< folded: half the width of a sulcus
+  double fold_depth_mm{0};                  ///< folded: depth of the sulci below the ellipsoid (its distance bound)
+  double fissure_half_width_mm{0};          ///< folded: half the width of the longitudinal fissure (|x| <)
+  double fissure_bottom_z_mm{0};            ///< folded: the fissure's floor; the hemispheres join below it
+  Eigen::Vector3d stem_center_mm{0, 0, 0};  ///< folded: centre of the stem's bottom face (the lowest tissue)
+  double stem_radius_mm{0};                 ///< folded: the stem, a vertical cylinder of this radius
+  double stem_length_mm{0};                 ///< folded: from its bottom face up into the body
   std::int64_t tissue_voxels{0};            ///< make_phantom: voxels whose centre is inside (lesion included)
   std::int64_t lesion_voxels{0};            ///< make_phantom: voxels whose centre is inside the lesion
 
-  /// Signed distance from the surface, mm (negative inside); exact for every shape (the
-  /// ellipsoid's by root finding on the closest-point equation, to about 1e-9 mm). The
+  /// Signed distance from the surface, mm (negative inside); exact for every shape but folded
+  /// (the ellipsoid's by root finding on the closest-point equation, to about 1e-9 mm). The
   /// block-lesion's surface is the block's (the lesion is inside the tissue).
+  /// folded: an approximate distance, a max/min of 1-Lipschitz bounds of its pieces (body,
+  /// sulci, fissure, stem). Its sign is exact (make_phantom fills the voxels by it), it is zero
+  /// on the surface and 1-Lipschitz, so |d| never exceeds the true distance (tested: no voxel
+  /// centre of the other side lies within |d| of a point). It can understate it: within 4 mm
+  /// of the surface its gradient norm has a median of 0.79 but falls to 0.05 where a sulcus
+  /// crosses the cortex obliquely, and the nearest voxel of the other side was found up to 4x
+  /// |d| (+ half a voxel diagonal) away. Use it for inside/outside and "within d of the
+  /// surface", not to measure surface errors.
   [[nodiscard]] double signed_distance_mm(const Eigen::Vector3d& p_mm) const;
   [[nodiscard]] bool inside(const Eigen::Vector3d& p_mm) const { return signed_distance_mm(p_mm) < 0; }
-  /// Exact enclosed volume, mm^3 (block-lesion: the whole block, lesion included).
+  /// Exact enclosed volume, mm^3 (block-lesion: the whole block, lesion included). Throws
+  /// vx::Error for a shape without a closed form (folded: count its voxels).
   [[nodiscard]] double volume_mm3() const;
   /// Exact surface area, mm^2 (the ellipsoid's from Legendre's elliptic-integral formula); for a
-  /// one-slice shape the area of the shape in its plane.
+  /// one-slice shape the area of the shape in its plane. Throws vx::Error like volume_mm3().
   [[nodiscard]] double area_mm2() const;
+  /// The signed distance is exact and volume and area have closed forms (all but folded).
+  [[nodiscard]] bool has_closed_form() const { return name != "folded"; }
   /// A one-slice (2D) shape: disk, rectangle, disk-lesion.
   [[nodiscard]] bool is_2d() const { return name == "disk" || name == "rectangle" || name == "disk-lesion"; }
 };
 
 /// Names of the phantoms `make_phantom` knows.
 [[nodiscard]] std::vector<std::string> phantom_names();
+
+/// The analytic shape `make_phantom` would make for these settings, without the voxels
+/// (tissue_voxels and lesion_voxels 0): where a scene or a bench finds the folded phantom's
+/// stem. Throws vx::Error for settings make_phantom refuses (but not for a shape too small
+/// to hold a voxel, which only the voxels tell).
+[[nodiscard]] PhantomShape phantom_shape(const PhantomSettings& settings);
 
 /// Makes a phantom volume (voxel centres inside the shape get tissue_hu, inside the lesion
 /// lesion_hu, else air_hu) and, if `shape` is given, its analytic shape. Throws vx::Error for

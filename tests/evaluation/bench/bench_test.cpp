@@ -17,6 +17,7 @@
 #include <sstream>
 
 #include "base/error.h"
+#include "convert/phantom.h"
 #include "scene/scene.h"
 
 namespace fs = std::filesystem;
@@ -443,4 +444,91 @@ TEST(ScaleBench, ImplicitReferenceAndTheLargeModelConfiguration) {
   EXPECT_GT(r.rows[1].peak_force_n, 0.0);
   EXPECT_GT(r.rows[1].real_time_factor, 0.0);
   EXPECT_NEAR(r.rows[1].peak_force_n, r.rows[0].peak_force_n, 0.15 * r.rows[0].peak_force_n);
+}
+
+// The scale bench's supports hold what their names say, on the folded phantom at 64 voxels
+// (its stem is 6 mm across there: every length is a fraction of the grid's edge)
+TEST(ScaleBench, SupportsHoldWhatTheySay) {
+  ScaleBenchSettings s;
+  PhantomSettings ps;
+  ps.name = "folded";
+  ps.size = 64;
+  const PhantomShape shape = phantom_shape(ps);
+  const auto fixed_positions = [&](const std::string& support) {
+    ScaleModelSpec m{"folded", "folded", 64};
+    m.support = support;
+    const PreparedScene p = prepare_scale_model(m, s);
+    std::vector<Eigen::Vector3d> held;
+    for (int i : p.settings.fixed_nodes) held.push_back(p.model->rest_positions.col(i));
+    EXPECT_EQ(int(held.size()), p.fixed_nodes);
+    // every node the rule names is held, and no other
+    int named = 0;
+    for (int i = 0; i < p.model->num_nodes(); ++i) {
+      const Eigen::Vector3d x = p.model->rest_positions.col(i);
+      if (support == "stem")  // a box round the stem's bottom 3 mm, half a voxel larger
+        named += x.z() <= shape.stem_center_mm.z() + 3.5 + 1e-9 &&
+                 std::abs(x.x() - shape.stem_center_mm.x()) <= shape.stem_radius_mm + 0.5 + 1e-9 &&
+                 std::abs(x.y() - shape.stem_center_mm.y()) <= shape.stem_radius_mm + 0.5 + 1e-9;
+      else if (support == "lower third")
+        named += x.z() <= p.bounds_min_mm.z() + (p.bounds_max_mm.z() - p.bounds_min_mm.z()) / 3.0 + 1e-9;
+      else
+        named += x.z() <= p.bounds_min_mm.z() + 3.0 + 1e-9;
+    }
+    EXPECT_EQ(int(held.size()), named) << support;
+    return std::make_pair(held, p);
+  };
+  // the stem: nodes of its bottom 3 mm only (the lowest tissue), about 4 layers of its disc
+  const auto [stem, ps_stem] = fixed_positions("stem");
+  ASSERT_GT(stem.size(), 20u);
+  // (every node of a voxel whose centre is in the stem's disc lies within half a voxel
+  // diagonal of it; the stem's bottom 3 mm are 4 layers of nodes)
+  for (const auto& x : stem) {
+    EXPECT_LE(std::hypot(x.x() - shape.stem_center_mm.x(), x.y() - shape.stem_center_mm.y()),
+              shape.stem_radius_mm + std::sqrt(0.5));
+    EXPECT_LE(x.z(), ps_stem.bounds_min_mm.z() + 3.0 + 1e-9);
+  }
+  EXPECT_NEAR(ps_stem.bounds_min_mm.z(), shape.stem_center_mm.z(), 1.0);
+  EXPECT_LT(double(stem.size()), 0.02 * ps_stem.model->num_nodes());
+  // the lower third: far more, up to a third of the height, and the stem among them
+  const auto [third, ps_third] = fixed_positions("lower third");
+  EXPECT_GT(third.size(), 10 * stem.size());
+  double highest = -1e9;
+  for (const auto& x : third) highest = std::max(highest, x.z());
+  const double height = ps_third.bounds_max_mm.z() - ps_third.bounds_min_mm.z();
+  EXPECT_NEAR(highest - ps_third.bounds_min_mm.z(), height / 3.0, 1.0);
+  // the default: the bottom 3 mm, the stem's bottom here too (it is the lowest tissue)
+  const auto [bottom, ps_bottom] = fixed_positions("bottom 3 mm");
+  EXPECT_EQ(bottom.size(), stem.size());
+  // stem on a phantom without one, and an unknown support: refused
+  ScaleModelSpec sphere{"sphere 32", "sphere", 32};
+  sphere.support = "stem";
+  EXPECT_THROW((void)prepare_scale_model(sphere, s), Error);
+  ScaleBenchSettings bad = ScaleBenchSettings::standard();
+  bad.models[0].support = "hand";
+  EXPECT_THROW(bad.validate(), Error);
+}
+
+// The standard suite's folded models press on a gyrus, off the fissure, at the top
+TEST(ScaleBench, FoldedPressIsOnTissueOffTheFissure) {
+  const ScaleBenchSettings s = ScaleBenchSettings::standard();
+  std::vector<std::string> supports;
+  for (const auto& m : s.models)
+    if (m.phantom == "folded") supports.push_back(m.support);
+  EXPECT_EQ(supports, (std::vector<std::string>{"stem", "lower third"}));
+  const auto folded = std::find_if(s.models.begin(), s.models.end(), [](const auto& m) { return m.phantom == "folded"; });
+  ScaleModelSpec m = *folded;
+  m.size = 107;  // half the size: the offset scaled with it
+  m.press_offset_mm *= 0.5;
+  const PreparedScene p = prepare_scale_model(m, s);
+  const auto path = scale_palpation_path(p, m, s);
+  PhantomSettings ps;
+  ps.name = "folded";
+  ps.size = 107;
+  const PhantomShape shape = phantom_shape(ps);
+  // off the fissure by more than the ball's radius, and over tissue near the top: the ball's
+  // lowest point at the start lies 0.5 mm above the highest node under it, within 5 mm of the top
+  EXPECT_GT(std::abs(path[0].position_mm.x()) - shape.fissure_half_width_mm, s.probe_radius_mm);
+  const double top = shape.center_mm.z() + shape.half_extent_mm.z();
+  EXPECT_GT(path[0].position_mm.z() - s.probe_radius_mm - 0.5, top - 5.0);
+  EXPECT_LT(path[0].position_mm.z() - s.probe_radius_mm - 0.5, top + 1e-9);
 }

@@ -6,6 +6,7 @@
 
 #include <Eigen/Geometry>
 #include <cmath>
+#include <cstdio>
 #include <numbers>
 #include <random>
 #include <set>
@@ -38,8 +39,8 @@ std::int64_t count_hu(const Volume& v, float hu) {
 
 TEST(Phantom, NamesAreTheDocumentedOnes) {
   EXPECT_EQ(vx::phantom_names(), (std::vector<std::string>{"sphere", "cube", "ellipsoid", "cylinder", "torus",
-                                                          "block", "block-lesion", "organ", "disk", "rectangle",
-                                                          "disk-lesion"}));
+                                                          "block", "block-lesion", "organ", "folded", "disk",
+                                                          "rectangle", "disk-lesion"}));
 }
 
 // The voxel count (centres inside) approximates the analytic volume. Flat faces lie on voxel
@@ -55,18 +56,23 @@ TEST(Phantom, TissueVoxelsMatchAnalyticVolume) {
         const Volume v = make_phantom(settings(name, size, spacing), &shape);
         const std::int64_t tissue = v.geometry.voxel_count() - count_hu(v, -1000.0f);
         EXPECT_EQ(tissue, shape.tissue_voxels);
-        const double expected = shape.volume_mm3() / std::pow(spacing, 3);
-        const double rel = std::abs(double(tissue) - expected) / expected;
-        const bool flat = name == "cube" || name == "block" || name == "block-lesion" || name == "rectangle";
-        const double tolerance = flat ? 1e-12 : size == 64 ? 0.01 : name == "torus" ? 0.04 : 0.03;
-        EXPECT_LT(rel, tolerance) << tissue << " voxels vs " << expected;
-        // the count also equals the number of voxel centres with a negative signed distance
+        // the count equals the number of voxel centres with a negative signed distance
         std::int64_t by_distance = 0;
         for (int k = 0; k < v.geometry.dims.z(); ++k)  // one slice for disk, rectangle, disk-lesion
           for (int j = 0; j < size; ++j)
             for (int i = 0; i < size; ++i)
               by_distance += shape.signed_distance_mm(v.geometry.index_to_lps(Eigen::Vector3d(i, j, k))) < 0;
         EXPECT_EQ(by_distance, tissue);
+        if (!shape.has_closed_form()) {  // folded: no analytic volume (FoldedPhantom below)
+          EXPECT_THROW((void)shape.volume_mm3(), vx::Error);
+          EXPECT_THROW((void)shape.area_mm2(), vx::Error);
+          continue;
+        }
+        const double expected = shape.volume_mm3() / std::pow(spacing, 3);
+        const double rel = std::abs(double(tissue) - expected) / expected;
+        const bool flat = name == "cube" || name == "block" || name == "block-lesion" || name == "rectangle";
+        const double tolerance = flat ? 1e-12 : size == 64 ? 0.01 : name == "torus" ? 0.04 : 0.03;
+        EXPECT_LT(rel, tolerance) << tissue << " voxels vs " << expected;
       }
 }
 
@@ -95,8 +101,9 @@ TEST(Phantom, CentredWithAirMargin) {
             }
       EXPECT_GE(lo, 2);
       EXPECT_LE(hi, size - 3);
-      // symmetric about the centre (except the lesion, which is off-centre on purpose)
-      if (name != "block-lesion" && name != "disk-lesion") {
+      // symmetric about the centre (except the lesion, which is off-centre on purpose, and the
+      // folded phantom, whose stem is at the bottom and whose sulci differ left and right)
+      if (name != "block-lesion" && name != "disk-lesion" && name != "folded") {
         for (int k = 0; k < nz; ++k)
           for (int j = 0; j < size; ++j)
             for (int i = 0; i < size; ++i)
@@ -231,6 +238,7 @@ TEST(PhantomShape, DistanceGradientHasUnitLength) {
   std::uniform_real_distribution<double> u(-30.0, 30.0);
   for (const auto& name : vx::phantom_names()) {
     const PhantomShape s = shape_of(name);
+    if (!s.has_closed_form()) continue;  // folded: an approximate distance (FoldedPhantom below)
     int checked = 0;
     for (int t = 0; t < 40; ++t) {
       const Eigen::Vector3d p(u(rng), u(rng), u(rng));
@@ -370,6 +378,248 @@ TEST(Phantom, BadSettingsAreRefused) {
       }
     }
   EXPECT_EQ(refused, 6);  // ellipsoid, torus and organ at 4 and 6
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------
+// the folded (brain-like) phantom at its default size, 214 voxels of 1 mm
+
+namespace {
+
+class FoldedPhantom : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    shape_ = new PhantomShape;
+    volume_ = new Volume(make_phantom(settings("folded", 214), shape_));
+  }
+  static void TearDownTestSuite() {
+    delete volume_;
+    delete shape_;
+  }
+  static bool tissue(int i, int j, int k) { return volume_->at(i, j, k) != -1000.0f; }
+  /// The voxel whose centre is nearest to p (LPS mm); the grid has 1 mm voxels.
+  static Eigen::Vector3i voxel_of(const Eigen::Vector3d& p) {
+    const Eigen::Vector3d ijk = p - volume_->geometry.origin_mm;
+    return Eigen::Vector3i(int(std::lround(ijk.x())), int(std::lround(ijk.y())), int(std::lround(ijk.z())));
+  }
+  static bool tissue_at(const Eigen::Vector3d& p) {
+    const Eigen::Vector3i v = voxel_of(p);
+    return tissue(v.x(), v.y(), v.z());
+  }
+  static PhantomShape* shape_;
+  static Volume* volume_;
+};
+PhantomShape* FoldedPhantom::shape_ = nullptr;
+Volume* FoldedPhantom::volume_ = nullptr;
+
+constexpr int kN = 214;
+
+/// Voxel faces between tissue and air (the staircase surface's area, mm^2 at 1 mm).
+std::int64_t boundary_faces(const Volume& v) {
+  const Eigen::Vector3i d = v.geometry.dims;
+  std::int64_t faces = 0;
+  for (int k = 1; k + 1 < d.z(); ++k)
+    for (int j = 1; j + 1 < d.y(); ++j)
+      for (int i = 1; i + 1 < d.x(); ++i) {
+        if (v.at(i, j, k) == -1000.0f) continue;
+        faces += (v.at(i + 1, j, k) == -1000.0f) + (v.at(i - 1, j, k) == -1000.0f) + (v.at(i, j + 1, k) == -1000.0f) +
+                 (v.at(i, j - 1, k) == -1000.0f) + (v.at(i, j, k + 1) == -1000.0f) + (v.at(i, j, k - 1) == -1000.0f);
+      }
+  return faces;
+}
+
+TEST_F(FoldedPhantom, OneBrainSizedPieceOnAStem) {
+  const PhantomShape& s = *shape_;
+  // one 6-connected piece
+  std::vector<char> seen(volume_->hu.size(), 0);
+  std::int64_t first = -1;
+  for (std::size_t x = 0; x < volume_->hu.size() && first < 0; ++x)
+    if (volume_->hu[x] != -1000.0f) first = std::int64_t(x);
+  ASSERT_GE(first, 0);
+  std::vector<std::int64_t> stack{first};
+  seen[std::size_t(first)] = 1;
+  std::int64_t reached = 0;
+  const std::int64_t steps[6] = {1, -1, kN, -kN, std::int64_t(kN) * kN, -std::int64_t(kN) * kN};
+  while (!stack.empty()) {
+    const std::int64_t x = stack.back();
+    stack.pop_back();
+    ++reached;
+    for (std::int64_t st : steps) {
+      const std::size_t y = std::size_t(x + st);  // the air margin keeps every neighbour inside the grid
+      if (volume_->hu[y] != -1000.0f && !seen[y]) {
+        seen[y] = 1;
+        stack.push_back(std::int64_t(y));
+      }
+    }
+  }
+  EXPECT_EQ(reached, s.tissue_voxels);
+  // 140 x 180 x 150 mm overall (voxel centres span one voxel less than the shape)
+  Eigen::Vector3i lo(kN, kN, kN), hi(-1, -1, -1);
+  for (int k = 0; k < kN; ++k)
+    for (int j = 0; j < kN; ++j)
+      for (int i = 0; i < kN; ++i)
+        if (tissue(i, j, k)) {
+          lo = lo.cwiseMin(Eigen::Vector3i(i, j, k));
+          hi = hi.cwiseMax(Eigen::Vector3i(i, j, k));
+        }
+  const Eigen::Vector3i extent = hi - lo + Eigen::Vector3i::Ones();
+  EXPECT_NEAR(extent.x(), 140, 2);
+  EXPECT_NEAR(extent.y(), 180, 2);
+  EXPECT_NEAR(extent.z(), 150, 2);
+  // the stem: 15 to 25 mm across, its bottom face the lowest tissue, standing out below the
+  // body: every slice below the body is a disc of its radius about its axis
+  EXPECT_GE(2 * s.stem_radius_mm, 15.0);
+  EXPECT_LE(2 * s.stem_radius_mm, 25.0);
+  EXPECT_NEAR(volume_->geometry.index_to_lps(lo.cast<double>()).z(), s.stem_center_mm.z(), 1.0);
+  const double body_bottom = s.center_mm.z() - s.half_extent_mm.z();
+  EXPECT_LT(s.stem_center_mm.z(), body_bottom - 10.0);
+  int slices = 0;
+  for (int k = lo.z(); volume_->geometry.index_to_lps(Eigen::Vector3d(0, 0, k)).z() < body_bottom - 1.0; ++k) {
+    std::int64_t count = 0;
+    for (int j = 0; j < kN; ++j)
+      for (int i = 0; i < kN; ++i)
+        if (tissue(i, j, k)) {
+          ++count;
+          const Eigen::Vector3d p = volume_->geometry.index_to_lps(Eigen::Vector3d(i, j, k));
+          EXPECT_LE(std::hypot(p.x() - s.stem_center_mm.x(), p.y() - s.stem_center_mm.y()), s.stem_radius_mm);
+        }
+    const double disc = kPi * s.stem_radius_mm * s.stem_radius_mm;
+    EXPECT_NEAR(double(count), disc, 0.06 * disc) << "slice " << k;
+    ++slices;
+  }
+  std::printf("folded 214: %lld voxels in one piece; extent %d x %d x %d; %d stem slices below the body\n",
+              (long long)reached, extent.x(), extent.y(), extent.z(), slices);
+  EXPECT_GE(slices, 12);
+}
+
+TEST_F(FoldedPhantom, FissureSeparatesTheHemispheresAboveItsFloor) {
+  const PhantomShape& s = *shape_;
+  EXPECT_GE(2 * s.fissure_half_width_mm, 3.0);  // wider than two voxels
+  std::int64_t above = 0, below = 0, left = 0, right = 0;
+  for (int k = 0; k < kN; ++k)
+    for (int j = 0; j < kN; ++j)
+      for (int i = 0; i < kN; ++i) {
+        if (!tissue(i, j, k)) continue;
+        const Eigen::Vector3d p = volume_->geometry.index_to_lps(Eigen::Vector3d(i, j, k));
+        const bool strip = std::abs(p.x()) < s.fissure_half_width_mm;  // the mid-sagittal strip
+        if (p.z() > s.fissure_bottom_z_mm) {
+          above += strip;
+          (p.x() < 0 ? left : right) += !strip;
+        } else {
+          below += strip;
+        }
+      }
+  std::printf("folded 214: mid-sagittal strip %lld voxels above the fissure's floor, %lld below; hemispheres %lld / %lld\n",
+              (long long)above, (long long)below, (long long)left, (long long)right);
+  EXPECT_EQ(above, 0);
+  // joined below: the strip holds tissue from the stem up to the fissure's floor
+  EXPECT_GT(below, 4000);
+  // two hemispheres of about equal size above the floor (their sulci differ)
+  EXPECT_GT(left, 400000);
+  EXPECT_NEAR(double(left) / double(right), 1.0, 0.05);
+  // the floor lies between 40% and 60% of the way up (a corpus callosum's height)
+  const double bottom = s.stem_center_mm.z(), top = s.center_mm.z() + s.half_extent_mm.z();
+  EXPECT_GT((s.fissure_bottom_z_mm - bottom) / (top - bottom), 0.4);
+  EXPECT_LT((s.fissure_bottom_z_mm - bottom) / (top - bottom), 0.6);
+}
+
+TEST_F(FoldedPhantom, FoldsAreSulci5To15MmDeep) {
+  const PhantomShape& s = *shape_;
+  const Eigen::Vector3d& a = s.half_extent_mm;
+  // arcs over the top of a hemisphere (the plane x = 35 mm, above the fissure's floor) at a
+  // given depth below the ellipsoid (along its short axis): count the air gaps (sulci) crossed
+  const auto sulci_crossed = [&](double depth_mm, double x) {
+    const double r = 1.0 - depth_mm / a.minCoeff();
+    const double yz = std::sqrt(r * r - (x / a.x()) * (x / a.x()));
+    int gaps = 0;
+    bool in_air = false;
+    for (int t = 0; t <= 4000; ++t) {
+      const double th = kPi * t / 4000.0;
+      const Eigen::Vector3d p(x, -a.y() * yz * std::cos(th), s.center_mm.z() + a.z() * yz * std::sin(th));
+      if (p.z() < s.fissure_bottom_z_mm) continue;
+      const bool air = !tissue_at(p);
+      gaps += air && !in_air;
+      in_air = air;
+    }
+    return gaps;
+  };
+  for (double x : {-35.0, 35.0}) {
+    SCOPED_TRACE(x);
+    std::printf("folded 214: sulci crossed over the top at x = %g mm: %d at 2 mm deep, %d at 5 mm, %d at 15 mm\n", x,
+                sulci_crossed(2.0, x), sulci_crossed(5.0, x), sulci_crossed(15.0, x));
+    EXPECT_GE(sulci_crossed(2.0, x), 8);   // many sulci just under the crowns of the gyri
+    EXPECT_GE(sulci_crossed(5.0, x), 6);   // at least 5 mm deep
+    EXPECT_EQ(sulci_crossed(15.0, x), 0);  // none 15 mm deep
+  }
+  // folding: the surface is more than twice the smooth organ's of the same size
+  PhantomShape organ;
+  const Volume o = make_phantom(settings("organ", kN), &organ);
+  const double ratio = double(boundary_faces(*volume_)) / double(boundary_faces(o));
+  std::printf("folded 214: %lld boundary voxel faces, %.2f x the organ's; %lld tissue voxels, %.3f of the ellipsoid\n",
+              (long long)boundary_faces(*volume_), ratio, (long long)s.tissue_voxels,
+              double(s.tissue_voxels) / (4.0 / 3.0 * kPi * a.prod()));
+  EXPECT_GT(ratio, 2.0);
+  EXPECT_LT(ratio, 4.0);
+  // the cortex keeps most of the volume: 75-90% of the enclosing ellipsoid's
+  const double ellipsoid = 4.0 / 3.0 * kPi * a.prod();
+  EXPECT_GT(double(s.tissue_voxels), 0.75 * ellipsoid);
+  EXPECT_LT(double(s.tissue_voxels), 0.90 * ellipsoid);
+}
+
+// The approximate signed distance: its sign is the voxels' (TissueVoxelsMatchAnalyticVolume),
+// it is 1-Lipschitz, and so |d| is at most the true distance: no voxel centre of the other side
+// lies within |d| of a point.
+TEST_F(FoldedPhantom, SignedDistanceNeverOverstatesTheDistance) {
+  const PhantomShape& s = *shape_;
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> ux(-75, 75), uy(-95, 95), uz(-80, 80);
+  int near = 0, inside = 0;
+  double largest_gradient = 0;
+  for (int t = 0; t < 3000; ++t) {
+    const Eigen::Vector3d p(ux(rng), uy(rng), uz(rng));
+    const double d = s.signed_distance_mm(p);
+    if (std::abs(d) > 4.0) continue;
+    ++near;
+    inside += d < 0;
+    Eigen::Vector3d g;
+    for (int a = 0; a < 3; ++a) {
+      Eigen::Vector3d dp = Eigen::Vector3d::Zero();
+      dp[a] = 1e-4;
+      g[a] = (s.signed_distance_mm(p + dp) - s.signed_distance_mm(p - dp)) / 2e-4;
+    }
+    largest_gradient = std::max(largest_gradient, g.norm());
+    const Eigen::Vector3i c = voxel_of(p);
+    const int reach = int(std::ceil(std::abs(d))) + 1;
+    for (int k = c.z() - reach; k <= c.z() + reach; ++k)
+      for (int j = c.y() - reach; j <= c.y() + reach; ++j)
+        for (int i = c.x() - reach; i <= c.x() + reach; ++i) {
+          const Eigen::Vector3d q = volume_->geometry.index_to_lps(Eigen::Vector3d(i, j, k));
+          if ((q - p).norm() < std::abs(d)) {
+            ASSERT_EQ(tissue(i, j, k), d < 0) << p.transpose() << " d " << d;
+          }
+        }
+  }
+  std::printf("folded 214: %d points within 4 mm of the surface (%d inside), largest gradient %.6f\n", near, inside,
+              largest_gradient);
+  EXPECT_GT(near, 500);
+  EXPECT_GT(inside, 150);
+  EXPECT_LT(largest_gradient, 1.0 + 1e-6);
+  EXPECT_GT(largest_gradient, 0.99);
+}
+
+TEST(Phantom, FoldedIsDeterministicAndScalesWithTheGrid) {
+  PhantomShape a, b;
+  EXPECT_EQ(make_phantom(settings("folded", 64), &a).hu, make_phantom(settings("folded", 64), &b).hu);
+  PhantomShape half;
+  (void)make_phantom(settings("folded", 107, 2.0), &half);  // the same 214 mm edge
+  PhantomShape full;
+  (void)make_phantom(settings("folded", 214, 1.0), &full);
+  EXPECT_LT((half.half_extent_mm - full.half_extent_mm).norm(), 1e-9);
+  EXPECT_DOUBLE_EQ(half.stem_radius_mm, full.stem_radius_mm);
+  EXPECT_LT((full.half_extent_mm - Eigen::Vector3d(70, 90, 68)).norm(), 1e-9);
+  EXPECT_DOUBLE_EQ(full.fold_depth_mm, 10.0);
+  EXPECT_DOUBLE_EQ(a.fold_depth_mm, 10.0 * 64 / 214);
 }
 
 }  // namespace
