@@ -1,5 +1,6 @@
 #include "sim/projective_solver.h"
 
+#include <algorithm>
 #include <cmath>
 #include <numeric>
 #include <string>
@@ -69,17 +70,17 @@ void ProjectiveSolver::check_held() const {
                   "(e.g. nodes_on_face) before solving");
 }
 
-/// Assembles M/dt^2 + sum_e (K_e + kappa_e (diag(w) - w w^T / W)), split into free-free (factored)
-/// and free-fixed, with kappa_e = k_v,e (+ c_e / dt): the volume and damping terms.
-void ProjectiveSolver::assemble_and_factor() {
-  const PhysicsModel& p = *physics_;
+void assemble_projective_matrix(const PhysicsModel& p, const std::vector<int>& free_index, const std::vector<int>& fixed_index,
+                                const ProjectiveSetup& setup, Eigen::SparseMatrix<double>& a_free,
+                                Eigen::SparseMatrix<double>* a_free_fixed) {
   const Model& m = *p.model;
-  const int ne = p.num_elements(), nf = num_free(), nc = int(fixed_nodes_.size());
-  const double dt = setup_.time_step_s;
-  centring_weight_.resize(std::size_t(ne));
-  for (int e = 0; e < ne; ++e)
-    centring_weight_[std::size_t(e)] = (p.has_volume_term() ? p.element_volume_stiffness[std::size_t(e)] : 0.0) +
-                                       (setup_.damping ? p.element_damping[std::size_t(e)] / dt : 0.0);
+  const int ne = p.num_elements();
+  int nf = 0, nc = 0;
+  for (std::size_t i = 0; i < free_index.size(); ++i) {
+    nf = std::max(nf, free_index[i] + 1);
+    nc = std::max(nc, fixed_index[i] + 1);
+  }
+  const double dt = setup.time_step_s;
   std::vector<Eigen::Triplet<double>> tff, tfc;
   std::size_t guess = 0;
   for (int e = 0; e < ne; ++e) guess += std::size_t(m.num_vertices(e)) * std::size_t(m.num_vertices(e));
@@ -87,32 +88,49 @@ void ProjectiveSolver::assemble_and_factor() {
   Eigen::MatrixXd ke;
   for (int e = 0; e < ne; ++e) {
     const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
-    const double kap = centring_weight_[std::size_t(e)];
+    const double kap = projective_centring_weight(p, e, setup);
     const double* w = p.entry_weight.data() + b;
     double wsum = 0;
     for (int i = 0; i < n; ++i) wsum += w[i];
     element_elastic_matrix(p, e, ke);
     for (int i = 0; i < n; ++i) {
-      const int fi = free_index_[std::size_t(m.element_vertices[b + i])];
+      const int fi = free_index[std::size_t(m.element_vertices[b + i])];
       if (fi < 0) continue;
       for (int j = 0; j < n; ++j) {
         const int nj = m.element_vertices[b + j];
         const double v = ke(i, j) + kap * ((i == j ? w[i] : 0.0) - w[i] * w[j] / wsum);
-        if (free_index_[std::size_t(nj)] >= 0)
-          tff.emplace_back(fi, free_index_[std::size_t(nj)], v);
-        else
-          tfc.emplace_back(fi, fixed_index_[std::size_t(nj)], v);
+        if (free_index[std::size_t(nj)] >= 0)
+          tff.emplace_back(fi, free_index[std::size_t(nj)], v);
+        else if (a_free_fixed)
+          tfc.emplace_back(fi, fixed_index[std::size_t(nj)], v);
       }
     }
   }
-  if (setup_.inertia)
-    for (int f = 0; f < nf; ++f) tff.emplace_back(f, f, p.node_mass[std::size_t(free_nodes_[std::size_t(f)])] / (dt * dt));
-  SparseFactor::Matrix a(nf, nf);
-  a.setFromTriplets(tff.begin(), tff.end());
-  tff.clear();
-  tff.shrink_to_fit();
-  a_free_fixed_.resize(nf, nc);
-  a_free_fixed_.setFromTriplets(tfc.begin(), tfc.end());
+  if (setup.inertia)
+    for (std::size_t i = 0; i < free_index.size(); ++i)
+      if (const int f = free_index[i]; f >= 0) tff.emplace_back(f, f, p.node_mass[i] / (dt * dt));
+  a_free.resize(nf, nf);
+  a_free.setFromTriplets(tff.begin(), tff.end());
+  if (a_free_fixed) {
+    a_free_fixed->resize(nf, nc);
+    a_free_fixed->setFromTriplets(tfc.begin(), tfc.end());
+  }
+}
+
+double projective_centring_weight(const PhysicsModel& p, int e, const ProjectiveSetup& setup) {
+  return (p.has_volume_term() ? p.element_volume_stiffness[std::size_t(e)] : 0.0) +
+         (setup.damping ? p.element_damping[std::size_t(e)] / setup.time_step_s : 0.0);
+}
+
+/// Assembles M/dt^2 + sum_e (K_e + kappa_e (diag(w) - w w^T / W)), split into free-free (factored)
+/// and free-fixed, with kappa_e = k_v,e (+ c_e / dt): the volume and damping terms.
+void ProjectiveSolver::assemble_and_factor() {
+  const PhysicsModel& p = *physics_;
+  const int ne = p.num_elements(), nf = num_free();
+  centring_weight_.resize(std::size_t(ne));
+  for (int e = 0; e < ne; ++e) centring_weight_[std::size_t(e)] = projective_centring_weight(p, e, setup_);
+  SparseFactor::Matrix a;
+  assemble_projective_matrix(p, free_index_, fixed_index_, setup_, a, &a_free_fixed_);
   if (!factor_.compute(a))
     throw Error("implicit integrator: the system matrix could not be factored (" + std::to_string(nf) +
                 " free nodes); is a part of the model held by nothing?");

@@ -65,6 +65,16 @@ struct ProjectiveIterations {
   int threads{0};              ///< 0: OpenMP default
 };
 
+/// The global matrix of `setup` over the free nodes (scalar: the same for x, y and z), as the
+/// solver factors it: A = [M/dt^2] + sum_e (K_e + kappa_e (diag(w) - w w^T / W)) with
+/// kappa_e = projective_centring_weight(); free_index / fixed_index: nodes -> free (fixed)
+/// index or -1. `a_free_fixed` (may be null): the free x fixed coupling. Allocates.
+void assemble_projective_matrix(const PhysicsModel& physics, const std::vector<int>& free_index,
+                                const std::vector<int>& fixed_index, const ProjectiveSetup& setup,
+                                Eigen::SparseMatrix<double>& a_free, Eigen::SparseMatrix<double>* a_free_fixed);
+/// kappa_e of element `e`: k_v,e (the volume term) + c_e / dt (the damping term, with setup.damping), N/mm.
+[[nodiscard]] double projective_centring_weight(const PhysicsModel& physics, int e, const ProjectiveSetup& setup);
+
 class ProjectiveSolver {
  public:
   /// Precomputation: numbers the free nodes (node_fixed[i] = 1: kinematic), assembles the
