@@ -82,6 +82,9 @@ struct PhysicsReport {
   std::atomic<bool> started{false};
   double startup_s{0.0};
   RateSample at_startup{};
+  /// The end of the run: the first tick after a quit; valid once `ended` (release/acquire).
+  std::atomic<bool> ended{false};
+  RateSample at_end{};
   std::atomic<bool> failed{false};
   std::string failure;                            ///< written once before `failed` is set
 

@@ -14,6 +14,15 @@ namespace vx::probe {
 
 void PhysicsLoop::tick() {
   const auto now = SteadyClock::now();
+  // after a quit: no more steps; the run's interval ends here (the step running at the quit
+  // included), not when the other threads have wound down
+  if (s_.controls.quit.load()) {
+    if (!s_.physics.ended.load(std::memory_order_relaxed)) {
+      s_.physics.at_end = s_.physics.sample(s_.start, now);
+      s_.physics.ended.store(true, std::memory_order_release);
+    }
+    return;
+  }
   // local shaping: the device thread is the one with a deadline; the physics' updates yield to
   // it when the CPU is short (Linux: per thread; the display yields more)
   if (s_.local && !started_) (void)setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 2);
@@ -110,7 +119,7 @@ int PhysicsLoop::local_update(int steps, SteadyClock::time_point start) {
     const double per_step = seconds(SteadyClock::now() - start) / done;
     step_cost_s_ = step_cost_s_ > 0 ? 0.7 * step_cost_s_ + 0.3 * per_step : per_step;
   }
-  if (!sim.failed()) {
+  if (done > 0 && !sim.failed()) {
     sim.publish_local_contact();
     s_.physics.updates.fetch_add(1, std::memory_order_relaxed);
   }

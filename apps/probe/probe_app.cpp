@@ -98,7 +98,7 @@ class App {
   bool local_{false};
   // after the run (finish)
   std::int64_t device_missed_{0};
-  RateSample end_{};  ///< the physics when it stopped
+  RateSample end_{};  ///< the physics at the quit (or when it stopped)
 };
 
 // ---------------------------------------------------------------- set-up
@@ -299,7 +299,8 @@ std::string App::run_loops(const IoLines& lines) {
   // stop: device first (no more writes), then physics (its last step ends the run's interval)
   device.stop();
   physics.stop();
-  end_ = shared_->physics.sample(shared_->start, SteadyClock::now());
+  const PhysicsReport& r = shared_->physics;
+  end_ = r.ended.load(std::memory_order_acquire) ? r.at_end : r.sample(shared_->start, SteadyClock::now());
   std::signal(SIGINT, old_int);
   std::signal(SIGTERM, old_term);
   device_missed_ = device.missed();
