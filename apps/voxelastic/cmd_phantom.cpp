@@ -48,8 +48,8 @@ void run_phantom(const PhantomOptions& o) {
   }
   const double voxel_cm3 = double(shape.tissue_voxels) * g.voxel_volume_mm3() / 1000.0;
   if (!shape.has_closed_form()) {  // folded: no analytic volume to compare with
-    fmt::print("phantom {}: {}x{}x{} voxels of {:g} mm, {} tissue voxels = {:.4g} cm^3, stem r {:.3g} mm at ({:.4g}, {:.4g}, "
-               "{:.4g}) mm (its bottom){} -> {}\n",
+    fmt::print("phantom {}: {}x{}x{} voxels of {:g} mm, {} tissue voxels = {:.4g} cm^3, stem r {:.3g} mm at "
+               "({:.4g}, {:.4g}, {:.4g}) mm (its bottom){} -> {}\n",
                shape.name, g.dims.x(), g.dims.y(), g.dims.z(), g.spacing_mm.x(), shape.tissue_voxels, voxel_cm3,
                shape.stem_radius_mm, shape.stem_center_mm.x(), shape.stem_center_mm.y(), shape.stem_center_mm.z(),
                o.settings.noise_hu > 0 ? fmt::format(", noise {:g} HU (seed {})", o.settings.noise_hu, o.settings.seed)

@@ -92,7 +92,8 @@ void ScaleBenchSettings::validate() const {
     if (m.lattice_origin != "best" && m.lattice_origin != "crop")
       throw Error("bench --scale: unknown lattice origin '" + m.lattice_origin + "' (best or crop)");
     if (m.support != "bottom 3 mm" && m.support != "stem" && m.support != "lower third")
-      throw Error("bench --scale: " + m.name + ": unknown support '" + m.support + "' (bottom 3 mm, stem or lower third)");
+      throw Error("bench --scale: " + m.name + ": unknown support '" + m.support +
+                  "' (bottom 3 mm, stem or lower third)");
   }
   for (int t : threads)
     if (t < 1) throw Error("bench --scale: threads must be >= 1");
@@ -127,14 +128,16 @@ PreparedScene prepare_scale_model(const ScaleModelSpec& m, const ScaleBenchSetti
   const PhantomShape shape = phantom_shape(ps);
   if (m.support == "stem") {
     if (!(shape.stem_radius_mm > 0))
-      throw Error("bench --scale: " + m.name + ": support 'stem' needs a phantom with a stem (folded), not " + m.phantom);
+      throw Error("bench --scale: " + m.name + ": support 'stem' needs a phantom with a stem (folded), not " +
+                  m.phantom);
     // the stem's bottom 3 mm: a box round its bottom face, half a voxel wider than the stem and
     // half a voxel beyond 3 mm (the lowest nodes may lie up to half a voxel below the face)
     const Eigen::Vector3d c = shape.stem_center_mm, r(shape.stem_radius_mm + 0.5, shape.stem_radius_mm + 0.5, 0.5);
     const Eigen::Vector3d lo = c - r, hi = c + Eigen::Vector3d(r.x(), r.y(), 3.5);
     j["fixed"] = json::array({{{"box_mm", {{"min", {lo.x(), lo.y(), lo.z()}}, {"max", {hi.x(), hi.y(), hi.z()}}}}}});
   } else if (m.support == "lower third") {
-    const double bottom = shape.stem_radius_mm > 0 ? shape.stem_center_mm.z() : shape.center_mm.z() - shape.half_extent_mm.z();
+    const double bottom =
+        shape.stem_radius_mm > 0 ? shape.stem_center_mm.z() : shape.center_mm.z() - shape.half_extent_mm.z();
     const double top = shape.center_mm.z() + shape.half_extent_mm.z();
     j["fixed"] = json::array({{{"face", "z_min"}, {"within_mm", (top - bottom) / 3.0}}});
   } else {
@@ -148,7 +151,8 @@ PreparedScene prepare_scale_model(const ScaleModelSpec& m, const ScaleBenchSetti
   return prepare_scene(scene, opt);
 }
 
-std::vector<PathKey> scale_palpation_path(const PreparedScene& p, const ScaleModelSpec& spec, const ScaleBenchSettings& s) {
+std::vector<PathKey> scale_palpation_path(const PreparedScene& p, const ScaleModelSpec& spec,
+                                          const ScaleBenchSettings& s) {
   const Model& m = *p.model;
   Eigen::Vector3d c = 0.5 * (p.bounds_min_mm + p.bounds_max_mm);
   c.head<2>() += spec.press_offset_mm;

@@ -6,8 +6,9 @@
 /// phantom, an ellipsoid of 140 x 180 x 150 mm, and the folded, brain-like phantom of the same
 /// size) is palpated the same way: a ball pressed 5 mm into the top in 1 s, then slid 10 mm
 /// sideways in 1 s (E 10 kPa, damping ratio 0.2; held by its support: the bottom 3 mm, or the
-/// folded phantom's stem or lower third). Per model and configuration: elements, nodes, the step, the wall time per step,
-/// steps per simulated second, the real-time factor (simulated / wall time) on 1 and 2 threads,
+/// folded phantom's stem or lower third). Per model and configuration: elements, nodes, the
+/// step, the wall time per step, steps per simulated second, the real-time factor (simulated /
+/// wall time) on 1 and 2 threads,
 /// and the RMS force error against the model's reference configuration (symplectic Euler at its
 /// automatic step, physical masses) as a fraction of the reference's peak force.
 ///

@@ -421,8 +421,12 @@ void run_folded(VerifyContext& ctx) {
   SimState s = make_state(p);
   s.fix_nodes(stem);
   s.gravity_mm_s2 = {0, 0, -kStandardGravityMmS2};
+  // (the elastic forces of every element add up to zero for any rotation fit, so the support's
+  // force differs from the weight only by the free nodes' imbalance, which falls long before the
+  // positions stop moving: a loose stop suffices)
   StaticSolveSettings st = static_settings();
-  st.tolerance_mm = 1e-7;
+  st.tolerance_mm = 1e-4;
+  st.max_iterations = 300;
   const StepReport rep = solve_static(s, st);
   if (s.failed()) throw Error("folded: the static solve failed: " + s.message);
   // the support's force on the held nodes balances their elastic force and their own weight
@@ -432,9 +436,10 @@ void run_folded(VerifyContext& ctx) {
   const Eigen::Vector3d support = -(elastic_force_on(s, stem, kThreads) + held_kg * g_n);
   const double weight = 1000.0 * kKgM3ToKgPerMm3 * model->total_volume_mm3() * kStandardGravityMmS2 * 1e-3;
   double sag = 0;
-  for (int i = 0; i < model->num_nodes(); ++i) sag = std::max(sag, -(s.positions.col(i) - model->rest_positions.col(i)).z());
-  ctx.log(fmt::format("folded phantom 107^3 at 1 mm, E = {} kPa: {} nodes, {} held at the stem; weight {:.5g} N; support "
-                      "({:.5g}, {:.5g}, {:.5g}) N; largest sag {:.3g} mm; {} iterations",
+  for (int i = 0; i < model->num_nodes(); ++i)
+    sag = std::max(sag, model->rest_positions(2, i) - s.positions(2, i));
+  ctx.log(fmt::format("folded phantom 107^3 at 1 mm, E = {} kPa: {} nodes, {} held at the stem; weight {:.5g} N; "
+                      "support ({:.5g}, {:.5g}, {:.5g}) N; largest sag {:.3g} mm; {} iterations",
                       e_kpa, model->num_nodes(), stem.size(), weight, support.x(), support.y(), support.z(), sag,
                       rep.iterations));
   ctx.check("support_over_weight", support.z() / weight, 1.0, 1e-3, "",

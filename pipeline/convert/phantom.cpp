@@ -232,7 +232,8 @@ double PhantomShape::signed_distance_mm(const Eigen::Vector3d& p_mm) const {
 }
 
 double PhantomShape::volume_mm3() const {
-  if (!has_closed_form()) throw Error("PhantomShape: the " + name + " phantom has no closed-form volume; count its voxels");
+  if (!has_closed_form())
+    throw Error("PhantomShape: the " + name + " phantom has no closed-form volume; count its voxels");
   const Eigen::Vector3d& e = half_extent_mm;
   if (is_2d()) return area_mm2() * 2.0 * e.z();  // the slab: the shape's area times the slice thickness
   if (name == "sphere" || name == "ellipsoid" || name == "organ") return 4.0 / 3.0 * kPi * e.prod();

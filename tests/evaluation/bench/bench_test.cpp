@@ -515,7 +515,8 @@ TEST(ScaleBench, FoldedPressIsOnTissueOffTheFissure) {
   for (const auto& m : s.models)
     if (m.phantom == "folded") supports.push_back(m.support);
   EXPECT_EQ(supports, (std::vector<std::string>{"stem", "lower third"}));
-  const auto folded = std::find_if(s.models.begin(), s.models.end(), [](const auto& m) { return m.phantom == "folded"; });
+  const auto folded =
+      std::find_if(s.models.begin(), s.models.end(), [](const auto& m) { return m.phantom == "folded"; });
   ScaleModelSpec m = *folded;
   m.size = 107;  // half the size: the offset scaled with it
   m.press_offset_mm *= 0.5;

@@ -510,7 +510,8 @@ TEST_F(FoldedPhantom, FissureSeparatesTheHemispheresAboveItsFloor) {
           below += strip;
         }
       }
-  std::printf("folded 214: mid-sagittal strip %lld voxels above the fissure's floor, %lld below; hemispheres %lld / %lld\n",
+  std::printf("folded 214: mid-sagittal strip %lld voxels above the fissure's floor, %lld below; hemispheres %lld / "
+              "%lld\n",
               (long long)above, (long long)below, (long long)left, (long long)right);
   EXPECT_EQ(above, 0);
   // joined below: the strip holds tissue from the stem up to the fissure's floor
