@@ -153,13 +153,12 @@ bool GuiLoop::show_frame(ProbeView& view, SteadyClock::time_point now) {
   }
   if (s_.options.frames > 0 && view.frames() >= s_.options.frames)
     s_.controls.request_quit(fmt::format("{} frames (--frames)", s_.options.frames));
-  // sleep to the next frame deadline (a late frame starts the next period now, never a burst),
-  // and at least kYield times as long as this pass took (up to a second): a display that is slow
-  // to draw (a large surface in a software renderer) takes about 1 / (1 + kYield) of a core from
-  // the physics, and still shows a frame a second or so
+  // sleep to the next frame deadline (a late frame starts the next period now, never a burst).
+  // Sleeping longer after a slow pass (twice the pass) was tried and dropped: a pass is slow
+  // because the display thread is at nice 10 behind the physics, and the frame rate fell fivefold
+  // (15 to 3 frames/s on the demo) without the physics gaining
   const auto after = SteadyClock::now();
-  const auto yield = std::min<SteadyClock::duration>((after - now) * kYield, std::chrono::seconds(1));
-  next_frame_ = std::max(next_frame_ + frame_period_, after + yield);
+  next_frame_ = std::max(next_frame_ + frame_period_, after);
   std::this_thread::sleep_until(next_frame_);
   return true;
 }

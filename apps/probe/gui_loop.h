@@ -23,8 +23,6 @@ class GuiLoop {
  public:
   /// The window over which the HUD and the status lines measure the physics, s.
   static constexpr double kRateWindow_s = 1.0;
-  /// After each pass the GUI sleeps at least this many times as long as the pass took.
-  static constexpr int kYield = 2;
 
   GuiLoop(AppShared& shared, ProbeView* view, KeyboardStick& keyboard);
   /// Runs until a quit; returns the error that ended it ("" for none). `interrupted` is polled

@@ -1,23 +1,16 @@
 #pragma once
 /// @file probe_app.h
-/// The palpation app: three rates, never waiting on each other.
-///
-/// - physics thread (fixed tick, default 1 kHz): advances the simulation to the wall clock in
-///   whole steps with a step budget per tick; when it cannot keep up it drops the lag (paper
-///   shaping: the app runs in slow motion, reported on the HUD and at the end), never bursting;
-/// - device thread (fixed tick, default 1 kHz): reads the joysticks (or plays the script into
-///   the virtual joysticks), computes the device force and writes it to the force outputs.
-///   Two shapings (docs/probe.md, "Force shaping"):
-///   - paper: the script runs in simulated time; the stick commands go to the simulation's live
-///     probes; the force is the paper's half sine at the device's clock;
-///   - local: the device thread owns the tool: it moves the device (hand) position with the
-///     stick in wall time, evaluates the local contact model the physics last published
-///     (sim/local_contact.h: virtual coupling, damping, re-anchoring, energy guard) at every
-///     tick, and hands the tool (proxy) position to the physics, which moves the simulated tool
-///     there over its next update and publishes a new model. The physics may run at 30-60 Hz
-///     (--physics-rate) or slower than real time: the tool and the force stay real time;
-/// - GUI thread (display rate): window events, the deformed surface (frames requested from the
-///   physics and taken when ready, never waited for), HUD, force plot, screenshots.
+/// The palpation app: its options and its run. Three rates, never waiting on each other, each a
+/// class and file of its own:
+/// - physics_loop.h (fixed tick, default 1 kHz): the simulation to the wall clock, in slow motion
+///   when it cannot keep up; local shaping: one update per tick and a local contact model;
+/// - device_loop.h (fixed tick, default 1 kHz): the sticks (or the script), the device force
+///   (paper: half sines; local: the local contact model at every tick, the tool in wall time),
+///   the force outputs;
+/// - gui_loop.h (display rate): window events, the deformed surface, HUD, plot, screenshots, and
+///   the figures it reports (real_time_meter.h).
+/// What they hand each other is written down in app_shared.h; probe_app.cpp opens everything,
+/// starts the threads and reports at the end.
 
 #include <filesystem>
 #include <optional>
