@@ -439,8 +439,9 @@ void run_folded(VerifyContext& ctx) {
   for (int i = 0; i < model->num_nodes(); ++i)
     sag = std::max(sag, model->rest_positions(2, i) - s.positions(2, i));
   ctx.log(fmt::format("folded phantom 107^3 at 1 mm, E = {} kPa: {} nodes, {} held at the stem; weight {:.5g} N; "
-                      "support ({:.5g}, {:.5g}, {:.5g}) N; largest sag {:.3g} mm; {} iterations",
-                      e_kpa, model->num_nodes(), stem.size(), weight, support.x(), support.y(), support.z(), sag,
+                      "support ({:.5g}, {:.5g}, {:.5g}) N ({:+.2e} of the weight); largest sag {:.3g} mm; {} iterations",
+                      e_kpa, model->num_nodes(), stem.size(), weight, support.x(), support.y(), support.z(),
+                      support.z() / weight - 1.0, sag,
                       rep.iterations));
   ctx.check("support_over_weight", support.z() / weight, 1.0, 1e-3, "",
             "upward force of the stem's support / (density x volume x g) at static equilibrium");

@@ -171,18 +171,16 @@ double folded_distance(const PhantomShape& s, const Eigen::Vector3d& p_mm) {
   const double body = a_min * (r - 1.0);
   // sulci: a slab of half width fold_half_width_mm about the gyroid's sheet, traced on the
   // ellipsoid (the point pushed along its ray from the centre onto the surface, so the sulcal
-  // walls run straight in and no gyrus hangs over another), fold_depth_mm deep
-  double folded = body;
-  if (body > -s.fold_depth_mm - s.fold_half_width_mm) {
-    const double omega = 2.0 * kPi / s.fold_period_mm;
-    const Eigen::Vector3d q = p / std::max(r, 1e-9);
-    const double wall = std::abs(gyroid(omega * q)) * r / (omega * kFoldGradient) - s.fold_half_width_mm;
-    // no sulcus within fold_depth_mm / 2 of the fissure's wall: an unfolded medial rim holds
-    // every gyrus next to the fissure to the body (sulci crossing it cut off slivers)
-    const double rim = s.fissure_half_width_mm + 0.5 * s.fold_depth_mm - std::abs(p.x());
-    const double sulcus = std::max({wall, -body - s.fold_depth_mm, rim});
-    folded = std::max(body, -sulcus);
-  }
+  // walls run straight in and no gyrus hangs over another), fold_depth_mm deep. Evaluated
+  // everywhere: deep inside, the nearest surface may be a sulcus's floor
+  const double omega = 2.0 * kPi / s.fold_period_mm;
+  const Eigen::Vector3d q = p / std::max(r, 1e-9);
+  const double wall = std::abs(gyroid(omega * q)) * r / (omega * kFoldGradient) - s.fold_half_width_mm;
+  // no sulcus within fold_depth_mm / 2 of the fissure's wall: an unfolded medial rim holds
+  // every gyrus next to the fissure to the body (sulci crossing it cut off slivers)
+  const double rim = s.fissure_half_width_mm + 0.5 * s.fold_depth_mm - std::abs(p.x());
+  const double sulcus = std::max({wall, -body - s.fold_depth_mm, rim});
+  const double folded = std::max(body, -sulcus);
   // the longitudinal fissure: a slab |x| < fissure half width above fissure_bottom_z_mm
   const double fissure = std::max(std::abs(p_mm.x() - s.center_mm.x()) - s.fissure_half_width_mm,
                                   s.fissure_bottom_z_mm - p_mm.z());
