@@ -2,7 +2,7 @@
 /// @file region_stiffening.h
 /// How much the regional solves of the implicit integrator (ProjectiveSolver::set_region,
 /// integrators.h region_radius_mm) over-stiffen a tool's press on a given support, estimated
-/// before the run (docs/model.md section 7.3).
+/// before the run (docs/model.md section 7, "Regional solves on a weak support").
 ///
 /// Why a regional solve stiffens: the global solve is exact on the region, but the nodes
 /// outside it keep their positions (they sleep), so their velocity is zero and the next step's
