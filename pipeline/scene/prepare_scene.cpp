@@ -315,7 +315,7 @@ void check_region_support(const std::vector<std::uint8_t>& fixed, PreparedScene&
   }
   if (!out.region_stiffening) return;
   const RegionStiffeningEstimate& e = *out.region_stiffening;
-  out.log.push_back(fmt::format("regional solves within {:g} mm: under probe \"{}\" the press is estimated {:.0f} % too hard "
+  out.log.push_back(fmt::format("regional solves within {:g} mm: under probe \"{}\" the press is estimated {:.1f} % too hard "
                                 "(compliance {:.4g} mm/N of the whole model against {:.4g} with the far field held; "
                                 "{} of {} free nodes awake; {:.2f} s)",
                                 s.integrator.region_radius_mm, out.region_stiffening_probe, 100.0 * e.error_rel(),
@@ -324,7 +324,7 @@ void check_region_support(const std::vector<std::uint8_t>& fixed, PreparedScene&
   if (e.error_rel() > kRegionStiffeningWarnRel)
     out.warnings.push_back(fmt::format(
         "the regional solve (region_radius_mm {:g}) holds the far field still; on this support it presses about {:.2g}x too "
-        "hard under probe \"{}\" (estimated: {:.0f} % force error; the organ is held weakly and gives as a whole); for "
+        "hard under probe \"{}\" (estimated: {:.0f} % force error: the object is held weakly and gives as a whole); for "
         "accuracy use \"integrator\": {{\"type\": \"implicit\", \"dt_s\": 0.01, \"iterations\": 5}} (no region; "
         "slower), or hold the object over a larger part (docs/model.md section 7)",
         s.integrator.region_radius_mm, e.force_ratio, out.region_stiffening_probe, 100.0 * e.error_rel()));
