@@ -63,7 +63,7 @@ struct RegionStiffeningEstimate {
 };
 
 /// The estimate for `physics` held at `node_fixed` (1: fixed; a part of the model that no fixed
-/// node holds makes K singular: then no estimate). Allocates; about 0.5 s on 60,000 nodes.
+/// node holds makes K singular: then no estimate). Allocates; about 1 s of one core on 57,000 nodes.
 [[nodiscard]] RegionStiffeningEstimate estimate_region_stiffening(const PhysicsModel& physics,
                                                                   const std::vector<std::uint8_t>& node_fixed,
                                                                   const RegionStiffeningSettings& settings);
