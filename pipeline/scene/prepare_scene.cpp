@@ -11,6 +11,7 @@
 #include "base/error.h"
 #include "io/model_io.h"
 #include "scene/scene.h"
+#include "sim/region_stiffening.h"
 #include "sim/time_step.h"
 
 namespace vx {
@@ -289,6 +290,46 @@ void place_walls_and_probes(const Scene& scene, const std::vector<std::uint8_t>&
   }
 }
 
+/// Implicit with regional solves: estimates per probe how much the region over-stiffens its press
+/// on this support (region_stiffening.h) and warns, with the configuration that would be right,
+/// when the worst is above kRegionStiffeningWarnRel.
+void check_region_support(const std::vector<std::uint8_t>& fixed, PreparedScene& out) {
+  const SimulationSettings& s = out.settings;
+  if (s.integrator.kind != IntegratorKind::implicit || !(s.integrator.region_radius_mm > 0)) return;
+  for (const ProbeSettings& p : s.probes) {
+    if (p.geometry.shape == ProbeShape::plane) continue;
+    RegionStiffeningSettings rs;
+    rs.tool_mm = p.initial_position();
+    rs.tool_radius_mm = p.geometry.radius_mm;
+    rs.region_radius_mm = s.integrator.region_radius_mm;
+    rs.time_step_s = s.integrator.time_step_s;
+    const RegionStiffeningEstimate e = estimate_region_stiffening(*out.physics, fixed, rs);
+    if (!e.valid) {
+      out.log.push_back(fmt::format("regional solves: no estimate of their error under probe \"{}\" ({})", p.name, e.reason));
+      continue;
+    }
+    if (!out.region_stiffening || e.force_ratio > out.region_stiffening->force_ratio) {
+      out.region_stiffening = e;
+      out.region_stiffening_probe = p.name;
+    }
+  }
+  if (!out.region_stiffening) return;
+  const RegionStiffeningEstimate& e = *out.region_stiffening;
+  out.log.push_back(fmt::format("regional solves within {:g} mm: under probe \"{}\" the press is estimated {:.1f} % too hard "
+                                "(compliance {:.4g} mm/N of the whole model against {:.4g} with the far field held; "
+                                "{} of {} free nodes awake; {:.2f} s)",
+                                s.integrator.region_radius_mm, out.region_stiffening_probe, 100.0 * e.error_rel(),
+                                e.compliance_full_mm_n, e.compliance_region_mm_n, e.region_nodes,
+                                e.region_nodes + e.far_nodes, e.seconds));
+  if (e.error_rel() > kRegionStiffeningWarnRel)
+    out.warnings.push_back(fmt::format(
+        "the regional solve (region_radius_mm {:g}) holds the far field still; on this support it presses about {:.2g}x too "
+        "hard under probe \"{}\" (estimated: {:.0f} % force error: the object is held weakly and gives as a whole); for "
+        "accuracy use \"integrator\": {{\"type\": \"implicit\", \"dt_s\": 0.01, \"iterations\": 5}} (no region; "
+        "slower), or hold the object over a larger part (docs/model.md section 7)",
+        s.integrator.region_radius_mm, e.force_ratio, out.region_stiffening_probe, 100.0 * e.error_rel()));
+}
+
 }  // namespace
 
 PreparedScene prepare_scene(const Scene& scene, const PrepareSceneOptions& options) {
@@ -299,6 +340,7 @@ PreparedScene prepare_scene(const Scene& scene, const PrepareSceneOptions& optio
   choose_integrator(scene, options, errors, out);
   const std::vector<std::uint8_t> fixed = fix_nodes(scene, errors, out);
   place_walls_and_probes(scene, fixed, errors, out);
+  check_region_support(fixed, out);
 
   // the surface, only when someone will show or write it
   const Model& m = *out.model;

@@ -140,6 +140,18 @@ json run_summary_json(const Scene& scene, const fs::path& scene_file, const Prep
                             {"added_mass_kg", p.added_mass_kg}};
     j["configuration"] = conf;
   }
+  if (const auto& e = prepared.region_stiffening) {
+    // the regional solves' estimated over-stiffening on this support (docs/model.md section 7)
+    j["region_stiffening"] = {{"probe", prepared.region_stiffening_probe},
+                              {"estimated_force_ratio", e->force_ratio},
+                              {"estimated_force_error_rel", e->error_rel()},
+                              {"warned", e->error_rel() > kRegionStiffeningWarnRel},
+                              {"compliance_full_mm_n", e->compliance_full_mm_n},
+                              {"compliance_region_mm_n", e->compliance_region_mm_n},
+                              {"region_nodes", e->region_nodes},
+                              {"far_nodes", e->far_nodes},
+                              {"estimate_s", e->seconds}};
+  }
   j["stable"] = stable;
   j["status"] = to_string(sim.state().status);
   j["message"] = sim.state().message;

@@ -29,6 +29,7 @@
 #include "sim/device_force.h"
 #include "sim/integrators.h"
 #include "sim/probe.h"
+#include "sim/region_stiffening.h"
 #include "sim/simulation.h"
 #include "sim/state.h"
 #include "surface/surface.h"
@@ -157,7 +158,14 @@ struct PreparedScene {
   double min_modulus_kpa{0.0}, max_modulus_kpa{0.0};
   std::vector<std::string> warnings;               ///< plausible but risky choices
   std::vector<std::string> log;                    ///< what was built, one line each
+  /// Implicit with regional solves: how much the region over-stiffens the press of the probe
+  /// where it is worst (region_stiffening.h; docs/model.md section 7); empty without a region.
+  std::optional<RegionStiffeningEstimate> region_stiffening;
+  std::string region_stiffening_probe;             ///< that probe's name
 };
+
+/// The estimated force error above which the run warns that its regional solves press too hard.
+inline constexpr double kRegionStiffeningWarnRel = 0.05;
 
 /// Builds the object (phantom, volume, model file or box), the per-element material (HU table,
 /// inclusions), the fixed nodes and the simulation settings. Checks what only the built model

@@ -78,5 +78,41 @@ TEST(RunOutputs, WritesWhatTheSceneAsksForAndSummarisesTheRun) {
   EXPECT_EQ(j["outputs"], json({"forces.csv", "model.pvd", "probes.pvd", "summary.json"}));
   EXPECT_TRUE(j["walls"].is_null());
   EXPECT_TRUE(j["device"].is_null());
+  EXPECT_FALSE(j.contains("region_stiffening"));  // no regional solves, no estimate
+  fs::remove_all(dir);
+}
+
+TEST(RunOutputs, TheSummaryGivesTheRegionalSolvesEstimatedError) {
+  // a 64 x 64 x 128 mm column held at an 8 x 8 mm stem, regional solves within 30 mm of the ball
+  // (docs/model.md section 7; scene_test.cpp checks the warning)
+  const Scene scene = parse_scene(json::parse(R"({
+    "object": {"box_mm": {"min": [0, 0, 0], "max": [64, 64, 128]}, "voxel_mm": 4.0},
+    "material": {"youngs_modulus_kpa": 10, "poisson_ratio": 0, "density_kg_m3": 1000, "damping": 0.2},
+    "fixed": [{"box_mm": {"min": [27.9, 27.9, -0.1], "max": [36.1, 36.1, 0.1]}}],
+    "integrator": {"type": "implicit", "dt_s": 0.03, "iterations": 1, "region_radius_mm": 30},
+    "probes": [{"name": "ball", "shape": "sphere", "radius_mm": 4,
+                "path": [{"t_s": 0, "position_mm": [32, 32, 132]}, {"t_s": 0.03, "position_mm": [32, 32, 131.9]}]}],
+    "duration_s": 0.03,
+    "outputs": {"forces_csv": false, "plot": false}
+  })"),
+                                  ".", "test.json");
+  const PreparedScene prepared = prepare_scene(scene);
+  ASSERT_TRUE(prepared.region_stiffening.has_value());
+  Simulation sim(prepared.physics, prepared.settings);
+  const fs::path dir = fs::temp_directory_path() / ("vx_run_outputs_region_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  RunOutputs outputs(sim, prepared, scene.outputs, dir, 1);
+  ASSERT_EQ(sim.step(), StepStatus::ok);
+  outputs.after_step(sim, 1);
+  outputs.finish(sim);
+  const json j = run_summary_json(scene, "test.json", prepared, sim, outputs, 0.5);
+  const json& r = j["region_stiffening"];
+  EXPECT_EQ(r["probe"], "ball");
+  EXPECT_DOUBLE_EQ(r["estimated_force_ratio"].get<double>(), prepared.region_stiffening->force_ratio);
+  EXPECT_DOUBLE_EQ(r["estimated_force_error_rel"].get<double>(), prepared.region_stiffening->force_ratio - 1.0);
+  EXPECT_GT(r["estimated_force_error_rel"].get<double>(), kRegionStiffeningWarnRel);
+  EXPECT_EQ(r["warned"], true);
+  EXPECT_GT(r["far_nodes"].get<int>(), 0);
   fs::remove_all(dir);
 }
