@@ -438,12 +438,12 @@ int Simulation::advance_to(double target_time_s, int max_steps) {
 const Eigen::Matrix3Xd& Simulation::surface_vertices() {
   if (!settings_.surface) throw Error("simulation: this simulation has no surface");
   if (surface_step_ != state_.steps) {
-    deform(*settings_.surface, state_.positions, surface_vertices_, surface_normals_);
+    deform(*settings_.surface, state_.positions, surface_frame_);
     surface_step_ = state_.steps;
     ++counters_.surface_updates;
     counters_.surface_updates_skipped = std::max<std::int64_t>(0, counters_.steps - counters_.surface_updates);
   }
-  return surface_vertices_;
+  return surface_frame_.vertices;
 }
 
 void Simulation::publish() {
@@ -456,8 +456,8 @@ void Simulation::publish() {
     frame_.step = state_.steps;
     frame_.positions = state_.positions;
     if (settings_.surface) {
-      frame_.surface_vertices = surface_vertices_;
-      frame_.surface_normals = surface_normals_;
+      frame_.surface_vertices = surface_frame_.vertices;
+      frame_.surface_normals = surface_frame_.normals;
     }
     frame_.probes = outputs_;
     frame_ready_ = true;

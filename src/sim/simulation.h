@@ -292,7 +292,7 @@ class Simulation {
   Eigen::MatrixXd local_g_;
 
   // surface
-  Eigen::Matrix3Xd surface_vertices_, surface_normals_;
+  SurfaceFrame surface_frame_;  ///< the deformed surface and its normals (each triangle's normal once)
   std::int64_t surface_step_{-1};  ///< step the surface was deformed at (-1: never)
 
   // shared with other threads
