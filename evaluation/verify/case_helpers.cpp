@@ -4,6 +4,7 @@
 #include <cmath>
 #include <random>
 
+#include "convert/threshold.h"
 #include "model/gradational_builder.h"
 #include "sim/contact.h"
 #include "sim/simulation.h"
@@ -131,6 +132,16 @@ bool runs_stably(const std::shared_ptr<const PhysicsModel>& p, IntegratorKind ki
   // Euler degenerates as omega dt -> 2), so the threshold must be far above the initial energy;
   // beyond the limit the growth is exponential and crosses it within a few hundred steps.
   return !s.failed() && s.positions.allFinite() && energy(s) < 1e4 * e0;
+}
+
+VoxelGrid phantom_grid(const std::string& name, int size, PhantomShape* shape) {
+  PhantomSettings ps;
+  ps.name = name;
+  ps.size = size;
+  const Volume v = make_phantom(ps, shape);
+  HuRange r;
+  r.lo = 0.5 * (ps.tissue_hu + ps.air_hu);
+  return threshold(v, r);
 }
 
 }  // namespace vx::cases

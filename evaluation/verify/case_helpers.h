@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "convert/phantom.h"
 #include "model/model.h"
 #include "physics/material.h"
 #include "physics/physics_model.h"
@@ -48,6 +49,9 @@ inline constexpr double kPi = std::numbers::pi;
 /// Kinetic + elastic + gravitational energy, N*mm.
 [[nodiscard]] double energy(const SimState& s);
 [[nodiscard]] std::string layout_name(Layout r);
+/// The tissue of phantom `name` at `size` voxels of 1 mm, thresholded half-way between tissue
+/// and air; `shape` (optional) receives its analytic shape.
+[[nodiscard]] VoxelGrid phantom_grid(const std::string& name, int size, PhantomShape* shape = nullptr);
 
 /// A ball pressed into the top of a block fixed at its base: the force and depth, averaged over
 /// bins of 32 steps.

@@ -30,16 +30,6 @@ VoxelGrid full_cube(int n) {
   return grid;
 }
 
-VoxelGrid phantom_grid(const std::string& name, int size, PhantomShape* shape = nullptr) {
-  PhantomSettings ps;
-  ps.name = name;
-  ps.size = size;
-  const Volume v = make_phantom(ps, shape);
-  HuRange r;
-  r.lo = 0.5 * (ps.tissue_hu + ps.air_hu);
-  return threshold(v, r);
-}
-
 }  // namespace
 
 void run_model_counts(VerifyContext& ctx) {

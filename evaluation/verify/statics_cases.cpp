@@ -370,26 +370,11 @@ void run_layouts(VerifyContext& ctx) {
 
 // --- the folded (brain-like) phantom: its counts, and hanging from its stem ---------------------
 
-namespace {
-
-/// The folded phantom's tissue at `size` voxels of 1 mm, thresholded half-way, and its shape.
-VoxelGrid folded_grid(int size, PhantomShape* shape) {
-  PhantomSettings ps;
-  ps.name = "folded";
-  ps.size = size;
-  const Volume v = make_phantom(ps, shape);
-  HuRange r;
-  r.lo = 0.5 * (ps.tissue_hu + ps.air_hu);
-  return threshold(v, r);
-}
-
-}  // namespace
-
 void run_folded(VerifyContext& ctx) {
   // the counts of the model scenes and the scale bench use: 214 voxels of 1 mm
   {
     PhantomShape shape;
-    const VoxelGrid grid = folded_grid(214, &shape);
+    const VoxelGrid grid = phantom_grid("folded", 214, &shape);
     const Model m = build_model(grid);
     const double surface = double(m.num_surface_nodes()) / double(m.num_nodes());
     ctx.log(fmt::format("folded phantom 214^3 at 1 mm: {} tissue voxels, {} elements, {} nodes, {} on the surface "
@@ -407,7 +392,7 @@ void run_folded(VerifyContext& ctx) {
   // 3 mm of the stem held, gravity down, solved to static equilibrium. The support must carry
   // the whole weight, density x volume x g, and push straight up
   PhantomShape shape;
-  const VoxelGrid grid = folded_grid(107, &shape);
+  const VoxelGrid grid = phantom_grid("folded", 107, &shape);
   const auto model = std::make_shared<const Model>(build_model(grid));
   const double e_kpa = 1000.0;  // stiff, so the hemispheres hang near their rest shape
   const auto p = make_physics_model(model, tissue(e_kpa));
