@@ -31,10 +31,25 @@ std::string lower_extension(const std::filesystem::path& p) {
   return dot == std::string::npos ? std::string() : name.substr(dot);
 }
 
+// the axis from the held nodes' centroid towards the model's (the side away from the support)
+Eigen::Vector3d away_from_support(const Model& model, const std::vector<int>& fixed_nodes) {
+  Eigen::Vector3d held = Eigen::Vector3d::Zero();
+  for (const int n : fixed_nodes) held += model.rest_positions.col(n);
+  held /= double(fixed_nodes.size());
+  const Eigen::Vector3d all = model.rest_positions.rowwise().mean();
+  const Eigen::Vector3d d = all - held;
+  Eigen::Index axis = 0;
+  if (d.cwiseAbs().maxCoeff(&axis) < 1e-9) return Eigen::Vector3d(0, -1, 0);
+  Eigen::Vector3d up = Eigen::Vector3d::Zero();
+  up[axis] = d[axis] > 0 ? 1.0 : -1.0;
+  return up;
+}
+
 // "up" for the view: against gravity; else away from the face the tissue is held by (a
 // specimen fixed at z_min sits on a table below it); else along the first probe's tool axis
-// (tip -> handle); else anterior (LPS -y: a patient lying on the table)
-Eigen::Vector3d scene_up(const Scene& file, const SimulationSettings& s) {
+// (tip -> handle); else away from any other
+// support (a box or sphere selector: an organ on its stem); else anterior (LPS -y: a patient lying on the table)
+Eigen::Vector3d scene_up(const Scene& file, const Model& model, const SimulationSettings& s) {
   if (s.gravity_mm_s2.norm() > 0) return -s.gravity_mm_s2.normalized();
   for (const auto& f : file.fixed) {
     if (!f.is_face) continue;
@@ -51,6 +66,9 @@ Eigen::Vector3d scene_up(const Scene& file, const SimulationSettings& s) {
     if (p.geometry.shape == ProbeShape::capsule || p.geometry.shape == ProbeShape::cylinder ||
         p.geometry.shape == ProbeShape::plane)
       return p.geometry.axis.normalized();
+  // held by a box or sphere selector (an organ on its stem): up points from the held nodes to
+  // the rest, along the nearest axis (a stem below the organ gives +z, as the body would)
+  if (!s.fixed_nodes.empty()) return away_from_support(model, s.fixed_nodes);
   return Eigen::Vector3d(0, -1, 0);
 }
 
@@ -73,7 +91,7 @@ ProbeScene load_scene_file(const std::filesystem::path& path, const DefaultScene
   } else {
     scene.surface = built.surface;
   }
-  scene.world_up = scene_up(file, scene.simulation);
+  scene.world_up = scene_up(file, *scene.model, scene.simulation);
   if (!file.description.empty()) scene.notes.push_back(file.description);
   for (const auto& l : built.log) scene.notes.push_back(l);
   scene.notes.push_back(fmt::format("surface: {} ({} triangles)", to_string(scene.surface->method),

@@ -7,7 +7,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
+#include <fstream>
 #include <memory>
+#include <string>
+#include <vector>
 
 #include "convert/phantom.h"
 #include "model/gradational_builder.h"
@@ -179,4 +183,38 @@ TEST(DefaultScene, ThinTissueStillGetsAToolOverIt) {
   ASSERT_TRUE(s.found);
   EXPECT_NEAR(s.tissue_below_mm, 3.0, 1e-9);
   EXPECT_NEAR(s.start_mm.z() - s.surface_mm.z(), 1.5 + 2.0, 1e-9);
+}
+
+// A scene held by a box selector (an organ on its stem, no gravity, no face) looks at it with
+// up pointing away from its support, so that the stick's "down" presses into it.
+TEST(SceneFile, UpPointsAwayFromABoxSupport) {
+  const std::filesystem::path dir = std::filesystem::temp_directory_path() / "vx_probe_scene_up";
+  std::filesystem::create_directories(dir);
+  struct Case {
+    std::string box;
+    Eigen::Vector3d up;
+  };
+  // a 16-voxel sphere of 1 mm: its nodes span about -6.4 .. 6.4 mm
+  const std::vector<Case> cases = {
+      {R"({"min": [-3, -3, -9], "max": [3, 3, -4]})", Eigen::Vector3d(0, 0, 1)},   // held below
+      {R"({"min": [4, -3, -3], "max": [9, 3, 3]})", Eigen::Vector3d(-1, 0, 0)},    // held on its +x side
+  };
+  for (const auto& c : cases) {
+    const std::filesystem::path path = dir / "scene.json";
+    {
+      std::ofstream out(path);
+      out << R"({"object": {"phantom": "sphere", "size": 16, "spacing_mm": 1.0},
+        "material": {"youngs_modulus_kpa": 10},
+        "fixed": [{"box_mm": )"
+          << c.box << R"(}],
+        "probes": [{"name": "ball", "shape": "sphere", "radius_mm": 2,
+                    "live": {"start_mm": [0, 0, 9]}}],
+        "duration_s": 1})";
+    }
+    DefaultSceneOptions options;
+    const ProbeScene scene = load_probe_scene(path, options);
+    EXPECT_FALSE(scene.simulation.fixed_nodes.empty()) << c.box;
+    EXPECT_NEAR((scene.world_up - c.up).norm(), 0.0, 1e-12) << c.box << ": up " << scene.world_up.transpose();
+  }
+  std::filesystem::remove_all(dir);
 }
