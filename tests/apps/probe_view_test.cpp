@@ -14,6 +14,7 @@
 #include "model/gradational_builder.h"
 #include "probe_view.h"
 #include "surface/surface.h"
+#include "support/uv_sphere.h"
 
 using namespace vx::probe;
 namespace fs = std::filesystem;
@@ -36,29 +37,10 @@ vx::VoxelGrid block_grid() {
 // sphere of radius 50 mm with two scales of bumps 2.5 and 1.5 mm high, outward
 void folded_ball(Eigen::Matrix3Xd& vertices, Eigen::Matrix3Xi& triangles) {
   const int nt = 600, np = 300;  // longitudes, latitude bands
-  const auto radius = [](double theta, double phi) {
+  const auto radius = [](double phi, double theta) {
     return 50.0 * (1.0 + 0.05 * std::sin(12 * theta) * std::sin(10 * phi) + 0.03 * std::sin(30 * theta) * std::sin(24 * phi));
   };
-  vertices.resize(3, 2 + nt * (np - 1));
-  vertices.col(0) = Eigen::Vector3d(0, 0, radius(0, 0));
-  vertices.col(1) = Eigen::Vector3d(0, 0, -radius(0, M_PI));
-  const auto id = [&](int band, int i) { return 2 + (band - 1) * nt + (i % nt); };  // band 1..np-1
-  for (int b = 1; b < np; ++b)
-    for (int i = 0; i < nt; ++i) {
-      const double phi = M_PI * b / np, theta = 2 * M_PI * i / nt, r = radius(theta, phi);
-      vertices.col(id(b, i)) = r * Eigen::Vector3d(std::sin(phi) * std::cos(theta), std::sin(phi) * std::sin(theta), std::cos(phi));
-    }
-  std::vector<Eigen::Vector3i> tris;
-  for (int i = 0; i < nt; ++i) {
-    tris.emplace_back(0, id(1, i), id(1, i + 1));
-    tris.emplace_back(1, id(np - 1, i + 1), id(np - 1, i));
-    for (int b = 1; b + 1 < np; ++b) {
-      tris.emplace_back(id(b, i), id(b + 1, i), id(b + 1, i + 1));
-      tris.emplace_back(id(b, i), id(b + 1, i + 1), id(b, i + 1));
-    }
-  }
-  triangles.resize(3, Eigen::Index(tris.size()));
-  for (std::size_t t = 0; t < tris.size(); ++t) triangles.col(Eigen::Index(t)) = tris[t];
+  vx::testing::uv_sphere(np, nt, Eigen::Vector3d::Zero(), radius, vertices, triangles);
   if (vx::enclosed_volume_mm3(vertices, triangles) < 0) triangles.row(1).swap(triangles.row(2));
 }
 

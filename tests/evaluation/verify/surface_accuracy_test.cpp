@@ -13,6 +13,7 @@
 #include "convert/phantom.h"
 #include "model/gradational_builder.h"
 #include "support/surface_accuracy_table.h"
+#include "support/uv_sphere.h"
 #include "surface/surface.h"
 
 using namespace vx;
@@ -27,27 +28,9 @@ TEST(SurfaceAccuracy, ExactSphereMeshMeasuresZeroAtVertices) {
   shape.center_mm = {1, 2, 3};
   shape.half_extent_mm = Eigen::Vector3d::Constant(10.0);
   const int rings = 60, segments = 120;
-  Eigen::Matrix3Xd v(3, 2 + (rings - 1) * segments);
-  v.col(0) = shape.center_mm + Eigen::Vector3d(0, 0, 10);
-  v.col(1) = shape.center_mm - Eigen::Vector3d(0, 0, 10);
-  for (int r = 1; r < rings; ++r)
-    for (int s = 0; s < segments; ++s) {
-      const double th = std::numbers::pi * r / rings, ph = 2 * std::numbers::pi * s / segments;
-      v.col(2 + (r - 1) * segments + s) =
-          shape.center_mm + 10.0 * Eigen::Vector3d(std::sin(th) * std::cos(ph), std::sin(th) * std::sin(ph), std::cos(th));
-    }
-  std::vector<Eigen::Vector3i> t;
-  const auto id = [&](int r, int s) { return 2 + (r - 1) * segments + (s % segments); };
-  for (int s = 0; s < segments; ++s) {
-    t.emplace_back(0, id(1, s), id(1, s + 1));
-    t.emplace_back(1, id(rings - 1, s + 1), id(rings - 1, s));
-    for (int r = 1; r + 1 < rings; ++r) {
-      t.emplace_back(id(r, s), id(r + 1, s), id(r + 1, s + 1));
-      t.emplace_back(id(r, s), id(r + 1, s + 1), id(r, s + 1));
-    }
-  }
-  Eigen::Matrix3Xi tris(3, Eigen::Index(t.size()));
-  for (std::size_t i = 0; i < t.size(); ++i) tris.col(Eigen::Index(i)) = t[i];
+  Eigen::Matrix3Xd v;
+  Eigen::Matrix3Xi tris;
+  vx::testing::uv_sphere(rings, segments, shape.center_mm, [](double, double) { return 10.0; }, v, tris);
   Eigen::Matrix3Xd normals = (v.colwise() - shape.center_mm).colwise().normalized();
   const SurfaceAccuracy a = measure_surface_accuracy(v, tris, shape, 0.5, &normals);
   EXPECT_EQ(a.samples, v.cols() + tris.cols());
