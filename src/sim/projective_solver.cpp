@@ -18,22 +18,11 @@ ProjectiveSolver::ProjectiveSolver(std::shared_ptr<const PhysicsModel> physics,
   const PhysicsModel& p = *physics_;
   const int nn = p.num_nodes(), ne = p.num_elements();
   if (int(node_fixed.size()) != nn) throw Error("projective solver: node_fixed has the wrong size");
-  // free and fixed numbering
-  free_index_.assign(std::size_t(nn), -1);
-  fixed_index_.assign(std::size_t(nn), -1);
-  for (int i = 0; i < nn; ++i) {
-    if (node_fixed[std::size_t(i)]) {
-      fixed_index_[std::size_t(i)] = int(fixed_nodes_.size());
-      fixed_nodes_.push_back(i);
-    } else {
-      free_index_[std::size_t(i)] = int(free_nodes_.size());
-      free_nodes_.push_back(i);
-    }
-  }
+  numbering_ = number_nodes(node_fixed);
   if (!setup_.inertia) check_held();
   assemble_and_factor();
   // buffers of a solve
-  const int nf = num_free(), nc = int(fixed_nodes_.size());
+  const int nf = num_free(), nc = int(numbering_.fixed_nodes.size());
   const std::int64_t entries = p.num_vertex_entries();
   targets_.resize(3, entries);
   start_offsets_.resize(3, entries);
@@ -45,7 +34,7 @@ ProjectiveSolver::ProjectiveSolver(std::shared_ptr<const PhysicsModel> physics,
   fixed_positions_.resize(nc, 3);
   element_chunk_stats_.assign(std::size_t(chunk_count(ne, kElementGrain)), ElementPassStats{});
   free_chunk_sums_.assign(2 * std::size_t(chunk_count(nf, kNodeGrain)), 0.0);
-  contact_set_.bind(free_index_, free_nodes_);
+  contact_set_.bind(numbering_.free_index, numbering_.free_nodes);
 }
 
 /// Every connected part of the model must hold a fixed node (static solve).
@@ -62,7 +51,7 @@ void ProjectiveSolver::check_held() const {
     for (int j = m.element_offsets[e] + 1; j < m.element_offsets[e + 1]; ++j)
       parent[std::size_t(find(m.element_vertices[j]))] = find(m.element_vertices[m.element_offsets[e]]);
   std::vector<std::uint8_t> held(std::size_t(p.num_nodes()), 0);
-  for (int i : fixed_nodes_) held[std::size_t(find(i))] = 1;
+  for (int i : numbering_.fixed_nodes) held[std::size_t(find(i))] = 1;
   for (int i = 0; i < p.num_nodes(); ++i)
     if (!held[std::size_t(find(i))])
       throw Error("static solve: node " + std::to_string(i) +
@@ -70,16 +59,29 @@ void ProjectiveSolver::check_held() const {
                   "(e.g. nodes_on_face) before solving");
 }
 
-void assemble_projective_matrix(const PhysicsModel& p, const std::vector<int>& free_index, const std::vector<int>& fixed_index,
-                                const ProjectiveSetup& setup, Eigen::SparseMatrix<double>& a_free,
-                                Eigen::SparseMatrix<double>* a_free_fixed) {
+NodeNumbering number_nodes(const std::vector<std::uint8_t>& node_fixed) {
+  NodeNumbering n;
+  n.free_index.assign(node_fixed.size(), -1);
+  n.fixed_index.assign(node_fixed.size(), -1);
+  for (std::size_t i = 0; i < node_fixed.size(); ++i) {
+    if (node_fixed[i]) {
+      n.fixed_index[i] = int(n.fixed_nodes.size());
+      n.fixed_nodes.push_back(int(i));
+    } else {
+      n.free_index[i] = int(n.free_nodes.size());
+      n.free_nodes.push_back(int(i));
+    }
+  }
+  return n;
+}
+
+void assemble_projective_matrix(const PhysicsModel& p, const NodeNumbering& numbering, const ProjectiveSetup& setup,
+                                Eigen::SparseMatrix<double>& a_free, Eigen::SparseMatrix<double>* a_free_fixed) {
   const Model& m = *p.model;
   const int ne = p.num_elements();
-  int nf = 0, nc = 0;
-  for (std::size_t i = 0; i < free_index.size(); ++i) {
-    nf = std::max(nf, free_index[i] + 1);
-    nc = std::max(nc, fixed_index[i] + 1);
-  }
+  const int nf = int(numbering.free_nodes.size()), nc = int(numbering.fixed_nodes.size());
+  const std::vector<int>& free_index = numbering.free_index;
+  const std::vector<int>& fixed_index = numbering.fixed_index;
   const double dt = setup.time_step_s;
   std::vector<Eigen::Triplet<double>> tff, tfc;
   std::size_t guess = 0;
@@ -130,7 +132,7 @@ void ProjectiveSolver::assemble_and_factor() {
   centring_weight_.resize(std::size_t(ne));
   for (int e = 0; e < ne; ++e) centring_weight_[std::size_t(e)] = projective_centring_weight(p, e, setup_);
   SparseFactor::Matrix a;
-  assemble_projective_matrix(p, free_index_, fixed_index_, setup_, a, &a_free_fixed_);
+  assemble_projective_matrix(p, numbering_, setup_, a, &a_free_fixed_);
   if (!factor_.compute(a))
     throw Error("implicit integrator: the system matrix could not be factored (" + std::to_string(nf) +
                 " free nodes); is a part of the model held by nothing?");
@@ -140,9 +142,9 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
                              ContactProvider* contact, StepReport& rep) {
   const int threads = its.threads;
   // the fixed nodes' coupling: rhs_const -= A_fc x_c
-  if (!fixed_nodes_.empty()) {
-    for (std::size_t c = 0; c < fixed_nodes_.size(); ++c)
-      fixed_positions_.row(Eigen::Index(c)) = x.col(fixed_nodes_[c]).transpose();
+  if (!numbering_.fixed_nodes.empty()) {
+    for (std::size_t c = 0; c < numbering_.fixed_nodes.size(); ++c)
+      fixed_positions_.row(Eigen::Index(c)) = x.col(numbering_.fixed_nodes[c]).transpose();
     rhs_const_.noalias() -= a_free_fixed_ * fixed_positions_;
   }
   // the first solve computes every element's targets and the whole solution (a regional solve
@@ -193,8 +195,8 @@ bool ProjectiveSolver::contact_compliance(const std::vector<std::int32_t>& nodes
   std::vector<int> free(nodes.size());
   for (std::size_t a = 0; a < nodes.size(); ++a) {
     const int i = nodes[a];
-    if (i < 0 || std::size_t(i) >= free_index_.size() || free_index_[std::size_t(i)] < 0) return false;
-    free[a] = free_index_[std::size_t(i)];
+    if (i < 0 || std::size_t(i) >= numbering_.free_index.size() || numbering_.free_index[std::size_t(i)] < 0) return false;
+    free[a] = numbering_.free_index[std::size_t(i)];
   }
   contact_set_.compliance(free, factor_, g);
   return true;
@@ -217,7 +219,7 @@ void ProjectiveSolver::set_region(const std::vector<int>& awake_nodes) {
   }
   std::vector<int> rows;
   for (int f = 0; f < num_free(); ++f)
-    if (wanted[std::size_t(free_nodes_[std::size_t(f)])]) rows.push_back(f);
+    if (wanted[std::size_t(numbering_.free_nodes[std::size_t(f)])]) rows.push_back(f);
   factor_.set_partial_rows(rows);
   region_ = true;
   // the next solve is a full one: every element's targets and every node's position brought up
@@ -321,7 +323,7 @@ void ProjectiveSolver::gather_rhs(int threads) {
   const PhysicsModel& p = *physics_;
   parallel_for(num_free(), kNodeGrain, threads, [&](std::int64_t b, std::int64_t e) {
     for (std::int64_t f = b; f < e; ++f) {
-      const Eigen::Vector3d t = gather_node_force(p, targets_, free_nodes_[std::size_t(f)]);
+      const Eigen::Vector3d t = gather_node_force(p, targets_, numbering_.free_nodes[std::size_t(f)]);
       rhs_.row(f) = rhs_const_.row(f) + t.transpose();
     }
   });
@@ -334,7 +336,7 @@ double ProjectiveSolver::scatter(Eigen::Matrix3Xd& x, int threads) {
   parallel_for_chunks(nf, kNodeGrain, threads, [&](std::int64_t c, std::int64_t b, std::int64_t e) {
     double mx = 0;
     for (std::int64_t f = b; f < e; ++f) {
-      const int i = free_nodes_[std::size_t(f)];
+      const int i = numbering_.free_nodes[std::size_t(f)];
       const Eigen::Vector3d nx = solution_.row(f).transpose();
       mx = std::max(mx, (nx - x.col(i)).squaredNorm());
       x.col(i) = nx;

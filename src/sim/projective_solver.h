@@ -65,12 +65,21 @@ struct ProjectiveIterations {
   int threads{0};              ///< 0: OpenMP default
 };
 
+/// The free and fixed numbering of a model's nodes.
+struct NodeNumbering {
+  std::vector<int> free_index;   ///< nodes -> free index, -1 for a fixed node
+  std::vector<int> fixed_index;  ///< nodes -> fixed index, -1 for a free node
+  std::vector<int> free_nodes;   ///< free index -> node
+  std::vector<int> fixed_nodes;  ///< fixed index -> node
+};
+/// Numbers the nodes in order, free and fixed apart (node_fixed[i] = 1: kinematic).
+[[nodiscard]] NodeNumbering number_nodes(const std::vector<std::uint8_t>& node_fixed);
+
 /// The global matrix of `setup` over the free nodes (scalar: the same for x, y and z), as the
 /// solver factors it: A = [M/dt^2] + sum_e (K_e + kappa_e (diag(w) - w w^T / W)) with
-/// kappa_e = projective_centring_weight(); free_index / fixed_index: nodes -> free (fixed)
-/// index or -1. `a_free_fixed` (may be null): the free x fixed coupling. Allocates.
-void assemble_projective_matrix(const PhysicsModel& physics, const std::vector<int>& free_index,
-                                const std::vector<int>& fixed_index, const ProjectiveSetup& setup,
+/// kappa_e = projective_centring_weight(). `a_free_fixed` (may be null): the free x fixed
+/// coupling. Allocates.
+void assemble_projective_matrix(const PhysicsModel& physics, const NodeNumbering& numbering, const ProjectiveSetup& setup,
                                 Eigen::SparseMatrix<double>& a_free, Eigen::SparseMatrix<double>* a_free_fixed);
 /// kappa_e of element `e`: k_v,e (the volume term) + c_e / dt (the damping term, with setup.damping), N/mm.
 [[nodiscard]] double projective_centring_weight(const PhysicsModel& physics, int e, const ProjectiveSetup& setup);
@@ -88,8 +97,8 @@ class ProjectiveSolver {
   [[nodiscard]] const ProjectiveSetup& setup() const { return setup_; }
   [[nodiscard]] const PhysicsModel& physics() const { return *physics_; }
   /// Free nodes in the solver's numbering (free index -> node).
-  [[nodiscard]] const std::vector<int>& free_nodes() const { return free_nodes_; }
-  [[nodiscard]] int num_free() const { return int(free_nodes_.size()); }
+  [[nodiscard]] const std::vector<int>& free_nodes() const { return numbering_.free_nodes; }
+  [[nodiscard]] int num_free() const { return int(numbering_.free_nodes.size()); }
   /// Nonzeros of the Cholesky factor L (the cost of one global solve).
   [[nodiscard]] std::int64_t factor_nonzeros() const { return factor_.nonzeros(); }
 
@@ -153,10 +162,7 @@ class ProjectiveSolver {
   ProjectiveSetup setup_;
 
   // numbering: free and fixed nodes
-  std::vector<int> free_index_;   ///< nodes -> free index, -1 for a fixed node
-  std::vector<int> fixed_index_;  ///< nodes -> fixed index, -1 for a free node
-  std::vector<int> free_nodes_;   ///< free index -> node
-  std::vector<int> fixed_nodes_;  ///< fixed index -> node
+  NodeNumbering numbering_;
 
   // the global matrix
   std::vector<double> centring_weight_;   ///< elements: k_v,e (+ c_e/dt) of diag(w) - w w^T / W, N/mm

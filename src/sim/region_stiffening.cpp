@@ -86,19 +86,10 @@ RegionStiffeningEstimate estimate_region_stiffening(const PhysicsModel& p, const
   const int nn = p.num_nodes();
   if (int(node_fixed.size()) != nn) return done("node_fixed has the wrong size");
   if (!(s.region_radius_mm > 0) || !(s.time_step_s > 0)) return done("no region");
-  // numbering of the free nodes
-  std::vector<int> free_index(std::size_t(nn), -1), fixed_index(std::size_t(nn), -1);
-  std::vector<int> free_nodes;
-  int nc = 0;
-  for (int i = 0; i < nn; ++i) {
-    if (node_fixed[std::size_t(i)]) {
-      fixed_index[std::size_t(i)] = nc++;
-    } else {
-      free_index[std::size_t(i)] = int(free_nodes.size());
-      free_nodes.push_back(i);
-    }
-  }
-  if (nc == 0) return done("no node is fixed (the whole model floats)");
+  const NodeNumbering numbering = number_nodes(node_fixed);
+  const std::vector<int>& free_index = numbering.free_index;
+  const std::vector<int>& free_nodes = numbering.free_nodes;
+  if (numbering.fixed_nodes.empty()) return done("no node is fixed (the whole model floats)");
   if (free_nodes.empty()) return done("every node is fixed");
   const Eigen::Matrix3Xd& x = p.model->rest_positions;
   // the load: the free nodes within the tool's radius of the free node nearest to the tool
@@ -128,7 +119,7 @@ RegionStiffeningEstimate estimate_region_stiffening(const PhysicsModel& p, const
   stat.damping = false;
   stat.time_step_s = 1.0;
   Eigen::SparseMatrix<double> k;
-  assemble_projective_matrix(p, free_index, fixed_index, stat, k, nullptr);
+  assemble_projective_matrix(p, numbering, stat, k, nullptr);
   const Eigen::SparseMatrix<double> k_lower = k.triangularView<Eigen::Lower>();
   Eigen::VectorXd held = Eigen::VectorXd::Zero(nf);
   const double r2 = s.region_radius_mm * s.region_radius_mm, inv_dt2 = 1.0 / (s.time_step_s * s.time_step_s);
