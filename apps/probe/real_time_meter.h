@@ -8,7 +8,7 @@
 /// `window_s` of wall time. A physics step that is still running counts as wall time without
 /// simulated time (a 19 s step reads 0x while it runs, not the figure of the tick before). The
 /// start-up (open to the physics' first completed step: the factorisation) is not a real-time
-/// factor at all: the app feeds samples only after it (`StartupClock`).
+/// factor at all: the app feeds samples only after it (`StartupReport` words it).
 
 #include <cstdint>
 #include <optional>
