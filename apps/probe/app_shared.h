@@ -33,6 +33,10 @@
 #include "real_time_meter.h"
 
 namespace vx {
+class BackgroundRegionCheck;  // scene/scene.h
+}  // namespace vx
+
+namespace vx {
 class Simulation;
 }
 
@@ -143,6 +147,8 @@ struct AppShared {
   double physics_period_s{0.001};
   double device_period_s{0.001};
   SteadyClock::time_point start{};  ///< the open: the threads started
+  /// The regional solves' error on this support, still being estimated (null: none or reported)
+  std::shared_ptr<BackgroundRegionCheck> region_check;
 
   AppControls controls;
   PhysicsReport physics;

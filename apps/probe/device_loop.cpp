@@ -2,9 +2,6 @@
 
 #include <pthread.h>
 #include <sched.h>
-#include <sys/resource.h>
-#include <sys/syscall.h>
-#include <unistd.h>
 
 #include <Eigen/Eigenvalues>
 
@@ -12,6 +9,7 @@
 #include <cmath>
 
 #include "sim/simulation.h"
+#include "util/thread_priority.h"
 
 namespace vx::probe {
 
@@ -22,7 +20,7 @@ std::string raise_device_thread_priority() {
   sched_param sp{};
   sp.sched_priority = 1;
   if (pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp) == 0) return "real-time priority (SCHED_FIFO 1)";
-  if (setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), -10) == 0) return "priority nice -10";
+  if (set_this_thread_nice(-10)) return "priority nice -10";
   return "default priority (raising it was not permitted)";
 }
 

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <thread>
 
+#include "scene/scene.h"
+
 namespace vx::probe {
 
 GuiLoop::GuiLoop(AppShared& shared, ProbeView* view, KeyboardStick& keyboard)
@@ -72,7 +74,19 @@ SteadyClock::time_point GuiLoop::measure(const FixedRateThread& device) {
     s_.device.messages.clear();
   }
   if (started && !halted) warn_if_behind(meter_.over_last(kRateWindow_s));
+  report_region_check();
   return now;
+}
+
+void GuiLoop::report_region_check() {
+  if (!s_.region_check || !s_.region_check->ready()) return;
+  const RegionCheck c = s_.region_check->get();
+  s_.region_check.reset();
+  for (const auto& l : c.log) s_.say(l);
+  for (const auto& w : c.warnings) s_.say("warning: " + w);
+  if (!c.warnings.empty() && c.estimate)
+    region_status_ = fmt::format("the regional solve presses about {:.2g}x too hard on this support (console)",
+                                 c.estimate->force_ratio);
 }
 
 std::string GuiLoop::physics_rate_text(SteadyClock::time_point now) const {
@@ -110,7 +124,10 @@ HudInfo GuiLoop::hud(SteadyClock::time_point now) {
   h.device_target_hz = s_.options.device_hz;
   h.probes = std::min(s_.probes, 2);
   h.active_probe = keyboard_.active_probe();
-  if (s_.physics.failed.load()) h.status = s_.physics.failure;
+  if (s_.physics.failed.load())
+    h.status = s_.physics.failure;
+  else
+    h.status = region_status_;
   std::lock_guard lock(s_.device.mutex);
   h.force_N = s_.device.hud.force_N;
   h.contacts = s_.device.hud.contacts;

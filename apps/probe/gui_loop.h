@@ -42,6 +42,9 @@ class GuiLoop {
   SteadyClock::time_point measure(const FixedRateThread& device);
   /// The physics' rate line: start-up, or steps/s and the real-time factor over the last second.
   [[nodiscard]] std::string physics_rate_text(SteadyClock::time_point now) const;
+  /// Says the background region check's result once it is ready (console; the HUD's status
+  /// line when it warns).
+  void report_region_check();
   /// Warns once when the physics cannot keep real time.
   void warn_if_behind(const RateWindow& w);
   /// One frame of the window; false once the window closed.
@@ -62,6 +65,7 @@ class GuiLoop {
   std::vector<int> probe_contacts_;
   bool window_closed_{false};
   bool warned_behind_{false};
+  std::string region_status_;  ///< the region check's warning for the HUD (empty: none)
   double paused_s_{0.0};
   SteadyClock::time_point last_pass_{};
   SteadyClock::duration frame_period_;

@@ -1,14 +1,12 @@
 #include "physics_loop.h"
 
-#include <sys/resource.h>
-#include <sys/syscall.h>
-#include <unistd.h>
 
 #include <algorithm>
 #include <cmath>
 #include <thread>
 
 #include "sim/simulation.h"
+#include "util/thread_priority.h"
 
 namespace vx::probe {
 
@@ -25,7 +23,7 @@ void PhysicsLoop::tick() {
   }
   // local shaping: the device thread is the one with a deadline; the physics' updates yield to
   // it when the CPU is short (Linux: per thread; the display yields more)
-  if (s_.local && !started_) (void)setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 2);
+  if (s_.local && !started_) (void)set_this_thread_nice(2);
   apply_reset();
   Simulation& sim = s_.sim;
   const bool paused = s_.controls.paused.load();

@@ -2,9 +2,6 @@
 
 #include <fmt/core.h>
 
-#include <sys/resource.h>
-#include <sys/syscall.h>
-#include <unistd.h>
 
 #include <algorithm>
 #include <atomic>
@@ -25,6 +22,7 @@
 #include "sdl_input.h"
 #include "sim/local_contact.h"
 #include "sim/simulation.h"
+#include "util/thread_priority.h"
 
 namespace vx::probe {
 
@@ -177,6 +175,7 @@ void App::start_simulation() {
   if (probes_ > kMaxSticks)
     say(fmt::format("note: the scene has {} probes; the app drives the first {}", probes_, kMaxSticks));
   shared_ = std::make_unique<AppShared>(options_, *sim_);
+  shared_->region_check = scene_.region_check;
   shared_->probes = probes_;
   shared_->local = local_;
   shared_->physics_period_s = 1.0 / options_.physics_hz;
@@ -290,7 +289,7 @@ std::string App::run_loops(const IoLines& lines) {
   // software renderer's threads (Mesa llvmpipe under Xvfb) run at the display's priority too,
   // not at the physics')
   if (!options_.headless) {
-    gui_nice_ = setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), kGuiNice) == 0;
+    gui_nice_ = set_this_thread_nice(kGuiNice);
     view_ = open_view(lines);
   }
   gui_loop_ = std::make_unique<GuiLoop>(*shared_, view_.get(), keyboard_);

@@ -76,12 +76,14 @@ ProbeScene load_scene_file(const std::filesystem::path& path, const DefaultScene
   const Scene file = load_scene(path);
   PrepareSceneOptions prep;
   prep.surface = options.surface_method != SurfaceMethod::iso;  // the scene's own (paper) surface
+  prep.region_check = RegionCheckTiming::background;            // seconds on a large organ: not before the run
   PreparedScene built = prepare_scene(file, prep);
   ProbeScene scene;
   scene.name = path.stem().string();
   scene.model = built.model;
   scene.physics = built.physics;
   scene.simulation = built.settings;
+  scene.region_check = built.pending_region_check;
   if (scene.simulation.probes.empty()) throw Error(path.string() + ": $.probes: the scene has no probe to palpate with");
   if (options.surface_method == SurfaceMethod::iso) {
     // a smoothed iso-surface of the model's voxels, embedded in its elements

@@ -18,6 +18,10 @@
 #include "stick_control.h"
 #include "surface/surface.h"
 
+namespace vx {
+class BackgroundRegionCheck;  // scene/scene.h
+}  // namespace vx
+
 namespace vx::probe {
 
 /// Settings for inputs that are not scene files (volumes and models).
@@ -81,6 +85,9 @@ struct ProbeScene {
   std::vector<Box> probe_allowed;          ///< per probe: where its reference point may go
   std::vector<std::string> notes;          ///< what was loaded and decided, for the console
   ControlSettings control;                 ///< stick mapping defaults (a scene's live probe sets its mapping)
+  /// The regional solves' error on this support, estimated while the run starts (a scene file
+  /// with regional solves; null otherwise); the GUI loop reports it when it is ready.
+  std::shared_ptr<BackgroundRegionCheck> region_check;
   bool control_from_scene{false};
 };
 

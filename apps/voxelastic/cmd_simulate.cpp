@@ -106,11 +106,23 @@ void run_simulate(const SimulateOptions& o) {
   PrepareSceneOptions popt;
   popt.surface = out.pvd_surface;
   popt.threads_override = o.threads;
+  popt.region_check = RegionCheckTiming::background;  // seconds on a large model: the run starts meanwhile
+  popt.region_check_nice = 0;                         // a batch run: its end waits for the check
   if (o.quiet) log::set_level(std::max(log::level(), log::Level::warn));
-  const PreparedScene prepared = prepare_scene(scene, popt);
+  const auto open = std::chrono::steady_clock::now();
+  PreparedScene prepared = prepare_scene(scene, popt);
+  const auto prepared_at = std::chrono::steady_clock::now();
   if (!o.quiet)
     for (const auto& line : prepared.log) fmt::print("{}\n", line);
   for (const auto& w : prepared.warnings) log::warn("{}", w);  // -q or not: warnings go to stderr
+  // the background check's lines once it is done (during the run or after it)
+  const auto report_region_check = [&](bool wait) {
+    if (const std::optional<RegionCheck> c = take_region_check(prepared, wait)) {
+      if (!o.quiet)
+        for (const auto& line : c->log) log::info("{}", line);
+      for (const auto& w : c->warnings) log::warn("{}", w);
+    }
+  };
   Simulation sim(prepared.physics, prepared.settings);
   const double dt = sim.dt_s();
   const std::int64_t steps = std::max<std::int64_t>(1, std::int64_t(std::ceil(scene.duration_s / dt - 1e-9)));
@@ -126,13 +138,16 @@ void run_simulate(const SimulateOptions& o) {
   const StopSignals signals;
   bool interrupted = false, estimated = false;
   const auto t0 = std::chrono::steady_clock::now();
+  auto first_step_done = t0;
   for (std::int64_t k = 1; k <= steps; ++k) {
     if (signals.stop()) {
       interrupted = true;
       break;
     }
     if (sim.step() != StepStatus::ok) break;
+    if (k == 1) first_step_done = std::chrono::steady_clock::now();
     outputs.after_step(sim, k);
+    report_region_check(false);
     if ((k & 63) == 0) {
       progress.update(double(k) / double(steps));
       // after two seconds, say how long the whole run will take when that is long
@@ -148,6 +163,17 @@ void run_simulate(const SimulateOptions& o) {
   }
   const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   progress.done();
+  if (interrupted)
+    prepared.pending_region_check.reset();  // cancelled: the outputs do not wait for it
+  else
+    report_region_check(true);
+  // the start-up: the scene's stages, the simulation's set-up, and the first step (which factors
+  // an implicit solver); open to the end of the first step
+  const auto secs = [](auto a, auto b) { return std::chrono::duration<double>(b - a).count(); };
+  std::vector<std::pair<std::string, double>> startup = prepared.stage_seconds;
+  startup.emplace_back("simulation set-up", secs(prepared_at, t0));
+  startup.emplace_back("first step", secs(t0, first_step_done));
+  const double startup_s = secs(open, first_step_done);
 
   // the outputs, summary.json last
   if (interrupted) outputs.last_frame(sim);
@@ -155,6 +181,9 @@ void run_simulate(const SimulateOptions& o) {
   nlohmann::json summary = run_summary_json(scene, o.scene, prepared, sim, outputs, wall_s);
   summary["duration_s"] = scene.duration_s;
   summary["interrupted"] = interrupted;
+  summary["startup_s"] = startup_s;
+  nlohmann::json& stages = summary["startup_stages_s"];
+  for (const auto& [name, s] : startup) stages[name] = s;
   if (interrupted) summary["status"] = "interrupted";
   write_text_atomically(dir / "summary.json", summary.dump(2) + "\n");
   if (interrupted)
@@ -163,6 +192,12 @@ void run_simulate(const SimulateOptions& o) {
                                   sim.time_s(), scene.duration_s, sim.counters().steps, steps, dir.string()));
 
   const SimulationCounters& c = sim.counters();
+  if (!o.quiet) {
+    std::string parts;
+    for (const auto& [name, s] : startup) parts += fmt::format("{}{} {:.2f} s", parts.empty() ? "" : ", ", name, s);
+    fmt::print("start-up {:.2f} s, open to the end of the first step ({}{})\n", startup_s, parts,
+               prepared.region_stiffening ? "; the region check ran beside the run" : "");
+  }
   const ForceRecorder* recorder = outputs.forces();
   const bool stable = !sim.failed() && sim.state().positions.allFinite();
   if (!o.quiet)

@@ -4,6 +4,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <optional>
@@ -13,6 +14,7 @@
 #include "scene/scene.h"
 #include "sim/region_stiffening.h"
 #include "sim/time_step.h"
+#include "util/thread_priority.h"
 
 namespace vx {
 namespace {
@@ -292,10 +294,11 @@ void place_walls_and_probes(const Scene& scene, const std::vector<std::uint8_t>&
 
 /// Implicit with regional solves: estimates per probe how much the region over-stiffens its press
 /// on this support (region_stiffening.h) and warns, with the configuration that would be right,
-/// when the worst is above kRegionStiffeningWarnRel.
-void check_region_support(const std::vector<std::uint8_t>& fixed, PreparedScene& out) {
-  const SimulationSettings& s = out.settings;
-  if (s.integrator.kind != IntegratorKind::implicit || !(s.integrator.region_radius_mm > 0)) return;
+/// when the worst is above kRegionStiffeningWarnRel. Reads only its arguments (runs on a thread
+/// of its own with RegionCheckTiming::background).
+RegionCheck check_region_support(const PhysicsModel& physics, const std::vector<std::uint8_t>& fixed,
+                                 const SimulationSettings& s, const std::atomic<bool>* cancel) {
+  RegionCheck out;
   for (const ProbeSettings& p : s.probes) {
     if (p.geometry.shape == ProbeShape::plane) continue;
     RegionStiffeningSettings rs;
@@ -303,31 +306,48 @@ void check_region_support(const std::vector<std::uint8_t>& fixed, PreparedScene&
     rs.tool_radius_mm = p.geometry.radius_mm;
     rs.region_radius_mm = s.integrator.region_radius_mm;
     rs.time_step_s = s.integrator.time_step_s;
-    const RegionStiffeningEstimate e = estimate_region_stiffening(*out.physics, fixed, rs);
+    rs.cancel = cancel;
+    const RegionStiffeningEstimate e = estimate_region_stiffening(physics, fixed, rs);
     if (!e.valid) {
       out.log.push_back(fmt::format("regional solves: no estimate of their error under probe \"{}\" ({})", p.name, e.reason));
       continue;
     }
-    if (!out.region_stiffening || e.force_ratio > out.region_stiffening->force_ratio) {
-      out.region_stiffening = e;
-      out.region_stiffening_probe = p.name;
+    if (!out.estimate || e.force_ratio > out.estimate->force_ratio) {
+      out.estimate = e;
+      out.probe = p.name;
     }
   }
-  if (!out.region_stiffening) return;
-  const RegionStiffeningEstimate& e = *out.region_stiffening;
+  if (!out.estimate) return out;
+  const RegionStiffeningEstimate& e = *out.estimate;
   out.log.push_back(fmt::format("regional solves within {:g} mm: under probe \"{}\" the press is estimated {:.1f} % too hard "
                                 "(compliance {:.4g} mm/N of the whole model against {:.4g} with the far field held; "
                                 "{} of {} free nodes awake; {:.2f} s)",
-                                s.integrator.region_radius_mm, out.region_stiffening_probe, 100.0 * e.error_rel(),
-                                e.compliance_full_mm_n, e.compliance_region_mm_n, e.region_nodes,
-                                e.region_nodes + e.far_nodes, e.seconds));
+                                s.integrator.region_radius_mm, out.probe, 100.0 * e.error_rel(), e.compliance_full_mm_n,
+                                e.compliance_region_mm_n, e.region_nodes, e.region_nodes + e.far_nodes, e.seconds));
   if (e.error_rel() > kRegionStiffeningWarnRel)
     out.warnings.push_back(fmt::format(
         "the regional solve (region_radius_mm {:g}) holds the far field still; on this support it presses about {:.2g}x too "
         "hard under probe \"{}\" (estimated: {:.0f} % force error: the object is held weakly and gives as a whole); for "
         "accuracy use \"integrator\": {{\"type\": \"implicit\", \"dt_s\": 0.01, \"iterations\": 5}} (no region; "
         "slower), or hold the object over a larger part (docs/model.md section 7)",
-        s.integrator.region_radius_mm, e.force_ratio, out.region_stiffening_probe, 100.0 * e.error_rel()));
+        s.integrator.region_radius_mm, e.force_ratio, out.probe, 100.0 * e.error_rel()));
+  return out;
+}
+
+/// Moves a finished check into `out`.
+void apply_region_check(const RegionCheck& c, PreparedScene& out) {
+  out.region_stiffening = c.estimate;
+  out.region_stiffening_probe = c.probe;
+  out.log.insert(out.log.end(), c.log.begin(), c.log.end());
+  out.warnings.insert(out.warnings.end(), c.warnings.begin(), c.warnings.end());
+}
+
+/// Runs `stage` and records its wall time under `name`.
+template <class F>
+void timed(PreparedScene& out, const char* name, F&& stage) {
+  const auto t0 = std::chrono::steady_clock::now();
+  stage();
+  out.stage_seconds.emplace_back(name, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
 }
 
 }  // namespace
@@ -335,26 +355,69 @@ void check_region_support(const std::vector<std::uint8_t>& fixed, PreparedScene&
 PreparedScene prepare_scene(const Scene& scene, const PrepareSceneOptions& options) {
   PreparedScene out;
   const SceneErrors errors{scene.file.empty() ? std::string("scene") : scene.file.string()};
-  const std::optional<Volume> volume = build_object(scene, out);
-  calibrate_material(scene, volume ? &*volume : nullptr, out);
-  choose_integrator(scene, options, errors, out);
-  const std::vector<std::uint8_t> fixed = fix_nodes(scene, errors, out);
-  place_walls_and_probes(scene, fixed, errors, out);
-  check_region_support(fixed, out);
+  std::optional<Volume> volume;
+  timed(out, "object", [&] { volume = build_object(scene, out); });
+  timed(out, "material", [&] { calibrate_material(scene, volume ? &*volume : nullptr, out); });
+  std::vector<std::uint8_t> fixed;
+  timed(out, "support and probes", [&] {
+    choose_integrator(scene, options, errors, out);
+    fixed = fix_nodes(scene, errors, out);
+    place_walls_and_probes(scene, fixed, errors, out);
+  });
+  const IntegratorSettings& integ = out.settings.integrator;
+  if (integ.kind == IntegratorKind::implicit && integ.region_radius_mm > 0) {
+    if (options.region_check == RegionCheckTiming::background) {
+      // the estimate reads only what it is given (the physics is immutable and shared)
+      out.pending_region_check = std::make_shared<BackgroundRegionCheck>(
+          [physics = out.physics, fixed, settings = out.settings, nice = options.region_check_nice](const std::atomic<bool>& cancel) {
+            if (nice != 0) (void)set_this_thread_nice(nice);  // a real-time run goes first
+            return check_region_support(*physics, fixed, settings, &cancel);
+          });
+    } else {
+      timed(out, "region check", [&] { apply_region_check(check_region_support(*out.physics, fixed, out.settings, nullptr), out); });
+    }
+  }
 
   // the surface, only when someone will show or write it
   const Model& m = *out.model;
   if (options.surface) {
-    const bool paper = scene.outputs.surface_method != SurfaceMethod::staircase;
-    VoxelSurfaceReport rep;
-    out.surface = std::make_shared<const EmbeddedSurface>(m.is_2d() ? make_slice_surface(m)
-                                                                    : make_voxel_surface(m, out.grid, paper, &rep));
+    timed(out, "surface", [&] {
+      const bool paper = scene.outputs.surface_method != SurfaceMethod::staircase;
+      VoxelSurfaceReport rep;
+      out.surface = std::make_shared<const EmbeddedSurface>(m.is_2d() ? make_slice_surface(m)
+                                                                      : make_voxel_surface(m, out.grid, paper, &rep));
+    });
     out.log.push_back(fmt::format("surface ({}): {} vertices, {} triangles", to_string(out.surface->method),
                                   out.surface->num_vertices(), out.surface->num_triangles()));
   }
   out.settings.surface = out.surface;
   out.settings.skip_unneeded = options.skip_unneeded;
   return out;
+}
+
+BackgroundRegionCheck::BackgroundRegionCheck(std::function<RegionCheck(const std::atomic<bool>& cancel)> work)
+    : result_(std::async(std::launch::async, [this, work = std::move(work)] { return work(cancel_); })) {}
+
+BackgroundRegionCheck::~BackgroundRegionCheck() {
+  cancel_.store(true);
+  if (result_.valid()) result_.wait();
+}
+
+bool BackgroundRegionCheck::ready() const {
+  return result_.valid() && result_.wait_for(std::chrono::seconds(0)) == std::future_status::ready;
+}
+
+RegionCheck BackgroundRegionCheck::get() {
+  if (!result_.valid()) throw Error("the background region check was already taken");
+  return result_.get();
+}
+
+std::optional<RegionCheck> take_region_check(PreparedScene& prepared, bool wait) {
+  if (!prepared.pending_region_check || (!wait && !prepared.pending_region_check->ready())) return std::nullopt;
+  RegionCheck c = prepared.pending_region_check->get();
+  prepared.pending_region_check.reset();
+  apply_region_check(c, prepared);
+  return c;
 }
 
 }  // namespace vx

@@ -12,7 +12,10 @@
 /// Units: mm, s, N, kPa, kg/m^3, HU; gravity m/s^2 (as people write it); LPS coordinates.
 
 #include <Eigen/Core>
+#include <atomic>
 #include <filesystem>
+#include <functional>
+#include <future>
 #include <memory>
 #include <nlohmann/json_fwd.hpp>
 #include <optional>
@@ -136,11 +139,48 @@ struct Scene {
 [[nodiscard]] Scene parse_scene(const nlohmann::json& j, const std::filesystem::path& base_dir,
                                 const std::string& name = "scene");
 
+/// When prepare_scene estimates the regional solves' error on the scene's support
+/// (region_stiffening.h: seconds on a large model).
+enum class RegionCheckTiming {
+  before_run,  ///< in prepare_scene: the result is in PreparedScene when it returns
+  background,  ///< on a thread of its own at low priority while the run starts (take_region_check)
+};
+
 /// What to build besides the physics.
 struct PrepareSceneOptions {
   bool surface{false};          ///< build the embedded surface (display, .pvd surface output)
   int threads_override{-1};     ///< >= 0: replaces the scene's `threads`
   bool skip_unneeded{true};     ///< false: the Simulation does every optional piece of work
+  RegionCheckTiming region_check{RegionCheckTiming::before_run};
+  /// background: the check's thread's nice value (10: it yields to a real-time run; 0: a batch
+  /// run, which waits for it at its end anyway)
+  int region_check_nice{10};
+};
+
+/// The regional solves' error on a scene's support: the estimate of the probe where it is worst,
+/// and what to log and to warn about it.
+struct RegionCheck {
+  std::optional<RegionStiffeningEstimate> estimate;
+  std::string probe;                  ///< the probe of `estimate`
+  std::vector<std::string> log;       ///< one line per probe without an estimate, one for the worst
+  std::vector<std::string> warnings;  ///< the warning above kRegionStiffeningWarnRel
+};
+
+/// A RegionCheck running on a thread of its own. Destroying it cancels the estimate and joins
+/// the thread (at the estimate's next iteration).
+class BackgroundRegionCheck {
+ public:
+  explicit BackgroundRegionCheck(std::function<RegionCheck(const std::atomic<bool>& cancel)> work);
+  ~BackgroundRegionCheck();
+  BackgroundRegionCheck(const BackgroundRegionCheck&) = delete;
+  BackgroundRegionCheck& operator=(const BackgroundRegionCheck&) = delete;
+  [[nodiscard]] bool ready() const;
+  /// Waits for the result (once; later calls throw). Rethrows what the estimate threw.
+  [[nodiscard]] RegionCheck get();
+
+ private:
+  std::atomic<bool> cancel_{false};
+  std::future<RegionCheck> result_;
 };
 
 /// A scene made ready to simulate: the object built, the material calibrated, the settings.
@@ -162,7 +202,18 @@ struct PreparedScene {
   /// where it is worst (region_stiffening.h; docs/model.md section 7); empty without a region.
   std::optional<RegionStiffeningEstimate> region_stiffening;
   std::string region_stiffening_probe;             ///< that probe's name
+  /// RegionCheckTiming::background: the estimate still running (take_region_check() moves its
+  /// result into region_stiffening, log and warnings); null otherwise and once taken.
+  std::shared_ptr<BackgroundRegionCheck> pending_region_check;
+  /// Wall time of each stage of prepare_scene (name, s), in order: where the start-up goes.
+  std::vector<std::pair<std::string, double>> stage_seconds;
 };
+
+/// The background region check's result once it is ready (or, with `wait`, once it ends):
+/// moved into `prepared` (region_stiffening, its probe; its log lines and warnings appended to
+/// prepared.log and prepared.warnings) and returned, so the caller can show what is new.
+/// Empty when nothing is pending or (without `wait`) it is still running.
+std::optional<RegionCheck> take_region_check(PreparedScene& prepared, bool wait);
 
 /// The estimated force error above which the run warns that its regional solves press too hard.
 inline constexpr double kRegionStiffeningWarnRel = 0.05;

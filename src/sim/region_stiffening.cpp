@@ -59,6 +59,7 @@ double compliance(const Tangent& t, const Preconditioner& ic, const Eigen::Matri
   iterations = 0;
   for (; iterations < s.max_iterations; ++iterations) {
     if (r.norm() <= s.tolerance * f_norm) return (f.array() * x.array()).sum();
+    if (s.cancel && s.cancel->load(std::memory_order_relaxed)) break;
     t.apply(p, q);
     const double alpha = rz / (p.array() * q.array()).sum();
     if (!(alpha > 0) || !std::isfinite(alpha)) break;
@@ -143,6 +144,7 @@ RegionStiffeningEstimate estimate_region_stiffening(const PhysicsModel& p, const
   if (ic.info() != Eigen::Success) return done("the incomplete factor failed");
   out.compliance_full_mm_n = compliance(Tangent{p, k_lower, nullptr, free_index}, ic, f, s, out.iterations_full);
   out.compliance_region_mm_n = compliance(Tangent{p, k_lower, &held, free_index}, ic, f, s, out.iterations_region);
+  if (s.cancel && s.cancel->load()) return done("cancelled");
   if (!std::isfinite(out.compliance_full_mm_n) || !std::isfinite(out.compliance_region_mm_n) ||
       !(out.compliance_region_mm_n > 0))
     return done("the solve did not converge (a part of the model held by nothing?)");

@@ -25,6 +25,7 @@
 /// Units: mm, N, s.
 
 #include <Eigen/Core>
+#include <atomic>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -45,6 +46,10 @@ struct RegionStiffeningSettings {
   /// cost; false: the projective matrix alone (one coordinate): stiffer near the tool, but the
   /// ratio it gives agreed within 1 % on the tested column
   bool rotation_curvature{false};
+  /// When set and true, the estimate stops at its next conjugate-gradient iteration and returns
+  /// no estimate (reason "cancelled"): a run that ends before a background estimate does not wait
+  /// for it (prepare_scene's RegionCheck::background).
+  const std::atomic<bool>* cancel{nullptr};
 };
 
 struct RegionStiffeningEstimate {

@@ -812,3 +812,53 @@ TEST(Scene, RegionalSolvesOnAWeakSupportSayHowWrongTheyAre) {
   j["integrator"].erase("region_radius_mm");
   EXPECT_FALSE(prepare_scene(parse_scene(j, ".", "t")).region_stiffening.has_value());
 }
+
+TEST(Scene, TheRegionCheckInTheBackgroundGivesTheSameEstimate) {
+  // simulate and the probe app start the run while the check runs on a thread of its own: the
+  // same estimate and warning, once taken; a run that ends first cancels it without waiting
+  json j = base_scene();
+  j["object"] = {{"box_mm", {{"min", {0, 0, 0}}, {"max", {64, 64, 128}}}}, {"voxel_mm", 4.0}};
+  j["material"]["damping"] = 0.2;
+  j["integrator"] = {{"type", "implicit"}, {"dt_s", 0.03}, {"iterations", 1}, {"region_radius_mm", 30}};
+  j["probes"][0]["radius_mm"] = 4;
+  j["probes"][0]["path"] = json::array({{{"t_s", 0}, {"position_mm", {32, 32, 132}}}, {{"t_s", 1}, {"position_mm", {32, 32, 127}}}});
+  j["duration_s"] = 1.0;
+  j["fixed"] = json::array({{{"box_mm", {{"min", {27.9, 27.9, -0.1}}, {"max", {36.1, 36.1, 0.1}}}}}});
+  const Scene scene = parse_scene(j, ".", "t");
+  const PreparedScene now = prepare_scene(scene);
+  ASSERT_TRUE(now.region_stiffening.has_value());
+  EXPECT_EQ(now.pending_region_check, nullptr);
+  PrepareSceneOptions background;
+  background.region_check = RegionCheckTiming::background;
+  PreparedScene later = prepare_scene(scene, background);
+  ASSERT_NE(later.pending_region_check, nullptr);
+  EXPECT_FALSE(later.region_stiffening.has_value());
+  const std::size_t warnings_before = later.warnings.size();
+  const std::optional<RegionCheck> c = take_region_check(later, true);
+  ASSERT_TRUE(c.has_value());
+  EXPECT_EQ(later.pending_region_check, nullptr);
+  ASSERT_TRUE(later.region_stiffening.has_value());
+  EXPECT_EQ(later.region_stiffening_probe, "ball");
+  EXPECT_DOUBLE_EQ(later.region_stiffening->force_ratio, now.region_stiffening->force_ratio);
+  ASSERT_EQ(c->warnings.size(), 1u);
+  EXPECT_EQ(later.warnings.size(), warnings_before + 1);
+  EXPECT_CONTAINS(later.warnings.back(), fmt::format("presses about {:.2g}x too hard", now.region_stiffening->force_ratio));
+  EXPECT_FALSE(take_region_check(later, true).has_value());  // taken once
+  // the stage times name where the start-up went
+  ASSERT_GE(later.stage_seconds.size(), 3u);
+  EXPECT_EQ(later.stage_seconds.front().first, "object");
+  for (const auto& [name, s] : later.stage_seconds) EXPECT_GE(s, 0.0) << name;
+  // cancelled: the estimate stops at its next iteration and says so
+  std::atomic<bool> cancel{true};
+  RegionStiffeningSettings rs;
+  rs.tool_mm = Eigen::Vector3d(32, 32, 132);
+  rs.cancel = &cancel;
+  std::vector<std::uint8_t> fixed(std::size_t(now.physics->num_nodes()), 0);
+  for (int n = 0; n < now.physics->num_nodes(); ++n)
+    if (now.model->rest_positions(2, n) < 0.1) fixed[std::size_t(n)] = 1;
+  const RegionStiffeningEstimate e = estimate_region_stiffening(*now.physics, fixed, rs);
+  EXPECT_FALSE(e.valid);
+  EXPECT_EQ(e.reason, "cancelled");
+  // dropped while running: joins (cancelled) instead of leaving a thread behind
+  { const PreparedScene dropped = prepare_scene(scene, background); }
+}
