@@ -319,10 +319,11 @@ void App::summary(double wall_s) {
     // the real-time factor over the whole run after the start-up, pauses excluded
     RateWindow w = rate_between(r.at_startup, end_);
     w.wall_s = std::max(0.0, w.wall_s - gui_loop_->paused_s());
-    say(fmt::format("voxelastic-probe: {:.2f} s wall; start-up {:.2f} s (open to the first physics step); after it "
-                    "{:.3f} s simulated in {:.3f} s wall ({:.2f}x real time{}); physics {} steps ({:.0f} steps/s after "
-                    "the start-up, {})",
-                    wall_s, r.startup_s, w.sim_s, w.wall_s, w.factor(),
+    say(fmt::format("voxelastic-probe: {:.2f} s wall; start-up {:.2f} s (loading the scene {:.2f} s, then open to the "
+                    "first physics step {:.2f} s); after it {:.3f} s simulated in {:.3f} s wall ({:.2f}x real time{}); "
+                    "physics {} steps ({:.0f} steps/s after the start-up, {})",
+                    scene_.load_s + wall_s, scene_.load_s + r.startup_s, scene_.load_s, r.startup_s, w.sim_s, w.wall_s,
+                    w.factor(),
                     r.lag_drops.load() == 0 ? ""
                     : local_                ? ", the tissue could not keep real time"
                                             : ", could not keep real time",
@@ -413,7 +414,9 @@ int run_probe_app(const AppOptions& options) {
   if (!options.quiet) fmt::print("voxelastic-probe: loading {} ...\n", options.input.string());
   DefaultSceneOptions scene_options = options.scene;
   scene_options.surface_method = options.surface_method;
+  const auto load_start = SteadyClock::now();
   ProbeScene scene = load_probe_scene(options.input, scene_options);
+  scene.load_s = seconds(SteadyClock::now() - load_start);
   if (!options.quiet)
     for (const auto& n : scene.notes) fmt::print("{}\n", n);
   App app(options, std::move(scene));
