@@ -129,7 +129,6 @@ def write_png(rows, path, found_within):
             "set ylabel 'contrast'",
             "set grid",
             "set key outside right top",
-            "set logscale y",
             "set yrange [0.9:*]",
             "set offsets 0.3, 0.3, 0, 0",
             "plot " + ", ".join(plots),
