@@ -288,7 +288,8 @@ PalpationMap palpation_map(const PreparedScene& prepared, const PalpationMapSett
       PalpationPoint& p = map.points[std::size_t(k)];
       if (!sims[t]) {
         p.failure = setup_error[t];
-      } else {
+        p.force_n = p.stiffness_n_per_mm = kNaN;
+      } else try {
         Simulation& sim = *sims[t];
         sim.reset();
         const double h0 = f.outward * p.surface_mm[f.axis];
@@ -313,6 +314,9 @@ PalpationMap palpation_map(const PreparedScene& prepared, const PalpationMapSett
           p.force_n = sum / average_steps;
           p.stiffness_n_per_mm = p.force_n / p.depth_mm;
         }
+      } catch (const std::exception& ex) {  // nothing may leave the parallel loop
+        p.failure = ex.what();
+        p.force_n = p.stiffness_n_per_mm = kNaN;
       }
       std::lock_guard<std::mutex> g(lock);
       ++done;

@@ -48,6 +48,28 @@ TEST_F(CliPalpateMap, MapsALesionPhantom) {
   EXPECT_GT(j.at("contrast").get<double>(), 1.5);
 }
 
+TEST_F(CliPalpateMap, MapsAModelAndAScene) {
+  // a model (.vtu: one modulus, --modulus-kpa) and a scene (its own material and lesion)
+  ASSERT_EQ(run("phantom block --size 24 -o b.vti").code, 0);
+  ASSERT_EQ(run("convert b.vti -o b.vtu").code, 0);
+  auto r = run("palpate-map b.vtu --out m1 --spacing-mm 4 --modulus-kpa 10 --no-png");
+  ASSERT_EQ(r.code, 0) << r.err;
+  std::ifstream in1(dir_ / "m1" / "summary.json");
+  const nlohmann::json j1 = nlohmann::json::parse(in1);
+  EXPECT_EQ(j1.at("material").at("youngs_modulus_kpa"), 10.0);
+  EXPECT_LT(j1.at("contrast").get<double>(), 1.15);  // uniform
+  r = run("palpate-map " + (fs::path(VX_SAMPLES_DIR) / "scenes" / "palpate_lesion.json").string() +
+          " --out m2 --spacing-mm 4 --no-png");
+  ASSERT_EQ(r.code, 0) << r.err;
+  std::ifstream in2(dir_ / "m2" / "summary.json");
+  const nlohmann::json j2 = nlohmann::json::parse(in2);
+  // block-lesion 48: the lesion's axis at x = 0.3 x 19 = 5.7 mm, y = 0
+  EXPECT_LT(std::hypot(j2.at("lesion_estimate_mm")[0].get<double>() - 5.7, j2.at("lesion_estimate_mm")[1].get<double>()),
+            2.0)
+      << j2.dump();
+  EXPECT_GT(j2.at("contrast").get<double>(), 2.0);
+}
+
 TEST_F(CliPalpateMap, BadInputFailsCleanly) {
   ASSERT_EQ(run("phantom block --size 24 -o b.vti").code, 0);
   // usage errors: exit 2, nothing written
