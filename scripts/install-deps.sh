@@ -10,6 +10,8 @@ packages=(
   libcli11-dev nlohmann-json3-dev libspdlog-dev libfmt-dev
   libopenjp2-7-dev
   xvfb xauth x11-utils dicom3tools gnuplot-nox
+  # the palpation sweep (workflow/Snakefile, docs/palpation.md) and its CI test
+  snakemake
   # fuzzing and the sanitizer build (scripts/fuzz.sh, scripts/sanitize.sh): clang with its
   # sanitizer and libFuzzer runtimes (libclang_rt.fuzzer is in libclang-rt-14-dev), OpenMP for
   # clang, llvm-symbolizer for readable stacks

@@ -1,6 +1,8 @@
 // voxelastic phantom NAME -o OUT: a synthetic CT volume with a known analytic shape.
-#include <fmt/core.h>
+#include <fmt/format.h>
 
+#include <Eigen/Core>
+#include <cmath>
 #include <filesystem>
 #include <memory>
 #include <string>
@@ -18,9 +20,35 @@ namespace fs = std::filesystem;
 struct PhantomOptions {
   PhantomSettings settings;
   std::string output;
+  std::string lesion_center;  ///< --lesion-center-mm "X,Y,Z" ("" : the default)
 };
 
-void run_phantom(const PhantomOptions& o) {
+/// Parses "X,Y,Z" (mm); throws CLI::ValidationError (a usage error, exit 2) otherwise.
+Eigen::Vector3d parse_point_mm(const std::string& option, const std::string& text) {
+  Eigen::Vector3d p;
+  std::size_t start = 0;
+  for (int i = 0; i < 3; ++i) {
+    const std::size_t comma = text.find(',', start);
+    if ((i < 2) != (comma != std::string::npos))
+      throw CLI::ValidationError(option, fmt::format("'{}' is not three numbers X,Y,Z in mm (e.g. 5,0,2.4)", text));
+    const std::string part = text.substr(start, comma == std::string::npos ? std::string::npos : comma - start);
+    try {
+      std::size_t used = 0;
+      p[i] = std::stod(part, &used);
+      if (used != part.size() || !std::isfinite(p[i])) throw std::invalid_argument(part);
+    } catch (const std::exception&) {
+      throw CLI::ValidationError(option, fmt::format("'{}' is not three numbers X,Y,Z in mm (e.g. 5,0,2.4)", text));
+    }
+    start = comma + 1;
+  }
+  return p;
+}
+
+void run_phantom(PhantomOptions o) {
+  // the lesion options are checked against the block before anything else: a usage error (exit 2)
+  if (!o.lesion_center.empty()) o.settings.lesion_center_mm = parse_point_mm("--lesion-center-mm", o.lesion_center);
+  if (const std::string e = lesion_settings_error(o.settings); !e.empty())
+    throw CLI::ValidationError("--lesion-center-mm/--lesion-radius-mm", e);
   // the output first: a mistake there should cost nothing
   const std::string format = volume_format(o.output);
   const std::string ext = fs::path(o.output).extension().string();
@@ -40,8 +68,10 @@ void run_phantom(const PhantomOptions& o) {
                "mm^2 (analytic {:.4g} mm^2){} -> {}\n",
                shape.name, g.dims.x(), g.dims.y(), g.spacing_mm.x(), g.spacing_mm.z(), shape.tissue_voxels,
                double(shape.tissue_voxels) * g.spacing_mm.x() * g.spacing_mm.y(), shape.area_mm2(),
-               shape.lesion_radius_mm > 0 ? fmt::format(", lesion r {:.3g} mm at {:g} HU ({} pixels)",
-                                                        shape.lesion_radius_mm, o.settings.lesion_hu, shape.lesion_voxels)
+               shape.lesion_radius_mm > 0 ? fmt::format(", lesion r {:.3g} mm at ({:.4g}, {:.4g}) mm, {:g} HU ({} pixels)",
+                                                        shape.lesion_radius_mm, shape.lesion_center_mm.x(),
+                                                        shape.lesion_center_mm.y(), o.settings.lesion_hu,
+                                                        shape.lesion_voxels)
                                           : std::string(),
                o.output);
     return;
@@ -60,8 +90,9 @@ void run_phantom(const PhantomOptions& o) {
   const double analytic_cm3 = shape.volume_mm3() / 1000.0;
   std::string lesion;
   if (shape.lesion_radius_mm > 0)
-    lesion = fmt::format(", lesion r {:.3g} mm at {:g} HU ({} voxels)", shape.lesion_radius_mm, o.settings.lesion_hu,
-                         shape.lesion_voxels);
+    lesion = fmt::format(", lesion r {:.3g} mm at ({:.4g}, {:.4g}, {:.4g}) mm, {:g} HU ({} voxels)",
+                         shape.lesion_radius_mm, shape.lesion_center_mm.x(), shape.lesion_center_mm.y(),
+                         shape.lesion_center_mm.z(), o.settings.lesion_hu, shape.lesion_voxels);
   fmt::print("phantom {}: {}x{}x{} voxels of {:g} mm, {} tissue voxels = {:.4g} cm^3 (analytic {:.4g} cm^3, {:+.2f}%){}{} "
              "-> {}\n",
              shape.name, g.dims.x(), g.dims.y(), g.dims.z(), g.spacing_mm.x(), shape.tissue_voxels, voxel_cm3,
@@ -93,6 +124,12 @@ void add_phantom_command(CLI::App& app) {
   sub->add_option("--tissue-hu", opts->settings.tissue_hu, "value inside the shape, HU")->capture_default_str();
   sub->add_option("--lesion-hu", opts->settings.lesion_hu, "block-lesion, disk-lesion: value inside the lesion, HU")
       ->capture_default_str();
+  sub->add_option("--lesion-center-mm", opts->lesion_center,
+                  "block-lesion, disk-lesion: the lesion's centre X,Y,Z in mm (the block is centred at the origin; "
+                  "disk-lesion: Z = 0); the lesion must lie wholly inside the block");
+  sub->add_option("--lesion-radius-mm", opts->settings.lesion_radius_mm,
+                  "block-lesion, disk-lesion: the lesion's radius, mm (default: about 0.15 of the grid's edge)")
+      ->check(CLI::PositiveNumber);
   sub->add_option("--thickness", opts->settings.thickness_mm,
                   "disk, rectangle, disk-lesion (one slice, a 2D model): the slice thickness, mm (0: the spacing)")
       ->capture_default_str();

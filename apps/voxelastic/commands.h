@@ -13,5 +13,6 @@ void add_convert_command(CLI::App& app);  ///< voxelastic convert INPUT -o MODEL
 void add_simulate_command(CLI::App& app); ///< voxelastic simulate SCENE.json --out DIR
 void add_bench_command(CLI::App& app);    ///< voxelastic bench [--quick] [--out DIR] [--threads N]
 void add_verify_command(CLI::App& app);   ///< voxelastic verify [--suite S] --out DIR, voxelastic verify-merge DIR... --out DIR
+void add_palpate_map_command(CLI::App& app);  ///< voxelastic palpate-map INPUT --out DIR
 
 }  // namespace vx::cli

@@ -28,6 +28,7 @@ int main(int argc, char** argv) {
   vx::cli::add_simulate_command(app);
   vx::cli::add_verify_command(app);
   vx::cli::add_bench_command(app);
+  vx::cli::add_palpate_map_command(app);
   try {
     (void)vx::best_simd_level();  // a bad VOXELASTIC_SIMD is an error here, not inside a worker
     app.parse(argc, argv);

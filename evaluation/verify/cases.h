@@ -59,6 +59,7 @@ void run_energy(VerifyContext& ctx, const std::vector<EnergyRun>& runs);
 void run_extreme(VerifyContext& ctx);
 /// A stiff lesion in a soft block is felt: more force over it than away from it.
 void run_lesion(VerifyContext& ctx);
+void run_palpation_map(VerifyContext& ctx);
 
 // plane_cases.cpp (the 2D slice model, docs/model.md section 12)
 /// Quadtree counts of an all-tissue square (exact rings) and the growth of a disk's work.

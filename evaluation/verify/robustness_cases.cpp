@@ -10,8 +10,10 @@
 #include <cstdint>
 #include <string>
 #include <vector>
+#include <nlohmann/json.hpp>
 
 #include "base/error.h"
+#include "scene/palpation_map.h"
 #include "scene/scene.h"
 #include "sim/contact.h"
 #include "sim/simulation.h"
@@ -187,6 +189,67 @@ void run_lesion(VerifyContext& ctx) {
   ctx.plot("force-depth", "Palpation: force against depth over the stiff lesion and away from it",
            {{"Ball R = 4 mm into a 5 kPa block with a 50 kPa lesion (gradational)", "depth, mm", "force, N",
              {{"over the lesion", over.depth_mm, over.force_n}, {"away from it", away.depth_mm, away.force_n}}}});
+}
+
+// --- palpation maps: where is the lesion, and how does it fade with depth ------------------------
+
+void run_palpation_map(VerifyContext& ctx) {
+  // block-lesion 40 (1 mm voxels): a 32 x 24 x 16 mm block (top at z = 8 mm), tissue 5 kPa, a
+  // 4 mm lesion of 50 kPa at (4, -2) whose top lies 1, 2.5 and 4 mm under the top; held at its
+  // base, mapped from +z by a 4 mm ball pressed 2 mm every 2 mm, in the fast configuration
+  const Eigen::Vector2d truth(4.0, -2.0);
+  const double radius = 4.0;
+  const std::vector<double> depths{1.0, 2.5, 4.0};
+  std::vector<double> contrast, error;
+  PlotSeries profile_series[3];
+  for (std::size_t k = 0; k < depths.size(); ++k) {
+    const double zc = 8.0 - radius - depths[k];
+    const nlohmann::json j = {
+        {"object", {{"phantom", "block-lesion"}, {"size", 40}, {"lesion_center_mm", {truth.x(), truth.y(), zc}},
+                    {"lesion_radius_mm", radius}}},
+        {"material", {{"youngs_modulus_kpa", 5}, {"damping", 0.2},
+                      {"hounsfield_table", {{{"hu", 40}, {"youngs_modulus_kpa", 5}}, {{"hu", 120}, {"youngs_modulus_kpa", 50}}}}}},
+        {"fixed", {"z_min"}},
+        {"duration_s", 1.0},
+        {"threads", kThreads}};
+    const PreparedScene prepared = prepare_scene(parse_scene(j, ".", "palpation-map case"));
+    PalpationMapSettings m;
+    m.spacing_mm = 2.0;
+    m.threads = kThreads;  // cases run in parallel
+    const PalpationMap map = palpation_map(prepared, m);
+    const PalpationSummary s = summarize_palpation_map(map);
+    if (s.failed > 0) throw Error(fmt::format("{} presses failed", s.failed));
+    contrast.push_back(s.contrast);
+    error.push_back((s.lesion_estimate_mm.head<2>() - truth).norm());
+    ctx.log(fmt::format("lesion top {:g} mm deep: {} presses in {:.1f} s; stiffness {:.4g} N/mm (median) to {:.4g}; "
+                        "contrast {:.3f}; estimate ({:.2f}, {:.2f}) mm, {:.2f} mm from the lesion's axis; {} points above "
+                        "the threshold",
+                        depths[k], s.points, map.wall_s, s.background_n_per_mm, s.peak_n_per_mm, s.contrast,
+                        s.lesion_estimate_mm.x(), s.lesion_estimate_mm.y(), error.back(), s.points_above));
+    // the profile along x through the lesion's row
+    profile_series[k].title = fmt::format("lesion top {:g} mm deep", depths[k]);
+    profile_series[k].with_points = true;
+    for (const PalpationPoint& p : map.points)
+      if (std::abs(p.v_mm - truth.y()) < 0.5 * m.spacing_mm + 1e-9) {
+        profile_series[k].x.push_back(p.u_mm);
+        profile_series[k].y.push_back(p.stiffness_n_per_mm);
+      }
+    const std::string d = fmt::format("depth_{:g}mm", depths[k]);
+    // the grid is 2 mm: the estimate lands within one spacing of the lesion's axis
+    ctx.check(d + ".estimate_error", error.back(), 0.0, 2.0, "mm",
+              "in-plane distance from the stiffness-weighted centroid of the points above the threshold to the lesion's "
+              "axis",
+              CheckRule::at_most);
+  }
+  ctx.check("contrast_shallow", contrast[0], 1.5, 0.0, "",
+            "peak / surrounding stiffness with the lesion's top 1 mm deep (the 10x stiffer lesion fills the strained "
+            "region under the 2.8 mm contact)",
+            CheckRule::at_least);
+  ctx.check("contrast_falls_with_depth", contrast[0] > contrast[1] && contrast[1] > contrast[2] && contrast[2] > 1.0 ? 1.0 : 0.0,
+            1.0, 0.0, "", "1 when the contrast falls strictly from 1 to 2.5 to 4 mm deep and stays above 1");
+  ctx.plot("profile", "Palpation map: stiffness along x through the lesion, three lesion depths",
+           {{"4 mm ball pressed 2 mm into a 5 kPa block over a 50 kPa lesion (r 4 mm) at x = 4 mm", "x, mm",
+             "stiffness, N/mm", {profile_series[0], profile_series[1], profile_series[2]}}});
 }
 
 }  // namespace vx::cases

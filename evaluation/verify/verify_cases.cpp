@@ -205,6 +205,16 @@ void add_robustness_cases(std::vector<VerifyCase>& c) {
                "the same press over homogeneous tissue equally far from the block's other end: at least 1.3 times (the "
                "contact strains tissue down to about three contact radii, which the lesion largely fills).",
                true, run_lesion});
+  c.push_back({"palpation-map", "Palpation maps find a lesion, and its contrast fades with depth",
+               "`voxelastic palpate-map` on block-lesion phantoms (32 x 24 x 16 mm, 1 mm voxels, tissue 5 kPa) with a "
+               "50 kPa lesion of radius 4 mm at x = 4, y = -2 mm whose top lies 1, 2.5 and 4 mm under the top face: a "
+               "4 mm ball pressed 2 mm from rest at every point of a 2 mm grid (the fast configuration). The estimate "
+               "(the stiffness-weighted centroid of the points above halfway between the median and the peak) must "
+               "lie within 2 mm (one grid spacing) of the lesion's axis at every depth; the contrast (peak / median of "
+               "the points below the threshold) must be at least 1.5 for the shallow lesion and fall strictly with "
+               "depth, staying above 1 (the strain under a contact of radius sqrt(R d) = 2.8 mm fades over a few "
+               "contact radii, so a deeper lesion carries less of the press).",
+               false, run_palpation_map});
 }
 
 /// The 2D (slice) model (docs/model.md section 12).

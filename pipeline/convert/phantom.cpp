@@ -342,7 +342,51 @@ PhantomShape phantom_shape(const PhantomSettings& s) {
       shape.lesion_radius_mm = std::min(0.15 * scale, 0.9 * (b.z() - shape.lesion_center_mm.z()));
     }
   }
+  // a lesion placed and sized by the caller replaces the default one, inside the shape
+  if (s.lesion_center_mm || s.lesion_radius_mm != 0.0) {
+    if (const std::string e = lesion_settings_error(s); !e.empty()) throw Error(e);
+    if (s.lesion_center_mm) shape.lesion_center_mm = *s.lesion_center_mm;
+    if (s.lesion_radius_mm != 0.0) shape.lesion_radius_mm = s.lesion_radius_mm;
+  }
   return shape;
+}
+
+std::string lesion_settings_error(const PhantomSettings& s) {
+  if (!s.lesion_center_mm && s.lesion_radius_mm == 0.0) return {};
+  if (s.name != "block-lesion" && s.name != "disk-lesion")
+    return fmt::format("phantom '{}' has no lesion: the lesion centre and radius apply to block-lesion and disk-lesion",
+                       s.name);
+  if (!std::isfinite(s.lesion_radius_mm) || s.lesion_radius_mm < 0.0)
+    return fmt::format("lesion radius {} mm must be a positive number", s.lesion_radius_mm);
+  if (s.lesion_center_mm && !s.lesion_center_mm->allFinite()) return "lesion centre must be three finite numbers (mm)";
+  // the default shape: its block (disk), and the default lesion for what was not given
+  PhantomSettings base = s;
+  base.lesion_center_mm.reset();
+  base.lesion_radius_mm = 0.0;
+  PhantomShape shape;
+  try {
+    shape = phantom_shape(base);
+  } catch (const Error&) {
+    return {};  // the other settings are wrong: phantom_shape says what
+  }
+  const Eigen::Vector3d c = s.lesion_center_mm ? *s.lesion_center_mm : shape.lesion_center_mm;
+  const double r = s.lesion_radius_mm != 0.0 ? s.lesion_radius_mm : shape.lesion_radius_mm;
+  const Eigen::Vector3d& e = shape.half_extent_mm;
+  const std::string where = fmt::format("a lesion of radius {:g} mm centred at ({:g}, {:g}, {:g}) mm", r, c.x(), c.y(), c.z());
+  if (s.name == "disk-lesion") {
+    if (c.z() != 0.0)
+      return fmt::format("{}: disk-lesion is one slice in the plane z = 0, so the lesion centre's z must be 0", where);
+    if (c.head<2>().norm() + r > e.x())
+      return fmt::format("{} does not fit inside the disk of radius {:g} mm centred at the origin: keep "
+                         "sqrt(x^2 + y^2) + radius <= {:g} mm",
+                         where, e.x(), e.x());
+    return {};
+  }
+  if (((c.cwiseAbs().array() + r) > e.array()).any())
+    return fmt::format("{} does not fit inside the block, {:g} x {:g} x {:g} mm centred at the origin (x, y, z): keep "
+                       "|x| + radius <= {:g}, |y| + radius <= {:g} and |z| + radius <= {:g} mm",
+                       where, 2 * e.x(), 2 * e.y(), 2 * e.z(), e.x(), e.y(), e.z());
+  return {};
 }
 
 Volume make_phantom(const PhantomSettings& s, PhantomShape* shape_out) {

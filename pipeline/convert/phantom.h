@@ -4,6 +4,7 @@
 
 #include <Eigen/Core>
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -47,6 +48,11 @@ struct PhantomSettings {
   double tissue_hu{40.0};      ///< soft tissue
   double air_hu{-1000.0};      ///< outside
   double lesion_hu{120.0};     ///< block-lesion, disk-lesion: the stiffer inclusion
+  /// block-lesion, disk-lesion: the lesion's centre, LPS mm (absent: the default placement
+  /// above; disk-lesion: z must be 0, the slice plane). The whole lesion must lie inside the
+  /// block (disk): phantom_shape() throws otherwise.
+  std::optional<Eigen::Vector3d> lesion_center_mm;
+  double lesion_radius_mm{0.0};  ///< block-lesion, disk-lesion: the lesion's radius, mm (0: the default)
   double thickness_mm{0.0};    ///< one-slice phantoms: the slice thickness, mm (0: spacing_mm)
   double noise_hu{0.0};        ///< standard deviation of Gaussian noise added, HU; noisy values
                                ///< are rounded to whole HU, as CT stores them
@@ -99,6 +105,12 @@ struct PhantomShape {
   /// A one-slice (2D) shape: disk, rectangle, disk-lesion.
   [[nodiscard]] bool is_2d() const { return name == "disk" || name == "rectangle" || name == "disk-lesion"; }
 };
+
+/// What is wrong with the lesion settings (`lesion_center_mm`, `lesion_radius_mm`) for the
+/// shape they would go into, or "" when they fit: a lesion needs block-lesion or disk-lesion, a
+/// positive finite radius, and must lie wholly inside the block (disk). phantom_shape() throws
+/// this message as a vx::Error; the command line reports it as a usage error.
+[[nodiscard]] std::string lesion_settings_error(const PhantomSettings& settings);
 
 /// Names of the phantoms `make_phantom` knows.
 [[nodiscard]] std::vector<std::string> phantom_names();

@@ -80,57 +80,63 @@ void check_gnuplot() {
 
 void plot_png(const std::vector<PlotPanel>& panels, const fs::path& png, int width, int panel_height) {
   if (panels.empty()) throw Error("plot: nothing to draw");
+  // the script, with the data inline as datablocks
+  std::ostringstream gp;
+  gp.precision(10);
+  int block = 0;
+  for (const auto& panel : panels)
+    for (const auto& s : panel.series) {
+      gp << "$D" << block++ << " << EOD\n";
+      for (std::size_t i = 0; i < s.x.size() && i < s.y.size(); ++i)
+        if (std::isfinite(s.x[i]) && std::isfinite(s.y[i]) && !(panel.log_x && s.x[i] <= 0) &&
+            !(panel.log_y && s.y[i] <= 0))
+          gp << s.x[i] << " " << s.y[i] << "\n";
+      gp << "EOD\n";
+    }
+  gp << "set multiplot layout " << panels.size() << ",1\n";
+  gp << "set grid\nset key top left\n";
+  block = 0;
+  for (const auto& panel : panels) {
+    gp << "set title " << gp_quote(panel.title) << "\n";
+    gp << "set xlabel " << gp_quote(panel.xlabel) << "\n";
+    gp << "set ylabel " << gp_quote(panel.ylabel) << "\n";
+    gp << (panel.log_x ? "set logscale x\n" : "unset logscale x\n");
+    gp << (panel.log_y ? "set logscale y\n" : "unset logscale y\n");
+    gp << "set key " << panel.key << "\n";
+    gp << "set xrange " << (panel.xrange.empty() ? "[*:*]" : panel.xrange) << "\n";
+    gp << "set yrange " << (panel.yrange.empty() ? "[*:*]" : panel.yrange) << "\n";
+    if (panel.series.empty()) {
+      gp << "set label 1 'no data' at graph 0.5, 0.5 center\nplot [0:1] [0:1] NaN notitle\nunset label 1\n";
+      continue;
+    }
+    gp << "plot ";
+    for (std::size_t k = 0; k < panel.series.size(); ++k) {
+      const auto& s = panel.series[k];
+      gp << (k ? ", " : "") << "$D" << block++ << " using 1:2 with "
+         << (s.points ? "points" : s.with_points ? "linespoints" : "lines") << " lw " << s.line_width;
+      if (s.points) gp << " pt " << s.point_type << " ps " << (s.point_type == 7 ? 0.4 : 0.9);
+      if (s.with_points) gp << " pt " << s.point_type << " ps 0.8";
+      if (s.dash_type > 0) gp << " dt " << s.dash_type;
+      if (!s.color.empty()) gp << " lc rgb " << gp_quote(s.color);
+      gp << " title " << gp_quote(s.title);
+    }
+    gp << "\n";
+  }
+  gp << "unset multiplot\n";
+
+  gnuplot_png(gp.str(), png, width, panel_height * int(panels.size()));
+}
+
+std::string gnuplot_quote(const std::string& s) { return gp_quote(s); }
+
+void gnuplot_png(const std::string& commands, const fs::path& png, int width, int height) {
   const std::string exe = find_gnuplot();
   if (exe.empty()) check_gnuplot();  // throws with the install hint
-
   write_atomically(png, [&](const fs::path& tmp) {
-    // the script, with the data inline as datablocks
     std::ostringstream gp;
-    gp.precision(10);
-    gp << "set terminal pngcairo size " << width << "," << panel_height * int(panels.size())
-       << " enhanced font 'DejaVu Sans,10'\n";
+    gp << "set terminal pngcairo size " << width << "," << height << " enhanced font 'DejaVu Sans,10'\n";
     gp << "set output " << gp_quote(tmp.string()) << "\n";
-    int block = 0;
-    for (const auto& panel : panels)
-      for (const auto& s : panel.series) {
-        gp << "$D" << block++ << " << EOD\n";
-        for (std::size_t i = 0; i < s.x.size() && i < s.y.size(); ++i)
-          if (std::isfinite(s.x[i]) && std::isfinite(s.y[i]) && !(panel.log_x && s.x[i] <= 0) &&
-              !(panel.log_y && s.y[i] <= 0))
-            gp << s.x[i] << " " << s.y[i] << "\n";
-        gp << "EOD\n";
-      }
-    gp << "set multiplot layout " << panels.size() << ",1\n";
-    gp << "set grid\nset key top left\n";
-    block = 0;
-    for (const auto& panel : panels) {
-      gp << "set title " << gp_quote(panel.title) << "\n";
-      gp << "set xlabel " << gp_quote(panel.xlabel) << "\n";
-      gp << "set ylabel " << gp_quote(panel.ylabel) << "\n";
-      gp << (panel.log_x ? "set logscale x\n" : "unset logscale x\n");
-      gp << (panel.log_y ? "set logscale y\n" : "unset logscale y\n");
-      gp << "set key " << panel.key << "\n";
-      gp << "set xrange " << (panel.xrange.empty() ? "[*:*]" : panel.xrange) << "\n";
-      gp << "set yrange " << (panel.yrange.empty() ? "[*:*]" : panel.yrange) << "\n";
-      if (panel.series.empty()) {
-        gp << "set label 1 'no data' at graph 0.5, 0.5 center\nplot [0:1] [0:1] NaN notitle\nunset label 1\n";
-        continue;
-      }
-      gp << "plot ";
-      for (std::size_t k = 0; k < panel.series.size(); ++k) {
-        const auto& s = panel.series[k];
-        gp << (k ? ", " : "") << "$D" << block++ << " using 1:2 with "
-           << (s.points ? "points" : s.with_points ? "linespoints" : "lines") << " lw " << s.line_width;
-        if (s.points) gp << " pt " << s.point_type << " ps " << (s.point_type == 7 ? 0.4 : 0.9);
-        if (s.with_points) gp << " pt " << s.point_type << " ps 0.8";
-        if (s.dash_type > 0) gp << " dt " << s.dash_type;
-        if (!s.color.empty()) gp << " lc rgb " << gp_quote(s.color);
-        gp << " title " << gp_quote(s.title);
-      }
-      gp << "\n";
-    }
-    gp << "unset multiplot\n";
-
+    gp << commands;
     const fs::path script = temp_path("vx-plot", ".gp");
     const fs::path err = temp_path("vx-plot", ".txt");
     {

@@ -42,4 +42,12 @@ void check_gnuplot();
 void plot_png(const std::vector<PlotPanel>& panels, const std::filesystem::path& png, int width = 900,
               int panel_height = 420);
 
+/// Runs a gnuplot script (its commands after the terminal and output, which this sets:
+/// pngcairo, width x height pixels) into a PNG, atomically: for pictures that are not line
+/// plots (the palpation map). Throws vx::Error with gnuplot's message on failure.
+void gnuplot_png(const std::string& commands, const std::filesystem::path& png, int width, int height);
+
+/// `s` as a gnuplot single-quoted string.
+[[nodiscard]] std::string gnuplot_quote(const std::string& s);
+
 }  // namespace vx

@@ -91,6 +91,13 @@ SceneObject read_object(const Obj& o, const fs::path& base) {
     obj.phantom.thickness_mm = o.number("thickness_mm", 0.0);
     require(obj.phantom.thickness_mm >= 0 && obj.phantom.thickness_mm <= 50, o.at_where("thickness_mm"),
             "must be 0 (the spacing) or a slice thickness up to 50 mm");
+    // block-lesion, disk-lesion: the lesion placed and sized (inside the block or disk)
+    if (o.has("lesion_center_mm")) obj.phantom.lesion_center_mm = o.vec3("lesion_center_mm");
+    obj.phantom.lesion_radius_mm = o.number("lesion_radius_mm", 0.0);
+    if (o.has("lesion_radius_mm"))
+      require(obj.phantom.lesion_radius_mm > 0, o.at_where("lesion_radius_mm"), "must be > 0 mm");
+    if (const std::string e = lesion_settings_error(obj.phantom); !e.empty())
+      o.at_where(o.has("lesion_center_mm") ? "lesion_center_mm" : "lesion_radius_mm").fail(e);
     {
       PhantomShape probe_shape;
       probe_shape.name = obj.phantom.name;
@@ -107,14 +114,15 @@ SceneObject read_object(const Obj& o, const fs::path& base) {
     obj.prepare.range = read_threshold(HuRange{});
     obj.read.series_uid = o.string("series_uid", "");
     obj.read.any_modality = o.boolean("any_modality", false);
-    for (const char* k : {"size", "spacing_mm", "tissue_hu", "air_hu", "lesion_hu", "noise_hu", "seed", "thickness_mm"})
+    for (const char* k : {"size", "spacing_mm", "tissue_hu", "air_hu", "lesion_hu", "noise_hu", "seed", "thickness_mm",
+                          "lesion_center_mm", "lesion_radius_mm"})
       o.forbid(k, std::string(k) + " applies to a \"phantom\" object only");
   } else if (src == "model") {
     obj.source = ObjectSource::model;
     obj.path = path_of("model");
     for (const char* k : {"threshold", "resolution", "max_level", "largest_component", "fill_holes", "voxel_mm", "crop",
                           "lattice_origin", "size", "spacing_mm", "tissue_hu", "air_hu", "lesion_hu", "noise_hu", "seed", "series_uid",
-                          "thickness_mm"})
+                          "thickness_mm", "lesion_center_mm", "lesion_radius_mm"})
       o.forbid(k, std::string(k) + " does not apply to a model file: it was set when the model was converted "
                                    "(voxelastic convert)");
   } else {
@@ -136,7 +144,8 @@ SceneObject read_object(const Obj& o, const fs::path& base) {
       require(std::round(n) <= 1024, b.where(), fmt::format("the box is more than 1024 voxels along {}", "xyz"[c]));
     }
     for (const char* k : {"threshold", "largest_component", "fill_holes", "crop", "lattice_origin", "size", "spacing_mm", "tissue_hu",
-                          "air_hu", "lesion_hu", "noise_hu", "seed", "series_uid", "thickness_mm"})
+                          "air_hu", "lesion_hu", "noise_hu", "seed", "series_uid", "thickness_mm", "lesion_center_mm",
+                          "lesion_radius_mm"})
       o.forbid(k, std::string(k) + " does not apply to a box (it is all tissue; its voxel size is voxel_mm)");
   }
   if (src == "phantom" || src == "volume") {
@@ -479,7 +488,8 @@ Scene parse_scene(const json& j, const fs::path& base, const std::string& name) 
   s.object = read_object(Obj(o.at("object"), o.at_where("object"),
                              {"phantom", "volume", "model", "box_mm", "voxel_mm", "threshold", "resolution", "max_level",
                               "largest_component", "fill_holes", "crop", "lattice_origin", "series_uid", "any_modality", "size",
-                              "spacing_mm", "tissue_hu", "air_hu", "lesion_hu", "noise_hu", "seed", "thickness_mm"}),
+                              "spacing_mm", "tissue_hu", "air_hu", "lesion_hu", "noise_hu", "seed", "thickness_mm",
+                              "lesion_center_mm", "lesion_radius_mm"}),
                          base);
   if (o.has("material"))
     s.material = read_material(Obj(o.at("material"), o.at_where("material"),

@@ -182,6 +182,38 @@ void expect_clean_failure(const CliPhantom& t, const RunResult& r, std::initiali
   EXPECT_TRUE(t.outputs().empty()) << "left behind: " << *t.outputs().begin();
 }
 
+TEST_F(CliPhantom, LesionCentreAndRadius) {
+  // the lesion where the user puts it, the same volume as the library's
+  const RunResult r = run("phantom block-lesion --size 32 --lesion-center-mm -4,2.5,1 --lesion-radius-mm 3 -o l.vti");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("lesion r 3 mm at (-4, 2.5, 1) mm"), std::string::npos) << r.out;
+  PhantomSettings s;
+  s.name = "block-lesion";
+  s.size = 32;
+  s.lesion_center_mm = Eigen::Vector3d(-4.0, 2.5, 1.0);
+  s.lesion_radius_mm = 3.0;
+  EXPECT_EQ(read_volume(dir_ / "out" / "l.vti").hu, make_phantom(s).hu);
+  ASSERT_EQ(run("phantom disk-lesion --size 32 --lesion-center-mm 3,-3,0 --lesion-radius-mm 2 -o d.vti").code, 0);
+
+  // a lesion that does not fit, or a malformed value: a usage error (exit 2), no file
+  for (const std::string bad : {"--lesion-center-mm 0,0,6 --lesion-radius-mm 3",  // block half height 6: out the top
+                                "--lesion-center-mm 0,0 --lesion-radius-mm 1", "--lesion-center-mm a,b,c",
+                                "--lesion-center-mm 0,0,0,0", "--lesion-radius-mm 0", "--lesion-radius-mm -2",
+                                "--lesion-radius-mm 40"}) {
+    SCOPED_TRACE(bad);
+    const RunResult e = run("phantom block-lesion --size 32 -o bad.vti " + bad);
+    EXPECT_EQ(e.code, 2) << e.err;
+    EXPECT_NE(e.err.find("lesion"), std::string::npos) << e.err;
+    EXPECT_FALSE(fs::exists(dir_ / "out" / "bad.vti"));
+  }
+  const RunResult outside = run("phantom block-lesion --size 32 -o bad.vti --lesion-center-mm 0,0,6 --lesion-radius-mm 3");
+  EXPECT_NE(outside.err.find("does not fit inside the block"), std::string::npos) << outside.err;
+  const RunResult no_lesion = run("phantom block -o bad.vti --lesion-radius-mm 3");
+  EXPECT_EQ(no_lesion.code, 2);
+  EXPECT_NE(no_lesion.err.find("has no lesion"), std::string::npos) << no_lesion.err;
+  EXPECT_EQ(run("phantom disk-lesion --size 32 -o bad.vti --lesion-center-mm 0,0,1 --lesion-radius-mm 2").code, 2);
+}
+
 TEST_F(CliPhantom, BadInputFailsCleanly) {
   expect_clean_failure(*this, run("phantom pyramid -o x.vti"),
                        {"unknown phantom 'pyramid'", "sphere", "ellipsoid", "block-lesion"});

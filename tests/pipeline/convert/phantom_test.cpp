@@ -18,6 +18,8 @@ using vx::make_phantom;
 using vx::PhantomSettings;
 using vx::PhantomShape;
 using vx::Volume;
+using vx::lesion_settings_error;
+using vx::phantom_shape;
 
 namespace {
 
@@ -156,6 +158,80 @@ TEST(Phantom, BlockLesion) {
         }
   // tissue + lesion = the block, exactly
   EXPECT_EQ(count_hu(v, 40.0f) + lesion, std::int64_t(s.volume_mm3()));
+}
+
+TEST(Phantom, LesionPlacedAndSizedByTheCaller) {
+  // block-lesion 48: the block is 38 x 28 x 18 mm (half 19, 14, 9); a 3 mm lesion at (-6, 4, 3)
+  PhantomSettings st = settings("block-lesion", 48);
+  st.lesion_center_mm = Eigen::Vector3d(-6.0, 4.0, 3.0);
+  st.lesion_radius_mm = 3.0;
+  PhantomShape s;
+  const Volume v = make_phantom(st, &s);
+  EXPECT_EQ(s.half_extent_mm, Eigen::Vector3d(19.0, 14.0, 9.0));
+  EXPECT_EQ(s.lesion_center_mm, Eigen::Vector3d(-6.0, 4.0, 3.0));
+  EXPECT_EQ(s.lesion_radius_mm, 3.0);
+  // the voxel centres within 3 mm of (-6, 4, 3): counted by brute force over the grid
+  std::int64_t expected = 0;
+  for (int k = 0; k < 48; ++k)
+    for (int j = 0; j < 48; ++j)
+      for (int i = 0; i < 48; ++i) {
+        const Eigen::Vector3d p = v.geometry.index_to_lps(Eigen::Vector3d(i, j, k));
+        const bool in = (p - Eigen::Vector3d(-6.0, 4.0, 3.0)).squaredNorm() < 9.0;
+        expected += in;
+        ASSERT_EQ(v.at(i, j, k) == 120.0f, in) << i << " " << j << " " << k;
+      }
+  EXPECT_EQ(s.lesion_voxels, expected);
+  // a 3 mm ball on a lattice of half-integer voxel centres around an integer point: 136 voxels
+  // against 113 mm^3 (coarse: 3 voxels of radius)
+  EXPECT_EQ(expected, 136);
+  // only the radius: the default centre keeps its place
+  PhantomSettings r = settings("block-lesion", 48);
+  const PhantomShape d = phantom_shape(r);
+  r.lesion_radius_mm = 2.0;
+  EXPECT_EQ(phantom_shape(r).lesion_center_mm, d.lesion_center_mm);
+  EXPECT_EQ(phantom_shape(r).lesion_radius_mm, 2.0);
+  // disk-lesion: a centre in the plane
+  PhantomSettings disk = settings("disk-lesion", 48);
+  disk.lesion_center_mm = Eigen::Vector3d(-5.0, -5.0, 0.0);
+  disk.lesion_radius_mm = 4.0;
+  EXPECT_EQ(phantom_shape(disk).lesion_center_mm, Eigen::Vector3d(-5.0, -5.0, 0.0));
+  EXPECT_EQ(lesion_settings_error(disk), "");
+}
+
+TEST(Phantom, LesionOutsideTheBlockIsRefused) {
+  PhantomSettings st = settings("block-lesion", 48);  // half extents 19, 14, 9 mm
+  st.lesion_radius_mm = 3.0;
+  st.lesion_center_mm = Eigen::Vector3d(0.0, 0.0, 6.0);  // touches the top exactly: allowed
+  EXPECT_EQ(lesion_settings_error(st), "");
+  st.lesion_center_mm = Eigen::Vector3d(0.0, 0.0, 6.5);  // 0.5 mm out through the top
+  EXPECT_NE(lesion_settings_error(st).find("does not fit inside the block"), std::string::npos)
+      << lesion_settings_error(st);
+  EXPECT_THROW((void)make_phantom(st), vx::Error);
+  st.lesion_center_mm = Eigen::Vector3d(-17.0, 0.0, 0.0);  // through the x_min face
+  EXPECT_NE(lesion_settings_error(st), "");
+  st.lesion_center_mm = Eigen::Vector3d(0.0, 12.0, 0.0);  // through y_max
+  EXPECT_NE(lesion_settings_error(st), "");
+  st.lesion_center_mm.reset();
+  st.lesion_radius_mm = 12.0;  // the default centre with a radius taller than the block
+  EXPECT_NE(lesion_settings_error(st), "");
+  st.lesion_radius_mm = -1.0;
+  EXPECT_NE(lesion_settings_error(st).find("positive"), std::string::npos);
+  st.lesion_radius_mm = 2.0;
+  st.lesion_center_mm = Eigen::Vector3d(0.0, std::nan(""), 0.0);
+  EXPECT_NE(lesion_settings_error(st).find("finite"), std::string::npos);
+  // only the lesion phantoms have one
+  PhantomSettings block = settings("block", 48);
+  block.lesion_radius_mm = 2.0;
+  EXPECT_NE(lesion_settings_error(block).find("has no lesion"), std::string::npos);
+  EXPECT_THROW((void)phantom_shape(block), vx::Error);
+  // disk-lesion: in the plane, inside the disk
+  PhantomSettings disk = settings("disk-lesion", 48);
+  const double radius = phantom_shape(disk).half_extent_mm.x();
+  disk.lesion_radius_mm = 2.0;
+  disk.lesion_center_mm = Eigen::Vector3d(0.0, 0.0, 1.0);
+  EXPECT_NE(lesion_settings_error(disk).find("z must be 0"), std::string::npos);
+  disk.lesion_center_mm = Eigen::Vector3d(radius - 1.0, 0.0, 0.0);
+  EXPECT_NE(lesion_settings_error(disk).find("does not fit inside the disk"), std::string::npos);
 }
 
 // ---------------------------------------------------------------------------------------

@@ -862,3 +862,26 @@ TEST(Scene, TheRegionCheckInTheBackgroundGivesTheSameEstimate) {
   // dropped while running: joins (cancelled) instead of leaving a thread behind
   { const PreparedScene dropped = prepare_scene(scene, background); }
 }
+
+TEST(Scene, PhantomLesionPlacedAndSized) {
+  // block-lesion 32: the block is 24 x 18 x 12 mm centred at the origin
+  json j = base_scene();
+  j["object"] = {{"phantom", "block-lesion"}, {"size", 32}, {"lesion_center_mm", {-3, 2, 1}}, {"lesion_radius_mm", 3}};
+  const Scene s = parse_scene(j, ".", "test.json");
+  ASSERT_TRUE(s.object.phantom.lesion_center_mm.has_value());
+  EXPECT_EQ(*s.object.phantom.lesion_center_mm, Eigen::Vector3d(-3, 2, 1));
+  EXPECT_EQ(s.object.phantom.lesion_radius_mm, 3.0);
+  EXPECT_EQ(phantom_shape(s.object.phantom).lesion_center_mm, Eigen::Vector3d(-3, 2, 1));
+  // out through the top (1 + 6 > 6), a bad radius, and the keys on objects without a lesion
+  j["object"]["lesion_center_mm"] = {0, 0, 1};
+  j["object"]["lesion_radius_mm"] = 6;
+  EXPECT_CONTAINS(error_of(j), "$.object.lesion_center_mm: a lesion of radius 6 mm");
+  EXPECT_CONTAINS(error_of(j), "does not fit inside the block");
+  j["object"]["lesion_radius_mm"] = -1;
+  EXPECT_CONTAINS(error_of(j), "$.object.lesion_radius_mm: must be > 0 mm");
+  j["object"] = {{"phantom", "sphere"}, {"size", 32}, {"lesion_radius_mm", 3}};
+  EXPECT_CONTAINS(error_of(j), "has no lesion");
+  j = base_scene();
+  j["object"]["lesion_radius_mm"] = 3;
+  EXPECT_CONTAINS(error_of(j), "lesion_radius_mm does not apply to a box");
+}

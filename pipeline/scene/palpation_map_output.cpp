@@ -1,0 +1,231 @@
+// The files of a palpation map: map.csv, map.vtp (the pressed points on the surface, triangulated
+// over the grid, with per-point stiffness and force), map.png (gnuplot: the object seen from the
+// face, the map over it, a colour bar in N/mm and a scale bar) and summary.json.
+#include <fmt/format.h>
+#include <vtkCellArray.h>
+#include <vtkDoubleArray.h>
+#include <vtkFieldData.h>
+#include <vtkIntArray.h>
+#include <vtkNew.h>
+#include <vtkPointData.h>
+#include <vtkPoints.h>
+#include <vtkPolyData.h>
+#include <vtkXMLPolyDataWriter.h>
+
+#include <cmath>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "base/error.h"
+#include "io/vtk_arrays.h"
+#include "render/plot.h"
+#include "scene/palpation_map.h"
+#include "util/atomic_file.h"
+#include "util/vtk_messages.h"
+
+namespace vx {
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+
+namespace {
+
+const char* axis_name(int a) { return a == 0 ? "x" : a == 1 ? "y" : "z"; }
+
+/// `x` for a 0.1 mm label: no "-0.0".
+double tidy(double x) { return std::abs(x) < 0.05 ? 0.0 : x; }
+
+/// A number for JSON: null when not finite.
+json number(double x) { return std::isfinite(x) ? json(x) : json(nullptr); }
+
+std::string map_csv(const PalpationMap& map) {
+  std::ostringstream out;
+  out.precision(8);
+  out << "x_mm,y_mm,z_mm,force_n,stiffness_n_per_mm\n";
+  for (const PalpationPoint& p : map.points)
+    out << p.surface_mm.x() << "," << p.surface_mm.y() << "," << p.surface_mm.z() << "," << p.force_n << ","
+        << p.stiffness_n_per_mm << "\n";
+  return out.str();
+}
+
+void write_map_vtp(const PalpationMap& map, const fs::path& path) {
+  const auto n = vtkIdType(map.points.size());
+  vtkNew<vtkPoints> points;
+  points->SetDataTypeToDouble();
+  points->SetNumberOfPoints(n);
+  auto stiffness = make_array<vtkDoubleArray>("stiffness_n_per_mm", 1, n);
+  auto force = make_array<vtkDoubleArray>("force_n", 1, n);
+  auto grid = make_array<vtkIntArray>("grid_index", 2, n);
+  std::map<std::pair<int, int>, vtkIdType> index;
+  vtkNew<vtkCellArray> verts, polys;
+  for (vtkIdType k = 0; k < n; ++k) {
+    const PalpationPoint& p = map.points[std::size_t(k)];
+    points->SetPoint(k, p.surface_mm.data());
+    stiffness->SetValue(k, p.stiffness_n_per_mm);
+    force->SetValue(k, p.force_n);
+    grid->SetTypedComponent(k, 0, p.i);
+    grid->SetTypedComponent(k, 1, p.j);
+    index[{p.i, p.j}] = k;
+    verts->InsertNextCell(1, &k);
+  }
+  // two triangles per grid square whose four corners were pressed, facing outward
+  const bool flip = (map.outward < 0) != ((map.normal_axis + 1) % 3 != map.u_axis);
+  for (const auto& [ij, a] : index) {
+    const auto b = index.find({ij.first + 1, ij.second}), c = index.find({ij.first + 1, ij.second + 1}),
+               d = index.find({ij.first, ij.second + 1});
+    if (b == index.end() || c == index.end() || d == index.end()) continue;
+    vtkIdType t0[3] = {a, b->second, c->second}, t1[3] = {a, c->second, d->second};
+    if (flip) {
+      std::swap(t0[1], t0[2]);
+      std::swap(t1[1], t1[2]);
+    }
+    polys->InsertNextCell(3, t0);
+    polys->InsertNextCell(3, t1);
+  }
+  vtkNew<vtkPolyData> pd;
+  pd->SetPoints(points);
+  pd->SetVerts(verts);
+  pd->SetPolys(polys);
+  pd->GetPointData()->AddArray(stiffness);
+  pd->GetPointData()->AddArray(force);
+  pd->GetPointData()->AddArray(grid);
+  pd->GetPointData()->SetActiveScalars("stiffness_n_per_mm");
+  mark_lps(pd->GetFieldData());
+  write_atomically(path, [&](const fs::path& tmp) {
+    const VtkMessageCapture vtk_messages;
+    vtkNew<vtkXMLPolyDataWriter> writer;
+    writer->SetInputData(pd);
+    writer->SetFileName(tmp.c_str());
+    writer->SetDataModeToAppended();
+    writer->EncodeAppendedDataOff();
+    writer->SetCompressorTypeToZLib();
+    writer->SetHeaderTypeToUInt64();
+    writer->SetIdTypeToInt64();
+    if (!writer->Write() || !vtk_messages.errors().empty())
+      throw Error("VTK could not write the file: " + vtk_messages.first_error("disk full or no permission?"));
+  });
+}
+
+/// A round length for the scale bar: about a fifth of `width`, 1, 2 or 5 times a power of ten.
+double scale_bar_mm(double width) {
+  const double target = 0.2 * width;
+  const double p = std::pow(10.0, std::floor(std::log10(target)));
+  for (double m : {5.0, 2.0, 1.0})
+    if (m * p <= target) return m * p;
+  return p;
+}
+
+void write_map_png(const PalpationMap& map, const PalpationSummary& s, const fs::path& path) {
+  std::ostringstream gp;
+  gp.precision(8);
+  // the object seen from the face: grey bins, lighter where higher
+  double hmin = 1e300, hmax = -1e300;
+  for (double h : map.bin_height_mm)
+    if (std::isfinite(h)) {
+      hmin = std::min(hmin, h);
+      hmax = std::max(hmax, h);
+    }
+  gp << "$OBJECT << EOD\n";
+  for (int b = 0; b < map.bins_v; ++b) {
+    for (int a = 0; a < map.bins_u; ++a) {
+      const double h = map.bin_height_mm[std::size_t(a + map.bins_u * b)];
+      const int grey = std::isfinite(h) ? int(std::lround(120 + 100 * (hmax > hmin ? (h - hmin) / (hmax - hmin) : 1.0)))
+                                        : 255;
+      gp << map.bin_u0_mm + a * map.bin_mm << " " << map.bin_v0_mm + b * map.bin_mm << " " << grey << " " << grey << " "
+         << grey << "\n";
+    }
+    gp << "\n";
+  }
+  gp << "EOD\n$MAP << EOD\n";
+  for (const PalpationPoint& p : map.points)
+    if (std::isfinite(p.stiffness_n_per_mm)) gp << p.u_mm << " " << p.v_mm << " " << p.stiffness_n_per_mm << "\n";
+  gp << "EOD\n";
+  const double u_lo = map.bin_u0_mm - map.bin_mm, u_hi = map.bin_u0_mm + map.bins_u * map.bin_mm;
+  const double v_lo = map.bin_v0_mm - map.bin_mm, v_hi = map.bin_v0_mm + map.bins_v * map.bin_mm;
+  const double margin = 0.12 * (v_hi - v_lo);  // room under the object for the scale bar
+  const double bar = scale_bar_mm(u_hi - u_lo);
+  const double half = 0.5 * map.settings.spacing_mm;
+  const std::string u = axis_name(map.u_axis), v = axis_name(map.v_axis);
+  const Eigen::Vector3d& e = s.lesion_estimate_mm;
+  gp << "set title " << gnuplot_quote(fmt::format("Palpation map of the {} face: a {:g} mm ball pressed {:g} mm at {} points {:g} mm apart",
+                                                  face_name(map.settings.face), map.settings.probe_radius_mm,
+                                                  map.settings.depth_mm, map.points.size(), map.settings.spacing_mm))
+     << " offset 0,1\n";
+  gp << "set label 3 "
+     << gnuplot_quote(fmt::format("contrast {:.3g} (peak {:.3g} / surroundings {:.3g} N/mm); lesion estimate ({:.1f}, "
+                                  "{:.1f}, {:.1f}) mm",
+                                  s.contrast, s.peak_n_per_mm, s.surrounding_n_per_mm, tidy(e.x()), tidy(e.y()),
+                                  tidy(e.z())))
+     << " at graph 0.5, graph 1.02 center\n";
+  gp << "set size ratio -1\nset key off\n";
+  gp << "set xlabel " << gnuplot_quote(u + ", mm") << "\nset ylabel " << gnuplot_quote(v + ", mm") << "\n";
+  gp << "set xrange [" << u_lo << ":" << u_hi << "]\nset yrange [" << v_lo - margin << ":" << v_hi << "]\n";
+  gp << "set cblabel 'stiffness (force / depth), N/mm'\n";
+  if (s.peak_n_per_mm > 0 && std::isfinite(s.peak_n_per_mm)) {
+    double lo = 1e300;
+    for (const PalpationPoint& p : map.points)
+      if (std::isfinite(p.stiffness_n_per_mm)) lo = std::min(lo, p.stiffness_n_per_mm);
+    if (lo < s.peak_n_per_mm) gp << "set cbrange [" << lo << ":" << s.peak_n_per_mm << "]\n";
+  }
+  gp << "set palette defined (0 '#440154', 1 '#3b528b', 2 '#21918c', 3 '#5ec962', 4 '#fde725')\n";
+  // the scale bar, bottom left, and the estimate
+  const double bx = u_lo + 0.05 * (u_hi - u_lo), by = v_lo - 0.5 * margin;
+  gp << "set arrow 1 from " << bx << "," << by << " to " << bx + bar << "," << by
+     << " nohead lw 4 lc rgb 'black' front\n";
+  gp << "set label 1 " << gnuplot_quote(fmt::format("{:g} mm", bar)) << " at " << bx + 0.5 * bar << ","
+     << by + 0.3 * margin << " center front\n";
+  if (s.lesion_estimate_mm.allFinite())
+    gp << "set label 2 'estimate' at " << s.lesion_estimate_mm[map.u_axis] << "," << s.lesion_estimate_mm[map.v_axis]
+       << " point pt 2 ps 3 lw 3 lc rgb 'red' offset 1.5,1.5 tc rgb 'red' front\n";
+  gp << "plot $OBJECT using 1:2:3:4:5 with rgbimage, $MAP using 1:2:(" << half << "):(" << half
+     << "):3 with boxxyerror fs solid 1.0 noborder fc palette\n";
+  const int width = 1000;
+  const double aspect = (v_hi - v_lo + margin) / (u_hi - u_lo);
+  gnuplot_png(gp.str(), path, width, std::clamp(int(std::lround(width * aspect)) + 120, 400, 1400));
+}
+
+}  // namespace
+
+json palpation_summary_json(const PalpationMap& map, const PalpationSummary& s) {
+  const PalpationMapSettings& o = map.settings;
+  json j;
+  j["map"] = {{"face", face_name(o.face)},
+              {"plane_axes", {axis_name(map.u_axis), axis_name(map.v_axis)}},
+              {"spacing_mm", o.spacing_mm},
+              {"depth_mm", o.depth_mm},
+              {"probe_radius_mm", o.probe_radius_mm},
+              {"speed_mm_s", o.speed_mm_s},
+              {"hold_s", o.hold_s},
+              {"grid", {map.grid_u, map.grid_v}},
+              {"points", s.points},
+              {"failed", s.failed},
+              {"time_step_s", map.time_step_s},
+              {"steps_per_press", map.steps_per_press},
+              {"threads", map.threads},
+              {"wall_s", map.wall_s},
+              {"model", {{"nodes", map.nodes}, {"elements", map.elements}}}};
+  j["stiffness_n_per_mm"] = {{"background", number(s.background_n_per_mm)},
+                             {"peak", number(s.peak_n_per_mm)},
+                             {"threshold", number(s.threshold_n_per_mm)},
+                             {"surrounding", number(s.surrounding_n_per_mm)}};
+  j["lesion_estimate_mm"] = {number(s.lesion_estimate_mm.x()), number(s.lesion_estimate_mm.y()),
+                             number(s.lesion_estimate_mm.z())};
+  j["extent_mm"] = {{axis_name(map.u_axis), number(s.extent_u_mm)},
+                    {axis_name(map.v_axis), number(s.extent_v_mm)},
+                    {"equivalent_diameter", number(s.equivalent_diameter_mm)}};
+  j["points_above_threshold"] = s.points_above;
+  j["contrast"] = number(s.contrast);
+  return j;
+}
+
+void write_palpation_map(const PalpationMap& map, const PalpationSummary& summary, const fs::path& dir,
+                         const json& extra, bool png) {
+  write_text_atomically(dir / "map.csv", map_csv(map));
+  write_map_vtp(map, dir / "map.vtp");
+  if (png) write_map_png(map, summary, dir / "map.png");
+  json j = palpation_summary_json(map, summary);
+  j.update(extra);
+  write_text_atomically(dir / "summary.json", j.dump(2) + "\n");
+}
+
+}  // namespace vx
