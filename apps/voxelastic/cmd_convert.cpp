@@ -24,6 +24,7 @@
 #include "io/volume_io.h"
 #include "model/gradational_builder.h"
 #include "render/render.h"
+#include "usage.h"
 #include "util/atomic_file.h"
 #include "util/log.h"
 #include "util/progress.h"
@@ -246,19 +247,25 @@ void add_convert_command(CLI::App& app) {
       "build the elements (level 0 at the surface, larger inside), save, report.");
   sub->add_option("INPUT", opts->input, "volume: .nrrd/.nhdr, .nii/.nii.gz, .mha/.mhd, .vti, or a DICOM folder / .dcm file")
       ->required();
-  sub->add_option("-o,--output", opts->output, "model file to write (.vtu: open in ParaView or 3D Slicer)")->required();
+  sub->add_option("-o,--output", opts->output, "model file to write (.vtu: open in ParaView or 3D Slicer)")
+      ->required()
+      ->check(extension_check(".vtu", "model"));
   sub->add_option("--threshold", opts->threshold,
-                  "tissue HU window: LO (HU >= LO), LO:HI, or a preset name; default: HU >= -200");
+                  "tissue HU window: LO (HU >= LO), LO:HI, or a preset name; default: HU >= -200")
+      ->check(threshold_check());
   sub->add_option("--resolution", opts->layout,
                   "element layout: gradational (the paper's shells), uniform (all 2x2x2-voxel elements), "
                   "voxel (one element per voxel, the fine reference)")
       ->check(CLI::IsMember({"gradational", "uniform", "voxel"}));
   sub->add_option("--max-level", opts->max_level, "largest element level (cells of 2^L voxels); default: no limit")
       ->check(CLI::Range(0, 30));
-  sub->add_option("--stats", opts->stats, "write the model statistics as JSON (.json)");
-  sub->add_option("--png", opts->png, "draw the model to a picture (.png; needs an X display, e.g. xvfb-run)");
+  sub->add_option("--stats", opts->stats, "write the model statistics as JSON (.json)")
+      ->check(extension_check(".json", "statistics file"));
+  sub->add_option("--png", opts->png, "draw the model to a picture (.png; needs an X display, e.g. xvfb-run)")
+      ->check(extension_check(".png", "picture"));
   sub->add_option("--surface", opts->surface,
-                  "also write the smoothed surface, embedded in the model so it follows the deformation (.vtp, LPS mm)");
+                  "also write the smoothed surface, embedded in the model so it follows the deformation (.vtp, LPS mm)")
+      ->check(extension_check(".vtp", "surface"));
   sub->add_option("--surface-method", opts->surface_method,
                   "iso: smoothed iso-surface embedded in the elements (accurate, default); paper: the voxel surface "
                   "with concave steps bridged, vertices on the model nodes (the paper's); staircase: raw voxel faces")
@@ -282,8 +289,10 @@ void add_convert_command(CLI::App& app) {
   sub->add_option("--series", opts->series, "DICOM: SeriesInstanceUID to read (default: the largest CT series)");
   sub->add_option("--modality", opts->modality, "DICOM: ct (CT images only) or any (also MR etc., with a warning)")
       ->check(CLI::IsMember({"ct", "any"}));
-  sub->add_flag("-q,--quiet", opts->quiet, "print nothing but warnings and errors (on stderr)");
-  sub->callback([opts] { run_convert(*opts); });
+  sub->callback([opts] {
+    opts->quiet = quiet();  // -q: nothing but warnings and errors (on stderr)
+    run_convert(*opts);
+  });
 }
 
 }  // namespace vx::cli
