@@ -2,6 +2,7 @@
 #   bin/voxelastic, bin/voxelastic-probe            the programs
 #   share/man/man1/voxelastic*.1                     man pages from --help (when help2man is found)
 #   share/bash-completion/completions/voxelastic*    tab completion (bash)
+#   lib/voxelastic/slicer-cli/voxelastic-convert     convert as a 3D Slicer CLI module (--xml)
 #   include/voxelastic/{base,model,...,io,convert,...}/*.h   the core and pipeline headers
 #   lib/libvoxelastic_core.a, lib/libvoxelastic_pipeline.a
 #   lib/cmake/voxelastic/voxelastic-config.cmake     find_package(voxelastic): voxelastic::core, voxelastic::pipeline
@@ -47,6 +48,12 @@ if(VOXELASTIC_BUILD_APPS)
   install(FILES apps/voxelastic/completion.bash DESTINATION ${CMAKE_INSTALL_DATADIR}/bash-completion/completions
           RENAME voxelastic-probe)
   install(FILES LICENSE README.md DESTINATION ${CMAKE_INSTALL_DOCDIR})
+  # convert as a 3D Slicer CLI module (`voxelastic convert --xml`): a one-line program in a
+  # folder of its own, for Slicer's additional module paths
+  set(_vx_slicer_dir ${CMAKE_INSTALL_LIBDIR}/voxelastic/slicer-cli)
+  file(RELATIVE_PATH VOXELASTIC_BIN_FROM_SLICER /prefix/${_vx_slicer_dir} /prefix/${CMAKE_INSTALL_BINDIR})
+  configure_file(apps/voxelastic/slicer/voxelastic-convert.in ${PROJECT_BINARY_DIR}/slicer-cli/voxelastic-convert @ONLY)
+  install(PROGRAMS ${PROJECT_BINARY_DIR}/slicer-cli/voxelastic-convert DESTINATION ${_vx_slicer_dir})
 
   # man pages: help2man runs each program's --help (one page per voxelastic subcommand too)
   find_program(VOXELASTIC_HELP2MAN help2man)

@@ -237,6 +237,168 @@ void run_convert(const ConvertOptions& o) {
   fmt::print("\n");
 }
 
+/// The Slicer Execution Model description of `convert` (what `convert --xml` prints): 3D Slicer
+/// reads it to build the module's panel, then runs `voxelastic convert` with the values.
+/// tests/apps/cli_slicer_xml_test.cpp checks that it names every option of convert.
+std::string slicer_xml() {
+  return std::string(R"(<?xml version="1.0" encoding="utf-8"?>
+<executable>
+  <category>Simulation.voxelastic</category>
+  <title>voxelastic convert</title>
+  <description><![CDATA[Converts a CT volume into a gradational-resolution elastic model (.vtu, LPS mm) for soft-tissue simulation: threshold the HU, clean up, build the elements (level 0 at the surface, larger inside), save.]]></description>
+  <version>)") + vx::kVersion + R"(</version>
+  <documentation-url></documentation-url>
+  <license>BSD-3-Clause</license>
+  <contributor>The voxelastic authors</contributor>
+  <parameters>
+    <label>Input and outputs</label>
+    <description><![CDATA[The CT volume and the files to write.]]></description>
+    <image>
+      <name>input</name>
+      <label>CT volume</label>
+      <description><![CDATA[The volume in Hounsfield units (.nrrd, .nii.gz, .mha, .vti, or a DICOM folder).]]></description>
+      <channel>input</channel>
+      <index>0</index>
+    </image>
+    <geometry fileExtensions=".vtu">
+      <name>output</name>
+      <label>Elastic model</label>
+      <description><![CDATA[The model to write (.vtu, LPS mm).]]></description>
+      <flag>o</flag>
+      <longflag>output</longflag>
+      <channel>output</channel>
+    </geometry>
+    <geometry fileExtensions=".vtp">
+      <name>surface</name>
+      <label>Surface</label>
+      <description><![CDATA[Also write the smoothed surface, embedded in the model (.vtp, LPS mm).]]></description>
+      <longflag>surface</longflag>
+      <channel>output</channel>
+    </geometry>
+    <file fileExtensions=".json">
+      <name>stats</name>
+      <label>Statistics</label>
+      <description><![CDATA[Write the model statistics as JSON (.json).]]></description>
+      <longflag>stats</longflag>
+      <channel>output</channel>
+    </file>
+    <file fileExtensions=".png">
+      <name>png</name>
+      <label>Picture</label>
+      <description><![CDATA[Draw the model to a picture (.png; needs an X display).]]></description>
+      <longflag>png</longflag>
+      <channel>output</channel>
+    </file>
+  </parameters>
+  <parameters>
+    <label>Tissue</label>
+    <description><![CDATA[Which voxels are tissue.]]></description>
+    <string>
+      <name>threshold</name>
+      <label>HU window</label>
+      <description><![CDATA[LO (HU >= LO), LO:HI, or a preset: soft-tissue, bone, fat, lung, tissue (HU >= -200, the default).]]></description>
+      <longflag>threshold</longflag>
+      <default>tissue</default>
+    </string>
+    <boolean>
+      <name>largest_component</name>
+      <label>Largest component only</label>
+      <description><![CDATA[Keep only the largest connected piece of tissue.]]></description>
+      <longflag>largest-component</longflag>
+      <default>false</default>
+    </boolean>
+    <boolean>
+      <name>fill_holes</name>
+      <label>Fill holes</label>
+      <description><![CDATA[Fill cavities inside the tissue.]]></description>
+      <longflag>fill-holes</longflag>
+      <default>false</default>
+    </boolean>
+    <boolean>
+      <name>no_crop</name>
+      <label>Do not crop</label>
+      <description><![CDATA[Keep the whole volume instead of cropping to the tissue.]]></description>
+      <longflag>no-crop</longflag>
+      <default>false</default>
+    </boolean>
+    <double>
+      <name>voxel</name>
+      <label>Resample to voxel size (mm)</label>
+      <description><![CDATA[Resample to isotropic voxels of this size first, mm (0: keep the volume's voxels).]]></description>
+      <longflag>voxel</longflag>
+      <default>0</default>
+      <constraints>
+        <minimum>0</minimum>
+        <maximum>20</maximum>
+        <step>0.1</step>
+      </constraints>
+    </double>
+  </parameters>
+  <parameters>
+    <label>Elements</label>
+    <description><![CDATA[How the tissue becomes elements.]]></description>
+    <string-enumeration>
+      <name>resolution</name>
+      <label>Element layout</label>
+      <description><![CDATA[gradational (the paper's shells), uniform (all 2x2x2-voxel elements), voxel (one element per voxel).]]></description>
+      <longflag>resolution</longflag>
+      <default>gradational</default>
+      <element>gradational</element>
+      <element>uniform</element>
+      <element>voxel</element>
+    </string-enumeration>
+    <integer>
+      <name>max_level</name>
+      <label>Largest element level</label>
+      <description><![CDATA[Largest element level (cells of 2^L voxels); -1: no limit.]]></description>
+      <longflag>max-level</longflag>
+      <default>-1</default>
+      <constraints>
+        <minimum>-1</minimum>
+        <maximum>30</maximum>
+        <step>1</step>
+      </constraints>
+    </integer>
+    <string-enumeration>
+      <name>surface_method</name>
+      <label>Surface method</label>
+      <description><![CDATA[iso: smoothed iso-surface (default); paper: the voxel surface with concave steps bridged; staircase: raw voxel faces.]]></description>
+      <longflag>surface-method</longflag>
+      <default>iso</default>
+      <element>iso</element>
+      <element>paper</element>
+      <element>staircase</element>
+    </string-enumeration>
+    <string-enumeration>
+      <name>lattice_origin</name>
+      <label>Lattice origin</label>
+      <description><![CDATA[best: the origin with the fewest vertex entries (default); crop: the crop's 1-voxel margin.]]></description>
+      <longflag>lattice-origin</longflag>
+      <default>best</default>
+      <element>best</element>
+      <element>crop</element>
+    </string-enumeration>
+    <string>
+      <name>series</name>
+      <label>DICOM series UID</label>
+      <description><![CDATA[DICOM: the SeriesInstanceUID to read (empty: the largest CT series).]]></description>
+      <longflag>series</longflag>
+      <default></default>
+    </string>
+    <string-enumeration>
+      <name>modality</name>
+      <label>DICOM modality</label>
+      <description><![CDATA[ct: CT images only; any: also MR etc. (values are then not HU).]]></description>
+      <longflag>modality</longflag>
+      <default>ct</default>
+      <element>ct</element>
+      <element>any</element>
+    </string-enumeration>
+  </parameters>
+</executable>
+)";
+}
+
 }  // namespace
 
 void add_convert_command(CLI::App& app) {
@@ -257,8 +419,8 @@ void add_convert_command(CLI::App& app) {
                   "element layout: gradational (the paper's shells), uniform (all 2x2x2-voxel elements), "
                   "voxel (one element per voxel, the fine reference)")
       ->check(CLI::IsMember({"gradational", "uniform", "voxel"}));
-  sub->add_option("--max-level", opts->max_level, "largest element level (cells of 2^L voxels); default: no limit")
-      ->check(CLI::Range(0, 30));
+  sub->add_option("--max-level", opts->max_level, "largest element level (cells of 2^L voxels); default (-1): no limit")
+      ->check(CLI::Range(-1, 30));
   sub->add_option("--stats", opts->stats, "write the model statistics as JSON (.json)")
       ->check(extension_check(".json", "statistics file"));
   sub->add_option("--png", opts->png, "draw the model to a picture (.png; needs an X display, e.g. xvfb-run)")
@@ -277,18 +439,26 @@ void add_convert_command(CLI::App& app) {
                   "best: start the cropped grid 0-3 air voxels further out, per axis, where the model has the fewest "
                   "vertex entries (default; docs/model.md 3.5); crop: keep the crop's 1-voxel margin")
       ->check(CLI::IsMember({"best", "crop"}));
-  sub->add_option("--voxel", opts->voxel_mm, "resample to isotropic voxels of this size first, mm")
+  sub->add_option("--voxel", opts->voxel_mm, "resample to isotropic voxels of this size first, mm (0: no resampling)")
       ->check(CLI::Validator(
           [](std::string& text) {
             double v = 0;
-            return CLI::detail::lexical_cast(text, v) && v > 0 && std::isfinite(v)
+            return CLI::detail::lexical_cast(text, v) && v >= 0 && std::isfinite(v)
                        ? std::string()
-                       : "the voxel size must be a positive number of mm, got '" + text + "'";
+                       : "the voxel size must be a positive number of mm (0: no resampling), got '" + text + "'";
           },
-          "MM>0"));
+          "MM>=0"));
   sub->add_option("--series", opts->series, "DICOM: SeriesInstanceUID to read (default: the largest CT series)");
   sub->add_option("--modality", opts->modality, "DICOM: ct (CT images only) or any (also MR etc., with a warning)")
       ->check(CLI::IsMember({"ct", "any"}));
+  // 3D Slicer asks a CLI module for its description with --xml (before INPUT and -o are checked)
+  sub->add_flag_callback(
+      "--xml",
+      [] {
+        fmt::print("{}", slicer_xml());
+        throw CLI::Success();
+      },
+      "print the Slicer Execution Model description of convert (a 3D Slicer CLI module) and exit");
   sub->callback([opts] {
     opts->quiet = quiet();  // -q: nothing but warnings and errors (on stderr)
     run_convert(*opts);

@@ -60,6 +60,14 @@ expect_contains("${run_out}" "voxelastic ${VERSION}" "voxelastic --version")
 run_checked("voxelastic phantom" ${prefix}/bin/voxelastic phantom sphere --size 16 -o ${WORK_DIR}/s.nrrd)
 expect_contains("${run_out}" "phantom sphere: 16x16x16 voxels" "voxelastic phantom")
 
+# the Slicer CLI module: its description, from the installed program
+file(GLOB slicer_module ${prefix}/lib*/voxelastic/slicer-cli/voxelastic-convert)
+if(NOT slicer_module)
+  message(FATAL_ERROR "cmake --install did not install lib/voxelastic/slicer-cli/voxelastic-convert")
+endif()
+run_checked("voxelastic-convert --xml" ${slicer_module} --xml)
+expect_contains("${run_out}" "<title>voxelastic convert</title>" "voxelastic-convert --xml")
+
 # man pages: the subcommand's options are in its page
 if(HAVE_HELP2MAN)
   file(READ ${prefix}/share/man/man1/voxelastic-convert.1 page)
