@@ -8,6 +8,7 @@
 #include <limits>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <set>
 #include <string>
 #include <system_error>
 #include <vector>
@@ -28,6 +29,7 @@
 #include "util/atomic_file.h"
 #include "util/log.h"
 #include "util/progress.h"
+#include "util/text.h"
 
 namespace vx::cli {
 namespace {
@@ -37,6 +39,7 @@ struct ConvertOptions {
   std::string input;
   std::string output;
   std::string threshold;
+  int label{-1};  ///< >= 0: the input is a labelmap, this label is the tissue
   std::string layout{"gradational"};
   int max_level{-1};
   std::string stats;
@@ -126,11 +129,39 @@ void validate(const ConvertOptions& o) {
                 "under xvfb-run, e.g. `xvfb-run -a -s \"-screen 0 1280x1024x24\" voxelastic convert ...`, or leave out --png");
 }
 
+/// --label N: the volume must be a labelmap (integer values) that holds N; otherwise says which
+/// labels it has.
+void check_label(const Volume& volume, int label, const std::string& input) {
+  std::set<float> values;
+  std::int64_t count = 0;
+  for (const float v : volume.hu) {
+    if (v != std::round(v))
+      throw Error(fmt::format("--label {}: '{}' holds the value {:g}, so it is not a labelmap (labels are whole "
+                              "numbers); give --threshold instead",
+                              label, input, double(v)));
+    count += v == float(label);
+    if (values.size() <= 20) values.insert(v);
+  }
+  if (count > 0) return;
+  std::string list;
+  int shown = 0;
+  for (const float v : values)
+    if (shown++ < 20) list += fmt::format("{}{:g}", list.empty() ? "" : ", ", double(v));
+  throw Error(fmt::format("--label {}: no voxel of the labelmap has this label; its labels are {}{}", label, list,
+                          values.size() > 20 ? ", ..." : ""));
+}
+
 void run_convert(const ConvertOptions& o) {
   // everything the user typed, checked first
   validate(o);
+  // a labelmap: one label is the tissue (the HU window N:N); resampling would blend labels
+  if (o.label >= 0 && !o.threshold.empty() && lower(trim(o.threshold)) != "tissue")
+    throw CLI::ValidationError("--label", "give --label N (a labelmap) or --threshold (HU), not both");
+  if (o.label >= 0 && o.voxel_mm > 0)
+    throw CLI::ValidationError("--label", "a labelmap cannot be resampled (--voxel would blend its labels)");
   PrepareOptions prep;
   if (!o.threshold.empty()) prep.range = parse_threshold(o.threshold);
+  if (o.label >= 0) prep.range = HuRange{double(o.label), double(o.label)};
   prep.largest_component = o.largest_component;
   prep.fill_holes = o.fill_holes;
   prep.crop = !o.no_crop;
@@ -150,6 +181,7 @@ void run_convert(const ConvertOptions& o) {
   Progress reading("reading " + fs::path(o.input).filename().string(), talk);
   const Volume volume = read_volume(o.input, read);
   reading.done();
+  if (o.label >= 0) check_label(volume, o.label, o.input);
 
   // threshold, clean up, crop, resample
   PrepareReport prepared;
@@ -202,6 +234,7 @@ void run_convert(const ConvertOptions& o) {
     j["build_s"] = built.build_s;
     j["max_level"] = o.max_level >= 0 ? nlohmann::json(o.max_level) : nlohmann::json(nullptr);  // null: no limit
     const double hi = prep.range.hi;
+    j["label"] = o.label >= 0 ? nlohmann::json(o.label) : nlohmann::json(nullptr);  // null: HU, not a labelmap
     j["threshold_hu"] = {prep.range.lo, std::isfinite(hi) ? nlohmann::json(hi) : nlohmann::json(nullptr)};
     nlohmann::json pj;
     prepared.to_json(pj);
@@ -216,7 +249,8 @@ void run_convert(const ConvertOptions& o) {
   if (!o.png.empty()) {
     Progress drawing("drawing " + fs::path(o.png).filename().string(), talk);
     RenderSettings r;
-    r.title = fmt::format("{}: tissue HU {}", fs::path(o.input).filename().string(), hu_window(prep.range));
+    r.title = o.label >= 0 ? fmt::format("{}: label {}", fs::path(o.input).filename().string(), o.label)
+                           : fmt::format("{}: tissue HU {}", fs::path(o.input).filename().string(), hu_window(prep.range));
     render_model_png(model, outputs.stage(o.png), r);
     drawing.done();
   }
@@ -224,7 +258,10 @@ void run_convert(const ConvertOptions& o) {
 
   if (!talk) return;
   fmt::print("source:         {}\n", o.input);
-  fmt::print("threshold:      HU {}\n", hu_window(prep.range));
+  if (o.label >= 0)
+    fmt::print("label:          {}\n", o.label);
+  else
+    fmt::print("threshold:      HU {}\n", hu_window(prep.range));
   fmt::print("{}\n", prepared.summary());
   fmt::print("{}\n", summary(stats));
   fmt::print("build time:     {:.3f} s\n", built.build_s);
@@ -300,6 +337,18 @@ std::string slicer_xml() {
       <longflag>threshold</longflag>
       <default>tissue</default>
     </string>
+    <integer>
+      <name>label</name>
+      <label>Label (labelmap input)</label>
+      <description><![CDATA[The input is a labelmap: the voxels of this label are the tissue, instead of the HU window. -1: not a labelmap.]]></description>
+      <longflag>label</longflag>
+      <default>-1</default>
+      <constraints>
+        <minimum>-1</minimum>
+        <maximum>65535</maximum>
+        <step>1</step>
+      </constraints>
+    </integer>
     <boolean>
       <name>largest_component</name>
       <label>Largest component only</label>
@@ -415,6 +464,10 @@ void add_convert_command(CLI::App& app) {
   sub->add_option("--threshold", opts->threshold,
                   "tissue HU window: LO (HU >= LO), LO:HI, or a preset name; default: HU >= -200")
       ->check(threshold_check());
+  sub->add_option("--label", opts->label,
+                  "the input is a labelmap (or a segmentation's labelmap): the voxels of this label are the tissue, "
+                  "instead of an HU window; -1: not a labelmap (default)")
+      ->check(CLI::Range(-1, std::numeric_limits<int>::max()));
   sub->add_option("--resolution", opts->layout,
                   "element layout: gradational (the paper's shells), uniform (all 2x2x2-voxel elements), "
                   "voxel (one element per voxel, the fine reference)")
