@@ -27,6 +27,7 @@
 #include "render/render.h"
 #include "usage.h"
 #include "util/atomic_file.h"
+#include "util/exit_codes.h"
 #include "util/log.h"
 #include "util/progress.h"
 #include "util/text.h"
@@ -125,7 +126,7 @@ void validate(const ConvertOptions& o) {
   if (!(o.voxel_mm >= 0.0) || !std::isfinite(o.voxel_mm))
     throw Error(fmt::format("--voxel {}: the voxel size must be a positive number of mm", o.voxel_mm));
   if (!o.png.empty() && !display_available())
-    throw Error("--png needs an X display for rendering and there is none (DISPLAY unset or not reachable): run "
+    throw NoDisplay("--png needs an X display for rendering and there is none (DISPLAY unset or not reachable): run "
                 "under xvfb-run, e.g. `xvfb-run -a -s \"-screen 0 1280x1024x24\" voxelastic convert ...`, or leave out --png");
 }
 

@@ -46,6 +46,9 @@ int main(int argc, char** argv) {
     if (const std::string hint = vx::cli::option_suggestion(app, argc, argv); !hint.empty())
       fmt::print(stderr, "voxelastic: {}\n", hint);
     return vx::exit_code::usage;
+  } catch (const vx::NoDisplay& e) {
+    fmt::print(stderr, "voxelastic: error: {}\n", e.what());
+    return vx::exit_code::no_display;
   } catch (const vx::Interrupted& e) {
     fmt::print(stderr, "voxelastic: {}\n", e.what());
     return vx::exit_code::interrupted;

@@ -159,6 +159,8 @@ TEST_F(CliConvert, PictureUnderXvfb) {
 
 TEST_F(CliConvert, PictureWithoutDisplayFailsBeforeWork) {
   EXPECT_FAILS_CLEANLY(run("convert " + input("sphere.vti") + " -o m.vtu --png m.png", "env -u DISPLAY"), "xvfb-run");
+  // exit 4, as voxelastic-probe without a display (util/exit_codes.h)
+  EXPECT_EQ(run("convert " + input("sphere.vti") + " -o m.vtu --png m.png", "env -u DISPLAY").code, 4);
 }
 
 TEST_F(CliConvert, BadInputsFailCleanly) {

@@ -146,16 +146,21 @@ TEST_F(CliSlicerXml, ConvertDescribesItselfAsASlicerCliModule) {
         EXPECT_LE(count_children(e, once), 1) << p.name << " has two <" << once << ">";
       // Slicer passes it by flag or by position, never both or neither
       EXPECT_NE(p.longflag.empty(), p.index.empty()) << p.name << ": a <longflag> or an <index>";
-      if (!p.longflag.empty()) EXPECT_TRUE(longflags.insert(p.longflag).second) << "two --" << p.longflag;
+      if (!p.longflag.empty()) {
+        EXPECT_TRUE(longflags.insert(p.longflag).second) << "two --" << p.longflag;
+      }
       // files and data carry their direction
-      if (kind == "image" || kind == "geometry" || kind == "file")
+      if (kind == "image" || kind == "geometry" || kind == "file") {
         EXPECT_TRUE(p.channel == "input" || p.channel == "output") << p.name << ": <channel> " << p.channel;
+      }
       if (kind == "string-enumeration") {
         EXPECT_GE(p.elements.size(), 2u) << p.name;
         EXPECT_NE(std::find(p.elements.begin(), p.elements.end(), p.default_value), p.elements.end())
             << p.name << ": the default is one of the elements";
       }
-      if (kind == "boolean") EXPECT_EQ(p.default_value, "false") << p.name << ": a flag is off by default";
+      if (kind == "boolean") {
+        EXPECT_EQ(p.default_value, "false") << p.name << ": a flag is off by default";
+      }
       params.push_back(p);
     }
   }
