@@ -13,7 +13,7 @@ if command -v ccache >/dev/null 2>&1; then
   export CCACHE_BASEDIR=${CCACHE_BASEDIR:-$PWD}  # paths relative to the clone: another clone hits the cache
 fi
 if ! command -v clang++-14 >/dev/null 2>&1; then
-  echo "sanitize: clang++-14 is missing (run scripts/install-deps.sh)" >&2
+  echo "sanitize: clang++-14 is missing (run scripts/install-deps.sh --dev)" >&2
   exit 1
 fi
 cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=None -DCMAKE_C_COMPILER=clang-14 -DCMAKE_CXX_COMPILER=clang++-14 \

@@ -223,7 +223,6 @@ void add_bench_command(CLI::App& app) {
                   "local contact model's force at 1 kHz with the physics at 1000, 200, 60 and 30 Hz against the "
                   "full-rate physics (DIR/haptic_accuracy.md, haptic_accuracy.png)")
       ->check(CLI::ExistingFile);
-  sub->add_flag("-q,--quiet", opts->quiet, "no progress on stderr");
   sub->add_flag("--scale", opts->scale,
                 "instead: the real-time factor and force error of each configuration on sphere phantoms 32 to 256 and the "
                 "organ and folded phantoms, 1 and 2 threads (DIR/scale.csv, scale.md, scale.png; docs/bench.md)");
@@ -249,7 +248,10 @@ void add_bench_command(CLI::App& app) {
   sub->add_option("--scale-reference-max-wall-s", opts->scale_reference_max_wall_s,
                   "with --scale: the reference's wall-time budget (default 1800 s; shorter: no error column)")
       ->check(CLI::PositiveNumber);
-  sub->callback([opts] { opts->haptic.empty() ? run_bench_command(*opts) : run_haptic_command(*opts); });
+  sub->callback([opts] {
+    opts->quiet = quiet();  // -q: no progress on stderr
+    opts->haptic.empty() ? run_bench_command(*opts) : run_haptic_command(*opts);
+  });
 }
 
 }  // namespace vx::cli

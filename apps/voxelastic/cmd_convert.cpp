@@ -8,6 +8,7 @@
 #include <limits>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <set>
 #include <string>
 #include <system_error>
 #include <vector>
@@ -24,9 +25,12 @@
 #include "io/volume_io.h"
 #include "model/gradational_builder.h"
 #include "render/render.h"
+#include "usage.h"
 #include "util/atomic_file.h"
+#include "util/exit_codes.h"
 #include "util/log.h"
 #include "util/progress.h"
+#include "util/text.h"
 
 namespace vx::cli {
 namespace {
@@ -36,6 +40,7 @@ struct ConvertOptions {
   std::string input;
   std::string output;
   std::string threshold;
+  int label{-1};  ///< >= 0: the input is a labelmap, this label is the tissue
   std::string layout{"gradational"};
   int max_level{-1};
   std::string stats;
@@ -121,15 +126,43 @@ void validate(const ConvertOptions& o) {
   if (!(o.voxel_mm >= 0.0) || !std::isfinite(o.voxel_mm))
     throw Error(fmt::format("--voxel {}: the voxel size must be a positive number of mm", o.voxel_mm));
   if (!o.png.empty() && !display_available())
-    throw Error("--png needs an X display for rendering and there is none (DISPLAY unset or not reachable): run "
+    throw NoDisplay("--png needs an X display for rendering and there is none (DISPLAY unset or not reachable): run "
                 "under xvfb-run, e.g. `xvfb-run -a -s \"-screen 0 1280x1024x24\" voxelastic convert ...`, or leave out --png");
+}
+
+/// --label N: the volume must be a labelmap (integer values) that holds N; otherwise says which
+/// labels it has.
+void check_label(const Volume& volume, int label, const std::string& input) {
+  std::set<float> values;
+  std::int64_t count = 0;
+  for (const float v : volume.hu) {
+    if (v != std::round(v))
+      throw Error(fmt::format("--label {}: '{}' holds the value {:g}, so it is not a labelmap (labels are whole "
+                              "numbers); give --threshold instead",
+                              label, input, double(v)));
+    count += v == float(label);
+    if (values.size() <= 20) values.insert(v);
+  }
+  if (count > 0) return;
+  std::string list;
+  int shown = 0;
+  for (const float v : values)
+    if (shown++ < 20) list += fmt::format("{}{:g}", list.empty() ? "" : ", ", double(v));
+  throw Error(fmt::format("--label {}: no voxel of the labelmap has this label; its labels are {}{}", label, list,
+                          values.size() > 20 ? ", ..." : ""));
 }
 
 void run_convert(const ConvertOptions& o) {
   // everything the user typed, checked first
   validate(o);
+  // a labelmap: one label is the tissue (the HU window N:N); resampling would blend labels
+  if (o.label >= 0 && !o.threshold.empty() && lower(trim(o.threshold)) != "tissue")
+    throw CLI::ValidationError("--label", "give --label N (a labelmap) or --threshold (HU), not both");
+  if (o.label >= 0 && o.voxel_mm > 0)
+    throw CLI::ValidationError("--label", "a labelmap cannot be resampled (--voxel would blend its labels)");
   PrepareOptions prep;
   if (!o.threshold.empty()) prep.range = parse_threshold(o.threshold);
+  if (o.label >= 0) prep.range = HuRange{double(o.label), double(o.label)};
   prep.largest_component = o.largest_component;
   prep.fill_holes = o.fill_holes;
   prep.crop = !o.no_crop;
@@ -149,6 +182,7 @@ void run_convert(const ConvertOptions& o) {
   Progress reading("reading " + fs::path(o.input).filename().string(), talk);
   const Volume volume = read_volume(o.input, read);
   reading.done();
+  if (o.label >= 0) check_label(volume, o.label, o.input);
 
   // threshold, clean up, crop, resample
   PrepareReport prepared;
@@ -201,6 +235,7 @@ void run_convert(const ConvertOptions& o) {
     j["build_s"] = built.build_s;
     j["max_level"] = o.max_level >= 0 ? nlohmann::json(o.max_level) : nlohmann::json(nullptr);  // null: no limit
     const double hi = prep.range.hi;
+    j["label"] = o.label >= 0 ? nlohmann::json(o.label) : nlohmann::json(nullptr);  // null: HU, not a labelmap
     j["threshold_hu"] = {prep.range.lo, std::isfinite(hi) ? nlohmann::json(hi) : nlohmann::json(nullptr)};
     nlohmann::json pj;
     prepared.to_json(pj);
@@ -215,7 +250,8 @@ void run_convert(const ConvertOptions& o) {
   if (!o.png.empty()) {
     Progress drawing("drawing " + fs::path(o.png).filename().string(), talk);
     RenderSettings r;
-    r.title = fmt::format("{}: tissue HU {}", fs::path(o.input).filename().string(), hu_window(prep.range));
+    r.title = o.label >= 0 ? fmt::format("{}: label {}", fs::path(o.input).filename().string(), o.label)
+                           : fmt::format("{}: tissue HU {}", fs::path(o.input).filename().string(), hu_window(prep.range));
     render_model_png(model, outputs.stage(o.png), r);
     drawing.done();
   }
@@ -223,7 +259,10 @@ void run_convert(const ConvertOptions& o) {
 
   if (!talk) return;
   fmt::print("source:         {}\n", o.input);
-  fmt::print("threshold:      HU {}\n", hu_window(prep.range));
+  if (o.label >= 0)
+    fmt::print("label:          {}\n", o.label);
+  else
+    fmt::print("threshold:      HU {}\n", hu_window(prep.range));
   fmt::print("{}\n", prepared.summary());
   fmt::print("{}\n", summary(stats));
   fmt::print("build time:     {:.3f} s\n", built.build_s);
@@ -236,6 +275,180 @@ void run_convert(const ConvertOptions& o) {
   fmt::print("\n");
 }
 
+/// The Slicer Execution Model description of `convert` (what `convert --xml` prints): 3D Slicer
+/// reads it to build the module's panel, then runs `voxelastic convert` with the values.
+/// tests/apps/cli_slicer_xml_test.cpp checks that it names every option of convert.
+std::string slicer_xml() {
+  return std::string(R"(<?xml version="1.0" encoding="utf-8"?>
+<executable>
+  <category>Simulation.voxelastic</category>
+  <title>voxelastic convert</title>
+  <description><![CDATA[Converts a CT volume into a gradational-resolution elastic model (.vtu, LPS mm) for soft-tissue simulation: threshold the HU, clean up, build the elements (level 0 at the surface, larger inside), save.]]></description>
+  <version>)") + vx::kVersion + R"(</version>
+  <documentation-url></documentation-url>
+  <license>BSD-3-Clause</license>
+  <contributor>The voxelastic authors</contributor>
+  <parameters>
+    <label>Input and outputs</label>
+    <description><![CDATA[The CT volume and the files to write.]]></description>
+    <image>
+      <name>input</name>
+      <label>CT volume</label>
+      <description><![CDATA[The volume in Hounsfield units (.nrrd, .nii.gz, .mha, .vti, or a DICOM folder).]]></description>
+      <channel>input</channel>
+      <index>0</index>
+    </image>
+    <geometry fileExtensions=".vtu">
+      <name>output</name>
+      <label>Elastic model</label>
+      <description><![CDATA[The model to write (.vtu, LPS mm).]]></description>
+      <flag>o</flag>
+      <longflag>output</longflag>
+      <channel>output</channel>
+    </geometry>
+    <geometry fileExtensions=".vtp">
+      <name>surface</name>
+      <label>Surface</label>
+      <description><![CDATA[Also write the smoothed surface, embedded in the model (.vtp, LPS mm).]]></description>
+      <longflag>surface</longflag>
+      <channel>output</channel>
+    </geometry>
+    <file fileExtensions=".json">
+      <name>stats</name>
+      <label>Statistics</label>
+      <description><![CDATA[Write the model statistics as JSON (.json).]]></description>
+      <longflag>stats</longflag>
+      <channel>output</channel>
+    </file>
+    <file fileExtensions=".png">
+      <name>png</name>
+      <label>Picture</label>
+      <description><![CDATA[Draw the model to a picture (.png; needs an X display).]]></description>
+      <longflag>png</longflag>
+      <channel>output</channel>
+    </file>
+  </parameters>
+  <parameters>
+    <label>Tissue</label>
+    <description><![CDATA[Which voxels are tissue.]]></description>
+    <string>
+      <name>threshold</name>
+      <label>HU window</label>
+      <description><![CDATA[LO (HU >= LO), LO:HI, or a preset: soft-tissue, bone, fat, lung, tissue (HU >= -200, the default).]]></description>
+      <longflag>threshold</longflag>
+      <default>tissue</default>
+    </string>
+    <integer>
+      <name>label</name>
+      <label>Label (labelmap input)</label>
+      <description><![CDATA[The input is a labelmap: the voxels of this label are the tissue, instead of the HU window. -1: not a labelmap.]]></description>
+      <longflag>label</longflag>
+      <default>-1</default>
+      <constraints>
+        <minimum>-1</minimum>
+        <maximum>65535</maximum>
+        <step>1</step>
+      </constraints>
+    </integer>
+    <boolean>
+      <name>largest_component</name>
+      <label>Largest component only</label>
+      <description><![CDATA[Keep only the largest connected piece of tissue.]]></description>
+      <longflag>largest-component</longflag>
+      <default>false</default>
+    </boolean>
+    <boolean>
+      <name>fill_holes</name>
+      <label>Fill holes</label>
+      <description><![CDATA[Fill cavities inside the tissue.]]></description>
+      <longflag>fill-holes</longflag>
+      <default>false</default>
+    </boolean>
+    <boolean>
+      <name>no_crop</name>
+      <label>Do not crop</label>
+      <description><![CDATA[Keep the whole volume instead of cropping to the tissue.]]></description>
+      <longflag>no-crop</longflag>
+      <default>false</default>
+    </boolean>
+    <double>
+      <name>voxel</name>
+      <label>Resample to voxel size (mm)</label>
+      <description><![CDATA[Resample to isotropic voxels of this size first, mm (0: keep the volume's voxels).]]></description>
+      <longflag>voxel</longflag>
+      <default>0</default>
+      <constraints>
+        <minimum>0</minimum>
+        <maximum>20</maximum>
+        <step>0.1</step>
+      </constraints>
+    </double>
+  </parameters>
+  <parameters>
+    <label>Elements</label>
+    <description><![CDATA[How the tissue becomes elements.]]></description>
+    <string-enumeration>
+      <name>resolution</name>
+      <label>Element layout</label>
+      <description><![CDATA[gradational (the paper's shells), uniform (all 2x2x2-voxel elements), voxel (one element per voxel).]]></description>
+      <longflag>resolution</longflag>
+      <default>gradational</default>
+      <element>gradational</element>
+      <element>uniform</element>
+      <element>voxel</element>
+    </string-enumeration>
+    <integer>
+      <name>max_level</name>
+      <label>Largest element level</label>
+      <description><![CDATA[Largest element level (cells of 2^L voxels); -1: no limit.]]></description>
+      <longflag>max-level</longflag>
+      <default>-1</default>
+      <constraints>
+        <minimum>-1</minimum>
+        <maximum>30</maximum>
+        <step>1</step>
+      </constraints>
+    </integer>
+    <string-enumeration>
+      <name>surface_method</name>
+      <label>Surface method</label>
+      <description><![CDATA[iso: smoothed iso-surface (default); paper: the voxel surface with concave steps bridged; staircase: raw voxel faces.]]></description>
+      <longflag>surface-method</longflag>
+      <default>iso</default>
+      <element>iso</element>
+      <element>paper</element>
+      <element>staircase</element>
+    </string-enumeration>
+    <string-enumeration>
+      <name>lattice_origin</name>
+      <label>Lattice origin</label>
+      <description><![CDATA[best: the origin with the fewest vertex entries (default); crop: the crop's 1-voxel margin.]]></description>
+      <longflag>lattice-origin</longflag>
+      <default>best</default>
+      <element>best</element>
+      <element>crop</element>
+    </string-enumeration>
+    <string>
+      <name>series</name>
+      <label>DICOM series UID</label>
+      <description><![CDATA[DICOM: the SeriesInstanceUID to read (empty: the largest CT series).]]></description>
+      <longflag>series</longflag>
+      <default></default>
+    </string>
+    <string-enumeration>
+      <name>modality</name>
+      <label>DICOM modality</label>
+      <description><![CDATA[ct: CT images only; any: also MR etc. (values are then not HU).]]></description>
+      <longflag>modality</longflag>
+      <default>ct</default>
+      <element>ct</element>
+      <element>any</element>
+    </string-enumeration>
+  </parameters>
+</executable>
+)";
+}
+
 }  // namespace
 
 void add_convert_command(CLI::App& app) {
@@ -246,19 +459,29 @@ void add_convert_command(CLI::App& app) {
       "build the elements (level 0 at the surface, larger inside), save, report.");
   sub->add_option("INPUT", opts->input, "volume: .nrrd/.nhdr, .nii/.nii.gz, .mha/.mhd, .vti, or a DICOM folder / .dcm file")
       ->required();
-  sub->add_option("-o,--output", opts->output, "model file to write (.vtu: open in ParaView or 3D Slicer)")->required();
+  sub->add_option("-o,--output", opts->output, "model file to write (.vtu: open in ParaView or 3D Slicer)")
+      ->required()
+      ->check(extension_check(".vtu", "model"));
   sub->add_option("--threshold", opts->threshold,
-                  "tissue HU window: LO (HU >= LO), LO:HI, or a preset name; default: HU >= -200");
+                  "tissue HU window: LO (HU >= LO), LO:HI, or a preset name; default: HU >= -200")
+      ->check(threshold_check());
+  sub->add_option("--label", opts->label,
+                  "the input is a labelmap (or a segmentation's labelmap): the voxels of this label are the tissue, "
+                  "instead of an HU window; -1: not a labelmap (default)")
+      ->check(CLI::Range(-1, std::numeric_limits<int>::max()));
   sub->add_option("--resolution", opts->layout,
                   "element layout: gradational (the paper's shells), uniform (all 2x2x2-voxel elements), "
                   "voxel (one element per voxel, the fine reference)")
       ->check(CLI::IsMember({"gradational", "uniform", "voxel"}));
-  sub->add_option("--max-level", opts->max_level, "largest element level (cells of 2^L voxels); default: no limit")
-      ->check(CLI::Range(0, 30));
-  sub->add_option("--stats", opts->stats, "write the model statistics as JSON (.json)");
-  sub->add_option("--png", opts->png, "draw the model to a picture (.png; needs an X display, e.g. xvfb-run)");
+  sub->add_option("--max-level", opts->max_level, "largest element level (cells of 2^L voxels); default (-1): no limit")
+      ->check(CLI::Range(-1, 30));
+  sub->add_option("--stats", opts->stats, "write the model statistics as JSON (.json)")
+      ->check(extension_check(".json", "statistics file"));
+  sub->add_option("--png", opts->png, "draw the model to a picture (.png; needs an X display, e.g. xvfb-run)")
+      ->check(extension_check(".png", "picture"));
   sub->add_option("--surface", opts->surface,
-                  "also write the smoothed surface, embedded in the model so it follows the deformation (.vtp, LPS mm)");
+                  "also write the smoothed surface, embedded in the model so it follows the deformation (.vtp, LPS mm)")
+      ->check(extension_check(".vtp", "surface"));
   sub->add_option("--surface-method", opts->surface_method,
                   "iso: smoothed iso-surface embedded in the elements (accurate, default); paper: the voxel surface "
                   "with concave steps bridged, vertices on the model nodes (the paper's); staircase: raw voxel faces")
@@ -270,20 +493,30 @@ void add_convert_command(CLI::App& app) {
                   "best: start the cropped grid 0-3 air voxels further out, per axis, where the model has the fewest "
                   "vertex entries (default; docs/model.md 3.5); crop: keep the crop's 1-voxel margin")
       ->check(CLI::IsMember({"best", "crop"}));
-  sub->add_option("--voxel", opts->voxel_mm, "resample to isotropic voxels of this size first, mm")
+  sub->add_option("--voxel", opts->voxel_mm, "resample to isotropic voxels of this size first, mm (0: no resampling)")
       ->check(CLI::Validator(
           [](std::string& text) {
             double v = 0;
-            return CLI::detail::lexical_cast(text, v) && v > 0 && std::isfinite(v)
+            return CLI::detail::lexical_cast(text, v) && v >= 0 && std::isfinite(v)
                        ? std::string()
-                       : "the voxel size must be a positive number of mm, got '" + text + "'";
+                       : "the voxel size must be a positive number of mm (0: no resampling), got '" + text + "'";
           },
-          "MM>0"));
+          "MM>=0"));
   sub->add_option("--series", opts->series, "DICOM: SeriesInstanceUID to read (default: the largest CT series)");
   sub->add_option("--modality", opts->modality, "DICOM: ct (CT images only) or any (also MR etc., with a warning)")
       ->check(CLI::IsMember({"ct", "any"}));
-  sub->add_flag("-q,--quiet", opts->quiet, "print nothing but warnings and errors (on stderr)");
-  sub->callback([opts] { run_convert(*opts); });
+  // 3D Slicer asks a CLI module for its description with --xml (before INPUT and -o are checked)
+  sub->add_flag_callback(
+      "--xml",
+      [] {
+        fmt::print("{}", slicer_xml());
+        throw CLI::Success();
+      },
+      "print the Slicer Execution Model description of convert (a 3D Slicer CLI module) and exit");
+  sub->callback([opts] {
+    opts->quiet = quiet();  // -q: nothing but warnings and errors (on stderr)
+    run_convert(*opts);
+  });
 }
 
 }  // namespace vx::cli

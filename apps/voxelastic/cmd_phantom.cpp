@@ -11,6 +11,7 @@
 #include "commands.h"
 #include "convert/phantom.h"
 #include "io/volume_io.h"
+#include "usage.h"
 #include "util/atomic_file.h"
 
 namespace vx::cli {
@@ -44,19 +45,24 @@ Eigen::Vector3d parse_point_mm(const std::string& option, const std::string& tex
   return p;
 }
 
+/// -o: a format a phantom can be written in (a command-line mistake otherwise, exit 2).
+std::string check_phantom_output(const std::string& output) {
+  const std::string format = volume_format(output);
+  const std::string ext = fs::path(output).extension().string();
+  if (format.empty() || ext == ".mhd" || ext == ".nhdr" || ext == ".dcm")
+    return fmt::format("'{}': cannot write a phantom as '{}'; use .vti, .mha, .nii.gz, .nii, .nrrd, or a folder path "
+                       "ending in '/' for a DICOM series",
+                       output, ext);
+  return "";
+}
+
 void run_phantom(PhantomOptions o) {
   // the lesion options are checked against the block before anything else: a usage error (exit 2)
   if (!o.lesion_center.empty()) o.settings.lesion_center_mm = parse_point_mm("--lesion-center-mm", o.lesion_center);
   if (const std::string e = lesion_settings_error(o.settings); !e.empty())
     throw CLI::ValidationError("--lesion-center-mm/--lesion-radius-mm", e);
-  // the output first: a mistake there should cost nothing
-  const std::string format = volume_format(o.output);
-  const std::string ext = fs::path(o.output).extension().string();
-  if (format.empty() || ext == ".mhd" || ext == ".nhdr" || ext == ".dcm")
-    throw Error(fmt::format("-o '{}': cannot write a phantom as '{}'; use .vti, .mha, .nii.gz, .nii, .nrrd, or a "
-                            "folder path ending in '/' for a DICOM series",
-                            o.output, ext));
-  if (format != "dicom") check_output_path(o.output);
+  // the output first (its format was checked while parsing): a mistake there should cost nothing
+  if (volume_format(o.output) != "dicom") check_output_path(o.output);
 
   PhantomShape shape;
   const Volume volume = make_phantom(o.settings, &shape);
@@ -112,10 +118,11 @@ void add_phantom_command(CLI::App& app) {
       "phantom",
       "Write a synthetic CT volume of a known shape (tissue in air, HU, LPS mm, centred at the origin): the ground "
       "truth for tests and demos. disk, rectangle and disk-lesion are one slice: convert makes them 2D models.");
-  sub->add_option("NAME", opts->settings.name, "shape: " + names)->required();
+  sub->add_option("NAME", opts->settings.name, "shape: " + names)->required()->check(phantom_name_check());
   sub->add_option("-o,--output", opts->output,
                   "volume to write: .vti, .mha, .nii.gz, .nii, .nrrd, or a folder path ending in '/' (DICOM series)")
-      ->required();
+      ->required()
+      ->check(CLI::Validator([](std::string& path) { return check_phantom_output(path); }, "OUT"));
   sub->add_option("--size", opts->settings.size, "voxels along each axis, 4 to 1024")->capture_default_str();
   sub->add_option("--spacing", opts->settings.spacing_mm, "voxel size, mm")->capture_default_str();
   sub->add_option("--noise", opts->settings.noise_hu, "standard deviation of Gaussian noise, HU")

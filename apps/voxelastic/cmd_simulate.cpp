@@ -222,8 +222,10 @@ void add_simulate_command(CLI::App& app) {
   sub->add_option("SCENE", opts->scene, "scene file (.json)")->required()->check(CLI::ExistingFile);
   sub->add_option("-o,--out", opts->out, "output folder (created if missing)")->required();
   sub->add_option("--threads", opts->threads, "threads for the physics (0: all cores; default: the scene's)");
-  sub->add_flag("-q,--quiet", opts->quiet, "no progress or summary on the console (warnings still go to stderr)");
-  sub->callback([opts] { run_simulate(*opts); });
+  sub->callback([opts] {
+    opts->quiet = quiet();  // -q: no progress or summary on the console (warnings still go to stderr)
+    run_simulate(*opts);
+  });
 }
 
 }  // namespace vx::cli

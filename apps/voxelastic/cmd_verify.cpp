@@ -132,8 +132,10 @@ void add_verify_command(CLI::App& app) {
       })
       ->capture_default_str();
   sub->add_option("--case", opts->cases, "run only this case (repeatable; names in docs/verify.md)");
-  sub->add_flag("-q,--quiet", opts->quiet, "no progress or summary (failures are still printed)");
-  sub->callback([opts] { run_verify_command(*opts); });
+  sub->callback([opts] {
+    opts->quiet = quiet();  // -q: no progress or summary (failures are still printed)
+    run_verify_command(*opts);
+  });
 
   auto mopts = std::make_shared<MergeOptions>();
   CLI::App* merge = app.add_subcommand(
@@ -142,8 +144,10 @@ void add_verify_command(CLI::App& app) {
       "the suites match and that every case appears exactly once.");
   merge->add_option("DIR", mopts->inputs, "output folders of the shards")->required()->check(CLI::ExistingDirectory);
   merge->add_option("-o,--out", mopts->out, "folder for the merged report (created if missing)")->required();
-  merge->add_flag("-q,--quiet", mopts->quiet, "no summary (failures are still printed)");
-  merge->callback([mopts] { run_merge_command(*mopts); });
+  merge->callback([mopts] {
+    mopts->quiet = quiet();  // -q: no summary (failures are still printed)
+    run_merge_command(*mopts);
+  });
 }
 
 }  // namespace vx::cli

@@ -2,10 +2,12 @@
 #include <fmt/core.h>
 
 #include <exception>
+#include <string>
 
 #include "base/error.h"
 #include "base/version.h"
 #include "commands.h"
+#include "usage.h"
 #include "physics/element_batches.h"
 #include "util/exit_codes.h"
 #include "util/log.h"
@@ -29,12 +31,25 @@ int main(int argc, char** argv) {
   vx::cli::add_verify_command(app);
   vx::cli::add_bench_command(app);
   vx::cli::add_palpate_map_command(app);
+  // a mistyped command is told as one, with the nearest command (CLI11 would say "A subcommand
+  // is required")
+  if (const std::string unknown = vx::cli::unknown_subcommand_message(app, argc, argv); !unknown.empty()) {
+    fmt::print(stderr, "voxelastic: {}\n", unknown);
+    return vx::exit_code::usage;
+  }
   try {
     (void)vx::best_simd_level();  // a bad VOXELASTIC_SIMD is an error here, not inside a worker
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    // --help and --version exit 0; every usage mistake exits 2 (the convention of Unix tools)
-    return app.exit(e) == 0 ? vx::exit_code::ok : vx::exit_code::usage;
+    // --help and --version exit 0; every usage mistake exits 2 (the convention of Unix tools),
+    // with the nearest option for a typo
+    if (app.exit(e) == 0) return vx::exit_code::ok;
+    if (const std::string hint = vx::cli::option_suggestion(app, argc, argv); !hint.empty())
+      fmt::print(stderr, "voxelastic: {}\n", hint);
+    return vx::exit_code::usage;
+  } catch (const vx::NoDisplay& e) {
+    fmt::print(stderr, "voxelastic: error: {}\n", e.what());
+    return vx::exit_code::no_display;
   } catch (const vx::Interrupted& e) {
     fmt::print(stderr, "voxelastic: {}\n", e.what());
     return vx::exit_code::interrupted;

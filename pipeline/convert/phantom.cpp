@@ -11,6 +11,7 @@
 #include <random>
 
 #include "base/error.h"
+#include "util/text.h"
 
 namespace vx {
 namespace {
@@ -262,7 +263,9 @@ PhantomShape phantom_shape(const PhantomSettings& s) {
   if (std::find(known.begin(), known.end(), s.name) == known.end()) {
     std::string list;
     for (const auto& n : known) list += (list.empty() ? "" : ", ") + n;
-    throw Error(fmt::format("unknown phantom '{}' (choose one of: {})", s.name, list));
+    const std::string near = nearest_word(s.name, known);
+    throw Error(fmt::format("unknown phantom '{}'{} (choose one of: {})", s.name,
+                            near.empty() ? std::string() : "; did you mean '" + near + "'?", list));
   }
   if (!(s.thickness_mm >= 0) || !std::isfinite(s.thickness_mm))
     throw Error(fmt::format("phantom slice thickness {} mm must be a positive number (0: the pixel spacing)",

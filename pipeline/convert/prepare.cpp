@@ -12,6 +12,7 @@
 
 #include "base/error.h"
 #include "model/lattice_origin.h"
+#include "util/log.h"
 
 namespace vx {
 namespace {
@@ -268,6 +269,15 @@ VoxelGrid prepare_grid(const Volume& volume_in, const PrepareOptions& options, P
     throw Error(fmt::format("prepare: no voxel lies in the tissue range {}; the volume's values span {:g} to {:g} HU. "
                             "Choose a threshold within that span (e.g. --threshold {:g})",
                             range_text(options.range), double(*lo), double(*hi), std::round(0.5 * (*lo + *hi))));
+  }
+  // every voxel tissue: a labelmap or mask read as HU passes the default window everywhere and
+  // would silently become a solid box
+  if (report.thresholded_voxels == volume->geometry.voxel_count() && report.thresholded_voxels > 1) {
+    const auto [lo, hi] = std::minmax_element(volume->hu.begin(), volume->hu.end());
+    log::warn("every voxel of the volume ({} voxels, values {:g} to {:g}) is in the tissue range {}: the model is the "
+              "whole box. If this is a labelmap or segmentation, select one label (convert --label N); else choose a "
+              "threshold inside the values",
+              report.thresholded_voxels, double(*lo), double(*hi), range_text(options.range));
   }
 
   // keep the largest component

@@ -8,6 +8,8 @@
 #include <cmath>
 #include <cstdlib>
 #include <optional>
+#include <string>
+#include <vector>
 
 #include "base/error.h"
 #include "util/text.h"
@@ -74,7 +76,13 @@ HuRange parse_threshold(const std::string& text_in) {
   HuRange r;
   if (colon == std::string::npos) {
     const auto lo = parse_hu(text);
-    if (!lo) throw fail("not a number or preset name");
+    if (!lo) {
+      std::vector<std::string> names;
+      for (const auto& p : kPresets) names.emplace_back(p.name);
+      const std::string near = nearest_word(text, names);
+      throw fail(near.empty() ? std::string("not a number or preset name")
+                              : fmt::format("not a number or preset name (did you mean '{}'?)", near));
+    }
     r.lo = *lo;
     r.hi = kInf;
   } else {

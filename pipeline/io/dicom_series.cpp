@@ -549,7 +549,7 @@ const SeriesInfo& choose_series(const std::map<std::string, SeriesInfo>& all, co
                               options.series_uid, where, list_series(series)));
     if (!chosen->is_ct && !options.any_modality)
       throw Error(fmt::format("DICOM: series {} is not CT ({}), so its values are not Hounsfield units; "
-                              "pass --modality any (ReadOptions::any_modality) to read it anyway",
+                              "pass --modality any (in a scene: \"any_modality\": true) to read it anyway",
                               chosen->uid, chosen->modality.empty() ? "unknown modality" : chosen->modality));
   } else {
     for (const SeriesInfo* s : series)
@@ -559,7 +559,7 @@ const SeriesInfo& choose_series(const std::map<std::string, SeriesInfo>& all, co
       }
     if (!chosen)
       throw Error(fmt::format("DICOM: {} holds no CT series, only:{}\nThese values are not Hounsfield units; pass "
-                              "--modality any (ReadOptions::any_modality) to read one anyway (the largest is taken, "
+                              "--modality any (in a scene: \"any_modality\": true) to read one anyway (the largest is taken, "
                               "or the one given with --series)",
                               where, list_series(series)));
   }

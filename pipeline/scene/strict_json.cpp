@@ -8,6 +8,7 @@
 #include <utility>
 
 #include "base/error.h"
+#include "util/text.h"
 
 namespace vx::strict_json {
 namespace {
@@ -35,18 +36,6 @@ std::string unit_of(const std::string& key) {
     if (key.size() > s.size() && key.compare(key.size() - s.size(), s.size(), s) == 0) return n;
   if (key == "gravity") return "m/s^2";
   return "";
-}
-
-std::size_t edit_distance(const std::string& a, const std::string& b) {
-  std::vector<std::size_t> prev(b.size() + 1), cur(b.size() + 1);
-  for (std::size_t j = 0; j <= b.size(); ++j) prev[j] = j;
-  for (std::size_t i = 1; i <= a.size(); ++i) {
-    cur[0] = i;
-    for (std::size_t j = 1; j <= b.size(); ++j)
-      cur[j] = std::min({prev[j] + 1, cur[j - 1] + 1, prev[j - 1] + (a[i - 1] == b[j - 1] ? 0 : 1)});
-    std::swap(prev, cur);
-  }
-  return prev[b.size()];
 }
 
 /// The keys in double quotes, for messages.
@@ -156,12 +145,7 @@ void Obj::check_key(const std::string& k) const {
       w.fail(fmt::format("unknown key \"{}\": {} is given in {} as \"{}\"", k, s, unit, a));
   }
   // a typo
-  std::string best;
-  std::size_t best_d = 3;
-  for (const auto& a : allowed_) {
-    const std::size_t d = edit_distance(k, a);
-    if (d < best_d) best_d = d, best = a;
-  }
+  const std::string best = nearest_word(k, allowed_);
   if (!best.empty()) w.fail(fmt::format("unknown key \"{}\"; did you mean \"{}\"?", k, best));
   w.fail(fmt::format("unknown key \"{}\"; allowed here: {}", k, fmt::join(quoted(allowed_), ", ")));
 }

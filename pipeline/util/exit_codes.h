@@ -13,6 +13,13 @@ class Interrupted : public Error {
   using Error::Error;
 };
 
+/// Thrown when a picture or window needs an X display and there is none: exit code
+/// `no_display` (4), as voxelastic-probe without --headless.
+class NoDisplay : public Error {
+ public:
+  using Error::Error;
+};
+
 }  // namespace vx
 
 namespace vx::exit_code {

@@ -1,6 +1,7 @@
-// What users expect of the command line (issue #17), through the built binaries: -q keeps
-// warnings on stderr and hides notes and progress everywhere (the DICOM reader too), the exit
-// codes of the shared table (util/exit_codes.h), and Ctrl-C in `simulate` leaving a usable .pvd
+// What users expect of the command line (issues #17, #29), through the built binaries: -q keeps
+// warnings on stderr and hides notes and progress everywhere (the DICOM reader too), wherever
+// it is written; the exit codes of the shared table (util/exit_codes.h), every command-line
+// mistake exit 2 with the nearest correct word; and Ctrl-C in `simulate` leaving a usable .pvd
 // and a summary.json that says where it stopped.
 #include <gtest/gtest.h>
 #include <unistd.h>
@@ -13,6 +14,7 @@
 
 #include "convert/phantom.h"
 #include "io/dicom_series.h"
+#include "io/volume_io.h"
 #include "support/run_binary.h"
 #include "util/exit_codes.h"
 
@@ -133,4 +135,76 @@ TEST_F(CliConventions, ExitCodesFollowTheSharedTable) {
   const RunResult f = run("simulate forever.json --out out");
   EXPECT_EQ(f.code, vx::exit_code::error) << f.err;
   EXPECT_NE(f.err.find("1e+09 steps"), std::string::npos) << f.err;
+}
+
+TEST_F(CliConventions, QuietWorksBeforeAndAfterTheSubcommand) {
+  vx::PhantomSettings ps;
+  ps.name = "sphere";
+  ps.size = 12;
+  vx::write_volume(vx::make_phantom(ps), dir_ / "s.nrrd");
+  // without -q: progress on stderr, the summary on stdout
+  RunResult r = run("convert s.nrrd -o m.vtu");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("threshold:"), std::string::npos) << r.out;
+  EXPECT_NE(r.err.find("reading s.nrrd"), std::string::npos) << r.err;
+  for (const std::string args : {"-q convert s.nrrd -o m.vtu", "convert s.nrrd -o m.vtu -q", "--quiet convert s.nrrd -o m.vtu",
+                                 "convert -q s.nrrd -o m.vtu"}) {
+    r = run(args);
+    EXPECT_EQ(r.code, 0) << args << "\n" << r.err;
+    EXPECT_EQ(r.out, "") << args;
+    EXPECT_EQ(r.err, "") << args;
+  }
+  // simulate too: -q before the subcommand hides the set-up lines and the summary
+  std::ofstream(dir_ / "box.json") << box_scene(0.002, 0.001);
+  r = run("-q simulate box.json --out out");
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(r.out, "");
+}
+
+TEST_F(CliConventions, EveryCommandLineMistakeExitsTwoWithTheNearestWord) {
+  vx::PhantomSettings ps;
+  ps.name = "sphere";
+  ps.size = 12;
+  vx::write_volume(vx::make_phantom(ps), dir_ / "s.nrrd");
+  std::ofstream(dir_ / "box.json") << box_scene(0.002, 0.001);
+  struct Case {
+    const char* args;
+    const char* says;
+  };
+  const Case cases[] = {
+      {"conver s.nrrd -o m.vtu", "unknown command 'conver' (did you mean 'convert'?)"},
+      {"-q simulat box.json --out out", "unknown command 'simulat' (did you mean 'simulate'?)"},
+      {"frobnicate", "the commands are: phantom, convert, simulate"},
+      {"convert s.nrrd -o m.vtu --threshold sofft-tissue", "did you mean 'soft-tissue'?"},
+      {"convert s.nrrd -o m.vtu --threshold 300:100", "the lower bound 300 is above the upper bound 100"},
+      {"convert s.nrrd -o x.stl", "the model must be a .vtu file (for example x.vtu)"},
+      {"convert s.nrrd -o m.vtu --stats s.txt", "must be a .json file"},
+      {"convert s.nrrd -o m.vtu --surface s.stl", "must be a .vtp file"},
+      {"convert s.nrrd -o m.vtu --threshhold 3", "unknown option '--threshhold'; did you mean '--threshold'?"},
+      {"convert s.nrrd -o m.vtu --resolution gradationl", "gradational"},
+      {"convert s.nrrd", "--output is required"},
+      {"phantom sphre -o p.nrrd", "unknown phantom 'sphre'; did you mean 'sphere'?"},
+      {"phantom sphere -o p.stl", "cannot write a phantom as '.stl'"},
+      {"phantom sphere -o p.nrrd --sise 8", "did you mean '--size'?"},
+      {"simulate box.json --out out --thread 2", "did you mean '--threads'?"},
+  };
+  for (const Case& c : cases) {
+    const RunResult r = run(c.args);
+    EXPECT_EQ(r.code, vx::exit_code::usage) << c.args << "\n" << r.err;
+    EXPECT_NE(r.err.find(c.says), std::string::npos) << c.args << "\n" << r.err;
+    EXPECT_FALSE(fs::exists(dir_ / "m.vtu") || fs::exists(dir_ / "p.nrrd") || fs::exists(dir_ / "out"))
+        << c.args << ": nothing is written";
+  }
+  // bad input found by the work is not a command-line mistake: exit 1
+  const RunResult r = run("convert s.nrrd -o m.vtu --threshold 3000");
+  EXPECT_EQ(r.code, vx::exit_code::error) << r.err;
+}
+
+TEST_F(CliConventions, MessagesNameOptionsNotInternalApi) {
+  // every string the programs print, searched for the C++ names of their settings
+  for (const char* binary : {"apps/voxelastic/voxelastic", "apps/probe/voxelastic-probe"}) {
+    const std::string bytes = slurp(fs::path(VX_BINARY_DIR) / binary);
+    for (const char* api : {"ReadOptions::", "PrepareOptions::", "BuildSettings::", "PhantomSettings::", "SceneOutputs::"})
+      EXPECT_EQ(bytes.find(api), std::string::npos) << binary << " prints " << api;
+  }
 }

@@ -159,6 +159,8 @@ TEST_F(CliConvert, PictureUnderXvfb) {
 
 TEST_F(CliConvert, PictureWithoutDisplayFailsBeforeWork) {
   EXPECT_FAILS_CLEANLY(run("convert " + input("sphere.vti") + " -o m.vtu --png m.png", "env -u DISPLAY"), "xvfb-run");
+  // exit 4, as voxelastic-probe without a display (util/exit_codes.h)
+  EXPECT_EQ(run("convert " + input("sphere.vti") + " -o m.vtu --png m.png", "env -u DISPLAY").code, 4);
 }
 
 TEST_F(CliConvert, BadInputsFailCleanly) {
@@ -172,7 +174,7 @@ TEST_F(CliConvert, BadInputsFailCleanly) {
   EXPECT_FAILS_CLEANLY(run("convert " + in + " -o m.vtu --max-level -2"), "max-level");
   EXPECT_FAILS_CLEANLY(run("convert " + in + " -o m.vtu --resolution fine"), "resolution");
   EXPECT_FAILS_CLEANLY(run("convert " + in + " -o m.vtu --resolution voxel --max-level 2"), "--max-level");
-  EXPECT_FAILS_CLEANLY(run("convert " + in + " -o m.vtu --voxel 0"), "voxel");
+  EXPECT_FAILS_CLEANLY(run("convert " + in + " -o m.vtu --voxel -1"), "voxel");  // 0: no resampling (the default)
   EXPECT_FAILS_CLEANLY(run("convert " + in + " -o m.vtu --threshold banana"), "banana");
   EXPECT_FAILS_CLEANLY(run("convert " + in + " -o m.vtu --modality pet"), "modality");
   EXPECT_FAILS_CLEANLY(run("convert " + in), "--output");
@@ -186,4 +188,56 @@ TEST_F(CliConvert, FailureKeepsEarlierOutputs) {
   EXPECT_NE(r.code, 0);
   EXPECT_EQ(slurp(out_ / "m.vtu"), "an older model");
   EXPECT_EQ(outputs(), (std::set<std::string>{"m.vtu"}));
+}
+
+// A labelmap (a block with a spherical lesion: labels 0 air, 1 tissue, 2 lesion), as Slicer
+// writes one: --label N makes the model of one label; read as HU it is all tissue, and says so.
+TEST_F(CliConvert, LabelmapSelectsOneLabelAndAllTissueWarns) {
+  PhantomSettings s;
+  s.name = "block-lesion";
+  s.size = 24;
+  s.air_hu = 0;
+  s.tissue_hu = 1;
+  s.lesion_hu = 2;
+  PhantomShape shape;
+  write_volume(make_phantom(s, &shape), out_ / "labels.nrrd");
+  ASSERT_GT(shape.lesion_voxels, 0);
+  const auto tissue_of = [&](const char* stats) {
+    return nlohmann::json::parse(slurp(out_ / stats)).at("prepare").at("tissue_voxels").get<std::int64_t>();
+  };
+  // label 2: the lesion's voxels, exactly; label 1: the block without them
+  RunResult r = run("convert labels.nrrd --label 2 -o lesion.vtu --stats lesion.json --no-crop");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("label:          2"), std::string::npos) << r.out;
+  EXPECT_EQ(tissue_of("lesion.json"), shape.lesion_voxels);
+  EXPECT_EQ(nlohmann::json::parse(slurp(out_ / "lesion.json")).at("label"), 2);
+  r = run("convert labels.nrrd --label 1 -o block.vtu --stats block.json --no-crop");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(tissue_of("block.json"), shape.tissue_voxels - shape.lesion_voxels);
+  EXPECT_EQ(r.err.find("warning"), std::string::npos) << r.err;
+  // read as HU with the default window (>= -200): every voxel is tissue, a warning says so (even with -q)
+  r = run("convert labels.nrrd -o box.vtu -q");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("warning: every voxel of the volume (13824 voxels, values 0 to 2)"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("--label N"), std::string::npos) << r.err;
+  // a label that is not there: the labels that are; a volume that is not a labelmap: said so
+  r = run("convert labels.nrrd --label 7 -o none.vtu");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.err.find("its labels are 0, 1, 2"), std::string::npos) << r.err;
+  r = run("convert " + input("sphere.vti") + " --label 1 -o none.vtu");
+  EXPECT_EQ(r.code, 1);  // the sphere phantom holds 40 and -1000 HU: no label 1
+  EXPECT_NE(r.err.find("its labels are -1000, 40"), std::string::npos) << r.err;
+  write_volume([] {
+    Volume v = make_phantom(PhantomSettings{});
+    v.hu[0] = 0.5f;
+    return v;
+  }(), out_ / "ct.nrrd");
+  r = run("convert ct.nrrd --label 1 -o none.vtu");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.err.find("holds the value 0.5, so it is not a labelmap"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(out_ / "none.vtu"));
+  // --label with an HU window or resampling: a command-line mistake
+  EXPECT_EQ(run("convert labels.nrrd --label 1 --threshold bone -o x.vtu").code, 2);
+  EXPECT_EQ(run("convert labels.nrrd --label 1 --voxel 2 -o x.vtu").code, 2);
+  EXPECT_EQ(run("convert labels.nrrd --label 1 --threshold tissue -o t.vtu -q").code, 0);  // Slicer passes the default
 }

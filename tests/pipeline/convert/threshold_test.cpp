@@ -6,9 +6,11 @@
 #include <cmath>
 #include <limits>
 #include <string>
+#include <vector>
 
 #include "base/error.h"
 #include "convert/phantom.h"
+#include "util/text.h"
 
 using vx::HuRange;
 using vx::parse_threshold;
@@ -58,6 +60,36 @@ TEST(ParseThreshold, BadTextListsPresets) {
         EXPECT_NE(msg.find(preset), std::string::npos) << msg;
     }
   }
+}
+
+TEST(ParseThreshold, ATypoOfAPresetSuggestsIt) {
+  const auto message = [](const std::string& text) {
+    try {
+      (void)parse_threshold(text);
+    } catch (const vx::Error& e) {
+      return std::string(e.what());
+    }
+    return std::string("accepted");
+  };
+  EXPECT_NE(message("sofft-tissue").find("(did you mean 'soft-tissue'?)"), std::string::npos);
+  EXPECT_NE(message("LUNGS").find("(did you mean 'lung'?)"), std::string::npos);
+  EXPECT_NE(message("bone2").find("(did you mean 'bone'?)"), std::string::npos);
+  // nothing near: no suggestion
+  EXPECT_EQ(message("cartilage").find("did you mean"), std::string::npos);
+  EXPECT_EQ(message("300:100").find("did you mean"), std::string::npos);
+}
+
+TEST(NearestWord, EditDistanceAndTheNearestKnownWord) {
+  EXPECT_EQ(vx::edit_distance("kitten", "sitting"), 3u);
+  EXPECT_EQ(vx::edit_distance("", "abc"), 3u);
+  EXPECT_EQ(vx::edit_distance("convert", "convert"), 0u);
+  const std::vector<std::string> known = {"phantom", "convert", "simulate", "verify", "verify-merge", "bench"};
+  EXPECT_EQ(vx::nearest_word("conver", known), "convert");
+  EXPECT_EQ(vx::nearest_word("CONVERT", known), "convert");  // case does not matter
+  EXPECT_EQ(vx::nearest_word("verify-merg", known), "verify-merge");
+  EXPECT_EQ(vx::nearest_word("verif", known), "verify");
+  EXPECT_EQ(vx::nearest_word("palpate", known), "");  // 3 edits or more: no guess
+  EXPECT_EQ(vx::nearest_word("bnch", known, 1), "");  // the limit is the caller's
 }
 
 TEST(Threshold, InclusiveBoundsAndGeometry) {

@@ -1,0 +1,227 @@
+// `voxelastic convert --xml`: the Slicer Execution Model description that makes convert a 3D
+// Slicer CLI module (issue #29). Checked the way Slicer uses it: well-formed XML (xmllint when
+// installed, and VTK's expat parser), the elements of a module description in their order,
+// every option of `convert --help` described once with a flag Slicer can pass, and a run with
+// the described defaults, as Slicer would start it, that converts a phantom.
+#include <gtest/gtest.h>
+#include <unistd.h>
+#include <vtkNew.h>
+#include <vtkSmartPointer.h>
+#include <vtkXMLDataElement.h>
+#include <vtkXMLUtilities.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <regex>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "base/version.h"
+#include "convert/phantom.h"
+#include "io/volume_io.h"
+#include "support/run_binary.h"
+#include "util/exit_codes.h"
+
+namespace fs = std::filesystem;
+using vx::testing::RunResult;
+
+namespace {
+
+const fs::path kBinary = fs::path(VX_BINARY_DIR) / "apps" / "voxelastic" / "voxelastic";
+
+class CliSlicerXml : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() / ("vx_cli_slicer_xml_" + std::to_string(::getpid()) + "_" +
+                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override {
+    if (!HasFailure()) fs::remove_all(dir_);
+  }
+  RunResult run(const std::string& args) const { return vx::testing::run_binary(kBinary, args, dir_, dir_); }
+  fs::path dir_;
+};
+
+std::string trimmed(const char* s) {
+  std::string t = s ? s : "";
+  const auto a = t.find_first_not_of(" \t\r\n"), b = t.find_last_not_of(" \t\r\n");
+  return a == std::string::npos ? std::string() : t.substr(a, b - a + 1);
+}
+
+/// The text of the child named `name` ("" when there is none).
+std::string child_text(vtkXMLDataElement* e, const char* name) {
+  vtkXMLDataElement* c = e->FindNestedElementWithName(name);
+  return c ? trimmed(c->GetCharacterData()) : std::string();
+}
+
+int count_children(vtkXMLDataElement* e, const std::string& name) {
+  int n = 0;
+  for (int i = 0; i < e->GetNumberOfNestedElements(); ++i) n += name == e->GetNestedElement(i)->GetName();
+  return n;
+}
+
+/// The long options `convert --help` lists (--name, without --help and --xml).
+std::set<std::string> help_long_options(const std::string& help) {
+  std::set<std::string> out;
+  const std::regex opt(R"((^|[ ,])--([a-z][a-z0-9-]*))");
+  for (auto it = std::sregex_iterator(help.begin(), help.end(), opt); it != std::sregex_iterator(); ++it) {
+    const std::string name = (*it)[2];
+    if (name != "help" && name != "xml") out.insert(name);
+  }
+  return out;
+}
+
+struct Parameter {
+  std::string kind, name, longflag, flag, index, channel, default_value;
+  std::vector<std::string> elements;
+};
+
+TEST_F(CliSlicerXml, ConvertDescribesItselfAsASlicerCliModule) {
+  const RunResult r = run("convert --xml");
+  ASSERT_EQ(r.code, vx::exit_code::ok) << r.err;
+  EXPECT_EQ(r.err, "");
+  ASSERT_EQ(r.out.rfind("<?xml version=\"1.0\"", 0), 0u) << r.out.substr(0, 80);
+  const fs::path xml = dir_ / "convert.xml";
+  std::ofstream(xml) << r.out;
+
+  // well-formed, by libxml2 when installed (scripts/install-deps.sh installs it)
+  if (fs::exists("/usr/bin/xmllint")) {
+    const RunResult lint =
+        vx::testing::run_binary("/usr/bin/xmllint", "--noout '" + xml.string() + "'", dir_, dir_ / "..");
+    EXPECT_EQ(lint.code, 0) << lint.err;
+  }
+
+  // the module description: its header elements in the order the schema sets
+  vtkSmartPointer<vtkXMLDataElement> root;
+  root.TakeReference(vtkXMLUtilities::ReadElementFromFile(xml.c_str()));
+  ASSERT_NE(root, nullptr) << "expat could not parse the description";
+  ASSERT_STREQ(root->GetName(), "executable");
+  const std::vector<std::string> header = {"category", "title",   "description", "version",
+                                           "documentation-url", "license", "contributor"};
+  ASSERT_GT(root->GetNumberOfNestedElements(), int(header.size()));
+  for (std::size_t i = 0; i < header.size(); ++i)
+    EXPECT_EQ(root->GetNestedElement(int(i))->GetName(), header[i]) << "element " << i;
+  EXPECT_EQ(child_text(root, "version"), vx::kVersion);
+  EXPECT_EQ(child_text(root, "title"), "voxelastic convert");
+  EXPECT_EQ(child_text(root, "license"), "BSD-3-Clause");
+
+  // the parameter groups and their parameters
+  const std::set<std::string> kinds = {"integer", "double", "float", "boolean", "string", "string-enumeration",
+                                       "image", "geometry", "file"};
+  std::vector<Parameter> params;
+  std::set<std::string> names, longflags;
+  int groups = 0;
+  for (int g = int(header.size()); g < root->GetNumberOfNestedElements(); ++g) {
+    vtkXMLDataElement* group = root->GetNestedElement(g);
+    ASSERT_STREQ(group->GetName(), "parameters") << "after the header, only parameter groups";
+    ++groups;
+    EXPECT_NE(child_text(group, "label"), "") << "group " << groups << " has a label";
+    for (int i = 0; i < group->GetNumberOfNestedElements(); ++i) {
+      vtkXMLDataElement* e = group->GetNestedElement(i);
+      const std::string kind = e->GetName();
+      if (kind == "label" || kind == "description") continue;
+      EXPECT_TRUE(kinds.count(kind)) << "unknown parameter type <" << kind << ">";
+      Parameter p{kind,
+                  child_text(e, "name"),
+                  child_text(e, "longflag"),
+                  child_text(e, "flag"),
+                  child_text(e, "index"),
+                  child_text(e, "channel"),
+                  child_text(e, "default"),
+                  {}};
+      for (int k = 0; k < e->GetNumberOfNestedElements(); ++k)
+        if (std::string(e->GetNestedElement(k)->GetName()) == "element")
+          p.elements.push_back(trimmed(e->GetNestedElement(k)->GetCharacterData()));
+      // each parameter: a unique C-identifier name, a label, a description, one name of each kind
+      EXPECT_TRUE(std::regex_match(p.name, std::regex("[A-Za-z_][A-Za-z0-9_]*"))) << "<name> '" << p.name << "'";
+      EXPECT_TRUE(names.insert(p.name).second) << "two parameters named " << p.name;
+      EXPECT_NE(child_text(e, "label"), "") << p.name;
+      EXPECT_NE(child_text(e, "description"), "") << p.name;
+      for (const char* once : {"name", "label", "description", "longflag", "flag", "index", "channel", "default"})
+        EXPECT_LE(count_children(e, once), 1) << p.name << " has two <" << once << ">";
+      // Slicer passes it by flag or by position, never both or neither
+      EXPECT_NE(p.longflag.empty(), p.index.empty()) << p.name << ": a <longflag> or an <index>";
+      if (!p.longflag.empty()) {
+        EXPECT_TRUE(longflags.insert(p.longflag).second) << "two --" << p.longflag;
+      }
+      // files and data carry their direction
+      if (kind == "image" || kind == "geometry" || kind == "file") {
+        EXPECT_TRUE(p.channel == "input" || p.channel == "output") << p.name << ": <channel> " << p.channel;
+      }
+      if (kind == "string-enumeration") {
+        EXPECT_GE(p.elements.size(), 2u) << p.name;
+        EXPECT_NE(std::find(p.elements.begin(), p.elements.end(), p.default_value), p.elements.end())
+            << p.name << ": the default is one of the elements";
+      }
+      if (kind == "boolean") {
+        EXPECT_EQ(p.default_value, "false") << p.name << ": a flag is off by default";
+      }
+      params.push_back(p);
+    }
+  }
+  EXPECT_GE(groups, 2);
+
+  // the input volume is the one positional argument, the model an output
+  const auto input = std::find_if(params.begin(), params.end(), [](const Parameter& p) { return p.index == "0"; });
+  ASSERT_NE(input, params.end());
+  EXPECT_EQ(input->kind, "image");
+  EXPECT_EQ(input->channel, "input");
+  EXPECT_EQ(std::count_if(params.begin(), params.end(), [](const Parameter& p) { return !p.index.empty(); }), 1);
+
+  // every option of convert described, and nothing else
+  const RunResult help = run("convert --help");
+  ASSERT_EQ(help.code, 0);
+  const std::set<std::string> options = help_long_options(help.out);
+  EXPECT_GE(options.size(), 14u) << help.out;
+  EXPECT_EQ(longflags, options);
+}
+
+TEST_F(CliSlicerXml, TheDescribedDefaultsConvertAPhantomAsSlicerWouldRunIt) {
+  // Slicer runs the module with every non-empty value (the defaults unless the user changed
+  // them), flags for the booleans that are on, then the positional arguments
+  const RunResult r = run("convert --xml");
+  ASSERT_EQ(r.code, 0) << r.err;
+  vtkSmartPointer<vtkXMLDataElement> root;
+  root.TakeReference(vtkXMLUtilities::ReadElementFromString(r.out.c_str()));
+  ASSERT_NE(root, nullptr);
+  std::string args;
+  for (int g = 0; g < root->GetNumberOfNestedElements(); ++g) {
+    vtkXMLDataElement* group = root->GetNestedElement(g);
+    if (std::string(group->GetName()) != "parameters") continue;
+    for (int i = 0; i < group->GetNumberOfNestedElements(); ++i) {
+      vtkXMLDataElement* e = group->GetNestedElement(i);
+      const std::string kind = e->GetName(), flag = child_text(e, "longflag"), value = child_text(e, "default");
+      if (flag.empty() || kind == "geometry" || kind == "file") continue;  // outputs: given below
+      if (kind == "boolean") {
+        if (value == "true") args += " --" + flag;
+      } else if (!value.empty()) {
+        args += " --" + flag + " " + value;
+      }
+    }
+  }
+  vx::PhantomSettings ps;
+  ps.name = "sphere";
+  ps.size = 16;
+  vx::PhantomShape shape;
+  vx::write_volume(vx::make_phantom(ps, &shape), dir_ / "in.nrrd");
+  const RunResult c = run("convert" + args + " --output model.vtu --stats stats.json in.nrrd");
+  ASSERT_EQ(c.code, 0) << args << "\n" << c.err;
+  EXPECT_TRUE(fs::exists(dir_ / "model.vtu"));
+  // the defaults are convert's own: the same model as without any option
+  const RunResult plain = run("convert in.nrrd -o plain.vtu --stats plain.json");
+  ASSERT_EQ(plain.code, 0) << plain.err;
+  const std::string a = vx::testing::slurp(dir_ / "stats.json"), b = vx::testing::slurp(dir_ / "plain.json");
+  const std::regex elements(R"re("elements": ([0-9]+))re");
+  std::smatch ma, mb;
+  ASSERT_TRUE(std::regex_search(a, ma, elements)) << a;
+  ASSERT_TRUE(std::regex_search(b, mb, elements)) << b;
+  EXPECT_EQ(ma[1], mb[1]);
+  EXPECT_GT(std::stoi(ma[1]), 0);
+}
+
+}  // namespace
