@@ -19,7 +19,7 @@
 #include <utility>
 #include <vector>
 
-#include "io/volume_io.h"
+#include "io/read_options.h"
 #include "io/volume.h"
 
 namespace vx::dicom {
