@@ -367,7 +367,8 @@ class ImplicitIntegrator final : public Integrator {
     if (!cache.solver || cache.solver->setup() != setup || cache.fixed_version != s.fixed_version ||
         &cache.solver->physics() != s.physics.get()) {
       cache.solver.reset();
-      cache.solver = std::make_unique<ProjectiveSolver>(s.physics, s.node_fixed, setup);
+      cache.solver = IntegratorCache::SolverPtr(new ProjectiveSolver(s.physics, s.node_fixed, setup),
+                                                [](ProjectiveSolver* p) { delete p; });
       cache.fixed_version = s.fixed_version;
       rep.refactored = true;
     }
