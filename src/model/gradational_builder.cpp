@@ -193,23 +193,7 @@ void append_element(const ElementSeed& s, const NodeLattice& lattice, Model& mod
       }
     }
   }
-  model.element_offsets.push_back(std::int32_t(model.element_vertices.size()));
-  model.element_level.push_back(std::int8_t(s.level));
-  model.element_cell_voxels.push_back(s.width);
-  model.element_cells.push_back(s.cells);
-}
-
-void store_elements(const std::vector<ElementSeed>& seeds, const NodeLattice& lattice, Model& model,
-                    const std::function<void(double)>& progress) {
-  model.element_offsets.assign(1, 0);
-  model.element_anchor.resize(3, std::int64_t(seeds.size()));
-  for (std::size_t e = 0; e < seeds.size(); ++e) {
-    model.element_anchor.col(std::int64_t(e)) = seeds[e].anchor;
-    append_element(seeds[e], lattice, model);
-    if (model.element_vertices.size() > std::size_t(std::numeric_limits<std::int32_t>::max()))
-      throw Error("the model would have more than 2^31 vertex entries: resample the volume to larger voxels (--voxel MM)");
-    if (progress && (e & 4095) == 0) progress(0.6 + 0.4 * double(e) / double(seeds.size()));
-  }
+  builder::close_element(s, model);
 }
 
 /// The paper's procedure (docs/model.md section 3): shells of elements, level by level.
@@ -320,20 +304,13 @@ Model build_model(const VoxelGrid& grid, const BuildSettings& settings, BuildRep
   model.layout = settings.layout;
   model.grid = grid.geometry();
   NodeLattice lattice(d);
-  std::vector<ElementSeed> seeds;
-  switch (settings.layout) {
-    case Layout::gradational:
-      seeds = gradational_seeds(grid, settings.max_level, lattice, report, settings.progress);
-      break;
-    case Layout::uniform:
-      seeds = gradational_seeds(grid, 0, lattice, report, settings.progress);
-      break;
-    case Layout::voxel:
-      seeds = voxel_seeds(grid, lattice, report);
-      break;
-  }
+  const std::vector<ElementSeed> seeds = builder::layout_seeds(
+      settings, [&](int max_level) { return gradational_seeds(grid, max_level, lattice, report, settings.progress); },
+      [&] { return voxel_seeds(grid, lattice, report); });
   number_nodes(lattice, grid, model);
-  store_elements(seeds, lattice, model, settings.progress);
+  builder::store_seeds(
+      seeds, model, settings.progress, "resample the volume to larger voxels (--voxel MM)",
+      [](const ElementSeed& s) { return s.anchor; }, [&](const ElementSeed& s) { append_element(s, lattice, model); });
   model.finalize();
   return finish(std::move(model));
 }

@@ -156,10 +156,7 @@ void append_element_2d(const Seed2& s, const NodeLattice2& lattice, Model& model
       if (id >= 0) model.element_vertices.push_back(id);
     }
   }
-  model.element_offsets.push_back(std::int32_t(model.element_vertices.size()));
-  model.element_level.push_back(std::int8_t(s.level));
-  model.element_cell_voxels.push_back(s.width);
-  model.element_cells.push_back(s.cells);
+  builder::close_element(s, model);
 }
 
 /// The paper's procedure in 2D: rings of elements, level by level.
@@ -242,28 +239,15 @@ Model build_model_2d(const VoxelGrid& grid, const BuildSettings& settings, Build
   model.grid = grid.geometry();
   model.dimensions = 2;
   NodeLattice2 lattice(d.x(), d.y());
-  std::vector<Seed2> seeds;
-  switch (settings.layout) {
-    case Layout::gradational:
-      seeds = gradational_seeds_2d(grid, settings.max_level, lattice, report, settings.progress);
-      break;
-    case Layout::uniform:
-      seeds = gradational_seeds_2d(grid, 0, lattice, report, settings.progress);
-      break;
-    case Layout::voxel:
-      seeds = pixel_seeds(grid, lattice, report);
-      break;
-  }
+  const std::vector<Seed2> seeds = builder::layout_seeds(
+      settings,
+      [&](int max_level) { return gradational_seeds_2d(grid, max_level, lattice, report, settings.progress); },
+      [&] { return pixel_seeds(grid, lattice, report); });
   number_nodes_2d(lattice, grid, model);
-  model.element_offsets.assign(1, 0);
-  model.element_anchor.resize(3, std::int64_t(seeds.size()));
-  for (std::size_t e = 0; e < seeds.size(); ++e) {
-    model.element_anchor.col(std::int64_t(e)) = Eigen::Vector3i(seeds[e].ax, seeds[e].ay, 0);
-    append_element_2d(seeds[e], lattice, model);
-    if (model.element_vertices.size() > std::size_t(std::numeric_limits<std::int32_t>::max()))
-      throw Error("the model would have more than 2^31 vertex entries: resample the image to larger pixels (--voxel MM)");
-    if (settings.progress && (e & 4095) == 0) settings.progress(0.6 + 0.4 * double(e) / double(seeds.size()));
-  }
+  builder::store_seeds(
+      seeds, model, settings.progress, "resample the image to larger pixels (--voxel MM)",
+      [](const Seed2& s) { return Eigen::Vector3i(s.ax, s.ay, 0); },
+      [&](const Seed2& s) { append_element_2d(s, lattice, model); });
   // each element's vertices around its boundary, counter-clockwise (slice_element_parts), so
   // that a polygon through the vertex list in order is the element (the model file's cells)
   for (int e = 0; e < model.num_elements(); ++e) {
