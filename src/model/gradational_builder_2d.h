@@ -39,6 +39,43 @@ template <class Gradational, class PerVoxel>
   return seeds;
 }
 
+/// The paper's level loop (docs/model.md section 3) from `cells`, the 0/1 cells of width one
+/// voxel, `total` of them 1: at each level (cells 2^level voxels wide; every group with a 1-cell
+/// taken from max_level on when it is >= 0) `level_pass(cells, level, take_all, covered)` gives
+/// elements to the groups that get one, zeroes their cells, adds the voxels they cover to
+/// `covered` and returns how many it gave; then the grid is halved (`halve`). Until no 1-cell is
+/// left. Progress runs from 0 to 0.6.
+template <class Cells, class LevelPass, class Halve>
+void level_by_level(Cells cells, std::int64_t total, int max_level, BuildReport& report,
+                    const std::function<void(double)>& progress, const LevelPass& level_pass, const Halve& halve) {
+  std::int64_t covered = 0;
+  for (int level = 0; !cells.empty(); ++level) {
+    if (level > 30) throw Error("internal: more than 30 levels");
+    const bool take_all = max_level >= 0 && level >= max_level;
+    report.elements_per_level.push_back(level_pass(cells, level, take_all, covered));
+    if (progress) progress(0.6 * double(covered) / double(total));
+    // (3) halve the grid, (4) double the element size
+    cells = halve(cells);
+  }
+}
+
+/// Numbers the marked points of a node lattice (`id`: >= 0 marked, -1 not) in lattice order
+/// and sizes the model's node arrays for them; returns the count. Throws vx::Error past 2^31
+/// nodes, naming `too_fine` (what to resample, and how).
+inline std::int64_t number_marked(std::vector<std::int32_t>& id, Model& model, const char* too_fine) {
+  std::int64_t count = 0;
+  for (auto& v : id)
+    if (v >= 0) {
+      if (count >= std::numeric_limits<std::int32_t>::max())
+        throw Error(std::string("the model would have more than 2^31 nodes: ") + too_fine);
+      v = std::int32_t(count++);
+    }
+  model.rest_positions.resize(3, count);
+  model.node_lattice.resize(3, count);
+  model.node_surface.assign(std::size_t(count), 0);
+  return count;
+}
+
 /// Closes the element whose vertices were just appended: its offset, level, cell width, cells.
 template <class Seed>
 void close_element(const Seed& s, Model& model) {
