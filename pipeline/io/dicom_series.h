@@ -6,8 +6,8 @@
 #include <string>
 #include <vector>
 
+#include "io/read_options.h"
 #include "io/volume.h"
-#include "io/volume_io.h"
 
 namespace vx {
 

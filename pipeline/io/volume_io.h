@@ -10,15 +10,10 @@
 #include <filesystem>
 #include <string>
 
+#include "io/read_options.h"
 #include "io/volume.h"
 
 namespace vx {
-
-/// Options for reading volumes (DICOM-specific ones are used for DICOM input only).
-struct ReadOptions {
-  std::string series_uid;      ///< DICOM: series to read; empty = the largest CT series
-  bool any_modality{false};    ///< DICOM: accept non-CT images (MR, secondary capture) with a warning
-};
 
 /// Reads a volume; throws vx::Error with a clear message (what, where, how to fix) on failure.
 [[nodiscard]] Volume read_volume(const std::filesystem::path& path, const ReadOptions& options = {});

@@ -138,16 +138,7 @@ struct NodeLattice {
 
 /// Numbers the marked lattice points in lattice order and fills the node arrays.
 void number_nodes(NodeLattice& lattice, const VoxelGrid& grid, Model& model) {
-  std::int64_t count = 0;
-  for (auto& v : lattice.id)
-    if (v >= 0) {
-      if (count >= std::numeric_limits<std::int32_t>::max())
-        throw Error("the model would have more than 2^31 nodes: resample the volume to larger voxels (--voxel MM)");
-      v = std::int32_t(count++);
-    }
-  model.rest_positions.resize(3, count);
-  model.node_lattice.resize(3, count);
-  model.node_surface.assign(std::size_t(count), 0);
+  builder::number_marked(lattice.id, model, "resample the volume to larger voxels (--voxel MM)");
   const Eigen::Vector3i& d = lattice.dims;
   for (int k = 0; k < d.z(); ++k)
     for (int j = 0; j < d.y(); ++j)
@@ -193,80 +184,60 @@ void append_element(const ElementSeed& s, const NodeLattice& lattice, Model& mod
       }
     }
   }
-  model.element_offsets.push_back(std::int32_t(model.element_vertices.size()));
-  model.element_level.push_back(std::int8_t(s.level));
-  model.element_cell_voxels.push_back(s.width);
-  model.element_cells.push_back(s.cells);
-}
-
-void store_elements(const std::vector<ElementSeed>& seeds, const NodeLattice& lattice, Model& model,
-                    const std::function<void(double)>& progress) {
-  model.element_offsets.assign(1, 0);
-  model.element_anchor.resize(3, std::int64_t(seeds.size()));
-  for (std::size_t e = 0; e < seeds.size(); ++e) {
-    model.element_anchor.col(std::int64_t(e)) = seeds[e].anchor;
-    append_element(seeds[e], lattice, model);
-    if (model.element_vertices.size() > std::size_t(std::numeric_limits<std::int32_t>::max()))
-      throw Error("the model would have more than 2^31 vertex entries: resample the volume to larger voxels (--voxel MM)");
-    if (progress && (e & 4095) == 0) progress(0.6 + 0.4 * double(e) / double(seeds.size()));
-  }
+  builder::close_element(s, model);
 }
 
 /// The paper's procedure (docs/model.md section 3): shells of elements, level by level.
 std::vector<ElementSeed> gradational_seeds(const VoxelGrid& grid, int max_level, NodeLattice& lattice,
                                            BuildReport& report, const std::function<void(double)>& progress) {
   std::vector<ElementSeed> seeds;
-  CellGrid cells;
-  cells.dims = grid.dims();
-  cells.cells = grid.data();
-  const std::int64_t total = grid.count();
-  std::int64_t covered = 0;
-  for (int level = 0; !cells.empty(); ++level) {
-    if (level > 30) throw Error("internal: more than 30 levels");
-    const bool take_all = max_level >= 0 && level >= max_level;
-    const int w = 1 << level;
-    const Eigen::Vector3i groups = (cells.dims.array() + 1) / 2;
-    std::int64_t on_level = 0;
-    std::vector<std::int64_t> taken;  // indices of groups that got an element
-    // (1) scan 2x2x2 groups; a group with a 1-cell gets an element when one of its cells is a
-    // 0-cell or a 1-cell touches the boundary (a face against a 0-cell; outside counts as 0)
-    for (int gz = 0; gz < groups.z(); ++gz)
-      for (int gy = 0; gy < groups.y(); ++gy)
-        for (int gx = 0; gx < groups.x(); ++gx) {
-          std::uint8_t mask = 0;
-          for (int c = 0; c < 8; ++c)
-            if (cells.at(2 * gx + (c & 1), 2 * gy + (c >> 1 & 1), 2 * gz + (c >> 2 & 1))) mask |= std::uint8_t(1u << c);
-          if (mask == 0) continue;
-          bool boundary = take_all || mask != 0xFF;
-          for (int c = 0; c < 8 && !boundary; ++c) {
+  CellGrid fine;
+  fine.dims = grid.dims();
+  fine.cells = grid.data();
+  builder::level_by_level(
+      std::move(fine), grid.count(), max_level, report, progress,
+      [&](CellGrid& cells, int level, bool take_all, std::int64_t& covered) {
+        const int w = 1 << level;
+        const Eigen::Vector3i groups = (cells.dims.array() + 1) / 2;
+        std::int64_t on_level = 0;
+        std::vector<std::int64_t> taken;  // indices of groups that got an element
+        // (1) scan 2x2x2 groups; a group with a 1-cell gets an element when one of its cells is a
+        // 0-cell or a 1-cell touches the boundary (a face against a 0-cell; outside counts as 0)
+        for (int gz = 0; gz < groups.z(); ++gz)
+          for (int gy = 0; gy < groups.y(); ++gy)
+            for (int gx = 0; gx < groups.x(); ++gx) {
+              std::uint8_t mask = 0;
+              for (int c = 0; c < 8; ++c)
+                if (cells.at(2 * gx + (c & 1), 2 * gy + (c >> 1 & 1), 2 * gz + (c >> 2 & 1))) mask |= std::uint8_t(1u << c);
+              if (mask == 0) continue;
+              bool boundary = take_all || mask != 0xFF;
+              for (int c = 0; c < 8 && !boundary; ++c) {
+                const int i = 2 * gx + (c & 1), j = 2 * gy + (c >> 1 & 1), k = 2 * gz + (c >> 2 & 1);
+                // only faces leaving the group can meet a 0-cell here (the group is full)
+                const int di = (c & 1) ? 1 : -1, dj = (c >> 1 & 1) ? 1 : -1, dk = (c >> 2 & 1) ? 1 : -1;
+                boundary = !cells.at(i + di, j, k) || !cells.at(i, j + dj, k) || !cells.at(i, j, k + dk);
+              }
+              if (!boundary) continue;
+              const std::uint32_t points = own_vertex_points(cells, gx, gy, gz, mask);
+              const Eigen::Vector3i anchor = Eigen::Vector3i(gx, gy, gz) * (2 * w);
+              for (int p = 0; p < 27; ++p)
+                if (points >> p & 1) lattice.mark(anchor + Eigen::Vector3i(p % 3, p / 3 % 3, p / 9) * w);
+              seeds.push_back({anchor, level, w, mask});
+              taken.push_back(gx + std::int64_t(groups.x()) * (gy + std::int64_t(groups.y()) * gz));
+              covered += std::int64_t(__builtin_popcount(mask)) * w * w * w;
+              ++on_level;
+            }
+        // (2) cells that received an element become 0
+        for (std::int64_t g : taken) {
+          const int gx = int(g % groups.x()), gy = int(g / groups.x() % groups.y()), gz = int(g / groups.x() / groups.y());
+          for (int c = 0; c < 8; ++c) {
             const int i = 2 * gx + (c & 1), j = 2 * gy + (c >> 1 & 1), k = 2 * gz + (c >> 2 & 1);
-            // only faces leaving the group can meet a 0-cell here (the group is full)
-            const int di = (c & 1) ? 1 : -1, dj = (c >> 1 & 1) ? 1 : -1, dk = (c >> 2 & 1) ? 1 : -1;
-            boundary = !cells.at(i + di, j, k) || !cells.at(i, j + dj, k) || !cells.at(i, j, k + dk);
+            if (i < cells.dims.x() && j < cells.dims.y() && k < cells.dims.z()) cells.cells[std::size_t(cells.index(i, j, k))] = 0;
           }
-          if (!boundary) continue;
-          const std::uint32_t points = own_vertex_points(cells, gx, gy, gz, mask);
-          const Eigen::Vector3i anchor = Eigen::Vector3i(gx, gy, gz) * (2 * w);
-          for (int p = 0; p < 27; ++p)
-            if (points >> p & 1) lattice.mark(anchor + Eigen::Vector3i(p % 3, p / 3 % 3, p / 9) * w);
-          seeds.push_back({anchor, level, w, mask});
-          taken.push_back(gx + std::int64_t(groups.x()) * (gy + std::int64_t(groups.y()) * gz));
-          covered += std::int64_t(__builtin_popcount(mask)) * w * w * w;
-          ++on_level;
         }
-    report.elements_per_level.push_back(on_level);
-    // (2) cells that received an element become 0
-    for (std::int64_t g : taken) {
-      const int gx = int(g % groups.x()), gy = int(g / groups.x() % groups.y()), gz = int(g / groups.x() / groups.y());
-      for (int c = 0; c < 8; ++c) {
-        const int i = 2 * gx + (c & 1), j = 2 * gy + (c >> 1 & 1), k = 2 * gz + (c >> 2 & 1);
-        if (i < cells.dims.x() && j < cells.dims.y() && k < cells.dims.z()) cells.cells[std::size_t(cells.index(i, j, k))] = 0;
-      }
-    }
-    if (progress) progress(0.6 * double(covered) / double(total));
-    // (3) halve the grid, (4) double the element size
-    cells = halve(cells);
-  }
+        return on_level;
+      },
+      halve);
   return seeds;
 }
 
@@ -320,20 +291,13 @@ Model build_model(const VoxelGrid& grid, const BuildSettings& settings, BuildRep
   model.layout = settings.layout;
   model.grid = grid.geometry();
   NodeLattice lattice(d);
-  std::vector<ElementSeed> seeds;
-  switch (settings.layout) {
-    case Layout::gradational:
-      seeds = gradational_seeds(grid, settings.max_level, lattice, report, settings.progress);
-      break;
-    case Layout::uniform:
-      seeds = gradational_seeds(grid, 0, lattice, report, settings.progress);
-      break;
-    case Layout::voxel:
-      seeds = voxel_seeds(grid, lattice, report);
-      break;
-  }
+  const std::vector<ElementSeed> seeds = builder::layout_seeds(
+      settings, [&](int max_level) { return gradational_seeds(grid, max_level, lattice, report, settings.progress); },
+      [&] { return voxel_seeds(grid, lattice, report); });
   number_nodes(lattice, grid, model);
-  store_elements(seeds, lattice, model, settings.progress);
+  builder::store_seeds(
+      seeds, model, settings.progress, "resample the volume to larger voxels (--voxel MM)",
+      [](const ElementSeed& s) { return s.anchor; }, [&](const ElementSeed& s) { append_element(s, lattice, model); });
   model.finalize();
   return finish(std::move(model));
 }

@@ -108,16 +108,7 @@ struct NodeLattice2 {
 
 /// Numbers the marked lattice points in lattice order and fills the node arrays.
 void number_nodes_2d(NodeLattice2& lattice, const VoxelGrid& grid, Model& model) {
-  std::int64_t count = 0;
-  for (auto& v : lattice.id)
-    if (v >= 0) {
-      if (count >= std::numeric_limits<std::int32_t>::max())
-        throw Error("the model would have more than 2^31 nodes: resample the image to larger pixels (--voxel MM)");
-      v = std::int32_t(count++);
-    }
-  model.rest_positions.resize(3, count);
-  model.node_lattice.resize(3, count);
-  model.node_surface.assign(std::size_t(count), 0);
+  builder::number_marked(lattice.id, model, "resample the image to larger pixels (--voxel MM)");
   for (int j = 0; j < lattice.ly; ++j)
     for (int i = 0; i < lattice.lx; ++i) {
       const std::int32_t n = lattice.id[std::size_t(lattice.index(i, j))];
@@ -156,67 +147,60 @@ void append_element_2d(const Seed2& s, const NodeLattice2& lattice, Model& model
       if (id >= 0) model.element_vertices.push_back(id);
     }
   }
-  model.element_offsets.push_back(std::int32_t(model.element_vertices.size()));
-  model.element_level.push_back(std::int8_t(s.level));
-  model.element_cell_voxels.push_back(s.width);
-  model.element_cells.push_back(s.cells);
+  builder::close_element(s, model);
 }
 
 /// The paper's procedure in 2D: rings of elements, level by level.
 std::vector<Seed2> gradational_seeds_2d(const VoxelGrid& grid, int max_level, NodeLattice2& lattice,
                                         BuildReport& report, const std::function<void(double)>& progress) {
   std::vector<Seed2> seeds;
-  CellGrid2 cells;
-  cells.nx = grid.dims().x();
-  cells.ny = grid.dims().y();
-  cells.cells = grid.data();
-  const std::int64_t total = grid.count();
-  std::int64_t covered = 0;
-  for (int level = 0; !cells.empty(); ++level) {
-    if (level > 30) throw Error("internal: more than 30 levels");
-    const bool take_all = max_level >= 0 && level >= max_level;
-    const int w = 1 << level;
-    const int gnx = (cells.nx + 1) / 2, gny = (cells.ny + 1) / 2;
-    std::int64_t on_level = 0;
-    std::vector<std::int64_t> taken;
-    // (1) scan 2x2 groups; a group with a 1-cell gets an element when one of its cells is a
-    // 0-cell or a 1-cell has an edge against a 0-cell (outside counts as 0)
-    for (int gy = 0; gy < gny; ++gy)
-      for (int gx = 0; gx < gnx; ++gx) {
-        std::uint8_t mask = 0;
-        for (int c = 0; c < 4; ++c)
-          if (cells.at(2 * gx + (c & 1), 2 * gy + (c >> 1))) mask |= std::uint8_t(1u << c);
-        if (mask == 0) continue;
-        bool boundary = take_all || mask != 0x0F;
-        for (int c = 0; c < 4 && !boundary; ++c) {
-          const int i = 2 * gx + (c & 1), j = 2 * gy + (c >> 1);
-          // the group is full: only edges leaving it can meet a 0-cell
-          const int di = (c & 1) ? 1 : -1, dj = (c >> 1) ? 1 : -1;
-          boundary = !cells.at(i + di, j) || !cells.at(i, j + dj);
+  CellGrid2 fine;
+  fine.nx = grid.dims().x();
+  fine.ny = grid.dims().y();
+  fine.cells = grid.data();
+  builder::level_by_level(
+      std::move(fine), grid.count(), max_level, report, progress,
+      [&](CellGrid2& cells, int level, bool take_all, std::int64_t& covered) {
+        const int w = 1 << level;
+        const int gnx = (cells.nx + 1) / 2, gny = (cells.ny + 1) / 2;
+        std::int64_t on_level = 0;
+        std::vector<std::int64_t> taken;
+        // (1) scan 2x2 groups; a group with a 1-cell gets an element when one of its cells is a
+        // 0-cell or a 1-cell has an edge against a 0-cell (outside counts as 0)
+        for (int gy = 0; gy < gny; ++gy)
+          for (int gx = 0; gx < gnx; ++gx) {
+            std::uint8_t mask = 0;
+            for (int c = 0; c < 4; ++c)
+              if (cells.at(2 * gx + (c & 1), 2 * gy + (c >> 1))) mask |= std::uint8_t(1u << c);
+            if (mask == 0) continue;
+            bool boundary = take_all || mask != 0x0F;
+            for (int c = 0; c < 4 && !boundary; ++c) {
+              const int i = 2 * gx + (c & 1), j = 2 * gy + (c >> 1);
+              // the group is full: only edges leaving it can meet a 0-cell
+              const int di = (c & 1) ? 1 : -1, dj = (c >> 1) ? 1 : -1;
+              boundary = !cells.at(i + di, j) || !cells.at(i, j + dj);
+            }
+            if (!boundary) continue;
+            const std::uint32_t points = own_vertex_points_2d(cells, gx, gy, mask);
+            const int ax = gx * 2 * w, ay = gy * 2 * w;
+            for (int p = 0; p < 9; ++p)
+              if (points >> p & 1) lattice.mark(ax + (p % 3) * w, ay + (p / 3) * w);
+            seeds.push_back({ax, ay, level, w, mask});
+            taken.push_back(gx + std::int64_t(gnx) * gy);
+            covered += std::int64_t(__builtin_popcount(mask)) * w * w;
+            ++on_level;
+          }
+        // (2) cells that received an element become 0
+        for (std::int64_t g : taken) {
+          const int gx = int(g % gnx), gy = int(g / gnx);
+          for (int c = 0; c < 4; ++c) {
+            const int i = 2 * gx + (c & 1), j = 2 * gy + (c >> 1);
+            if (i < cells.nx && j < cells.ny) cells.cells[std::size_t(cells.index(i, j))] = 0;
+          }
         }
-        if (!boundary) continue;
-        const std::uint32_t points = own_vertex_points_2d(cells, gx, gy, mask);
-        const int ax = gx * 2 * w, ay = gy * 2 * w;
-        for (int p = 0; p < 9; ++p)
-          if (points >> p & 1) lattice.mark(ax + (p % 3) * w, ay + (p / 3) * w);
-        seeds.push_back({ax, ay, level, w, mask});
-        taken.push_back(gx + std::int64_t(gnx) * gy);
-        covered += std::int64_t(__builtin_popcount(mask)) * w * w;
-        ++on_level;
-      }
-    report.elements_per_level.push_back(on_level);
-    // (2) cells that received an element become 0
-    for (std::int64_t g : taken) {
-      const int gx = int(g % gnx), gy = int(g / gnx);
-      for (int c = 0; c < 4; ++c) {
-        const int i = 2 * gx + (c & 1), j = 2 * gy + (c >> 1);
-        if (i < cells.nx && j < cells.ny) cells.cells[std::size_t(cells.index(i, j))] = 0;
-      }
-    }
-    if (progress) progress(0.6 * double(covered) / double(total));
-    // (3) halve the grid, (4) double the element size
-    cells = halve_2d(cells);
-  }
+        return on_level;
+      },
+      halve_2d);
   return seeds;
 }
 
@@ -242,28 +226,15 @@ Model build_model_2d(const VoxelGrid& grid, const BuildSettings& settings, Build
   model.grid = grid.geometry();
   model.dimensions = 2;
   NodeLattice2 lattice(d.x(), d.y());
-  std::vector<Seed2> seeds;
-  switch (settings.layout) {
-    case Layout::gradational:
-      seeds = gradational_seeds_2d(grid, settings.max_level, lattice, report, settings.progress);
-      break;
-    case Layout::uniform:
-      seeds = gradational_seeds_2d(grid, 0, lattice, report, settings.progress);
-      break;
-    case Layout::voxel:
-      seeds = pixel_seeds(grid, lattice, report);
-      break;
-  }
+  const std::vector<Seed2> seeds = builder::layout_seeds(
+      settings,
+      [&](int max_level) { return gradational_seeds_2d(grid, max_level, lattice, report, settings.progress); },
+      [&] { return pixel_seeds(grid, lattice, report); });
   number_nodes_2d(lattice, grid, model);
-  model.element_offsets.assign(1, 0);
-  model.element_anchor.resize(3, std::int64_t(seeds.size()));
-  for (std::size_t e = 0; e < seeds.size(); ++e) {
-    model.element_anchor.col(std::int64_t(e)) = Eigen::Vector3i(seeds[e].ax, seeds[e].ay, 0);
-    append_element_2d(seeds[e], lattice, model);
-    if (model.element_vertices.size() > std::size_t(std::numeric_limits<std::int32_t>::max()))
-      throw Error("the model would have more than 2^31 vertex entries: resample the image to larger pixels (--voxel MM)");
-    if (settings.progress && (e & 4095) == 0) settings.progress(0.6 + 0.4 * double(e) / double(seeds.size()));
-  }
+  builder::store_seeds(
+      seeds, model, settings.progress, "resample the image to larger pixels (--voxel MM)",
+      [](const Seed2& s) { return Eigen::Vector3i(s.ax, s.ay, 0); },
+      [&](const Seed2& s) { append_element_2d(s, lattice, model); });
   // each element's vertices around its boundary, counter-clockwise (slice_element_parts), so
   // that a polygon through the vertex list in order is the element (the model file's cells)
   for (int e = 0; e < model.num_elements(); ++e) {

@@ -28,7 +28,7 @@
 #include <string>
 #include <vector>
 
-#include "sim/integrators.h"
+#include "sim/contact_constraint.h"
 
 namespace vx {
 

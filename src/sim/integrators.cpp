@@ -6,6 +6,7 @@
 #include <sstream>
 #include <cstdio>
 #include <cstdlib>
+#include <optional>
 
 #include "base/error.h"
 #include "base/parallel.h"
@@ -118,6 +119,15 @@ bool blocked(const SimState& s, const IntegratorSettings& set) {
   return s.status == StepStatus::non_finite || (s.status == StepStatus::runaway && set.limits.stop_on_runaway);
 }
 
+/// The report of a step a stopped state refuses (blocked(): its status, nothing done); empty
+/// when the state may be stepped.
+std::optional<StepReport> refused_step(const SimState& s, const IntegratorSettings& set) {
+  if (!blocked(s, set)) return std::nullopt;
+  StepReport rep;
+  rep.status = s.status;
+  return rep;
+}
+
 // ---------------------------------------------------------------------------------------------
 // explicit and symplectic Euler
 
@@ -190,11 +200,8 @@ class ExplicitIntegrator final : public Integrator {
   using Integrator::Integrator;
 
   StepReport step(SimState& s) override {
+    if (const std::optional<StepReport> refused = refused_step(s, settings_)) return *refused;
     StepReport rep;
-    if (blocked(s, settings_)) {
-      rep.status = s.status;
-      return rep;
-    }
     const PhysicsModel& p = *s.physics;
     const int threads = settings_.threads;
     const double dt = settings_.time_step_s;
@@ -262,11 +269,8 @@ class ImplicitIntegrator final : public Integrator {
   }
 
   StepReport step(SimState& s) override {
+    if (const std::optional<StepReport> refused = refused_step(s, settings_)) return *refused;
     StepReport rep;
-    if (blocked(s, settings_)) {
-      rep.status = s.status;
-      return rep;
-    }
     const PhysicsModel& p = *s.physics;
     const int threads = settings_.threads;
     const double dt = settings_.time_step_s;
@@ -367,7 +371,8 @@ class ImplicitIntegrator final : public Integrator {
     if (!cache.solver || cache.solver->setup() != setup || cache.fixed_version != s.fixed_version ||
         &cache.solver->physics() != s.physics.get()) {
       cache.solver.reset();
-      cache.solver = std::make_unique<ProjectiveSolver>(s.physics, s.node_fixed, setup);
+      cache.solver = IntegratorCache::SolverPtr(new ProjectiveSolver(s.physics, s.node_fixed, setup),
+                                                [](ProjectiveSolver* p) { delete p; });
       cache.fixed_version = s.fixed_version;
       rep.refactored = true;
     }

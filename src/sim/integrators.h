@@ -32,6 +32,7 @@
 #include "sim/contact_constraint.h"
 #include "sim/integrator_kind.h"
 #include "sim/state.h"
+#include "sim/step_report.h"
 #include "sim/time_step.h"
 
 namespace vx {
@@ -62,24 +63,6 @@ struct IntegratorSettings {
   /// moved a quarter of the radius. 0: every node every step.
   double region_radius_mm{0.0};
   StabilityLimits limits;
-};
-
-/// What one step did.
-struct StepReport {
-  StepStatus status{StepStatus::ok};
-  int iterations{0};               ///< explicit: 1 force evaluation; implicit: global solves done
-  double residual_n{0.0};          ///< implicit: RMS force imbalance per free node (N) at the last checked iterate
-  double max_residual_n{0.0};      ///< implicit: the largest force imbalance on a free node (N), same iterate
-  double max_update_mm{0.0};       ///< implicit: largest node move of the last iteration, mm
-  std::int64_t inverted_elements{0};     ///< elements found inverted or flat in the step
-  std::int64_t unconverged_rotations{0}; ///< rotation fits that hit max_iterations
-  bool refactored{false};          ///< implicit: the system matrix was (re)factored in this step
-  std::int64_t factor_nonzeros{0}; ///< implicit: nonzeros of the Cholesky factor L (cost of a solve)
-  int contacts{0};                 ///< implicit with a contact provider: active constraints at the end
-  int contact_rounds{0};           ///< implicit with a contact provider: active-set rounds in the step
-  std::int64_t contact_columns{0}; ///< implicit: new columns A^-1 e_i solved in this step (each allocates once)
-  std::int64_t region_elements{0}; ///< implicit with a region: elements computed (0: all)
-  std::int64_t region_nodes{0};    ///< implicit with a region: free nodes solved for (0: all)
 };
 
 /// One time-integration scheme. What it keeps per state between steps lives in the state

@@ -7,8 +7,8 @@
 
 #include "base/error.h"
 #include "base/parallel.h"
-#include "sim/integrators.h"
 #include "sim/state.h"
+#include "sim/step_report.h"
 
 namespace vx {
 

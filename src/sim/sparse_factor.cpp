@@ -299,112 +299,87 @@ void SparseFactor::solve_in_place(double* w, int first) const {
   }
 }
 
+namespace {
+
+/// One supernode of L as the sweeps read it: columns k1 .. k1 + nscol - 1, rows r[0 .. nsrow)
+/// (its own columns first), values x column by column (nsrow each).
+struct Supernode {
+  int k1, nscol, nsrow;
+  const int* r;
+  const double* x;
+};
+
+Supernode supernode(const std::vector<int>& super, const std::vector<std::int64_t>& row_start,
+                    const std::vector<std::int64_t>& value_start, const int* rows, const double* val, int q) {
+  const int k1 = super[std::size_t(q)], nscol = super[std::size_t(q) + 1] - k1;
+  const std::int64_t r0 = row_start[std::size_t(q)];
+  const int nsrow = int(row_start[std::size_t(q) + 1] - r0);
+  return {k1, nscol, nsrow, rows + r0, val + value_start[std::size_t(q)]};
+}
+
+/// The forward sweep L z = w over one supernode (K right-hand sides interleaved in w), each
+/// column streamed once; a column whose value is zero for every right-hand side is skipped.
+template <int K>
+void forward_supernode(double* w, const Supernode& s) {
+  for (int jj = 0; jj < s.nscol; ++jj) {
+    const double* col = s.x + std::int64_t(jj) * s.nsrow;
+    double* wj = w + K * std::int64_t(s.k1 + jj);
+    bool zero = true;
+    for (int c = 0; c < K; ++c) {
+      wj[c] /= col[jj];
+      zero = zero && wj[c] == 0.0;
+    }
+    if (zero) continue;
+    double v[K];
+    for (int c = 0; c < K; ++c) v[c] = wj[c];
+    for (int ii = jj + 1; ii < s.nsrow; ++ii) {
+      double* wi = w + K * std::int64_t(s.r[ii]);
+      const double l = col[ii];
+      for (int c = 0; c < K; ++c) wi[c] -= l * v[c];
+    }
+  }
+}
+
+/// The backward sweep L^T x = z over one supernode, its columns last to first.
+template <int K>
+void backward_supernode(double* w, const Supernode& s) {
+  for (int jj = s.nscol - 1; jj >= 0; --jj) {
+    const double* col = s.x + std::int64_t(jj) * s.nsrow;
+    double acc[K];
+    double* wj = w + K * std::int64_t(s.k1 + jj);
+    for (int c = 0; c < K; ++c) acc[c] = wj[c];
+    for (int ii = jj + 1; ii < s.nsrow; ++ii) {
+      const double* wi = w + K * std::int64_t(s.r[ii]);
+      const double l = col[ii];
+      for (int c = 0; c < K; ++c) acc[c] -= l * wi[c];
+    }
+    for (int c = 0; c < K; ++c) wj[c] = acc[c] / col[jj];
+  }
+}
+
+}  // namespace
+
 template <int K>
 void SparseFactor::solve_supernodal(double* w, int first) const {
   const int ns = int(super_.size()) - 1;
-  const int* rows = rows_.data();
-  const double* val = values_.data();
-  // forward: L z = w, supernode by supernode (columns in order), each column streamed once
-  for (int q = first > 0 ? column_super_[std::size_t(first)] : 0; q < ns; ++q) {
-    const int k1 = super_[std::size_t(q)], nscol = super_[std::size_t(q) + 1] - k1;
-    const std::int64_t r0 = row_start_[std::size_t(q)];
-    const int nsrow = int(row_start_[std::size_t(q) + 1] - r0);
-    const double* x = val + value_start_[std::size_t(q)];
-    const int* r = rows + r0;
-    for (int jj = 0; jj < nscol; ++jj) {
-      const double* col = x + std::int64_t(jj) * nsrow;
-      double* wj = w + K * std::int64_t(k1 + jj);
-      bool zero = true;
-      for (int c = 0; c < K; ++c) {
-        wj[c] /= col[jj];
-        zero = zero && wj[c] == 0.0;
-      }
-      if (zero) continue;
-      double v[K];
-      for (int c = 0; c < K; ++c) v[c] = wj[c];
-      for (int ii = jj + 1; ii < nsrow; ++ii) {
-        double* wi = w + K * std::int64_t(r[ii]);
-        const double l = col[ii];
-        for (int c = 0; c < K; ++c) wi[c] -= l * v[c];
-      }
-    }
-  }
+  // forward: L z = w, supernode by supernode (columns in order), from the one holding `first`
+  for (int q = first > 0 ? column_super_[std::size_t(first)] : 0; q < ns; ++q)
+    forward_supernode<K>(w, supernode(super_, row_start_, value_start_, rows_.data(), values_.data(), q));
   // backward: L^T x = z
-  for (int q = ns - 1; q >= 0; --q) {
-    const int k1 = super_[std::size_t(q)], nscol = super_[std::size_t(q) + 1] - k1;
-    const std::int64_t r0 = row_start_[std::size_t(q)];
-    const int nsrow = int(row_start_[std::size_t(q) + 1] - r0);
-    const double* x = val + value_start_[std::size_t(q)];
-    const int* r = rows + r0;
-    for (int jj = nscol - 1; jj >= 0; --jj) {
-      const double* col = x + std::int64_t(jj) * nsrow;
-      double acc[K];
-      double* wj = w + K * std::int64_t(k1 + jj);
-      for (int c = 0; c < K; ++c) acc[c] = wj[c];
-      for (int ii = jj + 1; ii < nsrow; ++ii) {
-        const double* wi = w + K * std::int64_t(r[ii]);
-        const double l = col[ii];
-        for (int c = 0; c < K; ++c) acc[c] -= l * wi[c];
-      }
-      for (int c = 0; c < K; ++c) wj[c] = acc[c] / col[jj];
-    }
-  }
+  for (int q = ns - 1; q >= 0; --q)
+    backward_supernode<K>(w, supernode(super_, row_start_, value_start_, rows_.data(), values_.data(), q));
 }
 
 template <int K>
 void SparseFactor::forward_supers(double* w, const std::vector<int>& supers) const {
-  const int* rows = rows_.data();
-  const double* val = values_.data();
-  for (const int q : supers) {
-    const int k1 = super_[std::size_t(q)], nscol = super_[std::size_t(q) + 1] - k1;
-    const std::int64_t r0 = row_start_[std::size_t(q)];
-    const int nsrow = int(row_start_[std::size_t(q) + 1] - r0);
-    const double* x = val + value_start_[std::size_t(q)];
-    const int* r = rows + r0;
-    for (int jj = 0; jj < nscol; ++jj) {
-      const double* col = x + std::int64_t(jj) * nsrow;
-      double* wj = w + K * std::int64_t(k1 + jj);
-      bool zero = true;
-      for (int c = 0; c < K; ++c) {
-        wj[c] /= col[jj];
-        zero = zero && wj[c] == 0.0;
-      }
-      if (zero) continue;
-      double v[K];
-      for (int c = 0; c < K; ++c) v[c] = wj[c];
-      for (int ii = jj + 1; ii < nsrow; ++ii) {
-        double* wi = w + K * std::int64_t(r[ii]);
-        const double l = col[ii];
-        for (int c = 0; c < K; ++c) wi[c] -= l * v[c];
-      }
-    }
-  }
+  for (const int q : supers)
+    forward_supernode<K>(w, supernode(super_, row_start_, value_start_, rows_.data(), values_.data(), q));
 }
 
 template <int K>
 void SparseFactor::backward_supers(double* w, const std::vector<int>& supers) const {
-  const int* rows = rows_.data();
-  const double* val = values_.data();
-  for (auto it = supers.rbegin(); it != supers.rend(); ++it) {
-    const int q = *it;
-    const int k1 = super_[std::size_t(q)], nscol = super_[std::size_t(q) + 1] - k1;
-    const std::int64_t r0 = row_start_[std::size_t(q)];
-    const int nsrow = int(row_start_[std::size_t(q) + 1] - r0);
-    const double* x = val + value_start_[std::size_t(q)];
-    const int* r = rows + r0;
-    for (int jj = nscol - 1; jj >= 0; --jj) {
-      const double* col = x + std::int64_t(jj) * nsrow;
-      double acc[K];
-      double* wj = w + K * std::int64_t(k1 + jj);
-      for (int c = 0; c < K; ++c) acc[c] = wj[c];
-      for (int ii = jj + 1; ii < nsrow; ++ii) {
-        const double* wi = w + K * std::int64_t(r[ii]);
-        const double l = col[ii];
-        for (int c = 0; c < K; ++c) acc[c] -= l * wi[c];
-      }
-      for (int c = 0; c < K; ++c) wj[c] = acc[c] / col[jj];
-    }
-  }
+  for (auto it = supers.rbegin(); it != supers.rend(); ++it)
+    backward_supernode<K>(w, supernode(super_, row_start_, value_start_, rows_.data(), values_.data(), *it));
 }
 
 /// Adds the ancestors of `supers` (marked with a new generation) and sorts: a closed set under

@@ -4,7 +4,6 @@
 
 #include "base/error.h"
 #include "base/parallel.h"
-#include "sim/projective_solver.h"
 
 namespace vx {
 

@@ -59,8 +59,11 @@ class ProjectiveSolver;
 /// (projective_solver.h) and the key of its contact warm start. Owned by the state, so no
 /// integrator finds a state's cache by its address (a state rebuilt at a freed address cannot
 /// meet a stale factor); a copy of a state starts without one (its first implicit step factors).
+/// The solver sits above the state (it steps one): the state holds it with the deleter its maker
+/// gives (integrators.cpp), so the state never includes the solver's header.
 struct IntegratorCache {
-  std::unique_ptr<ProjectiveSolver> solver;  ///< null until the first implicit step
+  using SolverPtr = std::unique_ptr<ProjectiveSolver, void (*)(ProjectiveSolver*)>;
+  SolverPtr solver{nullptr, nullptr};        ///< null until the first implicit step
   std::uint64_t fixed_version{0};            ///< SimState::fixed_version the solver was built for
   std::uint64_t contact_epoch{0};            ///< the contact provider the warm start belongs to (0: none)
   std::int64_t next_step{-1};                ///< the warm start holds for the step that starts at this count

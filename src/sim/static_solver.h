@@ -4,8 +4,8 @@
 /// (projective_solver.h) without inertia, for calibration checks and verification.
 
 #include "physics/elements.h"
-#include "sim/integrators.h"
 #include "sim/state.h"
+#include "sim/step_report.h"
 
 namespace vx {
 
