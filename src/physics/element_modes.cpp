@@ -45,7 +45,7 @@ ModeWeights bending_patterns(const Eigen::Matrix3Xd& local, const Eigen::VectorX
 
 double calibrated_bending_relief(const Eigen::Matrix3Xd& local, const Eigen::VectorXd& w, const Eigen::Matrix3Xd& g,
                                  const ModeWeights& patterns, double k, double mu, double volume, double xyz_relief,
-                                 int dimensions) {
+                                 int dimensions, double poisson_ratio) {
   const int axes = dimensions == 2 ? 2 : 3;
   const int n = int(local.cols());
   const Eigen::Vector3d lo = local.rowwise().minCoeff(), hi = local.rowwise().maxCoeff();
@@ -71,8 +71,9 @@ double calibrated_bending_relief(const Eigen::Matrix3Xd& local, const Eigen::Vec
       const Eigen::MatrixXd q = u * wp.transpose();  // 3 x modes
       have += mu * volume * eps.squaredNorm() + 0.5 * k * penalty - 0.5 * xyz_relief * k * q.col(3).squaredNorm();
       relievable += 0.5 * k * q.leftCols<3>().squaredNorm();
-      // linear elasticity (shear part): strain eps_aa = -x_c, energy mu int x_c^2 dV
-      want += mu * volume * half(c) * half(c) / 3.0;
+      // linear elasticity: strain eps_aa = -x_c, energy (E/2) int x_c^2 dV, E = 2 mu (1 + nu)
+      // (at Poisson 0 the shear part mu int x_c^2 dV)
+      want += (1.0 + poisson_ratio) * mu * volume * half(c) * half(c) / 3.0;
     }
   return relievable > 0 ? (have - want) / relievable : 0.0;
 }

@@ -66,9 +66,13 @@ using ModeWeights = Eigen::Matrix<double, kBendingModes, Eigen::Dynamic>;
 /// penalty (N/mm), mu the shear modulus (N/mm^2), volume in mm^3, xyz_relief the fraction
 /// taken off the xyz pattern. Not clamped (the caller clamps). dimensions = 2: the two in-plane
 /// bending fields of a slice element (plane stress, the same shear energy mu kappa^2 V h_c^2 / 12).
+/// poisson_ratio > 0: the target is the bending energy of uniaxial stress, (1 + nu) times the
+/// shear part (E = 2 mu (1 + nu)): the volume term acts on the element's mean dilatation only
+/// and does not see a bending field's (zero-mean) dilatation, which the material's lateral
+/// contraction would cancel (docs/model.md section 5, "Locking").
 [[nodiscard]] double calibrated_bending_relief(const Eigen::Matrix3Xd& local, const Eigen::VectorXd& w,
                                                const Eigen::Matrix3Xd& gradient, const ModeWeights& patterns,
                                                double k, double mu, double volume, double xyz_relief,
-                                               int dimensions = 3);
+                                               int dimensions = 3, double poisson_ratio = 0.0);
 
 }  // namespace vx

@@ -307,8 +307,9 @@ inline void rigid_velocity(const RigidSums<double>& r, double sw, double inv_w, 
 
 /// The per-element 3 x 3 work shared by both kernels: the warm-started rotation fit of F and
 /// the matrices of the force f_i = M R0'_i - k_tot w_i (x_i - c) + G g_i,
-///   G = 2 mu V (Q - F) + k (A - F C0),  M = k F (+ k_v T),  k_tot = k (+ k_v)
-/// (T: the volume term's closest matrix with the rest determinant).
+///   G = 2 mu V (Q - F) + k (A - F C0) (+ k_v (T - F)),  M = k F,  k_tot = k
+/// (T: the volume term's closest matrix to the consistent F with det T = 1; docs/model.md
+/// section 5, "Locking").
 template <bool kVolume>
 struct ElementMatrices {
   Eigen::Matrix3d q, gm, mq, t;
@@ -326,11 +327,9 @@ struct ElementMatrices {
     ktot = k;
     if constexpr (kVolume) {
       wv = phys.element_volume_stiffness[std::size_t(e)];
-      const Eigen::Matrix3d& ninv = phys.element_spread_inv_sqrt[std::size_t(e)];
       Eigen::Quaterniond qv = rot;
-      t = element_closest_with_determinant(phys, a * ninv, phys.element_spread_sqrt_det[std::size_t(e)], qv, fit) * ninv;
-      mq += wv * t;
-      ktot += wv;
+      t = element_closest_with_determinant(phys, fg, 1.0, qv, fit);
+      gm += wv * (t - fg);
     }
   }
 };
@@ -472,8 +471,8 @@ void element_range_reference(const PhysicsModel& phys, const double* xs, const d
         const Eigen::Vector3d r = Eigen::Map<const Eigen::Vector3d>(xs + 3 * std::int64_t(vert[j])) - ca;
         const Eigen::Vector3d rr = phys.entry_rest.col(j);
         en += 0.5 * k * wts[j] * (fg * rr - r).squaredNorm();
-        if constexpr (kVolume) en += 0.5 * wv * wts[j] * (t * rr - r).squaredNorm();
       }
+      if constexpr (kVolume) en += 0.5 * wv * (fg - t).squaredNorm();
       if constexpr (kModes) en -= 0.5 * qm.squaredNorm();
       energy_out[e] = en;
       st.elastic_energy += en;
@@ -627,8 +626,8 @@ void element_range_packed(const PhysicsModel& phys, const double* xs, const doub
         const Eigen::Vector3d r = Eigen::Map<const Eigen::Vector3d>(xs + 3 * std::int64_t(pe[j].vertex)) - ca;
         const Eigen::Vector3d rr = phys.entry_rest.col(b + j);
         en += 0.5 * k * pe[j].weight * (fg * rr - r).squaredNorm();
-        if constexpr (kVolume) en += 0.5 * wv * pe[j].weight * (t * rr - r).squaredNorm();
       }
+      if constexpr (kVolume) en += 0.5 * wv * (fg - t).squaredNorm();
       if constexpr (kModes) en -= 0.5 * qm.squaredNorm();
       energy_out[e] = en;
       st.elastic_energy += en;
@@ -741,7 +740,8 @@ void element_elastic_matrix(const PhysicsModel& phys, int e, Eigen::MatrixXd& k,
   Eigen::MatrixXd p = -r0.transpose() * g;  // P_lj = delta_lj - w_j / W - R0_l . g_j
   p.rowwise() -= w.transpose() / w.sum();
   p.diagonal().array() += 1.0;
-  k.noalias() = phys.element_affine_stiffness[std::size_t(e)] * (g.transpose() * g);
+  const double kv = phys.has_volume_term() ? phys.element_volume_stiffness[std::size_t(e)] : 0.0;
+  k.noalias() = (phys.element_affine_stiffness[std::size_t(e)] + kv) * (g.transpose() * g);
   k.noalias() += phys.element_stiffness[std::size_t(e)] * (p.transpose() * w.asDiagonal() * p);
   if (relieved && phys.has_bending_modes()) {
     const auto h = phys.entry_modes.middleCols(b, n);
@@ -760,10 +760,8 @@ double element_energy(const PhysicsModel& phys, int e, const Eigen::Matrix3Xd& x
     sw += phys.entry_weight[j];
   }
   c /= sw;
-  Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
   Eigen::Matrix3d fg = Eigen::Matrix3d::Zero();
   for (int j = b; j < b + n; ++j) {
-    a += (x.col(m.element_vertices[j]) - c) * phys.entry_rest_weighted.col(j).transpose();
     fg += (x.col(m.element_vertices[j]) - c) * phys.entry_gradient.col(j).transpose();
   }
   Eigen::Matrix3d rq;
@@ -778,13 +776,9 @@ double element_energy(const PhysicsModel& phys, int e, const Eigen::Matrix3Xd& x
     en -= 0.5 * qm.squaredNorm();
   }
   if (phys.has_volume_term()) {
-    const Eigen::Matrix3d& ninv = phys.element_spread_inv_sqrt[e];
     Eigen::Quaterniond qv = q;
-    const Eigen::Matrix3d t =
-        element_closest_with_determinant(phys, a * ninv, phys.element_spread_sqrt_det[e], qv, settings) * ninv;
-    for (int j = b; j < b + n; ++j)
-      en += 0.5 * phys.element_volume_stiffness[e] * phys.entry_weight[j] *
-            (t * phys.entry_rest.col(j) - (x.col(m.element_vertices[j]) - c)).squaredNorm();
+    const Eigen::Matrix3d t = element_closest_with_determinant(phys, fg, 1.0, qv, settings);
+    en += 0.5 * phys.element_volume_stiffness[e] * (fg - t).squaredNorm();
   }
   return en;
 }

@@ -25,11 +25,11 @@
 /// an element carries its smaller neighbours' nodes, and there it makes a uniform strain an
 /// equilibrium of the whole model (material.h, element_gradient.h).
 /// Volume term (Poisson ratio > 0, see material.h):
-///   T   = argmin_{det T = 1} sum_i w_i |r_i - T R0_i|^2,  f_i += k_v w_i (T R0_i - r_i),
-///   E  += k_v/2 sum_i w_i |r_i - T R0_i|^2.
-///   T is found exactly in the frame normalised by C0 = sum w R0 R0^T: with N = C0^{-1/2},
-///   B = A N, T = G N where G is the closest matrix to B (Frobenius) with det G = det C0^{1/2},
-///   from the signed singular values of B (proper polar decomposition + symmetric eigen).
+///   T   = argmin_{det T = 1} |F - T|^2 (on the consistent F),  G += k_v (T - F),
+///   E  += k_v/2 |F - T|^2   (k_v = 3 lambda V; one volume constraint per element, on its
+///   affine part only: no non-affine motion is stiffened, hence no locking of the bending
+///   modes; docs/model.md section 5, "Locking"). T from the signed singular values of F (proper
+///   polar decomposition + symmetric eigen), moved to det = 1 (closest_with_determinant).
 /// Damping: the element's rigid velocity at vertex i is v_c + omega x r_i with v_c the weighted
 /// mean vertex velocity and omega = I^{-1} sum_i w_i r_i x (v_i - v_c),
 /// I = sum_i w_i (|r_i|^2 1 - r_i r_i^T) (the weighted least-squares rigid fit of the vertex
@@ -180,10 +180,11 @@ ElementPassStats compute_element_forces(const PhysicsModel& physics, const Eigen
 void gather_node_forces(const PhysicsModel& physics, const Eigen::Matrix3Xd& entry_forces,
                         Eigen::Matrix3Xd& node_forces, int threads);
 
-/// The constant quadratic part of one element's elastic energy (without the volume term), as
-/// an n x n matrix acting on each coordinate alike (n = the element's vertices):
-///   K_ij = 2 mu V g_i . g_j + k sum_l w_l P_li P_lj,  P_lj = delta_lj - w_j / W - R0_l . g_j
-/// (the affine part mu V |F|^2 and the non-affine part k/2 sum_l w_l |r_l - F R0_l|^2). It is
+/// The constant quadratic part of one element's elastic energy, as an n x n matrix acting on
+/// each coordinate alike (n = the element's vertices):
+///   K_ij = (2 mu V + k_v) g_i . g_j + k sum_l w_l P_li P_lj,  P_lj = delta_lj - w_j / W - R0_l . g_j
+/// (the affine part mu V |F|^2, the volume term's k_v/2 |F|^2 and the non-affine part
+/// k/2 sum_l w_l |r_l - F R0_l|^2). It is
 /// the projective-dynamics system matrix of the element and the Hessian at rest less the
 /// rotation's curvature; rows sum to zero (translations cost nothing). The hourglass element
 /// (element_modes.h) subtracts its relief sum_p h_p h_p^T, unless `relieved` is false (the

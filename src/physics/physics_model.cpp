@@ -105,8 +105,6 @@ void allocate(PhysicsModel& p) {
   p.element_spread.resize(ne);
   if (volume) {
     p.element_volume_stiffness.resize(ne);
-    p.element_spread_inv_sqrt.resize(ne);
-    p.element_spread_sqrt_det.resize(ne);
   }
   p.node_mass_kg.assign(std::size_t(m.num_nodes()), 0.0);
   const std::int64_t entries = m.num_vertex_entries();
@@ -173,29 +171,13 @@ void calibrate_elements(PhysicsModel& p, const MaterialField& field, const Calib
       p.element_fit_scale[e] = double(dims) / s;
       p.element_affine_stiffness[e] = 2.0 * mu * vol;
       p.element_spread[e] = c0;
-      if (volume && dims == 2) {
-        // plane stress: lambda* = 2 mu lambda / (lambda + 2 mu); the area term w_v = 4 lambda* V / S;
-        // N = C0^{-1/2} in the plane (the normal's 1 keeps N invertible, and A N has no normal part)
+      if (volume) {
+        // the volume term k_v/2 min_{det T = 1} |F - T|^2 on the consistent F (docs/model.md
+        // section 5): its small-strain energy k_v (tr eps)^2 / (2 d) is lambda V (tr eps)^2 / 2 for
+        // k_v = d lambda V; 2D (plane stress): lambda* = 2 mu lambda / (lambda + 2 mu), k_v = 2 lambda* V
         const double lambda = lame_lambda_n_mm2(e_kpa, material.poisson_ratio);
-        const double lambda_star = 2.0 * mu * lambda / (lambda + 2.0 * mu);
-        p.element_volume_stiffness[e] = 4.0 * lambda_star * vol / s;
-        const Eigen::Matrix2d c2 = (frame.transpose() * c0 * frame).topLeftCorner<2, 2>();
-        Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> eig(c2);
-        const Eigen::Vector2d ev = eig.eigenvalues().cwiseMax(1e-12 * eig.eigenvalues().maxCoeff());
-        const Eigen::Matrix2d n2 = eig.eigenvectors() * ev.cwiseSqrt().cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
-        Eigen::Matrix3d nl = Eigen::Matrix3d::Zero();
-        nl.topLeftCorner<2, 2>() = n2;
-        nl(2, 2) = 1.0;
-        p.element_spread_inv_sqrt[e] = frame * nl * frame.transpose();
-        p.element_spread_sqrt_det[e] = std::sqrt(ev.prod());
-      } else if (volume) {
-        const double lambda = lame_lambda_n_mm2(e_kpa, material.poisson_ratio);
-        p.element_volume_stiffness[e] = 9.0 * lambda * vol / s;
-        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(c0);
-        const Eigen::Vector3d ev = eig.eigenvalues().cwiseMax(1e-12 * eig.eigenvalues().maxCoeff());
-        p.element_spread_inv_sqrt[e] =
-            eig.eigenvectors() * ev.cwiseSqrt().cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
-        p.element_spread_sqrt_det[e] = std::sqrt(ev.prod());
+        const double lam = dims == 2 ? 2.0 * mu * lambda / (lambda + 2.0 * mu) : lambda;
+        p.element_volume_stiffness[e] = double(dims) * lam * vol;
       }
     }
   });
@@ -238,7 +220,7 @@ void set_bending_modes(PhysicsModel& p, const CalibrationOptions& options) {
         const double vol = m.element_volume_mm3[std::size_t(e)];
         const double mu = 0.5 * p.element_affine_stiffness[std::size_t(e)] / vol;
         beta = calibrated_bending_relief(local, w, to_grid * p.entry_gradient.middleCols(b, n), gamma, k, mu, vol,
-                                         options.xyz_relief, p.dimensions);
+                                         options.xyz_relief, p.dimensions, p.material.poisson_ratio);
         if (!(beta >= 0.0 && beta <= kMaxRelief)) {
           beta = std::isfinite(beta) ? std::clamp(beta, 0.0, kMaxRelief) : 0.0;
           clamped[std::size_t(e)] = 1;
@@ -364,12 +346,11 @@ void node_gershgorin_sums(const PhysicsModel& p, std::vector<double>& sk, std::v
   Eigen::MatrixXd ke;
   for (int e = 0; e < ne; ++e) {
     const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
-    const double kv = p.has_volume_term() ? p.element_volume_stiffness[std::size_t(e)] : 0.0;
     const double c = p.element_damping[std::size_t(e)];
     double wsum = 0;
     for (int j = b; j < b + n; ++j) wsum += p.entry_weight[std::size_t(j)];
-    // the elastic matrix K_e, and 2 w_i (1 - w_i / W) of diag(w) - w w^T / W for the volume
-    // and damping terms. The hourglass element's K_e is the paper's less its (positive) relief,
+    // the elastic matrix K_e (with the volume term's k_v g g^T), and 2 w_i (1 - w_i / W) of
+    // diag(w) - w w^T / W for the damping term. The hourglass element's K_e is the paper's less its (positive) relief,
     // so the paper's K_e bounds its frequencies; its own smaller row sums would raise the
     // explicit Euler ratio sc / sk above the limit of the modes it does not relieve (measured: a
     // damped block ran away at 0.9 times that estimate; docs/model.md section 7)
@@ -377,7 +358,7 @@ void node_gershgorin_sums(const PhysicsModel& p, std::vector<double>& sk, std::v
     for (int j = b; j < b + n; ++j) {
       const double w = p.entry_weight[std::size_t(j)];
       const double row = 2.0 * w * (1.0 - w / wsum);
-      sk[std::size_t(m.element_vertices[j])] += ke.row(j - b).cwiseAbs().sum() + row * kv;
+      sk[std::size_t(m.element_vertices[j])] += ke.row(j - b).cwiseAbs().sum();
       sc[std::size_t(m.element_vertices[j])] += row * c;
     }
   }

@@ -45,16 +45,18 @@
 /// The 2D model (a slice of thickness t, plane stress; docs/model.md section 12.2) uses the same
 /// element in the slice plane: C0 = (S / 2) I_2 in the plane, E_e = k/2 tr(eps^T eps C0) =
 /// (k S / 4) eps:eps = mu V eps:eps, so k_e = 4 mu V_e / S_e (V_e: area times t); the volume term
-/// keeps the area (det T = 1 in the plane) with w_v = 4 lambda* V_e / S_e and the plane-stress
+/// keeps the area (det T = 1 in the plane) with k_v = 2 lambda* V_e and the plane-stress
 /// lambda* = 2 mu lambda / (lambda + 2 mu) = E nu / (1 - nu^2); the hourglass element relieves
 /// the one bilinear (xy) pattern of the slice.
 ///
-/// Poisson ratio > 0 (volume preservation): an extra projective term per element,
-///   E_v = w_v/2 min_{T: det T = 1} sum_i w_i |r_i - T R0_i|^2,
-/// whose small-strain energy is w_v S (tr eps)^2 / 18 for an isotropic spread, i.e. the
-/// lambda (tr eps)^2 V / 2 of linear elasticity with w_v = 9 lambda V_e / S_e,
-/// lambda = E nu / ((1 + nu)(1 - 2 nu)). T is found exactly for any spread, in the frame
-/// normalised by C0^{-1/2} (see elements.h).
+/// Poisson ratio > 0 (volume preservation): an extra projective term per element on its
+/// consistent deformation gradient F (one volume constraint per element: mean dilatation),
+///   E_v = k_v/2 min_{T: det T = 1} |F - T|^2,
+/// whose small-strain energy is k_v (tr eps)^2 / 6, i.e. the lambda (tr eps)^2 V / 2 of linear
+/// elasticity with k_v = 3 lambda V_e, lambda = E nu / ((1 + nu)(1 - 2 nu)). It acts on the
+/// affine part only: the former term on the vertex fit, k_v/2 min sum_i w_i |r_i - T R0_i|^2,
+/// also held every non-affine motion with k_v = 13.5 k (nu 0.45) and locked (docs/model.md
+/// section 5, "Locking").
 ///
 /// Masses: element mass rho V_e is lumped onto its vertices in proportion to the weights.
 /// Damping: c_e = zeta * 2 sqrt(k_e m_unit), m_unit = rho V_e / sum_i w_i (vertex i gets
@@ -159,7 +161,8 @@ struct PhysicsModel {
   // elements
   std::vector<double> element_stiffness;         ///< elements: k_e (per unit weight), N/mm
   std::vector<double> element_damping;           ///< elements: c_e (per unit weight), N*s/mm
-  std::vector<double> element_volume_stiffness;  ///< elements: w_e, N/mm (empty when nu = 0)
+  std::vector<double> element_volume_stiffness;  ///< elements: k_v = 3 lambda V_e (2D: 2 lambda* V_e), N*mm
+                                                 ///< (energy k_v/2 |F - T|^2; empty when nu = 0)
   std::vector<double> element_mass_kg;           ///< elements: rho V_e, kg
   std::vector<double> element_spread_mm2;        ///< elements: S_e = sum_i w_i |R0_i|^2, mm^2
   std::vector<double> element_fit_scale;         ///< elements: 3 / S_e, 1/mm^2 (A * scale ~ deformation gradient)
@@ -174,9 +177,6 @@ struct PhysicsModel {
   ModeWeights entry_modes;
   std::int64_t bending_relief_clamped{0};  ///< hourglass: elements whose calibrated relief was clamped
   std::int64_t gradient_fallback_elements{0};    ///< elements keeping the least-squares gradient
-  /// elements (volume term only): C0^{-1/2}, 3x3 column-major, 1/mm; and sqrt(det C0), mm^3.
-  std::vector<Eigen::Matrix3d> element_spread_inv_sqrt;
-  std::vector<double> element_spread_sqrt_det;
   std::int64_t anisotropic_elements{0};  ///< elements whose weighted spread stayed anisotropic (> 1e-6)
   double max_anisotropy{0.0};            ///< largest (max - min) / mean eigenvalue of C0 over elements
 

@@ -27,8 +27,7 @@ void PatchCompliance::init(std::shared_ptr<const PhysicsModel> physics, const st
   Eigen::MatrixXd ke;
   for (int e = 0; e < ne; ++e) {
     const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
-    const double kap = (p.has_volume_term() ? p.element_volume_stiffness[std::size_t(e)] : 0.0) +
-                       (p.damped ? p.element_damping[std::size_t(e)] / t : 0.0);
+    const double kap = p.damped ? p.element_damping[std::size_t(e)] / t : 0.0;
     const double* w = p.entry_weight.data() + b;
     double wsum = 0;
     for (int i = 0; i < n; ++i) wsum += w[i];

@@ -120,8 +120,7 @@ void assemble_projective_matrix(const PhysicsModel& p, const NodeNumbering& numb
 }
 
 double projective_centring_weight(const PhysicsModel& p, int e, const ProjectiveSetup& setup) {
-  return (p.has_volume_term() ? p.element_volume_stiffness[std::size_t(e)] : 0.0) +
-         (setup.damping ? p.element_damping[std::size_t(e)] / setup.time_step_s : 0.0);
+  return (setup.damping ? p.element_damping[std::size_t(e)] / setup.time_step_s : 0.0);
 }
 
 /// Assembles M/dt^2 + sum_e (K_e + kappa_e (diag(w) - w w^T / W)), split into free-free (factored)
@@ -273,15 +272,14 @@ ElementPassStats ProjectiveSolver::local_step(SimState& s, const Eigen::Matrix3X
       const int o = m.element_offsets[el], n = m.element_offsets[el + 1] - o;
       // (sum w R0 = sum w r^n = 0: no centring needed)
       const Eigen::Vector3d x0 = x.col(m.element_vertices[o]);
-      Eigen::Matrix3d a = Eigen::Matrix3d::Zero(), fg = Eigen::Matrix3d::Zero(), ad = Eigen::Matrix3d::Zero();
+      Eigen::Matrix3d fg = Eigen::Matrix3d::Zero(), ad = Eigen::Matrix3d::Zero();
       for (int j = o; j < o + n; ++j) {
         const Eigen::Vector3d y = x.col(m.element_vertices[j]) - x0;
         fg.noalias() += y * p.entry_gradient.col(j).transpose();
-        if (volume) a.noalias() += y * p.entry_rest_weighted.col(j).transpose();
         if (damping) ad.noalias() += (p.entry_weight[std::size_t(j)] * y) * start_offsets_.col(j).transpose();
       }
       const std::int32_t* slot = p.entry_slot.data();
-      if (!fg.allFinite() || !a.allFinite()) {
+      if (!fg.allFinite()) {
         ++st.non_finite;
         for (int j = o; j < o + n; ++j) targets_.col(slot[j]).setZero();
         continue;
@@ -291,24 +289,20 @@ ElementPassStats ProjectiveSolver::local_step(SimState& s, const Eigen::Matrix3X
       st.rotation_iterations += fit_element_rotation(p, fg, s.rotations[std::size_t(el)], fit, &conv, &rq);
       st.unconverged += conv ? 0 : 1;
       if (element_determinant(p, fg) <= 0) ++st.inverted;
-      const Eigen::Matrix3d mg = p.element_affine_stiffness[std::size_t(el)] * rq;
-      Eigen::Matrix3d mq = Eigen::Matrix3d::Zero();
+      Eigen::Matrix3d mg = p.element_affine_stiffness[std::size_t(el)] * rq;
       if (volume) {
-        const Eigen::Matrix3d& ninv = p.element_spread_inv_sqrt[std::size_t(el)];
         Eigen::Quaterniond qv = s.rotations[std::size_t(el)];
-        mq = p.element_volume_stiffness[std::size_t(el)] *
-             element_closest_with_determinant(p, a * ninv, p.element_spread_sqrt_det[std::size_t(el)], qv, fit) * ninv;
+        mg += p.element_volume_stiffness[std::size_t(el)] * element_closest_with_determinant(p, fg, 1.0, qv, fit);
       }
       if (damping) {
         Eigen::Matrix3d rd;
         fit_element_rotation(p, ad, damping_rotations_[std::size_t(el)], fit, nullptr, &rd);
         const Eigen::Matrix3d md = p.element_damping[std::size_t(el)] * inv_dt * rd;
         for (int j = o; j < o + n; ++j)
-          targets_.col(slot[j]).noalias() = mg * p.entry_gradient.col(j) + mq * p.entry_rest_weighted.col(j) +
-                                            p.entry_weight[std::size_t(j)] * (md * start_offsets_.col(j));
+          targets_.col(slot[j]).noalias() = mg * p.entry_gradient.col(j) + p.entry_weight[std::size_t(j)] * (md * start_offsets_.col(j));
       } else {
         for (int j = o; j < o + n; ++j)
-          targets_.col(slot[j]).noalias() = mg * p.entry_gradient.col(j) + mq * p.entry_rest_weighted.col(j);
+          targets_.col(slot[j]).noalias() = mg * p.entry_gradient.col(j);
       }
     }
     element_chunk_stats_[std::size_t(chunk)] = st;

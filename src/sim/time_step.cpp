@@ -27,8 +27,9 @@ TimeStepEstimate estimate_time_steps(const PhysicsModel& p) {
   bool damped = false;
   for (int e = 0; e < ne; ++e) {
     const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+    // the volume term stiffens the element's affine (volumetric) motion by k_v / (2 mu V) times
     const double kv = p.has_volume_term() ? p.element_volume_stiffness[e] : 0.0;
-    const double kappa = p.element_stiffness[e] + kv;
+    const double kappa = p.element_stiffness[e] * (1.0 + kv / p.element_affine_stiffness[e]);
     if (p.element_damping[e] > 0) damped = true;
     double wsum = 0;
     for (int j = b; j < b + n; ++j) wsum += p.entry_weight[std::size_t(j)];

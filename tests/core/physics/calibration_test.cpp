@@ -147,9 +147,9 @@ TEST(Calibration, VolumeTermBulgesACompressedBlockByPoissonsRatio) {
                 << ", E_measured / E = " << c.modulus_kpa / mat.youngs_modulus_kpa << " (" << c.iterations
                 << " iterations)\n";
       EXPECT_NEAR(c.lateral_strain / (nu * 0.01), 1.0, 0.15) << to_string(r) << " nu " << nu;
-      // clamped ends stiffen the bar a little (measured: lateral 1.02-1.13, modulus 1.02-1.21:
-      // nu = 0.45 is stiffer, the volume term's one constraint per element over-constrains
-      // the coarse gradational elements somewhat)
+      // clamped ends stiffen the bar a little (the volume term on the consistent F; before, on
+      // the vertex fit, it also held the non-affine modes and read lateral 1.02-1.13, modulus
+      // 1.02-1.21; docs/model.md section 5, "Locking")
       EXPECT_NEAR(c.modulus_kpa / mat.youngs_modulus_kpa, 1.0, 0.25) << to_string(r) << " nu " << nu;
     }
   }

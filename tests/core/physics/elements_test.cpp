@@ -359,14 +359,10 @@ Eigen::Matrix3Xd plain_entry_forces(const PhysicsModel& p, const Eigen::Matrix3X
     fit_rotation(fg, rot[std::size_t(e)], fit);
     const Eigen::Matrix3d q = rot[std::size_t(e)].toRotationMatrix();
     const double k = p.element_stiffness[e];
-    const Eigen::Matrix3d gm = p.element_affine_stiffness[e] * (q - fg) + k * (a - fg * p.element_spread[e]);
-    Eigen::Matrix3d t = Eigen::Matrix3d::Zero();
-    double kv = 0;
-    if (p.has_volume_term()) {
-      kv = p.element_volume_stiffness[e];
+    Eigen::Matrix3d gm = p.element_affine_stiffness[e] * (q - fg) + k * (a - fg * p.element_spread[e]);
+    if (p.has_volume_term()) {  // the volume term on the consistent F: k_v (T - F), det T = 1
       Eigen::Quaterniond qv = rot[std::size_t(e)];
-      const Eigen::Matrix3d& ninv = p.element_spread_inv_sqrt[e];
-      t = closest_with_determinant(a * ninv, p.element_spread_sqrt_det[e], qv, fit) * ninv;
+      gm += p.element_volume_stiffness[e] * (closest_with_determinant(fg, 1.0, qv, fit) - fg);
     }
     // the hourglass element's bending modes: amplitudes qm = sum_j (x_j - c) h_j^T
     Eigen::Matrix<double, 3, kBendingModes> qm = Eigen::Matrix<double, 3, kBendingModes>::Zero();
@@ -375,7 +371,7 @@ Eigen::Matrix3Xd plain_entry_forces(const PhysicsModel& p, const Eigen::Matrix3X
     for (int j = b; j < b + n; ++j) {
       const Eigen::Vector3d r = xe(j) - c, r0 = p.entry_rest.col(j);
       const double w = p.entry_weight[j];
-      out.col(j) = k * w * (fg * r0 - r) + gm * p.entry_gradient.col(j) + kv * w * (t * r0 - r) +
+      out.col(j) = k * w * (fg * r0 - r) + gm * p.entry_gradient.col(j) +
                    p.element_damping[e] * w * (vc + omega.cross(r) - ve(j));
       if (p.has_bending_modes()) out.col(j) += qm * p.entry_modes.col(j);
     }
