@@ -124,7 +124,7 @@ const std::map<std::string, std::vector<std::string>> kRoomOrder{
       "element_faces", "vtk_arrays", "vti_io", "metaimage_io", "nifti_io", "nrrd_io", "raw_io", "volume_io",
       "model_io", "surface_io"}},
     {"pipeline/convert", {"threshold", "stats", "phantom", "iso_surface", "decimate_surface", "prepare"}},
-    {"pipeline/scene", {"strict_json", "sim_output", "scene", "run_outputs", "material_field", "prepare_scene", "palpation_map"}},
+    {"pipeline/scene", {"strict_json", "sim_output", "scene", "run_outputs", "material_field", "prepare_scene", "palpation_map", "palpation_map_output"}},
     {"pipeline/render", {"palette", "plot", "render"}},
     {"evaluation/verify",
      {"case_helpers", "surface_accuracy", "verify", "cases", "statics_cases", "dynamics_cases", "geometry_cases",
