@@ -109,11 +109,14 @@ void save_surface(const EmbeddedSurface& surface, const fs::path& path) {
     throw Error("cannot save the surface as '" + path.string() + "': use a .vtp file name (VTK XML polydata)");
   if (const std::string problem = surface.validate(); !problem.empty())
     throw Error("cannot save the surface to '" + path.string() + "': it is inconsistent: " + problem);
-  const vtkSmartPointer<vtkPolyData> pd = to_vtk(surface);
+  save_polydata(*to_vtk(surface), path);
+}
+
+void save_polydata(vtkPolyData& polydata, const fs::path& path) {
   write_atomically(path, [&](const fs::path& tmp) {
     const VtkMessageCapture vtk_messages;
     vtkNew<vtkXMLPolyDataWriter> writer;
-    writer->SetInputData(pd);
+    writer->SetInputData(&polydata);
     writer->SetFileName(tmp.c_str());
     writer->SetDataModeToAppended();
     writer->EncodeAppendedDataOff();

@@ -15,10 +15,15 @@
 #include "model/model.h"
 #include "surface/surface.h"
 
+class vtkPolyData;
+
 namespace vx {
 
 /// Writes the surface atomically (a .vtp path); throws vx::Error on failure.
 void save_surface(const EmbeddedSurface& surface, const std::filesystem::path& path);
+/// Writes any polydata as VTK XML (.vtp: appended, zlib, 64-bit ids), all or nothing (temporary
+/// file, then renamed). Throws vx::Error.
+void save_polydata(vtkPolyData& polydata, const std::filesystem::path& path);
 
 /// Loads a surface written by save_surface; throws vx::Error (what is wrong) for other files.
 /// With `model`, also checks that the surface belongs to it: same node count, and the

@@ -10,7 +10,6 @@
 #include <vtkPointData.h>
 #include <vtkPoints.h>
 #include <vtkPolyData.h>
-#include <vtkXMLPolyDataWriter.h>
 
 #include <cmath>
 #include <map>
@@ -18,11 +17,11 @@
 #include <sstream>
 
 #include "base/error.h"
+#include "io/surface_io.h"
 #include "io/vtk_arrays.h"
 #include "render/plot.h"
 #include "scene/palpation_map.h"
 #include "util/atomic_file.h"
-#include "util/vtk_messages.h"
 
 namespace vx {
 namespace fs = std::filesystem;
@@ -91,19 +90,7 @@ void write_map_vtp(const PalpationMap& map, const fs::path& path) {
   pd->GetPointData()->AddArray(grid);
   pd->GetPointData()->SetActiveScalars("stiffness_n_per_mm");
   mark_lps(pd->GetFieldData());
-  write_atomically(path, [&](const fs::path& tmp) {
-    const VtkMessageCapture vtk_messages;
-    vtkNew<vtkXMLPolyDataWriter> writer;
-    writer->SetInputData(pd);
-    writer->SetFileName(tmp.c_str());
-    writer->SetDataModeToAppended();
-    writer->EncodeAppendedDataOff();
-    writer->SetCompressorTypeToZLib();
-    writer->SetHeaderTypeToUInt64();
-    writer->SetIdTypeToInt64();
-    if (!writer->Write() || !vtk_messages.errors().empty())
-      throw Error("VTK could not write the file: " + vtk_messages.first_error("disk full or no permission?"));
-  });
+  save_polydata(*pd, path);
 }
 
 /// A round length for the scale bar: about a fifth of `width`, 1, 2 or 5 times a power of ten.
