@@ -14,6 +14,7 @@
 #include "device_loop.h"
 #include "display.h"
 #include "force_output.h"
+#include "io/factor_cache.h"
 #include "gui_loop.h"
 #include "joystick_script.h"
 #include "physics_loop.h"
@@ -160,6 +161,8 @@ void App::open_outputs() {
 void App::start_simulation() {
   // the simulation, with the options that override the scene
   scene_.simulation.integrator.threads = options_.threads;
+  // the second start of the same organ loads its factor instead of computing it (io/factor_cache.h)
+  scene_.simulation.integrator.factor_cache = make_factor_cache(options_.factor_cache);
   std::optional<DeviceForceSettings>& dev = scene_.simulation.device;
   local_ = options_.force_shaping.value_or(dev ? dev->shaping : ForceShaping::paper) == ForceShaping::local;
   if (local_ && !dev) dev = DeviceForceSettings{};

@@ -15,6 +15,7 @@
 
 #include "base/error.h"
 #include "commands.h"
+#include "io/factor_cache.h"
 #include "render/plot.h"
 #include "scene/run_outputs.h"
 #include "scene/scene.h"
@@ -87,6 +88,7 @@ struct SimulateOptions {
   std::string scene;
   std::string out;
   int threads{-1};
+  std::string factor_cache;  ///< "" the default folder, "off", or a folder
   bool quiet{false};
 };
 
@@ -108,6 +110,7 @@ void run_simulate(const SimulateOptions& o) {
   popt.threads_override = o.threads;
   popt.region_check = RegionCheckTiming::background;  // seconds on a large model: the run starts meanwhile
   popt.region_check_nice = 0;                         // a batch run: its end waits for the check
+  popt.factor_cache = make_factor_cache(o.factor_cache);
   if (o.quiet) log::set_level(std::max(log::level(), log::Level::warn));
   const auto open = std::chrono::steady_clock::now();
   PreparedScene prepared = prepare_scene(scene, popt);
@@ -173,6 +176,7 @@ void run_simulate(const SimulateOptions& o) {
   std::vector<std::pair<std::string, double>> startup = prepared.stage_seconds;
   startup.emplace_back("simulation set-up", secs(prepared_at, t0));
   startup.emplace_back("first step", secs(t0, first_step_done));
+  const SimulationCounters& fc = sim.counters();
   const double startup_s = secs(open, first_step_done);
 
   // the outputs, summary.json last
@@ -182,6 +186,9 @@ void run_simulate(const SimulateOptions& o) {
   summary["duration_s"] = scene.duration_s;
   summary["interrupted"] = interrupted;
   summary["startup_s"] = startup_s;
+  summary["factorisations"] = fc.factorisations;
+  summary["factors_from_cache"] = fc.factors_from_cache;
+  summary["factor_s"] = fc.factor_s;
   nlohmann::json& stages = summary["startup_stages_s"];
   for (const auto& [name, s] : startup) stages[name] = s;
   if (interrupted) summary["status"] = "interrupted";
@@ -195,7 +202,12 @@ void run_simulate(const SimulateOptions& o) {
   if (!o.quiet) {
     std::string parts;
     for (const auto& [name, s] : startup) parts += fmt::format("{}{} {:.2f} s", parts.empty() ? "" : ", ", name, s);
-    fmt::print("start-up {:.2f} s, open to the end of the first step ({}{})\n", startup_s, parts,
+    std::string factor;
+    if (fc.factorisations > 0)
+      factor = fc.factors_from_cache == fc.factorisations
+                   ? fmt::format("; the factor loaded from the cache in {:.2f} s", fc.factor_s)
+                   : fmt::format("; factoring took {:.2f} s", fc.factor_s);
+    fmt::print("start-up {:.2f} s, open to the end of the first step ({}{}{})\n", startup_s, parts, factor,
                prepared.region_stiffening ? "; the region check ran beside the run" : "");
   }
   const ForceRecorder* recorder = outputs.forces();
@@ -222,6 +234,10 @@ void add_simulate_command(CLI::App& app) {
   sub->add_option("SCENE", opts->scene, "scene file (.json)")->required()->check(CLI::ExistingFile);
   sub->add_option("-o,--out", opts->out, "output folder (created if missing)")->required();
   sub->add_option("--threads", opts->threads, "threads for the physics (0: all cores; default: the scene's)");
+  sub->add_option("--factor-cache", opts->factor_cache,
+                  "where the implicit solver keeps its factors by the matrix's content, so the next start of the same "
+                  "model loads instead of factoring: a folder, or off (default: $VOXELASTIC_FACTOR_CACHE, else "
+                  "~/.cache/voxelastic/factors)");
   sub->callback([opts] {
     opts->quiet = quiet();  // -q: no progress or summary on the console (warnings still go to stderr)
     run_simulate(*opts);

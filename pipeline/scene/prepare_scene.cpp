@@ -146,6 +146,7 @@ void choose_integrator(const Scene& scene, const PrepareSceneOptions& options, c
                                   : scene.integrator_given ? IntegratorSettings{}.max_iterations
                                                            : FastConfiguration::iterations;
     s.integrator.residual_tolerance_n = scene.residual_tolerance_n;
+    s.integrator.factor_cache = options.factor_cache;
     s.integrator.region_radius_mm =
         large ? FastConfiguration::region_radius_for(out.model->num_nodes()) : scene.region_radius_mm;
     if (large)

@@ -155,6 +155,8 @@ struct PrepareSceneOptions {
   /// background: the check's thread's nice value (10: it yields to a real-time run; 0: a batch
   /// run, which waits for it at its end anyway)
   int region_check_nice{10};
+  /// implicit: the factor cache (io/factor_cache.h; make_factor_cache); null: none
+  std::shared_ptr<FactorCache> factor_cache;
 };
 
 /// The regional solves' error on a scene's support: the estimate of the probe where it is worst,

@@ -371,10 +371,13 @@ class ImplicitIntegrator final : public Integrator {
     if (!cache.solver || cache.solver->setup() != setup || cache.fixed_version != s.fixed_version ||
         &cache.solver->physics() != s.physics.get()) {
       cache.solver.reset();
-      cache.solver = IntegratorCache::SolverPtr(new ProjectiveSolver(s.physics, s.node_fixed, setup),
-                                                [](ProjectiveSolver* p) { delete p; });
+      cache.solver =
+          IntegratorCache::SolverPtr(new ProjectiveSolver(s.physics, s.node_fixed, setup, settings_.factor_cache.get(), settings_.threads),
+                                     [](ProjectiveSolver* p) { delete p; });
       cache.fixed_version = s.fixed_version;
       rep.refactored = true;
+      rep.factor_from_cache = cache.solver->factor().from_cache();
+      rep.factor_s = cache.solver->factor().factor_seconds();
     }
     if (cache.next_step != s.steps || cache.next_time_s != s.time_s || cache.contact_epoch != contact_epoch_)
       cache.solver->forget_contacts();

@@ -37,6 +37,8 @@
 
 namespace vx {
 
+class FactorCache;  // sim/sparse_factor.h
+
 /// Limits beyond which a step is refused (not applied) and the state flagged.
 struct StabilityLimits {
   double max_speed_mm_s{1.0e5};     ///< any node faster than this (100 m/s): runaway
@@ -62,6 +64,10 @@ struct IntegratorSettings {
   /// (ProjectiveSolver::set_region; the rest sleeps). The region follows a tool once it has
   /// moved a quarter of the radius. 0: every node every step.
   double region_radius_mm{0.0};
+  /// implicit: where factors are looked up before and kept after a factorisation (by the
+  /// content of the matrix: sparse_factor.h); null: every solver factors. Shared, not owned by
+  /// one integrator: pipeline/io/factor_cache.h keeps one in a folder.
+  std::shared_ptr<FactorCache> factor_cache;
   StabilityLimits limits;
 };
 

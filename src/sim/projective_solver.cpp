@@ -5,6 +5,7 @@
 #include <numeric>
 #include <string>
 
+#include "base/content_hash.h"
 #include "base/error.h"
 #include "base/parallel.h"
 #include "sim/state.h"
@@ -13,14 +14,15 @@
 namespace vx {
 
 ProjectiveSolver::ProjectiveSolver(std::shared_ptr<const PhysicsModel> physics,
-                                   const std::vector<std::uint8_t>& node_fixed, const ProjectiveSetup& setup)
+                                   const std::vector<std::uint8_t>& node_fixed, const ProjectiveSetup& setup,
+                                   FactorCache* factor_cache, int threads)
     : physics_(std::move(physics)), setup_(setup) {
   const PhysicsModel& p = *physics_;
   const int nn = p.num_nodes(), ne = p.num_elements();
   if (int(node_fixed.size()) != nn) throw Error("projective solver: node_fixed has the wrong size");
   numbering_ = number_nodes(node_fixed);
   if (!setup_.inertia) check_held();
-  assemble_and_factor();
+  assemble_and_factor(factor_cache, threads);
   // buffers of a solve
   const int nf = num_free(), nc = int(numbering_.fixed_nodes.size());
   const std::int64_t entries = p.num_vertex_entries();
@@ -75,20 +77,17 @@ NodeNumbering number_nodes(const std::vector<std::uint8_t>& node_fixed) {
   return n;
 }
 
-void assemble_projective_matrix(const PhysicsModel& p, const NodeNumbering& numbering, const ProjectiveSetup& setup,
-                                Eigen::SparseMatrix<double>& a_free, Eigen::SparseMatrix<double>* a_free_fixed) {
+namespace {
+
+/// Calls emit(free_row, node, value) for every entry of sum_e (K_e + kappa_e (diag(w) - w w^T / W))
+/// on a free row, elements [e_begin, e_end) in order (node: the column's node, free or fixed).
+/// The one source of the matrix's element entries: its assembly and its factor key read it.
+template <typename Emit>
+void for_each_element_entry(const PhysicsModel& p, const NodeNumbering& numbering, const ProjectiveSetup& setup,
+                            int e_begin, int e_end, Eigen::MatrixXd& ke, Emit&& emit) {
   const Model& m = *p.model;
-  const int ne = p.num_elements();
-  const int nf = int(numbering.free_nodes.size()), nc = int(numbering.fixed_nodes.size());
   const std::vector<int>& free_index = numbering.free_index;
-  const std::vector<int>& fixed_index = numbering.fixed_index;
-  const double dt = setup.time_step_s;
-  std::vector<Eigen::Triplet<double>> tff, tfc;
-  std::size_t guess = 0;
-  for (int e = 0; e < ne; ++e) guess += std::size_t(m.num_vertices(e)) * std::size_t(m.num_vertices(e));
-  tff.reserve(guess + std::size_t(nf));
-  Eigen::MatrixXd ke;
-  for (int e = 0; e < ne; ++e) {
+  for (int e = e_begin; e < e_end; ++e) {
     const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
     const double kap = projective_centring_weight(p, e, setup);
     const double* w = p.entry_weight.data() + b;
@@ -98,19 +97,43 @@ void assemble_projective_matrix(const PhysicsModel& p, const NodeNumbering& numb
     for (int i = 0; i < n; ++i) {
       const int fi = free_index[std::size_t(m.element_vertices[b + i])];
       if (fi < 0) continue;
-      for (int j = 0; j < n; ++j) {
-        const int nj = m.element_vertices[b + j];
-        const double v = ke(i, j) + kap * ((i == j ? w[i] : 0.0) - w[i] * w[j] / wsum);
-        if (free_index[std::size_t(nj)] >= 0)
-          tff.emplace_back(fi, free_index[std::size_t(nj)], v);
-        else if (a_free_fixed)
-          tfc.emplace_back(fi, fixed_index[std::size_t(nj)], v);
-      }
+      for (int j = 0; j < n; ++j) emit(fi, m.element_vertices[b + j], ke(i, j) + kap * ((i == j ? w[i] : 0.0) - w[i] * w[j] / wsum));
     }
   }
-  if (setup.inertia)
-    for (std::size_t i = 0; i < free_index.size(); ++i)
-      if (const int f = free_index[i]; f >= 0) tff.emplace_back(f, f, p.node_mass[i] / (dt * dt));
+}
+
+/// The mass term's diagonal entries (free index, value), with inertia.
+template <typename Emit>
+void for_each_mass_entry(const PhysicsModel& p, const NodeNumbering& numbering, const ProjectiveSetup& setup, Emit&& emit) {
+  if (!setup.inertia) return;
+  const double dt = setup.time_step_s;
+  for (std::size_t i = 0; i < numbering.free_index.size(); ++i)
+    if (const int f = numbering.free_index[i]; f >= 0) emit(f, p.node_mass[i] / (dt * dt));
+}
+
+constexpr int kKeyElementGrain = 512;
+
+}  // namespace
+
+void assemble_projective_matrix(const PhysicsModel& p, const NodeNumbering& numbering, const ProjectiveSetup& setup,
+                                Eigen::SparseMatrix<double>& a_free, Eigen::SparseMatrix<double>* a_free_fixed) {
+  const Model& m = *p.model;
+  const int ne = p.num_elements();
+  const int nf = int(numbering.free_nodes.size()), nc = int(numbering.fixed_nodes.size());
+  const std::vector<int>& free_index = numbering.free_index;
+  const std::vector<int>& fixed_index = numbering.fixed_index;
+  std::vector<Eigen::Triplet<double>> tff, tfc;
+  std::size_t guess = 0;
+  for (int e = 0; e < ne; ++e) guess += std::size_t(m.num_vertices(e)) * std::size_t(m.num_vertices(e));
+  tff.reserve(guess + std::size_t(nf));
+  Eigen::MatrixXd ke;
+  for_each_element_entry(p, numbering, setup, 0, ne, ke, [&](int fi, int node, double v) {
+    if (const int fj = free_index[std::size_t(node)]; fj >= 0)
+      tff.emplace_back(fi, fj, v);
+    else if (a_free_fixed)
+      tfc.emplace_back(fi, fixed_index[std::size_t(node)], v);
+  });
+  for_each_mass_entry(p, numbering, setup, [&](int f, double v) { tff.emplace_back(f, f, v); });
   a_free.resize(nf, nf);
   a_free.setFromTriplets(tff.begin(), tff.end());
   if (a_free_fixed) {
@@ -119,17 +142,83 @@ void assemble_projective_matrix(const PhysicsModel& p, const NodeNumbering& numb
   }
 }
 
+FactorKey projective_matrix_key(const PhysicsModel& p, const NodeNumbering& numbering, const ProjectiveSetup& setup,
+                                int threads, Eigen::SparseMatrix<double>* a_free_fixed) {
+  const int ne = p.num_elements();
+  const std::vector<int>& free_index = numbering.free_index;
+  const std::vector<int>& fixed_index = numbering.fixed_index;
+  // the entries in chunks of elements, each chunk's hash apart, combined in chunk order: the
+  // same key on any number of threads
+  const std::int64_t chunks = chunk_count(ne, kKeyElementGrain);
+  std::vector<std::uint64_t> chunk_hash(std::size_t(chunks), 0);
+  auto chunk_fixed = std::vector<std::vector<Eigen::Triplet<double>>>(std::size_t(chunks));
+  parallel_for_chunks(ne, kKeyElementGrain, threads, [&](std::int64_t c, std::int64_t b, std::int64_t e) {
+    ContentHash h;
+    Eigen::MatrixXd ke;
+    for_each_element_entry(p, numbering, setup, int(b), int(e), ke, [&](int fi, int node, double v) {
+      const int fj = free_index[std::size_t(node)];
+      h.add_value(fi);
+      h.add_value(fj >= 0 ? fj : -1 - fixed_index[std::size_t(node)]);
+      h.add_value(v);
+      if (fj < 0 && a_free_fixed) chunk_fixed[std::size_t(c)].emplace_back(fi, fixed_index[std::size_t(node)], v);
+    });
+    chunk_hash[std::size_t(c)] = h.value();
+  });
+  ContentHash key;
+  const std::int64_t nf = std::int64_t(numbering.free_nodes.size()), nc = std::int64_t(numbering.fixed_nodes.size());
+  key.add_value(nf);
+  key.add_value(nc);
+  key.add(chunk_hash.data(), chunk_hash.size() * sizeof(std::uint64_t));
+  std::int64_t entries = 0;
+  for_each_mass_entry(p, numbering, setup, [&](int f, double v) {
+    key.add_value(f);
+    key.add_value(v);
+  });
+  const SparseFactor::Backend backend = SparseFactor::best_backend();
+  key.add_value(std::uint8_t(backend));
+  for (const auto& c : chunk_fixed) entries += std::int64_t(c.size());
+  if (a_free_fixed) {
+    std::vector<Eigen::Triplet<double>> tfc;
+    tfc.reserve(std::size_t(entries));
+    for (const auto& c : chunk_fixed) tfc.insert(tfc.end(), c.begin(), c.end());
+    a_free_fixed->resize(nf, nc);
+    a_free_fixed->setFromTriplets(tfc.begin(), tfc.end());
+  }
+  FactorKey k;
+  k.hash = key.value();
+  k.rows = nf;
+  k.nonzeros = std::int64_t(p.num_vertex_entries());  // a size to name the file by; the hash holds the content
+  k.backend = std::uint8_t(backend);
+  return k;
+}
+
 double projective_centring_weight(const PhysicsModel& p, int e, const ProjectiveSetup& setup) {
   return (setup.damping ? p.element_damping[std::size_t(e)] / setup.time_step_s : 0.0);
 }
 
 /// Assembles M/dt^2 + sum_e (K_e + kappa_e (diag(w) - w w^T / W)), split into free-free (factored)
 /// and free-fixed, with kappa_e = k_v,e (+ c_e / dt): the volume and damping terms.
-void ProjectiveSolver::assemble_and_factor() {
+void ProjectiveSolver::assemble_and_factor(FactorCache* cache, int threads) {
   const PhysicsModel& p = *physics_;
   const int ne = p.num_elements(), nf = num_free();
   centring_weight_.resize(std::size_t(ne));
   for (int e = 0; e < ne; ++e) centring_weight_[std::size_t(e)] = projective_centring_weight(p, e, setup_);
+  if (cache) {
+    // the key from the element entries (a fraction of the assembly's cost), the coupling to the
+    // fixed nodes with it: a factor found needs nothing else
+    const FactorKey key = projective_matrix_key(p, numbering_, setup_, threads, &a_free_fixed_);
+    if (cache->load(key, factor_)) {
+      if (factor_.size() == nf) return;
+      factor_ = SparseFactor();  // not this matrix's after all: factor it
+    }
+    SparseFactor::Matrix a;
+    assemble_projective_matrix(p, numbering_, setup_, a, &a_free_fixed_);
+    if (!factor_.compute(a))
+      throw Error("implicit integrator: the system matrix could not be factored (" + std::to_string(nf) +
+                  " free nodes); is a part of the model held by nothing?");
+    cache->store(key, factor_);
+    return;
+  }
   SparseFactor::Matrix a;
   assemble_projective_matrix(p, numbering_, setup_, a, &a_free_fixed_);
   if (!factor_.compute(a))

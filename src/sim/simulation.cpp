@@ -179,6 +179,11 @@ StepStatus Simulation::step() {
   // elastic forces, gravity, integration
   const StepReport report = integrator_->step(state_);
   if (state_.failed()) return state_.status;
+  if (report.refactored) {
+    ++counters_.factorisations;
+    counters_.factors_from_cache += report.factor_from_cache ? 1 : 0;
+    counters_.factor_s += report.factor_s;
+  }
   if (report.region_elements > 0) {
     counters_.sleeping_element_updates += physics_->num_elements() - report.region_elements;
     counters_.sleeping_node_solves += (state_.num_nodes() - state_.num_fixed()) - report.region_nodes;

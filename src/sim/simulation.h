@@ -133,6 +133,10 @@ struct SimulationCounters {
   /// fits and node solves left out because they sleep, summed over steps
   std::int64_t sleeping_element_updates{0};
   std::int64_t sleeping_node_solves{0};
+  /// implicit: system matrices factored (or loaded from the factor cache), and their wall time, s
+  std::int64_t factorisations{0};
+  std::int64_t factors_from_cache{0};
+  double factor_s{0.0};
 };
 
 /// A frame for a display thread.

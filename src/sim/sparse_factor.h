@@ -25,9 +25,95 @@
 #include <Eigen/Core>
 #include <Eigen/SparseCore>
 #include <cstdint>
+#include <iosfwd>
+#include <memory>
+#include <string>
 #include <vector>
 
 namespace vx {
+
+class SparseFactor;
+
+/// An array that either owns its values or views them in memory that `keep` keeps alive (a
+/// factor read from a mapped file: sparse_factor.h, read()). Read-only once filled.
+template <typename T>
+class SharedArray {
+ public:
+  SharedArray() = default;
+  SharedArray(const SharedArray& o) { *this = o; }
+  SharedArray(SharedArray&& o) noexcept { *this = std::move(o); }
+  SharedArray& operator=(const SharedArray& o) {
+    if (this != &o) {
+      owned_ = o.owned_;
+      keep_ = o.keep_;
+      size_ = o.size_;
+      data_ = keep_ ? o.data_ : owned_.data();
+    }
+    return *this;
+  }
+  SharedArray& operator=(SharedArray&& o) noexcept {
+    owned_ = std::move(o.owned_);
+    keep_ = std::move(o.keep_);
+    size_ = o.size_;
+    data_ = keep_ ? o.data_ : owned_.data();
+    o.clear();
+    return *this;
+  }
+  /// Owns `v`.
+  void own(std::vector<T> v) {
+    owned_ = std::move(v);
+    keep_.reset();
+    data_ = owned_.data();
+    size_ = owned_.size();
+  }
+  /// Views n values at `data`, kept alive by `keep`.
+  void view(const T* data, std::size_t n, std::shared_ptr<const void> keep) {
+    owned_ = {};
+    keep_ = std::move(keep);
+    data_ = data;
+    size_ = n;
+  }
+  void clear() { own({}); }
+  [[nodiscard]] const T* data() const { return data_; }
+  [[nodiscard]] std::size_t size() const { return size_; }
+  [[nodiscard]] bool empty() const { return size_ == 0; }
+  [[nodiscard]] const T& operator[](std::size_t i) const { return data_[i]; }
+
+ private:
+  std::vector<T> owned_;
+  std::shared_ptr<const void> keep_;
+  const T* data_{nullptr};
+  std::size_t size_{0};
+};
+
+/// What a factor is the factor of: the content of the matrix it factors and who factored it.
+/// Two matrices with the same key have the same factor (a 64-bit hash of every entry, bit for
+/// bit: a step, a material or a support that changes one entry changes the key; the implicit
+/// solver's is projective_matrix_key, projective_solver.h).
+struct FactorKey {
+  std::uint64_t hash{0};       ///< ContentHash of the matrix's entries (base/content_hash.h)
+  std::int64_t rows{0};
+  std::int64_t nonzeros{0};    ///< a size of the matrix (for the file name; the hash holds the content)
+  std::uint8_t backend{0};     ///< SparseFactor::Backend
+  /// A file-name-safe name: "cholmod-326564n-7012345nz-0123456789abcdef".
+  [[nodiscard]] std::string name() const;
+  [[nodiscard]] bool operator==(const FactorKey&) const = default;
+};
+
+/// A store of factors by key: the factor cache beside the model (pipeline/io/factor_cache.h
+/// keeps it in a folder). The implicit solver (projective_solver.h) asks it before assembling
+/// and factoring and hands it the new factor after. Both calls may fail quietly: a factor not
+/// found or not stored is computed.
+class FactorCache {
+ public:
+  virtual ~FactorCache() = default;
+  /// Fills `factor` with the stored factor of `key` (SparseFactor::read); false when there is
+  /// none or it cannot be read (then `factor` is empty).
+  virtual bool load(const FactorKey& key, SparseFactor& factor) = 0;
+  /// Offers the factor of `key` just computed (SparseFactor::write; factor_seconds() says what
+  /// it cost).
+  virtual void store(const FactorKey& key, const SparseFactor& factor) = 0;
+};
 
 class SparseFactor {
  public:
@@ -48,6 +134,22 @@ class SparseFactor {
   /// build's best; one the build lacks falls back to it). Returns false when it is not positive
   /// definite (a part of the model held by nothing, a NaN).
   [[nodiscard]] bool compute(const Matrix& a, Backend backend = Backend::automatic);
+  /// Writes the factor in a binary form (native byte order; a header, the arrays each at a
+  /// 64-byte boundary, a checksum): what read() reads back on this machine. Throws vx::Error
+  /// when the stream fails.
+  void write(std::ostream& out) const;
+  /// Reads what write() wrote from the `size` bytes at `data` (8-byte aligned: a mapped file).
+  /// With `keep`, the factor's two large arrays (values and row indices) view `data`, which
+  /// `keep` keeps alive for as long as the factor uses them (no copy: a mapped file is read in
+  /// the time its pages take to come in); without, everything is copied. Checks the header,
+  /// every array's size and structure (a permutation, supernodes that tile the columns, rows in
+  /// range, positive diagonals) and the checksum; on any failure the factor is left empty, `why`
+  /// says what was wrong, and it returns false.
+  bool read(const unsigned char* data, std::size_t size, std::shared_ptr<const void> keep, std::string* why = nullptr);
+  /// True when the factor was read (read()), not computed.
+  [[nodiscard]] bool from_cache() const { return from_cache_; }
+  /// Bytes write() writes (about: the arrays).
+  [[nodiscard]] std::uint64_t stored_bytes() const;
 
   /// Rows of the factored matrix.
   [[nodiscard]] int size() const { return size_; }
@@ -55,7 +157,7 @@ class SparseFactor {
   [[nodiscard]] std::int64_t nonzeros() const { return std::int64_t(values_.size()); }
   /// The backend that computed the factor.
   [[nodiscard]] Backend backend() const { return backend_; }
-  /// Wall time of the last compute(), s.
+  /// Wall time of the last compute() or read(), s.
   [[nodiscard]] double factor_seconds() const { return factor_s_; }
 
   /// x = A^-1 b for the three columns of b (n x 3) at once. Allocation-free after compute().
@@ -127,17 +229,21 @@ class SparseFactor {
   template <int K>
   void solve_supernodal(double* w, int first) const;
 
+  void reset();
+  void finish();
+  bool index_supernodes();
   bool compute_eigen(const Matrix& a, bool metis);
   bool compute_cholmod(const Matrix& a);
 
   int size_{0};
   Backend backend_{Backend::automatic};
   double factor_s_{0.0};
+  bool from_cache_{false};
   // P A P^T = L D L^T: L strictly lower (unit diagonal implied), column-compressed
   std::vector<int> perm_;            ///< original row -> factored position
   std::vector<std::int64_t> outer_;  ///< n + 1 column starts
   std::vector<int> inner_;           ///< row of each entry
-  std::vector<double> values_;       ///< L entries
+  SharedArray<double> values_;       ///< L entries
   std::vector<double> inv_d_;        ///< 1 / D
   std::vector<double> inv_sqrt_d_;   ///< D^-1/2 (forward vectors of the simplicial factor)
   std::vector<int> parent_;          ///< simplicial: column -> parent in the elimination tree (-1: a root)
@@ -146,7 +252,8 @@ class SparseFactor {
   // rows_[row_start_[s] ..] (its own columns first), values values_[value_start_[s] ..]
   // column-major (leading dimension: its row count), diagonal included
   bool supernodal_{false};
-  std::vector<int> super_, rows_;
+  std::vector<int> super_;
+  SharedArray<int> rows_;
   std::vector<std::int64_t> row_start_, value_start_;
   std::vector<int> column_super_;    ///< column -> its supernode
   std::vector<int> super_parent_;    ///< supernode -> parent in the elimination tree (-1: a root)

@@ -20,6 +20,8 @@ struct StepReport {
   std::int64_t inverted_elements{0};     ///< elements found inverted or flat in the step
   std::int64_t unconverged_rotations{0}; ///< rotation fits that hit max_iterations
   bool refactored{false};          ///< implicit: the system matrix was (re)factored in this step
+  bool factor_from_cache{false};   ///< implicit, refactored: the factor was loaded from the factor cache
+  double factor_s{0.0};            ///< implicit, refactored: wall time of the factorisation (or of the load), s
   std::int64_t factor_nonzeros{0}; ///< implicit: nonzeros of the Cholesky factor L (cost of a solve)
   int contacts{0};                 ///< implicit with a contact provider: active constraints at the end
   int contact_rounds{0};           ///< implicit with a contact provider: active-set rounds in the step

@@ -1,13 +1,20 @@
 // The projective-dynamics solver called directly (precompute, then solve; projective_solver.h),
 // its agreement with the implicit integrator and the static solve that wrap it, the residual
 // falling with the iterations, the contact active set against the weight it carries, and the
-// state-owned cache: a copy of a state refactors, one integrator steps two states alike.
+// state-owned cache: a copy of a state refactors, one integrator steps two states alike; the
+// factor cache: a factor found by its key steps bit for bit as the one computed, and the key
+// follows every input of the matrix.
 #include "sim/projective_solver.h"
 
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
 #include <iostream>
+#include <map>
+#include <memory>
+#include <sstream>
+#include <string>
 
 #include "base/error.h"
 #include "sim/integrators.h"
@@ -216,6 +223,97 @@ TEST(ProjectiveSolver, StaticSolverRefusesAPartHeldByNothing) {
   EXPECT_THROW(ProjectiveSolver(physics, none, setup), Error);
   setup.inertia = true;  // with inertia a free body is fine
   EXPECT_NO_THROW(ProjectiveSolver(physics, none, setup));
+}
+
+/// A factor cache in memory (the folder one is io/factor_cache.h) that counts its calls.
+class MemoryCache final : public FactorCache {
+ public:
+  bool load(const FactorKey& key, SparseFactor& factor) override {
+    ++loads;
+    const auto it = files.find(key.name());
+    if (it == files.end()) return false;
+    auto buf = std::shared_ptr<std::uint64_t[]>(new std::uint64_t[it->second.size() / 8 + 1]);
+    std::memcpy(buf.get(), it->second.data(), it->second.size());
+    const std::shared_ptr<const void> keep(buf, buf.get());
+    return factor.read(reinterpret_cast<const unsigned char*>(buf.get()), it->second.size(), keep);
+  }
+  void store(const FactorKey& key, const SparseFactor& factor) override {
+    std::ostringstream out;
+    factor.write(out);
+    files[key.name()] = out.str();
+  }
+  std::map<std::string, std::string> files;
+  int loads{0};
+};
+
+TEST(FactorCache, AFactorFoundByItsKeyStepsBitForBitAsTheOneComputed) {
+  const auto cache = std::make_shared<MemoryCache>();
+  IntegratorSettings set;
+  set.kind = IntegratorKind::implicit;
+  set.time_step_s = 0.01;
+  set.max_iterations = 3;
+  set.factor_cache = cache;
+  Eigen::Matrix3Xd first;
+  for (int run = 0; run < 2; ++run) {
+    SimState s = perturbed_block(0.2);
+    s.gravity_mm_s2 = {0, 0, -9810.0};
+    auto integ = make_integrator(set);
+    const StepReport r = integ->step(s);
+    ASSERT_EQ(r.status, StepStatus::ok);
+    EXPECT_TRUE(r.refactored);
+    EXPECT_EQ(r.factor_from_cache, run == 1) << run;
+    integ->step(s);  // the fixed nodes' coupling (kept beside the factor) in a second step too
+    if (run == 0) first = s.positions;
+    else EXPECT_EQ(std::memcmp(first.data(), s.positions.data(), sizeof(double) * std::size_t(first.size())), 0);
+  }
+  EXPECT_EQ(cache->files.size(), 1u);
+  EXPECT_EQ(cache->loads, 2);
+}
+
+TEST(FactorCache, TheKeyFollowsEveryInputOfTheMatrixAndNotTheThreads) {
+  const SimState s = perturbed_block(0.2);
+  const NodeNumbering numbering = number_nodes(s.node_fixed);
+  ProjectiveSetup setup;
+  setup.time_step_s = 0.01;
+  setup.damping = true;
+  Eigen::SparseMatrix<double> coupling1, coupling2, assembled_free, assembled_coupling;
+  const FactorKey k = projective_matrix_key(*s.physics, numbering, setup, 1, &coupling1);
+  // threads: the same key, the same coupling (bit for bit), and the coupling is the assembly's
+  EXPECT_EQ(projective_matrix_key(*s.physics, numbering, setup, 2, &coupling2), k);
+  assemble_projective_matrix(*s.physics, numbering, setup, assembled_free, &assembled_coupling);
+  ASSERT_EQ(coupling1.nonZeros(), assembled_coupling.nonZeros());
+  EXPECT_GT(coupling1.nonZeros(), 0);
+  EXPECT_EQ(Eigen::MatrixXd(coupling1 - assembled_coupling).cwiseAbs().maxCoeff(), 0.0);
+  EXPECT_EQ(Eigen::MatrixXd(coupling1 - coupling2).cwiseAbs().maxCoeff(), 0.0);
+  EXPECT_EQ(k.rows, int(numbering.free_nodes.size()));
+  // every input: the step, the damping term, the mass term, the support, the material
+  ProjectiveSetup other = setup;
+  other.time_step_s = 0.02;
+  EXPECT_NE(projective_matrix_key(*s.physics, numbering, other, 1, nullptr).hash, k.hash);
+  other = setup;
+  other.damping = false;
+  EXPECT_NE(projective_matrix_key(*s.physics, numbering, other, 1, nullptr).hash, k.hash);
+  other = setup;
+  other.inertia = false;
+  EXPECT_NE(projective_matrix_key(*s.physics, numbering, other, 1, nullptr).hash, k.hash);
+  std::vector<std::uint8_t> fixed = s.node_fixed;
+  for (std::size_t i = 0; i < fixed.size(); ++i)
+    if (!fixed[i]) {
+      fixed[i] = 1;  // one more node held
+      break;
+    }
+  EXPECT_NE(projective_matrix_key(*s.physics, number_nodes(fixed), setup, 1, nullptr).hash, k.hash);
+  Material stiffer = soft(0.2);
+  stiffer.youngs_modulus_kpa *= 1.0 + 1e-12;
+  const auto p2 = make_physics_model(hand_block(4, 4, 3, 2.0), stiffer);
+  EXPECT_NE(projective_matrix_key(*p2, numbering, setup, 1, nullptr).hash, k.hash);
+  Material heavier = soft(0.2);
+  heavier.density_kg_m3 *= 1.001;
+  const auto p3 = make_physics_model(hand_block(4, 4, 3, 2.0), heavier);
+  EXPECT_NE(projective_matrix_key(*p3, numbering, setup, 1, nullptr).hash, k.hash);
+  // and the same inputs rebuilt: the same key
+  const auto p4 = make_physics_model(hand_block(4, 4, 3, 2.0), soft(0.2));
+  EXPECT_EQ(projective_matrix_key(*p4, numbering, setup, 1, nullptr), k);
 }
 
 }  // namespace

@@ -1,0 +1,256 @@
+// The sparse factor (sim/sparse_factor.h): the backends agree, and a factor written and read
+// back (the factor cache's form) solves bit for bit as the one computed, while a damaged file
+// or a truncated one is refused; the content hash depends on every byte.
+#include <gtest/gtest.h>
+
+#include <Eigen/Sparse>
+#include <cstring>
+#include <iostream>
+#include <memory>
+#include <sstream>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "base/content_hash.h"
+#include "model/gradational_builder.h"
+#include "physics/elements.h"
+#include "physics/physics_model.h"
+#include "sim/sparse_factor.h"
+#include "support/physics_helpers.h"
+
+namespace vx {
+namespace {
+
+using testing::hand_block;
+
+/// The elastic matrix of a small block plus a mass term: symmetric positive definite.
+SparseFactor::Matrix block_matrix(int nx = 6, int ny = 5, int nz = 4) {
+  const Model m = hand_block(nx, ny, nz, 1.0);
+  Material mat;
+  mat.youngs_modulus_kpa = 10.0;
+  mat.density_kg_m3 = 1000.0;
+  const auto p = make_physics_model(m, mat);
+  std::vector<Eigen::Triplet<double>> t;
+  Eigen::MatrixXd ke;
+  for (int e = 0; e < p->num_elements(); ++e) {
+    element_elastic_matrix(*p, e, ke);
+    const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+    for (int i = 0; i < n; ++i)
+      for (int j = 0; j < n; ++j) t.emplace_back(m.element_vertices[b + i], m.element_vertices[b + j], ke(i, j));
+  }
+  const int nn = m.num_nodes();
+  for (int i = 0; i < nn; ++i) t.emplace_back(i, i, 1e-3);
+  SparseFactor::Matrix a(nn, nn);
+  a.setFromTriplets(t.begin(), t.end());
+  return a;
+}
+
+std::vector<SparseFactor::Backend> backends() {
+  std::vector<SparseFactor::Backend> out;
+  for (auto b : {SparseFactor::Backend::eigen_amd, SparseFactor::Backend::eigen_metis, SparseFactor::Backend::cholmod})
+    if (SparseFactor::available(b)) out.push_back(b);
+  return out;
+}
+
+std::string bytes_of(const SparseFactor& f) {
+  std::ostringstream out;
+  f.write(out);
+  return out.str();
+}
+
+/// The written bytes in 8-byte aligned memory (as a mapped file is), kept alive by the pointer.
+std::shared_ptr<const void> aligned_copy(const std::string& bytes) {
+  auto buf = std::shared_ptr<std::uint64_t[]>(new std::uint64_t[bytes.size() / 8 + 1]);
+  std::memcpy(buf.get(), bytes.data(), bytes.size());
+  return std::shared_ptr<const void>(buf, buf.get());
+}
+
+/// What the solver asks of a factor: a full solve, a unit column, forward vectors and their
+/// response, a regional solve.
+struct Answers {
+  Eigen::MatrixX3d x, partial;
+  std::vector<double> column;
+  double dot{0.0};
+  Eigen::MatrixX3d response;
+};
+
+Answers ask(SparseFactor& f, int n) {
+  Answers a;
+  const Eigen::MatrixX3d b = Eigen::MatrixX3d::Random(n, 3);
+  a.x.resize(n, 3);
+  f.solve3(b, a.x);
+  a.column.assign(std::size_t(n), 0.0);
+  f.solve_unit(n / 3, a.column.data());
+  SparseFactor::UnitForward zi, zj;
+  f.forward_unit(2, zi);
+  f.forward_unit(n - 3, zj);
+  a.dot = SparseFactor::dot(zi, zj);
+  a.response = Eigen::MatrixX3d::Zero(n, 3);
+  f.add_response3({&zi, &zj}, {0.1, -0.2, 0.3, 1.0, 0.5, -0.25}, a.response, false);
+  a.partial = a.x;
+  if (f.supports_partial()) {
+    f.set_partial_rows({1, 5, n / 2});
+    Eigen::MatrixX3d b2 = b;
+    b2.row(n / 2) += Eigen::RowVector3d(1, 2, 3);
+    f.solve3_partial(b2, a.partial);
+  }
+  return a;
+}
+
+void expect_same_bits(const Answers& a, const Answers& b, const std::string& what) {
+  EXPECT_EQ(std::memcmp(a.x.data(), b.x.data(), sizeof(double) * std::size_t(a.x.size())), 0) << what;
+  EXPECT_EQ(a.column, b.column) << what;
+  EXPECT_EQ(a.dot, b.dot) << what;
+  EXPECT_EQ(std::memcmp(a.response.data(), b.response.data(), sizeof(double) * std::size_t(a.response.size())), 0) << what;
+  EXPECT_EQ(std::memcmp(a.partial.data(), b.partial.data(), sizeof(double) * std::size_t(a.partial.size())), 0) << what;
+}
+
+TEST(SparseFactor, BackendsAgreeOnTheSameMatrix) {
+  const SparseFactor::Matrix a = block_matrix();
+  const int nn = int(a.rows());
+  Eigen::MatrixX3d b = Eigen::MatrixX3d::Random(nn, 3), x(nn, 3), ref(nn, 3);
+  bool first = true;
+  for (auto backend : backends()) {
+    SparseFactor f;
+    ASSERT_TRUE(f.compute(a, backend)) << SparseFactor::to_string(backend);
+    EXPECT_EQ(f.backend(), backend);
+    f.solve3(b, x);
+    const double res = (a * x - b).norm() / b.norm();
+    std::cout << SparseFactor::to_string(backend) << ": " << f.nonzeros() << " nonzeros, relative residual " << res << "\n";
+    EXPECT_LT(res, 1e-10);
+    std::vector<double> col(static_cast<std::size_t>(nn), 0.0);
+    f.solve_unit(7, col.data());
+    const Eigen::VectorXd ax = a * Eigen::Map<Eigen::VectorXd>(col.data(), nn);
+    EXPECT_NEAR(ax(7), 1.0, 1e-9);
+    EXPECT_NEAR(ax.norm(), 1.0, 1e-9);
+    if (first) ref = x, first = false;
+    EXPECT_LT((x - ref).norm(), 1e-9 * ref.norm());
+    // forward vectors (the contact set's compliance): z_i . z_j = (A^-1)_ij, and the response
+    // to forces at a few rows is A^-1 of them
+    SparseFactor::UnitForward zi, zj, zk;
+    std::vector<double> colj(static_cast<std::size_t>(nn), 0.0);
+    for (const auto& [i, j] : {std::pair{7, 7}, std::pair{7, 40}, std::pair{3, nn - 1}, std::pair{nn / 2, 11}}) {
+      f.forward_unit(i, zi);
+      f.forward_unit(j, zj);
+      f.solve_unit(j, colj.data());
+      EXPECT_NEAR(SparseFactor::dot(zi, zj), colj[std::size_t(i)], 1e-10 * std::abs(colj[std::size_t(j)]))
+          << SparseFactor::to_string(backend) << " " << i << " " << j;
+      EXPECT_LT(zi.value.size(), std::size_t(nn));  // the path, not a whole column
+    }
+    f.forward_unit(3, zi);
+    f.forward_unit(nn - 1, zj);
+    f.forward_unit(nn - 5, zk);
+    const std::vector<const SparseFactor::UnitForward*> zs = {&zi, &zj, &zk};
+    const std::vector<double> forces = {0.1, -0.2, 0.3, 1.0, 0.5, -0.25, -0.7, 0.0, 0.4};
+    Eigen::MatrixX3d resp = Eigen::MatrixX3d::Zero(nn, 3), rhs = Eigen::MatrixX3d::Zero(nn, 3), direct(nn, 3);
+    rhs.row(3) += Eigen::RowVector3d(0.1, -0.2, 0.3);
+    rhs.row(nn - 1) += Eigen::RowVector3d(1.0, 0.5, -0.25);
+    rhs.row(nn - 5) += Eigen::RowVector3d(-0.7, 0.0, 0.4);
+    f.add_response3(zs, forces, resp, false);
+    f.solve3(rhs, direct);
+    EXPECT_LT((resp - direct).norm(), 1e-10 * direct.norm()) << SparseFactor::to_string(backend);
+  }
+  // not positive definite: refused by every backend
+  SparseFactor::Matrix bad = a;
+  bad.coeffRef(3, 3) = -1.0;
+  for (auto backend : {SparseFactor::Backend::eigen_amd, SparseFactor::Backend::cholmod}) {
+    if (!SparseFactor::available(backend)) continue;
+    SparseFactor f;
+    EXPECT_FALSE(f.compute(bad, backend)) << SparseFactor::to_string(backend);
+  }
+}
+
+TEST(SparseFactor, AFactorReadBackSolvesBitForBitAsTheOneComputed) {
+  const SparseFactor::Matrix a = block_matrix();
+  const int n = int(a.rows());
+  for (auto backend : backends()) {
+    const std::string name = SparseFactor::to_string(backend);
+    SparseFactor computed;
+    ASSERT_TRUE(computed.compute(a, backend)) << name;
+    const std::string bytes = bytes_of(computed);
+    EXPECT_GE(bytes.size(), std::size_t(computed.nonzeros()) * sizeof(double)) << name;
+    EXPECT_LE(double(bytes.size()), 1.05 * double(computed.stored_bytes()) + 1024) << name;
+    std::srand(7);
+    const Answers want = ask(computed, n);
+    // viewing the bytes in place (a mapped file) and copying them give the same factor
+    for (bool view : {true, false}) {
+      const std::shared_ptr<const void> mem = aligned_copy(bytes);
+      SparseFactor read;
+      std::string why;
+      ASSERT_TRUE(read.read(static_cast<const unsigned char*>(mem.get()), bytes.size(), view ? mem : nullptr, &why))
+          << name << ": " << why;
+      EXPECT_EQ(read.size(), n);
+      EXPECT_EQ(read.backend(), backend);
+      EXPECT_EQ(read.nonzeros(), computed.nonzeros());
+      EXPECT_EQ(read.supports_partial(), computed.supports_partial());
+      std::srand(7);
+      expect_same_bits(want, ask(read, n), name + (view ? " (viewed)" : " (copied)"));
+      // and it writes the same bytes again
+      EXPECT_EQ(bytes_of(read), bytes) << name;
+    }
+  }
+}
+
+TEST(SparseFactor, ADamagedOrForeignFileIsRefusedAndLeavesTheFactorEmpty) {
+  const SparseFactor::Matrix a = block_matrix(4, 4, 3);
+  SparseFactor computed;
+  ASSERT_TRUE(computed.compute(a));
+  const std::string good = bytes_of(computed);
+  const auto refused = [](const std::string& bytes, const std::string& expect_in_why) {
+    const std::shared_ptr<const void> mem = aligned_copy(bytes);
+    SparseFactor f;
+    std::string why;
+    const bool ok = f.read(static_cast<const unsigned char*>(mem.get()), bytes.size(), mem, &why);
+    EXPECT_FALSE(ok) << expect_in_why;
+    EXPECT_NE(why.find(expect_in_why), std::string::npos) << "why: " << why;
+    EXPECT_EQ(f.size(), 0);
+    EXPECT_EQ(f.nonzeros(), 0);
+  };
+  std::string flipped = good;
+  flipped[good.size() / 2] ^= 0x10;  // a bit in the values
+  refused(flipped, "checksum");
+  refused(good.substr(0, good.size() - 9), "truncated");
+  refused(good.substr(0, 20), "truncated");
+  refused(good + "x", "after the end");
+  std::string magic = good;
+  magic[0] = 'Q';
+  refused(magic, "not a voxelastic factor");
+  std::string version = good;
+  version[8] = 99;  // the format version after the 8-byte magic
+  refused(version, "format version");
+  refused(std::string(), "truncated");
+}
+
+TEST(ContentHash, DependsOnTheBytesNotOnHowTheyAreFed) {
+  std::vector<unsigned char> data(1000);
+  for (std::size_t i = 0; i < data.size(); ++i) data[i] = static_cast<unsigned char>(i * 37 + 11);
+  ContentHash whole;
+  whole.add(data.data(), data.size());
+  for (std::size_t piece : {1u, 3u, 7u, 8u, 13u, 999u}) {
+    ContentHash parts;
+    for (std::size_t at = 0; at < data.size(); at += piece) parts.add(data.data() + at, std::min(piece, data.size() - at));
+    EXPECT_EQ(parts.value(), whole.value()) << piece;
+  }
+  // a changed bit, a byte more, another seed: another value
+  std::vector<unsigned char> other = data;
+  other[500] ^= 1;
+  ContentHash h2;
+  h2.add(other.data(), other.size());
+  EXPECT_NE(h2.value(), whole.value());
+  ContentHash h3;
+  h3.add(data.data(), data.size() - 1);
+  EXPECT_NE(h3.value(), whole.value());
+  ContentHash h4(1);
+  h4.add(data.data(), data.size());
+  EXPECT_NE(h4.value(), whole.value());
+  // zeros of different lengths differ (the length is hashed)
+  const std::vector<unsigned char> z8(8, 0), z16(16, 0);
+  ContentHash a8, a16;
+  a8.add(z8.data(), 8);
+  a16.add(z16.data(), 16);
+  EXPECT_NE(a8.value(), a16.value());
+}
+
+}  // namespace
+}  // namespace vx
