@@ -229,6 +229,10 @@ inline constexpr double kRegionStiffeningWarnRel = 0.05;
 /// no table. Returns an empty field when neither applies.
 [[nodiscard]] MaterialField material_field(const Model& model, const SceneMaterial& material, const Volume* hu);
 
+/// Per element: the mean of `volume`'s values over the element's voxels (each voxel centre's
+/// nearest voxel of `volume`): the mean HU of a CT volume, as material_field averages the modulus.
+[[nodiscard]] std::vector<double> element_mean_values(const Model& model, const Volume& volume);
+
 /// The voxel grid covered by a model's elements (for a model loaded from a file).
 [[nodiscard]] VoxelGrid grid_from_model(const Model& model);
 
