@@ -193,6 +193,7 @@ struct PreparedScene {
   Eigen::Vector3d bounds_min_mm{0, 0, 0};          ///< object's rest bounding box, LPS mm
   Eigen::Vector3d bounds_max_mm{0, 0, 0};
   double dt_stable_estimate_s{0.0};                ///< the integrator's estimated stable step
+  double automatic_dt_s{0.0};  ///< the step `"dt_s": "auto"` picks (0: none, explicit Euler undamped)
   int fixed_nodes{0};
   int heterogeneous_elements{0};                   ///< elements whose modulus differs from the base
   double min_modulus_kpa{0.0}, max_modulus_kpa{0.0};
