@@ -138,10 +138,10 @@ class RumbleForceOutput final : public ForceOutput {
 };
 
 /// Records every tick as one CSV row per probe:
-/// `wall_s,sim_s,probe,device_fx_N,device_fy_N,device_fz_N,device_N,raw_fx_N,raw_fy_N,raw_fz_N,raw_N,`
-/// `stick_x_N,stick_y_N,tip_x_mm,tip_y_mm,tip_z_mm,contacts,`
-/// `shaping,physics_s,hand_x_mm,hand_y_mm,hand_z_mm,model_fx_N,model_fy_N,model_fz_N,`
-/// `anchor_fx_N,anchor_fy_N,anchor_fz_N,update_age_ms,stiffness_N_mm,guard_N` (ProbeForce).
+/// `wall_s,sim_s,probe,device_fx_n,device_fy_n,device_fz_n,device_n,raw_fx_n,raw_fy_n,raw_fz_n,raw_n,`
+/// `stick_x_n,stick_y_n,tip_x_mm,tip_y_mm,tip_z_mm,contacts,`
+/// `shaping,physics_s,hand_x_mm,hand_y_mm,hand_z_mm,model_fx_n,model_fy_n,model_fz_n,`
+/// `anchor_fx_n,anchor_fy_n,anchor_fz_n,update_age_ms,stiffness_n_mm,guard_n` (ProbeForce).
 /// The file is written next to the target and renamed into place by stop(): no partial logs.
 class RecordingForceOutput final : public ForceOutput {
  public:

@@ -4,11 +4,15 @@
 
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <limits>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <set>
+#include <sstream>
+#include <stdexcept>
 #include <string>
 #include <system_error>
 #include <vector>
@@ -21,10 +25,13 @@
 #include "convert/stats.h"
 #include "convert/threshold.h"
 #include "io/model_io.h"
+#include "io/segmentation_io.h"
 #include "io/surface_io.h"
 #include "io/volume_io.h"
 #include "model/gradational_builder.h"
+#include "physics/material.h"
 #include "render/render.h"
+#include "scene/scene.h"
 #include "usage.h"
 #include "util/atomic_file.h"
 #include "util/exit_codes.h"
@@ -40,7 +47,10 @@ struct ConvertOptions {
   std::string input;
   std::string output;
   std::string threshold;
-  int label{-1};  ///< >= 0: the input is a labelmap, this label is the tissue
+  std::string label;  ///< --label: a label number (a labelmap) or a segment's name (.seg.nrrd); "" or "-1": none
+  std::string mask;   ///< --mask: the voxels that became the model, as a Slicer segmentation (.seg.nrrd)
+  double youngs_modulus_kpa{Material{}.youngs_modulus_kpa};  ///< the model file's youngs_modulus_kpa (no table)
+  std::string hounsfield_table;  ///< "HU:KPA,HU:KPA,...": the modulus from each voxel's HU instead
   std::string layout{"gradational"};
   int max_level{-1};
   std::string stats;
@@ -98,7 +108,8 @@ class StagedOutputs {
 
 /// Throws unless `path` ends in `ext` and its folder exists and is writable.
 void check_output(const std::string& path, const char* ext, const char* option, const char* what) {
-  if (fs::path(path).extension() != ext)
+  const std::string name = fs::path(path).filename().string();
+  if (name.size() <= std::strlen(ext) || !name.ends_with(ext))
     throw Error(fmt::format("{} '{}': the {} must be a {} file (for example {}{})", option, path, what, ext,
                             fs::path(path).stem().string().empty() ? "out" : fs::path(path).stem().string(), ext));
   check_output_path(path);
@@ -119,6 +130,7 @@ void validate(const ConvertOptions& o) {
   if (!o.stats.empty()) check_output(o.stats, ".json", "--stats", "statistics file");
   if (!o.png.empty()) check_output(o.png, ".png", "--png", "picture");
   if (!o.surface.empty()) check_output(o.surface, ".vtp", "--surface", "surface");
+  if (!o.mask.empty()) check_output(o.mask, ".seg.nrrd", "--mask", "mask (a 3D Slicer segmentation)");
   if (o.max_level < -1) throw Error(fmt::format("--max-level {}: the level must be 0 or more", o.max_level));
   if (o.max_level >= 0 && o.layout != "gradational")
     throw Error("--max-level applies to --resolution gradational only (the " + o.layout +
@@ -133,6 +145,7 @@ void validate(const ConvertOptions& o) {
 /// --label N: the volume must be a labelmap (integer values) that holds N; otherwise says which
 /// labels it has.
 void check_label(const Volume& volume, int label, const std::string& input) {
+  // (a segmentation's segment was chosen by choose_segment instead)
   std::set<float> values;
   std::int64_t count = 0;
   for (const float v : volume.hu) {
@@ -152,17 +165,129 @@ void check_label(const Volume& volume, int label, const std::string& input) {
                           values.size() > 20 ? ", ..." : ""));
 }
 
+/// --label as given: a number (>= 0), a segment's name, or nothing ("" or -1).
+struct LabelArgument {
+  bool given{false};
+  std::optional<int> number;  ///< when the text is a whole number
+  std::string text;
+};
+
+LabelArgument parse_label(const std::string& label) {
+  LabelArgument a;
+  a.text = trim(label);
+  if (a.text.empty() || a.text == "-1") return a;
+  a.given = true;
+  char* end = nullptr;
+  const long v = std::strtol(a.text.c_str(), &end, 10);
+  if (end == a.text.c_str() + a.text.size() && v >= 0 && v <= std::numeric_limits<int>::max()) a.number = int(v);
+  return a;
+}
+
+/// "liver (label 1), lesion (label 1, layer 1)"
+std::string segment_list(const Segmentation& seg) {
+  std::string out;
+  for (const Segment& s : seg.segments) {
+    out += fmt::format("{}'{}' (label {}", out.empty() ? "" : ", ", s.name, s.label_value);
+    if (seg.layers.size() > 1) out += fmt::format(", layer {}", s.layer);
+    out += ")";
+  }
+  return out;
+}
+
+/// The segment --label names (by name, or by label value when only one segment has it); the only
+/// segment when --label is not given. Otherwise a command-line mistake (exit 2) listing the
+/// segments, with the nearest name for a typo.
+const Segment& choose_segment(const Segmentation& seg, const LabelArgument& label, const std::string& input) {
+  const std::string list = segment_list(seg);
+  if (!label.given) {
+    if (seg.segments.size() == 1) return seg.segments.front();
+    throw CLI::ValidationError("--label", fmt::format("'{}' is a segmentation of {} segments: choose one with --label "
+                                                      "NAME; its segments are {}",
+                                                      input, seg.segments.size(), list));
+  }
+  // by name: exactly, then ignoring case when that is unambiguous
+  for (const Segment& s : seg.segments)
+    if (s.name == label.text) return s;
+  const Segment* by_case = nullptr;
+  int matches = 0;
+  for (const Segment& s : seg.segments)
+    if (lower(s.name) == lower(label.text)) by_case = &s, ++matches;
+  if (matches == 1) return *by_case;
+  if (label.number) {
+    const Segment* found = nullptr;
+    int n = 0;
+    for (const Segment& s : seg.segments)
+      if (s.label_value == *label.number) found = &s, ++n;
+    if (n == 1) return *found;
+    if (n > 1)
+      throw CLI::ValidationError("--label", fmt::format("label {} is in {} layers of '{}': give the segment's name; "
+                                                        "its segments are {}",
+                                                        *label.number, n, input, list));
+    throw CLI::ValidationError(
+        "--label", fmt::format("no segment of '{}' has label {}; its segments are {}", input, *label.number, list));
+  }
+  const std::string near = nearest_word(label.text, seg.names());
+  throw CLI::ValidationError(
+      "--label", fmt::format("'{}' has no segment named '{}'{}; its segments are {}", input, label.text,
+                             near.empty() ? std::string() : fmt::format(" (did you mean '{}'?)", near), list));
+}
+
+/// --hounsfield-table "HU:KPA,HU:KPA,...": at least two rows, HU increasing, moduli positive
+/// (the scene key hounsfield_table's rules); a mistake is a command-line mistake.
+std::vector<HuModulus> parse_hounsfield_table(const std::string& text) {
+  std::vector<HuModulus> rows;
+  std::stringstream in(text);
+  for (std::string item; std::getline(in, item, ',');) {
+    const auto colon = item.find(':');
+    char* end_hu = nullptr;
+    char* end_e = nullptr;
+    const std::string hu = trim(item.substr(0, colon)),
+                      e = colon == std::string::npos ? "" : trim(item.substr(colon + 1));
+    HuModulus row{std::strtod(hu.c_str(), &end_hu), std::strtod(e.c_str(), &end_e)};
+    if (hu.empty() || e.empty() || *end_hu || *end_e || !std::isfinite(row.hu) || !(row.youngs_modulus_kpa > 0) ||
+        !std::isfinite(row.youngs_modulus_kpa))
+      throw CLI::ValidationError("--hounsfield-table", fmt::format("'{}' is not a row HU:KPA with a modulus above 0 "
+                                                                   "(for example -100:3,100:30)",
+                                                                   trim(item)));
+    if (!rows.empty() && !(row.hu > rows.back().hu))
+      throw CLI::ValidationError("--hounsfield-table", fmt::format("rows must be sorted by increasing HU ({:g} after "
+                                                                   "{:g})",
+                                                                   row.hu, rows.back().hu));
+    rows.push_back(row);
+  }
+  if (rows.size() < 2)
+    throw CLI::ValidationError("--hounsfield-table", "give at least two rows HU:KPA (for example -100:3,100:30)");
+  return rows;
+}
+
 void run_convert(const ConvertOptions& o) {
   // everything the user typed, checked first
   validate(o);
-  // a labelmap: one label is the tissue (the HU window N:N); resampling would blend labels
-  if (o.label >= 0 && !o.threshold.empty() && lower(trim(o.threshold)) != "tissue")
-    throw CLI::ValidationError("--label", "give --label N (a labelmap) or --threshold (HU), not both");
-  if (o.label >= 0 && o.voxel_mm > 0)
+  // a labelmap: one label is the tissue (the HU window N:N); a segmentation: one segment (its
+  // voxels 1, the others 0); resampling would blend labels
+  const LabelArgument label_arg = parse_label(o.label);
+  const bool segmentation = is_segmentation_path(o.input);
+  const bool labels = label_arg.given || segmentation;
+  if (labels && !o.threshold.empty() && lower(trim(o.threshold)) != "tissue")
+    throw CLI::ValidationError("--label", segmentation ? "a segmentation's segment is the tissue: leave out --threshold"
+                                                       : "give --label N (a labelmap) or --threshold (HU), not both");
+  if (labels && o.voxel_mm > 0)
     throw CLI::ValidationError("--label", "a labelmap cannot be resampled (--voxel would blend its labels)");
+  if (label_arg.given && !label_arg.number && !segmentation)
+    throw CLI::ValidationError("--label", fmt::format("'{}' is a name: names are the segments of a 3D Slicer "
+                                                      "segmentation (.seg.nrrd); '{}' is a labelmap, give the "
+                                                      "label's number",
+                                                      label_arg.text, o.input));
+  if (labels && !o.hounsfield_table.empty())
+    throw CLI::ValidationError("--hounsfield-table", "a labelmap holds labels, not HU: leave out --hounsfield-table");
+  if (!(o.youngs_modulus_kpa > 0) || !std::isfinite(o.youngs_modulus_kpa))
+    throw CLI::ValidationError("--youngs-modulus-kpa",
+                               fmt::format("{} kPa: the modulus must be above 0", o.youngs_modulus_kpa));
+  SceneMaterial material;
+  material.base.youngs_modulus_kpa = o.youngs_modulus_kpa;
+  if (!o.hounsfield_table.empty()) material.hounsfield = parse_hounsfield_table(o.hounsfield_table);
   PrepareOptions prep;
   if (!o.threshold.empty()) prep.range = parse_threshold(o.threshold);
-  if (o.label >= 0) prep.range = HuRange{double(o.label), double(o.label)};
   prep.largest_component = o.largest_component;
   prep.fill_holes = o.fill_holes;
   prep.crop = !o.no_crop;
@@ -178,11 +303,27 @@ void run_convert(const ConvertOptions& o) {
   const bool talk = !o.quiet;
   if (o.quiet) log::set_level(std::max(log::level(), log::Level::warn));  // the readers' notes and progress too
 
-  // read the volume
+  // read the volume; a segmentation gives its segment's voxels (1) and the rest (0)
   Progress reading("reading " + fs::path(o.input).filename().string(), talk);
-  const Volume volume = read_volume(o.input, read);
+  Volume volume;
+  int label = -1;            // the label value that is the tissue; -1: HU
+  std::string segment_name;  // a segmentation's segment
+  if (segmentation) {
+    const Segmentation seg = read_segmentation(o.input);
+    const Segment& chosen = choose_segment(seg, label_arg, o.input);
+    volume = seg.mask(chosen);
+    label = chosen.label_value;
+    segment_name = chosen.name;
+    prep.range = HuRange{1.0, 1.0};
+  } else {
+    volume = read_volume(o.input, read);
+    if (label_arg.number) {
+      label = *label_arg.number;
+      prep.range = HuRange{double(label), double(label)};
+    }
+  }
   reading.done();
-  if (o.label >= 0) check_label(volume, o.label, o.input);
+  if (!segmentation && label >= 0) check_label(volume, label, o.input);
 
   // threshold, clean up, crop, resample
   PrepareReport prepared;
@@ -220,14 +361,49 @@ void run_convert(const ConvertOptions& o) {
     surfacing.done();
   }
 
+  // per element, for ParaView: the modulus a simulation would give it (constant, or from the
+  // HU table averaged over its voxels) and, for a CT volume, its mean HU (a lesion shows)
+  ElementArrays element_arrays;
+  {
+    const MaterialField field = material_field(model, material, &volume);
+    element_arrays.emplace_back("youngs_modulus_kpa",
+                                field.youngs_modulus_kpa.empty()
+                                    ? std::vector<double>(std::size_t(model.num_elements()), o.youngs_modulus_kpa)
+                                    : field.youngs_modulus_kpa);
+    if (label < 0) element_arrays.emplace_back("mean_hu", element_mean_values(model, volume));
+  }
+
   // write every output under a temporary name, then move them all in place
   StagedOutputs outputs;
   {
     Progress saving("writing " + fs::path(o.output).filename().string(), talk);
-    save_model(model, outputs.stage(o.output));
+    save_model(model, outputs.stage(o.output), element_arrays);
     saving.done();
   }
   if (!o.surface.empty()) save_surface(surface, outputs.stage(o.surface));
+  if (!o.mask.empty()) {
+    // the grid's tissue voxels put back into the (resampled) input's grid, uncropped: the
+    // voxels that became the model, where Slicer shows the input
+    const GridGeometry& gg = grid.geometry();
+    GridGeometry full = gg;
+    full.dims = prepared.resampled_dims;
+    full.origin_mm = gg.index_to_lps(-prepared.crop_lo.cast<double>());
+    std::vector<std::uint8_t> mask(std::size_t(full.voxel_count()), 0);
+    for (int k = 0; k < gg.dims.z(); ++k)
+      for (int j = 0; j < gg.dims.y(); ++j)
+        for (int i = 0; i < gg.dims.x(); ++i) {
+          if (!grid.at(i, j, k)) continue;
+          const Eigen::Vector3i p = prepared.crop_lo + Eigen::Vector3i(i, j, k);
+          if ((p.array() < 0).any() || (p.array() >= full.dims.array()).any())
+            throw std::logic_error("a tissue voxel outside the input's grid");  // tissue comes from the input
+          mask[std::size_t(p.x() + std::int64_t(full.dims.x()) * (p.y() + std::int64_t(full.dims.y()) * p.z()))] = 1;
+        }
+    Segment s;
+    s.name = segment_name.empty() ? "voxelastic model" : segment_name;
+    s.id = "voxelastic_model";
+    s.color = Eigen::Vector3d(0.945098, 0.839216, 0.568627);  // Slicer's "tissue" colour
+    write_segmentation(full, mask, s, outputs.stage(o.mask));
+  }
   if (!o.stats.empty()) {
     nlohmann::json j;
     to_json(j, stats);
@@ -235,13 +411,18 @@ void run_convert(const ConvertOptions& o) {
     j["build_s"] = built.build_s;
     j["max_level"] = o.max_level >= 0 ? nlohmann::json(o.max_level) : nlohmann::json(nullptr);  // null: no limit
     const double hi = prep.range.hi;
-    j["label"] = o.label >= 0 ? nlohmann::json(o.label) : nlohmann::json(nullptr);  // null: HU, not a labelmap
+    j["label"] = label >= 0 ? nlohmann::json(label) : nlohmann::json(nullptr);  // null: HU, not a labelmap
+    j["segment"] = segment_name.empty() ? nlohmann::json(nullptr) : nlohmann::json(segment_name);
     j["threshold_hu"] = {prep.range.lo, std::isfinite(hi) ? nlohmann::json(hi) : nlohmann::json(nullptr)};
     nlohmann::json pj;
     prepared.to_json(pj);
     j["prepare"] = pj;
     const auto optional = [](const std::string& v) { return v.empty() ? nlohmann::json(nullptr) : nlohmann::json(v); };
-    j["outputs"] = {{"model", o.output}, {"stats", o.stats}, {"png", optional(o.png)}, {"surface", optional(o.surface)}};
+    j["outputs"] = {{"model", o.output},
+                    {"stats", o.stats},
+                    {"png", optional(o.png)},
+                    {"surface", optional(o.surface)},
+                    {"mask", optional(o.mask)}};
     if (!o.surface.empty())
       j["surface"] = {{"method", to_string(surface.method)}, {"vertices", surface.num_vertices()}, {"triangles", surface.num_triangles()}};
     j["voxelastic_version"] = vx::kVersion;
@@ -250,8 +431,10 @@ void run_convert(const ConvertOptions& o) {
   if (!o.png.empty()) {
     Progress drawing("drawing " + fs::path(o.png).filename().string(), talk);
     RenderSettings r;
-    r.title = o.label >= 0 ? fmt::format("{}: label {}", fs::path(o.input).filename().string(), o.label)
-                           : fmt::format("{}: tissue HU {}", fs::path(o.input).filename().string(), hu_window(prep.range));
+    r.title = !segment_name.empty() ? fmt::format("{}: segment {}", fs::path(o.input).filename().string(), segment_name)
+              : label >= 0
+                  ? fmt::format("{}: label {}", fs::path(o.input).filename().string(), label)
+                  : fmt::format("{}: tissue HU {}", fs::path(o.input).filename().string(), hu_window(prep.range));
     render_model_png(model, outputs.stage(o.png), r);
     drawing.done();
   }
@@ -259,16 +442,19 @@ void run_convert(const ConvertOptions& o) {
 
   if (!talk) return;
   fmt::print("source:         {}\n", o.input);
-  if (o.label >= 0)
-    fmt::print("label:          {}\n", o.label);
+  if (!segment_name.empty())
+    fmt::print("segment:        {} (label {})\n", segment_name, label);
+  else if (label >= 0)
+    fmt::print("label:          {}\n", label);
   else
     fmt::print("threshold:      HU {}\n", hu_window(prep.range));
-  fmt::print("{}\n", prepared.summary());
+  // each figure once: the tissue count is the model's (stats), the build time the progress line's
+  fmt::print("{}\n", prepared.summary(false));
   fmt::print("{}\n", summary(stats));
-  fmt::print("build time:     {:.3f} s\n", built.build_s);
   fmt::print("wrote:          {}", o.output);
   if (!o.stats.empty()) fmt::print(", {}", o.stats);
   if (!o.png.empty()) fmt::print(", {}", o.png);
+  if (!o.mask.empty()) fmt::print(", {}", o.mask);
   if (!o.surface.empty())
     fmt::print(", {} ({} surface: {} vertices, {} triangles)", o.surface, to_string(surface.method), surface.num_vertices(),
                surface.num_triangles());
@@ -284,7 +470,8 @@ std::string slicer_xml() {
   <category>Simulation.voxelastic</category>
   <title>voxelastic convert</title>
   <description><![CDATA[Converts a CT volume into a gradational-resolution elastic model (.vtu, LPS mm) for soft-tissue simulation: threshold the HU, clean up, build the elements (level 0 at the surface, larger inside), save.]]></description>
-  <version>)") + vx::kVersion + R"(</version>
+  <version>)") +
+         vx::kVersion + R"(</version>
   <documentation-url></documentation-url>
   <license>BSD-3-Clause</license>
   <contributor>The voxelastic authors</contributor>
@@ -320,6 +507,13 @@ std::string slicer_xml() {
       <longflag>stats</longflag>
       <channel>output</channel>
     </file>
+    <image type="label" fileExtensions=".seg.nrrd">
+      <name>mask</name>
+      <label>Model voxels</label>
+      <description><![CDATA[Also write the voxels that became the model, on the input's grid (.seg.nrrd: a segmentation of one segment; Slicer's module panel loads it as a labelmap).]]></description>
+      <longflag>mask</longflag>
+      <channel>output</channel>
+    </image>
     <file fileExtensions=".png">
       <name>png</name>
       <label>Picture</label>
@@ -338,18 +532,32 @@ std::string slicer_xml() {
       <longflag>threshold</longflag>
       <default>tissue</default>
     </string>
-    <integer>
+    <string>
       <name>label</name>
-      <label>Label (labelmap input)</label>
-      <description><![CDATA[The input is a labelmap: the voxels of this label are the tissue, instead of the HU window. -1: not a labelmap.]]></description>
+      <label>Label or segment (labelmap input)</label>
+      <description><![CDATA[The input is a labelmap: the voxels of this label number are the tissue, instead of the HU window; or a segmentation (.seg.nrrd): the segment of this name or label number. Empty: not a labelmap (a segmentation of one segment needs none).]]></description>
       <longflag>label</longflag>
-      <default>-1</default>
+      <default></default>
+    </string>
+    <double>
+      <name>youngs_modulus_kpa</name>
+      <label>Young's modulus (kPa)</label>
+      <description><![CDATA[Written per element to the model (cell data youngs_modulus_kpa) when no Hounsfield table is given, kPa.]]></description>
+      <longflag>youngs-modulus-kpa</longflag>
+      <default>5</default>
       <constraints>
-        <minimum>-1</minimum>
-        <maximum>65535</maximum>
-        <step>1</step>
+        <minimum>0.001</minimum>
+        <maximum>1000000</maximum>
+        <step>0.1</step>
       </constraints>
-    </integer>
+    </double>
+    <string>
+      <name>hounsfield_table</name>
+      <label>Hounsfield table</label>
+      <description><![CDATA[HU:KPA,HU:KPA,...: each voxel's modulus from its HU (linear between rows), averaged over each element. Empty: the modulus above.]]></description>
+      <longflag>hounsfield-table</longflag>
+      <default></default>
+    </string>
     <boolean>
       <name>largest_component</name>
       <label>Largest component only</label>
@@ -466,9 +674,28 @@ void add_convert_command(CLI::App& app) {
                   "tissue HU window: LO (HU >= LO), LO:HI, or a preset name; default: HU >= -200")
       ->check(threshold_check());
   sub->add_option("--label", opts->label,
-                  "the input is a labelmap (or a segmentation's labelmap): the voxels of this label are the tissue, "
-                  "instead of an HU window; -1: not a labelmap (default)")
-      ->check(CLI::Range(-1, std::numeric_limits<int>::max()));
+                  "N|NAME: the input is a labelmap and the voxels of label N are the tissue, instead of an HU "
+                  "window; or a 3D Slicer segmentation (.seg.nrrd) and the segment NAME (or of label N) is (a "
+                  "segmentation of one segment needs no --label); -1: not a labelmap (default)")
+      ->check(CLI::Validator(
+          [](std::string& text) {
+            const std::string t = trim(text);
+            if (t.empty()) return std::string("--label needs a label number or a segment's name");
+            if (t == "-1" || t[0] != '-') return std::string();
+            return "'" + text + "' is not a label (a number from 0, or a segment's name)";
+          },
+          "N|NAME"));
+  sub->add_option("--mask", opts->mask,
+                  "write the voxels that became the model as a 3D Slicer segmentation (.seg.nrrd, one segment, "
+                  "on the input's grid (resampled with --voxel) in the same place, LPS)")
+      ->check(extension_check(".seg.nrrd", "mask (a 3D Slicer segmentation)"));
+  sub->add_option("--youngs-modulus-kpa", opts->youngs_modulus_kpa,
+                  fmt::format("Young's modulus written per element to the model file (cell data youngs_modulus_kpa), "
+                              "kPa; default {:g}, the scenes' default",
+                              Material{}.youngs_modulus_kpa));
+  sub->add_option("--hounsfield-table", opts->hounsfield_table,
+                  "HU:KPA,HU:KPA,...: the modulus of each voxel from its HU instead (linear between rows, constant "
+                  "beyond the ends, as a scene's hounsfield_table), averaged over each element");
   sub->add_option("--resolution", opts->layout,
                   "element layout: gradational (the paper's shells), uniform (all 2x2x2-voxel elements), "
                   "voxel (one element per voxel, the fine reference)")

@@ -81,7 +81,48 @@ class StopSignals {
 std::string duration_text(double s) {
   if (s >= 3600) return fmt::format("{:.0f} h {:.0f} min", std::floor(s / 3600), std::fmod(s, 3600) / 60);
   if (s >= 60) return fmt::format("{:.0f} min", s / 60);
-  return fmt::format("{:.0f} s", s);
+  if (s >= 10) return fmt::format("{:.0f} s", s);
+  return fmt::format("{:.2g} s", s);
+}
+
+/// A step this many times below the stable step (or the one "auto" picks) is far below it.
+constexpr double kFarBelowStableStep = 100.0;
+
+/// Wall time of one step of `prepared`'s run, s: a scratch simulation's steps after its first
+/// (which sets up an implicit solver), up to 50 of them or half a second.
+double measure_step_s(const PreparedScene& prepared) {
+  Simulation trial(prepared.physics, prepared.settings);
+  if (trial.step() != StepStatus::ok) return 0.0;
+  const auto t0 = std::chrono::steady_clock::now();
+  int n = 0;
+  double elapsed = 0.0;
+  while (n < 50 && elapsed < 0.5) {
+    if (trial.step() != StepStatus::ok) break;
+    ++n;
+    elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  }
+  return n > 0 ? elapsed / n : 0.0;
+}
+
+/// Before the run: a step far below the stable one (1e-9 s: millions of steps for what "auto"
+/// does in thousands) is said, with the run time it means, measured on trial steps.
+void warn_if_step_far_below_stable(const Scene& scene, const PreparedScene& prepared, double dt, std::int64_t steps) {
+  const double stable = prepared.dt_stable_estimate_s;
+  const bool explicit_stable = stable > 0 && std::isfinite(stable);
+  const double reference = explicit_stable ? stable : prepared.automatic_dt_s;
+  if (!(reference > 0) || dt * kFarBelowStableStep > reference || steps < 1000) return;
+  const double step_s = measure_step_s(prepared);
+  std::string better;
+  if (prepared.automatic_dt_s > dt) {
+    const double auto_steps = std::ceil(scene.duration_s / prepared.automatic_dt_s);
+    better = fmt::format("; \"dt_s\": \"auto\" ({:.3g} s) takes {:.0f} steps, about {}", prepared.automatic_dt_s,
+                         auto_steps, duration_text(auto_steps * step_s));
+  }
+  log::warn(
+      "integrator.dt_s {:.3g} s is {:.3g} times below the {} {:.3g} s: {} steps, about {} at {:.3g} ms per step "
+      "(measured on trial steps){}",
+      dt, reference / dt, explicit_stable ? "estimated stable step" : "step \"auto\" picks", reference, steps,
+      duration_text(double(steps) * step_s), 1e3 * step_s, better);
 }
 
 struct SimulateOptions {
@@ -129,6 +170,7 @@ void run_simulate(const SimulateOptions& o) {
   Simulation sim(prepared.physics, prepared.settings);
   const double dt = sim.dt_s();
   const std::int64_t steps = std::max<std::int64_t>(1, std::int64_t(std::ceil(scene.duration_s / dt - 1e-9)));
+  warn_if_step_far_below_stable(scene, prepared, dt, steps);  // -q or not: a warning
   if (!o.quiet)
     fmt::print("simulating {:g} s: {} steps of {:.4g} s ({}), {} probe(s){}{}\n", scene.duration_s, steps, dt,
                to_string(scene.integrator), sim.num_probes(), scene.workspace.enabled ? ", walls" : "",
@@ -213,11 +255,12 @@ void run_simulate(const SimulateOptions& o) {
   const ForceRecorder* recorder = outputs.forces();
   const bool stable = !sim.failed() && sim.state().positions.allFinite();
   if (!o.quiet)
-    fmt::print("{} steps, {:.4g} s simulated in {:.3g} s (x{:.3g} real time); max force {:.4g} N; skipped: {} narrow-phase "
-               "tests, {} device shapings, {} surface updates -> {}\n",
-               c.steps, sim.time_s(), wall_s, wall_s > 0 ? sim.time_s() / wall_s : 0.0,
-               recorder ? recorder->max_force_n() : 0.0, c.contact.narrow_tests_skipped, c.device_shaping_skipped,
-               c.surface_updates_skipped, dir.string());
+    fmt::print("{} steps, {:.4g} s simulated in {:.3g} s (x{:.3g} real time); max force {:.4g} N -> {}\n", c.steps,
+               sim.time_s(), wall_s, wall_s > 0 ? sim.time_s() / wall_s : 0.0, recorder ? recorder->max_force_n() : 0.0,
+               dir.string());
+  // the work the run left out, for who tunes it (-v; summary.json's "skipped" always)
+  log::debug("skipped: {} narrow-phase tests, {} device shapings, {} surface updates", c.contact.narrow_tests_skipped,
+             c.device_shaping_skipped, c.surface_updates_skipped);
   if (!stable)
     throw Error(fmt::format("the simulation stopped at t = {:.6g} s: {}; the outputs up to then are in {}", sim.time_s(),
                             sim.state().message, dir.string()));

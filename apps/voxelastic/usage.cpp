@@ -99,8 +99,10 @@ CLI::Validator phantom_name_check() {
 CLI::Validator extension_check(const std::string& ext, const std::string& what) {
   return CLI::Validator(
       [ext, what](std::string& path) {
+        // by the name's ending, so a double extension (".seg.nrrd") is checked whole
         const std::filesystem::path p(path);
-        if (p.extension() == ext) return std::string();
+        const std::string name = p.filename().string();
+        if (name.size() > ext.size() && name.ends_with(ext)) return std::string();
         const std::string stem = p.stem().string().empty() ? "out" : p.stem().string();
         return fmt::format("'{}': the {} must be a {} file (for example {})", path, what, ext,
                            (p.parent_path() / (stem + ext)).string());

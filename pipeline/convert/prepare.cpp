@@ -260,6 +260,7 @@ VoxelGrid prepare_grid(const Volume& volume_in, const PrepareOptions& options, P
     volume = &resampled;
   }
   report.resampled_dims = volume->geometry.dims;
+  report.resampled_voxel_mm = options.voxel_mm;
 
   // threshold
   VoxelGrid grid = threshold(*volume, options.range);
@@ -325,25 +326,32 @@ VoxelGrid prepare_grid(const Volume& volume_in, const PrepareOptions& options, P
   return grid;
 }
 
-std::string PrepareReport::summary() const {
+std::string PrepareReport::summary(bool with_tissue) const {
   std::string s = fmt::format("input: {} voxels of {:.3g} x {:.3g} x {:.3g} mm\n", dims_text(input_dims),
                               input_spacing_mm.x(), input_spacing_mm.y(), input_spacing_mm.z());
-  if (resampled_dims != input_dims) s += fmt::format("resampled: {} voxels\n", dims_text(resampled_dims));
-  s += fmt::format("threshold: {} tissue voxels\n", thresholded_voxels);
+  if (resampled_dims != input_dims)
+    s += fmt::format("resampled: {} voxels of {:.3g} mm\n", dims_text(resampled_dims), resampled_voxel_mm);
+  if (with_tissue || thresholded_voxels != tissue_voxels)
+    s += fmt::format("threshold: {} tissue voxels\n", thresholded_voxels);
   if (components > 0)
     s += fmt::format("largest component: kept 1 of {} components, removed {} voxels\n", components, removed_voxels);
   if (filled_voxels > 0) s += fmt::format("holes filled: {} voxels\n", filled_voxels);
   const Eigen::Vector3i size = crop_hi - crop_lo;
   if (crop_lo != Eigen::Vector3i::Zero() || crop_hi != resampled_dims)
-    s += fmt::format("cropped: voxels [{}, {}) x [{}, {}) x [{}, {}) -> {} (1-voxel air margin{})\n", crop_lo.x(),
-                     crop_hi.x(), crop_lo.y(), crop_hi.y(), crop_lo.z(), crop_hi.z(), dims_text(size),
+    s += fmt::format("cropped: voxels [{}, {}) x [{}, {}) x [{}, {}){} (1-voxel air margin{})\n", crop_lo.x(),
+                     crop_hi.x(), crop_lo.y(), crop_hi.y(), crop_lo.z(), crop_hi.z(),
+                     with_tissue ? " -> " + dims_text(size) : std::string(),
                      lattice_shift.isZero() ? "" : fmt::format(", {} more before, per axis", dims_text(lattice_shift)));
+  // the chosen model's counts are the model's own (printed with it): here only what the choice saved
   if (entries_unshifted > 0)
-    s += fmt::format("lattice origin: {} elements and {} vertex entries ({:+.1f} %) instead of {} and {}; chosen in "
-                     "{:.2g} s\n",
-                     elements_chosen, entries_chosen, 100.0 * (double(entries_chosen) / double(entries_unshifted) - 1.0),
-                     elements_unshifted, entries_unshifted, lattice_s);
-  s += fmt::format("tissue: {} voxels", tissue_voxels);
+    s += fmt::format(
+        "lattice origin: {:+.1f} % vertex entries and {:+.1f} % elements against the 1-voxel margin "
+        "({} and {} there); chosen in {:.2g} s\n",
+        100.0 * (double(entries_chosen) / double(entries_unshifted) - 1.0),
+        100.0 * (double(elements_chosen) / double(elements_unshifted) - 1.0), entries_unshifted, elements_unshifted,
+        lattice_s);
+  if (with_tissue) s += fmt::format("tissue: {} voxels\n", tissue_voxels);
+  if (!s.empty() && s.back() == '\n') s.pop_back();
   return s;
 }
 

@@ -32,6 +32,7 @@ struct PrepareReport {
   Eigen::Vector3i input_dims{0, 0, 0};
   Eigen::Vector3d input_spacing_mm{0, 0, 0};
   Eigen::Vector3i resampled_dims{0, 0, 0};   ///< equal to input_dims without resampling
+  double resampled_voxel_mm{0.0};            ///< the resampled voxels' size (0: not resampled)
   std::int64_t thresholded_voxels{0};        ///< tissue voxels right after thresholding
   int components{0};                         ///< tissue components found (when asked)
   std::int64_t removed_voxels{0};            ///< dropped with the smaller components
@@ -45,8 +46,10 @@ struct PrepareReport {
   std::int64_t elements_chosen{0};
   double lattice_s{0.0};                     ///< wall time spent choosing, s
   std::int64_t tissue_voxels{0};             ///< final count
-  /// One human-readable line per step, for the console.
-  [[nodiscard]] std::string summary() const;
+  /// One human-readable line per step, for the console (no trailing newline); the final tissue
+  /// count last unless `with_tissue` is false (a caller that prints the model's statistics,
+  /// which hold it, says it once).
+  [[nodiscard]] std::string summary(bool with_tissue = true) const;
   /// The same as JSON (for the stats file).
   void to_json(nlohmann::json& j) const;
 };

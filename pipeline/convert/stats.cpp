@@ -56,22 +56,21 @@ std::string summary(const ModelStats& s) {
     levels += fmt::format("{}level {}: {} ({:.3g} mm)", l ? ", " : "", l, s.elements_per_level[l], s.element_edge_mm[l]);
   std::string out;
   if (s.dimensions == 2) {
-    out += fmt::format("model:          2D (slice, plane stress) {} resolution, {} x {} pixels of {:.3g} x {:.3g} mm, "
-                       "{:.3g} mm thick\n",
-                       s.layout, s.grid.x(), s.grid.y(), s.spacing_mm.x(), s.spacing_mm.y(), s.spacing_mm.z());
+    // the pixel size is the input's (or the resampled one), printed with it
+    out += fmt::format("model:          2D (slice, plane stress) {} resolution, {} x {} pixels\n", s.layout, s.grid.x(),
+                       s.grid.y());
     out += fmt::format("tissue:         {} pixels, {:.1f} mm^2 ({:.1f} mm^3 of slice)\n", s.voxels,
                        s.volume_mm3 / s.spacing_mm.z(), s.volume_mm3);
   } else {
-    out += fmt::format("model:          {} resolution, grid {} x {} x {} voxels of {:.3g} x {:.3g} x {:.3g} mm\n",
-                       s.layout, s.grid.x(), s.grid.y(), s.grid.z(), s.spacing_mm.x(), s.spacing_mm.y(),
-                       s.spacing_mm.z());
+    out += fmt::format("model:          {} resolution, grid {} x {} x {} voxels\n", s.layout, s.grid.x(), s.grid.y(),
+                       s.grid.z());
     out += fmt::format("tissue:         {} voxels, {:.1f} mm^3 ({:.2f} ml)\n", s.voxels, s.volume_mm3, s.volume_mm3 * 1e-3);
   }
   out += fmt::format("elements:       {} ({})\n", s.elements, levels);
   out += fmt::format("nodes:          {} ({} on the surface)\n", s.nodes, s.surface_nodes);
-  out += fmt::format("vertex entries: {} ({}-level model: {} x {} = {}; reduction {:.1f}x)\n", s.vertex_entries,
-                     s.dimensions == 2 ? "pixel" : "voxel", s.dimensions == 2 ? 4 : 8, s.voxels,
-                     s.voxel_model_vertex_entries, s.reduction);
+  out += fmt::format("vertex entries: {} ({}-level model: {}, {} per {}; reduction {:.1f}x)\n", s.vertex_entries,
+                     s.dimensions == 2 ? "pixel" : "voxel", s.voxel_model_vertex_entries, s.dimensions == 2 ? 4 : 8,
+                     s.dimensions == 2 ? "pixel" : "voxel", s.reduction);
   const Eigen::Vector3d size = s.bounds_max_mm - s.bounds_min_mm;
   out += fmt::format("extent:         {:.1f} x {:.1f} x {:.1f} mm (LPS box [{:.1f}, {:.1f}] x [{:.1f}, {:.1f}] x [{:.1f}, {:.1f}])",
                      size.x(), size.y(), size.z(), s.bounds_min_mm.x(), s.bounds_max_mm.x(), s.bounds_min_mm.y(),

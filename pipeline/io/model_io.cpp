@@ -1,5 +1,6 @@
 #include "io/model_io.h"
 
+#include <fmt/format.h>
 #include <vtkCellArray.h>
 #include <vtkCellData.h>
 #include <vtkDataArray.h>
@@ -133,12 +134,20 @@ int as_int(double x, const char* name, const std::string& where) {
 
 }  // namespace
 
-void save_model(const Model& model, const fs::path& path) {
+void save_model(const Model& model, const fs::path& path, const ElementArrays& element_arrays) {
   if (path.extension() != ".vtu")
     throw Error("cannot save the model as '" + path.string() + "': use a .vtu file name (VTK XML unstructured grid)");
   if (const std::string problem = model.validate(); !problem.empty())
     throw Error("cannot save the model to '" + path.string() + "': it is inconsistent: " + problem);
   const vtkSmartPointer<vtkUnstructuredGrid> ug = to_vtk(model);
+  for (const auto& [name, values] : element_arrays) {
+    if (std::int64_t(values.size()) != model.num_elements())
+      throw Error(fmt::format("cannot save the model to '{}': the element array '{}' has {} values for {} elements",
+                              path.string(), name, values.size(), model.num_elements()));
+    auto a = make_array<vtkDoubleArray>(name.c_str(), 1, model.num_elements());
+    for (int e = 0; e < model.num_elements(); ++e) a->SetValue(e, values[std::size_t(e)]);
+    ug->GetCellData()->AddArray(a);
+  }
   write_atomically(path, [&](const fs::path& tmp) {
     const VtkMessageCapture vtk_messages;
     vtkNew<vtkXMLUnstructuredGridWriter> writer;

@@ -9,13 +9,21 @@
 /// it are volume models).
 
 #include <filesystem>
+#include <string>
+#include <utility>
+#include <vector>
 
 #include "model/model.h"
 
 namespace vx {
 
-/// Writes the model atomically; throws vx::Error on failure.
-void save_model(const Model& model, const std::filesystem::path& path);
+/// More per-element values for the file's cell data, each named with its unit
+/// (`youngs_modulus_kpa`, `mean_hu`): one value per element. load_model ignores them.
+using ElementArrays = std::vector<std::pair<std::string, std::vector<double>>>;
+
+/// Writes the model atomically, with `element_arrays` as more cell data; throws vx::Error on
+/// failure (an array whose length is not the element count included).
+void save_model(const Model& model, const std::filesystem::path& path, const ElementArrays& element_arrays = {});
 
 /// Loads a model written by save_model; throws vx::Error (what is missing) for other files.
 [[nodiscard]] Model load_model(const std::filesystem::path& path);

@@ -86,10 +86,25 @@ std::vector<std::string> nrrd_vector_list(const std::string& s) {
   return out;
 }
 
+/// A key/value pair's value with the format's escapes undone ("\\n" a line break, "\\\\" a backslash).
+std::string unescape_nrrd_value(const std::string& v) {
+  std::string out;
+  for (std::size_t i = 0; i < v.size(); ++i) {
+    if (v[i] == '\\' && i + 1 < v.size() && (v[i + 1] == 'n' || v[i + 1] == '\\')) {
+      out += v[i + 1] == 'n' ? '\n' : '\\';
+      ++i;
+    } else {
+      out += v[i];
+    }
+  }
+  return out;
+}
+
 /// A NRRD header: its fields (names in lower case) and where the attached data starts.
 struct NrrdHeader {
   fs::path path;                              ///< the header file, for messages
   HeaderFields fields;                        ///< field -> value
+  std::map<std::string, std::string> key_values;  ///< 'key:=value' pairs, keys as written
   std::size_t data_start{std::string::npos};  ///< byte after the blank line ending the header (npos: none)
 
   /// The value of a field the format requires; throws vx::Error when it is missing.
@@ -122,7 +137,10 @@ NrrdHeader parse_nrrd_header(const fs::path& path) {
     }
     pos = last ? std::string::npos : nl;
     if (line[0] == '#') continue;
-    if (line.find(":=") != std::string::npos) continue;  // key/value pairs: not needed
+    if (const auto kv = line.find(":="); kv != std::string::npos) {  // key/value pairs (Slicer's Segment<k>_...)
+      h.key_values[line.substr(0, kv)] = unescape_nrrd_value(line.substr(kv + 2));
+      continue;
+    }
     const auto colon = line.find(": ");
     if (colon == std::string::npos)
       throw Error(fmt::format("{}: NRRD header line '{}' is not 'field: value' (damaged header?)", quoted(path),
@@ -135,11 +153,14 @@ NrrdHeader parse_nrrd_header(const fs::path& path) {
 /// The axes of the file: their sizes, which of them are spatial, and their directions.
 struct NrrdAxes {
   std::vector<long long> sizes;  ///< per axis of the file
+  long long layers{1};           ///< values per voxel along a first, non-spatial axis (when allowed)
   std::vector<int> spatial;      ///< the spatial axes (2 or 3), in file order
   std::vector<std::optional<std::vector<double>>> directions;  ///< per axis: 'space directions' (file space)
 };
 
-NrrdAxes read_axes(const NrrdHeader& h) {
+/// `allow_layers`: a first, non-spatial axis of any size is the layer axis (Slicer's layered
+/// segmentation: kinds "list domain domain domain"); otherwise a non-spatial axis must hold one value.
+NrrdAxes read_axes(const NrrdHeader& h, bool allow_layers = false) {
   const fs::path& path = h.path;
   NrrdAxes out;
   const int ndim = std::atoi(h.need("dimension").c_str());
@@ -181,6 +202,8 @@ NrrdAxes read_axes(const NrrdHeader& h) {
   for (int a = 0; a < ndim; ++a) {
     if (spatial[std::size_t(a)]) {
       out.spatial.push_back(a);
+    } else if (allow_layers && a == 0) {
+      out.layers = out.sizes[0];
     } else if (out.sizes[std::size_t(a)] > 1) {
       throw Error(fmt::format("{}: NRRD axis {} holds {} values per voxel (vector, colour or time data); "
                               "voxelastic needs one value (HU) per voxel",
@@ -315,8 +338,10 @@ std::vector<float> read_ascii_values(const fs::path& data_path, std::uintmax_t o
   return hu;
 }
 
-/// The voxels of a `dims` grid of `type`, in any of the encodings.
-std::vector<float> read_voxels(const NrrdHeader& h, ScalarType type, const Eigen::Vector3i& dims) {
+/// The voxels of a `dims` grid of `type` (`layers` values per voxel, the layer fastest), in any
+/// of the encodings.
+std::vector<float> read_voxels(const NrrdHeader& h, ScalarType type, const Eigen::Vector3i& dims,
+                               long long layers = 1) {
   std::string encoding = lower(h.fields.get({"encoding"}).value_or("raw"));
   if (encoding == "gz") encoding = "gzip";
   if (encoding == "txt" || encoding == "text") encoding = "ascii";
@@ -325,7 +350,7 @@ std::vector<float> read_voxels(const NrrdHeader& h, ScalarType type, const Eigen
                             "of those (e.g. 'unu save -e gzip')",
                             quoted(h.path), encoding));
   const std::size_t bytes = std::size_t(scalar_bytes(type));
-  const std::size_t n = checked_voxel_count(dims, h.path);
+  const std::size_t n = checked_voxel_count(Eigen::Vector3i(dims.x(), dims.y(), int(dims.z() * layers)), h.path);
   const bool big = lower(h.fields.get({"endian"}).value_or("little")) == "big";
   const bool swap = bytes > 1 && big != (std::endian::native == std::endian::big);
   auto [data_path, offset] = locate_data(h);
@@ -373,6 +398,50 @@ Volume read_nrrd(const fs::path& path) {
   v.hu = read_voxels(h, *type, grid.dims);
   v.geometry = geometry_from_affine(grid.dims, grid.affine, grid.origin_mm);
   return v;
+}
+
+NrrdLayers read_nrrd_layers(const fs::path& path) {
+  const NrrdHeader h = parse_nrrd_header(path);
+  const auto type = nrrd_type(h.need("type"));
+  if (!type)
+    throw Error(fmt::format("{}: NRRD type '{}' is not a scalar type voxelastic reads", quoted(path), h.need("type")));
+  const NrrdAxes axes = read_axes(h, true);
+  if (axes.layers > kMaxNrrdLayers)
+    throw Error(fmt::format("{}: NRRD first axis of {} values is not a segmentation's layers (at most {})",
+                            quoted(path), axes.layers, kMaxNrrdLayers));
+  const NrrdGrid grid = read_grid(h, axes);
+  const std::vector<float> values = read_voxels(h, *type, grid.dims, axes.layers);
+  NrrdLayers out;
+  out.geometry = geometry_from_affine(grid.dims, grid.affine, grid.origin_mm);
+  out.key_values = h.key_values;
+  // the layer is the fastest axis of the file: one volume per layer
+  const std::size_t n = std::size_t(out.geometry.voxel_count()), layers = std::size_t(axes.layers);
+  out.layers.assign(layers, std::vector<float>(n));
+  for (std::size_t i = 0; i < n; ++i)
+    for (std::size_t l = 0; l < layers; ++l) out.layers[l][i] = values[i * layers + l];
+  return out;
+}
+
+void write_nrrd_labels(const GridGeometry& g, const std::vector<std::uint8_t>& labels,
+                       const std::vector<std::pair<std::string, std::string>>& key_values, const fs::path& tmp) {
+  const std::vector<unsigned char> packed = deflate_bytes(labels.data(), labels.size(), true);
+  const Eigen::Matrix3d A = g.direction * g.spacing_mm.asDiagonal();
+  auto vec = [](const Eigen::Vector3d& x) { return fmt::format("({})", format_numbers({x[0], x[1], x[2]}, ",")); };
+  std::string header = "NRRD0004\n# written by voxelastic; labels, positions in LPS mm\n";
+  header += "type: unsigned char\ndimension: 3\nspace: left-posterior-superior\n";
+  header += fmt::format("sizes: {} {} {}\n", g.dims.x(), g.dims.y(), g.dims.z());
+  header += "space directions: " + vec(A.col(0)) + " " + vec(A.col(1)) + " " + vec(A.col(2)) + "\n";
+  header += "kinds: domain domain domain\nencoding: gzip\n";
+  header += "space units: \"mm\" \"mm\" \"mm\"\n";
+  header += "space origin: " + vec(g.origin_mm) + "\n";
+  for (const auto& [key, value] : key_values) {
+    std::string escaped;
+    for (char c : value)
+      escaped += c == '\n' ? std::string("\\n") : c == '\\' ? std::string("\\\\") : std::string(1, c);
+    header += key + ":=" + escaped + "\n";
+  }
+  header += "\n";
+  write_header_and_data(tmp, header, packed);
 }
 
 void write_nrrd(const Volume& v, const std::filesystem::path& tmp) {

@@ -69,6 +69,20 @@ struct NiftiAffine {
                                               const Eigen::Vector3i& dims);
 [[nodiscard]] Volume read_nrrd(const std::filesystem::path& path);  ///< .nrrd and .nhdr
 void write_nrrd(const Volume& volume, const std::filesystem::path& tmp);
+/// A NRRD file whose first axis may be a list of layers (3D Slicer's layered segmentation,
+/// "kinds: list domain domain domain"), with its `key:=value` pairs.
+struct NrrdLayers {
+  GridGeometry geometry;                   ///< the spatial axes, LPS mm
+  std::vector<std::vector<float>> layers;  ///< per layer: voxel_count() values, x fastest (one layer for a 3D file)
+  std::map<std::string, std::string>
+      key_values;  ///< 'key:=value' pairs of the header, keys as written, values unescaped
+};
+inline constexpr long long kMaxNrrdLayers = 1000;  ///< more values per voxel are not a segmentation's layers
+[[nodiscard]] NrrdLayers read_nrrd_layers(const std::filesystem::path& path);
+/// Writes a 3D unsigned-char labelmap (LPS, gzip) with `key_values` as 'key:=value' lines.
+void write_nrrd_labels(const GridGeometry& geometry, const std::vector<std::uint8_t>& labels,
+                       const std::vector<std::pair<std::string, std::string>>& key_values,
+                       const std::filesystem::path& tmp);
 
 // ---------------------------------------------------------------------------------------
 // raw voxel data (raw_io.cpp)
@@ -141,6 +155,11 @@ inline const Eigen::Matrix3d kRasToLps = Eigen::Vector3d(-1, -1, 1).asDiagonal()
 [[nodiscard]] vtkSmartPointer<vtkDataArray> hu_array(const std::vector<float>& hu);
 /// Reverses the slice (k) order of `hu` in place.
 void reverse_slices(std::vector<float>& hu, const Eigen::Vector3i& dims);
+
+/// The checks every reader's result gets (read_volume, read_segmentation): voxels for the whole
+/// grid, positive finite spacing, finite origin, no NaN; a direction that is orthonormal up to
+/// the file's float precision made exactly so, a sheared one refused. Throws vx::Error naming `path`.
+void finish_volume(Volume& v, const std::filesystem::path& path);
 
 /// VTK's messages while one file is read or written: collected by vtk_messages.h (nothing
 /// reaches the console), reported as the file's errors and warnings.

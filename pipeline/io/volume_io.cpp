@@ -46,41 +46,6 @@ void check_volume_for_writing(const Volume& v, const fs::path& path) {
     throw Error("cannot write " + quoted(path) + ": the direction matrix is singular");
 }
 
-
-/// Common checks on what a reader produced; also cleans a direction matrix that is
-/// orthonormal up to the float precision of the file.
-void finish_volume(Volume& v, const fs::path& path) {
-  GridGeometry& g = v.geometry;
-  if ((g.dims.array() <= 0).any() || v.hu.empty())
-    throw Error(fmt::format("{} holds an empty volume ({}x{}x{} voxels); export the volume again", quoted(path),
-                            g.dims.x(), g.dims.y(), g.dims.z()));
-  if (std::int64_t(v.hu.size()) != g.voxel_count())
-    throw Error(fmt::format("{}: read {} voxel values for {}x{}x{} voxels (corrupt file?)", quoted(path),
-                            v.hu.size(), g.dims.x(), g.dims.y(), g.dims.z()));
-  if (!g.spacing_mm.allFinite() || (g.spacing_mm.array() <= 0).any())
-    throw Error(fmt::format("{}: voxel spacing ({}, {}, {}) mm is not positive; fix the header's spacing",
-                            quoted(path), g.spacing_mm.x(), g.spacing_mm.y(), g.spacing_mm.z()));
-  if (!g.origin_mm.allFinite() || !g.direction.allFinite())
-    throw Error(quoted(path) + ": the origin or orientation in the header is not a finite number");
-  if (!g.direction_is_orthonormal()) {
-    Eigen::JacobiSVD<Eigen::Matrix3d> svd(g.direction, Eigen::ComputeFullU | Eigen::ComputeFullV);
-    const Eigen::Matrix3d nearest = svd.matrixU() * svd.matrixV().transpose();
-    const double deviation = (nearest - g.direction).cwiseAbs().maxCoeff();
-    if (deviation > 1e-3)
-      throw Error(fmt::format(
-          "{}: the voxel axes are not perpendicular (sheared grid, deviation {:.3g}); voxelastic needs an "
-          "orthogonal grid: resample the volume (e.g. in 3D Slicer) and try again",
-          quoted(path), deviation));
-    g.direction = nearest;
-  }
-  std::size_t bad = 0;
-  for (float x : v.hu) bad += std::isfinite(x) ? 0 : 1;
-  if (bad)
-    throw Error(fmt::format("{} holds {} voxel values that are not finite numbers (NaN or infinity); replace "
-                            "them (e.g. by -1000 HU) and try again",
-                            quoted(path), bad));
-}
-
 /// "dir/" -> "dir"
 fs::path without_trailing_slash(const fs::path& path) {
   std::string s = path.string();
@@ -130,7 +95,7 @@ Volume read_volume(const fs::path& path, const ReadOptions& options) {
   else if (format == "mha") v = volume_formats::read_mha(path);
   else if (format == "nifti") v = volume_formats::read_nifti(path);
   else v = volume_formats::read_nrrd(path);
-  finish_volume(v, path);
+  volume_formats::finish_volume(v, path);
   return v;
 }
 

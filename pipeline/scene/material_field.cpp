@@ -84,6 +84,22 @@ MaterialField material_field(const Model& m, const SceneMaterial& mat, const Vol
   return field;
 }
 
+std::vector<double> element_mean_values(const Model& m, const Volume& volume) {
+  const int ne = m.num_elements();
+  std::vector<double> mean(std::size_t(ne), 0.0);
+#pragma omp parallel for schedule(dynamic, 64)
+  for (int e = 0; e < ne; ++e) {
+    double sum = 0;
+    std::int64_t n = 0;
+    for_each_voxel(m, e, [&](int i, int j, int k) {
+      sum += sample_hu(volume, m.grid.index_to_lps(Eigen::Vector3d(i, j, k)));
+      ++n;
+    });
+    mean[std::size_t(e)] = n > 0 ? sum / double(n) : 0.0;
+  }
+  return mean;
+}
+
 VoxelGrid grid_from_model(const Model& m) {
   VoxelGrid grid(m.grid);
   for (int e = 0; e < m.num_elements(); ++e)

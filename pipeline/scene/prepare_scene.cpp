@@ -156,6 +156,7 @@ void choose_integrator(const Scene& scene, const PrepareSceneOptions& options, c
                                     1e3 * std::min(automatic_dt_s, FastConfiguration::large_model_time_step_s),
                                     FastConfiguration::large_model_region_radius_mm));
   }
+  out.automatic_dt_s = automatic_dt_s;
   if (scene.dt_s > 0) {
     s.integrator.time_step_s = scene.dt_s;
   } else if (automatic_dt_s > 0) {

@@ -195,6 +195,7 @@ struct PreparedScene {
   Eigen::Vector3d bounds_min_mm{0, 0, 0};          ///< object's rest bounding box, LPS mm
   Eigen::Vector3d bounds_max_mm{0, 0, 0};
   double dt_stable_estimate_s{0.0};                ///< the integrator's estimated stable step
+  double automatic_dt_s{0.0};  ///< the step `"dt_s": "auto"` picks (0: none, explicit Euler undamped)
   int fixed_nodes{0};
   int heterogeneous_elements{0};                   ///< elements whose modulus differs from the base
   double min_modulus_kpa{0.0}, max_modulus_kpa{0.0};
@@ -230,6 +231,10 @@ inline constexpr double kRegionStiffeningWarnRel = 0.05;
 /// volume-averaged over each element's voxels (Voigt average). `hu` may be null when there is
 /// no table. Returns an empty field when neither applies.
 [[nodiscard]] MaterialField material_field(const Model& model, const SceneMaterial& material, const Volume* hu);
+
+/// Per element: the mean of `volume`'s values over the element's voxels (each voxel centre's
+/// nearest voxel of `volume`): the mean HU of a CT volume, as material_field averages the modulus.
+[[nodiscard]] std::vector<double> element_mean_values(const Model& model, const Volume& volume);
 
 /// The voxel grid covered by a model's elements (for a model loaded from a file).
 [[nodiscard]] VoxelGrid grid_from_model(const Model& model);

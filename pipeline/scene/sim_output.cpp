@@ -210,11 +210,48 @@ void write_xml(Data* data, const fs::path& path) {
 
 }  // namespace
 
+Eigen::Matrix<double, 6, Eigen::Dynamic> element_green_strain(const Model& m, const Eigen::Matrix3Xd& x) {
+  const int ne = m.num_elements();
+  Eigen::Matrix<double, 6, Eigen::Dynamic> strain(6, ne);
+  // a slice model's vertices span the plane only: F keeps the slice normal
+  const Eigen::Vector3d normal = m.grid.direction.col(2).normalized();
+#pragma omp parallel for schedule(static)
+  for (int e = 0; e < ne; ++e) {
+    const int a = m.element_offsets[std::size_t(e)], b = m.element_offsets[std::size_t(e) + 1];
+    Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+    for (int v = a; v < b; ++v) centroid += x.col(m.element_vertices[std::size_t(v)]);
+    centroid /= double(b - a);
+    // F = (sum dx dX^T) (sum dX dX^T)^-1, dX the rest offsets from the rest centroid
+    Eigen::Matrix3d xX = Eigen::Matrix3d::Zero(), XX = Eigen::Matrix3d::Zero();
+    for (int v = a; v < b; ++v) {
+      const Eigen::Vector3d dX = m.rest_offsets.col(v);
+      xX += (x.col(m.element_vertices[std::size_t(v)]) - centroid) * dX.transpose();
+      XX += dX * dX.transpose();
+    }
+    if (m.is_2d()) {
+      const double s = XX.trace();
+      xX += s * normal * normal.transpose();
+      XX += s * normal * normal.transpose();
+    }
+    const Eigen::Matrix3d F = xX * XX.inverse();
+    const Eigen::Matrix3d E = 0.5 * (F.transpose() * F - Eigen::Matrix3d::Identity());
+    strain.col(e) << E(0, 0), E(1, 1), E(2, 2), E(0, 1), E(1, 2), E(0, 2);
+  }
+  return strain;
+}
+
+double von_mises_equivalent_strain(const Eigen::Matrix<double, 6, 1>& s) {
+  const double mean = (s[0] + s[1] + s[2]) / 3.0;
+  const double dxx = s[0] - mean, dyy = s[1] - mean, dzz = s[2] - mean;
+  const double contraction = dxx * dxx + dyy * dyy + dzz * dzz + 2.0 * (s[3] * s[3] + s[4] * s[4] + s[5] * s[5]);
+  return std::sqrt(2.0 / 3.0 * contraction);
+}
+
 struct ModelFrameWriter::Impl {
   const Model* model{nullptr};
   vtkSmartPointer<vtkUnstructuredGrid> grid;
   vtkSmartPointer<vtkPoints> points;
-  vtkSmartPointer<vtkDoubleArray> displacement, velocity;
+  vtkSmartPointer<vtkDoubleArray> displacement, velocity, strain, strain_von_mises;
 };
 
 ModelFrameWriter::ModelFrameWriter(const Model& m) : impl_(std::make_unique<Impl>()) {
@@ -232,6 +269,17 @@ ModelFrameWriter::ModelFrameWriter(const Model& m) : impl_(std::make_unique<Impl
   level->SetNumberOfTuples(ne);
   for (int e = 0; e < ne; ++e) level->SetValue(e, m.element_level[std::size_t(e)]);
   ug->GetCellData()->AddArray(level);
+  impl_->strain = vtkSmartPointer<vtkDoubleArray>::New();
+  impl_->strain->SetName("green_strain");
+  impl_->strain->SetNumberOfComponents(6);
+  impl_->strain->SetNumberOfTuples(ne);
+  const char* components[6] = {"XX", "YY", "ZZ", "XY", "YZ", "XZ"};  // ParaView's symmetric-tensor order
+  for (int c = 0; c < 6; ++c) impl_->strain->SetComponentName(c, components[c]);
+  impl_->strain_von_mises = vtkSmartPointer<vtkDoubleArray>::New();
+  impl_->strain_von_mises->SetName("green_strain_von_mises");
+  impl_->strain_von_mises->SetNumberOfTuples(ne);
+  ug->GetCellData()->AddArray(impl_->strain);
+  ug->GetCellData()->AddArray(impl_->strain_von_mises);
   impl_->displacement = vectors("displacement_mm", nn);
   impl_->velocity = vectors("velocity_mm_s", nn);
   ug->GetPointData()->AddArray(impl_->displacement);
@@ -249,6 +297,14 @@ void ModelFrameWriter::write(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xd& 
     impl_->displacement->SetTuple(i, d.data());
     impl_->velocity->SetTuple(i, v.col(i).data());
   }
+  const Eigen::Matrix<double, 6, Eigen::Dynamic> strain = element_green_strain(m, x);
+  for (int e = 0; e < m.num_elements(); ++e) {
+    const Eigen::Matrix<double, 6, 1> s = strain.col(e);
+    impl_->strain->SetTuple(e, s.data());
+    impl_->strain_von_mises->SetValue(e, von_mises_equivalent_strain(s));
+  }
+  impl_->strain->Modified();
+  impl_->strain_von_mises->Modified();
   impl_->points->Modified();
   impl_->displacement->Modified();
   impl_->velocity->Modified();

@@ -100,9 +100,26 @@ class PvdSeries {
   std::vector<double> times_;
 };
 
+/// Per element: the Green-Lagrange strain E = (F^T F - I) / 2 of the deformation gradient F
+/// that maps the element's rest vertices onto `positions` best (least squares about the
+/// centroids; exact for an affine motion), 6 x elements as (xx, yy, zz, xy, yz, xz) in LPS
+/// axes, tensor components (not engineering shear). A slice model's F keeps the slice normal,
+/// so its strain is the in-plane strain (zz and the shears with z are 0 in the slice's frame).
+/// Rigid motions give 0; a uniform stretch by s along x gives xx = (s^2 - 1) / 2.
+[[nodiscard]] Eigen::Matrix<double, 6, Eigen::Dynamic> element_green_strain(const Model& model,
+                                                                            const Eigen::Matrix3Xd& positions);
+
+/// The von Mises equivalent of a strain given as (xx, yy, zz, xy, yz, xz): sqrt(2/3 e':e'), e'
+/// its deviatoric part; a uniaxial strain e with no lateral strain gives 2/3 e, an
+/// incompressible uniaxial one e.
+[[nodiscard]] double von_mises_equivalent_strain(const Eigen::Matrix<double, 6, 1>& strain);
+
 /// Writes deformed-model frames (.vtu): the model's polyhedron cells with points at the node
-/// positions and the point array `displacement_mm` (from rest), so ParaView's "Warp By Vector"
-/// (scale 0 for the rest shape) works. The topology is built once.
+/// positions and the point array `displacement_mm` (from rest): the points are already moved,
+/// so ParaView's "Warp By Vector" would move them twice (use it on the model file, convert's
+/// .vtu, instead). Cell data: `level`, `green_strain` (6 components, element_green_strain)
+/// and `green_strain_von_mises` (its von Mises equivalent, dimensionless). The topology is
+/// built once.
 class ModelFrameWriter {
  public:
   explicit ModelFrameWriter(const Model& model);

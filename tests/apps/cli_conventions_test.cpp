@@ -177,6 +177,38 @@ TEST_F(CliConventions, ExitCodesFollowTheSharedTable) {
   EXPECT_NE(f.err.find("1e+09 steps"), std::string::npos) << f.err;
 }
 
+// A step far below the stable one is said before the run, with the steps and the time they take
+// (measured on trial steps); the summary keeps the internal counters for -v and summary.json.
+TEST_F(CliConventions, AStepFarBelowTheStableStepIsSaidBeforeTheRun) {
+  nlohmann::json j = nlohmann::json::parse(box_scene(2e-6, 1.0));
+  j["integrator"] = {{"type", "symplectic_euler"}, {"dt_s", 1e-9}};
+  j["outputs"]["pvd"]["model"] = false;
+  std::ofstream(dir_ / "tiny.json") << j.dump();
+  RunResult r = run("simulate tiny.json --out out");
+  ASSERT_EQ(r.code, 0) << r.err;
+  const std::regex said(
+      R"re(integrator\.dt_s 1e-09 s is ([0-9.e+]+) times below the estimated stable step ([0-9.e+-]+) s: 2000 steps, about ([0-9.e+-]+) s at ([0-9.e+-]+) ms per step \(measured on trial steps\); "dt_s": "auto")re");
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(r.err, m, said)) << r.err;
+  const double ratio = std::stod(m[1]), stable_s = std::stod(m[2]), per_step_ms = std::stod(m[4]);
+  EXPECT_NEAR(ratio, stable_s / 1e-9, 0.01 * ratio);  // the two figures agree
+  EXPECT_GT(ratio, 100.0);
+  EXPECT_GT(per_step_ms, 0.0);
+  EXPECT_NEAR(std::stod(m[3]), 2000 * per_step_ms * 1e-3, 0.06 * std::stod(m[3]) + 0.01);  // steps x per step
+  const nlohmann::json s = nlohmann::json::parse(slurp(dir_ / "out" / "summary.json"));
+  // no internal counters in the user summary; they are in summary.json, and on the console with -v
+  EXPECT_EQ(r.out.find("narrow-phase"), std::string::npos) << r.out;
+  EXPECT_TRUE(s.at("skipped").contains("narrow_phase_tests"));
+  r = run("-v simulate tiny.json --out out2");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("skipped: "), std::string::npos) << r.err;
+  // the automatic step: nothing said
+  std::ofstream(dir_ / "auto.json") << box_scene(0.002, 0.001);
+  r = run("simulate auto.json --out out3");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(r.err.find("times below"), std::string::npos) << r.err;
+}
+
 TEST_F(CliConventions, QuietWorksBeforeAndAfterTheSubcommand) {
   vx::PhantomSettings ps;
   ps.name = "sphere";

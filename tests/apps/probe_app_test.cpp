@@ -150,7 +150,7 @@ TEST_F(ProbeApp, ScriptedPalpationFeelsTheLesion) {
   EXPECT_NE(r.out.find("rumble"), std::string::npos) << r.out;  // the virtual joystick's rumble sink
   std::string header;
   const std::vector<Row> rows = read_log(csv, &header);
-  EXPECT_EQ(header.rfind("wall_s,sim_s,probe,device_fx_N", 0), 0u) << header;
+  EXPECT_EQ(header.rfind("wall_s,sim_s,probe,device_fx_n", 0), 0u) << header;
   ASSERT_GT(rows.size(), 2000u);  // ~1 kHz for ~9.5 s, fewer on a loaded machine
   EXPECT_GE(rows.back().sim_s, 9.5);
   // pressed in and lifted off

@@ -247,6 +247,12 @@ TEST(PrepareGrid, ReportSummaryAndJson) {
   EXPECT_NE(s.find("holes filled: 8 voxels"), std::string::npos) << s;
   EXPECT_NE(s.find("-> 6 x 6 x 6"), std::string::npos) << s;
   EXPECT_NE(s.find("tissue: 64 voxels"), std::string::npos) << s;
+  // for a caller that prints the model's statistics (convert): the final count and the cropped
+  // size are the model's, said there; the threshold's count differs from it here, so it stays
+  const std::string lean = report.summary(false);
+  EXPECT_EQ(lean.find("tissue: 64"), std::string::npos) << lean;
+  EXPECT_EQ(lean.find("-> 6 x 6 x 6"), std::string::npos) << lean;
+  EXPECT_NE(lean.find("threshold: 57 tissue voxels"), std::string::npos) << lean;
   nlohmann::json j;
   report.to_json(j);
   EXPECT_EQ(j.at("tissue_voxels").get<int>(), 64);
