@@ -647,7 +647,8 @@ TEST(LocalContactModel, PublishedWholeAcrossThreads) {
   int in_contact = 0;
   for (const Seen& x : seen) {
     ASSERT_GT(x.update, last);  // never an older model after a newer one
-    if (x.update == 0) {  // the construction's "no model yet" (Simulation::reset), if taken before update 1
+    // the construction's "no model yet" (Simulation::reset), when taken before update 1
+    if (x.update == 0) {
       EXPECT_FALSE(x.valid);
       EXPECT_EQ(x.size, 0);
       last = 0;
