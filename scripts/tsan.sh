@@ -35,13 +35,13 @@ cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=None -DCMAKE_C_COMPILER=clang-14 -
 }
 rm -f "$build_dir.configure.log"
 # the test executables with threads, and the app probe_app_test runs
-targets=(probe_output_test simulation_test local_contact_test probe_app_test voxelastic-probe)
+targets=(probe_output_test simulation_test probe_app_test voxelastic-probe)
 echo "tsan: building ${targets[*]} with ThreadSanitizer into $build_dir/ ..."
 cmake --build "$build_dir" -j "$jobs" --target "${targets[@]}"
 # the tests of those executables that start threads (std::thread, FixedRateThread, OpenMP on
 # two threads, the app's three loops); the rest of them run single-threaded code the ASan pass
 # already covers
-tests='^TripleBuffer\.|^FixedRateThread\.|^Simulation\.(SameResultsOnOneAndTwoThreads|LiveProbeAcrossThreads)$|^LocalContactModel\.PublishedWholeAcrossThreads$|^ProbeApp\.'
+tests='^TripleBuffer\.|^FixedRateThread\.|^Simulation\.(SameResultsOnOneAndTwoThreads|LiveProbeAcrossThreads|LocalContactModelsAcrossThreads)$|^ProbeApp\.'
 export TSAN_OPTIONS=${TSAN_OPTIONS:-suppressions=$PWD/tests/sanitizers/tsan.supp:second_deadlock_stack=1:history_size=4}
 export OMP_TOOL_LIBRARIES=$archer
 # the app's tests time their runs; one at a time so that two TSan-slowed apps do not share a core
