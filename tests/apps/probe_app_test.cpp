@@ -24,6 +24,20 @@ const fs::path kBinary = fs::path(VX_BINARY_DIR) / "apps" / "probe" / "voxelasti
 const fs::path kScene = fs::path(VX_SAMPLES_DIR) / "scenes" / "palpation-lesion.json";
 const fs::path kScript = fs::path(VX_SAMPLES_DIR) / "scenes" / "palpation-lesion.joy";
 
+// Under ThreadSanitizer (scripts/tsan.sh builds the app and this test with it) the app runs 5 to
+// 15 times slower: figures that depend on keeping real time get a wider margin there.
+#if defined(__SANITIZE_THREAD__)
+constexpr bool kUnderTsan = true;
+#elif defined(__has_feature)
+#if __has_feature(thread_sanitizer)
+constexpr bool kUnderTsan = true;
+#else
+constexpr bool kUnderTsan = false;
+#endif
+#else
+constexpr bool kUnderTsan = false;
+#endif
+
 using vx::testing::RunResult;
 using vx::testing::slurp;
 
@@ -227,10 +241,11 @@ TEST_F(ProbeApp, LocalShapingAtSixtyUpdatesFeelsTheLesionSmoothly) {
   // smooth: no tick-to-tick change above 10 % of the peak (measured 1.0 %; the half sines: 31 %)
   EXPECT_LT(max_step, 0.1 * peak) << max_step << " N of " << peak << " N";
   // the virtual coupling (1 N/mm at 1 kHz): the tool rides F/k_c above the hand, plus what the
-  // damping adds while it moves (held still at 1.2-2.0 s: the spring alone)
+  // damping adds while it moves (held still at 1.2-2.0 s: the spring alone; under TSan the
+  // physics, far behind real time, still settles there: 0.002004 mm seen once)
   for (const L& row : rows)
     if (row.t > 1.5 && row.t < 1.95) {
-      EXPECT_NEAR(row.tool_z - row.hand_z, row.fz / 1.0, 0.002) << "t = " << row.t;
+      EXPECT_NEAR(row.tool_z - row.hand_z, row.fz / 1.0, kUnderTsan ? 0.01 : 0.002) << "t = " << row.t;
     }
 }
 
@@ -415,7 +430,8 @@ TEST_F(ProbeApp, TheRegionCheckOfAWeakSupportIsReportedDuringTheRun) {
                 "path": [{"t_s": 0, "position_mm": [32, 32, 132]}, {"t_s": 1, "position_mm": [32, 32, 127]}]}],
     "duration_s": 1
   })";
-  const RunResult r = run(q(scene) + " --headless --duration 3");
+  // (under TSan the check beside the physics needs longer than 3 s to finish: once it did not)
+  const RunResult r = run(q(scene) + " --headless --duration " + (kUnderTsan ? "15" : "3"));
   ASSERT_EQ(r.code, 0) << r.out << r.err;
   const std::size_t warned = r.out.find("warning: the regional solve (region_radius_mm 30) holds the far field still");
   ASSERT_NE(warned, std::string::npos) << r.out;

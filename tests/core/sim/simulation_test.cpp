@@ -6,8 +6,11 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <thread>
+#include <vector>
 
 #include "base/error.h"
 #include "model/gradational_builder.h"
@@ -497,4 +500,100 @@ TEST(Simulation, LiveProbeAcrossThreads) {
   SimulationFrame frame;
   EXPECT_TRUE(sim.take_frame(frame) || sim.counters().frames_published > 0);
   EXPECT_GT(sim.counters().frames_published, 0);
+}
+
+// The probe app's hand-over: a physics thread steps and publishes a model per update while a
+// device thread takes them (sim/simulation.h, "any thread"). Every model the device sees is
+// whole (valid, one update's anchor force exactly, the newest: updates only go up) and the last
+// one published reaches it. scripts/tsan.sh runs this under ThreadSanitizer.
+TEST(Simulation, LocalContactModelsAcrossThreads) {
+  auto phys = physics_of(block_model(16, 16, 8), 5.0);
+  const double tp = 1.0 / 60.0;
+  SimulationSettings s;
+  s.integrator.kind = IntegratorKind::implicit;
+  s.integrator.time_step_s = tp;
+  s.integrator.threads = 1;
+  s.fixed_nodes = nodes_on_face(*phys->model, BoxFace::z_min);
+  ProbeSettings probe;
+  probe.name = "tool";
+  probe.geometry.radius_mm = 4;
+  probe.drive = ProbeDrive::live;
+  probe.start_mm = {8, 8, 12.3};
+  probe.max_speed_mm_s = 500;
+  s.probes = {probe};
+  s.local_contact = LocalContactSettings{};
+  s.local_contact->update_period_s = tp;
+  Simulation sim(phys, s);
+  constexpr int kUpdates = 40;
+  // physics thread: press 2 mm over the updates; what each update published, by update number
+  std::vector<Eigen::Vector3d> published(kUpdates + 1, Eigen::Vector3d::Zero());
+  std::vector<int> published_size(kUpdates + 1, 0);
+  std::atomic<bool> done{false};
+  std::thread physics([&] {
+    const Eigen::Vector3d from = sim.probe(0).pose.position_mm, to(8, 8, 10.0);
+    for (int k = 1; k <= kUpdates; ++k) {
+      sim.set_live(0, {LiveCommand::Kind::position, from + (to - from) * (double(k) / kUpdates)});
+      if (sim.step() != StepStatus::ok) break;
+      sim.publish_local_contact();
+      LocalContactModel check;
+      sim.build_local_contact(0, check);
+      published[std::size_t(k)] = check.anchor_force_n;
+      published_size[std::size_t(k)] = check.size();
+      std::this_thread::sleep_for(std::chrono::microseconds(200));  // let the device thread interleave
+    }
+    done.store(true, std::memory_order_release);
+  });
+  // device thread (this one): take what is new, solve at the anchor
+  struct Seen {
+    std::int64_t update;
+    bool valid;
+    Eigen::Vector3d anchor_force_n, solved_n;
+    int size;
+  };
+  std::vector<Seen> seen;
+  seen.reserve(kUpdates + 1);
+  LocalContactSolver solver;
+  const auto take = [&] {
+    const LocalContactModel* m = sim.take_local_contact(0);
+    if (!m) return;
+    EXPECT_EQ(m->validate(), "") << "update " << m->update;
+    Eigen::Vector3d solved = Eigen::Vector3d::Zero();
+    if (m->valid && solver.set(*m, 0.0)) solved = solver.solve(m->anchor_mm).force_n;
+    seen.push_back({m->update, m->valid, m->anchor_force_n, solved, m->size()});
+  };
+  while (!done.load(std::memory_order_acquire)) {
+    take();
+    std::this_thread::yield();
+  }
+  physics.join();
+  take();
+  ASSERT_EQ(sim.local_contact_updates(), kUpdates);
+  ASSERT_FALSE(seen.empty());
+  EXPECT_EQ(seen.back().update, kUpdates);  // the newest reached the device
+  std::int64_t last = -1;
+  int in_contact = 0;
+  for (const Seen& x : seen) {
+    ASSERT_GT(x.update, last);  // never an older model after a newer one
+    // the construction's "no model yet" (Simulation::reset), when taken before update 1
+    if (x.update == 0) {
+      EXPECT_FALSE(x.valid);
+      EXPECT_EQ(x.size, 0);
+      last = 0;
+      continue;
+    }
+    EXPECT_TRUE(x.valid) << "update " << x.update;
+    ASSERT_LE(x.update, kUpdates);
+    last = x.update;
+    EXPECT_EQ(x.anchor_force_n, published[std::size_t(x.update)]) << "update " << x.update;
+    EXPECT_EQ(x.size, published_size[std::size_t(x.update)]) << "update " << x.update;
+    if (x.anchor_force_n.norm() > 0) {
+      ++in_contact;
+      EXPECT_LT((x.solved_n - x.anchor_force_n).norm(), 1e-9 * x.anchor_force_n.norm() + 1e-12)
+          << "update " << x.update;
+    }
+  }
+  EXPECT_GT(published[kUpdates].z(), 0.0);  // the tool pressed (force on the tool upwards)
+  EXPECT_GT(in_contact, 0);
+  std::printf("%zu of %d updates taken by the device thread, %d in contact; last force %.4f N\n", seen.size(), kUpdates,
+              in_contact, published[kUpdates].z());
 }
