@@ -124,8 +124,11 @@ HudInfo GuiLoop::hud(SteadyClock::time_point now) {
   h.device_target_hz = s_.options.device_hz;
   h.probes = std::min(s_.probes, 2);
   h.active_probe = keyboard_.active_probe();
+  const double since_fault_s = seconds(now - s_.start) - 1e-6 * double(s_.physics.fault_wall_us.load());
   if (s_.physics.failed.load())
     h.status = s_.physics.failure;
+  else if (s_.physics.faults.load() > 0 && since_fault_s < 5.0)
+    h.status = s_.physics.last_fault();  // shown for 5 s
   else
     h.status = region_status_;
   std::lock_guard lock(s_.device.mutex);

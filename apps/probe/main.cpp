@@ -88,6 +88,11 @@ int main(int argc, char** argv) {
   app.add_option("--test-startup-delay", o.test_startup_delay_s, "extra wall time on the first physics step, s")
       ->check(CLI::Range(0.0, 60.0))
       ->group("");
+  // faults on purpose (nan@STEP, runaway@STEP, throw@STEP) and a stick unplugged and back
+  std::vector<std::string> faults;
+  app.add_option("--test-fault", faults, "inject a physics fault: nan@STEP, runaway@STEP or throw@STEP")->group("");
+  app.add_option("--test-unplug", o.test_unplug_s, "unplug virtual stick 0 at this device time, s")->group("");
+  app.add_option("--test-replug", o.test_replug_s, "plug virtual stick 0 back at this device time, s")->group("");
 
   auto* g_scene = app.add_option_group("defaults", "volumes and models (scene files set these themselves)");
   g_scene->add_option("--threshold", o.scene.threshold, "tissue HU window LO[:HI] or preset (volumes)");
@@ -113,6 +118,7 @@ int main(int argc, char** argv) {
     o.deadzone_set = opt_deadzone->count() > 0;
     o.surface_method = vx::parse_surface_method(surface);
     o.device = parse_device_choice(device);
+    for (const auto& f : faults) o.test_faults.push_back(parse_injected_fault(f));
     if (!shaping.empty()) o.force_shaping = vx::parse_force_shaping(shaping);
     const auto x = size.find('x');
     try {

@@ -34,6 +34,29 @@ DeviceChoice parse_device_choice(const std::string& s) {
   throw Error("unknown force output '" + s + "': use auto, haptic, rumble or none");
 }
 
+InjectedFault parse_injected_fault(const std::string& s) {
+  const auto at = s.find('@');
+  const std::string kind = s.substr(0, at);
+  InjectedFault f;
+  if (kind == "nan")
+    f.kind = InjectedFault::Kind::non_finite;
+  else if (kind == "runaway")
+    f.kind = InjectedFault::Kind::runaway;
+  else if (kind == "throw")
+    f.kind = InjectedFault::Kind::exception;
+  else
+    throw Error("--test-fault '" + s + "': use nan@STEP, runaway@STEP or throw@STEP");
+  try {
+    std::size_t used = 0;
+    if (at == std::string::npos) throw std::invalid_argument("no step");
+    f.step = std::stoll(s.substr(at + 1), &used);
+    if (used != s.size() - at - 1 || f.step < 1) throw std::invalid_argument("bad step");
+  } catch (const std::exception&) {
+    throw Error("--test-fault '" + s + "': the step must be a whole number >= 1 (nan@120)");
+  }
+  return f;
+}
+
 namespace {
 
 std::atomic<bool> g_interrupted{false};
@@ -276,6 +299,7 @@ std::unique_ptr<ProbeView> App::open_view(const IoLines& lines) {
 std::string App::run_loops(const IoLines& lines) {
   PhysicsLoop physics_loop(*shared_);
   physics_loop.set_step_delay(options_.test_step_delay_s, options_.test_startup_delay_s);
+  physics_loop.set_faults(options_.test_faults);
   shared_->start = SteadyClock::now();
   shared_->physics.set_clock(SimClock{0.0, shared_->start, false});
   FixedRateThread physics("physics", options_.physics_hz, [&](std::int64_t) { physics_loop.tick(); });
@@ -333,6 +357,16 @@ void App::summary(double wall_s) {
     say(fmt::format("local force shaping: {} physics updates ({:.1f} per second), device clock {:.2f} s",
                     r.updates.load(),
                     wall_s > 0 ? double(r.updates.load()) / wall_s : 0.0, device_loop_->clock_s()));
+  say(fmt::format("faults: {} physics fault(s) recovered from{}; the last good state kept {} times (at most every "
+                  "{:g} s, a copy took {:.1f} ms at most)",
+                  r.faults.load(), r.faults.load() > 0 ? " (" + r.last_fault() + ")" : std::string(),
+                  r.snapshots.load(), PhysicsLoop::kSnapshotEvery_s, 1e-3 * double(r.snapshot_max_us.load())));
+  for (int p = 0; p < std::min(probes_, 2); ++p) {
+    const DeviceForceGuard& g = device_loop_->guard(p);
+    say(fmt::format("probe {} force guard: max {:g} N (--max-force), {} ticks clamped, {} fades (faults and resets), "
+                    "{} non-finite forces refused",
+                    p, g.settings().max_force_N, g.clamped_ticks(), g.interrupts(), g.non_finite()));
+  }
   std::lock_guard lock(shared_->device.mutex);
   for (int p = 0; p < std::min(probes_, 2); ++p) {
     const ForceStats& s = shared_->device.stats[std::size_t(p)];
