@@ -98,6 +98,12 @@ struct PhysicsReport {
   std::atomic<std::int64_t> fault_wall_us{0};     ///< when the last one was (wall time since the open)
   std::atomic<std::int64_t> snapshots{0};         ///< last good states kept
   std::atomic<std::int64_t> snapshot_max_us{0};   ///< the longest copy of one
+  /// Soak (physics thread; read after it stopped): the tissue's largest displacement from its
+  /// reference (taken at the first snapshot after 1 s simulated with no tool touching; the soak's script rests 3 s from the physics' start), mm, and
+  /// the displacement at the end, after the release (< 0: not measured).
+  double soak_ref_s{-1.0};
+  double soak_peak_mm{0.0};
+  double soak_final_mm{-1.0};
 
   [[nodiscard]] std::string last_fault() const {
     std::lock_guard lock(fault_mutex_);

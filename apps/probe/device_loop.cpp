@@ -69,7 +69,12 @@ void DeviceLoop::run_tick() {
   follow_connections(now_s);
   // sticks: the script runs at the device's clock (paper: simulated time, so slow motion keeps
   // the palpation the same)
-  parts_.input->play_script(now_s);
+  // a soak's script starts when the physics has (its start-up can take longer than a script's rest)
+  if (s_.options.soak_s > 0 && script_start_s_ < 0 && s_.physics.started.load(std::memory_order_acquire))
+    script_start_s_ = now_s;
+  const double script_s = s_.options.soak_s > 0 ? std::max(0.0, now_s - std::max(0.0, script_start_s_)) : now_s;
+  if (s_.options.soak_s > 0 && script_start_s_ < 0) parts_.input->play_script(0.0);
+  else parts_.input->play_script(script_s);
   parts_.input->poll();
   std::vector<std::string> msgs = parts_.input->take_messages();
 
@@ -102,7 +107,7 @@ void DeviceLoop::run_tick() {
   parts_.outputs->write(tick);
   ++ticks_;
   report(tick, t, std::move(msgs));
-  check_stop(now_s);
+  check_stop(now_s, script_start_s_ < 0 && s_.options.soak_s > 0 ? 0.0 : script_s);
 }
 
 void DeviceLoop::follow_connections(double now_s) {
@@ -267,9 +272,9 @@ void DeviceLoop::report(const DeviceTick& tick, const std::array<ProbeTick, kMax
   for (auto& m : msgs) d.messages.push_back(std::move(m));
 }
 
-void DeviceLoop::check_stop(double now_s) {
+void DeviceLoop::check_stop(double now_s, double script_s) {
   const AppOptions& o = s_.options;
-  if (o.exit_after_script && parts_.script && now_s > parts_.script->duration_s() + 0.25)
+  if (o.exit_after_script && parts_.script && script_s > parts_.script->duration_s() + 0.25)
     s_.controls.request_quit(fmt::format("the joystick script ended ({:.2f} s)", parts_.script->duration_s()));
   if (o.duration_s > 0 && now_s >= o.duration_s)
     s_.controls.request_quit(fmt::format("simulated {:.2f} s (--duration)", o.duration_s));

@@ -97,8 +97,8 @@ class DeviceLoop {
                    ProbeForce& f);
   /// The HUD's forces, the statistics, a plot point every 4 ms, the input messages.
   void report(const DeviceTick& tick, const std::array<ProbeTick, kMaxSticks>& t, std::vector<std::string> msgs);
-  /// Stop conditions in the device's time (the script's end, --duration).
-  void check_stop(double now_s);
+  /// Stop conditions in the device's time (the script's end in the script's time, --duration).
+  void check_stop(double now_s, double script_s);
 
   AppShared& s_;
   DeviceParts parts_;
@@ -109,6 +109,7 @@ class DeviceLoop {
   std::array<DeviceForceGuard, kMaxSticks> guards_;
   std::array<int, kMaxSticks> connection_seen_{};
   bool unplugged_{false}, replugged_{false};  ///< the test hooks done
+  double script_start_s_{-1.0};  ///< soak: the device time its script started at (the physics' start)
   std::int64_t ticks_{0};
   SteadyClock::time_point last_{};
   bool started_{false};

@@ -33,6 +33,11 @@ int main(int argc, char** argv) {
   g_auto->add_flag("--exit-after-script", o.exit_after_script, "quit when the joystick script has ended");
   g_auto->add_option("--frames", o.frames, "quit after N rendered frames")->check(CLI::PositiveNumber);
   g_auto->add_option("--duration", o.duration_s, "quit at this simulated time, s")->check(CLI::PositiveNumber);
+  g_auto->add_option("--soak-s", o.soak_s,
+                     "a soak: a random script of presses, slides, grasps and a release this long, judged at the end "
+                     "(docs/robustness.md)")
+      ->check(CLI::Range(15.0, 1e5));
+  g_auto->add_option("--seed", o.soak_seed, "the soak script's random seed");
   g_auto->add_option("--screenshot", o.screenshot, "write the last frame to this .png");
   g_auto->add_option("--force-log", o.force_log, "record the device force of every device tick to this .csv");
   g_auto->add_flag("--headless", o.headless, "no window: physics, input and force output only (needs --duration or "
@@ -119,6 +124,10 @@ int main(int argc, char** argv) {
     o.surface_method = vx::parse_surface_method(surface);
     o.device = parse_device_choice(device);
     for (const auto& f : faults) o.test_faults.push_back(parse_injected_fault(f));
+    if (o.soak_s > 0) {
+      if (!o.joystick_script.empty()) throw vx::Error("--soak-s makes its own script: leave out --virtual-joystick");
+      o.exit_after_script = true;  // the script starts with the physics' first step
+    }
     if (!shaping.empty()) o.force_shaping = vx::parse_force_shaping(shaping);
     const auto x = size.find('x');
     try {

@@ -18,6 +18,7 @@ void PhysicsLoop::tick() {
   // included), not when the other threads have wound down
   if (s_.controls.quit.load()) {
     if (!s_.physics.ended.load(std::memory_order_relaxed)) {
+      if (s_.options.soak_s > 0 && soak_ref_.cols() > 0) s_.physics.soak_final_mm = soak_displacement_mm();
       s_.physics.at_end = s_.physics.sample(s_.start, now);
       s_.physics.ended.store(true, std::memory_order_release);
     }
@@ -86,12 +87,31 @@ void PhysicsLoop::keep_good_state(SteadyClock::time_point now) {
   if (!good_.empty() && seconds(now - good_wall_) < kSnapshotEvery_s) return;
   const auto t0 = SteadyClock::now();
   s_.sim.save_tissue(good_);
+  if (s_.options.soak_s > 0) soak_watch();
   good_wall_ = now;
   faults_since_good_ = 0;
   PhysicsReport& r = s_.physics;
   r.snapshots.fetch_add(1, std::memory_order_relaxed);
   const std::int64_t us = std::llround(1e6 * seconds(SteadyClock::now() - t0));
   if (us > r.snapshot_max_us.load(std::memory_order_relaxed)) r.snapshot_max_us.store(us, std::memory_order_relaxed);
+}
+
+double PhysicsLoop::soak_displacement_mm() const {
+  if (soak_ref_.cols() != s_.sim.state().positions.cols()) return 0.0;
+  return (s_.sim.state().positions - soak_ref_).colwise().norm().maxCoeff();
+}
+
+void PhysicsLoop::soak_watch() {
+  Simulation& sim = s_.sim;
+  if (soak_ref_.cols() == 0) {
+    int contacts = 0;
+    for (int p = 0; p < s_.probes; ++p) contacts += sim.probe(p).contacts;
+    if (sim.time_s() < 1.0 || contacts > 0) return;
+    soak_ref_ = sim.state().positions;
+    s_.physics.soak_ref_s = sim.time_s();
+    return;
+  }
+  s_.physics.soak_peak_mm = std::max(s_.physics.soak_peak_mm, soak_displacement_mm());
 }
 
 void PhysicsLoop::apply_reset() {

@@ -70,6 +70,10 @@ class PhysicsLoop {
   TissueSnapshot rest_;   ///< the rest state (after repeated faults)
   SteadyClock::time_point good_wall_{};
   int faults_since_good_{0};
+  Eigen::Matrix3Xd soak_ref_;  ///< soak: the tissue at rest before the first press
+  /// soak: the largest node displacement from the reference now, mm (0 without one)
+  [[nodiscard]] double soak_displacement_mm() const;
+  void soak_watch();
 };
 
 }  // namespace vx::probe

@@ -82,6 +82,9 @@ struct AppOptions {
   /// Test hooks: faults injected into the physics (each once), and the virtual stick 0 unplugged
   /// and plugged back at these device times (s; negative: never).
   std::vector<InjectedFault> test_faults;
+  /// Soak (> 0): a random script of this many seconds (soak.h), seeded; the run judged at the end.
+  double soak_s{0.0};
+  std::uint32_t soak_seed{1};
   double test_unplug_s{-1.0};
   double test_replug_s{-1.0};
 };
