@@ -73,8 +73,10 @@ void DeviceLoop::run_tick() {
   if (s_.options.soak_s > 0 && script_start_s_ < 0 && s_.physics.started.load(std::memory_order_acquire))
     script_start_s_ = now_s;
   const double script_s = s_.options.soak_s > 0 ? std::max(0.0, now_s - std::max(0.0, script_start_s_)) : now_s;
-  if (s_.options.soak_s > 0 && script_start_s_ < 0) parts_.input->play_script(0.0);
-  else parts_.input->play_script(script_s);
+  if (s_.options.soak_s > 0 && script_start_s_ < 0)
+    parts_.input->play_script(0.0);
+  else
+    parts_.input->play_script(script_s);
   parts_.input->poll();
   std::vector<std::string> msgs = parts_.input->take_messages();
 

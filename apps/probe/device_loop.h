@@ -109,7 +109,7 @@ class DeviceLoop {
   std::array<DeviceForceGuard, kMaxSticks> guards_;
   std::array<int, kMaxSticks> connection_seen_{};
   bool unplugged_{false}, replugged_{false};  ///< the test hooks done
-  double script_start_s_{-1.0};  ///< soak: the device time its script started at (the physics' start)
+  double script_start_s_{-1.0};               ///< soak: the device time its script started at (the physics' start)
   std::int64_t ticks_{0};
   SteadyClock::time_point last_{};
   bool started_{false};

@@ -68,11 +68,8 @@ Eigen::Vector3d DeviceForceGuard::apply(const Eigen::Vector3d& wanted_N, double 
       if (gain_ >= 1.0) phase_ = Phase::on;
       last_N_ = gain_ * f;
       return last_N_;
-    case Phase::off:
-      last_N_.setZero();
-      return last_N_;
-    case Phase::on:
-      break;
+    case Phase::off: last_N_.setZero(); return last_N_;
+    case Phase::on: break;
   }
   last_N_ = f;
   return last_N_;

@@ -58,7 +58,7 @@ class DeviceForceGuard {
   ForceGuardSettings settings_;
   Phase phase_{Phase::rising};
   double gain_{0.0};
-  bool stay_off_{false};  ///< disconnected: off after the fade
+  bool stay_off_{false};                             ///< disconnected: off after the fade
   Eigen::Vector3d last_N_{Eigen::Vector3d::Zero()};  ///< the force played at the last tick
   Eigen::Vector3d held_N_{Eigen::Vector3d::Zero()};  ///< fading: the force played at the fault
   std::int64_t clamped_{0};

@@ -14,8 +14,8 @@
 #include "app_shared.h"
 #include "probe_view.h"
 #include "real_time_meter.h"
-#include "soak.h"
 #include "sim/simulation.h"
+#include "soak.h"
 #include "stick_control.h"
 
 namespace vx::probe {

@@ -33,9 +33,10 @@ int main(int argc, char** argv) {
   g_auto->add_flag("--exit-after-script", o.exit_after_script, "quit when the joystick script has ended");
   g_auto->add_option("--frames", o.frames, "quit after N rendered frames")->check(CLI::PositiveNumber);
   g_auto->add_option("--duration", o.duration_s, "quit at this simulated time, s")->check(CLI::PositiveNumber);
-  g_auto->add_option("--soak-s", o.soak_s,
-                     "a soak: a random script of presses, slides, grasps and a release this long, judged at the end "
-                     "(docs/robustness.md)")
+  g_auto
+      ->add_option("--soak-s", o.soak_s,
+                   "a soak: a random script of presses, slides, grasps and a release this long, judged at the end "
+                   "(docs/robustness.md)")
       ->check(CLI::Range(15.0, 1e5));
   g_auto->add_option("--seed", o.soak_seed, "the soak script's random seed");
   g_auto->add_option("--screenshot", o.screenshot, "write the last frame to this .png");

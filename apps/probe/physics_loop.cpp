@@ -18,7 +18,6 @@ void PhysicsLoop::tick() {
   // included), not when the other threads have wound down
   if (s_.controls.quit.load()) {
     if (!s_.physics.ended.load(std::memory_order_relaxed)) {
-      if (s_.options.soak_s > 0 && soak_ref_.cols() > 0) s_.physics.soak_final_mm = soak_displacement_mm();
       s_.physics.at_end = s_.physics.sample(s_.start, now);
       s_.physics.ended.store(true, std::memory_order_release);
     }
@@ -65,7 +64,8 @@ void PhysicsLoop::recover(const std::string& what, bool drop_solver) {
   // a physics that fails again and again from rest too is not a fault to ride out: it stops the
   // run as before (the physics thread's error)
   if (++faults_since_good_ > 5)
-    throw std::runtime_error(fmt::format("the physics failed {} times in a row, the last: {}", faults_since_good_, what));
+    throw std::runtime_error(
+        fmt::format("the physics failed {} times in a row, the last: {}", faults_since_good_, what));
   const bool to_rest = good_.empty() || faults_since_good_ >= 3;
   if (rest_.empty()) {
     sim.save_tissue(rest_);
@@ -94,6 +94,10 @@ void PhysicsLoop::keep_good_state(SteadyClock::time_point now) {
   r.snapshots.fetch_add(1, std::memory_order_relaxed);
   const std::int64_t us = std::llround(1e6 * seconds(SteadyClock::now() - t0));
   if (us > r.snapshot_max_us.load(std::memory_order_relaxed)) r.snapshot_max_us.store(us, std::memory_order_relaxed);
+}
+
+void PhysicsLoop::finish() {
+  if (s_.options.soak_s > 0 && soak_ref_.cols() > 0) s_.physics.soak_final_mm = soak_displacement_mm();
 }
 
 double PhysicsLoop::soak_displacement_mm() const {

@@ -30,6 +30,8 @@ class PhysicsLoop {
     step_delay_s_ = per_step_s;
     first_step_delay_s_ = first_step_s;
   }
+  /// After the thread stopped (the caller's thread): the soak's last figure (the tissue at the end).
+  void finish();
   /// Test hook (--test-fault): faults injected at the start of the given steps.
   void set_faults(std::vector<InjectedFault> faults) { faults_ = std::move(faults); }
   /// The wall time between two snapshots of the last good state at most, s.
@@ -66,8 +68,8 @@ class PhysicsLoop {
   double first_step_delay_s_{0.0};
   bool first_step_done_{false};
   std::vector<InjectedFault> faults_;
-  TissueSnapshot good_;   ///< the last good state
-  TissueSnapshot rest_;   ///< the rest state (after repeated faults)
+  TissueSnapshot good_;  ///< the last good state
+  TissueSnapshot rest_;  ///< the rest state (after repeated faults)
   SteadyClock::time_point good_wall_{};
   int faults_since_good_{0};
   Eigen::Matrix3Xd soak_ref_;  ///< soak: the tissue at rest before the first press

@@ -21,10 +21,10 @@
 #include "probe_view.h"
 #include "rate_thread.h"
 #include "sdl_input.h"
-#include "soak.h"
 #include "sim/contact.h"
 #include "sim/local_contact.h"
 #include "sim/simulation.h"
+#include "soak.h"
 #include "util/thread_priority.h"
 
 namespace vx::probe {
@@ -345,6 +345,7 @@ std::string App::run_loops(const IoLines& lines) {
   // stop: device first (no more writes), then physics (its last step ends the run's interval)
   device.stop();
   physics.stop();
+  physics_loop.finish();
   const PhysicsReport& r = shared_->physics;
   end_ = r.ended.load(std::memory_order_acquire) ? r.at_end : r.sample(shared_->start, SteadyClock::now());
   std::signal(SIGINT, old_int);
@@ -380,13 +381,15 @@ void App::summary(double wall_s) {
     say(fmt::format("local force shaping: {} physics updates ({:.1f} per second), device clock {:.2f} s",
                     r.updates.load(),
                     wall_s > 0 ? double(r.updates.load()) / wall_s : 0.0, device_loop_->clock_s()));
-  say(fmt::format("faults: {} physics fault(s) recovered from{}; the last good state kept {} times (at most every "
+  say(
+      fmt::format("faults: {} physics fault(s) recovered from{}; the last good state kept {} times (at most every "
                   "{:g} s, a copy took {:.1f} ms at most)",
                   r.faults.load(), r.faults.load() > 0 ? " (" + r.last_fault() + ")" : std::string(),
                   r.snapshots.load(), PhysicsLoop::kSnapshotEvery_s, 1e-3 * double(r.snapshot_max_us.load())));
   for (int p = 0; p < std::min(probes_, 2); ++p) {
     const DeviceForceGuard& g = device_loop_->guard(p);
-    say(fmt::format("probe {} force guard: max {:g} N (--max-force), {} ticks clamped, {} fades (faults and resets), "
+    say(
+        fmt::format("probe {} force guard: max {:g} N (--max-force), {} ticks clamped, {} fades (faults and resets), "
                     "{} non-finite forces refused",
                     p, g.settings().max_force_N, g.clamped_ticks(), g.interrupts(), g.non_finite()));
   }
@@ -411,16 +414,17 @@ void App::soak_summary() {
     non_finite += device_loop_->guard(p).non_finite();
     if (local_ && std::size_t(p) < device_loop_->local_probes()) guard_ticks += device_loop_->renderer(p).guard_ticks();
   }
-  const double growth = m.warm_bytes() > 0 ? 100.0 * double(m.end_bytes() - m.warm_bytes()) / double(m.warm_bytes()) : 0;
-  say(fmt::format("soak: {:.0f} s, seed {}: non-finite {} (physics faults {}, device forces refused {}); resident "
-                  "memory {:.1f} MB after the warm-up (at {:.1f} s), {:.1f} MB at the end ({:+.2f} %); device forces per "
-                  "second at least {:.0f} over {} one-second windows; tissue at the end {:.4f} mm from its rest (taken "
-                  "at t = {:.2f} s), {:.2f} % of its largest displacement {:.3f} mm; energy guard {} ticks",
-                  options_.soak_s, options_.soak_seed, r.faults.load() + non_finite, r.faults.load(), non_finite,
-                  1e-6 * double(m.warm_bytes()), m.warm_at_s(), 1e-6 * double(m.end_bytes()), growth,
-                  m.min_forces_per_s(), m.windows(), r.soak_final_mm, r.soak_ref_s,
-                  r.soak_peak_mm > 0 ? 100.0 * r.soak_final_mm / r.soak_peak_mm : 0.0, r.soak_peak_mm,
-                  local_ ? std::to_string(guard_ticks) : std::string("(paper shaping: none)")));
+  const double growth =
+      m.warm_bytes() > 0 ? 100.0 * double(m.end_bytes() - m.warm_bytes()) / double(m.warm_bytes()) : 0;
+  say(fmt::format(
+      "soak: {:.0f} s, seed {}: non-finite {} (physics faults {}, device forces refused {}); resident "
+      "memory {:.1f} MB after the warm-up (at {:.1f} s), {:.1f} MB at the end ({:+.2f} %); device forces per "
+      "second at least {:.0f} over {} one-second windows; tissue at the end {:.4f} mm from its rest (taken "
+      "at t = {:.2f} s), {:.2f} % of its largest displacement {:.3f} mm; energy guard {} ticks",
+      options_.soak_s, options_.soak_seed, r.faults.load() + non_finite, r.faults.load(), non_finite,
+      1e-6 * double(m.warm_bytes()), m.warm_at_s(), 1e-6 * double(m.end_bytes()), growth, m.min_forces_per_s(),
+      m.windows(), r.soak_final_mm, r.soak_ref_s, r.soak_peak_mm > 0 ? 100.0 * r.soak_final_mm / r.soak_peak_mm : 0.0,
+      r.soak_peak_mm, local_ ? std::to_string(guard_ticks) : std::string("(paper shaping: none)")));
 }
 
 int App::finish(ProbeView* view, std::string error) {

@@ -16,7 +16,7 @@ namespace vx::probe {
 struct SoakMotion {
   double speed_mm_s{25.0};  ///< at full tilt
   double dead_zone{0.08};
-  double gap_mm{3.0};       ///< from the tool down to the tissue at the start
+  double gap_mm{3.0};  ///< from the tool down to the tissue at the start
 };
 
 /// The script's text (joystick_script.h format) for `duration_s` seconds of the device's clock:
@@ -24,8 +24,7 @@ struct SoakMotion {
 /// for soak_rest_s(). An episode: down through the gap and 1 to 5 mm into the tissue at
 /// 2 to 6 mm/s, a hold, a slide of up to 8 mm (two sticks, 3 in 10 episodes: a grasp, both
 /// towards each other) and back, a hold, up by as much as it went down, a pause.
-[[nodiscard]] std::string make_soak_script(double duration_s, std::uint32_t seed, int sticks,
-                                           const SoakMotion& motion);
+[[nodiscard]] std::string make_soak_script(double duration_s, std::uint32_t seed, int sticks, const SoakMotion& motion);
 /// The rest at the end of a soak, after the release (the tools lifted for 2 s), s: the tissue is
 /// judged at its end. 8 s, or 10 % of a longer soak.
 [[nodiscard]] inline double soak_rest_s(double duration_s) { return duration_s < 80.0 ? 8.0 : 0.1 * duration_s; }
