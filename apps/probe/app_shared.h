@@ -91,6 +91,28 @@ struct PhysicsReport {
   RateSample at_end{};
   std::atomic<bool> failed{false};
   std::string failure;                            ///< written once before `failed` is set
+  /// Faults recovered from (a step gave NaN/Inf, ran away or threw: the tissue went back to its
+  /// last good state, the session went on). The device fades its force at each new generation.
+  std::atomic<std::int64_t> faults{0};
+  std::atomic<int> fault_generation{0};
+  std::atomic<std::int64_t> fault_wall_us{0};    ///< when the last one was (wall time since the open)
+  std::atomic<std::int64_t> snapshots{0};        ///< last good states kept
+  std::atomic<std::int64_t> snapshot_max_us{0};  ///< the longest copy of one
+  /// Soak (physics thread; read after it stopped): the tissue's largest displacement from its
+  /// reference (taken at the first snapshot after 1 s simulated with no tool touching; the soak's script rests 3 s from
+  /// the physics' start), mm, and the displacement at the end, after the release (< 0: not measured).
+  double soak_ref_s{-1.0};
+  double soak_peak_mm{0.0};
+  double soak_final_mm{-1.0};
+
+  [[nodiscard]] std::string last_fault() const {
+    std::lock_guard lock(fault_mutex_);
+    return last_fault_;
+  }
+  void set_last_fault(const std::string& what) {
+    std::lock_guard lock(fault_mutex_);
+    last_fault_ = what;
+  }
 
   [[nodiscard]] SimClock clock() const {
     std::lock_guard lock(clock_mutex_);
@@ -108,6 +130,8 @@ struct PhysicsReport {
  private:
   mutable std::mutex clock_mutex_;
   SimClock clock_;
+  mutable std::mutex fault_mutex_;
+  std::string last_fault_;
 };
 
 /// The forces the HUD shows.

@@ -26,7 +26,11 @@ std::string raise_device_thread_priority() {
 
 }  // namespace
 
-DeviceLoop::DeviceLoop(AppShared& shared, DeviceParts parts) : s_(shared), parts_(std::move(parts)) {}
+DeviceLoop::DeviceLoop(AppShared& shared, DeviceParts parts) : s_(shared), parts_(std::move(parts)) {
+  ForceGuardSettings g;
+  g.max_force_N = shared.options.max_force_N;  // the device's rated maximum
+  for (auto& guard : guards_) guard = DeviceForceGuard(g);
+}
 
 void DeviceLoop::add_commander(const Eigen::Vector3d& start_mm, const Box& allowed) {
   commanders_.emplace_back(start_mm, allowed, parts_.control);
@@ -62,9 +66,17 @@ void DeviceLoop::run_tick() {
   started_ = true;
   follow_reset();
   const double now_s = advance_clock(c, now, dt);
+  follow_connections(now_s);
   // sticks: the script runs at the device's clock (paper: simulated time, so slow motion keeps
   // the palpation the same)
-  parts_.input->play_script(now_s);
+  // a soak's script starts when the physics has (its start-up can take longer than a script's rest)
+  if (s_.options.soak_s > 0 && script_start_s_ < 0 && s_.physics.started.load(std::memory_order_acquire))
+    script_start_s_ = now_s;
+  const double script_s = s_.options.soak_s > 0 ? std::max(0.0, now_s - std::max(0.0, script_start_s_)) : now_s;
+  if (s_.options.soak_s > 0 && script_start_s_ < 0)
+    parts_.input->play_script(0.0);
+  else
+    parts_.input->play_script(script_s);
   parts_.input->poll();
   std::vector<std::string> msgs = parts_.input->take_messages();
 
@@ -89,18 +101,50 @@ void DeviceLoop::run_tick() {
     } else {
       paper_probe(p, t[std::size_t(p)], snap, paused, c.paused, now_s, f);
     }
+    // what reaches the hand: clamped, ramped up after a start, faded out after a fault
+    f.device_N = guards_[std::size_t(p)].apply(f.device_N, dt);
     f.stick_N = basis_.transpose() * f.device_N;
   }
   if (s_.local) s_.tool_targets.publish();
   parts_.outputs->write(tick);
   ++ticks_;
   report(tick, t, std::move(msgs));
-  check_stop(now_s);
+  check_stop(now_s, script_start_s_ < 0 && s_.options.soak_s > 0 ? 0.0 : script_s);
+}
+
+void DeviceLoop::follow_connections(double now_s) {
+  SdlInput& in = *parts_.input;
+  const AppOptions& o = s_.options;
+  if (in.count() > 0 && o.test_unplug_s >= 0 && !unplugged_ && now_s >= o.test_unplug_s) {
+    in.unplug_virtual(0);
+    unplugged_ = true;
+  }
+  if (in.count() > 0 && o.test_replug_s >= 0 && unplugged_ && !replugged_ && now_s >= o.test_replug_s) {
+    in.replug_virtual(0);
+    replugged_ = true;
+  }
+  for (int i = 0; i < in.count() && i < kMaxSticks; ++i) {
+    const int changes = in.connection_changes(i);
+    if (changes == connection_seen_[std::size_t(i)]) continue;
+    connection_seen_[std::size_t(i)] = changes;
+    SDL_Joystick* js = in.joystick(i);
+    parts_.outputs->reattach(i, js);
+    if (js)
+      guards_[std::size_t(i)].restart();  // plugged back: from zero, ramping up
+    else
+      guards_[std::size_t(i)].disconnect();  // unplugged: faded out, then nothing
+  }
 }
 
 void DeviceLoop::follow_reset() {
+  const int fault = s_.physics.fault_generation.load();
+  if (fault != fault_seen_) {
+    fault_seen_ = fault;
+    for (auto& g : guards_) g.interrupt();
+  }
   const int gen = s_.controls.reset_generation.load();
   if (gen == reset_seen_) return;
+  for (auto& g : guards_) g.interrupt();
   reset_seen_ = gen;
   for (auto& pc : commanders_) pc.reset();
   if (!s_.local) return;
@@ -230,9 +274,9 @@ void DeviceLoop::report(const DeviceTick& tick, const std::array<ProbeTick, kMax
   for (auto& m : msgs) d.messages.push_back(std::move(m));
 }
 
-void DeviceLoop::check_stop(double now_s) {
+void DeviceLoop::check_stop(double now_s, double script_s) {
   const AppOptions& o = s_.options;
-  if (o.exit_after_script && parts_.script && now_s > parts_.script->duration_s() + 0.25)
+  if (o.exit_after_script && parts_.script && script_s > parts_.script->duration_s() + 0.25)
     s_.controls.request_quit(fmt::format("the joystick script ended ({:.2f} s)", parts_.script->duration_s()));
   if (o.duration_s > 0 && now_s >= o.duration_s)
     s_.controls.request_quit(fmt::format("simulated {:.2f} s (--duration)", o.duration_s));

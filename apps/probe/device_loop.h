@@ -9,12 +9,17 @@
 ///   time, evaluates the local contact model the physics last published (sim/local_contact.h)
 ///   at every tick, and hands the tool (proxy) position to the physics (`AppShared::tool_targets`).
 /// What the GUI shows goes to `AppShared::device` (app_shared.h).
+/// Every force passes a `DeviceForceGuard` (force_guard.h) on its way out: clamped to the
+/// device's rated maximum (--max-force), ramped up over 100 ms after the start, a reset or a
+/// reconnect, faded out over 40 ms when the physics fails (`PhysicsReport::fault_generation`)
+/// or is reset. A stick unplugged and plugged back re-binds its force output.
 
 #include <memory>
 #include <string>
 #include <vector>
 
 #include "app_shared.h"
+#include "force_guard.h"
 #include "force_output.h"
 #include "joystick_script.h"
 #include "sdl_input.h"
@@ -52,6 +57,7 @@ class DeviceLoop {
   [[nodiscard]] double mean_tick_cost_s() const { return ticks_ > 0 ? cost_sum_s_ / double(ticks_) : 0.0; }
   [[nodiscard]] double max_tick_cost_s() const { return cost_max_s_; }
   [[nodiscard]] const std::string& priority() const { return priority_; }
+  [[nodiscard]] const DeviceForceGuard& guard(int p) const { return guards_[std::size_t(p)]; }
 
  private:
   /// One probe's figures of this tick.
@@ -72,8 +78,12 @@ class DeviceLoop {
 
   // the stages of one tick
   void run_tick();
-  /// Commanders (and local hands, renderers, the clock) back to the start after a reset.
+  /// Commanders (and local hands, renderers, the clock) back to the start after a reset; the
+  /// force faded out after a reset or a physics fault.
   void follow_reset();
+  /// Sticks unplugged or plugged back: their force output re-bound, the force ramped up; the
+  /// test hooks' unplug and replug at the device's time `now_s`.
+  void follow_connections(double now_s);
   /// paper: simulated time now, from the physics' last report; local: the device's own clock.
   [[nodiscard]] double advance_clock(const SimClock& c, SteadyClock::time_point now, double dt);
   /// The stick of probe p plus, for the active probe, the keyboard and mouse.
@@ -87,14 +97,19 @@ class DeviceLoop {
                    ProbeForce& f);
   /// The HUD's forces, the statistics, a plot point every 4 ms, the input messages.
   void report(const DeviceTick& tick, const std::array<ProbeTick, kMaxSticks>& t, std::vector<std::string> msgs);
-  /// Stop conditions in the device's time (the script's end, --duration).
-  void check_stop(double now_s);
+  /// Stop conditions in the device's time (the script's end in the script's time, --duration).
+  void check_stop(double now_s, double script_s);
 
   AppShared& s_;
   DeviceParts parts_;
   std::vector<ProbeCommander> commanders_;
   Eigen::Matrix3d basis_{Eigen::Matrix3d::Identity()};  ///< this tick's view basis
   int reset_seen_{0};
+  int fault_seen_{0};
+  std::array<DeviceForceGuard, kMaxSticks> guards_;
+  std::array<int, kMaxSticks> connection_seen_{};
+  bool unplugged_{false}, replugged_{false};  ///< the test hooks done
+  double script_start_s_{-1.0};               ///< soak: the device time its script started at (the physics' start)
   std::int64_t ticks_{0};
   SteadyClock::time_point last_{};
   bool started_{false};

@@ -47,30 +47,33 @@ std::unique_ptr<HapticForceOutput> HapticForceOutput::open(SDL_Joystick* joystic
     why = "no joystick";
     return nullptr;
   }
+  std::unique_ptr<HapticForceOutput> out(new HapticForceOutput());
+  out->name_ = name;
+  out->settings_ = settings;
+  if (!out->start(joystick, why)) return nullptr;
+  return out;
+}
+
+bool HapticForceOutput::start(SDL_Joystick* joystick, std::string& why) {
   if (SDL_JoystickIsHaptic(joystick) != SDL_TRUE) {
     why = "no force feedback (SDL haptic) on this joystick";
-    return nullptr;
+    return false;
   }
   SDL_Haptic* haptic = SDL_HapticOpenFromJoystick(joystick);
   if (!haptic) {
     why = std::string("cannot open its haptic device: ") + SDL_GetError();
-    return nullptr;
+    return false;
   }
   const unsigned int features = SDL_HapticQuery(haptic);
   if (!(features & SDL_HAPTIC_CONSTANT)) {
     SDL_HapticClose(haptic);
     why = "its haptic device has no constant-force effect";
-    return nullptr;
+    return false;
   }
   // full gain, no spring pulling the stick to the centre (it would mask the tissue force)
   if (features & SDL_HAPTIC_GAIN) SDL_HapticSetGain(haptic, 100);
   if (features & SDL_HAPTIC_AUTOCENTER) SDL_HapticSetAutocenter(haptic, 0);
-
-  std::unique_ptr<HapticForceOutput> out(new HapticForceOutput());
-  out->haptic_ = haptic;
-  out->name_ = name;
-  out->settings_ = settings;
-  SDL_HapticEffect& e = out->effect_data_;
+  SDL_HapticEffect& e = effect_data_;
   e = SDL_HapticEffect{};
   e.type = SDL_HAPTIC_CONSTANT;
   e.constant.direction.type = SDL_HAPTIC_CARTESIAN;
@@ -78,21 +81,37 @@ std::unique_ptr<HapticForceOutput> HapticForceOutput::open(SDL_Joystick* joystic
   e.constant.direction.dir[1] = 1;
   e.constant.length = SDL_HAPTIC_INFINITY;
   e.constant.level = 0;
-  out->effect_ = SDL_HapticNewEffect(haptic, &e);
-  if (out->effect_ < 0) {
+  effect_ = SDL_HapticNewEffect(haptic, &e);
+  if (effect_ < 0) {
     why = std::string("cannot create the constant-force effect: ") + SDL_GetError();
     SDL_HapticClose(haptic);
-    out->haptic_ = nullptr;
-    return nullptr;
+    return false;
   }
-  if (SDL_HapticRunEffect(haptic, out->effect_, 1) != 0) {
+  if (SDL_HapticRunEffect(haptic, effect_, 1) != 0) {
     why = std::string("cannot start the constant-force effect: ") + SDL_GetError();
-    SDL_HapticDestroyEffect(haptic, out->effect_);
+    SDL_HapticDestroyEffect(haptic, effect_);
     SDL_HapticClose(haptic);
-    out->haptic_ = nullptr;
-    return nullptr;
+    return false;
   }
-  return out;
+  haptic_ = haptic;
+  last_ = Command{};
+  last_update_s_ = -1e9;
+  return true;
+}
+
+void HapticForceOutput::release() {
+  if (!haptic_) return;
+  SDL_HapticStopEffect(haptic_, effect_);
+  SDL_HapticDestroyEffect(haptic_, effect_);
+  SDL_HapticClose(haptic_);
+  haptic_ = nullptr;
+}
+
+void HapticForceOutput::reattach(int probe, SDL_Joystick* joystick) {
+  if (probe != settings_.probe || stopped_) return;
+  release();
+  std::string why;
+  if (joystick) (void)start(joystick, why);  // a stick that comes back without force feedback stays silent
 }
 
 HapticForceOutput::~HapticForceOutput() {
@@ -131,11 +150,7 @@ void HapticForceOutput::write(const DeviceTick& tick) {
 void HapticForceOutput::stop() {
   if (stopped_) return;
   stopped_ = true;
-  if (!haptic_) return;
-  SDL_HapticStopEffect(haptic_, effect_);
-  SDL_HapticDestroyEffect(haptic_, effect_);
-  SDL_HapticClose(haptic_);
-  haptic_ = nullptr;
+  release();
 }
 
 // ---------------------------------------------------------------- rumble
@@ -181,6 +196,13 @@ void RumbleForceOutput::write(const DeviceTick& tick) {
   if (SDL_JoystickRumble(joystick_, s, Uint16(s / 2), s ? duration_ms : 0) == 0) ++updates_;
   last_ = s;
   last_update_s_ = tick.wall_s;
+}
+
+void RumbleForceOutput::reattach(int probe, SDL_Joystick* joystick) {
+  if (probe != settings_.probe) return;
+  joystick_ = joystick;  // null while unplugged: nothing is sent to a closed joystick
+  last_ = 0;
+  last_update_s_ = -1e9;
 }
 
 void RumbleForceOutput::stop() {

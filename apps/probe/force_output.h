@@ -63,6 +63,9 @@ class ForceOutput {
   virtual void stop() = 0;
   /// How many times the device was actually commanded (rate-limited backends: fewer than ticks).
   [[nodiscard]] virtual std::int64_t device_updates() const = 0;
+  /// The joystick of `probe` was unplugged (null) or plugged back (device thread): a device
+  /// backend of that probe lets go of the old one and takes the new one. Others ignore it.
+  virtual void reattach(int /*probe*/, SDL_Joystick* /*joystick*/) {}
 };
 
 /// Settings shared by the device backends.
@@ -87,6 +90,7 @@ class HapticForceOutput final : public ForceOutput {
   void write(const DeviceTick& tick) override;
   void stop() override;
   [[nodiscard]] std::int64_t device_updates() const override { return updates_; }
+  void reattach(int probe, SDL_Joystick* joystick) override;
 
   /// The effect parameters (level 0..32767 and SDL cartesian direction, "where the force comes
   /// from") for a view-frame force; exposed for tests.
@@ -99,6 +103,10 @@ class HapticForceOutput final : public ForceOutput {
 
  private:
   HapticForceOutput() = default;
+  /// Opens the haptic device of `joystick` and starts the effect; false (and `why`) when not.
+  bool start(SDL_Joystick* joystick, std::string& why);
+  /// Lets go of the haptic device (its effect stopped when it is still there).
+  void release();
   SDL_Haptic* haptic_{nullptr};
   int effect_{-1};
   std::string name_;
@@ -122,6 +130,7 @@ class RumbleForceOutput final : public ForceOutput {
   void write(const DeviceTick& tick) override;
   void stop() override;
   [[nodiscard]] std::int64_t device_updates() const override { return updates_; }
+  void reattach(int probe, SDL_Joystick* joystick) override;
 
   /// The rumble strength 0..65535 for a force magnitude; exposed for tests.
   [[nodiscard]] static Uint16 strength_for(double force_N, double max_force_N);
@@ -175,6 +184,9 @@ class ForceOutputs {
   }
   /// Stops every output (all of them, even when one throws; the first error is rethrown).
   void stop();
+  void reattach(int probe, SDL_Joystick* joystick) {
+    for (auto& o : outputs_) o->reattach(probe, joystick);
+  }
 
  private:
   std::vector<std::unique_ptr<ForceOutput>> outputs_;

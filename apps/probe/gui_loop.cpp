@@ -13,6 +13,7 @@ GuiLoop::GuiLoop(AppShared& shared, ProbeView* view, KeyboardStick& keyboard)
       keyboard_(keyboard),
       probe_pos_(std::size_t(shared.probes), Eigen::Vector3d::Zero()),
       probe_contacts_(std::size_t(shared.probes), 0),
+      soak_(std::max(5.0, 0.1 * shared.options.soak_s)),
       frame_period_(std::chrono::duration_cast<SteadyClock::duration>(
           std::chrono::duration<double>(1.0 / std::max(1.0, shared.options.fps)))) {}
 
@@ -56,6 +57,9 @@ std::string GuiLoop::run(const FixedRateThread& physics, const FixedRateThread& 
 SteadyClock::time_point GuiLoop::measure(const FixedRateThread& device) {
   const auto now = SteadyClock::now();
   device_rate_.sample(device.ticks(), now);
+  if (s_.options.soak_s > 0)
+    soak_.sample(seconds(now - s_.start), device.ticks(),
+                 s_.physics.started.load(std::memory_order_acquire) ? s_.physics.startup_s : -1.0);
   update_rate_.sample(s_.physics.updates.load(), now);
   // the tissue's rate: simulated over wall time of the same window, from the first completed
   // step on; a pause (or a failed physics) restarts the window and is not counted
@@ -124,8 +128,11 @@ HudInfo GuiLoop::hud(SteadyClock::time_point now) {
   h.device_target_hz = s_.options.device_hz;
   h.probes = std::min(s_.probes, 2);
   h.active_probe = keyboard_.active_probe();
+  const double since_fault_s = seconds(now - s_.start) - 1e-6 * double(s_.physics.fault_wall_us.load());
   if (s_.physics.failed.load())
     h.status = s_.physics.failure;
+  else if (s_.physics.faults.load() > 0 && since_fault_s < 5.0)
+    h.status = s_.physics.last_fault();  // shown for 5 s
   else
     h.status = region_status_;
   std::lock_guard lock(s_.device.mutex);

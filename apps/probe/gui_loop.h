@@ -15,6 +15,7 @@
 #include "probe_view.h"
 #include "real_time_meter.h"
 #include "sim/simulation.h"
+#include "soak.h"
 #include "stick_control.h"
 
 namespace vx::probe {
@@ -35,6 +36,8 @@ class GuiLoop {
   [[nodiscard]] bool window_closed() const { return window_closed_; }
   /// Wall time spent paused after the start-up, s (excluded from the final real-time factor).
   [[nodiscard]] double paused_s() const { return paused_s_; }
+  /// Soak: memory and the device's rate per second (soak.h).
+  [[nodiscard]] const SoakMonitor& soak() const { return soak_; }
 
  private:
   /// The rates of this pass (device, updates, the physics' meter), input messages, the
@@ -67,6 +70,7 @@ class GuiLoop {
   bool warned_behind_{false};
   std::string region_status_;  ///< the region check's warning for the HUD (empty: none)
   double paused_s_{0.0};
+  SoakMonitor soak_;
   SteadyClock::time_point last_pass_{};
   SteadyClock::duration frame_period_;
   SteadyClock::time_point next_frame_{SteadyClock::now()};

@@ -33,6 +33,12 @@ int main(int argc, char** argv) {
   g_auto->add_flag("--exit-after-script", o.exit_after_script, "quit when the joystick script has ended");
   g_auto->add_option("--frames", o.frames, "quit after N rendered frames")->check(CLI::PositiveNumber);
   g_auto->add_option("--duration", o.duration_s, "quit at this simulated time, s")->check(CLI::PositiveNumber);
+  g_auto
+      ->add_option("--soak-s", o.soak_s,
+                   "a soak: a random script of presses, slides, grasps and a release this long, judged at the end "
+                   "(docs/robustness.md)")
+      ->check(CLI::Range(15.0, 1e5));
+  g_auto->add_option("--seed", o.soak_seed, "the soak script's random seed");
   g_auto->add_option("--screenshot", o.screenshot, "write the last frame to this .png");
   g_auto->add_option("--force-log", o.force_log, "record the device force of every device tick to this .csv");
   g_auto->add_flag("--headless", o.headless, "no window: physics, input and force output only (needs --duration or "
@@ -92,6 +98,11 @@ int main(int argc, char** argv) {
   app.add_option("--test-startup-delay", o.test_startup_delay_s, "extra wall time on the first physics step, s")
       ->check(CLI::Range(0.0, 60.0))
       ->group("");
+  // faults on purpose (nan@STEP, runaway@STEP, throw@STEP) and a stick unplugged and back
+  std::vector<std::string> faults;
+  app.add_option("--test-fault", faults, "inject a physics fault: nan@STEP, runaway@STEP or throw@STEP")->group("");
+  app.add_option("--test-unplug", o.test_unplug_s, "unplug virtual stick 0 at this device time, s")->group("");
+  app.add_option("--test-replug", o.test_replug_s, "plug virtual stick 0 back at this device time, s")->group("");
 
   auto* g_scene = app.add_option_group("defaults", "volumes and models (scene files set these themselves)");
   g_scene->add_option("--threshold", o.scene.threshold, "tissue HU window LO[:HI] or preset (volumes)");
@@ -117,6 +128,11 @@ int main(int argc, char** argv) {
     o.deadzone_set = opt_deadzone->count() > 0;
     o.surface_method = vx::parse_surface_method(surface);
     o.device = parse_device_choice(device);
+    for (const auto& f : faults) o.test_faults.push_back(parse_injected_fault(f));
+    if (o.soak_s > 0) {
+      if (!o.joystick_script.empty()) throw vx::Error("--soak-s makes its own script: leave out --virtual-joystick");
+      o.exit_after_script = true;  // the script starts with the physics' first step
+    }
     if (!shaping.empty()) o.force_shaping = vx::parse_force_shaping(shaping);
     const auto x = size.find('x');
     try {

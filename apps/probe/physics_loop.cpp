@@ -3,6 +3,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
+#include <stdexcept>
 #include <thread>
 
 #include "sim/simulation.h"
@@ -31,7 +33,16 @@ void PhysicsLoop::tick() {
   last_ = now;
   if (!paused && !sim.failed()) {
     const double t0 = sim.time_s();
-    if (publish(advance(now, elapsed), t0)) {
+    int steps = 0;
+    try {
+      steps = advance(now, elapsed);
+    } catch (const std::exception& e) {
+      // the step may have left the solver half done: it refactors
+      recover(fmt::format("the step threw: {}", e.what()), true);
+    }
+    if (sim.failed()) recover(fmt::format("{}: {}", to_string(sim.state().status), sim.state().message), false);
+    if (steps > 0 && !sim.failed()) keep_good_state(SteadyClock::now());
+    if (publish(steps, t0)) {
       // the start-up ended: real time starts now (its wall time is not replayed, nor a lag)
       last_ = SteadyClock::now();
       sim_target_s_ = sim.time_s();
@@ -42,9 +53,76 @@ void PhysicsLoop::tick() {
   s_.physics.set_clock(SimClock{sim.time_s(), now, paused || sim.failed()});
 }
 
+void PhysicsLoop::recover(const std::string& what, bool drop_solver) {
+  Simulation& sim = s_.sim;
+  PhysicsReport& r = s_.physics;
+  // the device fades its force out first (it reads the generation at its next tick)
+  r.fault_generation.fetch_add(1);
+  r.faults.fetch_add(1);
+  const double wall_s = seconds(SteadyClock::now() - s_.start);
+  r.fault_wall_us.store(std::llround(1e6 * wall_s));
+  // a physics that fails again and again from rest too is not a fault to ride out: it stops the
+  // run as before (the physics thread's error)
+  if (++faults_since_good_ > 5)
+    throw std::runtime_error(
+        fmt::format("the physics failed {} times in a row, the last: {}", faults_since_good_, what));
+  const bool to_rest = good_.empty() || faults_since_good_ >= 3;
+  if (rest_.empty()) {
+    sim.save_tissue(rest_);
+    rest_.positions = sim.physics().model->rest_positions;
+    rest_.velocities.setZero();
+    std::fill(rest_.rotations.begin(), rest_.rotations.end(), Eigen::Quaterniond::Identity());
+    rest_.step = 0;
+  }
+  const TissueSnapshot& back = to_rest ? rest_ : good_;
+  sim.restore_tissue(back, drop_solver || to_rest);
+  const std::string line =
+      fmt::format("physics fault at t = {:.3f} s (wall {:.4f} s; {}); the tissue is back to {}, the session goes on",
+                  sim.time_s(), wall_s, what, to_rest ? "rest" : fmt::format("its state at t = {:.3f} s", back.time_s));
+  r.set_last_fault(line);
+  fmt::print(stderr, "voxelastic-probe: {}\n", line);
+}
+
+void PhysicsLoop::keep_good_state(SteadyClock::time_point now) {
+  if (!good_.empty() && seconds(now - good_wall_) < kSnapshotEvery_s) return;
+  const auto t0 = SteadyClock::now();
+  s_.sim.save_tissue(good_);
+  if (s_.options.soak_s > 0) soak_watch();
+  good_wall_ = now;
+  faults_since_good_ = 0;
+  PhysicsReport& r = s_.physics;
+  r.snapshots.fetch_add(1, std::memory_order_relaxed);
+  const std::int64_t us = std::llround(1e6 * seconds(SteadyClock::now() - t0));
+  if (us > r.snapshot_max_us.load(std::memory_order_relaxed)) r.snapshot_max_us.store(us, std::memory_order_relaxed);
+}
+
+void PhysicsLoop::finish() {
+  if (s_.options.soak_s > 0 && soak_ref_.cols() > 0) s_.physics.soak_final_mm = soak_displacement_mm();
+}
+
+double PhysicsLoop::soak_displacement_mm() const {
+  if (soak_ref_.cols() != s_.sim.state().positions.cols()) return 0.0;
+  return (s_.sim.state().positions - soak_ref_).colwise().norm().maxCoeff();
+}
+
+void PhysicsLoop::soak_watch() {
+  Simulation& sim = s_.sim;
+  if (soak_ref_.cols() == 0) {
+    int contacts = 0;
+    for (int p = 0; p < s_.probes; ++p) contacts += sim.probe(p).contacts;
+    if (sim.time_s() < 1.0 || contacts > 0) return;
+    soak_ref_ = sim.state().positions;
+    s_.physics.soak_ref_s = sim.time_s();
+    return;
+  }
+  s_.physics.soak_peak_mm = std::max(s_.physics.soak_peak_mm, soak_displacement_mm());
+}
+
 void PhysicsLoop::apply_reset() {
   if (!s_.controls.reset_requested.exchange(false)) return;
   s_.sim.reset();
+  good_ = TissueSnapshot{};
+  faults_since_good_ = 0;
   sim_target_s_ = 0.0;
   s_.controls.reset_generation.fetch_add(1);
 }
@@ -63,7 +141,7 @@ int PhysicsLoop::advance(SteadyClock::time_point now, double elapsed) {
     int want = std::clamp(int(std::floor((sim_target_s_ - t0) / sim.dt_s() + 0.5)), 0, budget);
     if (step_cost_s_ > 0) want = std::min(want, std::max(1, int(0.9 * period / step_cost_s_)));
     done = local_update(want, now);
-  } else if (step_delay_s_ > 0 || first_step_delay_s_ > 0) {
+  } else if (step_delay_s_ > 0 || first_step_delay_s_ > 0 || !faults_.empty()) {
     while (done < budget && !sim.failed() && sim.time_s() < sim_target_s_ - 0.5 * sim.dt_s()) {
       step_once();
       ++done;
@@ -83,7 +161,24 @@ int PhysicsLoop::advance(SteadyClock::time_point now, double elapsed) {
 }
 
 void PhysicsLoop::step_once() {
-  s_.sim.step();
+  Simulation& sim = s_.sim;
+  // an injected fault (tests): into the state the step starts from, through the same checks
+  for (InjectedFault& f : faults_) {
+    if (f.step != sim.steps() + 1) continue;
+    const std::int64_t at = f.step;
+    f.step = -1;  // once: a failed step is not counted, the next one has the same number
+    if (f.kind == InjectedFault::Kind::exception)
+      throw std::runtime_error(fmt::format("injected fault at step {} (--test-fault throw)", at));
+    TissueSnapshot bad;
+    sim.save_tissue(bad);
+    const Eigen::Index node = bad.positions.cols() / 2;
+    if (f.kind == InjectedFault::Kind::non_finite)
+      bad.positions(0, node) = std::numeric_limits<double>::quiet_NaN();
+    else
+      bad.velocities.col(node) = Eigen::Vector3d(1e7, 0.0, 0.0);
+    sim.restore_tissue(bad);
+  }
+  sim.step();
   double delay = step_delay_s_;
   if (first_step_delay_s_ > 0 && !first_step_done_) delay += first_step_delay_s_;
   first_step_done_ = true;

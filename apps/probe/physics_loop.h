@@ -5,8 +5,17 @@
 /// the lag and goes on in slow motion, never bursting. Local shaping: one update per tick (the
 /// tool moved to the device's proxy over its steps, then a local contact model published).
 /// Publishes what it did in `AppShared::physics` (app_shared.h).
+///
+/// Faults: a step that gives NaN/Inf or runs away (the state's own check) or throws does not end
+/// the session: the tissue goes back to its last good state (`TissueSnapshot`, copied at most
+/// every `kSnapshotEvery_s` of wall time at the end of a tick whose steps all passed the check;
+/// three faults in a row from the same snapshot: back to rest), the console and the HUD say so,
+/// and `fault_generation` tells the device to fade its force out (force_guard.h).
+
+#include <vector>
 
 #include "app_shared.h"
+#include "sim/simulation.h"
 
 namespace vx::probe {
 
@@ -21,6 +30,12 @@ class PhysicsLoop {
     step_delay_s_ = per_step_s;
     first_step_delay_s_ = first_step_s;
   }
+  /// After the thread stopped (the caller's thread): the soak's last figure (the tissue at the end).
+  void finish();
+  /// Test hook (--test-fault): faults injected at the start of the given steps.
+  void set_faults(std::vector<InjectedFault> faults) { faults_ = std::move(faults); }
+  /// The wall time between two snapshots of the last good state at most, s.
+  static constexpr double kSnapshotEvery_s = 0.25;
 
  private:
   /// Resets the simulation when the GUI asked.
@@ -32,8 +47,12 @@ class PhysicsLoop {
   /// one physics period of wall time even when it has not taken all `steps` (a slow physics
   /// publishes at its rate and falls behind in simulated time, not in updates).
   int local_update(int steps, SteadyClock::time_point start);
-  /// One step (and the test hook's delay).
+  /// One step (the injected fault, the test hook's delay).
   void step_once();
+  /// The state after a fault back to the last good one; `what` for the console and the HUD.
+  void recover(const std::string& what, bool drop_solver);
+  /// Keeps the state now as the last good one when the last is old enough.
+  void keep_good_state(SteadyClock::time_point now);
   /// Publishes the steps and simulated time of this tick, the start-up, a failure; true when
   /// this tick ended the start-up.
   bool publish(int steps, double sim_before_s);
@@ -48,6 +67,15 @@ class PhysicsLoop {
   double step_delay_s_{0.0};
   double first_step_delay_s_{0.0};
   bool first_step_done_{false};
+  std::vector<InjectedFault> faults_;
+  TissueSnapshot good_;  ///< the last good state
+  TissueSnapshot rest_;  ///< the rest state (after repeated faults)
+  SteadyClock::time_point good_wall_{};
+  int faults_since_good_{0};
+  Eigen::Matrix3Xd soak_ref_;  ///< soak: the tissue at rest before the first press
+  /// soak: the largest node displacement from the reference now, mm (0 without one)
+  [[nodiscard]] double soak_displacement_mm() const;
+  void soak_watch();
 };
 
 }  // namespace vx::probe

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <atomic>
 #include <csignal>
+#include <limits>
 #include <memory>
 #include <vector>
 
@@ -21,8 +22,10 @@
 #include "probe_view.h"
 #include "rate_thread.h"
 #include "sdl_input.h"
+#include "sim/contact.h"
 #include "sim/local_contact.h"
 #include "sim/simulation.h"
+#include "soak.h"
 #include "util/thread_priority.h"
 
 namespace vx::probe {
@@ -33,6 +36,29 @@ DeviceChoice parse_device_choice(const std::string& s) {
   if (s == "rumble") return DeviceChoice::rumble;
   if (s == "none") return DeviceChoice::none;
   throw Error("unknown force output '" + s + "': use auto, haptic, rumble or none");
+}
+
+InjectedFault parse_injected_fault(const std::string& s) {
+  const auto at = s.find('@');
+  const std::string kind = s.substr(0, at);
+  InjectedFault f;
+  if (kind == "nan")
+    f.kind = InjectedFault::Kind::non_finite;
+  else if (kind == "runaway")
+    f.kind = InjectedFault::Kind::runaway;
+  else if (kind == "throw")
+    f.kind = InjectedFault::Kind::exception;
+  else
+    throw Error("--test-fault '" + s + "': use nan@STEP, runaway@STEP or throw@STEP");
+  try {
+    std::size_t used = 0;
+    if (at == std::string::npos) throw std::invalid_argument("no step");
+    f.step = std::stoll(s.substr(at + 1), &used);
+    if (used != s.size() - at - 1 || f.step < 1) throw std::invalid_argument("bad step");
+  } catch (const std::exception&) {
+    throw Error("--test-fault '" + s + "': the step must be a whole number >= 1 (nan@120)");
+  }
+  return f;
 }
 
 namespace {
@@ -76,6 +102,8 @@ class App {
   [[nodiscard]] int finish(ProbeView* view, std::string error);
   /// The final lines: start-up, the real-time factor over the run after the start-up, forces.
   void summary(double wall_s);
+  /// --soak-s: the soak's figures in one line (docs/robustness.md, "Soak").
+  void soak_summary();
 
   const AppOptions& options_;
   ProbeScene scene_;
@@ -106,7 +134,25 @@ void App::open_input() {
   InputSettings in;
   in.max_sticks = std::min(kMaxSticks, std::max(1, probes_));
   in.joysticks = options_.use_joysticks;
-  if (!options_.joystick_script.empty()) {
+  if (options_.soak_s > 0) {
+    // the soak's random script: one stick per probe (two: grasps too)
+    SoakMotion motion;
+    motion.speed_mm_s = control_.mapping.max_speed_mm_s;
+    motion.dead_zone = control_.mapping.dead_zone;
+    // the gap: from the first tool at its start to the nearest node of the tissue at rest
+    const Eigen::Matrix3Xd& rest = scene_.physics->model->rest_positions;
+    const ProbeSettings& tool = scene_.simulation.probes.front();
+    double gap = std::numeric_limits<double>::infinity();
+    for (Eigen::Index i = 0; i < rest.cols(); ++i)
+      gap = std::min(gap, probe_signed_distance(tool.geometry, sim_->probe(0).pose.position_mm, rest.col(i)));
+    motion.gap_mm = std::clamp(gap, 0.0, 30.0);
+    say(fmt::format("soak: {:.0f} s of random presses, slides{} (seed {}), the tool {:.1f} mm above the tissue",
+                    options_.soak_s, probes_ > 1 ? ", grasps" : "", options_.soak_seed, motion.gap_mm));
+    script_ = std::make_shared<const JoystickScript>(JoystickScript::parse(
+        make_soak_script(options_.soak_s, options_.soak_seed, std::min(probes_, kMaxSticks), motion),
+        "the soak script"));
+    in.script = script_;
+  } else if (!options_.joystick_script.empty()) {
     script_ = std::make_shared<const JoystickScript>(JoystickScript::load(options_.joystick_script));
     in.script = script_;
     if (script_->sticks() > probes_)
@@ -279,6 +325,7 @@ std::unique_ptr<ProbeView> App::open_view(const IoLines& lines) {
 std::string App::run_loops(const IoLines& lines) {
   PhysicsLoop physics_loop(*shared_);
   physics_loop.set_step_delay(options_.test_step_delay_s, options_.test_startup_delay_s);
+  physics_loop.set_faults(options_.test_faults);
   shared_->start = SteadyClock::now();
   shared_->physics.set_clock(SimClock{0.0, shared_->start, false});
   FixedRateThread physics("physics", options_.physics_hz, [&](std::int64_t) { physics_loop.tick(); });
@@ -301,6 +348,7 @@ std::string App::run_loops(const IoLines& lines) {
   // stop: device first (no more writes), then physics (its last step ends the run's interval)
   device.stop();
   physics.stop();
+  physics_loop.finish();
   const PhysicsReport& r = shared_->physics;
   end_ = r.ended.load(std::memory_order_acquire) ? r.at_end : r.sample(shared_->start, SteadyClock::now());
   std::signal(SIGINT, old_int);
@@ -336,6 +384,19 @@ void App::summary(double wall_s) {
     say(fmt::format("local force shaping: {} physics updates ({:.1f} per second), device clock {:.2f} s",
                     r.updates.load(),
                     wall_s > 0 ? double(r.updates.load()) / wall_s : 0.0, device_loop_->clock_s()));
+  say(
+      fmt::format("faults: {} physics fault(s) recovered from{}; the last good state kept {} times (at most every "
+                  "{:g} s, a copy took {:.1f} ms at most)",
+                  r.faults.load(), r.faults.load() > 0 ? " (" + r.last_fault() + ")" : std::string(),
+                  r.snapshots.load(), PhysicsLoop::kSnapshotEvery_s, 1e-3 * double(r.snapshot_max_us.load())));
+  for (int p = 0; p < std::min(probes_, 2); ++p) {
+    const DeviceForceGuard& g = device_loop_->guard(p);
+    say(
+        fmt::format("probe {} force guard: max {:g} N (--max-force), {} ticks clamped, {} fades (faults and resets), "
+                    "{} non-finite forces refused",
+                    p, g.settings().max_force_N, g.clamped_ticks(), g.interrupts(), g.non_finite()));
+  }
+  if (options_.soak_s > 0) soak_summary();
   std::lock_guard lock(shared_->device.mutex);
   for (int p = 0; p < std::min(probes_, 2); ++p) {
     const ForceStats& s = shared_->device.stats[std::size_t(p)];
@@ -346,6 +407,27 @@ void App::summary(double wall_s) {
                         ? fmt::format("; energy guard {} ticks", device_loop_->renderer(p).guard_ticks())
                         : std::string()));
   }
+}
+
+void App::soak_summary() {
+  const PhysicsReport& r = shared_->physics;
+  const SoakMonitor& m = gui_loop_->soak();
+  std::int64_t non_finite = 0, guard_ticks = 0;
+  for (int p = 0; p < std::min(probes_, kMaxSticks); ++p) {
+    non_finite += device_loop_->guard(p).non_finite();
+    if (local_ && std::size_t(p) < device_loop_->local_probes()) guard_ticks += device_loop_->renderer(p).guard_ticks();
+  }
+  const double growth =
+      m.warm_bytes() > 0 ? 100.0 * double(m.end_bytes() - m.warm_bytes()) / double(m.warm_bytes()) : 0;
+  say(fmt::format(
+      "soak: {:.0f} s, seed {}: non-finite {} (physics faults {}, device forces refused {}); resident "
+      "memory {:.1f} MB after the warm-up (at {:.1f} s), {:.1f} MB at the end ({:+.2f} %); device forces per "
+      "second at least {:.0f} over {} one-second windows; tissue at the end {:.4f} mm from its rest (taken "
+      "at t = {:.2f} s), {:.2f} % of its largest displacement {:.3f} mm; energy guard {} ticks",
+      options_.soak_s, options_.soak_seed, r.faults.load() + non_finite, r.faults.load(), non_finite,
+      1e-6 * double(m.warm_bytes()), m.warm_at_s(), 1e-6 * double(m.end_bytes()), growth, m.min_forces_per_s(),
+      m.windows(), r.soak_final_mm, r.soak_ref_s, r.soak_peak_mm > 0 ? 100.0 * r.soak_final_mm / r.soak_peak_mm : 0.0,
+      r.soak_peak_mm, local_ ? std::to_string(guard_ticks) : std::string("(paper shaping: none)")));
 }
 
 int App::finish(ProbeView* view, std::string error) {
@@ -402,9 +484,9 @@ int App::run() {
 
 int run_probe_app(const AppOptions& options) {
   // the checks that need no loading come first
-  if (options.headless && options.duration_s <= 0 && !options.exit_after_script)
+  if (options.headless && options.duration_s <= 0 && !options.exit_after_script && options.soak_s <= 0)
     throw Error("--headless needs a stop condition: --duration SECONDS or --exit-after-script");
-  if (options.exit_after_script && options.joystick_script.empty())
+  if (options.exit_after_script && options.joystick_script.empty() && options.soak_s <= 0)
     throw Error("--exit-after-script needs --virtual-joystick SCRIPT");
   if (!options.screenshot.empty() && options.headless) throw Error("--screenshot needs a window (not --headless)");
   if (!options.headless) {

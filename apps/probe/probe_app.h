@@ -15,6 +15,7 @@
 #include <filesystem>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "probe_scene.h"
 #include "sim/device_force.h"
@@ -31,6 +32,17 @@ inline constexpr int kExitNoDisplay = vx::exit_code::no_display;  ///< no X disp
 /// Which device backend to use.
 enum class DeviceChoice : std::uint8_t { automatic, haptic, rumble, none };
 [[nodiscard]] DeviceChoice parse_device_choice(const std::string& s);
+
+/// A fault injected into the physics on purpose (--test-fault KIND@STEP; tests): at the start of
+/// step `step` the tissue gets a NaN (non_finite), a node thrown at 1e7 mm/s so the step runs
+/// away as a diverging solve does (runaway), or the step throws (exception).
+struct InjectedFault {
+  enum class Kind : std::uint8_t { non_finite, runaway, exception };
+  Kind kind{Kind::non_finite};
+  std::int64_t step{0};
+};
+/// Parses "nan@120", "runaway@300", "throw@40"; throws vx::Error for anything else.
+[[nodiscard]] InjectedFault parse_injected_fault(const std::string& s);
 
 /// Everything the command line sets.
 struct AppOptions {
@@ -68,6 +80,14 @@ struct AppOptions {
   /// (a slow start-up), s. The figures the app reports must show them.
   double test_step_delay_s{0.0};
   double test_startup_delay_s{0.0};
+  /// Test hooks: faults injected into the physics (each once), and the virtual stick 0 unplugged
+  /// and plugged back at these device times (s; negative: never).
+  std::vector<InjectedFault> test_faults;
+  /// Soak (> 0): a random script of this many seconds (soak.h), seeded; the run judged at the end.
+  double soak_s{0.0};
+  std::uint32_t soak_seed{1};
+  double test_unplug_s{-1.0};
+  double test_replug_s{-1.0};
 };
 
 /// Runs the app; returns the exit code. Throws vx::Error for bad input found before the run.

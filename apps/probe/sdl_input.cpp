@@ -24,11 +24,13 @@ double normalise_axis(Sint16 v) { return std::clamp(double(v) / 32767.0, -1.0, 1
 
 Sint16 to_axis(double v) { return Sint16(std::lround(std::clamp(v, -1.0, 1.0) * 32767.0)); }
 
-// drain SDL's event queue; report removed joysticks
-void drain_events(std::vector<SDL_JoystickID>* removed) {
+// drain SDL's event queue; report removed joysticks (instance ids) and added ones (device indices)
+void drain_events(std::vector<SDL_JoystickID>* removed, std::vector<int>* added = nullptr) {
   SDL_Event e;
-  while (SDL_PollEvent(&e))
+  while (SDL_PollEvent(&e)) {
     if (removed && e.type == SDL_JOYDEVICEREMOVED) removed->push_back(e.jdevice.which);
+    if (added && e.type == SDL_JOYDEVICEADDED) added->push_back(e.jdevice.which);
+  }
 }
 
 }  // namespace
@@ -62,20 +64,8 @@ SdlInput::SdlInput(const InputSettings& settings) : script_(settings.script) {
         stick.is_virtual = true;
         stick.rumble = std::make_unique<VirtualRumble>();
         stick.name = fmt::format("voxelastic virtual joystick {}", s);
-        SDL_VirtualJoystickDesc desc{};
-        desc.version = SDL_VIRTUAL_JOYSTICK_DESC_VERSION;
-        desc.type = SDL_JOYSTICK_TYPE_GAMECONTROLLER;
-        desc.naxes = kScriptAxes;
-        desc.nbuttons = kScriptButtons;
-        desc.nhats = 0;
-        desc.name = stick.name.c_str();
-        desc.userdata = stick.rumble.get();
-        desc.Rumble = &virtual_rumble_callback;
-        const int index = SDL_JoystickAttachVirtualEx(&desc);
-        if (index < 0)
-          throw Error(std::string("cannot attach an SDL virtual joystick: ") + SDL_GetError());
-        stick.device_index = index;
-        stick.js = SDL_JoystickOpen(index);
+        stick.device_index = attach_virtual(stick);
+        stick.js = SDL_JoystickOpen(stick.device_index);
         if (!stick.js)
           throw Error(std::string("cannot open the SDL virtual joystick: ") + SDL_GetError());
         stick.id = SDL_JoystickInstanceID(stick.js);
@@ -121,6 +111,65 @@ SdlInput::~SdlInput() {
   SDL_Quit();
 }
 
+int SdlInput::attach_virtual(Stick& stick) {
+  SDL_VirtualJoystickDesc desc{};
+  desc.version = SDL_VIRTUAL_JOYSTICK_DESC_VERSION;
+  desc.type = SDL_JOYSTICK_TYPE_GAMECONTROLLER;
+  desc.naxes = kScriptAxes;
+  desc.nbuttons = kScriptButtons;
+  desc.nhats = 0;
+  desc.name = stick.name.c_str();
+  desc.userdata = stick.rumble.get();
+  desc.Rumble = &virtual_rumble_callback;
+  const int index = SDL_JoystickAttachVirtualEx(&desc);
+  if (index < 0) throw Error(std::string("cannot attach an SDL virtual joystick: ") + SDL_GetError());
+  return index;
+}
+
+void SdlInput::unplug_virtual(int i) {
+  Stick& s = sticks_[std::size_t(i)];
+  if (!s.is_virtual || !s.js) return;
+  // SDL posts SDL_JOYDEVICEREMOVED: poll() closes it as it would a physical stick pulled out
+  for (int index = 0; index < SDL_NumJoysticks(); ++index)
+    if (SDL_JoystickGetDeviceInstanceID(index) == s.id) {
+      SDL_JoystickDetachVirtual(index);
+      return;
+    }
+}
+
+void SdlInput::replug_virtual(int i) {
+  Stick& s = sticks_[std::size_t(i)];
+  if (!s.is_virtual || s.js) return;
+  (void)attach_virtual(s);  // SDL posts SDL_JOYDEVICEADDED: poll() opens it into its old place
+}
+
+void SdlInput::take_added(const std::vector<int>& device_indices) {
+  for (const int index : device_indices) {
+    if (index < 0 || index >= SDL_NumJoysticks()) continue;
+    const SDL_JoystickID id = SDL_JoystickGetDeviceInstanceID(index);
+    const bool open = std::any_of(sticks_.begin(), sticks_.end(), [&](const Stick& s) { return s.js && s.id == id; });
+    if (open) continue;
+    const bool is_virtual = SDL_JoystickIsVirtual(index) == SDL_TRUE;
+    auto place = std::find_if(sticks_.begin(), sticks_.end(),
+                              [&](const Stick& s) { return !s.js && s.is_virtual == is_virtual; });
+    if (place == sticks_.end()) continue;  // no empty place of its kind: not ours
+    SDL_Joystick* js = SDL_JoystickOpen(index);
+    if (!js) {
+      messages_.push_back(fmt::format("a joystick was plugged in but could not be opened ({})", SDL_GetError()));
+      continue;
+    }
+    place->js = js;
+    place->id = SDL_JoystickInstanceID(js);
+    place->device_index = index;
+    ++place->changes;
+    const char* name = SDL_JoystickName(js);
+    const std::string was = place->name;
+    if (!is_virtual && name) place->name = name;
+    messages_.push_back(fmt::format("joystick '{}' is back (was '{}'): it drives probe {} again, its force ramps up",
+                                    place->name, was, int(place - sticks_.begin())));
+  }
+}
+
 const VirtualRumble* SdlInput::virtual_rumble(int i) const {
   return sticks_[std::size_t(i)].rumble.get();
 }
@@ -155,15 +204,22 @@ void SdlInput::poll() {
   if (!subsystems_) return;
   // pumping applies the virtual values and delivers hotplug events
   std::vector<SDL_JoystickID> removed;
+  std::vector<int> added;
   SDL_JoystickUpdate();
-  drain_events(&removed);
+  drain_events(&removed, &added);
   for (auto& s : sticks_) {
     if (s.js && (std::find(removed.begin(), removed.end(), s.id) != removed.end() ||
                  !SDL_JoystickGetAttached(s.js))) {
-      messages_.push_back(fmt::format("joystick '{}' was disconnected: its probe stops (keyboard still works)", s.name));
+      messages_.push_back(fmt::format(
+          "joystick '{}' was disconnected: its probe stops (keyboard still works; plug it back to go on)", s.name));
       SDL_JoystickClose(s.js);
       s.js = nullptr;
+      ++s.changes;
     }
+  }
+  // plugged (back) in: into the places left empty
+  if (!added.empty()) take_added(added);
+  for (auto& s : sticks_) {
     StickState& st = s.state;
     if (!s.js) {
       st = StickState{};

@@ -76,8 +76,16 @@ class SdlInput {
   void poll();
   /// State of stick i as of the last poll().
   [[nodiscard]] const StickState& state(int i) const { return sticks_[std::size_t(i)].state; }
-  /// Messages about disconnects since the last call (for the console and HUD).
+  /// Messages about disconnects and reconnects since the last call (for the console and HUD).
   [[nodiscard]] std::vector<std::string> take_messages();
+  /// Times stick i was unplugged or plugged back (the device loop re-binds its force output and
+  /// ramps its force up again when this changes). A stick plugged back takes its old place: the
+  /// first place left empty by a stick of its kind (physical or virtual), in SDL's order.
+  [[nodiscard]] int connection_changes(int i) const { return sticks_[std::size_t(i)].changes; }
+  /// Test hooks: virtual stick i detached from SDL (as if unplugged: SDL_JOYDEVICEREMOVED) and
+  /// attached again (SDL_JOYDEVICEADDED); the next poll() notices, as for a physical stick.
+  void unplug_virtual(int i);
+  void replug_virtual(int i);
 
  private:
   struct Stick {
@@ -88,7 +96,13 @@ class SdlInput {
     std::string name;
     StickState state;
     std::unique_ptr<VirtualRumble> rumble;
+    int changes{0};
   };
+  /// Attaches a virtual joystick for `stick` (its name and rumble sink); returns the device
+  /// index or throws vx::Error.
+  static int attach_virtual(Stick& stick);
+  /// Opens the devices SDL announced (SDL_JOYDEVICEADDED) into empty places.
+  void take_added(const std::vector<int>& device_indices);
   std::vector<Stick> sticks_;
   std::vector<int> virtual_device_indices_;
   std::shared_ptr<const JoystickScript> script_;

@@ -148,6 +148,27 @@ void Simulation::reset() {
   frame_ready_ = false;
 }
 
+void Simulation::save_tissue(TissueSnapshot& out) const {
+  out.positions = state_.positions;
+  out.velocities = state_.velocities;
+  out.rotations.assign(state_.rotations.begin(), state_.rotations.end());
+  out.time_s = state_.time_s;
+  out.step = state_.steps;
+}
+
+void Simulation::restore_tissue(const TissueSnapshot& snap, bool drop_solver) {
+  if (snap.positions.cols() != state_.positions.cols() || snap.velocities.cols() != state_.velocities.cols() ||
+      snap.rotations.size() != state_.rotations.size())
+    throw Error("simulation: a tissue snapshot of another model");
+  state_.positions = snap.positions;
+  state_.velocities = snap.velocities;
+  std::copy(snap.rotations.begin(), snap.rotations.end(), state_.rotations.begin());
+  state_.clear_failure();
+  if (drop_solver) state_.integrator_cache = IntegratorCache{};
+  contact_.invalidate();
+  surface_step_ = -1;
+}
+
 int Simulation::probe_index(const std::string& name) const {
   for (std::size_t i = 0; i < settings_.probes.size(); ++i)
     if (settings_.probes[i].name == name) return int(i);

@@ -149,6 +149,18 @@ struct SimulationFrame {
   std::vector<ProbeOutput> probes;
 };
 
+/// The tissue's dynamic state at one step (Simulation::save_tissue / restore_tissue): what a
+/// failed step is rolled back to. Positions and velocities 3 x nodes (mm, mm/s), the elements'
+/// rotation fits (their warm starts), the time and step count it was taken at.
+struct TissueSnapshot {
+  Eigen::Matrix3Xd positions;
+  Eigen::Matrix3Xd velocities;
+  std::vector<Eigen::Quaterniond> rotations;
+  double time_s{0.0};
+  std::int64_t step{-1};  ///< -1: never taken
+  [[nodiscard]] bool empty() const { return step < 0; }
+};
+
 /// A running simulation. Create it, then step it; see the file comment for threads.
 class Simulation {
  public:
@@ -166,6 +178,14 @@ class Simulation {
   int advance_to(double target_time_s, int max_steps);
   /// Back to t = 0 at rest (probes at their start, device forces cleared, counters kept).
   void reset();
+  /// Copies the tissue's state now into `out` (its buffers reused: no allocation once sized).
+  void save_tissue(TissueSnapshot& out) const;
+  /// The tissue back to `snap` (positions, velocities, rotation fits) and a failure cleared;
+  /// time, step count, probes and device shaping go on from where they are (a rollback of the
+  /// tissue, not of the session). `drop_solver`: the implicit integrator refactors at the next
+  /// step (after an exception thrown inside a step its factor cannot be trusted). Throws
+  /// vx::Error for a snapshot of another size.
+  void restore_tissue(const TissueSnapshot& snap, bool drop_solver = false);
 
   [[nodiscard]] double time_s() const { return state_.time_s; }
   [[nodiscard]] std::int64_t steps() const { return state_.steps; }

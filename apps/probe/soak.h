@@ -1,0 +1,60 @@
+#pragma once
+/// @file soak.h
+/// A long scripted session (--soak-s S --seed N): a random joystick script of presses, holds,
+/// slides and lifts (and, with two sticks, grasps: both tools pressed towards each other), then
+/// a release and a rest; and what the run is judged by (SoakMonitor): non-finite values, resident
+/// memory after the warm-up and at the end, device forces per second over each 1 s window, the
+/// tissue back at rest after the release. docs/robustness.md, "Soak".
+
+#include <cstdint>
+#include <random>
+#include <string>
+
+namespace vx::probe {
+
+/// How the sticks move the tools (rate control) and how far the tissue is.
+struct SoakMotion {
+  double speed_mm_s{25.0};  ///< at full tilt
+  double dead_zone{0.08};
+  double gap_mm{3.0};  ///< from the tool down to the tissue at the start
+};
+
+/// The script's text (joystick_script.h format) for `duration_s` seconds of the device's clock:
+/// 3 s at rest, random episodes, every tool lifted back to its start and 2 s more, then at rest
+/// for soak_rest_s(). An episode: down through the gap and 1 to 5 mm into the tissue at
+/// 2 to 6 mm/s, a hold, a slide of up to 8 mm (two sticks, 3 in 10 episodes: a grasp, both
+/// towards each other) and back, a hold, up by as much as it went down, a pause.
+[[nodiscard]] std::string make_soak_script(double duration_s, std::uint32_t seed, int sticks, const SoakMotion& motion);
+/// The rest at the end of a soak, after the release (the tools lifted for 2 s), s: the tissue is
+/// judged at its end. 8 s, or 10 % of a longer soak.
+[[nodiscard]] inline double soak_rest_s(double duration_s) { return duration_s < 80.0 ? 8.0 : 0.1 * duration_s; }
+
+/// Resident memory of this process now, bytes (0 where /proc is not there).
+[[nodiscard]] std::int64_t resident_bytes();
+
+/// The GUI thread's part of the judgement: memory and the device's rate per whole second.
+class SoakMonitor {
+ public:
+  /// `warm_up_s`: memory is compared from this long after the physics' first step on.
+  explicit SoakMonitor(double warm_up_s) : warm_up_s_(warm_up_s) {}
+  /// Called often (every GUI pass): wall time since the open, the device's ticks so far, the
+  /// wall time the physics started at (< 0: not yet). The windows count from the physics' start.
+  void sample(double wall_s, std::int64_t device_ticks, double started_at_s);
+  [[nodiscard]] double min_forces_per_s() const { return min_rate_; }
+  [[nodiscard]] int windows() const { return windows_; }
+  [[nodiscard]] std::int64_t warm_bytes() const { return warm_bytes_; }
+  [[nodiscard]] std::int64_t end_bytes() const { return end_bytes_; }
+  [[nodiscard]] double warm_at_s() const { return warm_at_s_; }
+
+ private:
+  double warm_up_s_;
+  double window_start_s_{-1.0};
+  std::int64_t window_ticks_{0};
+  double min_rate_{0.0};
+  int windows_{0};
+  std::int64_t warm_bytes_{0}, end_bytes_{0};
+  double warm_at_s_{-1.0};
+  double last_rss_s_{-1.0};
+};
+
+}  // namespace vx::probe

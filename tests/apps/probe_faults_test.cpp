@@ -1,0 +1,155 @@
+// `voxelastic-probe` with faults on purpose (--test-fault, --test-unplug/--test-replug): what the
+// hand feels when the physics fails or a stick is pulled out. The force log of the demo scene
+// with local shaping (a smooth force, so a jump would show) is read tick by tick.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <regex>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "support/run_binary.h"
+
+namespace fs = std::filesystem;
+
+namespace {
+
+const fs::path kBinary = fs::path(VX_BINARY_DIR) / "apps" / "probe" / "voxelastic-probe";
+const fs::path kScene = fs::path(VX_SAMPLES_DIR) / "scenes" / "palpation-lesion.json";
+const fs::path kScript = fs::path(VX_SAMPLES_DIR) / "scenes" / "palpation-lesion.joy";
+
+struct Tick {
+  double wall_s, sim_s, device_N, physics_s;
+};
+
+std::vector<Tick> read_ticks(const fs::path& csv) {
+  std::ifstream in(csv);
+  std::string line;
+  std::getline(in, line);
+  std::vector<Tick> out;
+  while (std::getline(in, line)) {
+    std::vector<std::string> c;
+    std::stringstream ss(line);
+    for (std::string v; std::getline(ss, v, ',');) c.push_back(v);
+    if (c.size() < 19) continue;
+    out.push_back({std::stod(c[0]), std::stod(c[1]), std::stod(c[6]), std::stod(c[18])});
+  }
+  return out;
+}
+
+std::string q(const fs::path& p) {
+  std::string s(1, '\'');
+  s += p.string();
+  s.push_back('\'');
+  return s;
+}
+
+/// The largest tick-to-tick change of the device force's magnitude.
+double largest_step(const std::vector<Tick>& t) {
+  double m = 0;
+  for (std::size_t i = 1; i < t.size(); ++i) m = std::max(m, std::abs(t[i].device_N - t[i - 1].device_N));
+  return m;
+}
+
+/// The force at the last tick at or before `key` (a wall or device time, by `at`).
+template <class Key>
+double force_at(const std::vector<Tick>& t, double time, Key key) {
+  double f = 0;
+  for (const Tick& x : t)
+    if (key(x) <= time) f = x.device_N;
+  return f;
+}
+
+class ProbeFaults : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() / ("vx_probe_faults_" + std::to_string(::getpid()) + "_" +
+                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+  vx::testing::RunResult run(const std::string& extra, const fs::path& csv) const {
+    return vx::testing::run_binary(kBinary,
+                                   q(kScene) + " --headless --force-shaping local --virtual-joystick " + q(kScript) +
+                                       " --force-log " + q(csv) + " " + extra,
+                                   dir_, dir_);
+  }
+  fs::path dir_;
+};
+
+TEST_F(ProbeFaults, EachFaultFadesTheForceWithin50msThenRampsUpAndTheSessionGoesOn) {
+  // the demo presses from 0.9 s and slides from 2 s; at 5500 steps/s these steps fall at about
+  // 2.0, 2.9 and 3.8 s, all while the tool presses the tissue
+  const fs::path csv = dir_ / "faults.csv";
+  const auto r = run("--duration 5 --test-fault nan@11000 --test-fault runaway@16000 --test-fault throw@21000", csv);
+  ASSERT_EQ(r.code, 0) << r.out << r.err;
+  EXPECT_NE(r.out.find("faults: 3 physics fault(s) recovered"), std::string::npos) << r.out;
+  // the three faults, each named, with the wall time the physics noticed it
+  const std::regex line(R"(physics fault at t = ([0-9.]+) s \(wall ([0-9.]+) s; ([a-z_ ]+))");
+  std::vector<double> walls, sims;
+  std::vector<std::string> kinds;
+  for (std::sregex_iterator it(r.err.begin(), r.err.end(), line), end; it != end; ++it) {
+    sims.push_back(std::stod((*it)[1]));
+    walls.push_back(std::stod((*it)[2]));
+    kinds.push_back((*it)[3]);
+  }
+  ASSERT_EQ(walls.size(), 3u) << r.err;
+  EXPECT_EQ(kinds[0].compare(0, 10, "non_finite"), 0) << kinds[0];
+  EXPECT_EQ(kinds[1].compare(0, 7, "runaway"), 0) << kinds[1];
+  EXPECT_EQ(kinds[2].compare(0, 14, "the step threw"), 0) << kinds[2];
+
+  const std::vector<Tick> t = read_ticks(csv);
+  ASSERT_GT(t.size(), 4000u);
+  const auto wall = [](const Tick& x) { return x.wall_s; };
+  for (std::size_t k = 0; k < walls.size(); ++k) {
+    const double w = walls[k];
+    const double before = force_at(t, w, wall);
+    EXPECT_GT(before, 0.05) << "fault " << k << ": the tool should be pressing";
+    // to zero within 50 ms (the device sees the fault at its next tick and fades over 40 ms)
+    auto zero = std::find_if(t.begin(), t.end(), [&](const Tick& x) { return x.wall_s > w && x.device_N == 0.0; });
+    ASSERT_NE(zero, t.end());
+    EXPECT_LE(zero->wall_s - w, 0.050) << "fault " << k;
+    // not cut: a fade over tens of ticks, each step at most 1/40 of the force and a little
+    const int fade_ticks = int(std::count_if(t.begin(), zero, [&](const Tick& x) { return x.wall_s > w; }));
+    EXPECT_GE(fade_ticks, 30) << "fault " << k;
+    // then up again over about 100 ms: a third of the way after 30 ms, most of it after 150 ms
+    const double z = zero->wall_s;
+    const double at30 = force_at(t, z + 0.030, wall), at150 = force_at(t, z + 0.150, wall);
+    EXPECT_GT(at150, 0.5 * before) << "fault " << k;
+    EXPECT_LT(at30, 0.45 * at150) << "fault " << k;
+  }
+  // the hand never felt a jump (the run without faults: 0.007 N; a cut force would be > 0.1 N)
+  EXPECT_LT(largest_step(t), 0.02);
+  // the session went on: the physics kept stepping after the last fault
+  EXPECT_GT(t.back().physics_s, sims.back() + 0.5);
+}
+
+TEST_F(ProbeFaults, AStickUnpluggedAndPluggedBackDrivesItsProbeAgain) {
+  const fs::path csv = dir_ / "unplug.csv";
+  const auto r = run("--duration 4.5 --test-unplug 2.5 --test-replug 3.0", csv);
+  ASSERT_EQ(r.code, 0) << r.out << r.err;
+  EXPECT_NE(r.out.find("was disconnected"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("is back"), std::string::npos) << r.out;
+  const std::vector<Tick> t = read_ticks(csv);
+  const auto dev = [](const Tick& x) { return x.sim_s; };  // local shaping: the device's clock
+  EXPECT_GT(force_at(t, 2.49, dev), 0.05);
+  // unplugged: faded out within 50 ms, then nothing until it is back
+  for (const Tick& x : t) {
+    if (x.sim_s > 2.56 && x.sim_s < 3.0) {
+      EXPECT_EQ(x.device_N, 0.0) << x.sim_s;
+    }
+  }
+  // back: the force ramps up over about 100 ms (the script goes on sliding)
+  const double at3 = force_at(t, 3.03, dev), at3_2 = force_at(t, 3.2, dev);
+  EXPECT_GT(at3_2, 0.05);
+  EXPECT_LT(at3, 0.45 * at3_2);
+  EXPECT_LT(largest_step(t), 0.02);
+}
+
+}  // namespace
