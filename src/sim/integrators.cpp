@@ -276,7 +276,17 @@ class ImplicitIntegrator final : public Integrator {
     const double dt = settings_.time_step_s;
     ProjectiveSolver& solver = solver_for(s, rep);
     rep.factor_nonzeros = solver.factor_nonzeros();
-    if (settings_.region_radius_mm > 0 && contact_) update_region(s, solver, rep.refactored);
+    if (settings_.region_radius_mm > 0 && contact_) {
+      update_region(s, solver, rep.refactored);
+      // after a release, a full solve now and then lets the far field that slept relax
+      if (!contacts_.empty()) {
+        touched_ = true;
+        idle_steps_ = 0;
+      } else if (touched_ && solver.has_region() && settings_.region_idle_refresh_steps > 0 &&
+                 ++idle_steps_ % settings_.region_idle_refresh_steps == 0) {
+        solver.refresh_all_next();
+      }
+    }
     if (settings_.track_energy) {
       ElementPassOptions opt;
       opt.damping = false;
@@ -413,6 +423,8 @@ class ImplicitIntegrator final : public Integrator {
   std::uint64_t contact_epoch_{0};
   std::vector<Eigen::Vector3d> focus_, centres_;
   std::vector<int> awake_;
+  bool touched_{false};       ///< a contact since the integrator began (the far field may be off rest)
+  std::int64_t idle_steps_{0};  ///< steps since the last contact
   std::vector<ContactConstraint> contacts_;  ///< active at the end of the last step
 };
 

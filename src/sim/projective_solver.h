@@ -135,6 +135,10 @@ class ProjectiveSolver {
   void set_region(const std::vector<int>& awake_nodes);
   /// Back to full solves.
   void clear_region();
+  /// The next solve is full (every node and element brought up to date), the region kept for
+  /// the solves after it: the far field relaxes once the tool has let go (the implicit
+  /// integrator's IntegratorSettings::region_idle_refresh_steps).
+  void refresh_all_next() { targets_valid_ = false; }
   [[nodiscard]] bool has_region() const { return region_; }
   /// Elements and free nodes the regional solves compute (0 without a region).
   [[nodiscard]] std::int64_t region_elements() const { return region_ ? std::int64_t(region_elements_.size()) : 0; }
