@@ -38,6 +38,7 @@ struct BenchOptions {
   std::vector<std::string> scale_models, scale_configs, scale_lattice_origins;
   double scale_max_wall_s{0.0}, scale_reference_max_wall_s{0.0};
   std::string scale_reference{"symplectic"};
+  double poisson{0.0};
 };
 
 /// `--haptic SCENE`: the local contact model's force at 1 kHz against the full-rate physics
@@ -90,6 +91,7 @@ void run_scale_command(const BenchOptions& o) {
     set.models = both;
   }
   set.element = o.element;
+  set.poisson_ratio = o.poisson;
   if (o.scale_max_wall_s > 0) set.max_wall_s = o.scale_max_wall_s;
   if (o.scale_reference_max_wall_s > 0) set.reference_max_wall_s = o.scale_reference_max_wall_s;
   if (o.scale_reference == "implicit") set.use_implicit_reference();
@@ -226,6 +228,9 @@ void add_bench_command(CLI::App& app) {
   sub->add_flag("--scale", opts->scale,
                 "instead: the real-time factor and force error of each configuration on sphere phantoms 32 to 256 and the "
                 "organ and folded phantoms, 1 and 2 threads (DIR/scale.csv, scale.md, scale.png; docs/bench.md)");
+  sub->add_option("--poisson", opts->poisson,
+                  "--scale: the material's Poisson ratio (default 0, the paper's model; docs/bench.md)")
+      ->check(CLI::Range(0.0, 0.499));
   sub->add_option("--scale-models", opts->scale_models,
                   "with --scale: the models (32, 64, 128, 256, organ, \"folded (stem)\", \"folded (lower third)\"; "
                   "default: all)")

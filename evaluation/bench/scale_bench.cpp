@@ -98,6 +98,7 @@ void ScaleBenchSettings::validate() const {
   for (int t : threads)
     if (t < 1) throw Error("bench --scale: threads must be >= 1");
   if (!(max_wall_s > 0)) throw Error("bench --scale: max_wall_s must be > 0");
+  if (!(poisson_ratio >= 0.0 && poisson_ratio < 0.5)) throw Error("bench --scale: poisson_ratio must be in [0, 0.5)");
 }
 
 namespace {
@@ -118,7 +119,7 @@ PreparedScene prepare_scale_model(const ScaleModelSpec& m, const ScaleBenchSetti
   j["material"] = {{"youngs_modulus_kpa", s.youngs_modulus_kpa},
                    {"damping", s.damping_ratio},
                    {"density_kg_m3", 1000.0},
-                   {"poisson_ratio", 0.0}};
+                   {"poisson_ratio", s.poisson_ratio}};
   if (!s.element.empty()) j["material"]["element"] = s.element;
   // the support, from the phantom's analytic shape (the model keeps its LPS coordinates)
   PhantomSettings ps;
