@@ -36,6 +36,10 @@ export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
 # errors and undefined behaviour still fail them), one at a time (a run of them two at a time
 # aborted once under Xvfb, not reproduced in three reruns); every other test runs with it on.
 gl_tests='^Render\.|PictureUnderXvfb|^ProbeView\.|^ProbeApp\.'
-scripts/with-display.sh ctest --test-dir "$build_dir" -LE slow -E "$gl_tests" --output-on-failure -j "$jobs" "$@"
+# Left out: a test that places its injected faults by physics step count on a Release build's
+# step rate (5500 steps/s; ASan gives about 1900, so the faults fall after the run's end). Its
+# code (the force guard, the rollback) runs under ASan in ProbeForceGuard.* and the unplug test.
+timed_tests='^ProbeFaults\.EachFaultFades'
+scripts/with-display.sh ctest --test-dir "$build_dir" -LE slow -E "$gl_tests|$timed_tests" --output-on-failure -j "$jobs" "$@"
 ASAN_OPTIONS="detect_leaks=0:${ASAN_OPTIONS#detect_leaks=1:}" \
   scripts/with-display.sh ctest --test-dir "$build_dir" -LE slow -R "$gl_tests" --output-on-failure -j 1 "$@"
