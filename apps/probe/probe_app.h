@@ -70,7 +70,7 @@ struct AppOptions {
   double device_hz{1000.0};                     ///< device thread tick
   double fps{60.0};                             ///< display frame limit
   int threads{1};                               ///< physics threads (0: all cores)
-  std::string factor_cache;                     ///< implicit factors kept by content: "" the default folder, "off", or a folder
+  std::string factor_cache;  ///< implicit factors kept by content: "" the default folder, "off", or a folder
   int width{1280};
   int height{800};
   bool headless{false};                         ///< no window (needs --duration or --exit-after-script)

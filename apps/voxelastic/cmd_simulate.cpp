@@ -218,7 +218,7 @@ void run_simulate(const SimulateOptions& o) {
   std::vector<std::pair<std::string, double>> startup = prepared.stage_seconds;
   startup.emplace_back("simulation set-up", secs(prepared_at, t0));
   startup.emplace_back("first step", secs(t0, first_step_done));
-  const SimulationCounters& fc = sim.counters();
+  const SimulationCounters& c = sim.counters();
   const double startup_s = secs(open, first_step_done);
 
   // the outputs, summary.json last
@@ -228,9 +228,9 @@ void run_simulate(const SimulateOptions& o) {
   summary["duration_s"] = scene.duration_s;
   summary["interrupted"] = interrupted;
   summary["startup_s"] = startup_s;
-  summary["factorisations"] = fc.factorisations;
-  summary["factors_from_cache"] = fc.factors_from_cache;
-  summary["factor_s"] = fc.factor_s;
+  summary["factorisations"] = c.factorisations;
+  summary["factors_from_cache"] = c.factors_from_cache;
+  summary["factor_s"] = c.factor_s;
   nlohmann::json& stages = summary["startup_stages_s"];
   for (const auto& [name, s] : startup) stages[name] = s;
   if (interrupted) summary["status"] = "interrupted";
@@ -240,15 +240,14 @@ void run_simulate(const SimulateOptions& o) {
                                   "in {} (summary.json says \"interrupted\": true)",
                                   sim.time_s(), scene.duration_s, sim.counters().steps, steps, dir.string()));
 
-  const SimulationCounters& c = sim.counters();
   if (!o.quiet) {
     std::string parts;
     for (const auto& [name, s] : startup) parts += fmt::format("{}{} {:.2f} s", parts.empty() ? "" : ", ", name, s);
     std::string factor;
-    if (fc.factorisations > 0)
-      factor = fc.factors_from_cache == fc.factorisations
-                   ? fmt::format("; the factor loaded from the cache in {:.2f} s", fc.factor_s)
-                   : fmt::format("; factoring took {:.2f} s", fc.factor_s);
+    if (c.factorisations > 0)
+      factor = c.factors_from_cache == c.factorisations
+                   ? fmt::format("; the factor loaded from the cache in {:.2f} s", c.factor_s)
+                   : fmt::format("; factoring took {:.2f} s", c.factor_s);
     fmt::print("start-up {:.2f} s, open to the end of the first step ({}{}{})\n", startup_s, parts, factor,
                prepared.region_stiffening ? "; the region check ran beside the run" : "");
   }

@@ -66,7 +66,7 @@ struct ScaleBenchSettings {
   std::vector<int> threads{1, 2};
   double youngs_modulus_kpa{10.0};
   double damping_ratio{0.2};
-  double poisson_ratio{0.0};        ///< the material's (docs/model.md section 5: the volume term)
+  double poisson_ratio{0.0};  ///< the material's (docs/model.md section 5: the volume term)
   double probe_radius_mm{4.0};
   double depth_mm{5.0};
   double slide_mm{10.0};

@@ -6,9 +6,9 @@
 
 #include <algorithm>
 #include <cerrno>
-#include <cstring>
 #include <chrono>
 #include <cstdlib>
+#include <cstring>
 #include <fstream>
 #include <system_error>
 #include <utility>
@@ -61,7 +61,8 @@ std::optional<fs::path> default_factor_cache_folder() {
     return fs::path(v);
   }
   if (const char* xdg = std::getenv("XDG_CACHE_HOME"); xdg && *xdg) return fs::path(xdg) / "voxelastic" / "factors";
-  if (const char* home = std::getenv("HOME"); home && *home) return fs::path(home) / ".cache" / "voxelastic" / "factors";
+  if (const char* home = std::getenv("HOME"); home && *home)
+    return fs::path(home) / ".cache" / "voxelastic" / "factors";
   return std::nullopt;
 }
 
@@ -75,8 +76,11 @@ std::shared_ptr<FactorCache> make_factor_cache(const std::string& option) {
   if (const char* min = std::getenv("VOXELASTIC_FACTOR_CACHE_MIN_S"); min && *min) {
     char* end = nullptr;
     const double v = std::strtod(min, &end);
-    if (end && *end == 0 && v >= 0) s.min_factor_s = v;
-    else log::warn("VOXELASTIC_FACTOR_CACHE_MIN_S='{}' is not a number of seconds >= 0; keeping {} s", min, s.min_factor_s);
+    if (end && *end == 0 && v >= 0)
+      s.min_factor_s = v;
+    else
+      log::warn("VOXELASTIC_FACTOR_CACHE_MIN_S='{}' is not a number of seconds >= 0; keeping {} s", min,
+                s.min_factor_s);
   }
   return std::make_shared<FolderFactorCache>(std::move(s));
 }
@@ -134,8 +138,8 @@ void FolderFactorCache::store(const FactorKey& key, const SparseFactor& factor) 
   }
   const std::uint64_t bytes = factor.stored_bytes();
   if (bytes > settings_.max_bytes) {
-    complain(fmt::format("the factor ({:.0f} MB) is larger than the cache's limit ({:.0f} MB); not kept", double(bytes) / 1e6,
-                         double(settings_.max_bytes) / 1e6));
+    complain(fmt::format("the factor ({:.0f} MB) is larger than the cache's limit ({:.0f} MB); not kept",
+                         double(bytes) / 1e6, double(settings_.max_bytes) / 1e6));
     return;
   }
   const fs::path file = file_of(key);
@@ -160,9 +164,10 @@ void FolderFactorCache::store(const FactorKey& key, const SparseFactor& factor) 
     return;
   }
   ++counters_.stored;
-  log::info("factor cache: kept the factor ({:.0f} MB, factored in {:.1f} s) in {} ({:.2f} s); the next start of this "
-            "model loads it",
-            double(bytes) / 1e6, factor.factor_seconds(), file.string(), seconds_since(t0));
+  log::info(
+      "factor cache: kept the factor ({:.0f} MB, factored in {:.1f} s) in {} ({:.2f} s); the next start of this "
+      "model loads it",
+      double(bytes) / 1e6, factor.factor_seconds(), file.string(), seconds_since(t0));
   evict(file);
 }
 

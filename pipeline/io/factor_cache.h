@@ -54,12 +54,12 @@ class FolderFactorCache final : public FactorCache {
   [[nodiscard]] std::filesystem::path file_of(const FactorKey& key) const;
 
   struct Counters {
-    int hits{0};        ///< factors loaded
-    int misses{0};      ///< factors looked up and not found (or not readable)
-    int stored{0};      ///< factors written
-    int skipped{0};     ///< factors not written: computed faster than min_factor_s
-    int damaged{0};     ///< files found unreadable and removed
-    int evicted{0};     ///< files removed to keep the folder under max_bytes
+    int hits{0};     ///< factors loaded
+    int misses{0};   ///< factors looked up and not found (or not readable)
+    int stored{0};   ///< factors written
+    int skipped{0};  ///< factors not written: computed faster than min_factor_s
+    int damaged{0};  ///< files found unreadable and removed
+    int evicted{0};  ///< files removed to keep the folder under max_bytes
   };
   [[nodiscard]] Counters counters() const;
 

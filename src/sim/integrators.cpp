@@ -381,9 +381,9 @@ class ImplicitIntegrator final : public Integrator {
     if (!cache.solver || cache.solver->setup() != setup || cache.fixed_version != s.fixed_version ||
         &cache.solver->physics() != s.physics.get()) {
       cache.solver.reset();
-      cache.solver =
-          IntegratorCache::SolverPtr(new ProjectiveSolver(s.physics, s.node_fixed, setup, settings_.factor_cache.get(), settings_.threads),
-                                     [](ProjectiveSolver* p) { delete p; });
+      cache.solver = IntegratorCache::SolverPtr(
+          new ProjectiveSolver(s.physics, s.node_fixed, setup, settings_.factor_cache.get(), settings_.threads),
+          [](ProjectiveSolver* p) { delete p; });
       cache.fixed_version = s.fixed_version;
       rep.refactored = true;
       rep.factor_from_cache = cache.solver->factor().from_cache();
@@ -423,8 +423,8 @@ class ImplicitIntegrator final : public Integrator {
   std::uint64_t contact_epoch_{0};
   std::vector<Eigen::Vector3d> focus_, centres_;
   std::vector<int> awake_;
-  bool touched_{false};       ///< a contact since the integrator began (the far field may be off rest)
-  std::int64_t idle_steps_{0};  ///< steps since the last contact
+  bool touched_{false};                      ///< a contact since the integrator began (the far field may be off rest)
+  std::int64_t idle_steps_{0};               ///< steps since the last contact
   std::vector<ContactConstraint> contacts_;  ///< active at the end of the last step
 };
 

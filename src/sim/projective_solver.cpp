@@ -97,14 +97,16 @@ void for_each_element_entry(const PhysicsModel& p, const NodeNumbering& numberin
     for (int i = 0; i < n; ++i) {
       const int fi = free_index[std::size_t(m.element_vertices[b + i])];
       if (fi < 0) continue;
-      for (int j = 0; j < n; ++j) emit(fi, m.element_vertices[b + j], ke(i, j) + kap * ((i == j ? w[i] : 0.0) - w[i] * w[j] / wsum));
+      for (int j = 0; j < n; ++j)
+        emit(fi, m.element_vertices[b + j], ke(i, j) + kap * ((i == j ? w[i] : 0.0) - w[i] * w[j] / wsum));
     }
   }
 }
 
 /// The mass term's diagonal entries (free index, value), with inertia.
 template <typename Emit>
-void for_each_mass_entry(const PhysicsModel& p, const NodeNumbering& numbering, const ProjectiveSetup& setup, Emit&& emit) {
+void for_each_mass_entry(const PhysicsModel& p, const NodeNumbering& numbering, const ProjectiveSetup& setup,
+                         Emit&& emit) {
   if (!setup.inertia) return;
   const double dt = setup.time_step_s;
   for (std::size_t i = 0; i < numbering.free_index.size(); ++i)
@@ -203,27 +205,20 @@ void ProjectiveSolver::assemble_and_factor(FactorCache* cache, int threads) {
   const int ne = p.num_elements(), nf = num_free();
   centring_weight_.resize(std::size_t(ne));
   for (int e = 0; e < ne; ++e) centring_weight_[std::size_t(e)] = projective_centring_weight(p, e, setup_);
+  FactorKey key;
   if (cache) {
     // the key from the element entries (a fraction of the assembly's cost), the coupling to the
     // fixed nodes with it: a factor found needs nothing else
-    const FactorKey key = projective_matrix_key(p, numbering_, setup_, threads, &a_free_fixed_);
-    if (cache->load(key, factor_)) {
-      if (factor_.size() == nf) return;
-      factor_ = SparseFactor();  // not this matrix's after all: factor it
-    }
-    SparseFactor::Matrix a;
-    assemble_projective_matrix(p, numbering_, setup_, a, &a_free_fixed_);
-    if (!factor_.compute(a))
-      throw Error("implicit integrator: the system matrix could not be factored (" + std::to_string(nf) +
-                  " free nodes); is a part of the model held by nothing?");
-    cache->store(key, factor_);
-    return;
+    key = projective_matrix_key(p, numbering_, setup_, threads, &a_free_fixed_);
+    if (cache->load(key, factor_) && factor_.size() == nf) return;
+    factor_ = SparseFactor();  // none, or not this matrix's after all: factor it
   }
   SparseFactor::Matrix a;
   assemble_projective_matrix(p, numbering_, setup_, a, &a_free_fixed_);
   if (!factor_.compute(a))
     throw Error("implicit integrator: the system matrix could not be factored (" + std::to_string(nf) +
                 " free nodes); is a part of the model held by nothing?");
+  if (cache) cache->store(key, factor_);
 }
 
 void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveIterations& its,

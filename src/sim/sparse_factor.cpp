@@ -2,12 +2,12 @@
 
 #include <Eigen/SparseCholesky>
 #include <algorithm>
-#include <numeric>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
 #include <limits>
+#include <numeric>
 #include <ostream>
 #include <string>
 
@@ -260,7 +260,8 @@ bool SparseFactor::index_supernodes() {
     const std::int64_t nsrow = row_start_[std::size_t(q) + 1] - row_start_[std::size_t(q)];
     for (int j = super_[std::size_t(q)]; j < super_[std::size_t(q) + 1]; ++j) {
       column_super_[std::size_t(j)] = q;
-      const double d = values_[std::size_t(value_start_[std::size_t(q)] + std::int64_t(j - super_[std::size_t(q)]) * (nsrow + 1))];
+      const double d =
+          values_[std::size_t(value_start_[std::size_t(q)] + std::int64_t(j - super_[std::size_t(q)]) * (nsrow + 1))];
       if (!(d > 0) || !std::isfinite(d)) ok = false;
     }
   }
@@ -268,7 +269,9 @@ bool SparseFactor::index_supernodes() {
   for (int q = 0; q < ns; ++q) {
     const int nscol = super_[std::size_t(q) + 1] - super_[std::size_t(q)];
     const std::int64_t nsrow = row_start_[std::size_t(q) + 1] - row_start_[std::size_t(q)];
-    if (nsrow > nscol) super_parent_[std::size_t(q)] = column_super_[std::size_t(rows_[std::size_t(row_start_[std::size_t(q)] + nscol)])];
+    if (nsrow > nscol)
+      super_parent_[std::size_t(q)] =
+          column_super_[std::size_t(rows_[std::size_t(row_start_[std::size_t(q)] + nscol)])];
   }
   return ok;
 }
@@ -741,8 +744,10 @@ class HashedReader {
   void share(SharedArray<T>& v, const std::shared_ptr<const void>& keep, const char* what) {
     const auto [p, n] = array<T>(what);
     if (!p) return;
-    if (keep) v.view(p, n, keep);
-    else v.own(std::vector<T>(p, p + n));
+    if (keep)
+      v.view(p, n, keep);
+    else
+      v.own(std::vector<T>(p, p + n));
   }
   void fail(std::string why) {
     if (error_.empty()) error_ = std::move(why);
@@ -819,7 +824,8 @@ bool SparseFactor::read(const unsigned char* data, std::size_t bytes, std::share
   std::uint32_t version = 0, int_bytes = 0;
   std::uint8_t backend = 0, supernodal = 0;
   std::int64_t n = 0;
-  if (const unsigned char* magic = r.bytes(sizeof kMagic, "the header"); magic && std::memcmp(magic, kMagic, sizeof kMagic) != 0)
+  if (const unsigned char* magic = r.bytes(sizeof kMagic, "the header");
+      magic && std::memcmp(magic, kMagic, sizeof kMagic) != 0)
     r.fail("not a voxelastic factor file");
   r.value(version, "the header");
   if (r.error().empty() && version != kFormatVersion)
@@ -846,7 +852,8 @@ bool SparseFactor::read(const unsigned char* data, std::size_t bytes, std::share
   const std::uint64_t expected = r.checksum();
   std::uint64_t sum = 0;
   if (r.value(sum, "the checksum") && sum != expected) r.fail("the checksum does not match (a damaged file)");
-  if (r.error().empty() && r.remaining() != 0) r.fail(std::to_string(r.remaining()) + " bytes after the end of the factor");
+  if (r.error().empty() && r.remaining() != 0)
+    r.fail(std::to_string(r.remaining()) + " bytes after the end of the factor");
   // the structure: whatever a solve indexes must be in range
   const int size = int(n);
   if (r.error().empty() && (perm_.size() != std::size_t(size) || !is_permutation(perm_)))
@@ -863,8 +870,8 @@ bool SparseFactor::read(const unsigned char* data, std::size_t bytes, std::share
       // a supernode's rows: its own columns, then rows below them, ascending and in range
       for (std::int64_t k = 0; good && k < nsrow; ++k) {
         const int row = rows_[std::size_t(row_start_[q] + k)];
-        good = k < nscol ? row == super_[q] + int(k) : row >= super_[q + 1] && row < size &&
-                                                            row > rows_[std::size_t(row_start_[q] + k - 1)];
+        good = k < nscol ? row == super_[q] + int(k)
+                         : row >= super_[q + 1] && row < size && row > rows_[std::size_t(row_start_[q] + k - 1)];
       }
     }
     if (!good) r.fail("the supernodes do not tile the matrix");

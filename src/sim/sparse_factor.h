@@ -91,10 +91,10 @@ class SharedArray {
 /// bit: a step, a material or a support that changes one entry changes the key; the implicit
 /// solver's is projective_matrix_key, projective_solver.h).
 struct FactorKey {
-  std::uint64_t hash{0};       ///< ContentHash of the matrix's entries (base/content_hash.h)
+  std::uint64_t hash{0};  ///< ContentHash of the matrix's entries (base/content_hash.h)
   std::int64_t rows{0};
-  std::int64_t nonzeros{0};    ///< a size of the matrix (for the file name; the hash holds the content)
-  std::uint8_t backend{0};     ///< SparseFactor::Backend
+  std::int64_t nonzeros{0};  ///< a size of the matrix (for the file name; the hash holds the content)
+  std::uint8_t backend{0};   ///< SparseFactor::Backend
   /// A file-name-safe name: "cholmod-326564n-7012345nz-0123456789abcdef".
   [[nodiscard]] std::string name() const;
   [[nodiscard]] bool operator==(const FactorKey&) const = default;

@@ -11,16 +11,14 @@
 #include <cmath>
 #include <cstring>
 #include <iostream>
-#include <map>
 #include <memory>
-#include <sstream>
-#include <string>
 
 #include "base/error.h"
 #include "sim/integrators.h"
 #include "sim/state.h"
 #include "sim/static_solver.h"
 #include "support/physics_helpers.h"
+#include "support/sparse_helpers.h"
 
 namespace vx {
 namespace {
@@ -225,29 +223,8 @@ TEST(ProjectiveSolver, StaticSolverRefusesAPartHeldByNothing) {
   EXPECT_NO_THROW(ProjectiveSolver(physics, none, setup));
 }
 
-/// A factor cache in memory (the folder one is io/factor_cache.h) that counts its calls.
-class MemoryCache final : public FactorCache {
- public:
-  bool load(const FactorKey& key, SparseFactor& factor) override {
-    ++loads;
-    const auto it = files.find(key.name());
-    if (it == files.end()) return false;
-    auto buf = std::shared_ptr<std::uint64_t[]>(new std::uint64_t[it->second.size() / 8 + 1]);
-    std::memcpy(buf.get(), it->second.data(), it->second.size());
-    const std::shared_ptr<const void> keep(buf, buf.get());
-    return factor.read(reinterpret_cast<const unsigned char*>(buf.get()), it->second.size(), keep);
-  }
-  void store(const FactorKey& key, const SparseFactor& factor) override {
-    std::ostringstream out;
-    factor.write(out);
-    files[key.name()] = out.str();
-  }
-  std::map<std::string, std::string> files;
-  int loads{0};
-};
-
 TEST(FactorCache, AFactorFoundByItsKeyStepsBitForBitAsTheOneComputed) {
-  const auto cache = std::make_shared<MemoryCache>();
+  const auto cache = std::make_shared<testing::MemoryFactorCache>();
   IntegratorSettings set;
   set.kind = IntegratorKind::implicit;
   set.time_step_s = 0.01;
@@ -263,8 +240,10 @@ TEST(FactorCache, AFactorFoundByItsKeyStepsBitForBitAsTheOneComputed) {
     EXPECT_TRUE(r.refactored);
     EXPECT_EQ(r.factor_from_cache, run == 1) << run;
     integ->step(s);  // the fixed nodes' coupling (kept beside the factor) in a second step too
-    if (run == 0) first = s.positions;
-    else EXPECT_EQ(std::memcmp(first.data(), s.positions.data(), sizeof(double) * std::size_t(first.size())), 0);
+    if (run == 0)
+      first = s.positions;
+    else
+      EXPECT_EQ(std::memcmp(first.data(), s.positions.data(), sizeof(double) * std::size_t(first.size())), 0);
   }
   EXPECT_EQ(cache->files.size(), 1u);
   EXPECT_EQ(cache->loads, 2);

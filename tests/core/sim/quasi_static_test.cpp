@@ -20,6 +20,7 @@
 #include "sim/static_solver.h"
 #include "sim/time_step.h"
 #include "support/physics_helpers.h"
+#include "support/sparse_helpers.h"
 
 namespace vx {
 namespace {
@@ -211,18 +212,9 @@ TEST(RegionalSolve, PartialSolvesAreExactOnTheirRows) {
   const auto model = ball(16);
   const auto p = make_physics_model(model, tissue(0.0));
   const Model& m = *model;
-  std::vector<Eigen::Triplet<double>> t;
-  Eigen::MatrixXd ke;
-  for (int e = 0; e < p->num_elements(); ++e) {
-    element_elastic_matrix(*p, e, ke);
-    const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
-    for (int i = 0; i < n; ++i)
-      for (int j = 0; j < n; ++j) t.emplace_back(m.element_vertices[b + i], m.element_vertices[b + j], ke(i, j));
-  }
   const int nn = m.num_nodes();
-  for (int i = 0; i < nn; ++i) t.emplace_back(i, i, 1e-2 * p->node_mass[std::size_t(i)] / 1e-8);
-  SparseFactor::Matrix a(nn, nn);
-  a.setFromTriplets(t.begin(), t.end());
+  const SparseFactor::Matrix a =
+      testing::elastic_matrix_plus(*p, [&](int i) { return 1e-2 * p->node_mass[std::size_t(i)] / 1e-8; });
   SparseFactor f;
   ASSERT_TRUE(f.compute(a, SparseFactor::Backend::cholmod));
   ASSERT_TRUE(f.supports_partial());
@@ -420,8 +412,10 @@ TEST(RegionalSolve, TheFarFieldReturnsToRestAfterTheRelease) {
     ProbeSettings probe;
     probe.name = "ball";
     probe.geometry.radius_mm = 3.0;
-    probe.path = {{0.0, {c.x(), c.y(), ztop + 3.5}}, {0.4, {c.x(), c.y(), ztop + 0.5}},
-                  {0.6, {c.x(), c.y(), ztop + 0.5}}, {0.8, {c.x(), c.y(), ztop + 12.0}}};
+    probe.path = {{0.0, {c.x(), c.y(), ztop + 3.5}},
+                  {0.4, {c.x(), c.y(), ztop + 0.5}},
+                  {0.6, {c.x(), c.y(), ztop + 0.5}},
+                  {0.8, {c.x(), c.y(), ztop + 12.0}}};
     ss.probes = {probe};
     Simulation sim(p, ss);
     *peak = 0.0;
@@ -433,7 +427,8 @@ TEST(RegionalSolve, TheFarFieldReturnsToRestAfterTheRelease) {
     return (sim.state().positions - m.rest_positions).colwise().norm().maxCoeff();
   };
   double peak_on = 0, peak_off = 0;
-  const double on = offset_after(IntegratorSettings{}.region_idle_refresh_steps, &peak_on), off = offset_after(0, &peak_off);
+  const double on = offset_after(IntegratorSettings{}.region_idle_refresh_steps, &peak_on),
+               off = offset_after(0, &peak_off);
   std::cout << "largest offset from rest 1.5 s after the release: " << on << " mm with the idle refresh, " << off
             << " mm without (largest displacement " << peak_on << " / " << peak_off << " mm)\n";
   EXPECT_GT(peak_on, 1.5);

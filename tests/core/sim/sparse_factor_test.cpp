@@ -7,43 +7,32 @@
 #include <cstring>
 #include <iostream>
 #include <memory>
-#include <sstream>
 #include <string>
 #include <utility>
 #include <vector>
 
 #include "base/content_hash.h"
 #include "model/gradational_builder.h"
-#include "physics/elements.h"
 #include "physics/physics_model.h"
 #include "sim/sparse_factor.h"
 #include "support/physics_helpers.h"
+#include "support/sparse_helpers.h"
 
 namespace vx {
 namespace {
 
+using testing::aligned_copy;
+using testing::bytes_of;
+using testing::elastic_matrix_plus;
 using testing::hand_block;
 
 /// The elastic matrix of a small block plus a mass term: symmetric positive definite.
 SparseFactor::Matrix block_matrix(int nx = 6, int ny = 5, int nz = 4) {
-  const Model m = hand_block(nx, ny, nz, 1.0);
   Material mat;
   mat.youngs_modulus_kpa = 10.0;
   mat.density_kg_m3 = 1000.0;
-  const auto p = make_physics_model(m, mat);
-  std::vector<Eigen::Triplet<double>> t;
-  Eigen::MatrixXd ke;
-  for (int e = 0; e < p->num_elements(); ++e) {
-    element_elastic_matrix(*p, e, ke);
-    const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
-    for (int i = 0; i < n; ++i)
-      for (int j = 0; j < n; ++j) t.emplace_back(m.element_vertices[b + i], m.element_vertices[b + j], ke(i, j));
-  }
-  const int nn = m.num_nodes();
-  for (int i = 0; i < nn; ++i) t.emplace_back(i, i, 1e-3);
-  SparseFactor::Matrix a(nn, nn);
-  a.setFromTriplets(t.begin(), t.end());
-  return a;
+  const auto p = make_physics_model(hand_block(nx, ny, nz, 1.0), mat);
+  return elastic_matrix_plus(*p, [](int) { return 1e-3; });
 }
 
 std::vector<SparseFactor::Backend> backends() {
@@ -51,19 +40,6 @@ std::vector<SparseFactor::Backend> backends() {
   for (auto b : {SparseFactor::Backend::eigen_amd, SparseFactor::Backend::eigen_metis, SparseFactor::Backend::cholmod})
     if (SparseFactor::available(b)) out.push_back(b);
   return out;
-}
-
-std::string bytes_of(const SparseFactor& f) {
-  std::ostringstream out;
-  f.write(out);
-  return out.str();
-}
-
-/// The written bytes in 8-byte aligned memory (as a mapped file is), kept alive by the pointer.
-std::shared_ptr<const void> aligned_copy(const std::string& bytes) {
-  auto buf = std::shared_ptr<std::uint64_t[]>(new std::uint64_t[bytes.size() / 8 + 1]);
-  std::memcpy(buf.get(), bytes.data(), bytes.size());
-  return std::shared_ptr<const void>(buf, buf.get());
 }
 
 /// What the solver asks of a factor: a full solve, a unit column, forward vectors and their
@@ -102,7 +78,8 @@ void expect_same_bits(const Answers& a, const Answers& b, const std::string& wha
   EXPECT_EQ(std::memcmp(a.x.data(), b.x.data(), sizeof(double) * std::size_t(a.x.size())), 0) << what;
   EXPECT_EQ(a.column, b.column) << what;
   EXPECT_EQ(a.dot, b.dot) << what;
-  EXPECT_EQ(std::memcmp(a.response.data(), b.response.data(), sizeof(double) * std::size_t(a.response.size())), 0) << what;
+  EXPECT_EQ(std::memcmp(a.response.data(), b.response.data(), sizeof(double) * std::size_t(a.response.size())), 0)
+      << what;
   EXPECT_EQ(std::memcmp(a.partial.data(), b.partial.data(), sizeof(double) * std::size_t(a.partial.size())), 0) << what;
 }
 
@@ -117,7 +94,8 @@ TEST(SparseFactor, BackendsAgreeOnTheSameMatrix) {
     EXPECT_EQ(f.backend(), backend);
     f.solve3(b, x);
     const double res = (a * x - b).norm() / b.norm();
-    std::cout << SparseFactor::to_string(backend) << ": " << f.nonzeros() << " nonzeros, relative residual " << res << "\n";
+    std::cout << SparseFactor::to_string(backend) << ": " << f.nonzeros() << " nonzeros, relative residual " << res
+              << "\n";
     EXPECT_LT(res, 1e-10);
     std::vector<double> col(static_cast<std::size_t>(nn), 0.0);
     f.solve_unit(7, col.data());
@@ -229,7 +207,8 @@ TEST(ContentHash, DependsOnTheBytesNotOnHowTheyAreFed) {
   whole.add(data.data(), data.size());
   for (std::size_t piece : {1u, 3u, 7u, 8u, 13u, 999u}) {
     ContentHash parts;
-    for (std::size_t at = 0; at < data.size(); at += piece) parts.add(data.data() + at, std::min(piece, data.size() - at));
+    for (std::size_t at = 0; at < data.size(); at += piece)
+      parts.add(data.data() + at, std::min(piece, data.size() - at));
     EXPECT_EQ(parts.value(), whole.value()) << piece;
   }
   // a changed bit, a byte more, another seed: another value
