@@ -84,7 +84,7 @@ void PhysicsLoop::recover(const std::string& what, bool drop_solver) {
 }
 
 void PhysicsLoop::keep_good_state(SteadyClock::time_point now) {
-  if (!good_.empty() && seconds(now - good_wall_) < kSnapshotEvery_s) return;
+  if (!good_.empty() && seconds(now - good_wall_) < snapshot_every_s_) return;
   const auto t0 = SteadyClock::now();
   s_.sim.save_tissue(good_);
   if (s_.options.soak_s > 0) soak_watch();
@@ -92,7 +92,9 @@ void PhysicsLoop::keep_good_state(SteadyClock::time_point now) {
   faults_since_good_ = 0;
   PhysicsReport& r = s_.physics;
   r.snapshots.fetch_add(1, std::memory_order_relaxed);
-  const std::int64_t us = std::llround(1e6 * seconds(SteadyClock::now() - t0));
+  const double copy_s = seconds(SteadyClock::now() - t0);
+  snapshot_every_s_ = std::max(kSnapshotEvery_s, kSnapshotCostShare * copy_s);
+  const std::int64_t us = std::llround(1e6 * copy_s);
   if (us > r.snapshot_max_us.load(std::memory_order_relaxed)) r.snapshot_max_us.store(us, std::memory_order_relaxed);
 }
 

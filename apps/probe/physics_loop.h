@@ -7,8 +7,10 @@
 /// Publishes what it did in `AppShared::physics` (app_shared.h).
 ///
 /// Faults: a step that gives NaN/Inf or runs away (the state's own check) or throws does not end
-/// the session: the tissue goes back to its last good state (`TissueSnapshot`, copied at most
-/// every `kSnapshotEvery_s` of wall time at the end of a tick whose steps all passed the check;
+/// the session: the tissue goes back to its last good state (`TissueSnapshot`, copied at the end
+/// of a tick whose steps all passed the check, at least `kSnapshotEvery_s` of wall time apart and
+/// at least `kSnapshotCostShare` times the last copy's time, so copying stays under 5 % of the
+/// physics' time on an organ whose copy takes tens of ms;
 /// three faults in a row from the same snapshot: back to rest), the console and the HUD say so,
 /// and `fault_generation` tells the device to fade its force out (force_guard.h).
 
@@ -34,8 +36,10 @@ class PhysicsLoop {
   void finish();
   /// Test hook (--test-fault): faults injected at the start of the given steps.
   void set_faults(std::vector<InjectedFault> faults) { faults_ = std::move(faults); }
-  /// The wall time between two snapshots of the last good state at most, s.
+  /// The wall time between two snapshots of the last good state at least, s.
   static constexpr double kSnapshotEvery_s = 0.25;
+  /// ... and at least this many times the last copy's own time.
+  static constexpr double kSnapshotCostShare = 20.0;
 
  private:
   /// Resets the simulation when the GUI asked.
@@ -71,6 +75,7 @@ class PhysicsLoop {
   TissueSnapshot good_;  ///< the last good state
   TissueSnapshot rest_;  ///< the rest state (after repeated faults)
   SteadyClock::time_point good_wall_{};
+  double snapshot_every_s_{kSnapshotEvery_s};  ///< kSnapshotEvery_s, or longer where a copy is slow
   int faults_since_good_{0};
   Eigen::Matrix3Xd soak_ref_;  ///< soak: the tissue at rest before the first press
   /// soak: the largest node displacement from the reference now, mm (0 without one)

@@ -384,11 +384,11 @@ void App::summary(double wall_s) {
     say(fmt::format("local force shaping: {} physics updates ({:.1f} per second), device clock {:.2f} s",
                     r.updates.load(),
                     wall_s > 0 ? double(r.updates.load()) / wall_s : 0.0, device_loop_->clock_s()));
-  say(
-      fmt::format("faults: {} physics fault(s) recovered from{}; the last good state kept {} times (at most every "
-                  "{:g} s, a copy took {:.1f} ms at most)",
-                  r.faults.load(), r.faults.load() > 0 ? " (" + r.last_fault() + ")" : std::string(),
-                  r.snapshots.load(), PhysicsLoop::kSnapshotEvery_s, 1e-3 * double(r.snapshot_max_us.load())));
+  say(fmt::format(
+      "faults: {} physics fault(s) recovered from{}; the last good state kept {} times (at least "
+      "{:g} s and {:g} copies' time apart, a copy took {:.1f} ms at most)",
+      r.faults.load(), r.faults.load() > 0 ? " (" + r.last_fault() + ")" : std::string(), r.snapshots.load(),
+      PhysicsLoop::kSnapshotEvery_s, PhysicsLoop::kSnapshotCostShare, 1e-3 * double(r.snapshot_max_us.load())));
   for (int p = 0; p < std::min(probes_, 2); ++p) {
     const DeviceForceGuard& g = device_loop_->guard(p);
     say(

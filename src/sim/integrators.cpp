@@ -283,6 +283,7 @@ class ImplicitIntegrator final : public Integrator {
         touched_ = true;
         idle_steps_ = 0;
       } else if (touched_ && solver.has_region() && settings_.region_idle_refresh_steps > 0 &&
+                 double(idle_steps_ + 1) * dt <= settings_.region_idle_refresh_window_s &&
                  ++idle_steps_ % settings_.region_idle_refresh_steps == 0) {
         solver.refresh_all_next();
       }

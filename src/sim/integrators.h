@@ -71,6 +71,9 @@ struct IntegratorSettings {
   /// without, 2 % every 8th step, 0.5 % every 4th). Costs about a third more per step while no
   /// tool touches (a full step costs about 2.5 regional ones on an organ). 0: never.
   int region_idle_refresh_steps{4};
+  /// ... for this long after the last contact, s (the far field has relaxed by then: the ball
+  /// above reaches 0.5 % in 1.5 s), so a tool held in the air costs nothing afterwards.
+  double region_idle_refresh_window_s{2.0};
   /// implicit: where factors are looked up before and kept after a factorisation (by the
   /// content of the matrix: sparse_factor.h); null: every solver factors. Shared, not owned by
   /// one integrator: pipeline/io/factor_cache.h keeps one in a folder.
