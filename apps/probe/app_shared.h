@@ -99,10 +99,15 @@ struct PhysicsReport {
   std::atomic<std::int64_t> snapshots{0};        ///< last good states kept
   std::atomic<std::int64_t> snapshot_max_us{0};  ///< the longest copy of one
   /// Soak (physics thread; read after it stopped): the tissue's largest displacement from its
-  /// reference (taken at the first snapshot after 1 s simulated with no tool touching; the soak's script rests 3 s from
-  /// the physics' start), mm, and the displacement at the end, after the release (< 0: not measured).
+  /// reference, mm, and the displacement at the end, after the release (< 0: not measured). The
+  /// reference is the model's shape without gravity (soak_ref_is_shape); with gravity, the state
+  /// at the first snapshot after 1 s simulated with no tool touching (soak_ref_s; < 0: none yet).
+  bool soak_ref_is_shape{false};
   double soak_ref_s{-1.0};
   double soak_peak_mm{0.0};
+  /// The implicit solver's contact cache (ProjectiveSolver::contact_cache_bytes), bytes: updated
+  /// with each last-good-state snapshot in a soak.
+  std::atomic<std::int64_t> contact_cache_bytes{0};
   double soak_final_mm{-1.0};
 
   [[nodiscard]] std::string last_fault() const {

@@ -59,7 +59,8 @@ SteadyClock::time_point GuiLoop::measure(const FixedRateThread& device) {
   device_rate_.sample(device.ticks(), now);
   if (s_.options.soak_s > 0)
     soak_.sample(seconds(now - s_.start), device.ticks(),
-                 s_.physics.started.load(std::memory_order_acquire) ? s_.physics.startup_s : -1.0);
+                 s_.physics.started.load(std::memory_order_acquire) ? s_.physics.startup_s : -1.0,
+                 s_.physics.contact_cache_bytes.load(std::memory_order_relaxed));
   update_rate_.sample(s_.physics.updates.load(), now);
   // the tissue's rate: simulated over wall time of the same window, from the first completed
   // step on; a pause (or a failed physics) restarts the window and is not counted

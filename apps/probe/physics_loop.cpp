@@ -1,12 +1,12 @@
 #include "physics_loop.h"
 
-
 #include <algorithm>
 #include <cmath>
 #include <limits>
 #include <stdexcept>
 #include <thread>
 
+#include "sim/projective_solver.h"
 #include "sim/simulation.h"
 #include "util/thread_priority.h"
 
@@ -110,6 +110,13 @@ double PhysicsLoop::soak_displacement_mm() const {
 void PhysicsLoop::soak_watch() {
   Simulation& sim = s_.sim;
   if (soak_ref_.cols() == 0) {
+    // without gravity the rest is the model's own shape; with it, the tissue's state once it has
+    // sagged for a second with no tool touching
+    if (sim.state().gravity_mm_s2.isZero(0.0)) {
+      soak_ref_ = sim.physics().model->rest_positions;
+      s_.physics.soak_ref_is_shape = true;
+      return;
+    }
     int contacts = 0;
     for (int p = 0; p < s_.probes; ++p) contacts += sim.probe(p).contacts;
     if (sim.time_s() < 1.0 || contacts > 0) return;
@@ -118,6 +125,8 @@ void PhysicsLoop::soak_watch() {
     return;
   }
   s_.physics.soak_peak_mm = std::max(s_.physics.soak_peak_mm, soak_displacement_mm());
+  if (const auto& solver = sim.state().integrator_cache.solver)
+    s_.physics.contact_cache_bytes.store(std::int64_t(solver->contact_cache_bytes()), std::memory_order_relaxed);
 }
 
 void PhysicsLoop::apply_reset() {

@@ -421,12 +421,17 @@ void App::soak_summary() {
       m.warm_bytes() > 0 ? 100.0 * double(m.end_bytes() - m.warm_bytes()) / double(m.warm_bytes()) : 0;
   say(fmt::format(
       "soak: {:.0f} s, seed {}: non-finite {} (physics faults {}, device forces refused {}); resident "
-      "memory {:.1f} MB after the warm-up (at {:.1f} s), {:.1f} MB at the end ({:+.2f} %); device forces per "
-      "second at least {:.0f} over {} one-second windows; tissue at the end {:.4f} mm from its rest (taken "
-      "at t = {:.2f} s), {:.2f} % of its largest displacement {:.3f} mm; energy guard {} ticks",
+      "memory {:.1f} MB after the warm-up (at {:.1f} s), {:.1f} MB at the end ({:+.2f} %; the contact solve's "
+      "bounded cache {:.1f} -> {:.1f} MB); device forces per "
+      "second at least {:.0f} over {} one-second windows; tissue at the end {:.4f} mm from its rest ({}), {:.2f} % "
+      "of its largest displacement {:.3f} mm; energy guard {} ticks",
       options_.soak_s, options_.soak_seed, r.faults.load() + non_finite, r.faults.load(), non_finite,
-      1e-6 * double(m.warm_bytes()), m.warm_at_s(), 1e-6 * double(m.end_bytes()), growth, m.min_forces_per_s(),
-      m.windows(), r.soak_final_mm, r.soak_ref_s, r.soak_peak_mm > 0 ? 100.0 * r.soak_final_mm / r.soak_peak_mm : 0.0,
+      1e-6 * double(m.warm_bytes()), m.warm_at_s(), 1e-6 * double(m.end_bytes()), growth, 1e-6 * double(m.warm_cache_bytes()),
+      1e-6 * double(m.end_cache_bytes()), m.min_forces_per_s(),
+      m.windows(), r.soak_final_mm,
+      r.soak_ref_is_shape ? std::string("the model's shape: no gravity")
+                       : fmt::format("its state at t = {:.2f} s, sagged under gravity", r.soak_ref_s),
+      r.soak_peak_mm > 0 ? 100.0 * r.soak_final_mm / r.soak_peak_mm : 0.0,
       r.soak_peak_mm, local_ ? std::to_string(guard_ticks) : std::string("(paper shaping: none)")));
 }
 

@@ -77,7 +77,7 @@ std::int64_t resident_bytes() {
   return n == 2 ? std::int64_t(resident) * std::int64_t(sysconf(_SC_PAGESIZE)) : 0;
 }
 
-void SoakMonitor::sample(double wall_s, std::int64_t device_ticks, double started_at_s) {
+void SoakMonitor::sample(double wall_s, std::int64_t device_ticks, double started_at_s, std::int64_t cache_bytes) {
   // the device's rate over each whole second (from the first second on)
   if (window_start_s_ < 0) {
     window_start_s_ = wall_s;
@@ -100,9 +100,13 @@ void SoakMonitor::sample(double wall_s, std::int64_t device_ticks, double starte
   const std::int64_t rss = resident_bytes();
   if (warm_at_s_ < 0 && wall_s >= started_at_s + warm_up_s_) {
     warm_bytes_ = rss;
+    warm_cache_ = cache_bytes;
     warm_at_s_ = wall_s;
   }
-  if (warm_at_s_ >= 0) end_bytes_ = rss;
+  if (warm_at_s_ >= 0) {
+    end_bytes_ = rss;
+    end_cache_ = cache_bytes;
+  }
 }
 
 }  // namespace vx::probe

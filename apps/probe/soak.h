@@ -39,12 +39,15 @@ class SoakMonitor {
   explicit SoakMonitor(double warm_up_s) : warm_up_s_(warm_up_s) {}
   /// Called often (every GUI pass): wall time since the open, the device's ticks so far, the
   /// wall time the physics started at (< 0: not yet). The windows count from the physics' start.
-  void sample(double wall_s, std::int64_t device_ticks, double started_at_s);
+  /// `cache_bytes`: the contact solver's bounded cache now (kept beside the resident memory).
+  void sample(double wall_s, std::int64_t device_ticks, double started_at_s, std::int64_t cache_bytes = 0);
   [[nodiscard]] double min_forces_per_s() const { return min_rate_; }
   [[nodiscard]] int windows() const { return windows_; }
   [[nodiscard]] std::int64_t warm_bytes() const { return warm_bytes_; }
   [[nodiscard]] std::int64_t end_bytes() const { return end_bytes_; }
   [[nodiscard]] double warm_at_s() const { return warm_at_s_; }
+  [[nodiscard]] std::int64_t warm_cache_bytes() const { return warm_cache_; }
+  [[nodiscard]] std::int64_t end_cache_bytes() const { return end_cache_; }
 
  private:
   double warm_up_s_;
@@ -53,6 +56,7 @@ class SoakMonitor {
   double min_rate_{0.0};
   int windows_{0};
   std::int64_t warm_bytes_{0}, end_bytes_{0};
+  std::int64_t warm_cache_{0}, end_cache_{0};
   double warm_at_s_{-1.0};
   double last_rss_s_{-1.0};
 };

@@ -258,8 +258,8 @@ void run_simulate(const SimulateOptions& o) {
                sim.time_s(), wall_s, wall_s > 0 ? sim.time_s() / wall_s : 0.0, recorder ? recorder->max_force_n() : 0.0,
                dir.string());
   // the work the run left out, for who tunes it (-v; summary.json's "skipped" always)
-  log::debug("skipped: {} narrow-phase tests, {} device shapings, {} surface updates", c.contact.narrow_tests_skipped,
-             c.device_shaping_skipped, c.surface_updates_skipped);
+  log::debug("skipped: {} narrow-phase tests, {} device shapings, {} surface updates, {} steps at rest",
+             c.contact.narrow_tests_skipped, c.device_shaping_skipped, c.surface_updates_skipped, c.steps_at_rest);
   if (!stable)
     throw Error(fmt::format("the simulation stopped at t = {:.6g} s: {}; the outputs up to then are in {}", sim.time_s(),
                             sim.state().message, dir.string()));

@@ -210,6 +210,7 @@ json run_summary_json(const Scene& scene, const fs::path& scene_file, const Prep
                   {"steps_without_output_frame", c.steps - std::max<std::int64_t>(0, frames - (pvd ? 1 : 0))},
                   {"sleeping_element_updates", c.sleeping_element_updates},
                   {"sleeping_node_solves", c.sleeping_node_solves},
+                  {"steps_at_rest", c.steps_at_rest},
                   {"outputs_not_requested", outputs.not_requested()}};
   j["warnings"] = prepared.warnings;
   std::vector<std::string> written = outputs.written();

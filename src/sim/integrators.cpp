@@ -276,13 +276,17 @@ class ImplicitIntegrator final : public Integrator {
     const double dt = settings_.time_step_s;
     ProjectiveSolver& solver = solver_for(s, rep);
     rep.factor_nonzeros = solver.factor_nonzeros();
-    if (settings_.region_radius_mm > 0 && contact_) {
+    const bool regional = settings_.region_radius_mm > 0 && contact_;
+    if (regional) {
+      if (asleep_ && still_at_rest(s, rep.refactored)) return sleep_step(s, rep);
+      asleep_ = false;
       update_region(s, solver, rep.refactored);
-      // after a release, a full solve now and then lets the far field that slept relax
+      // while the tissue may move and no tool touches, a full solve now and then lets the far
+      // field that slept relax
       if (!contacts_.empty()) {
-        touched_ = true;
+        settling_ = true;
         idle_steps_ = 0;
-      } else if (touched_ && solver.has_region() && settings_.region_idle_refresh_steps > 0 &&
+      } else if (settling_ && solver.has_region() && settings_.region_idle_refresh_steps > 0 &&
                  double(idle_steps_ + 1) * dt <= settings_.region_idle_refresh_window_s &&
                  ++idle_steps_ % settings_.region_idle_refresh_steps == 0) {
         solver.refresh_all_next();
@@ -338,7 +342,7 @@ class ImplicitIntegrator final : public Integrator {
     const bool track = settings_.track_energy;
     parallel_for_chunks(p.num_nodes(), kNodeGrain, threads, [&](std::int64_t c, std::int64_t b, std::int64_t e) {
       std::uint8_t flags = 0;
-      double kin = 0, grav = 0;
+      double kin = 0, grav = 0, v2 = 0;
       for (std::int64_t i = b; i < e; ++i) {
         const double mass = p.node_mass[std::size_t(i)];
         if (track) {
@@ -349,13 +353,19 @@ class ImplicitIntegrator final : public Integrator {
           s.scratch.next_velocities.col(i) = s.velocities.col(i);
         else
           s.scratch.next_velocities.col(i) = (x.col(i) - xs.col(i)) / dt;
+        v2 = std::max(v2, s.scratch.next_velocities.col(i).squaredNorm());
         flags |= check_node(x.col(i), s.scratch.next_velocities.col(i), rest.col(i), max_v2, max_d2);
       }
       s.scratch.node_chunk_flags[std::size_t(c)] = flags;
       s.scratch.node_chunk_sums[3 * std::size_t(c)] = kin;
       s.scratch.node_chunk_sums[3 * std::size_t(c) + 1] = grav;
+      s.scratch.node_chunk_sums[3 * std::size_t(c) + 2] = v2;
     });
     finish_node_pass(s, p, settings_, track, s.energies.elastic, rep);
+    // at rest: no tool touches and a full solve moved no node faster than the rest speed
+    if (regional && settling_ && contacts_.empty() && solver.last_solve_full() && settings_.region_rest_speed_mm_s > 0 &&
+        !s.failed() && max_speed_mm_s(s) < settings_.region_rest_speed_mm_s)
+      fall_asleep(s);
     // the contact warm start holds for the step that follows this one
     s.integrator_cache.next_step = s.steps;
     s.integrator_cache.next_time_s = s.time_s;
@@ -395,6 +405,54 @@ class ImplicitIntegrator final : public Integrator {
     return *cache.solver;
   }
 
+  /// The largest node speed of the step just finished, mm/s (the velocity pass keeps each
+  /// chunk's largest squared speed).
+  static double max_speed_mm_s(const SimState& s) {
+    double m = 0.0;
+    const std::size_t chunks = std::size_t(chunk_count(s.num_nodes(), kNodeGrain));
+    for (std::size_t c = 0; c < chunks; ++c) m = std::max(m, s.scratch.node_chunk_sums[3 * c + 2]);
+    return std::sqrt(m);
+  }
+
+  /// The tissue is at rest: from now on its steps only advance the time, until still_at_rest()
+  /// says otherwise. What it watches is recorded here.
+  void fall_asleep(SimState& s) {
+    s.velocities.setZero();
+    asleep_ = true;
+    settling_ = false;
+    asleep_gravity_ = s.gravity_mm_s2;
+    asleep_fixed_version_ = s.fixed_version;
+    asleep_step_ = s.steps;
+    asleep_time_s_ = s.time_s;
+  }
+
+  /// Whether a sleeping tissue may go on sleeping this step: the same state continued (no reset,
+  /// no restore), the same gravity, fixed nodes and matrix, no external force, and no node within
+  /// the contact margin of a tool or a wall.
+  bool still_at_rest(const SimState& s, bool refactored) {
+    if (refactored || s.steps != asleep_step_ || s.time_s != asleep_time_s_ || s.gravity_mm_s2 != asleep_gravity_ ||
+        s.fixed_version != asleep_fixed_version_ || !s.external_forces.isZero(0.0))
+      return false;
+    near_.clear();
+    contact_->collect(s.positions, true, near_);
+    return near_.empty();
+  }
+
+  /// A step of a tissue at rest: the time advances, nothing moves.
+  StepReport& sleep_step(SimState& s, StepReport& rep) {
+    s.time_s += settings_.time_step_s;
+    ++s.steps;
+    asleep_step_ = s.steps;
+    asleep_time_s_ = s.time_s;
+    rep.asleep = true;
+    rep.region_elements = 0;
+    rep.region_nodes = 0;
+    s.integrator_cache.next_step = s.steps;
+    s.integrator_cache.next_time_s = s.time_s;
+    s.integrator_cache.contact_epoch = contact_epoch_;
+    return rep;
+  }
+
   /// Regional solves: the free nodes within region_radius_mm of a tool, recomputed when a tool
   /// has moved a quarter of the radius since (or after a refactorisation).
   void update_region(SimState& s, ProjectiveSolver& solver, bool refactored) {
@@ -424,8 +482,14 @@ class ImplicitIntegrator final : public Integrator {
   std::uint64_t contact_epoch_{0};
   std::vector<Eigen::Vector3d> focus_, centres_;
   std::vector<int> awake_;
-  bool touched_{false};                      ///< a contact since the integrator began (the far field may be off rest)
+  bool settling_{true};                      ///< the tissue may be moving (from the start, and after a contact)
   std::int64_t idle_steps_{0};               ///< steps since the last contact
+  bool asleep_{false};                       ///< at rest: steps only advance the time (fall_asleep)
+  Eigen::Vector3d asleep_gravity_{Eigen::Vector3d::Zero()};
+  std::uint64_t asleep_fixed_version_{0};
+  std::int64_t asleep_step_{0};
+  double asleep_time_s_{0.0};
+  std::vector<ContactConstraint> near_;      ///< still_at_rest(): candidates near a tool or wall
   std::vector<ContactConstraint> contacts_;  ///< active at the end of the last step
 };
 

@@ -64,16 +64,23 @@ struct IntegratorSettings {
   /// (ProjectiveSolver::set_region; the rest sleeps). The region follows a tool once it has
   /// moved a quarter of the radius. 0: every node every step.
   double region_radius_mm{0.0};
-  /// implicit with a region: once a tool has touched, every this many steps without a contact
-  /// is a full solve, so the far field that slept through the press relaxes back to rest after
-  /// the release (without it, it stays where the last full solve left it: 1.5 to 1.8 % of the
-  /// largest displacement on the folded organ; a ball of 32 voxels 1.5 s after the release: 12 %
-  /// without, 2 % every 8th step, 0.5 % every 4th). Costs about a third more per step while no
-  /// tool touches (a full step costs about 2.5 regional ones on an organ). 0: never.
+  /// implicit with a region: while the tissue may be moving and no tool touches (after a
+  /// release, or from the start), every this many steps is a full solve, so the far field that
+  /// slept through the press relaxes back to rest (without it, it stays where the last full solve
+  /// left it: 1.5 to 1.8 % of the largest displacement on the folded organ; a ball of 32 voxels
+  /// 1.5 s after the release: 12 % without, 2 % every 8th step, 0.5 % every 4th). A full step
+  /// costs about 2.5 regional ones on an organ. 0: never.
   int region_idle_refresh_steps{4};
-  /// ... for this long after the last contact, s (the far field has relaxed by then: the ball
-  /// above reaches 0.5 % in 1.5 s), so a tool held in the air costs nothing afterwards.
-  double region_idle_refresh_window_s{2.0};
+  /// ... for at most this long after the last contact, s: a tissue that has not come to rest by
+  /// then (region_rest_speed_mm_s) is left to the regional solves.
+  double region_idle_refresh_window_s{10.0};
+  /// implicit with a region: once no tool touches and a full solve finds no node faster than
+  /// this, mm/s, the tissue is at rest and sleeps as a whole: its steps only advance the time
+  /// (no rotation fit, no solve, velocities 0) until a tool comes within the contact margin of a
+  /// node, the state is replaced, or the gravity, the external forces or the fixed nodes change.
+  /// A tissue left alone costs nothing (docs/model.md section 7, "A tissue at rest sleeps").
+  /// 0: never.
+  double region_rest_speed_mm_s{0.05};
   /// implicit: where factors are looked up before and kept after a factorisation (by the
   /// content of the matrix: sparse_factor.h); null: every solver factors. Shared, not owned by
   /// one integrator: pipeline/io/factor_cache.h keeps one in a folder.

@@ -235,6 +235,7 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
   // the region's
   const bool region = region_;
   if (!targets_valid_) region_ = false;
+  last_full_ = !region_;
   if (setup_.damping) record_start_shape(s.positions, threads);
   double max_update = std::numeric_limits<double>::infinity();
   ElementPassStats last;

@@ -140,6 +140,8 @@ class ProjectiveSolver {
   /// integrator's IntegratorSettings::region_idle_refresh_steps).
   void refresh_all_next() { targets_valid_ = false; }
   [[nodiscard]] bool has_region() const { return region_; }
+  /// The last solve() computed every element and node (no region, or its full refresh).
+  [[nodiscard]] bool last_solve_full() const { return last_full_; }
   /// Elements and free nodes the regional solves compute (0 without a region).
   [[nodiscard]] std::int64_t region_elements() const { return region_ ? std::int64_t(region_elements_.size()) : 0; }
   [[nodiscard]] std::int64_t region_nodes() const { return region_ ? std::int64_t(factor_.partial_rows().size()) : 0; }
@@ -149,6 +151,8 @@ class ProjectiveSolver {
 
   /// The contact constraints active after the last solve, with their forces (N).
   [[nodiscard]] const std::vector<ContactConstraint>& active_contacts() const { return contact_set_.active(); }
+  /// The contact solve's cache (ContactActiveSet::cache_bytes), bytes.
+  [[nodiscard]] std::size_t contact_cache_bytes() const { return contact_set_.cache_bytes(); }
   /// Forgets the contact warm start (the next solve does not follow the last one).
   void forget_contacts() { contact_set_.forget_warm_start(); }
   /// g (m x m) = (A^-1)_ij between `nodes`, mm/N: the compliance of one step between them (the
@@ -197,6 +201,7 @@ class ProjectiveSolver {
   // regional solves
   bool region_{false};
   bool targets_valid_{false};  ///< every element's targets computed once (by a full solve)
+  bool last_full_{false};      ///< the last solve() was a full one
   std::vector<int> region_elements_;  ///< ascending
   std::vector<double> free_chunk_sums_;  ///< per node chunk: 2 partial sums
   ContactActiveSet contact_set_;

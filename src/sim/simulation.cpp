@@ -205,6 +205,7 @@ StepStatus Simulation::step() {
     counters_.factors_from_cache += report.factor_from_cache ? 1 : 0;
     counters_.factor_s += report.factor_s;
   }
+  counters_.steps_at_rest += report.asleep ? 1 : 0;
   if (report.region_elements > 0) {
     counters_.sleeping_element_updates += physics_->num_elements() - report.region_elements;
     counters_.sleeping_node_solves += (state_.num_nodes() - state_.num_fixed()) - report.region_nodes;

@@ -133,6 +133,9 @@ struct SimulationCounters {
   /// fits and node solves left out because they sleep, summed over steps
   std::int64_t sleeping_element_updates{0};
   std::int64_t sleeping_node_solves{0};
+  /// implicit with regional solves: steps of a tissue at rest that computed nothing
+  /// (IntegratorSettings::region_rest_speed_mm_s)
+  std::int64_t steps_at_rest{0};
   /// implicit: system matrices factored (or loaded from the factor cache), and their wall time, s
   std::int64_t factorisations{0};
   std::int64_t factors_from_cache{0};

@@ -28,6 +28,7 @@ struct StepReport {
   std::int64_t contact_columns{0}; ///< implicit: new columns A^-1 e_i solved in this step (each allocates once)
   std::int64_t region_elements{0}; ///< implicit with a region: elements computed (0: all)
   std::int64_t region_nodes{0};    ///< implicit with a region: free nodes solved for (0: all)
+  bool asleep{false};              ///< implicit with a region: the tissue was at rest, nothing computed
 };
 
 }  // namespace vx

@@ -33,7 +33,7 @@ TEST(ProbeSoak, AMinuteOfRandomPalpationOnAFoldedOrganStaysFiniteFlatAndRealTime
   fs::remove_all(dir);
   ASSERT_EQ(r.code, 0) << r.out << r.err;
   const std::regex line(
-      R"(soak: 60 s, seed 1: non-finite (\d+) .*resident memory ([0-9.]+) MB after the warm-up \(at ([0-9.]+) s\), ([0-9.]+) MB at the end \(([-+0-9.]+) %\); device forces per second at least ([0-9.]+) over (\d+) one-second windows; tissue at the end ([0-9.]+) mm from its rest \(taken at t = ([0-9.]+) s\), ([0-9.]+) % of its largest displacement ([0-9.]+) mm; energy guard (\d+) ticks)");
+      R"(soak: 60 s, seed 1: non-finite (\d+) .*resident memory ([0-9.]+) MB after the warm-up \(at ([0-9.]+) s\), ([0-9.]+) MB at the end \(([-+0-9.]+) %; the contact solve's bounded cache [0-9.]+ -> [0-9.]+ MB\); device forces per second at least ([0-9.]+) over (\d+) one-second windows; tissue at the end ([0-9.]+) mm from its rest \(([^)]*)\), ([0-9.]+) % of its largest displacement ([0-9.]+) mm; energy guard (\d+) ticks)");
   std::smatch m;
   ASSERT_TRUE(std::regex_search(r.out, m, line)) << r.out;
   EXPECT_EQ(std::stoi(m[1]), 0) << "non-finite values";

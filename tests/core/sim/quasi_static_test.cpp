@@ -437,5 +437,75 @@ TEST(RegionalSolve, TheFarFieldReturnsToRestAfterTheRelease) {
   EXPECT_GT(off, 0.05 * peak_off);
 }
 
+TEST(RegionalSolve, ATissueAtRestSleepsUntilAToolComesBack) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "needs CHOLMOD (supernodal)";
+  // the press and release above, the tool away until 3.6 s, then the same press again: at the
+  // start and once the ball has come to rest again (about 1.7 s after the release at 0.05 mm/s)
+  // it sleeps (its steps compute nothing and nothing moves), and the second press wakes it and
+  // feels what it feels with the sleep turned off, within the regional solves' own spread (the
+  // far field's history differs: 1.4 % measured)
+  const auto p = make_physics_model(ball(32), tissue(0.2));
+  const Model& m = *p->model;
+  const Eigen::Vector3d c = 0.5 * (m.rest_positions.rowwise().minCoeff() + m.rest_positions.rowwise().maxCoeff());
+  const double ztop = m.rest_positions.row(2).maxCoeff();
+  struct Run {
+    std::int64_t at_rest_before_press{0}, at_rest_while_pressing{0}, at_rest_first_steps{0};
+    double offset_mm{0}, peak_mm{0}, second_force_n{0};
+    bool still_while_asleep{true};
+  };
+  const auto run = [&](double rest_speed_mm_s) {
+    SimulationSettings ss;
+    ss.integrator.kind = IntegratorKind::implicit;
+    ss.integrator.time_step_s = 0.02;
+    ss.integrator.max_iterations = 1;
+    ss.integrator.region_radius_mm = 8.0;
+    ss.integrator.region_rest_speed_mm_s = rest_speed_mm_s;
+    ss.integrator.threads = 1;
+    ss.fixed_nodes = bottom_cap(m, 3.0);
+    ProbeSettings probe;
+    probe.name = "ball";
+    probe.geometry.radius_mm = 3.0;
+    probe.path = {{0.0, {c.x(), c.y(), ztop + 6.0}},  {0.4, {c.x(), c.y(), ztop + 0.5}},
+                  {0.6, {c.x(), c.y(), ztop + 0.5}},  {0.8, {c.x(), c.y(), ztop + 12.0}},
+                  {3.6, {c.x(), c.y(), ztop + 12.0}}, {4.1, {c.x(), c.y(), ztop + 0.5}}};
+    ss.probes = {probe};
+    Simulation sim(p, ss);
+    Run r;
+    for (int k = 0; k < 5; ++k) sim.step();
+    r.at_rest_first_steps = sim.counters().steps_at_rest;  // at rest from the start, the tool above
+    while (sim.time_s() < 3.5 - 1e-9 && !sim.failed()) {
+      const Eigen::Matrix3Xd before = sim.state().positions;
+      const std::int64_t slept = sim.counters().steps_at_rest;
+      sim.step();
+      if (sim.counters().steps_at_rest > slept) r.still_while_asleep = r.still_while_asleep && sim.state().positions == before;
+      r.peak_mm = std::max(r.peak_mm, (sim.state().positions - m.rest_positions).colwise().norm().maxCoeff());
+    }
+    r.offset_mm = (sim.state().positions - m.rest_positions).colwise().norm().maxCoeff();
+    r.at_rest_before_press = sim.counters().steps_at_rest;
+    // the tool comes down from 12 mm above: asleep until it is within reach, awake for the press
+    while (sim.time_s() < 4.0 - 1e-9 && !sim.failed()) sim.step();
+    const std::int64_t reached = sim.counters().steps_at_rest;
+    while (sim.time_s() < 4.1 - 1e-9 && !sim.failed()) sim.step();
+    EXPECT_FALSE(sim.failed()) << sim.state().message;
+    r.at_rest_while_pressing = sim.counters().steps_at_rest - reached;
+    r.second_force_n = sim.probe(0).raw_force_n.z();
+    return r;
+  };
+  const Run on = run(IntegratorSettings{}.region_rest_speed_mm_s), off = run(0.0);
+  std::cout << "steps at rest: " << on.at_rest_first_steps << " of the first 5, " << on.at_rest_before_press
+            << " by 3.5 s; offset from rest at 3.5 s " << on.offset_mm << " mm (" << off.offset_mm
+            << " mm without the sleep) of a largest " << on.peak_mm << " mm; the second press " << on.second_force_n
+            << " N against " << off.second_force_n << " N without the sleep\n";
+  EXPECT_GE(on.at_rest_first_steps, 3);
+  EXPECT_GT(on.at_rest_before_press, 25);  // asleep for at least 0.5 of the 2.7 s after the release
+  EXPECT_TRUE(on.still_while_asleep);
+  EXPECT_EQ(on.at_rest_while_pressing, 0);
+  EXPECT_EQ(off.at_rest_before_press, 0);
+  EXPECT_GT(on.peak_mm, 1.5);
+  EXPECT_LT(on.offset_mm, 0.01 * on.peak_mm);
+  EXPECT_GT(on.second_force_n, 0.01);
+  EXPECT_NEAR(on.second_force_n, off.second_force_n, 0.03 * off.second_force_n);
+}
+
 }  // namespace
 }  // namespace vx
