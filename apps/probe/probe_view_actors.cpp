@@ -285,8 +285,10 @@ void ProbeView::Impl::build_guides() {
       scale_bar_mm = m * p10;
       break;
     }
-  const double thick = std::max(0.25, 0.025 * scale_bar_mm), gap = std::max(1.0, 0.08 * (hi - lo).maxCoeff());
-  const Eigen::Vector3d start = basis * Eigen::Vector3d(lo.x(), lo.y() + 0.5 * thick, lo.z() - gap - thick);
+  // a bar 8 % of its length thick, raised a little above the table so that neither hides the other
+  const double thick = std::max(0.3, 0.08 * scale_bar_mm), gap = std::max(1.0, 0.08 * (hi - lo).maxCoeff());
+  const Eigen::Vector3d start =
+      basis * Eigen::Vector3d(lo.x(), lo.y() + 0.5 * thick + 0.1 * thick, lo.z() - gap - thick);
   const Eigen::Vector3d right = basis.col(0), up = basis.col(1), away = basis.col(2);
   auto box = [&](const Eigen::Vector3d& centre, double along, double high) {
     auto cube = make<vtkCubeSource>();
@@ -305,7 +307,7 @@ void ProbeView::Impl::build_guides() {
   auto append = make<vtkAppendPolyData>();
   append->AddInputConnection(box(start + 0.5 * scale_bar_mm * right, scale_bar_mm, thick)->GetOutputPort());
   for (double end : {0.0, scale_bar_mm})  // end ticks
-    append->AddInputConnection(box(start + end * right + 1.5 * thick * up, thick, 4 * thick)->GetOutputPort());
+    append->AddInputConnection(box(start + end * right + 1.0 * thick * up, 0.6 * thick, 3 * thick)->GetOutputPort());
   auto mapper = make<vtkPolyDataMapper>();
   mapper->SetInputConnection(append->GetOutputPort());
   scale_bar = make<vtkActor>();
@@ -318,7 +320,7 @@ void ProbeView::Impl::build_guides() {
   renderer->AddActor(scale_bar);
   scale_label = make<vtkBillboardTextActor3D>();
   scale_label->SetInput(fmt::format("{:g} mm", scale_bar_mm).c_str());
-  const Eigen::Vector3d at = start + 0.5 * scale_bar_mm * right + 5.0 * thick * up;
+  const Eigen::Vector3d at = start + 0.5 * scale_bar_mm * right + 3.0 * thick * up;
   scale_label->SetPosition(at.x(), at.y(), at.z());
   set_text_style(scale_label->GetTextProperty(), 15, Rgb{0.96, 0.96, 0.92});
   scale_label->GetTextProperty()->SetJustificationToCentered();
@@ -343,19 +345,19 @@ void ProbeView::Impl::build_guides() {
     c->GetTextActor()->SetTextScaleModeToNone();
     vtkTextProperty* p = c->GetCaptionTextProperty();
     p->SetFontFamilyToArial();
-    p->SetFontSize(15);
+    p->SetFontSize(17);
     p->SetBold(true);
     p->SetItalic(false);
     p->SetShadow(true);
     p->SetColor(0.96, 0.96, 0.92);
   }
   marker = make<vtkRenderer>();
-  marker->SetViewport(1.0 - kPanel - 0.11, 0.0, 1.0 - kPanel, 0.18);
+  marker->SetViewport(1.0 - kPanel - 0.14, 0.0, 1.0 - kPanel, 0.24);
   marker->SetLayer(1);
   marker->InteractiveOff();
   marker->AddActor(axes);
   marker->ResetCamera();
-  marker_distance = marker->GetActiveCamera()->GetDistance();
+  marker_distance = 0.62 * marker->GetActiveCamera()->GetDistance();  // closer than VTK's fit: the axes fill the corner
   window->SetNumberOfLayers(2);
   window->AddRenderer(marker);
 }
