@@ -7,11 +7,8 @@
 #include <vtkAxesActor.h>
 #include <vtkBillboardTextActor3D.h>
 #include <vtkCamera.h>
-#include <vtkCaptionActor2D.h>
-#include <vtkRenderWindow.h>
-#include <vtkTextActor.h>
-#include <vtkTextProperty.h>
 #include <vtkCapsuleSource.h>
+#include <vtkCaptionActor2D.h>
 #include <vtkCellArray.h>
 #include <vtkCubeSource.h>
 #include <vtkCylinderSource.h>
@@ -24,8 +21,11 @@
 #include <vtkPolyData.h>
 #include <vtkPolyDataMapper.h>
 #include <vtkProperty.h>
+#include <vtkRenderWindow.h>
 #include <vtkRenderer.h>
 #include <vtkSphereSource.h>
+#include <vtkTextActor.h>
+#include <vtkTextProperty.h>
 #include <vtkTransform.h>
 #include <vtkTransformPolyDataFilter.h>
 #include <vtkUnsignedCharArray.h>

@@ -49,9 +49,10 @@ void run_plot(const PlotOptions& o) {
 void add_plot_command(CLI::App& app) {
   auto opts = std::make_shared<PlotOptions>();
   auto* sub = app.add_subcommand(
-      "plot", "Draw a line or point plot described in JSON into a PNG, without a display (for scripts; the keys are "
-              "listed in pipeline/render/plot.h: panels with title, xlabel, ylabel, log_x, log_y, key, xrange, yrange "
-              "and series with title, x, y, points, with_points, line_width, dash_type, point_type, color).");
+      "plot",
+      "Draw a line or point plot described in JSON into a PNG, without a display (for scripts; the keys are "
+      "listed in pipeline/render/plot.h: panels with title, xlabel, ylabel, log_x, log_y, key, xrange, yrange "
+      "and series with title, x, y, points, with_points, line_width, dash_type, point_type, color).");
   sub->add_option("SPEC", opts->spec, "the plot as JSON, or - for standard input")->required()->type_name("SPEC.json");
   sub->add_option("-o,--output", opts->output, "the PNG to write")->required()->type_name("OUT.png");
   sub->callback([opts] { run_plot(*opts); });

@@ -52,8 +52,8 @@ Rgb parse_color(const std::string& s) {
     return rgb8(16 * v[0] + v[1], 16 * v[2] + v[3], 16 * v[4] + v[5]);
   }
   static const std::pair<const char*, Rgb> named[] = {
-      {"black", rgb8(0, 0, 0)},          {"white", rgb8(255, 255, 255)},  {"red", rgb8(0xd6, 0x27, 0x28)},
-      {"blue", rgb8(0x1f, 0x77, 0xb4)},  {"green", rgb8(0x2c, 0xa0, 0x2c)}, {"orange", rgb8(0xff, 0x7f, 0x0e)},
+      {"black", rgb8(0, 0, 0)},           {"white", rgb8(255, 255, 255)},    {"red", rgb8(0xd6, 0x27, 0x28)},
+      {"blue", rgb8(0x1f, 0x77, 0xb4)},   {"green", rgb8(0x2c, 0xa0, 0x2c)}, {"orange", rgb8(0xff, 0x7f, 0x0e)},
       {"purple", rgb8(0x94, 0x67, 0xbd)}, {"brown", rgb8(0x8c, 0x56, 0x4b)}, {"gray", rgb8(0x80, 0x80, 0x80)},
       {"grey", rgb8(0x80, 0x80, 0x80)}};
   for (const auto& [name, c] : named)
@@ -217,8 +217,9 @@ class Canvas {
     for (int y = 0; y < h_; ++y)
       for (int x = 0; x < w_; ++x)
         for (int k = 0; k < 3; ++k)
-          out[3 * (std::size_t(h_ - 1 - y) * std::size_t(w_) + std::size_t(x)) + std::size_t(k)] = static_cast<
-              unsigned char>(std::lround(255.f * std::clamp(px_[3 * (std::size_t(y) * std::size_t(w_) + x) + k], 0.f, 1.f)));
+          out[3 * (std::size_t(h_ - 1 - y) * std::size_t(w_) + std::size_t(x)) + std::size_t(k)] =
+              static_cast<unsigned char>(
+                  std::lround(255.f * std::clamp(px_[3 * (std::size_t(y) * std::size_t(w_) + x) + k], 0.f, 1.f)));
     return img;
   }
 
@@ -285,7 +286,7 @@ vtkNew<vtkTextProperty> text_property(const Font& f, HJust h, VJust v) {
   tp->SetBackgroundOpacity(0.0);
   tp->SetOrientation(f.angle);
   tp->SetJustification(h == HJust::left ? VTK_TEXT_LEFT : h == HJust::center ? VTK_TEXT_CENTERED : VTK_TEXT_RIGHT);
-  tp->SetVerticalJustification(v == VJust::bottom ? VTK_TEXT_BOTTOM
+  tp->SetVerticalJustification(v == VJust::bottom   ? VTK_TEXT_BOTTOM
                                : v == VJust::center ? VTK_TEXT_CENTERED
                                                     : VTK_TEXT_TOP);
   return tp;
@@ -309,7 +310,8 @@ void draw_text(Canvas& cv, const std::string& s, double x, double y, const Font&
   vtkNew<vtkImageData> img;
   vtkFreeTypeTools* ft = vtkFreeTypeTools::GetInstance();
   ft->ScaleToPowerTwoOff();
-  if (!ft->RenderString(tp.GetPointer(), vtkStdString(s), 72, img.GetPointer())) throw Error("plot: FreeType cannot draw the text '" + s + "'");
+  if (!ft->RenderString(tp.GetPointer(), vtkStdString(s), 72, img.GetPointer()))
+    throw Error("plot: FreeType cannot draw the text '" + s + "'");
   int e[6];
   img->GetExtent(e);
   if (img->GetNumberOfScalarComponents() < 4) throw Error("plot: FreeType gave no alpha channel");
@@ -494,7 +496,8 @@ void draw_panel(Canvas& cv, const PlotPanel& panel, int top, int height) {
   const double area_top = y + 6;
   const bool bar = !panel.color_bar.label.empty();
   Axis abar;
-  abar.lo = panel.color_bar.lo, abar.hi = panel.color_bar.hi > panel.color_bar.lo ? panel.color_bar.hi : panel.color_bar.lo + 1;
+  abar.lo = panel.color_bar.lo,
+  abar.hi = panel.color_bar.hi > panel.color_bar.lo ? panel.color_bar.hi : panel.color_bar.lo + 1;
   double right = pad + 6;
   if (bar) {
     make_ticks(abar, 6, false, false);
@@ -556,8 +559,8 @@ void draw_panel(Canvas& cv, const PlotPanel& panel, int top, int height) {
   }
   // boxes
   for (const auto& r : panel.rects) {
-    const Rgb c = !r.color.empty() ? parse_color(r.color)
-                                   : viridis((r.value - abar.lo) / std::max(1e-300, abar.hi - abar.lo));
+    const Rgb c =
+        !r.color.empty() ? parse_color(r.color) : viridis((r.value - abar.lo) / std::max(1e-300, abar.hi - abar.lo));
     if (r.color.empty() && !std::isfinite(r.value)) continue;
     cv.fill_rect({std::min(X(r.x0), X(r.x1)), std::min(Y(r.y0), Y(r.y1)), std::max(X(r.x0), X(r.x1)),
                   std::max(Y(r.y0), Y(r.y1))},
@@ -578,7 +581,8 @@ void draw_panel(Canvas& cv, const PlotPanel& panel, int top, int height) {
       const double len = std::hypot(pts[i][0] - pts[i - 1][0], pts[i][1] - pts[i - 1][1]);
       for (int j = 1; std::isfinite(len) && j < std::min(2000.0, len / 4.0); ++j) {
         const double t = 4.0 * j / len;
-        ink.push_back({pts[i - 1][0] + t * (pts[i][0] - pts[i - 1][0]), pts[i - 1][1] + t * (pts[i][1] - pts[i - 1][1])});
+        ink.push_back(
+            {pts[i - 1][0] + t * (pts[i][0] - pts[i - 1][0]), pts[i - 1][1] + t * (pts[i][1] - pts[i - 1][1])});
       }
     }
     if (!s.points) cv.polyline(pts, s.line_width, colors[k], dash_pattern(s.dash_type, s.line_width), area);
@@ -594,11 +598,13 @@ void draw_panel(Canvas& cv, const PlotPanel& panel, int top, int height) {
     draw_text(cv, l.text, px + (l.marker ? 12 : 0), py - (l.marker ? 10 : 0), kKey, c,
               l.marker ? HJust::left : HJust::center, VJust::bottom);
   }
-  if (empty) draw_text(cv, "no data", 0.5 * (x0 + x1), 0.5 * (y0 + y1), kLabel, rgb8(0x88, 0x88, 0x88), HJust::center,
-                       VJust::center);
+  if (empty)
+    draw_text(cv, "no data", 0.5 * (x0 + x1), 0.5 * (y0 + y1), kLabel, rgb8(0x88, 0x88, 0x88), HJust::center,
+              VJust::center);
   // frame, ticks, tick labels
-  cv.polyline({{x0 + 0.5, y0 + 0.5}, {x1 - 0.5, y0 + 0.5}, {x1 - 0.5, y1 - 0.5}, {x0 + 0.5, y1 - 0.5}, {x0 + 0.5, y0 + 0.5}},
-              1.0, kFrame, {}, page);
+  cv.polyline(
+      {{x0 + 0.5, y0 + 0.5}, {x1 - 0.5, y0 + 0.5}, {x1 - 0.5, y1 - 0.5}, {x0 + 0.5, y1 - 0.5}, {x0 + 0.5, y0 + 0.5}},
+      1.0, kFrame, {}, page);
   for (double t : ax.ticks) {
     const double px = std::floor(X(t)) + 0.5;
     cv.polyline({{px, y1}, {px, y1 + 5}}, 1.0, kFrame, {}, page);
@@ -626,7 +632,10 @@ void draw_panel(Canvas& cv, const PlotPanel& panel, int top, int height) {
     const double bx0 = x1 + 16, bx1 = bx0 + 18;
     for (int py = int(y0); py < int(y1); ++py)
       cv.fill_rect({bx0, double(py), bx1, py + 1.0}, viridis((y1 - py - 0.5) / (y1 - y0)), 1.0f, page);
-    cv.polyline({{bx0 + 0.5, y0 + 0.5}, {bx1 - 0.5, y0 + 0.5}, {bx1 - 0.5, y1 - 0.5}, {bx0 + 0.5, y1 - 0.5},
+    cv.polyline({{bx0 + 0.5, y0 + 0.5},
+                 {bx1 - 0.5, y0 + 0.5},
+                 {bx1 - 0.5, y1 - 0.5},
+                 {bx0 + 0.5, y1 - 0.5},
                  {bx0 + 0.5, y0 + 0.5}},
                 1.0, kFrame, {}, page);
     double tw = 0;
@@ -685,8 +694,11 @@ void draw_panel(Canvas& cv, const PlotPanel& panel, int top, int height) {
     }
     const Box kb{kx, ky, kx + key_w, ky + kh};
     cv.fill_rect(kb, rgb8(255, 255, 255), 0.88f, page);
-    cv.polyline({{kx + 0.5, ky + 0.5}, {kx + key_w - 0.5, ky + 0.5}, {kx + key_w - 0.5, ky + kh - 0.5},
-                 {kx + 0.5, ky + kh - 0.5}, {kx + 0.5, ky + 0.5}},
+    cv.polyline({{kx + 0.5, ky + 0.5},
+                 {kx + key_w - 0.5, ky + 0.5},
+                 {kx + key_w - 0.5, ky + kh - 0.5},
+                 {kx + 0.5, ky + kh - 0.5},
+                 {kx + 0.5, ky + 0.5}},
                 1.0, rgb8(0xc8, 0xc8, 0xc8), {}, page);
     for (std::size_t i = 0; i < entries.size(); ++i) draw_entry(entries[i], kx + 8, ky + 5 + (i + 0.5) * row_h);
   }
@@ -726,9 +738,12 @@ std::vector<double> numbers(const json& j, const std::string& where) {
   if (!j.is_array()) throw Error("plot spec: " + where + " is not an array of numbers");
   std::vector<double> out;
   for (const json& v : j) {
-    if (v.is_null()) out.push_back(kNaN);
-    else if (v.is_number()) out.push_back(v.get<double>());
-    else throw Error("plot spec: " + where + " holds " + std::string(v.type_name()) + ", not a number or null");
+    if (v.is_null())
+      out.push_back(kNaN);
+    else if (v.is_number())
+      out.push_back(v.get<double>());
+    else
+      throw Error("plot spec: " + where + " holds " + std::string(v.type_name()) + ", not a number or null");
   }
   return out;
 }
@@ -751,44 +766,44 @@ PlotSpec parse_plot_spec(const std::string& text) {
       for (std::size_t i = 0; i < v.size(); ++i) {
         const std::string wp = fmt::format("$.panels[{}]", i);
         PlotPanel p;
-        each_key(v[i], wp,
-                 {"title", "subtitle", "xlabel", "ylabel", "log_x", "log_y", "key", "xrange", "yrange", "series"},
-                 [&](const std::string& pk, const json& pv) {
-                   if (pk == "title") p.title = pv.get<std::string>();
-                   if (pk == "subtitle") p.subtitle = pv.get<std::string>();
-                   if (pk == "xlabel") p.xlabel = pv.get<std::string>();
-                   if (pk == "ylabel") p.ylabel = pv.get<std::string>();
-                   if (pk == "log_x") p.log_x = pv.get<bool>();
-                   if (pk == "log_y") p.log_y = pv.get<bool>();
-                   if (pk == "key") p.key = pv.get<std::string>();
-                   if (pk == "xrange") p.xrange = pv.get<std::string>();
-                   if (pk == "yrange") p.yrange = pv.get<std::string>();
-                   if (pk == "series") {
-                     if (!pv.is_array()) throw Error("plot spec: " + wp + ".series is not an array");
-                     for (std::size_t k = 0; k < pv.size(); ++k) {
-                       const std::string ws = fmt::format("{}.series[{}]", wp, k);
-                       PlotSeries s;
-                       each_key(pv[k], ws,
-                                {"title", "x", "y", "points", "with_points", "line_width", "dash_type", "point_type",
-                                 "color"},
-                                [&](const std::string& sk, const json& sv) {
-                                  if (sk == "title") s.title = sv.get<std::string>();
-                                  if (sk == "x") s.x = numbers(sv, ws + ".x");
-                                  if (sk == "y") s.y = numbers(sv, ws + ".y");
-                                  if (sk == "points") s.points = sv.get<bool>();
-                                  if (sk == "with_points") s.with_points = sv.get<bool>();
-                                  if (sk == "line_width") s.line_width = sv.get<double>();
-                                  if (sk == "dash_type") s.dash_type = sv.get<int>();
-                                  if (sk == "point_type") s.point_type = sv.get<int>();
-                                  if (sk == "color") s.color = sv.get<std::string>();
-                                });
-                       if (s.x.size() != s.y.size())
-                         throw Error(fmt::format("plot spec: {}: x has {} values, y {}", ws, s.x.size(), s.y.size()));
-                       if (!s.color.empty()) (void)parse_color(s.color);  // a bad colour is told before drawing
-                       p.series.push_back(std::move(s));
-                     }
-                   }
-                 });
+        each_key(
+            v[i], wp, {"title", "subtitle", "xlabel", "ylabel", "log_x", "log_y", "key", "xrange", "yrange", "series"},
+            [&](const std::string& pk, const json& pv) {
+              if (pk == "title") p.title = pv.get<std::string>();
+              if (pk == "subtitle") p.subtitle = pv.get<std::string>();
+              if (pk == "xlabel") p.xlabel = pv.get<std::string>();
+              if (pk == "ylabel") p.ylabel = pv.get<std::string>();
+              if (pk == "log_x") p.log_x = pv.get<bool>();
+              if (pk == "log_y") p.log_y = pv.get<bool>();
+              if (pk == "key") p.key = pv.get<std::string>();
+              if (pk == "xrange") p.xrange = pv.get<std::string>();
+              if (pk == "yrange") p.yrange = pv.get<std::string>();
+              if (pk == "series") {
+                if (!pv.is_array()) throw Error("plot spec: " + wp + ".series is not an array");
+                for (std::size_t k = 0; k < pv.size(); ++k) {
+                  const std::string ws = fmt::format("{}.series[{}]", wp, k);
+                  PlotSeries s;
+                  each_key(
+                      pv[k], ws,
+                      {"title", "x", "y", "points", "with_points", "line_width", "dash_type", "point_type", "color"},
+                      [&](const std::string& sk, const json& sv) {
+                        if (sk == "title") s.title = sv.get<std::string>();
+                        if (sk == "x") s.x = numbers(sv, ws + ".x");
+                        if (sk == "y") s.y = numbers(sv, ws + ".y");
+                        if (sk == "points") s.points = sv.get<bool>();
+                        if (sk == "with_points") s.with_points = sv.get<bool>();
+                        if (sk == "line_width") s.line_width = sv.get<double>();
+                        if (sk == "dash_type") s.dash_type = sv.get<int>();
+                        if (sk == "point_type") s.point_type = sv.get<int>();
+                        if (sk == "color") s.color = sv.get<std::string>();
+                      });
+                  if (s.x.size() != s.y.size())
+                    throw Error(fmt::format("plot spec: {}: x has {} values, y {}", ws, s.x.size(), s.y.size()));
+                  if (!s.color.empty()) (void)parse_color(s.color);  // a bad colour is told before drawing
+                  p.series.push_back(std::move(s));
+                }
+              }
+            });
         spec.panels.push_back(std::move(p));
       }
     }

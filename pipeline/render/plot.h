@@ -14,7 +14,7 @@ namespace vx {
 
 /// One curve.
 struct PlotSeries {
-  std::string title;  ///< the legend's text ("": not in the legend)
+  std::string title;         ///< the legend's text ("": not in the legend)
   std::vector<double> x, y;  ///< same length; non-finite samples break the line
   bool points{false};        ///< draw points instead of lines
   double line_width{1.5};    ///< pixels

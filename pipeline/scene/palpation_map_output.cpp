@@ -130,8 +130,8 @@ void write_map_png(const PalpationMap& map, const PalpationSummary& s, const fs:
     }
   p.color_bar.label = "stiffness (force / depth), N/mm";
   p.color_bar.lo = lo < 1e300 ? lo : 0.0;
-  p.color_bar.hi = std::isfinite(s.peak_n_per_mm) && s.peak_n_per_mm > p.color_bar.lo ? s.peak_n_per_mm
-                                                                                          : p.color_bar.lo + 1.0;
+  p.color_bar.hi =
+      std::isfinite(s.peak_n_per_mm) && s.peak_n_per_mm > p.color_bar.lo ? s.peak_n_per_mm : p.color_bar.lo + 1.0;
   const double u_lo = map.bin_u0_mm - map.bin_mm, u_hi = map.bin_u0_mm + map.bins_u * map.bin_mm;
   const double v_lo = map.bin_v0_mm - map.bin_mm, v_hi = map.bin_v0_mm + map.bins_v * map.bin_mm;
   const double margin = 0.12 * (v_hi - v_lo);  // room under the object for the scale bar
@@ -141,9 +141,10 @@ void write_map_png(const PalpationMap& map, const PalpationSummary& s, const fs:
   p.title = fmt::format("Palpation map of the {} face: a {:g} mm ball pressed {:g} mm at {} points {:g} mm apart",
                         face_name(map.settings.face), map.settings.probe_radius_mm, map.settings.depth_mm,
                         map.points.size(), map.settings.spacing_mm);
-  p.subtitle = fmt::format("contrast {:.3g} (peak {:.3g} / surroundings {:.3g} N/mm); lesion estimate ({:.1f}, {:.1f}, "
-                           "{:.1f}) mm",
-                           s.contrast, s.peak_n_per_mm, s.surrounding_n_per_mm, tidy(e.x()), tidy(e.y()), tidy(e.z()));
+  p.subtitle = fmt::format(
+      "contrast {:.3g} (peak {:.3g} / surroundings {:.3g} N/mm); lesion estimate ({:.1f}, {:.1f}, "
+      "{:.1f}) mm",
+      s.contrast, s.peak_n_per_mm, s.surrounding_n_per_mm, tidy(e.x()), tidy(e.y()), tidy(e.z()));
   p.equal_aspect = true;
   p.xlabel = u + " (mm)";
   p.ylabel = v + " (mm)";
@@ -159,7 +160,8 @@ void write_map_png(const PalpationMap& map, const PalpationSummary& s, const fs:
   p.series.push_back(scale);
   p.labels.push_back({fmt::format("{:g} mm", bar), bx + 0.5 * bar, by + 0.25 * margin});
   if (s.lesion_estimate_mm.allFinite())
-    p.labels.push_back({"estimate", s.lesion_estimate_mm[map.u_axis], s.lesion_estimate_mm[map.v_axis], "#e00000", true});
+    p.labels.push_back(
+        {"estimate", s.lesion_estimate_mm[map.u_axis], s.lesion_estimate_mm[map.v_axis], "#e00000", true});
   const int width = 1000;
   const double aspect = (v_hi - v_lo + margin) / (u_hi - u_lo);
   plot_png({p}, path, width, std::clamp(int(std::lround(0.78 * width * aspect)) + 150, 400, 1400));

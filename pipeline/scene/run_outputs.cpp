@@ -1,15 +1,15 @@
 #include "scene/run_outputs.h"
 
+#include <fmt/format.h>
 #include <Eigen/Core>
 #include <algorithm>
 #include <cmath>
-#include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
 #include "base/version.h"
+#include "render/plot.h"
 #include "sim/contact.h"
 #include "sim/probe.h"
-#include "render/plot.h"
 
 namespace vx {
 namespace fs = std::filesystem;
@@ -133,8 +133,8 @@ std::vector<ForceReference> scene_force_references(const Scene& s) {
   ref.nu = m.poisson_ratio;
   ref.radius_mm = r;
   ref.layer_mm = hi[axis] - lo[axis];
-  ref.title = fmt::format("finite-layer Hertz (E {:g} kPa, Poisson {:g}, layer {:g} mm)", ref.e_kpa, ref.nu,
-                          ref.layer_mm);
+  ref.title =
+      fmt::format("finite-layer Hertz (E {:g} kPa, Poisson {:g}, layer {:g} mm)", ref.e_kpa, ref.nu, ref.layer_mm);
   return {ref};
 }
 

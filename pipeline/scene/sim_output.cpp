@@ -225,7 +225,7 @@ void plot_forces(const ForceRecorder& rec, const fs::path& png, const std::vecto
     const int n = ++seen[std::size_t(q.probe)];
     const std::string when = fmt::format("{:.3g} to {:.3g} s", q.start_s, q.end_s);
     s.title = count[std::size_t(q.probe)] > 1 ? fmt::format("{}, press {} ({})", name, n, when)
-                                               : fmt::format("{} ({})", name, when);
+                                              : fmt::format("{} ({})", name, when);
     s.color = presses.size() == probes ? colours[std::size_t(q.probe) % 7] : colours[k % 7];
     depth.series.push_back(std::move(s));
   }

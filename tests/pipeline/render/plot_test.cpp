@@ -202,8 +202,7 @@ TEST_F(Plot, SpecFromJsonForScripts) {
   EXPECT_NE(error_of(R"({"panels": [{"series": [{"x": [1, 2], "y": [1]}]}]})").find("x has 2 values, y 1"),
             std::string::npos);
   EXPECT_NE(error_of(R"({"panels": [{"title": 3}]})").find("$.panels[0].title"), std::string::npos);
-  EXPECT_NE(error_of(R"({"panels": [{"series": [{"x": ["a"], "y": [1]}]}]})").find("not a number"),
-            std::string::npos);
+  EXPECT_NE(error_of(R"({"panels": [{"series": [{"x": ["a"], "y": [1]}]}]})").find("not a number"), std::string::npos);
   EXPECT_NE(error_of(R"({"panels": [{"series": [{"x": [1], "y": [1], "color": "mauve"}]}]})").find("unknown colour"),
             std::string::npos);
   EXPECT_NE(error_of("{").find("not valid JSON"), std::string::npos);
