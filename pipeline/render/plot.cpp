@@ -447,7 +447,10 @@ void draw_panel(Canvas& cv, const PlotPanel& panel, int top, int height) {
   const auto xr = parse_range(panel.xrange), yr = parse_range(panel.yrange);
   Axis ax, ay;
   ax.log = panel.log_x, ay.log = panel.log_y;
-  auto settle = [](Axis& a, double lo, double hi, const std::array<double, 2>& fixed, bool none) {
+  // markers at the data's ends would sit on the frame: a little room on the automatic sides
+  const bool markers = std::any_of(panel.series.begin(), panel.series.end(),
+                                   [](const PlotSeries& s) { return s.points || s.with_points; });
+  auto settle = [markers](Axis& a, double lo, double hi, const std::array<double, 2>& fixed, bool none) {
     if (none) lo = a.log ? 1 : 0, hi = a.log ? 10 : 1;
     if (std::isfinite(fixed[0])) lo = fixed[0];
     if (std::isfinite(fixed[1])) hi = fixed[1];
@@ -455,6 +458,11 @@ void draw_panel(Canvas& cv, const PlotPanel& panel, int top, int height) {
     if (!(hi > lo)) {
       const double d = lo == 0 ? 1.0 : 0.1 * std::abs(lo);
       lo -= d, hi += d;
+    }
+    if (markers && !a.log && !none) {
+      const double pad = 0.04 * (hi - lo);
+      if (!std::isfinite(fixed[0])) lo -= pad;
+      if (!std::isfinite(fixed[1])) hi += pad;
     }
     if (a.log && !std::isfinite(fixed[0]) && !std::isfinite(fixed[1])) {
       const double f = std::max(1.08, std::pow(hi / lo, 0.04));
@@ -471,7 +479,7 @@ void draw_panel(Canvas& cv, const PlotPanel& panel, int top, int height) {
   int cycle = 0;
   for (const auto& s : panel.series) {
     colors.push_back(s.color.empty() ? cycle_color(cycle++) : parse_color(s.color));
-    const double pr = s.points ? (s.point_type == 7 ? 2.6 : 4.5) : 4.0;
+    const double pr = s.points ? (s.point_type == 7 ? 3.4 : 4.5) : 4.0;
     if (!s.title.empty())
       entries.push_back({s.title, colors.back(), s.line_width, dash_pattern(s.dash_type, s.line_width), !s.points,
                          s.points || s.with_points, s.point_type, pr});
@@ -587,7 +595,7 @@ void draw_panel(Canvas& cv, const PlotPanel& panel, int top, int height) {
     }
     if (!s.points) cv.polyline(pts, s.line_width, colors[k], dash_pattern(s.dash_type, s.line_width), area);
     if (s.points || s.with_points) {
-      const double r = s.points ? (s.point_type == 7 ? 2.6 : 4.5) : 4.0;
+      const double r = s.points ? (s.point_type == 7 ? 3.4 : 4.5) : 4.0;
       for (const auto& p : pts) cv.marker(p[0], p[1], s.point_type, r, colors[k], area);
     }
   }
