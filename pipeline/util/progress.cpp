@@ -45,7 +45,8 @@ void Progress::done() {
   finished_ = true;
   const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
   if (tty_) std::fprintf(stderr, "\r%s done in %.2f s%*s\n", label_.c_str(), s, 30, "");
-  else if (last_decile_ >= 0 || s >= 1.0) std::fprintf(stderr, "%s: done in %.2f s\n", label_.c_str(), s);
+  else if (last_decile_ >= 0 || s >= 1.0)
+    std::fprintf(stderr, "%s: done in %.2f s\n", label_.c_str(), s);
 }
 
 }  // namespace vx
