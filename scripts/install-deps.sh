@@ -17,7 +17,7 @@ for arg in "$@"; do
 done
 
 # a user's: the compiler and libraries, the test suite's (built by default), what the
-# programs run at run time (gnuplot for plots, Xvfb for pictures without a display),
+# programs run at run time (Xvfb for 3D pictures without a display; plots need nothing),
 # help2man for the man pages `cmake --install` writes, dciodvfy to check written DICOM and
 # xmllint (libxml2-utils) the Slicer description of `convert --xml`
 packages=(
@@ -26,7 +26,7 @@ packages=(
   libgtest-dev libgmock-dev libbenchmark-dev
   libcli11-dev nlohmann-json3-dev libspdlog-dev libfmt-dev
   libopenjp2-7-dev
-  xvfb xauth x11-utils dicom3tools gnuplot-nox libxml2-utils help2man
+  xvfb xauth x11-utils dicom3tools libxml2-utils help2man
   # the palpation sweep (workflow/Snakefile, docs/palpation.md) and its CI test
   snakemake
 )

@@ -158,6 +158,7 @@ void ProbeView::Impl::build_scene() {
 
   build_probes();
   build_walls();
+  build_guides();
   build_levels();
   build_hud();
   build_plot();
@@ -304,6 +305,7 @@ void ProbeView::render() {
   v.update_plot();
   v.update_hud_text();
   v.renderer->ResetCameraClippingRange();
+  v.update_marker();
   v.window->Render();
   if (v.frames == 0) {
     const char* caps = v.window->ReportCapabilities();

@@ -1,8 +1,14 @@
 // The probe view's scene: the deforming tissue surface (Gouraud shading with the surface's own
 // normals, tinted deeper red where it is displaced), the probes (their shapes, lit up in
 // contact) and the workspace walls with the table under the tissue.
+#include <fmt/format.h>
 #include <vtkActor.h>
+#include <vtkAppendPolyData.h>
+#include <vtkAxesActor.h>
+#include <vtkBillboardTextActor3D.h>
+#include <vtkCamera.h>
 #include <vtkCapsuleSource.h>
+#include <vtkCaptionActor2D.h>
 #include <vtkCellArray.h>
 #include <vtkCubeSource.h>
 #include <vtkCylinderSource.h>
@@ -15,8 +21,11 @@
 #include <vtkPolyData.h>
 #include <vtkPolyDataMapper.h>
 #include <vtkProperty.h>
+#include <vtkRenderWindow.h>
 #include <vtkRenderer.h>
 #include <vtkSphereSource.h>
+#include <vtkTextActor.h>
+#include <vtkTextProperty.h>
 #include <vtkTransform.h>
 #include <vtkTransformPolyDataFilter.h>
 #include <vtkUnsignedCharArray.h>
@@ -259,6 +268,111 @@ void ProbeView::Impl::update_probes(const std::vector<Eigen::Vector3d>& probe_po
     const Rgb& c = touching ? kToolContact : kTool;
     probe_actors[p]->GetProperty()->SetColor(c.r, c.g, c.b);
   }
+}
+
+void ProbeView::Impl::build_guides() {
+  // the scale bar: a round length (1, 2 or 5 times a power of ten) about a third of the tissue's
+  // width, lying along the screen's "right" at the foot of the tissue, just in front of it; a
+  // bar in the scene stays true under perspective and when the camera turns
+  const Eigen::Matrix3d basis = start_view_basis(setup.world_up);  // right, up, away
+  const Eigen::Matrix3Xd local = basis.transpose() * setup.surface_vertices;
+  const Eigen::Vector3d lo = local.rowwise().minCoeff(), hi = local.rowwise().maxCoeff();
+  const double target = std::max(1e-3, 0.3 * (hi.x() - lo.x()));
+  const double p10 = std::pow(10.0, std::floor(std::log10(target)));
+  scale_bar_mm = p10;
+  for (double m : {5.0, 2.0, 1.0})
+    if (m * p10 <= target) {
+      scale_bar_mm = m * p10;
+      break;
+    }
+  // a bar 8 % of its length thick, raised a little above the table so that neither hides the other
+  const double thick = std::max(0.3, 0.08 * scale_bar_mm), gap = std::max(1.0, 0.08 * (hi - lo).maxCoeff());
+  const Eigen::Vector3d start =
+      basis * Eigen::Vector3d(lo.x(), lo.y() + 0.5 * thick + 0.1 * thick, lo.z() - gap - thick);
+  const Eigen::Vector3d right = basis.col(0), up = basis.col(1), away = basis.col(2);
+  auto box = [&](const Eigen::Vector3d& centre, double along, double high) {
+    auto cube = make<vtkCubeSource>();
+    cube->SetXLength(along);
+    cube->SetYLength(high);
+    cube->SetZLength(thick);
+    auto t = make<vtkTransform>();
+    const double m[16] = {right.x(), up.x(), away.x(), centre.x(), right.y(), up.y(), away.y(), centre.y(),
+                          right.z(), up.z(), away.z(), centre.z(), 0,         0,      0,        1};
+    t->SetMatrix(m);
+    auto f = make<vtkTransformPolyDataFilter>();
+    f->SetInputConnection(cube->GetOutputPort());
+    f->SetTransform(t);
+    return f;
+  };
+  auto append = make<vtkAppendPolyData>();
+  append->AddInputConnection(box(start + 0.5 * scale_bar_mm * right, scale_bar_mm, thick)->GetOutputPort());
+  for (double end : {0.0, scale_bar_mm})  // end ticks
+    append->AddInputConnection(box(start + end * right + 1.0 * thick * up, 0.6 * thick, 3 * thick)->GetOutputPort());
+  auto mapper = make<vtkPolyDataMapper>();
+  mapper->SetInputConnection(append->GetOutputPort());
+  scale_bar = make<vtkActor>();
+  scale_bar->SetMapper(mapper);
+  scale_bar->GetProperty()->SetColor(0.96, 0.96, 0.92);
+  scale_bar->GetProperty()->SetAmbient(1.0);  // unlit: reads the same from every side
+  scale_bar->GetProperty()->SetDiffuse(0.0);
+  scale_bar->GetProperty()->SetSpecular(0.0);
+  scale_bar->PickableOff();
+  renderer->AddActor(scale_bar);
+  scale_label = make<vtkBillboardTextActor3D>();
+  scale_label->SetInput(fmt::format("{:g} mm", scale_bar_mm).c_str());
+  const Eigen::Vector3d at = start + 0.5 * scale_bar_mm * right + 3.0 * thick * up;
+  scale_label->SetPosition(at.x(), at.y(), at.z());
+  set_text_style(scale_label->GetTextProperty(), 15, Rgb{0.96, 0.96, 0.92});
+  scale_label->GetTextProperty()->SetJustificationToCentered();
+  scale_label->GetTextProperty()->SetVerticalJustificationToBottom();
+  scale_label->GetTextProperty()->SetBackgroundOpacity(0.0);
+  scale_label->GetTextProperty()->SetFrame(false);
+  scale_label->PickableOff();
+  renderer->AddActor(scale_label);
+
+  // the orientation marker: the model's axes, which are LPS (x to the patient's left, y
+  // posterior, z superior), in a small renderer over the 3D view's bottom right corner
+  axes = make<vtkAxesActor>();
+  axes->SetXAxisLabelText("L");
+  axes->SetYAxisLabelText("P");
+  axes->SetZAxisLabelText("S");
+  axes->SetShaftTypeToCylinder();
+  axes->SetCylinderRadius(0.04);
+  axes->SetConeRadius(0.45);
+  axes->SetTotalLength(1.0, 1.0, 1.0);
+  for (vtkCaptionActor2D* c :
+       {axes->GetXAxisCaptionActor2D(), axes->GetYAxisCaptionActor2D(), axes->GetZAxisCaptionActor2D()}) {
+    c->GetTextActor()->SetTextScaleModeToNone();
+    vtkTextProperty* p = c->GetCaptionTextProperty();
+    p->SetFontFamilyToArial();
+    p->SetFontSize(17);
+    p->SetBold(true);
+    p->SetItalic(false);
+    p->SetShadow(true);
+    p->SetColor(0.96, 0.96, 0.92);
+  }
+  marker = make<vtkRenderer>();
+  marker->SetViewport(1.0 - kPanel - 0.14, 0.0, 1.0 - kPanel, 0.24);
+  marker->SetLayer(1);
+  marker->InteractiveOff();
+  marker->AddActor(axes);
+  marker->ResetCamera();
+  marker_distance = 0.62 * marker->GetActiveCamera()->GetDistance();  // closer than VTK's fit: the axes fill the corner
+  window->SetNumberOfLayers(2);
+  window->AddRenderer(marker);
+}
+
+void ProbeView::Impl::update_marker() {
+  if (!marker) return;
+  vtkCamera* cam = renderer->GetActiveCamera();
+  double dop[3], vu[3];
+  cam->GetDirectionOfProjection(dop);
+  cam->GetViewUp(vu);
+  vtkCamera* m = marker->GetActiveCamera();
+  m->SetFocalPoint(0.4, 0.4, 0.4);  // about the middle of the three unit axes
+  m->SetPosition(0.4 - marker_distance * dop[0], 0.4 - marker_distance * dop[1], 0.4 - marker_distance * dop[2]);
+  m->SetViewUp(vu);
+  marker->ResetCameraClippingRange();
 }
 
 }  // namespace vx::probe

@@ -20,6 +20,8 @@
 #include "rate_thread.h"
 
 class vtkActor;
+class vtkAxesActor;
+class vtkBillboardTextActor3D;
 class vtkCamera;
 class vtkChartXY;
 class vtkContextActor;
@@ -124,6 +126,15 @@ struct ProbeView::Impl {
   std::vector<Ptr<vtkActor>> wall_actors;
   bool walls_on{true};
 
+  // guides: a scale bar on the table in front of the tissue, and the model's axes (LPS) in
+  // the 3D view's bottom right corner, turning with the camera
+  Ptr<vtkActor> scale_bar;
+  Ptr<vtkBillboardTextActor3D> scale_label;
+  double scale_bar_mm{10.0};
+  Ptr<vtkRenderer> marker;  // layer 1, over the 3D view
+  Ptr<vtkAxesActor> axes;
+  double marker_distance{10.0};
+
   // HUD and help
   Ptr<vtkTextActor> hud;
   Ptr<vtkTextActor> status;
@@ -150,6 +161,8 @@ struct ProbeView::Impl {
   void build_tissue();
   void build_probes();
   void build_walls();
+  void build_guides();
+  void update_marker();
   void build_levels();
   void update_levels(bool force_cut);
   void set_levels(bool on);

@@ -50,7 +50,6 @@ void run_haptic_command(const BenchOptions& o) {
   if (ec || !fs::is_directory(dir))
     throw Error(fmt::format("--out '{}': cannot create the folder ({})", o.out, ec ? ec.message() : "not a folder"));
   check_output_path(dir / "haptic_accuracy.md");
-  check_gnuplot();
   HapticAccuracySettings set;
   set.scene = o.haptic;
   if (!o.quiet) set.log = [](const std::string& line) { fmt::print(stderr, "{}\n", line); };
@@ -113,7 +112,6 @@ void run_scale_command(const BenchOptions& o) {
   if (ec || !fs::is_directory(dir))
     throw Error(fmt::format("--out '{}': cannot create the folder ({})", o.out, ec ? ec.message() : "not a folder"));
   check_output_path(dir / "scale.csv");
-  check_gnuplot();
   if (!o.quiet) set.log = [](const std::string& line) { fmt::print(stderr, "{}\n", line); };
   const ScaleBenchResult res = run_scale_bench(set);
   const std::vector<std::string> written = write_scale_report(res, dir);
@@ -139,14 +137,13 @@ void run_bench_command(const BenchOptions& o) {
   set.run_palpation = !o.skip_palpation;
   set.validate();
 
-  // the outputs and gnuplot first: a mistake there should not cost a whole bench
+  // the outputs first: a mistake there should not cost a whole bench
   const fs::path dir(o.out);
   std::error_code ec;
   fs::create_directories(dir, ec);
   if (ec || !fs::is_directory(dir))
     throw Error(fmt::format("--out '{}': cannot create the folder ({})", o.out, ec ? ec.message() : "not a folder"));
   check_output_path(dir / "bench.json");
-  check_gnuplot();
 
   if (o.quiet) log::set_level(std::max(log::level(), log::Level::warn));
   if (!o.quiet) {

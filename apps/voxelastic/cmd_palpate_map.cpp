@@ -81,7 +81,6 @@ void run_palpate_map(PalpateMapOptions o) {
   if (ec || !fs::is_directory(dir))
     throw Error(fmt::format("--out '{}': cannot create the folder ({})", o.out, ec ? ec.message() : "not a folder"));
   check_output_path(dir / "summary.json");
-  if (o.png) check_gnuplot();
 
   // the object, its material and support
   const Scene scene = palpation_scene(o.input, o.scene);
@@ -146,7 +145,7 @@ void add_palpate_map_command(CLI::App& app) {
                   "volume: modulus per voxel from its HU, rows HU:KPA sorted by HU (the phantoms' tissue 40 HU and lesion "
                   "120 HU by default), or 'none' for --modulus-kpa everywhere")
       ->capture_default_str();
-  sub->add_flag("!--no-png", opts->png, "do not draw map.png (no gnuplot needed)");
+  sub->add_flag("!--no-png", opts->png, "do not draw map.png");
   sub->callback([opts] { run_palpate_map(*opts); });
 }
 

@@ -143,7 +143,6 @@ void run_simulate(const SimulateOptions& o) {
     throw Error(fmt::format("--out '{}': cannot create the folder ({})", o.out, ec ? ec.message() : "not a folder"));
   check_output_path(dir / "summary.json");
   const SceneOutputs& out = scene.outputs;
-  if (out.plot) check_gnuplot();
 
   // build the object and its physics
   PrepareSceneOptions popt;
@@ -179,6 +178,7 @@ void run_simulate(const SimulateOptions& o) {
   // run, recording what the scene asks for; Ctrl-C stops after the current step and the
   // outputs up to then are written as for a finished run
   RunOutputs outputs(sim, prepared, out, dir, steps);
+  outputs.set_force_references(scene_force_references(scene));
   Progress progress("simulate", !o.quiet);
   const StopSignals signals;
   bool interrupted = false, estimated = false;

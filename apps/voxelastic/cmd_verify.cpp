@@ -72,8 +72,6 @@ void run_verify_command(const VerifyOptions& o) {
   if (selected == 0)
     throw CLI::ValidationError("--shard", fmt::format("shard {} holds no case of the {} suite ({} cases{})", o.shard,
                                                       o.suite, suite.size(), o.cases.empty() ? "" : " with --case"));
-  if (find_gnuplot().empty())
-    fmt::print(stderr, "voxelastic: warning: gnuplot not found: the report will have no plots (apt install gnuplot-nox)\n");
 
   VerifyStage stage(o.out);  // creates the folder and checks it is writable before any work
   VerifyRunOptions run;

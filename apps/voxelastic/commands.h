@@ -20,5 +20,6 @@ void add_simulate_command(CLI::App& app); ///< voxelastic simulate SCENE.json --
 void add_bench_command(CLI::App& app);    ///< voxelastic bench [--quick] [--out DIR] [--threads N]
 void add_verify_command(CLI::App& app);   ///< voxelastic verify [--suite S] --out DIR, voxelastic verify-merge DIR... --out DIR
 void add_palpate_map_command(CLI::App& app);  ///< voxelastic palpate-map INPUT --out DIR
+void add_plot_command(CLI::App& app);         ///< voxelastic plot SPEC.json -o OUT.png
 
 }  // namespace vx::cli

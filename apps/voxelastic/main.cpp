@@ -31,6 +31,7 @@ int main(int argc, char** argv) {
   vx::cli::add_verify_command(app);
   vx::cli::add_bench_command(app);
   vx::cli::add_palpate_map_command(app);
+  vx::cli::add_plot_command(app);
   // a mistyped command is told as one, with the nearest command (CLI11 would say "A subcommand
   // is required")
   if (const std::string unknown = vx::cli::unknown_subcommand_message(app, argc, argv); !unknown.empty()) {

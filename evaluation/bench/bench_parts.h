@@ -49,7 +49,7 @@ void run_step_cost(const BenchSettings& set, BenchResult& res, const Log& log);
 /// it; the Pareto front and the best configuration for real time.
 void run_palpation_part(const BenchSettings& set, BenchResult& res, const Log& log);
 
-/// The pictures of a result (bench_plots.cpp); each throws vx::Error when gnuplot fails.
+/// The pictures of a result (bench_plots.cpp); each throws vx::Error when a picture cannot be written.
 void plot_step(const BenchResult& res, const std::filesystem::path& png);    ///< part A: step time and work against n
 void plot_error(const BenchResult& res, const std::filesystem::path& png);   ///< part B: error against run time
 void plot_cost(const BenchResult& res, const std::filesystem::path& png);    ///< part B: run time against n

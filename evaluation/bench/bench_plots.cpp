@@ -1,4 +1,4 @@
-// The pictures of `voxelastic bench` (gnuplot through render/plot.h): part A's step time and
+// The pictures of `voxelastic bench` (render/plot.h): part A's step time and
 // work against the sphere size, part B's error against run time, run time against size, and the
 // force curves of the best runs against the reference. Every layout keeps one colour, every
 // integrator one point type.
@@ -48,7 +48,7 @@ int integrator_point(IntegratorKind k) {
   return 7;
 }
 
-/// An integrator's name for plots (gnuplot's enhanced text reads '_' as a subscript).
+/// An integrator's name for plots, in plain words.
 const char* integrator_title(IntegratorKind k) {
   switch (k) {
     case IntegratorKind::explicit_euler: return "explicit Euler";

@@ -17,6 +17,7 @@
 #include "convert/phantom.h"
 #include "convert/threshold.h"
 #include "model/gradational_builder.h"
+#include "scene/sim_output.h"
 #include "sim/contact.h"
 #include "sim/state.h"
 #include "sim/static_solver.h"
@@ -88,19 +89,6 @@ void run_compression(VerifyContext& ctx, Layout r, double tolerance) {
 // --- mechanics: Hertz indentation --------------------------------------------------------------
 
 namespace {
-
-/// Hertz for a rigid sphere (radius R) pressed d into a layer of thickness h bonded to a rigid
-/// base (Dimitriadis et al., Biophys. J. 82, 2002, eq. 12), N; h -> infinity gives Hertz's
-/// half-space F = 4/3 E/(1 - nu^2) sqrt(R) d^1.5.
-double hertz_bonded_layer_n(double e_kpa, double nu, double r, double d, double h) {
-  const double a0 = -(1.2876 - 1.4678 * nu + 1.3442 * nu * nu) / (1 - nu);
-  const double b0 = (0.6387 - 1.0277 * nu + 1.5164 * nu * nu) / (1 - nu);
-  const double x = std::sqrt(r * d) / h;
-  const double c = 1 - 2 * a0 / kPi * x + 4 * a0 * a0 / (kPi * kPi) * x * x -
-                   8 / (kPi * kPi * kPi) * (a0 * a0 * a0 + 4 * kPi * kPi * b0 / 15) * x * x * x +
-                   16 * a0 / (kPi * kPi * kPi * kPi) * (a0 * a0 * a0 + 3 * kPi * kPi * b0 / 5) * x * x * x * x;
-  return 4.0 / 3.0 * e_kpa * kKpaToNPerMm2 / (1 - nu * nu) * std::sqrt(r) * std::pow(d, 1.5) * c;
-}
 
 /// One Hertz indentation (block `dims_mm`, voxel `voxel_mm`): the force and the references.
 struct HertzRun {

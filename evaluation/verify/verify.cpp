@@ -47,7 +47,7 @@ const char* rule_symbol(CheckRule rule) {
 
 json number(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
 
-/// Plotting runs gnuplot through std::system: one plot at a time keeps the machine responsive.
+/// One plot at a time (plot_png serialises its drawing too): the plots folder is made once.
 std::mutex& plot_mutex() {
   static std::mutex m;
   return m;
@@ -132,7 +132,7 @@ void VerifyContext::plot(const std::string& what, const std::string& caption, co
   try {
     std::lock_guard<std::mutex> lock(plot_mutex());
     fs::create_directories(report_dir_ / "plots");
-    // gnuplot's enhanced text reads '_' as a subscript: names like symplectic_euler get spaces
+    // plain words in the pictures: names like symplectic_euler get spaces
     std::vector<PlotPanel> shown = panels;
     const auto plain = [](std::string& s) { std::replace(s.begin(), s.end(), '_', ' '); };
     for (PlotPanel& p : shown) {

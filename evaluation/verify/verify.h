@@ -73,7 +73,7 @@ class VerifyContext {
   /// Records a check named "<case>.<what>" (see CheckRule); returns whether it passed.
   bool check(const std::string& what, double value, double expected, double tolerance, const std::string& unit,
              const std::string& note, CheckRule rule = CheckRule::within);
-  /// Draws panels into plots/<case>-<what>.png. A gnuplot failure is not a failed check: the
+  /// Draws panels into plots/<case>-<what>.png. A failed plot is not a failed check: the
   /// report says the plot is missing and why.
   void plot(const std::string& what, const std::string& caption, const std::vector<PlotPanel>& panels);
   /// A line of context for the report (figures behind the checks).

@@ -1,9 +1,12 @@
 #pragma once
 /// @file plot.h
-/// PNG line plots without a display, drawn by gnuplot (pngcairo terminal) from a temporary
-/// script: the data travel inside the script as datablocks, so nothing else is written.
+/// PNG plots without a display: line and point plots, filled boxes coloured by value (the
+/// palpation map) and text, rasterised on the CPU into a VTK image (anti-aliased lines and
+/// markers; text by VTK's FreeType tools, no OpenGL) and written by vtkPNGWriter. No shell, no
+/// external program: works headless (CI, a server). Pixel sizes; data in the caller's units.
 
 #include <filesystem>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -11,14 +14,36 @@ namespace vx {
 
 /// One curve.
 struct PlotSeries {
-  std::string title;
-  std::vector<double> x, y;  ///< same length
+  std::string title;         ///< the legend's text ("": not in the legend)
+  std::vector<double> x, y;  ///< same length; non-finite samples break the line
   bool points{false};        ///< draw points instead of lines
-  double line_width{1.5};
+  double line_width{1.5};    ///< pixels
   bool with_points{false};   ///< lines with a point at every sample
-  int dash_type{0};          ///< gnuplot dash type: 0 solid, 2 dashed, 3 dotted, ...
-  int point_type{7};         ///< gnuplot point type (7 disc, 5 square, 9 triangle, 13 diamond, ...)
-  std::string color{};       ///< gnuplot colour name or "#rrggbb" ("": the next of gnuplot's cycle)
+  int dash_type{0};          ///< 0 or 1 solid, 2 dashed, 3 dotted, 4 dash-dot
+  int point_type{7};         ///< 7 disc, 6 open circle, 5 square, 9 triangle, 13 diamond, 1 plus, 2 cross
+  std::string color{};       ///< "#rrggbb" or a name (black, red, orange, gray40, ...); "": the next of the cycle
+};
+
+/// A filled rectangle in data coordinates: a fixed colour, or a value coloured by the panel's
+/// colour bar (when `color` is "").
+struct PlotRect {
+  double x0{0}, y0{0}, x1{0}, y1{0};
+  std::string color{};
+  double value{std::numeric_limits<double>::quiet_NaN()};
+};
+
+/// Text at a point in data coordinates (centred above it), with a cross marking the point when `marker`.
+struct PlotLabel {
+  std::string text;
+  double x{0}, y{0};
+  std::string color{"black"};
+  bool marker{false};
+};
+
+/// The colour scale of value-coloured rectangles, drawn right of the plot (viridis).
+struct PlotColorBar {
+  std::string label;  ///< "" = no colour bar
+  double lo{0}, hi{1};
 };
 
 /// One panel (plots are stacked vertically).
@@ -26,28 +51,36 @@ struct PlotPanel {
   std::string title, xlabel, ylabel;
   std::vector<PlotSeries> series;
   bool log_x{false}, log_y{false};  ///< logarithmic axes (samples <= 0 on them are dropped)
-  std::string key{"top left"};      ///< gnuplot key position, e.g. "top right", "bottom right", "below"
-  std::string xrange{}, yrange{};   ///< gnuplot ranges, e.g. "[10:300]" ("": automatic)
+  std::string key{"best"};          ///< legend: "best" (the inside corner over the fewest samples), "top left",
+                                    ///< "top right", "bottom left", "bottom right", "below", "outside right top"
+  std::string xrange{}, yrange{};   ///< "[lo:hi]", either side "*" (automatic); "": automatic
+  std::string subtitle{};           ///< a second, smaller title line
+  std::vector<PlotRect> rects{};    ///< drawn under the series
+  std::vector<PlotLabel> labels{};  ///< drawn over the series
+  PlotColorBar color_bar{};
+  bool equal_aspect{false};  ///< one unit on x as long as one on y (a map)
 };
 
-/// The gnuplot executable found on PATH, or "" when there is none.
-[[nodiscard]] std::string find_gnuplot();
-
-/// Throws vx::Error unless gnuplot with the pngcairo terminal is available, saying how to
-/// install it (gnuplot-nox) or how to do without (`"plot": false` in the scene's outputs).
-void check_gnuplot();
-
 /// Draws the panels into one PNG (width x height pixels per panel), atomically.
-/// Throws vx::Error with gnuplot's message on failure.
+/// Throws vx::Error on bad input (an unknown colour, a malformed range) or a failed write.
 void plot_png(const std::vector<PlotPanel>& panels, const std::filesystem::path& png, int width = 900,
               int panel_height = 420);
 
-/// Runs a gnuplot script (its commands after the terminal and output, which this sets:
-/// pngcairo, width x height pixels) into a PNG, atomically: for pictures that are not line
-/// plots (the palpation map). Throws vx::Error with gnuplot's message on failure.
-void gnuplot_png(const std::string& commands, const std::filesystem::path& png, int width, int height);
+/// Panels and picture size read from JSON (what `voxelastic plot` draws for scripts):
+/// {"width": 900, "panel_height": 420, "panels": [{"title", "subtitle", "xlabel", "ylabel",
+/// "log_x", "log_y", "key", "xrange", "yrange", "series": [{"title", "x": [...], "y": [...]
+/// (null: a gap), "points", "with_points", "line_width", "dash_type", "point_type", "color"}]}]},
+/// every key but "panels" optional, the meanings as in PlotPanel and PlotSeries.
+struct PlotSpec {
+  std::vector<PlotPanel> panels;
+  int width{900}, panel_height{420};
+};
+/// Throws vx::Error naming the key ("panels[0].series[2].x: ...") for invalid JSON, an unknown
+/// key or a value of the wrong type.
+[[nodiscard]] PlotSpec parse_plot_spec(const std::string& json_text);
 
-/// `s` as a gnuplot single-quoted string.
-[[nodiscard]] std::string gnuplot_quote(const std::string& s);
+/// Tick positions for an axis over [lo, hi]: round steps (1, 2 or 5 times a power of ten) about
+/// `target` apart, or decades on a log axis. Exposed for tests.
+[[nodiscard]] std::vector<double> plot_ticks(double lo, double hi, bool log, int target = 6);
 
 }  // namespace vx

@@ -129,7 +129,7 @@ struct PalpationSceneOptions {
 /// The summary as JSON (summary.json's "map" and "lesion" parts).
 [[nodiscard]] nlohmann::json palpation_summary_json(const PalpationMap& map, const PalpationSummary& summary);
 
-/// Writes DIR/map.csv, DIR/map.vtp, DIR/map.png (when `png`: needs gnuplot) and
+/// Writes DIR/map.csv, DIR/map.vtp, DIR/map.png (when `png`) and
 /// DIR/summary.json (the summary with `extra` merged in), each atomically.
 void write_palpation_map(const PalpationMap& map, const PalpationSummary& summary, const std::filesystem::path& dir,
                          const nlohmann::json& extra, bool png = true);

@@ -1,6 +1,6 @@
 // The files of a palpation map: map.csv, map.vtp (the pressed points on the surface, triangulated
-// over the grid, with per-point stiffness and force), map.png (gnuplot: the object seen from the
-// face, the map over it, a colour bar in N/mm and a scale bar) and summary.json.
+// over the grid, with per-point stiffness and force), map.png (render/plot.h: the object seen from
+// the face, the map over it, a colour bar in N/mm and a scale bar) and summary.json.
 #include <fmt/format.h>
 #include <vtkCellArray.h>
 #include <vtkDoubleArray.h>
@@ -103,8 +103,7 @@ double scale_bar_mm(double width) {
 }
 
 void write_map_png(const PalpationMap& map, const PalpationSummary& s, const fs::path& path) {
-  std::ostringstream gp;
-  gp.precision(8);
+  PlotPanel p;
   // the object seen from the face: grey bins, lighter where higher
   double hmin = 1e300, hmax = -1e300;
   for (double h : map.bin_height_mm)
@@ -112,63 +111,60 @@ void write_map_png(const PalpationMap& map, const PalpationSummary& s, const fs:
       hmin = std::min(hmin, h);
       hmax = std::max(hmax, h);
     }
-  gp << "$OBJECT << EOD\n";
-  for (int b = 0; b < map.bins_v; ++b) {
+  for (int b = 0; b < map.bins_v; ++b)
     for (int a = 0; a < map.bins_u; ++a) {
       const double h = map.bin_height_mm[std::size_t(a + map.bins_u * b)];
-      const int grey = std::isfinite(h) ? int(std::lround(120 + 100 * (hmax > hmin ? (h - hmin) / (hmax - hmin) : 1.0)))
-                                        : 255;
-      gp << map.bin_u0_mm + a * map.bin_mm << " " << map.bin_v0_mm + b * map.bin_mm << " " << grey << " " << grey << " "
-         << grey << "\n";
+      if (!std::isfinite(h)) continue;
+      const int grey = int(std::lround(150 + 80 * (hmax > hmin ? (h - hmin) / (hmax - hmin) : 1.0)));
+      const double u = map.bin_u0_mm + a * map.bin_mm, v = map.bin_v0_mm + b * map.bin_mm;
+      p.rects.push_back({u - 0.5 * map.bin_mm, v - 0.5 * map.bin_mm, u + 0.5 * map.bin_mm, v + 0.5 * map.bin_mm,
+                         fmt::format("#{0:02x}{0:02x}{0:02x}", grey)});
     }
-    gp << "\n";
-  }
-  gp << "EOD\n$MAP << EOD\n";
-  for (const PalpationPoint& p : map.points)
-    if (std::isfinite(p.stiffness_n_per_mm)) gp << p.u_mm << " " << p.v_mm << " " << p.stiffness_n_per_mm << "\n";
-  gp << "EOD\n";
+  // the map: one box per pressed point, coloured by its stiffness
+  const double half = 0.5 * map.settings.spacing_mm;
+  double lo = 1e300;
+  for (const PalpationPoint& q : map.points)
+    if (std::isfinite(q.stiffness_n_per_mm)) {
+      p.rects.push_back({q.u_mm - half, q.v_mm - half, q.u_mm + half, q.v_mm + half, "", q.stiffness_n_per_mm});
+      lo = std::min(lo, q.stiffness_n_per_mm);
+    }
+  p.color_bar.label = "stiffness (force / depth), N/mm";
+  p.color_bar.lo = lo < 1e300 ? lo : 0.0;
+  p.color_bar.hi =
+      std::isfinite(s.peak_n_per_mm) && s.peak_n_per_mm > p.color_bar.lo ? s.peak_n_per_mm : p.color_bar.lo + 1.0;
   const double u_lo = map.bin_u0_mm - map.bin_mm, u_hi = map.bin_u0_mm + map.bins_u * map.bin_mm;
   const double v_lo = map.bin_v0_mm - map.bin_mm, v_hi = map.bin_v0_mm + map.bins_v * map.bin_mm;
   const double margin = 0.12 * (v_hi - v_lo);  // room under the object for the scale bar
   const double bar = scale_bar_mm(u_hi - u_lo);
-  const double half = 0.5 * map.settings.spacing_mm;
   const std::string u = axis_name(map.u_axis), v = axis_name(map.v_axis);
   const Eigen::Vector3d& e = s.lesion_estimate_mm;
-  gp << "set title " << gnuplot_quote(fmt::format("Palpation map of the {} face: a {:g} mm ball pressed {:g} mm at {} points {:g} mm apart",
-                                                  face_name(map.settings.face), map.settings.probe_radius_mm,
-                                                  map.settings.depth_mm, map.points.size(), map.settings.spacing_mm))
-     << " offset 0,1\n";
-  gp << "set label 3 "
-     << gnuplot_quote(fmt::format("contrast {:.3g} (peak {:.3g} / surroundings {:.3g} N/mm); lesion estimate ({:.1f}, "
-                                  "{:.1f}, {:.1f}) mm",
-                                  s.contrast, s.peak_n_per_mm, s.surrounding_n_per_mm, tidy(e.x()), tidy(e.y()),
-                                  tidy(e.z())))
-     << " at graph 0.5, graph 1.02 center\n";
-  gp << "set size ratio -1\nset key off\n";
-  gp << "set xlabel " << gnuplot_quote(u + ", mm") << "\nset ylabel " << gnuplot_quote(v + ", mm") << "\n";
-  gp << "set xrange [" << u_lo << ":" << u_hi << "]\nset yrange [" << v_lo - margin << ":" << v_hi << "]\n";
-  gp << "set cblabel 'stiffness (force / depth), N/mm'\n";
-  if (s.peak_n_per_mm > 0 && std::isfinite(s.peak_n_per_mm)) {
-    double lo = 1e300;
-    for (const PalpationPoint& p : map.points)
-      if (std::isfinite(p.stiffness_n_per_mm)) lo = std::min(lo, p.stiffness_n_per_mm);
-    if (lo < s.peak_n_per_mm) gp << "set cbrange [" << lo << ":" << s.peak_n_per_mm << "]\n";
-  }
-  gp << "set palette defined (0 '#440154', 1 '#3b528b', 2 '#21918c', 3 '#5ec962', 4 '#fde725')\n";
+  p.title = fmt::format("Palpation map of the {} face: a {:g} mm ball pressed {:g} mm at {} points {:g} mm apart",
+                        face_name(map.settings.face), map.settings.probe_radius_mm, map.settings.depth_mm,
+                        map.points.size(), map.settings.spacing_mm);
+  p.subtitle = fmt::format(
+      "contrast {:.3g} (peak {:.3g} / surroundings {:.3g} N/mm); lesion estimate ({:.1f}, {:.1f}, "
+      "{:.1f}) mm",
+      s.contrast, s.peak_n_per_mm, s.surrounding_n_per_mm, tidy(e.x()), tidy(e.y()), tidy(e.z()));
+  p.equal_aspect = true;
+  p.xlabel = u + " (mm)";
+  p.ylabel = v + " (mm)";
+  p.xrange = fmt::format("[{:.8g}:{:.8g}]", u_lo, u_hi);
+  p.yrange = fmt::format("[{:.8g}:{:.8g}]", v_lo - margin, v_hi);
   // the scale bar, bottom left, and the estimate
   const double bx = u_lo + 0.05 * (u_hi - u_lo), by = v_lo - 0.5 * margin;
-  gp << "set arrow 1 from " << bx << "," << by << " to " << bx + bar << "," << by
-     << " nohead lw 4 lc rgb 'black' front\n";
-  gp << "set label 1 " << gnuplot_quote(fmt::format("{:g} mm", bar)) << " at " << bx + 0.5 * bar << ","
-     << by + 0.3 * margin << " center front\n";
+  PlotSeries scale;
+  scale.x = {bx, bx + bar};
+  scale.y = {by, by};
+  scale.color = "black";
+  scale.line_width = 4;
+  p.series.push_back(scale);
+  p.labels.push_back({fmt::format("{:g} mm", bar), bx + 0.5 * bar, by + 0.25 * margin});
   if (s.lesion_estimate_mm.allFinite())
-    gp << "set label 2 'estimate' at " << s.lesion_estimate_mm[map.u_axis] << "," << s.lesion_estimate_mm[map.v_axis]
-       << " point pt 2 ps 3 lw 3 lc rgb 'red' offset 1.5,1.5 tc rgb 'red' front\n";
-  gp << "plot $OBJECT using 1:2:3:4:5 with rgbimage, $MAP using 1:2:(" << half << "):(" << half
-     << "):3 with boxxyerror fs solid 1.0 noborder fc palette\n";
+    p.labels.push_back(
+        {"estimate", s.lesion_estimate_mm[map.u_axis], s.lesion_estimate_mm[map.v_axis], "#e00000", true});
   const int width = 1000;
   const double aspect = (v_hi - v_lo + margin) / (u_hi - u_lo);
-  gnuplot_png(gp.str(), path, width, std::clamp(int(std::lround(width * aspect)) + 120, 400, 1400));
+  plot_png({p}, path, width, std::clamp(int(std::lround(0.78 * width * aspect)) + 150, 400, 1400));
 }
 
 }  // namespace

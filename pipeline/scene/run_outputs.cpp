@@ -1,5 +1,6 @@
 #include "scene/run_outputs.h"
 
+#include <fmt/format.h>
 #include <Eigen/Core>
 #include <algorithm>
 #include <cmath>
@@ -7,6 +8,8 @@
 
 #include "base/version.h"
 #include "render/plot.h"
+#include "sim/contact.h"
+#include "sim/probe.h"
 
 namespace vx {
 namespace fs = std::filesystem;
@@ -84,7 +87,7 @@ void RunOutputs::finish(const Simulation& sim) {
     not_requested_.push_back("forces.csv");
   }
   if (outputs_.plot) {
-    plot_forces(*recorder_, dir_ / "forces.png");
+    plot_forces(*recorder_, dir_ / "forces.png", references_);
     written_.push_back("forces.png");
   } else {
     not_requested_.push_back("forces.png");
@@ -96,6 +99,43 @@ void RunOutputs::finish(const Simulation& sim) {
     }
   if (!outputs_.pvd_model) not_requested_.push_back("model.pvd");
   if (!outputs_.pvd_surface) not_requested_.push_back("surface.pvd");
+}
+
+std::vector<ForceReference> scene_force_references(const Scene& s) {
+  if (s.object.source != ObjectSource::box || s.object.build.dimensions != 3 || !s.material.hounsfield.empty() ||
+      !s.material.inclusions.empty() || s.probes.size() != 1 || s.gravity_m_s2.norm() > 0)
+    return {};
+  const ProbeSettings& p = s.probes[0];
+  if (p.geometry.shape != ProbeShape::sphere || p.drive != ProbeDrive::path || p.path.size() < 2) return {};
+  // the one coordinate the path changes
+  const Eigen::Vector3d p0 = p.path.front().position_mm;
+  int axis = -1;
+  for (const PathKey& k : p.path)
+    for (int a = 0; a < 3; ++a)
+      if (std::abs(k.position_mm[a] - p0[a]) > 1e-9) {
+        if (axis >= 0 && axis != a) return {};
+        axis = a;
+      }
+  if (axis < 0) return {};
+  const Eigen::Vector3d& lo = s.object.box_min_mm;
+  const Eigen::Vector3d& hi = s.object.box_max_mm;
+  const double r = p.geometry.radius_mm;
+  const bool from_max = p0[axis] - r >= hi[axis], from_min = p0[axis] + r <= lo[axis];
+  if (!from_max && !from_min) return {};
+  // the face opposite the pressed one is fixed, nothing else
+  const auto opposite = BoxFace(2 * axis + (from_max ? 0 : 1));
+  if (s.fixed.size() != 1 || !s.fixed[0].is_face || s.fixed[0].face != opposite) return {};
+  for (int a = 0; a < 3; ++a)
+    if (a != axis && (p0[a] - lo[a] < r || hi[a] - p0[a] < r)) return {};
+  const Material& m = s.material.base;
+  ForceReference ref;
+  ref.e_kpa = m.youngs_modulus_kpa;
+  ref.nu = m.poisson_ratio;
+  ref.radius_mm = r;
+  ref.layer_mm = hi[axis] - lo[axis];
+  ref.title =
+      fmt::format("finite-layer Hertz (E {:g} kPa, Poisson {:g}, layer {:g} mm)", ref.e_kpa, ref.nu, ref.layer_mm);
+  return {ref};
 }
 
 json run_summary_json(const Scene& scene, const fs::path& scene_file, const PreparedScene& prepared,

@@ -11,6 +11,7 @@
 #include <nlohmann/json_fwd.hpp>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "scene/scene.h"
@@ -41,6 +42,9 @@ class RunOutputs {
   /// and the .pvd collections that were asked for. Throws vx::Error when a file cannot be written.
   void finish(const Simulation& sim);
 
+  /// Analytic force-depth curves drawn in forces.png with the presses (scene_force_references()).
+  void set_force_references(std::vector<ForceReference> references) { references_ = std::move(references); }
+
   /// The force recorder (null when neither forces.csv nor the plot was asked for).
   [[nodiscard]] const ForceRecorder* forces() const { return recorder_ ? &*recorder_ : nullptr; }
   /// Frames written per series (0 without .pvd output); true when any series was asked for.
@@ -65,7 +69,14 @@ class RunOutputs {
   std::unique_ptr<ModelFrameWriter> model_writer_;
   std::unique_ptr<SurfaceFrameWriter> surface_writer_;
   std::vector<std::string> written_, not_requested_;
+  std::vector<ForceReference> references_;
 };
+
+/// The analytic force-depth curves a scene has: finite-layer Hertz (hertz_bonded_layer_n) when
+/// its one probe is a sphere driven along a straight path perpendicular to a face of a
+/// homogeneous 3D box, starting outside it, the opposite face fixed and nothing else; no
+/// gravity; the ball's centre at least a radius inside the face's edges. None otherwise.
+[[nodiscard]] std::vector<ForceReference> scene_force_references(const Scene& scene);
 
 /// summary.json of a finished run: the scene (`scene_file`), the run (steps, times, stability,
 /// status), the object and material, each probe, the walls, the device, the work done and

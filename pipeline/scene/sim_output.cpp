@@ -17,11 +17,14 @@
 
 #include <algorithm>
 #include <cmath>
+#include <numbers>
+#include <optional>
 #include <sstream>
 
 #include "base/error.h"
 #include "io/element_faces.h"
 #include "io/vtk_arrays.h"
+#include "physics/material.h"
 #include "render/plot.h"
 #include "util/atomic_file.h"
 #include "util/vtk_messages.h"
@@ -130,15 +133,67 @@ void indentation_curve(const std::vector<ForceRow>& rows, int probe, std::vector
   }
 }
 
-void plot_forces(const ForceRecorder& rec, const fs::path& png) {
-  PlotPanel time{"Force on the probes against time", "time (s)", "force (N)", {}};
-  PlotPanel depth{"Force against indentation depth (from first contact, along the mean force)",
-                  "indentation depth (mm)", "force (N)", {}};
-  for (int p = 0; p < int(rec.names().size()); ++p) {
-    PlotSeries raw{rec.names()[std::size_t(p)] + ": |raw|", {}, {}, false, 1.0};
-    PlotSeries dev{rec.names()[std::size_t(p)] + ": |device| (half sines)", {}, {}, false, 1.5};
+std::vector<Press> find_presses(const std::vector<ForceRow>& rows) {
+  std::vector<Press> out;
+  int probes = 0;
+  for (const auto& r : rows) probes = std::max(probes, r.probe + 1);
+  for (int p = 0; p < probes; ++p) {
+    std::optional<Press> cur;
+    int gap = 0, in_contact = 0;
+    auto close = [&] {
+      if (cur && in_contact >= 3) out.push_back(*cur);
+      cur.reset();
+      in_contact = 0;
+    };
+    for (std::size_t i = 0; i < rows.size(); ++i) {
+      const ForceRow& r = rows[i];
+      if (r.probe != p) continue;
+      if (r.contacts > 0) {
+        if (!cur) cur = Press{p, i, i, r.time_s, r.time_s};
+        cur->last = i;
+        cur->end_s = r.time_s;
+        ++in_contact;
+        gap = 0;
+      } else if (cur && ++gap > kPressGapRows) {
+        close();
+      }
+    }
+    close();
+  }
+  std::sort(out.begin(), out.end(), [](const Press& a, const Press& b) { return a.start_s < b.start_s; });
+  return out;
+}
+
+double hertz_bonded_layer_n(double e_kpa, double nu, double r, double d, double h) {
+  constexpr double kPi = std::numbers::pi;
+  const double a0 = -(1.2876 - 1.4678 * nu + 1.3442 * nu * nu) / (1 - nu);
+  const double b0 = (0.6387 - 1.0277 * nu + 1.5164 * nu * nu) / (1 - nu);
+  const double x = std::sqrt(r * d) / h;
+  const double c = 1 - 2 * a0 / kPi * x + 4 * a0 * a0 / (kPi * kPi) * x * x -
+                   8 / (kPi * kPi * kPi) * (a0 * a0 * a0 + 4 * kPi * kPi * b0 / 15) * x * x * x +
+                   16 * a0 / (kPi * kPi * kPi * kPi) * (a0 * a0 * a0 + 3 * kPi * kPi * b0 / 5) * x * x * x * x;
+  return 4.0 / 3.0 * e_kpa * kKpaToNPerMm2 / (1 - nu * nu) * std::sqrt(r) * std::pow(d, 1.5) * c;
+}
+
+void plot_forces(const ForceRecorder& rec, const fs::path& png, const std::vector<ForceReference>& references) {
+  static const char* colours[] = {"#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#17becf"};
+  const std::size_t probes = rec.names().size();
+  const bool one = probes == 1;
+  PlotPanel time;
+  time.title = one ? "Force on the " + rec.names()[0] + " against time" : "Force on the probes against time";
+  time.xlabel = "time (s)";
+  time.ylabel = one ? "force on the " + rec.names()[0] + " (N)" : "force on the probe (N)";
+  for (std::size_t p = 0; p < probes; ++p) {
+    const std::string& name = rec.names()[p];
+    PlotSeries raw, dev;
+    raw.title = one ? "tissue on the " + name : name;
+    raw.line_width = 1.6;
+    dev.title = one ? "device force (half sines)" : name + ": device force (half sines)";
+    dev.line_width = 1.3;
+    raw.color = dev.color = colours[p % 7];
+    dev.dash_type = 2;
     for (const auto& r : rec.rows())
-      if (r.probe == p) {
+      if (r.probe == int(p)) {
         raw.x.push_back(r.time_s);
         raw.y.push_back(r.raw_n.norm());
         dev.x.push_back(r.time_s);
@@ -146,11 +201,49 @@ void plot_forces(const ForceRecorder& rec, const fs::path& png) {
       }
     time.series.push_back(std::move(raw));
     if (rec.has_device()) time.series.push_back(std::move(dev));
-    PlotSeries ind{rec.names()[std::size_t(p)], {}, {}, false, 1.5};
-    indentation_curve(rec.rows(), p, ind.x, ind.y);
-    if (!ind.x.empty()) depth.series.push_back(std::move(ind));
   }
-  plot_png({time, depth}, png);
+  // force against depth, one curve per press: its own first contact and direction
+  PlotPanel depth;
+  depth.title = "Force against indentation depth, each press from its first contact";
+  depth.xlabel = "indentation depth (mm)";
+  depth.ylabel = "force along the press (N)";
+  const std::vector<Press> presses = find_presses(rec.rows());
+  std::vector<int> count(probes, 0);
+  for (const Press& q : presses) ++count[std::size_t(q.probe)];
+  std::vector<int> seen(probes, 0);
+  double dmax = 0;
+  for (std::size_t k = 0; k < presses.size(); ++k) {
+    const Press& q = presses[k];
+    const std::vector<ForceRow> rows(rec.rows().begin() + std::ptrdiff_t(q.first),
+                                     rec.rows().begin() + std::ptrdiff_t(q.last) + 1);
+    PlotSeries s;
+    s.line_width = 1.6;
+    indentation_curve(rows, q.probe, s.x, s.y);
+    if (s.x.empty()) continue;
+    for (double d : s.x) dmax = std::max(dmax, d);
+    const std::string& name = rec.names()[std::size_t(q.probe)];
+    const int n = ++seen[std::size_t(q.probe)];
+    const std::string when = fmt::format("{:.3g} to {:.3g} s", q.start_s, q.end_s);
+    s.title = count[std::size_t(q.probe)] > 1 ? fmt::format("{}, press {} ({})", name, n, when)
+                                              : fmt::format("{} ({})", name, when);
+    s.color = presses.size() == probes ? colours[std::size_t(q.probe) % 7] : colours[k % 7];
+    depth.series.push_back(std::move(s));
+  }
+  for (const ForceReference& ref : references) {
+    if (!(dmax > 0)) break;
+    PlotSeries s;
+    s.title = ref.title;
+    s.line_width = 2.0;
+    s.color = "black";
+    s.dash_type = 2;
+    for (int i = 0; i <= 80; ++i) {
+      const double d = dmax * i / 80.0;
+      s.x.push_back(d);
+      s.y.push_back(hertz_bonded_layer_n(ref.e_kpa, ref.nu, ref.radius_mm, d, ref.layer_mm));
+    }
+    depth.series.push_back(std::move(s));
+  }
+  plot_png({time, depth}, png, 1000, 440);
 }
 
 // ---------------------------------------------------------------------------------------------

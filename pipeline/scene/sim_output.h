@@ -76,9 +76,36 @@ class ForceRecorder {
 void indentation_curve(const std::vector<ForceRow>& rows, int probe, std::vector<double>& depth_mm,
                        std::vector<double>& force_n);
 
-/// Draws forces.png: |raw| and |device| force against time, and force against indentation
-/// depth, per probe. Throws vx::Error when gnuplot fails.
-void plot_forces(const ForceRecorder& recorder, const std::filesystem::path& png);
+/// One press: the rows of a probe in an interval of contact (rows with contacts > 0, no more
+/// than kPressGapRows rows apart), [first, last] as indices into the recorder's rows.
+struct Press {
+  int probe{0};
+  std::size_t first{0}, last{0};
+  double start_s{0.0}, end_s{0.0};
+};
+/// Rows without contact that end a press (shorter gaps are flicker at the contact's edge).
+inline constexpr int kPressGapRows = 5;
+/// The presses of every probe in time order; presses of fewer than 3 rows are left out.
+[[nodiscard]] std::vector<Press> find_presses(const std::vector<ForceRow>& rows);
+
+/// Hertz for a rigid sphere (radius r_mm) pressed d_mm into a layer h_mm thick of modulus
+/// e_kpa and Poisson's ratio nu, bonded to a rigid base (Dimitriadis et al., Biophys. J. 82,
+/// 2002, eq. 12), N; h -> infinity gives Hertz's half-space F = 4/3 E/(1 - nu^2) sqrt(R) d^1.5.
+/// verify's Hertz cases and forces.png's analytic curve use it.
+[[nodiscard]] double hertz_bonded_layer_n(double e_kpa, double nu, double r_mm, double d_mm, double h_mm);
+
+/// An analytic force against indentation depth, drawn with the measured presses.
+struct ForceReference {
+  std::string title;  ///< the legend's text, e.g. "finite-layer Hertz (E 10 kPa, layer 20 mm)"
+  double e_kpa{0}, nu{0}, radius_mm{0}, layer_mm{0};  ///< hertz_bonded_layer_n's parameters
+};
+
+/// Draws forces.png: the force on each probe against time (and the device force, dashed, when
+/// the scene has a device), and force against indentation depth, one curve per press (depth
+/// from the press's first contact along its mean force), with `references` over them. Throws
+/// vx::Error when the picture cannot be written.
+void plot_forces(const ForceRecorder& recorder, const std::filesystem::path& png,
+                 const std::vector<ForceReference>& references = {});
 
 /// A time series for ParaView: frames written as they come, the .pvd collection at the end.
 class PvdSeries {

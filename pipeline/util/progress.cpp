@@ -31,6 +31,8 @@ void Progress::update(double fraction) {
                  width - filled, "", fraction * 100.0);
     std::fflush(stderr);
   } else {
+    // not a terminal (a log, a pipe): lines only for work that has taken over a second
+    if (now - start_ < std::chrono::seconds(1)) return;
     const int decile = int(fraction * 10);
     if (decile <= last_decile_) return;
     last_decile_ = decile;
@@ -43,7 +45,8 @@ void Progress::done() {
   finished_ = true;
   const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
   if (tty_) std::fprintf(stderr, "\r%s done in %.2f s%*s\n", label_.c_str(), s, 30, "");
-  else std::fprintf(stderr, "%s: done in %.2f s\n", label_.c_str(), s);
+  else if (last_decile_ >= 0 || s >= 1.0)
+    std::fprintf(stderr, "%s: done in %.2f s\n", label_.c_str(), s);
 }
 
 }  // namespace vx

@@ -1,6 +1,7 @@
 #pragma once
 /// @file progress.h
-/// Console progress for long work: a bar on a terminal, a line every 10% otherwise.
+/// Console progress for long work: a bar on a terminal; otherwise (a log, a pipe) a line every
+/// 10%, and the time taken, only for work that has run over a second.
 
 #include <chrono>
 #include <cstdio>

@@ -198,6 +198,27 @@ TEST(ProbeView, RendersUpdatesAndWritesScreenshots) {
   view.save_screenshot(dir / "view.png");
   EXPECT_TRUE(fs::exists(dir / "view.png"));
   EXPECT_GT(fs::file_size(dir / "view.png"), 5000u);
+  {
+    // the guides: the orientation marker's red x axis in the 3D view's bottom right corner, the
+    // scale bar's off-white (0.96, 0.96, 0.92) in the 3D view's lower half
+    vtkNew<vtkPNGReader> reader;
+    reader->SetFileName((dir / "view.png").c_str());
+    reader->Update();
+    vtkImageData* img = reader->GetOutput();
+    int dims[3];
+    img->GetDimensions(dims);
+    ASSERT_EQ(dims[0], 640);
+    long long red = 0, bar = 0;
+    const int view_w = int((1.0 - 0.32) * dims[0]);
+    for (int y = 0; y < dims[1]; ++y)  // VTK rows: y = 0 at the bottom
+      for (int x = 0; x < view_w; ++x) {
+        const auto* p = static_cast<const unsigned char*>(img->GetScalarPointer(x, y, 0));
+        if (x > view_w - 0.14 * dims[0] && y < 0.24 * dims[1] && p[0] > 180 && p[1] < 60 && p[2] < 60) ++red;
+        if (y < dims[1] / 2 && p[0] > 225 && p[1] > 225 && p[2] > 210 && p[2] < p[0] - 3) ++bar;
+      }
+    EXPECT_GT(red, 15) << "no orientation marker";
+    EXPECT_GT(bar, 40) << "no scale bar";
+  }
   EXPECT_THROW(view.save_screenshot(dir / "view.jpg"), vx::Error);
   EXPECT_THROW(view.save_screenshot(dir / "missing" / "view.png"), vx::Error);
   view.reset_camera();

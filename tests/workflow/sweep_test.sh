@@ -18,6 +18,16 @@ snakemake -s "$src/workflow/Snakefile" --configfile "$src/workflow/config-ci.yam
   --config voxelastic="$vx" --cores 2 -q >snakemake.log 2>&1 || { cat snakemake.log; exit 1; }
 csv=sweep/detectability.csv
 [ -s sweep/detectability.png ] || { echo "sweep_test: no detectability.png"; exit 1; }
+# a real picture of the size the gather asks `voxelastic plot` for (the PNG header's IHDR), and
+# more than a blank page (a blank 900 x 560 PNG compresses to a few hundred bytes)
+python3 - sweep/detectability.png <<'PY'
+import struct, sys, os
+data = open(sys.argv[1], "rb").read(24)
+assert data[:8] == b"\x89PNG\r\n\x1a\n", "detectability.png is not a PNG"
+w, h = struct.unpack(">II", data[16:24])
+assert (w, h) == (900, 560), f"detectability.png is {w} x {h}, expected 900 x 560"
+assert os.path.getsize(sys.argv[1]) > 15000, f"detectability.png is only {os.path.getsize(sys.argv[1])} bytes"
+PY
 for c in r3.5_d1_k3 r3.5_d3_k3 r3.5_d1_k10 r3.5_d3_k10; do
   for f in summary.json map.csv map.png; do
     [ -s "sweep/cases/$c/$f" ] || { echo "sweep_test: missing sweep/cases/$c/$f"; exit 1; }

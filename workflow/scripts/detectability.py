@@ -6,8 +6,8 @@ Reads the summary.json of each case (cases/r{radius}_d{depth}_k{ratio}/summary.j
   - a CSV, one row per case: lesion radius, depth of its top under the face, stiffness ratio,
     contrast, the estimate, its in-plane distance to the lesion's axis, and whether that is
     within --found-within-mm (found);
-  - a PNG drawn by gnuplot (the project's plotting tool): contrast against depth, one line per
-    radius and ratio, filled where the lesion was found, open where not.
+  - a PNG drawn by `voxelastic plot` (the project's own plots): contrast against depth, one line
+    per radius and ratio, filled where the lesion was found, open where not.
 Python 3 standard library only; every file is written to a temporary name and renamed.
 """
 import argparse
@@ -15,7 +15,6 @@ import json
 import math
 import os
 import re
-import shutil
 import subprocess
 import sys
 import tempfile
@@ -90,58 +89,39 @@ def write_csv(rows, path):
     write_atomically(path, write)
 
 
-def gp_quote(s):
-    return "'" + s.replace("'", "''") + "'"
-
-
-def write_png(rows, path, found_within):
-    gnuplot = shutil.which("gnuplot")
-    if not gnuplot:
-        fail("gnuplot was not found on PATH (Debian: apt-get install gnuplot-nox)")
+def write_png(rows, path, found_within, voxelastic):
+    """The picture, drawn by `voxelastic plot` (the project's own plots: no display, no other program)."""
     groups = sorted({(r["lesion_radius_mm"], r["stiffness_ratio"]) for r in rows})
     colours = ["#1b9e77", "#d95f02", "#7570b3", "#e7298a", "#66a61e", "#e6ab02", "#a6761d", "#666666"]
-    script = []
-    plots = []
+    series = []
     for g, (radius, ratio) in enumerate(groups):
         pts = sorted((r for r in rows if (r["lesion_radius_mm"], r["stiffness_ratio"]) == (radius, ratio)),
                      key=lambda r: r["lesion_depth_mm"])
-        script.append(f"$G{g} << EOD")
-        for r in pts:
-            c = r["contrast"] if r["contrast"] is not None else float("nan")
-            script.append(f"{r['lesion_depth_mm']} {c} {r['found']}")
-        script.append("EOD")
         colour = colours[g % len(colours)]
+        depth = [r["lesion_depth_mm"] for r in pts]
+        contrast = [r["contrast"] if r["contrast"] is not None and math.isfinite(r["contrast"]) else None
+                    for r in pts]  # None (null): a gap
         dash = 1 if ratio == max(k for _, k in groups) else 2
-        title = f"r {radius:g} mm, {ratio:g}x stiffer"
-        plots.append(f"$G{g} using 1:2 with lines lw 2 dt {dash} lc rgb '{colour}' title {gp_quote(title)}")
-        plots.append(f"$G{g} using 1:($3 > 0 ? $2 : 1/0) with points pt 7 ps 1.6 lc rgb '{colour}' notitle")
-        plots.append(f"$G{g} using 1:($3 > 0 ? 1/0 : $2) with points pt 6 ps 1.6 lw 2 lc rgb '{colour}' notitle")
+        series.append({"title": f"r {radius:g} mm, {ratio:g}x stiffer", "x": depth, "y": contrast,
+                       "line_width": 2, "dash_type": dash, "color": colour})
+        series.append({"x": depth, "y": [c if r["found"] else None for c, r in zip(contrast, pts)],
+                       "points": True, "point_type": 7, "color": colour})
+        series.append({"x": depth, "y": [None if r["found"] else c for c, r in zip(contrast, pts)],
+                       "points": True, "point_type": 6, "color": colour})
+    spec = {"width": 900, "panel_height": 560, "panels": [{
+        "title": "Palpation detectability: contrast (peak / surrounding stiffness) against lesion depth",
+        "subtitle": f"filled: the estimate lies within {found_within:g} mm of the lesion axis (found); open: missed",
+        "xlabel": "depth of the lesion's top under the surface (mm)",
+        "ylabel": "contrast",
+        "key": "outside right top",
+        "yrange": "[0.9:*]",
+        "series": series}]}
 
     def write(tmp):
-        lines = [
-            "set terminal pngcairo size 900,560 enhanced font 'DejaVu Sans,10'",
-            f"set output {gp_quote(tmp)}",
-        ] + script + [
-            # double quotes: gnuplot reads \n as a new line there
-            f'set title "Palpation detectability: contrast (peak / surrounding stiffness) against lesion depth\\n'
-            f'filled: the estimate lies within {found_within:g} mm of the lesion axis (found); open: missed"',
-            "set xlabel 'depth of the lesion''s top under the surface, mm'",
-            "set ylabel 'contrast'",
-            "set grid",
-            "set key outside right top",
-            "set yrange [0.9:*]",
-            "set offsets 0.3, 0.3, 0, 0",
-            "plot " + ", ".join(plots),
-        ]
-        gp = tmp + ".gp"
-        with open(gp, "w", encoding="utf-8") as f:
-            f.write("\n".join(lines) + "\n")
-        try:
-            res = subprocess.run([gnuplot, gp], capture_output=True, text=True, check=False)
-        finally:
-            os.remove(gp)
-        if res.returncode != 0 or not os.path.getsize(tmp):
-            fail(f"gnuplot failed drawing {path}: {res.stderr.strip() or res.returncode}")
+        res = subprocess.run([voxelastic, "-q", "plot", "-", "-o", tmp], input=json.dumps(spec), capture_output=True,
+                             text=True, check=False)
+        if res.returncode != 0 or not os.path.exists(tmp) or not os.path.getsize(tmp):
+            fail(f"voxelastic plot failed drawing {path}: {res.stderr.strip() or res.returncode}")
     write_atomically(path, write)
 
 
@@ -152,6 +132,7 @@ def main():
     p.add_argument("--found-within-mm", type=float, default=2.0)
     p.add_argument("--csv", required=True)
     p.add_argument("--png")
+    p.add_argument("--voxelastic", default="voxelastic", help="the voxelastic program that draws the PNG")
     a = p.parse_args()
     try:
         lesion_xy = [float(v) for v in a.lesion_xy_mm.split(",")]
@@ -163,7 +144,7 @@ def main():
     rows.sort(key=lambda r: (r["lesion_radius_mm"], r["stiffness_ratio"], r["lesion_depth_mm"]))
     write_csv(rows, a.csv)
     if a.png:
-        write_png(rows, a.png, a.found_within_mm)
+        write_png(rows, a.png, a.found_within_mm, a.voxelastic)
     found = sum(r["found"] for r in rows)
     print(f"detectability: {len(rows)} cases, {found} found within {a.found_within_mm:g} mm -> {a.csv}")
 

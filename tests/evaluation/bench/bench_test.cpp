@@ -19,6 +19,7 @@
 #include "base/error.h"
 #include "convert/phantom.h"
 #include "scene/scene.h"
+#include "support/png_stats.h"
 
 namespace fs = std::filesystem;
 using json = nlohmann::json;
@@ -395,8 +396,12 @@ TEST(BenchRun, ReportIsWrittenAllOrNothing) {
   // the best scene re-runs as a scene file
   EXPECT_NO_THROW((void)load_scene(dir / "best_scene.json"));
   EXPECT_NE(slurp(dir / "bench.md").find(best_statement(res)), std::string::npos);
-  for (const char* png : {"bench_error.png", "bench_cost.png", "bench_curves.png"})
-    EXPECT_GT(fs::file_size(dir / png), 5000u) << png;
+  for (const char* png : {"bench_error.png", "bench_cost.png", "bench_curves.png"}) {
+    const auto st = vx::testing::png_stats(dir / png);  // a real picture: drawn, with text and curves
+    EXPECT_GT(st.width, 800) << png;
+    EXPECT_GT(st.drawn, 10000) << png;
+    EXPECT_GT(st.colours, 50) << png;
+  }
 
   // a file in the way of the folder: an error, nothing written
   const fs::path blocked = dir / "blocked";

@@ -13,6 +13,7 @@
 #include <set>
 
 #include "base/error.h"
+#include "support/png_stats.h"
 
 namespace fs = std::filesystem;
 using json = nlohmann::json;
@@ -321,10 +322,11 @@ TEST_F(VerifyDir, RunsARealCaseAndRefusesBadRequests) {
     }
   }
   EXPECT_TRUE(found);
-  if (!find_gnuplot().empty()) {
-    ASSERT_FALSE(c.plots.empty());
-    EXPECT_TRUE(fs::exists(dir_ / c.plots[0].file)) << c.plots[0].file;
-  }
+  ASSERT_FALSE(c.plots.empty());
+  const auto png = vx::testing::png_stats(dir_ / c.plots[0].file);  // a real picture, not an empty file
+  EXPECT_GT(png.width, 400) << c.plots[0].file;
+  EXPECT_GT(png.drawn, 5000) << c.plots[0].file;
+  EXPECT_GT(png.colours, 20) << c.plots[0].file;
 
   o.jobs = 0;
   EXPECT_THROW((void)run_verify(o, dir_), Error);

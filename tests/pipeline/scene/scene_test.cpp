@@ -23,8 +23,9 @@
 #include <sstream>
 
 #include "base/error.h"
-#include "render/plot.h"
+#include "scene/run_outputs.h"
 #include "scene/sim_output.h"
+#include "support/png_stats.h"
 
 using namespace vx;
 namespace fs = std::filesystem;
@@ -644,11 +645,77 @@ TEST(SimOutput, ForcesCsvPvdAndSkippingThroughAScene) {
   text << pvd.rdbuf();
   EXPECT_NE(text.str().find("file=\"model/model_000000.vtu\""), std::string::npos);
 
-  // the plot, when gnuplot is there
-  if (find_gnuplot().empty()) GTEST_SKIP() << "gnuplot not installed";
-  plot_forces(rec, dir / "forces.png");
-  EXPECT_GT(fs::file_size(dir / "forces.png"), 5000u);
+  // the plot: a real picture, with the analytic curve of this scene (a ball into a block)
+  const std::vector<ForceReference> refs = scene_force_references(s);
+  ASSERT_EQ(refs.size(), 1u);
+  plot_forces(rec, dir / "forces.png", refs);
+  const auto png = vx::testing::png_stats(dir / "forces.png");
+  EXPECT_EQ(png.width, 1000);
+  EXPECT_EQ(png.height, 880);
+  EXPECT_GT(png.drawn, 20000);
+  EXPECT_GT(png.colours, 50);
   fs::remove_all(dir);
+}
+
+TEST(SimOutput, PressesAreIntervalsOfContact) {
+  // one probe pressing twice (rows 2-9 and 16-20), a flicker of 2 rows inside the first press,
+  // a one-row touch that is no press; a second probe pressing once
+  std::vector<ForceRow> rows;
+  auto row = [&](int probe, double t, int contacts) {
+    ForceRow r;
+    r.probe = probe;
+    r.time_s = t;
+    r.contacts = contacts;
+    rows.push_back(r);
+  };
+  const int a[] = {0, 0, 1, 1, 1, 0, 0, 1, 1, 1, 0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 1, 0, 0, 0, 0, 0, 0, 1, 0};
+  for (int i = 0; i < int(std::size(a)); ++i) {
+    row(0, i * 0.01, a[i]);
+    row(1, i * 0.01, i >= 5 && i < 12 ? 3 : 0);
+  }
+  const std::vector<Press> p = find_presses(rows);
+  ASSERT_EQ(p.size(), 3u);
+  EXPECT_EQ(p[0].probe, 0);
+  EXPECT_NEAR(p[0].start_s, 0.02, 1e-12);
+  EXPECT_NEAR(p[0].end_s, 0.09, 1e-12);
+  EXPECT_EQ(p[1].probe, 1);
+  EXPECT_NEAR(p[1].start_s, 0.05, 1e-12);
+  EXPECT_NEAR(p[1].end_s, 0.11, 1e-12);
+  EXPECT_EQ(p[2].probe, 0);
+  EXPECT_NEAR(p[2].start_s, 0.16, 1e-12);
+  EXPECT_NEAR(p[2].end_s, 0.20, 1e-12);
+  EXPECT_EQ(rows[p[2].first].time_s, p[2].start_s);
+}
+
+TEST(SimOutput, HertzReferenceOnlyWhereTheSceneIsHertzs) {
+  // the finite-layer formula: Hertz's half-space for a thick layer, stiffer for a thin one
+  EXPECT_NEAR(hertz_bonded_layer_n(10, 0, 8, 2, 1e12), 4.0 / 3.0 * 0.01 * std::sqrt(8.0) * std::pow(2.0, 1.5), 1e-12);
+  EXPECT_NEAR(hertz_bonded_layer_n(10, 0, 8, 2, 20), 0.1271, 1e-4);  // samples/scenes/indent_sphere.json quotes it
+  EXPECT_GT(hertz_bonded_layer_n(10, 0.3, 8, 2, 20), hertz_bonded_layer_n(10, 0, 8, 2, 20));
+  const Scene indent = load_scene(fs::path(VX_SAMPLES_DIR) / "scenes" / "indent_sphere.json");
+  const auto refs = scene_force_references(indent);
+  ASSERT_EQ(refs.size(), 1u);
+  EXPECT_EQ(refs[0].e_kpa, 10);
+  EXPECT_EQ(refs[0].radius_mm, 8);
+  EXPECT_EQ(refs[0].layer_mm, 20);
+  EXPECT_NE(refs[0].title.find("finite-layer Hertz"), std::string::npos);
+  // a lesion, a second support, a sideways path or another shape: no formula applies
+  json j = base_scene();
+  EXPECT_EQ(scene_force_references(parse_scene(j, ".", "t")).size(), 1u);
+  j["material"]["inclusions"] = json::array({{{"center_mm", {6, 6, 3}}, {"radius_mm", 2}, {"youngs_modulus_kpa", 50}}});
+  EXPECT_TRUE(scene_force_references(parse_scene(j, ".", "t")).empty());
+  j = base_scene();
+  j["fixed"] = {"z_min", "x_min"};
+  EXPECT_TRUE(scene_force_references(parse_scene(j, ".", "t")).empty());
+  j = base_scene();
+  j["probes"][0]["path"][1]["position_mm"] = {7, 6, 8.2};
+  EXPECT_TRUE(scene_force_references(parse_scene(j, ".", "t")).empty());
+  j = base_scene();
+  j["probes"][0]["shape"] = "cylinder";
+  j["probes"][0]["length_mm"] = 10;
+  EXPECT_TRUE(scene_force_references(parse_scene(j, ".", "t")).empty());
+  for (const char* other : {"palpate_lesion.json", "tap_rebound.json", "grasp_lift.json", "compress_plate.json"})
+    EXPECT_TRUE(scene_force_references(load_scene(fs::path(VX_SAMPLES_DIR) / "scenes" / other)).empty()) << other;
 }
 
 TEST(Scene, NumbersBeyondADoubleAreInvalidJsonNotAnInternalError) {
