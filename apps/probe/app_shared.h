@@ -4,8 +4,9 @@
 /// one place: who writes each field, who reads it, and how it crosses threads.
 ///
 ///   physics -> device, GUI: `PhysicsReport` (atomics; the clock under a mutex held for a copy);
-///                           the local contact models (Simulation::publish_local_contact /
-///                           take_local_contact: one triple buffer per probe, sim/local_contact.h);
+///                           the local contact models (DeviceSide::publish_local_contact /
+///                           take_local_contact: one triple buffer per probe, haptics/device_side.h);
+///                           paper shaping: the half sine to play (DeviceSide::output_snapshot);
 ///                           the deformed surface (Simulation::request_frame / take_frame: a
 ///                           triple buffer, never waited for)
 ///   device  -> physics:     `tool_targets` (local shaping: the proxy positions, a triple buffer);
@@ -38,6 +39,7 @@ class BackgroundRegionCheck;  // scene/scene.h
 
 namespace vx {
 class Simulation;
+class DeviceSide;
 }
 
 namespace vx::probe {
@@ -168,9 +170,10 @@ struct DeviceReport {
 
 /// Everything the loops share; the app owns it and outlives the threads.
 struct AppShared {
-  AppShared(const AppOptions& o, Simulation& s) : options(o), sim(s) {}
+  AppShared(const AppOptions& o, Simulation& s, DeviceSide& d) : options(o), sim(s), device_side(d) {}
   const AppOptions& options;
   Simulation& sim;
+  DeviceSide& device_side;  ///< the simulation's device force and local contact models
   int probes{0};
   bool local{false};  ///< local shaping (else the paper's half sines)
   double physics_period_s{0.001};

@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "haptics/device_side.h"
 #include "sim/simulation.h"
 #include "util/thread_priority.h"
 
@@ -186,7 +187,7 @@ void DeviceLoop::local_probe(int p, ProbeTick& t, double dt, bool paused, double
   const Eigen::Vector3d x = hand.state().position_mm;
   LocalForceRenderer& r = renderers_[i];
   ModelArrival& a = arrivals_[i];
-  if (const LocalContactModel* m = s_.sim.take_local_contact(p)) {
+  if (const LocalContactModel* m = s_.device_side.take_local_contact(p)) {
     if (a.seen) {
       const double gap = seconds(wall - a.wall);
       a.period_s = a.period_s > 0 ? 0.8 * a.period_s + 0.2 * gap : gap;
@@ -221,20 +222,22 @@ void DeviceLoop::local_probe(int p, ProbeTick& t, double dt, bool paused, double
 void DeviceLoop::paper_probe(int p, ProbeTick& t, const ProbeOutput& snap, bool paused, bool sim_paused, double now_s,
                              ProbeForce& f) {
   Simulation& sim = s_.sim;
+  const bool device = s_.device_side.has_device();
+  const HalfSinePulse pulse = device ? s_.device_side.output_snapshot(p).pulse : HalfSinePulse{};
   if (!paused)
     sim.set_live(p, commanders_[std::size_t(p)].update(t.cmd, t.drag, basis_, snap.pose.position_mm,
                                                         s_.device_period_s));
   // the device force: the paper's half sine, at the device's own clock
   if (!paused && !sim_paused) {
-    f.device_N = sim.has_device() ? snap.pulse.at(std::max(now_s, snap.time_s)) : snap.raw_force_n;
+    f.device_N = device ? pulse.at(std::max(now_s, snap.time_s)) : snap.raw_force_n;
     f.raw_N = snap.raw_force_n;
-    t.update_mean_N = sim.has_device() ? snap.pulse.mean_n.norm() : snap.raw_force_n.norm();
+    t.update_mean_N = device ? pulse.mean_n.norm() : snap.raw_force_n.norm();
   }
   t.plot_mean_N = t.update_mean_N;
   f.tip_mm = snap.pose.position_mm;
   f.hand_mm = snap.pose.position_mm;
-  f.anchor_N = sim.has_device() ? snap.pulse.mean_n : snap.raw_force_n;
-  f.update_age_ms = sim.has_device() ? 1e3 * std::max(0.0, now_s - snap.pulse.start_s) : 0.0;
+  f.anchor_N = device ? pulse.mean_n : snap.raw_force_n;
+  f.update_age_ms = device ? 1e3 * std::max(0.0, now_s - pulse.start_s) : 0.0;
 }
 
 void DeviceLoop::report(const DeviceTick& tick, const std::array<ProbeTick, kMaxSticks>& t,

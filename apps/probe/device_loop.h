@@ -6,7 +6,7 @@
 /// - paper: the script runs in simulated time; the stick commands go to the simulation's live
 ///   probes; the force is the paper's half sine at the device's clock;
 /// - local: this loop owns the tool: it moves the device (hand) position with the stick in wall
-///   time, evaluates the local contact model the physics last published (sim/local_contact.h)
+///   time, evaluates the local contact model the physics last published (haptics/local_contact.h)
 ///   at every tick, and hands the tool (proxy) position to the physics (`AppShared::tool_targets`).
 /// What the GUI shows goes to `AppShared::device` (app_shared.h).
 /// Every force passes a `DeviceForceGuard` (force_guard.h) on its way out: clamped to the
@@ -21,9 +21,9 @@
 #include "app_shared.h"
 #include "force_guard.h"
 #include "force_output.h"
+#include "haptics/local_contact.h"
 #include "joystick_script.h"
 #include "sdl_input.h"
-#include "sim/local_contact.h"
 #include "sim/probe.h"
 #include "stick_control.h"
 

@@ -6,6 +6,7 @@
 #include <stdexcept>
 #include <thread>
 
+#include "haptics/device_side.h"
 #include "sim/projective_solver.h"
 #include "sim/simulation.h"
 #include "util/thread_priority.h"
@@ -224,7 +225,7 @@ int PhysicsLoop::local_update(int steps, SteadyClock::time_point start) {
     step_cost_s_ = step_cost_s_ > 0 ? 0.7 * step_cost_s_ + 0.3 * per_step : per_step;
   }
   if (done > 0 && !sim.failed()) {
-    sim.publish_local_contact();
+    s_.device_side.publish_local_contact();
     s_.physics.updates.fetch_add(1, std::memory_order_relaxed);
   }
   return done;

@@ -16,6 +16,8 @@
 #include "display.h"
 #include "force_output.h"
 #include "gui_loop.h"
+#include "haptics/device_side.h"
+#include "haptics/local_contact.h"
 #include "io/factor_cache.h"
 #include "joystick_script.h"
 #include "physics_loop.h"
@@ -23,7 +25,6 @@
 #include "rate_thread.h"
 #include "sdl_input.h"
 #include "sim/contact.h"
-#include "sim/local_contact.h"
 #include "sim/simulation.h"
 #include "soak.h"
 #include "util/thread_priority.h"
@@ -108,6 +109,7 @@ class App {
   const AppOptions& options_;
   ProbeScene scene_;
   std::unique_ptr<Simulation> sim_;
+  std::unique_ptr<DeviceSide> device_side_;  ///< after sim_: it detaches from it first
   std::unique_ptr<AppShared> shared_;
   std::shared_ptr<const JoystickScript> script_;
   std::unique_ptr<SdlInput> input_;
@@ -209,21 +211,22 @@ void App::start_simulation() {
   scene_.simulation.integrator.threads = options_.threads;
   // the second start of the same organ loads its factor instead of computing it (io/factor_cache.h)
   scene_.simulation.integrator.factor_cache = make_factor_cache(options_.factor_cache);
-  std::optional<DeviceForceSettings>& dev = scene_.simulation.device;
+  std::optional<DeviceForceSettings>& dev = scene_.device_side.device;
   local_ = options_.force_shaping.value_or(dev ? dev->shaping : ForceShaping::paper) == ForceShaping::local;
   if (local_ && !dev) dev = DeviceForceSettings{};
   if (dev) dev->shaping = local_ ? ForceShaping::local : ForceShaping::paper;
   if (local_) {
     LocalContactSettings lc;
     lc.update_period_s = 1.0 / options_.physics_hz;
-    scene_.simulation.local_contact = lc;
+    scene_.device_side.local_contact = lc;
   }
   sim_ = std::make_unique<Simulation>(scene_.physics, scene_.simulation);
+  device_side_ = std::make_unique<DeviceSide>(*sim_, scene_.device_side);
   probes_ = sim_->num_probes();
   if (probes_ == 0) throw Error("the scene has no probe to palpate with");
   if (probes_ > kMaxSticks)
     say(fmt::format("note: the scene has {} probes; the app drives the first {}", probes_, kMaxSticks));
-  shared_ = std::make_unique<AppShared>(options_, *sim_);
+  shared_ = std::make_unique<AppShared>(options_, *sim_, *device_side_);
   shared_->region_check = scene_.region_check;
   shared_->probes = probes_;
   shared_->local = local_;
@@ -258,7 +261,7 @@ void App::make_device_loop() {
   // local shaping: the device thread owns the tools' (hands') positions and the force rendering
   HapticCouplingSettings hs;
   hs.device_rate_hz = options_.device_hz;
-  if (const auto& dev = scene_.simulation.device) hs.device_damping_n_s_mm = dev->device_damping_n_s_mm;
+  if (const auto& dev = scene_.device_side.device) hs.device_damping_n_s_mm = dev->device_damping_n_s_mm;
   if (const std::string bad = hs.validate(); !bad.empty()) throw Error("local force shaping: " + bad);
   std::array<Eigen::Vector3d, kMaxSticks> start{};
   for (int p = 0; p < std::min(probes_, kMaxSticks); ++p)

@@ -17,10 +17,10 @@
 #include <string>
 #include <vector>
 
+#include "haptics/device_force.h"
 #include "probe_scene.h"
-#include "sim/device_force.h"
-#include "util/exit_codes.h"
 #include "stick_control.h"
+#include "util/exit_codes.h"
 
 namespace vx::probe {
 

@@ -15,6 +15,7 @@
 #include "io/surface_io.h"
 #include "io/volume_io.h"
 #include "model/gradational_builder.h"
+#include "scene/fast_configuration.h"
 #include "scene/scene.h"
 #include "sim/state.h"
 #include "sim/time_step.h"
@@ -83,6 +84,7 @@ ProbeScene load_scene_file(const std::filesystem::path& path, const DefaultScene
   scene.model = built.model;
   scene.physics = built.physics;
   scene.simulation = built.settings;
+  scene.device_side = built.device_side;
   scene.region_check = built.pending_region_check;
   if (scene.simulation.probes.empty()) throw Error(path.string() + ": $.probes: the scene has no probe to palpate with");
   if (options.surface_method == SurfaceMethod::iso) {
@@ -99,11 +101,11 @@ ProbeScene load_scene_file(const std::filesystem::path& path, const DefaultScene
   scene.notes.push_back(fmt::format("surface: {} ({} triangles)", to_string(scene.surface->method),
                                     scene.surface->num_triangles()));
   scene.notes.push_back(fmt::format("physics: {}{}", physics_configuration(scene.simulation.integrator, *scene.physics),
-                                    !scene.simulation.device ? std::string(", no device shaping (raw force)")
-                                    : scene.simulation.device->shaping == ForceShaping::local
+                                    !scene.device_side.device ? std::string(", no device shaping (raw force)")
+                                    : scene.device_side.device->shaping == ForceShaping::local
                                         ? std::string(", device force from the local contact model")
                                         : fmt::format(", device updates every {:g} ms (half sines)",
-                                                      1e3 * scene.simulation.device->update_interval_s)));
+                                                      1e3 * scene.device_side.device->update_interval_s)));
   for (const auto& w : built.warnings) scene.notes.push_back("warning: " + w);
   make_probes_live(scene);
   use_display_surface(scene, options);
@@ -345,13 +347,9 @@ ProbeScene make_default_scene(std::shared_ptr<const Model> model, std::shared_pt
   // with regional solves near the tool for a large model); the paper's device shaping over two
   // steps
   const int nodes = scene.model->num_nodes();
-  sim.integrator.kind = FastConfiguration::kind;
-  sim.integrator.time_step_s = FastConfiguration::time_step_for(nodes);
-  sim.integrator.region_radius_mm = FastConfiguration::region_radius_for(nodes);
-  sim.integrator.max_iterations = FastConfiguration::iterations;
-  sim.integrator.threads = 1;
-  sim.device = DeviceForceSettings{};
-  sim.device->update_interval_s = FastConfiguration::device_update_interval_for(nodes);
+  const FastConfiguration fast = default_fast_configuration();
+  sim.integrator = fast.integrator_for(nodes);
+  scene.device_side.device = fast.device_for(nodes);
 
   scene.notes.push_back(fmt::format("default palpation scene: E = {:g} kPa, damping ratio {:g}, {} nodes held (the lowest "
                                     "{:g} % of the height), capsule probe r = {:.1f} mm {}, the fast configuration: "

@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "haptics/device_side.h"
 #include "model/model.h"
 #include "model/voxel_grid.h"
 #include "physics/physics_model.h"
@@ -81,6 +82,7 @@ struct ProbeScene {
   std::shared_ptr<const PhysicsModel> physics;
   std::shared_ptr<const EmbeddedSurface> surface;
   SimulationSettings simulation;           ///< probes are live; surface set
+  DeviceSideSettings device_side;          ///< the device (the app adds the local contact models)
   Eigen::Vector3d world_up{0.0, -1.0, 0.0};///< up on screen (LPS); default anterior
   std::vector<Box> probe_allowed;          ///< per probe: where its reference point may go
   std::vector<std::string> notes;          ///< what was loaded and decided, for the console

@@ -167,17 +167,18 @@ void run_simulate(const SimulateOptions& o) {
     }
   };
   Simulation sim(prepared.physics, prepared.settings);
+  const DeviceSide device(sim, prepared.device_side);
   const double dt = sim.dt_s();
   const std::int64_t steps = std::max<std::int64_t>(1, std::int64_t(std::ceil(scene.duration_s / dt - 1e-9)));
   warn_if_step_far_below_stable(scene, prepared, dt, steps);  // -q or not: a warning
   if (!o.quiet)
     fmt::print("simulating {:g} s: {} steps of {:.4g} s ({}), {} probe(s){}{}\n", scene.duration_s, steps, dt,
                to_string(scene.integrator), sim.num_probes(), scene.workspace.enabled ? ", walls" : "",
-               sim.has_device() ? ", device" : "");
+               device.has_device() ? ", device" : "");
 
   // run, recording what the scene asks for; Ctrl-C stops after the current step and the
   // outputs up to then are written as for a finished run
-  RunOutputs outputs(sim, prepared, out, dir, steps);
+  RunOutputs outputs(sim, device, prepared, out, dir, steps);
   outputs.set_force_references(scene_force_references(scene));
   Progress progress("simulate", !o.quiet);
   const StopSignals signals;
@@ -259,7 +260,8 @@ void run_simulate(const SimulateOptions& o) {
                dir.string());
   // the work the run left out, for who tunes it (-v; summary.json's "skipped" always)
   log::debug("skipped: {} narrow-phase tests, {} device shapings, {} surface updates, {} steps at rest",
-             c.contact.narrow_tests_skipped, c.device_shaping_skipped, c.surface_updates_skipped, c.steps_at_rest);
+             c.contact.narrow_tests_skipped, device.counters().device_shaping_skipped, c.surface_updates_skipped,
+             c.steps_at_rest);
   if (!stable)
     throw Error(fmt::format("the simulation stopped at t = {:.6g} s: {}; the outputs up to then are in {}", sim.time_s(),
                             sim.state().message, dir.string()));

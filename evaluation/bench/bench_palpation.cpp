@@ -11,6 +11,7 @@
 
 #include "base/error.h"
 #include "bench/bench_parts.h"
+#include "haptics/device_side.h"
 #include "scene/scene.h"
 #include "scene/sim_output.h"
 #include "sim/simulation.h"
@@ -82,7 +83,8 @@ void run_palpation(const PreparedScene& prepared, const BenchSettings& set, Inte
   ss.integrator.threads = set.threads;
   ss.integrator.max_iterations = set.implicit_iterations;
   Simulation sim(prepared.physics, ss);
-  ForceRecorder recorder(sim, set.scene.force_interval_s);
+  const DeviceSide device(sim, prepared.device_side);
+  ForceRecorder recorder(sim, &device, set.scene.force_interval_s);
   const std::int64_t steps = std::max<std::int64_t>(1, std::int64_t(std::ceil(set.scene.duration_s / dt - 1e-9)));
 
   Clock::time_point t = Clock::now();

@@ -7,10 +7,11 @@
 #include <cmath>
 
 #include "base/error.h"
+#include "haptics/device_force.h"
+#include "haptics/device_side.h"
+#include "haptics/local_contact.h"
 #include "render/plot.h"
 #include "scene/scene.h"
-#include "sim/device_force.h"
-#include "sim/local_contact.h"
 #include "sim/simulation.h"
 
 namespace vx {
@@ -55,9 +56,8 @@ Setup make_setup(const HapticAccuracySettings& hs) {
   return s;
 }
 
-SimulationSettings make_settings(const Setup& s, const HapticAccuracySettings& hs, double dt, double period) {
+SimulationSettings make_settings(const Setup& s, const HapticAccuracySettings& hs, double dt) {
   SimulationSettings set = s.prep.settings;
-  set.device.reset();
   set.integrator.kind = IntegratorKind::implicit;
   set.integrator.time_step_s = dt;
   set.integrator.max_iterations = hs.iterations;
@@ -65,6 +65,12 @@ SimulationSettings make_settings(const Setup& s, const HapticAccuracySettings& h
   set.probes.resize(1);
   set.probes[0].drive = ProbeDrive::path;
   set.probes[0].path = s.path;
+  return set;
+}
+
+/// The device side: local contact models every `period` (no device force).
+DeviceSideSettings local_models(const HapticAccuracySettings& hs, double period) {
+  DeviceSideSettings set;
   set.local_contact = LocalContactSettings{};
   set.local_contact->update_period_s = period;
   if (hs.compliance_scale > 0) set.local_contact->compliance_scale = hs.compliance_scale;
@@ -122,7 +128,7 @@ HapticAccuracyResult run_haptic_accuracy(const HapticAccuracySettings& hs) {
   std::vector<Eigen::Vector3d> ref(std::size_t(ticks) + 1, Eigen::Vector3d::Zero());
   std::vector<Eigen::Vector3d> paper(std::size_t(ticks) + 1, Eigen::Vector3d::Zero());
   {
-    Simulation sim(setup.prep.physics, make_settings(setup, hs, dt, dt));
+    Simulation sim(setup.prep.physics, make_settings(setup, hs, dt));
     DeviceForceShaper shaper;
     shaper.init(DeviceForceSettings{}, dt);
     for (int k = 1; k <= ticks; ++k) {
@@ -152,7 +158,8 @@ HapticAccuracyResult run_haptic_accuracy(const HapticAccuracySettings& hs) {
     const double period = n * dt;
     // chunks: the reference's own steps, a model every n of them, delivered n ticks later
     {
-      Simulation sim(setup.prep.physics, make_settings(setup, hs, dt, period));
+      Simulation sim(setup.prep.physics, make_settings(setup, hs, dt));
+      DeviceSide side(sim, local_models(hs, period));
       LocalForceRenderer r = model_renderer(hs.device_hz);
       LocalContactModel pending, delivered;
       bool have = false;
@@ -169,7 +176,7 @@ HapticAccuracyResult run_haptic_accuracy(const HapticAccuracySettings& hs) {
             r.update_model(delivered, t, period);
             held = delivered.anchor_force_n;
           }
-          sim.build_local_contact(0, pending);
+          side.build_local_contact(0, pending);
           have = true;
         }
         const Eigen::Vector3d f = r.tick(path_at(t), t).force_n;
@@ -191,7 +198,8 @@ HapticAccuracyResult run_haptic_accuracy(const HapticAccuracySettings& hs) {
     }
     // large steps: one implicit step of the period per update, the model one update later
     if (hs.large_steps && n > 1) {
-      Simulation sim(setup.prep.physics, make_settings(setup, hs, period, period));
+      Simulation sim(setup.prep.physics, make_settings(setup, hs, period));
+      DeviceSide side(sim, local_models(hs, period));
       LocalForceRenderer r = model_renderer(hs.device_hz);
       LocalContactModel pending, delivered;
       bool have = false;
@@ -204,7 +212,7 @@ HapticAccuracyResult run_haptic_accuracy(const HapticAccuracySettings& hs) {
             r.update_model(delivered, t, period);
           }
           if (sim.step() != StepStatus::ok) throw Error("haptic accuracy: a run failed: " + sim.state().message);
-          sim.build_local_contact(0, pending);
+          side.build_local_contact(0, pending);
           have = true;
         }
         local.add(r.tick(path_at(t), t).force_n, ref[std::size_t(k)]);

@@ -1,6 +1,6 @@
 #pragma once
 /// @file haptic_accuracy.h
-/// How well the local contact model (sim/local_contact.h) carries the force at 1 kHz when the
+/// How well the local contact model (haptics/local_contact.h) carries the force at 1 kHz when the
 /// physics updates at a lower rate (`voxelastic bench --haptic`, docs/probe.md "Force shaping").
 ///
 /// The palpation demo's tissue (samples/scenes/palpation-lesion.json: a 36 x 28 x 16 mm block of

@@ -204,7 +204,6 @@ RunOutput run_one(const ScaleModelSpec& spec, const PreparedScene& prepared,
   probe.geometry.radius_mm = s.probe_radius_mm;
   probe.path = scale_palpation_path(prepared, spec, s);
   ss.probes = {probe};
-  ss.device.reset();
   row.time_step_s = ss.integrator.time_step_s;
 
   const double duration = s.press_s + s.slide_s;

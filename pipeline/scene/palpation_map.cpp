@@ -247,8 +247,6 @@ PalpationMap palpation_map(const PreparedScene& prepared, const PalpationMapSett
   SimulationSettings ss = prepared.settings;
   ss.integrator.threads = 1;
   ss.surface.reset();
-  ss.device.reset();
-  ss.local_contact.reset();
   ss.integrator.time_step_s = std::min(ss.integrator.time_step_s, 0.25 * R / settings.speed_mm_s);
   const double dt = ss.integrator.time_step_s;
   const Eigen::Vector3d inward = -f.outward * Eigen::Vector3d::Unit(f.axis);

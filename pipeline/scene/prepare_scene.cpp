@@ -11,6 +11,7 @@
 
 #include "base/error.h"
 #include "io/model_io.h"
+#include "scene/fast_configuration.h"
 #include "scene/scene.h"
 #include "sim/region_stiffening.h"
 #include "sim/time_step.h"
@@ -130,9 +131,10 @@ void choose_integrator(const Scene& scene, const PrepareSceneOptions& options, c
   out.dt_stable_estimate_s = est.limit(scene.integrator);
   double automatic_dt_s = automatic_time_step(est, scene.integrator);
   // no integrator key and a large model: the fast configuration's 30 ms steps with regional solves
-  const bool large = scene.integrator == IntegratorKind::implicit && !scene.integrator_given &&
-                     FastConfiguration::large(out.model->num_nodes());
-  if (large) automatic_dt_s = FastConfiguration::time_step_for(out.model->num_nodes());
+  const FastConfiguration fast = default_fast_configuration();
+  const bool large =
+      scene.integrator == IntegratorKind::implicit && !scene.integrator_given && fast.large(out.model->num_nodes());
+  if (large) automatic_dt_s = fast.time_step_for(out.model->num_nodes());
   if (scene.integrator == IntegratorKind::implicit) {
     // the fast configuration's step, shortened where a probe would move more than a quarter of
     // its radius per step or a device update would span fewer than two steps
@@ -142,19 +144,18 @@ void choose_integrator(const Scene& scene, const PrepareSceneOptions& options, c
         automatic_dt_s = std::min(automatic_dt_s, 0.25 * p.geometry.radius_mm / speed);
     }
     if (scene.device) automatic_dt_s = std::min(automatic_dt_s, 0.5 * scene.device->update_interval_s);
-    s.integrator.max_iterations = scene.iterations > 0 ? scene.iterations
+    s.integrator.max_iterations = scene.iterations > 0     ? scene.iterations
                                   : scene.integrator_given ? IntegratorSettings{}.max_iterations
-                                                           : FastConfiguration::iterations;
+                                                           : fast.iterations;
     s.integrator.residual_tolerance_n = scene.residual_tolerance_n;
     s.integrator.factor_cache = options.factor_cache;
-    s.integrator.region_radius_mm =
-        large ? FastConfiguration::region_radius_for(out.model->num_nodes()) : scene.region_radius_mm;
+    s.integrator.region_radius_mm = large ? fast.region_radius_for(out.model->num_nodes()) : scene.region_radius_mm;
     if (large)
-      out.log.push_back(fmt::format("the fast configuration of a large model ({} nodes, {} or more): implicit, {:g} ms steps, "
-                                    "regional solves within {:g} mm of a tool (docs/bench.md)",
-                                    out.model->num_nodes(), FastConfiguration::large_model_nodes,
-                                    1e3 * std::min(automatic_dt_s, FastConfiguration::large_model_time_step_s),
-                                    FastConfiguration::large_model_region_radius_mm));
+      out.log.push_back(
+          fmt::format("the fast configuration of a large model ({} nodes, {} or more): implicit, {:g} ms steps, "
+                      "regional solves within {:g} mm of a tool (docs/bench.md)",
+                      out.model->num_nodes(), fast.large_model_nodes,
+                      1e3 * std::min(automatic_dt_s, fast.large_model_time_step_s), fast.large_model_region_radius_mm));
   }
   out.automatic_dt_s = automatic_dt_s;
   if (scene.dt_s > 0) {
@@ -245,7 +246,7 @@ void place_walls_and_probes(const Scene& scene, const std::vector<std::uint8_t>&
                               (out.bounds_max_mm.array() > s.workspace.max_mm.array()).any()))
     out.warnings.push_back("the object does not fit in workspace_mm: the walls push it in at the first step");
   s.contact = scene.contact;
-  s.device = scene.device;
+  out.device_side.device = scene.device;
   s.probes = scene.probes;
   if (m.is_2d()) {
     // a 2D model meets each probe in the slice plane (docs/model.md section 12.2)
@@ -259,10 +260,12 @@ void place_walls_and_probes(const Scene& scene, const std::vector<std::uint8_t>&
   }
   const double spacing = m.grid.spacing_mm.minCoeff();
   const double dt = s.integrator.time_step_s;
-  if (s.device && s.device->shaping == ForceShaping::paper && s.device->update_interval_s < 1.5 * dt)
-    errors.fail("$.device.update_interval_s", fmt::format("{:.3g} s spans less than 2 physics steps of {:.3g} s; a half sine needs "
-                                                          "room: raise it (e.g. 0.02 s) or lower integrator.dt_s",
-                                                          s.device->update_interval_s, dt));
+  const std::optional<DeviceForceSettings>& device = out.device_side.device;
+  if (device && device->shaping == ForceShaping::paper && device->update_interval_s < 1.5 * dt)
+    errors.fail("$.device.update_interval_s",
+                fmt::format("{:.3g} s spans less than 2 physics steps of {:.3g} s; a half sine needs "
+                            "room: raise it (e.g. 0.02 s) or lower integrator.dt_s",
+                            device->update_interval_s, dt));
   const std::vector<std::int32_t> surface_nodes = collidable_nodes(m, fixed);
   for (std::size_t i = 0; i < s.probes.size(); ++i) {
     const ProbeSettings& p = s.probes[i];

@@ -31,11 +31,11 @@ const char* source_name(ObjectSource s) {
 
 }  // namespace
 
-RunOutputs::RunOutputs(Simulation& sim, const PreparedScene& prepared, const SceneOutputs& outputs,
-                       const fs::path& dir, std::int64_t steps)
-    : dir_(dir), outputs_(outputs), steps_(steps) {
+RunOutputs::RunOutputs(Simulation& sim, const DeviceSide& device, const PreparedScene& prepared,
+                       const SceneOutputs& outputs, const fs::path& dir, std::int64_t steps)
+    : device_(device), dir_(dir), outputs_(outputs), steps_(steps) {
   // what to record: only what was asked for
-  if (outputs_.forces_csv || outputs_.plot) recorder_.emplace(sim, outputs_.forces_interval_s);
+  if (outputs_.forces_csv || outputs_.plot) recorder_.emplace(sim, &device_, outputs_.forces_interval_s);
   series_ = outputs_.pvd_model || outputs_.pvd_surface;
   if (outputs_.pvd_model) {
     model_series_.emplace(dir_, "model", "vtu");
@@ -62,7 +62,7 @@ void RunOutputs::write_frame(Simulation& sim) {
     surface_series_->add(sim.time_s());
   }
   if (probe_series_) {
-    write_probe_frame(sim, probe_series_->next_frame_path());
+    write_probe_frame(sim, &device_, probe_series_->next_frame_path());
     probe_series_->add(sim.time_s());
   }
   ++frames_;
@@ -146,6 +146,8 @@ json run_summary_json(const Scene& scene, const fs::path& scene_file, const Prep
   const std::int64_t frames = outputs.frames();
   const bool pvd = outputs.series();
   const SimulationCounters& c = sim.counters();
+  const DeviceSide& device = outputs.device();
+  const DeviceSideCounters& dc = device.counters();
   const Model& m = *prepared.model;
   const bool stable = !sim.failed() && sim.state().positions.allFinite();
   json j;
@@ -228,24 +230,23 @@ json run_summary_json(const Scene& scene, const fs::path& scene_file, const Prep
                           {"max_force_n", recorder ? recorder->max_wall_force_n() : 0.0},
                           {"impulse_n_s", recorder ? vec(recorder->wall_impulse_n_s()) : json(nullptr)}}
                    : json(nullptr);
-  j["device"] = sim.has_device()
-                    ? json{{"update_interval_s", prepared.settings.device->update_interval_s},
-                           {"average_steps", prepared.settings.device->average_steps},
-                           {"mean_preserving", prepared.settings.device->mean_preserving}}
-                    : json(nullptr);
+  j["device"] = device.has_device() ? json{{"update_interval_s", device.settings().device->update_interval_s},
+                                           {"average_steps", device.settings().device->average_steps},
+                                           {"mean_preserving", device.settings().device->mean_preserving}}
+                                    : json(nullptr);
   j["work"] = {{"contact_passes", c.contact_passes},
                {"narrow_phase_tests", c.contact.narrow_tests},
                {"broad_phase_tests", c.contact.broad_tests},
                {"broad_phase_rebuilds", c.contact.rebuilds},
                {"node_contacts", c.contact.contacts},
                {"wall_contacts", c.contact.wall_contacts},
-               {"device_shaping_steps", c.device_shaping_steps},
+               {"device_shaping_steps", dc.device_shaping_steps},
                {"surface_updates", c.surface_updates},
                {"output_frames", frames},
                {"force_rows", recorder ? json(recorder->rows().size()) : json(0)}};
   j["skipped"] = {{"contact_passes", c.contact_passes_skipped},
                   {"narrow_phase_tests", c.contact.narrow_tests_skipped},
-                  {"device_shaping_steps", c.device_shaping_skipped},
+                  {"device_shaping_steps", dc.device_shaping_skipped},
                   {"surface_updates", c.surface_updates_skipped},
                   {"steps_without_output_frame", c.steps - std::max<std::int64_t>(0, frames - (pvd ? 1 : 0))},
                   {"sleeping_element_updates", c.sleeping_element_updates},

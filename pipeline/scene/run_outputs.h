@@ -14,6 +14,7 @@
 #include <utility>
 #include <vector>
 
+#include "haptics/device_side.h"
 #include "scene/scene.h"
 #include "scene/sim_output.h"
 #include "sim/simulation.h"
@@ -26,7 +27,8 @@ class RunOutputs {
  public:
   /// What `outputs` asks for, into `dir` (which exists); the .pvd series get their first
   /// frame now. `steps`: the steps the run will take (the last one always gets a frame).
-  RunOutputs(Simulation& sim, const PreparedScene& prepared, const SceneOutputs& outputs,
+  /// `device`: the run's device side (its device forces; it must outlive the RunOutputs).
+  RunOutputs(Simulation& sim, const DeviceSide& device, const PreparedScene& prepared, const SceneOutputs& outputs,
              const std::filesystem::path& dir, std::int64_t steps);
   ~RunOutputs();
   RunOutputs(const RunOutputs&) = delete;
@@ -50,6 +52,7 @@ class RunOutputs {
   /// Frames written per series (0 without .pvd output); true when any series was asked for.
   [[nodiscard]] std::int64_t frames() const { return frames_; }
   [[nodiscard]] bool series() const { return series_; }
+  [[nodiscard]] const DeviceSide& device() const { return device_; }
   /// The files finish() wrote, and those the scene did not ask for.
   [[nodiscard]] const std::vector<std::string>& written() const { return written_; }
   [[nodiscard]] const std::vector<std::string>& not_requested() const { return not_requested_; }
@@ -57,6 +60,7 @@ class RunOutputs {
  private:
   void write_frame(Simulation& sim);
 
+  const DeviceSide& device_;
   std::filesystem::path dir_;
   SceneOutputs outputs_;
   std::int64_t steps_{0};

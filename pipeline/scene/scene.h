@@ -24,12 +24,13 @@
 
 #include "convert/phantom.h"
 #include "convert/prepare.h"
+#include "haptics/device_force.h"
+#include "haptics/device_side.h"
 #include "io/volume.h"
 #include "io/volume_io.h"
 #include "model/gradational_builder.h"
 #include "physics/physics_model.h"
 #include "sim/contact.h"
-#include "sim/device_force.h"
 #include "sim/integrators.h"
 #include "sim/probe.h"
 #include "sim/region_stiffening.h"
@@ -114,7 +115,7 @@ struct Scene {
   std::vector<FixedRegion> fixed;
   Eigen::Vector3d gravity_m_s2{0, 0, 0};
   Workspace workspace;
-  /// without an `integrator` key: the fast configuration (FastConfiguration, sim/time_step.h:
+  /// without an `integrator` key: the fast configuration (FastConfiguration, scene/fast_configuration.h:
   /// implicit, automatic step, one iteration), or symplectic Euler when the contact has friction
   IntegratorKind integrator{IntegratorKind::implicit};
   bool integrator_given{false};      ///< the scene has an `integrator` key
@@ -192,6 +193,7 @@ struct PreparedScene {
   std::shared_ptr<const EmbeddedSurface> surface;  ///< when asked for
   VoxelGrid grid;                                  ///< the grid the model was built from
   SimulationSettings settings;                     ///< ready for Simulation
+  DeviceSideSettings device_side;                  ///< ready for DeviceSide (the device, no local contact models)
   Eigen::Vector3d bounds_min_mm{0, 0, 0};          ///< object's rest bounding box, LPS mm
   Eigen::Vector3d bounds_max_mm{0, 0, 0};
   double dt_stable_estimate_s{0.0};                ///< the integrator's estimated stable step

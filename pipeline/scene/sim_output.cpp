@@ -35,8 +35,8 @@ namespace fs = std::filesystem;
 // ---------------------------------------------------------------------------------------------
 // forces
 
-ForceRecorder::ForceRecorder(const Simulation& sim, double interval_s)
-    : device_(sim.has_device()), interval_s_(std::max(interval_s, 0.0)) {
+ForceRecorder::ForceRecorder(const Simulation& sim, const DeviceSide* device, double interval_s)
+    : device_side_(device), device_(device && device->has_device()), interval_s_(std::max(interval_s, 0.0)) {
   const int np = sim.num_probes();
   for (int i = 0; i < np; ++i) names_.push_back(sim.settings().probes[std::size_t(i)].name);
   sum_.assign(std::size_t(np), Eigen::Vector3d::Zero());
@@ -57,7 +57,7 @@ void ForceRecorder::emit(const Simulation& sim) {
     r.probe = i;
     r.position_mm = o.pose.position_mm;
     r.raw_n = steps_ > 0 ? Eigen::Vector3d(sum_[std::size_t(i)] / steps_) : Eigen::Vector3d::Zero();
-    r.shaped_n = o.shaped_force_n;
+    if (device_side_) r.shaped_n = device_side_->output(i).shaped_force_n;
     r.contacts = contacts_[std::size_t(i)];
     rows_.push_back(r);
     sum_[std::size_t(i)].setZero();
@@ -450,7 +450,7 @@ void SurfaceFrameWriter::write(const Eigen::Matrix3Xd& vertices, const fs::path&
   write_xml<vtkXMLPolyDataWriter>(impl_->poly.Get(), path);
 }
 
-void write_probe_frame(const Simulation& sim, const fs::path& path) {
+void write_probe_frame(const Simulation& sim, const DeviceSide* device_side, const fs::path& path) {
   const int np = sim.num_probes();
   vtkNew<vtkPolyData> poly;
   vtkNew<vtkPoints> points;
@@ -470,7 +470,8 @@ void write_probe_frame(const Simulation& sim, const fs::path& path) {
     const vtkIdType id = i;
     verts->InsertNextCell(1, &id);
     force->SetTuple(i, o.raw_force_n.data());
-    device->SetTuple(i, o.shaped_force_n.data());
+    const Eigen::Vector3d shaped = device_side ? device_side->output(i).shaped_force_n : Eigen::Vector3d::Zero();
+    device->SetTuple(i, shaped.data());
     axis->SetTuple(i, g.axis.data());
     radius->SetValue(i, g.radius_mm);
   }

@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "haptics/device_side.h"
 #include "model/model.h"
 #include "sim/simulation.h"
 #include "surface/surface.h"
@@ -32,7 +33,8 @@ struct ForceRow {
 /// the previous row, so no step is lost to sampling; the device force is sampled at the row.
 class ForceRecorder {
  public:
-  ForceRecorder(const Simulation& sim, double interval_s);
+  /// `device`: the run's device side, for the device force (null: none); it must outlive the recorder.
+  ForceRecorder(const Simulation& sim, const DeviceSide* device, double interval_s);
   /// Call after every step.
   void record(const Simulation& sim);
   /// Call once at the end: a last row for the steps since the previous row, if any.
@@ -57,6 +59,7 @@ class ForceRecorder {
   void emit(const Simulation& sim);
 
   std::vector<std::string> names_;
+  const DeviceSide* device_side_{nullptr};
   bool device_{false};
   double interval_s_{0.0};
   double next_s_{0.0};
@@ -173,6 +176,6 @@ class SurfaceFrameWriter {
 
 /// Writes probe frames (.vtp): one point per probe (its position) with `radius_mm`,
 /// `force_n` (raw) and `device_force_n` arrays, for glyphs in ParaView.
-void write_probe_frame(const Simulation& sim, const std::filesystem::path& path);
+void write_probe_frame(const Simulation& sim, const DeviceSide* device, const std::filesystem::path& path);
 
 }  // namespace vx

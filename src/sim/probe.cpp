@@ -1,5 +1,6 @@
 #include "sim/probe.h"
 
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 #include <sstream>
@@ -7,6 +8,124 @@
 #include "base/error.h"
 
 namespace vx {
+
+std::string slice_probe_problem(const ProbeGeometry& g, const Eigen::Vector3d& normal) {
+  const double along = std::abs(g.axis.normalized().dot(normal));
+  switch (g.shape) {
+    case ProbeShape::sphere: return "";
+    case ProbeShape::cylinder:
+      if (along > 1.0 - 1e-6) return "";
+      return "a cylinder meets a slice model only with its axis along the slice normal (a circle in the plane)";
+    case ProbeShape::capsule:
+    case ProbeShape::plane:
+      if (along < 1e-6) return "";
+      return std::string("a ") + to_string(g.shape) + " meets a slice model only with its " +
+             (g.shape == ProbeShape::plane ? "normal" : "axis") + " in the slice plane (a " +
+             (g.shape == ProbeShape::plane ? "straight wall" : "rounded rod") + " in the plane)";
+  }
+  return "unknown shape";
+}
+
+const char* to_string(ProbeShape s) {
+  switch (s) {
+    case ProbeShape::sphere: return "sphere";
+    case ProbeShape::cylinder: return "cylinder";
+    case ProbeShape::capsule: return "capsule";
+    case ProbeShape::plane: return "plane";
+  }
+  return "?";
+}
+
+ProbeShape parse_probe_shape(const std::string& s) {
+  if (s == "sphere") return ProbeShape::sphere;
+  if (s == "cylinder") return ProbeShape::cylinder;
+  if (s == "capsule") return ProbeShape::capsule;
+  if (s == "plane") return ProbeShape::plane;
+  throw Error("unknown probe shape \"" + s + "\": use sphere, cylinder, capsule or plane");
+}
+
+std::string ProbeGeometry::validate() const {
+  std::ostringstream err;
+  const bool round = shape != ProbeShape::plane;
+  if (round && !(radius_mm > 0 && std::isfinite(radius_mm))) err << "radius " << radius_mm << " mm must be > 0; ";
+  if (shape == ProbeShape::cylinder && !(length_mm > 0 && std::isfinite(length_mm)))
+    err << "cylinder length " << length_mm << " mm must be > 0; ";
+  if (shape == ProbeShape::capsule && !(length_mm >= 0 && std::isfinite(length_mm)))
+    err << "capsule length " << length_mm << " mm must be >= 0; ";
+  if (!axis.allFinite() || !(std::abs(axis.norm() - 1.0) < 1e-9))
+    err << (shape == ProbeShape::plane ? "normal" : "axis") << " must be a unit vector (got norm " << axis.norm()
+        << "); ";
+  return err.str();
+}
+
+namespace {
+
+/// A unit vector perpendicular to unit `a`.
+Eigen::Vector3d any_perpendicular(const Eigen::Vector3d& a) {
+  const Eigen::Vector3d helper = std::abs(a.x()) < 0.9 ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitY();
+  return a.cross(helper).normalized();
+}
+
+/// Signed distance to a ball of radius r at c.
+double ball_distance(const Eigen::Vector3d& c, double r, const Eigen::Vector3d& x, const Eigen::Vector3d& fallback,
+                     Eigen::Vector3d* point, Eigen::Vector3d* normal) {
+  const Eigen::Vector3d d = x - c;
+  const double len = d.norm();
+  const Eigen::Vector3d n = len > 1e-12 ? Eigen::Vector3d(d / len) : fallback;
+  if (point) *point = c + r * n;
+  if (normal) *normal = n;
+  return len - r;
+}
+
+}  // namespace
+
+double probe_signed_distance(const ProbeGeometry& g, const Eigen::Vector3d& c, const Eigen::Vector3d& x,
+                             Eigen::Vector3d* point, Eigen::Vector3d* normal) {
+  switch (g.shape) {
+    case ProbeShape::sphere: return ball_distance(c, g.radius_mm, x, -g.axis, point, normal);
+    case ProbeShape::capsule: {
+      // closest point of the segment tip -> tip + length * axis
+      const double t = std::clamp((x - c).dot(g.axis), 0.0, g.length_mm);
+      return ball_distance(c + t * g.axis, g.radius_mm, x, any_perpendicular(g.axis), point, normal);
+    }
+    case ProbeShape::plane: {
+      const double s = (x - c).dot(g.axis);
+      if (point) *point = x - s * g.axis;
+      if (normal) *normal = g.axis;
+      return s;
+    }
+    case ProbeShape::cylinder: {
+      const double h = 0.5 * g.length_mm;
+      const Eigen::Vector3d d = x - c;
+      const double t = d.dot(g.axis);
+      const Eigen::Vector3d rho = d - t * g.axis;
+      const double r = rho.norm();
+      const Eigen::Vector3d radial = r > 1e-12 ? Eigen::Vector3d(rho / r) : any_perpendicular(g.axis);
+      const Eigen::Vector3d cap = t >= 0 ? g.axis : Eigen::Vector3d(-g.axis);
+      const double dr = r - g.radius_mm;
+      const double dz = std::abs(t) - h;
+      if (dr < 0 && dz < 0) {
+        // inside: leave through the nearer of the side and the cap
+        if (dr > dz) {
+          if (point) *point = c + t * g.axis + g.radius_mm * radial;
+          if (normal) *normal = radial;
+          return dr;
+        }
+        if (point) *point = x + (-dz) * cap;
+        if (normal) *normal = cap;
+        return dz;
+      }
+      // outside: the closest point clamps the radial and axial coordinates
+      const Eigen::Vector3d q = c + std::clamp(t, -h, h) * g.axis + std::min(r, g.radius_mm) * radial;
+      const Eigen::Vector3d e = x - q;
+      const double len = e.norm();
+      if (point) *point = q;
+      if (normal) *normal = len > 1e-12 ? Eigen::Vector3d(e / len) : (dr >= dz ? radial : cap);
+      return len;
+    }
+  }
+  return 0.0;
+}
 
 const char* to_string(JoystickMode m) { return m == JoystickMode::rate ? "rate" : "position"; }
 

@@ -1,6 +1,7 @@
 #pragma once
 /// @file probe.h
-/// How a probe moves (docs/model.md section 8): a keyframed path, a scripted joystick (paper 4.2: the tool moves with a
+/// A rigid probe: its shape and signed distance (the geometry contact.h collides with), and how
+/// it moves (docs/model.md section 8): a keyframed path, a scripted joystick (paper 4.2: the tool moves with a
 /// velocity proportional to the stick's tilt; or an optional position-control mapping), or live
 /// input from outside (the probe app sets a target position or velocity each step).
 ///
@@ -9,12 +10,55 @@
 /// velocity it imparts always agree. Units: mm, s, mm/s.
 
 #include <Eigen/Core>
+#include <cstdint>
 #include <string>
 #include <vector>
 
-#include "sim/contact.h"
-
 namespace vx {
+
+/// The shape of a rigid probe (tool). Probes translate; their axis is fixed in the world.
+enum class ProbeShape : std::uint8_t {
+  sphere,    ///< ball of `radius_mm` centred at the probe position
+  cylinder,  ///< flat-ended cylinder of `radius_mm`, `length_mm`, centred at the position, along `axis`
+  capsule,   ///< rod with a rounded tip: segment from the tip-sphere centre (the position) to
+             ///< position + length_mm * axis, swept by a ball of `radius_mm` (the surgeon's tool)
+  plane,     ///< a plate: the half-space behind the plane through the position with normal `axis`
+             ///< (the normal points out of the plate, towards the tissue)
+};
+[[nodiscard]] const char* to_string(ProbeShape s);
+/// Parses "sphere", "cylinder", "capsule" or "plane"; throws vx::Error otherwise.
+[[nodiscard]] ProbeShape parse_probe_shape(const std::string& s);
+
+/// The geometry of a probe in the world (LPS mm).
+struct ProbeGeometry {
+  ProbeShape shape{ProbeShape::sphere};
+  double radius_mm{5.0};                ///< sphere, cylinder, capsule
+  double length_mm{0.0};                ///< cylinder: full length; capsule: rod length behind the tip centre
+  Eigen::Vector3d axis{0.0, 0.0, 1.0};  ///< unit. cylinder: its axis; capsule: tip -> handle; plane: normal
+
+  /// Empty when valid, else what is wrong (sizes > 0, axis not zero).
+  [[nodiscard]] std::string validate() const;
+};
+
+/// A 2D (slice) model meets a probe in its cut by the slice plane (docs/model.md section 12.2):
+/// a sphere is a circle; a cylinder along the slice normal a circle too; a capsule or plane whose
+/// axis lies in the slice plane a rounded rod or a straight wall. Empty when `g` has such a cut
+/// for a slice of unit normal `normal`, else what is wrong and what to use instead.
+[[nodiscard]] std::string slice_probe_problem(const ProbeGeometry& g, const Eigen::Vector3d& normal);
+
+/// Where a probe is this step.
+struct ProbeState {
+  Eigen::Vector3d position_mm{Eigen::Vector3d::Zero()};
+  Eigen::Vector3d velocity_mm_s{Eigen::Vector3d::Zero()};
+};
+
+/// Signed distance of point `x` from the surface of the probe at `position` (negative inside),
+/// mm, with the closest surface point and the outward unit normal there.
+/// The normal is well defined everywhere (a point on the axis of a sphere/capsule/cylinder gets
+/// a fixed perpendicular direction).
+[[nodiscard]] double probe_signed_distance(const ProbeGeometry& g, const Eigen::Vector3d& position,
+                                           const Eigen::Vector3d& x, Eigen::Vector3d* surface_point = nullptr,
+                                           Eigen::Vector3d* normal = nullptr);
 
 /// A keyframe of a path: where the probe is at time t.
 struct PathKey {

@@ -37,10 +37,6 @@ Simulation::Simulation(std::shared_ptr<const PhysicsModel> physics, SimulationSe
   if (settings_.workspace.enabled && !(settings_.workspace.min_mm.array() < settings_.workspace.max_mm.array()).all())
     err << "workspace: min must be below max on every axis; ";
   if (!settings_.gravity_mm_s2.allFinite()) err << "gravity is not finite; ";
-  if (settings_.device)
-    if (const std::string bad = settings_.device->validate(); !bad.empty()) err << "device: " << bad;
-  if (settings_.local_contact)
-    if (const std::string bad = settings_.local_contact->validate(); !bad.empty()) err << "local contact: " << bad;
   if (settings_.surface && settings_.surface->model_nodes != nn)
     err << "surface is embedded in a model of " << settings_.surface->model_nodes << " nodes, this one has " << nn
         << "; ";
@@ -88,27 +84,6 @@ Simulation::Simulation(std::shared_ptr<const PhysicsModel> physics, SimulationSe
     integrator_->set_contact_provider(implicit_contact_.get());
   }
 
-  // device forces: only with a device (or when told to do all the work)
-  shape_ = has_device() || !settings_.skip_unneeded;
-  if (shape_) {
-    const DeviceForceSettings dev = has_device() ? *settings_.device : DeviceForceSettings{};
-    shapers_.resize(np);
-    for (auto& s : shapers_) s.init(dev, dt_s());
-  }
-
-  // local contact models for a haptic device
-  if (settings_.local_contact) {
-    const LocalContactSettings& lc = *settings_.local_contact;
-    local_average_s_ = lc.average_s >= 0 ? lc.average_s : (integrator_->solves_contact() ? 0.0 : 0.002);
-    local_anchor_.resize(np);
-    for (auto& a : local_anchor_) {
-      a.node_force.assign(std::size_t(nn), Eigen::Vector3d::Zero());
-      a.listed.assign(std::size_t(nn), 0);
-    }
-    for (std::size_t i = 0; i < np; ++i) local_out_.push_back(std::make_unique<TripleBuffer<LocalContactModel>>());
-    if (!use_integrator_compliance()) patch_.init(physics_, state_.node_fixed, lc.horizon_s);
-  }
-
   outputs_.resize(np);
   published_.resize(np);
   live_.resize(np);
@@ -126,27 +101,29 @@ void Simulation::reset() {
     outputs_[i] = {};
     outputs_[i].pose = poses_[i];
   }
-  for (auto& s : shapers_) s.reset();
-  for (std::size_t i = 0; i < local_anchor_.size(); ++i) {
-    LocalAnchor& a = local_anchor_[i];
-    for (const std::int32_t n : a.nodes) {
-      a.node_force[std::size_t(n)].setZero();
-      a.listed[std::size_t(n)] = 0;
-    }
-    a.nodes.clear();
-    a.started = false;
-    LocalContactModel& m = local_out_[i]->write_buffer();
-    m.valid = false;
-    m.resize(0);
-    local_out_[i]->publish();
-  }
   contact_.invalidate();
   wall_force_.setZero();
   surface_step_ = -1;
+  if (listener_) listener_->after_reset();
   std::lock_guard<std::mutex> lock(mutex_);
   published_ = outputs_;
   frame_ready_ = false;
 }
+
+void Simulation::set_step_listener(StepListener* listener, bool record_contacts) {
+  listener_ = listener;
+  record_contacts_ = listener && record_contacts;
+}
+
+const std::vector<ContactConstraint>& Simulation::step_contacts() const {
+  return implicit_contact_ ? integrator_->contacts() : contact_records_;
+}
+
+bool Simulation::contact_compliance(const std::vector<std::int32_t>& nodes, Eigen::MatrixXd& g) {
+  return integrator_->contact_compliance(state_, nodes, g);
+}
+
+bool Simulation::solves_contact() const { return integrator_->solves_contact(); }
 
 void Simulation::save_tissue(TissueSnapshot& out) const {
   out.positions = state_.positions;
@@ -218,7 +195,7 @@ StepStatus Simulation::step() {
     else {
       contact_records_.clear();
       contact_.resolve(state_.positions, state_.velocities, physics_->node_mass, geometry_, poses_, dt, raw_,
-                       wall_force_, &contacts_, settings_.local_contact ? &contact_records_ : nullptr);
+                       wall_force_, &contacts_, record_contacts_ ? &contact_records_ : nullptr);
     }
     ++counters_.contact_passes;
     counters_.contact = contact_.counters();
@@ -228,26 +205,15 @@ StepStatus Simulation::step() {
 
   if (physics_->is_2d()) hold_plane();
 
-  if (settings_.local_contact) accumulate_local_contact();
-
-  // probe outputs and the device force
+  // probe outputs; then the device side (haptics/device_side.h), when one listens
   for (std::size_t i = 0; i < drivers_.size(); ++i) {
     ProbeOutput& o = outputs_[i];
     o.pose = poses_[i];
     o.raw_force_n = raw_[i];
     o.contacts = contacts_[i];
     o.time_s = state_.time_s;
-    if (shape_) {
-      const Eigen::Vector3d& shaped = shapers_[i].push(raw_[i], state_.time_s);
-      if (has_device()) {
-        o.shaped_force_n = shaped;
-        o.pulse = shapers_[i].pulse();
-      }
-      ++counters_.device_shaping_steps;
-    } else {
-      ++counters_.device_shaping_skipped;
-    }
   }
+  if (listener_) listener_->after_step();
 
   // the surface: deformed now only when told to do all the work; else on demand
   if (settings_.surface && !settings_.skip_unneeded) (void)surface_vertices();
@@ -308,149 +274,6 @@ void Simulation::take_implicit_contact_forces() {
     }
   }
   contact_.count_contacts(probe_contacts, wall_contacts);
-}
-
-std::string LocalContactSettings::validate() const {
-  std::ostringstream err;
-  if (!std::isfinite(margin_mm)) err << "margin must be finite; ";
-  if (max_nodes < 1 || max_nodes > LocalContactSolver::kMaxNodes)
-    err << "max_nodes " << max_nodes << " must be in 1.." << LocalContactSolver::kMaxNodes << "; ";
-  if (!std::isfinite(average_s) || average_s > 1.0) err << "average_s must be <= 1 s; ";
-  if (!(horizon_s > 0) || !std::isfinite(horizon_s)) err << "horizon_s must be > 0; ";
-  if (!(update_period_s > 0) || !std::isfinite(update_period_s)) err << "update_period_s must be > 0; ";
-  if (!(compliance_scale > 0) || !std::isfinite(compliance_scale)) err << "compliance_scale must be > 0; ";
-  if (!std::isfinite(patch_radius_mm)) err << "patch radius must be finite; ";
-  return err.str();
-}
-
-bool Simulation::use_integrator_compliance() const {
-  return settings_.local_contact && settings_.local_contact->integrator_compliance && integrator_->solves_contact() &&
-         dt_s() >= 0.5 * settings_.local_contact->update_period_s;
-}
-
-double Simulation::local_compliance_scale() const { return settings_.local_contact->compliance_scale; }
-
-void Simulation::accumulate_local_contact() {
-  const double dt = dt_s();
-  const double alpha = local_average_s_ > 0 ? 1.0 - std::exp(-dt / local_average_s_) : 1.0;
-  const int np = num_probes();
-  const std::vector<ContactConstraint>& contacts = implicit_contact_ ? integrator_->contacts() : contact_records_;
-  for (int q = 0; q < np; ++q) {
-    LocalAnchor& a = local_anchor_[std::size_t(q)];
-    const Eigen::Vector3d& pose = poses_[std::size_t(q)].position_mm;
-    a.pose = a.started ? Eigen::Vector3d(a.pose + alpha * (pose - a.pose)) : pose;
-    a.started = true;
-    for (const std::int32_t n : a.nodes) a.node_force[std::size_t(n)] *= 1.0 - alpha;
-  }
-  for (const ContactConstraint& c : contacts) {
-    if (c.owner < 0 || c.owner >= np || !(c.force_n > 0.0)) continue;
-    LocalAnchor& a = local_anchor_[std::size_t(c.owner)];
-    a.node_force[std::size_t(c.node)] += (alpha * c.force_n) * c.normal;
-    if (!a.listed[std::size_t(c.node)]) {
-      a.listed[std::size_t(c.node)] = 1;
-      a.nodes.push_back(c.node);
-    }
-  }
-  // forget the nodes whose mean force has died away
-  for (LocalAnchor& a : local_anchor_) {
-    std::size_t k = 0;
-    for (const std::int32_t n : a.nodes) {
-      if (a.node_force[std::size_t(n)].squaredNorm() > 1e-24) {
-        a.nodes[k++] = n;
-      } else {
-        a.node_force[std::size_t(n)].setZero();
-        a.listed[std::size_t(n)] = 0;
-      }
-    }
-    a.nodes.resize(k);
-  }
-}
-
-void Simulation::build_local_contact(int q, LocalContactModel& m) {
-  if (!settings_.local_contact) throw Error("simulation: no local contact settings");
-  if (q < 0 || q >= num_probes()) throw Error("simulation: no probe " + std::to_string(q));
-  const LocalContactSettings& lc = *settings_.local_contact;
-  const LocalAnchor& a = local_anchor_[std::size_t(q)];
-  const ProbeGeometry& g = geometry_[std::size_t(q)];
-  const Eigen::Vector3d anchor = a.started ? a.pose : poses_[std::size_t(q)].position_mm;
-  const double margin = lc.margin_mm > 0 ? lc.margin_mm : contact_.skin_mm();
-  const Eigen::Matrix3Xd& x = state_.positions;
-  // the candidates: the nodes the tool pushes (mean force > 0), then the nodes near it
-  local_candidates_.clear();
-  for (const std::int32_t n : a.nodes) {
-    const Eigen::Vector3d& f = a.node_force[std::size_t(n)];
-    const double len = f.norm();
-    local_candidates_.push_back({n, len, 0.0, f / len});
-  }
-  Eigen::Vector3d point, normal;
-  for (const std::int32_t n : contact_.nodes()) {
-    if (a.listed[std::size_t(n)]) continue;
-    const double d = probe_signed_distance(g, anchor, x.col(n), &point, &normal);
-    if (d < margin) local_candidates_.push_back({n, 0.0, std::max(0.0, d), normal});
-  }
-  // too many: the largest forces, then the smallest gaps
-  if (int(local_candidates_.size()) > lc.max_nodes) {
-    std::stable_sort(local_candidates_.begin(), local_candidates_.end(),
-                     [](const LocalCandidate& l, const LocalCandidate& r) {
-                       return l.force_n != r.force_n ? l.force_n > r.force_n : l.gap_mm < r.gap_mm;
-                     });
-    local_candidates_.resize(std::size_t(lc.max_nodes));
-  }
-  const int mc = int(local_candidates_.size());
-  m.resize(mc);
-  Eigen::Vector3d force = Eigen::Vector3d::Zero();
-  for (int k = 0; k < mc; ++k) {
-    const LocalCandidate& c = local_candidates_[std::size_t(k)];
-    m.node[std::size_t(k)] = c.node;
-    m.point_mm.col(k) = x.col(c.node);
-    m.normal.col(k) = c.normal;
-    m.force_n[k] = c.force_n;
-    m.gap_mm[k] = c.gap_mm;
-    force -= c.force_n * c.normal;
-  }
-  // the compliance between them
-  m.source = ComplianceSource::none;
-  if (mc > 0) {
-    if (use_integrator_compliance() && integrator_->contact_compliance(state_, m.node, local_g_)) {
-      m.source = ComplianceSource::integrator;
-    } else {
-      if (!patch_.ready()) patch_.init(physics_, state_.node_fixed, lc.horizon_s);
-      const double radius = lc.patch_radius_mm > 0
-                                ? lc.patch_radius_mm
-                                : std::max(g.shape == ProbeShape::plane ? 0.0 : 6.0 * g.radius_mm,
-                                           12.0 * surface_node_spacing_mm(*physics_->model));
-      if (!patch_.compute(m.node, radius, local_g_))
-        throw Error("simulation: the local contact compliance could not be computed (a patch of " +
-                    std::to_string(radius) + " mm around the contact)");
-      m.source = ComplianceSource::patch;
-    }
-    const double scale = local_compliance_scale();
-    for (int i = 0; i < mc; ++i)
-      for (int j = 0; j < mc; ++j) m.compliance(i, j) = scale * m.normal.col(i).dot(m.normal.col(j)) * local_g_(i, j);
-  }
-  m.valid = true;
-  m.step = state_.steps;
-  m.time_s = state_.time_s;
-  m.anchor_mm = anchor;
-  m.anchor_force_n = force;
-  m.tool = g;
-}
-
-void Simulation::publish_local_contact() {
-  if (!settings_.local_contact) return;
-  ++local_updates_;
-  for (int q = 0; q < num_probes(); ++q) {
-    LocalContactModel& m = local_out_[std::size_t(q)]->write_buffer();
-    build_local_contact(q, m);
-    m.update = local_updates_;
-    local_out_[std::size_t(q)]->publish();
-  }
-}
-
-const LocalContactModel* Simulation::take_local_contact(int i) {
-  if (!settings_.local_contact || i < 0 || i >= int(local_out_.size())) return nullptr;
-  TripleBuffer<LocalContactModel>& b = *local_out_[std::size_t(i)];
-  return b.fetch() ? &b.read_buffer() : nullptr;
 }
 
 int Simulation::advance_to(double target_time_s, int max_steps) {

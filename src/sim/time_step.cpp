@@ -64,7 +64,7 @@ double stable_time_step(const PhysicsModel& physics, IntegratorKind kind) {
 double automatic_time_step(const TimeStepEstimate& estimate, IntegratorKind kind) {
   // implicit: the fast configuration's step (the tool's motion sets it, not the element period;
   // a tenth of the shortest element period, the former rule, was 0.1 ms on a 16 mm cube)
-  if (kind == IntegratorKind::implicit) return FastConfiguration::time_step_s;
+  if (kind == IntegratorKind::implicit) return kImplicitAutomaticTimeStepS;
   return 0.5 * estimate.limit(kind);
 }
 

@@ -36,39 +36,11 @@ struct TimeStepEstimate {
 /// The estimate for one integrator: estimate_time_steps(physics).limit(kind).
 [[nodiscard]] double stable_time_step(const PhysicsModel& physics, IntegratorKind kind);
 
-
-/// The fast configuration for real-time palpation (docs/bench.md, "Palpation at organ size"):
-/// the implicit integrator (backward Euler by projective dynamics, contact inside its solve) at
-/// a 20 ms step with one local/global iteration per step, each step starting from the last
-/// (x_n + dt v_n, the last rotations and contact set). A slow press is quasi-static: the
-/// tissue's waves (h/c = 0.3 ms at 1 mm and 10 kPa) play no part in the force a hand feels at a
-/// few mm/s, so the step is set by the tool's motion and the device's update rate, not by the
-/// element's period. Measured on the press-and-slide of docs/bench.md: 3 % RMS force error
-/// against symplectic Euler at its stable step on the 64 sphere.
-struct FastConfiguration {
-  static constexpr IntegratorKind kind = IntegratorKind::implicit;
-  static constexpr double time_step_s = 0.02;
-  static constexpr int iterations = 1;
-  /// Large models (large_model_nodes nodes or more): 30 ms steps with regional solves within
-  /// 30 mm of a tool. Measured (docs/bench.md): the 128 sphere (60,580 nodes) 1.05x real time on
-  /// one thread, 1.22x on two, at 3.8 % RMS force error, against 0.27-0.32x at 1.8 % for 20 ms
-  /// steps without a region.
-  static constexpr int large_model_nodes = 20000;
-  static constexpr double large_model_time_step_s = 0.03;
-  static constexpr double large_model_region_radius_mm = 30.0;
-  [[nodiscard]] static constexpr bool large(int nodes) { return nodes >= large_model_nodes; }
-  /// The step of a model with `nodes` nodes: 30 ms for a large model, 20 ms otherwise.
-  [[nodiscard]] static constexpr double time_step_for(int nodes) {
-    return large(nodes) ? large_model_time_step_s : time_step_s;
-  }
-  /// Regional solves within this radius of a tool (mm) for a large model; 0 (none) otherwise.
-  [[nodiscard]] static constexpr double region_radius_for(int nodes) {
-    return large(nodes) ? large_model_region_radius_mm : 0.0;
-  }
-  /// The device's force update interval that goes with the step: two steps (a half sine spans
-  /// at least two).
-  [[nodiscard]] static constexpr double device_update_interval_for(int nodes) { return 2.0 * time_step_for(nodes); }
-};
+/// The implicit integrator's automatic step, s: the fast configuration's (pipeline/scene/
+/// fast_configuration.h, docs/bench.md "Palpation at organ size"). A slow press is
+/// quasi-static: the tool's motion and the device's update rate set the step, not the element's
+/// period.
+inline constexpr double kImplicitAutomaticTimeStepS = 0.02;
 
 /// The automatic step ("dt_s": "auto") of `kind`: half the stable estimate for the explicit
 /// integrators (the estimate is close to the real limit: a block blew up at 1.3x within 40

@@ -1,6 +1,6 @@
 // The probe app's force output backends and timing scaffolding: the CSV recorder, rumble
 // through an SDL virtual joystick's Rumble callback, the haptic effect parameters, the
-// fixed-rate thread, the rate meter and the triple buffer.
+// fixed-rate thread and the rate meter (the triple buffer: tests/core/base/triple_buffer_test.cpp).
 #include <gtest/gtest.h>
 
 #include <atomic>
@@ -180,39 +180,4 @@ TEST(RateMeter, MeasuresOverItsWindow) {
   m.sample(1000, t0 + std::chrono::seconds(1));
   EXPECT_TRUE(m.valid());
   EXPECT_NEAR(m.rate(), 1000.0, 1e-6);
-}
-
-TEST(TripleBuffer, NewestValueWinsAndNobodyWaits) {
-  TripleBuffer<int> b;
-  b.fill(0);
-  EXPECT_FALSE(b.fetch());
-  b.write_buffer() = 1;
-  b.publish();
-  b.write_buffer() = 2;
-  b.publish();
-  EXPECT_TRUE(b.fetch());
-  EXPECT_EQ(b.read_buffer(), 2);
-  EXPECT_FALSE(b.fetch());
-  EXPECT_EQ(b.read_buffer(), 2);
-  // a producer and a consumer hammering it: values only grow
-  std::atomic<bool> done{false};
-  std::thread producer([&] {
-    for (int i = 3; i < 200000; ++i) {
-      b.write_buffer() = i;
-      b.publish();
-    }
-    done = true;
-  });
-  int last = 2;
-  bool ordered = true;
-  while (!done) {
-    if (b.fetch()) {
-      ordered = ordered && b.read_buffer() > last;
-      last = b.read_buffer();
-    }
-  }
-  producer.join();
-  b.fetch();
-  EXPECT_TRUE(ordered);
-  EXPECT_EQ(b.read_buffer(), 199999);
 }

@@ -1,5 +1,5 @@
 // The layers and their folders. Data flows one way: apps -> evaluation -> pipeline -> core, and
-// inside the core base -> model -> physics -> sim (surface beside physics). Includes name the
+// inside the core base -> model -> physics -> sim -> haptics (surface beside physics). Includes name the
 // folder ("sim/state.h"), so a reader knows from the line where a header lives; this test reads
 // every source file and forbids every include that runs back up:
 // - the core (src/) includes Eigen and the standard library only (and, in sim/sparse_factor.cpp,
@@ -45,7 +45,7 @@ std::vector<std::pair<int, std::string>> includes_of(const fs::path& file) {
 const std::regex kThirdPartyOutsideCore(
     R"(^(vtk|Vtk|QVTK|SDL|SDL2/|dcmtk/|dcm|ofstd|nlohmann/|fmt/|spdlog/|CLI/|gtest/|benchmark/))");
 
-const std::set<std::string> kCoreStages{"base", "model", "physics", "sim", "surface"};
+const std::set<std::string> kCoreStages{"base", "model", "physics", "sim", "haptics", "surface"};
 const std::set<std::string> kPipelineStages{"util", "io", "convert", "scene", "render"};
 const std::set<std::string> kEvaluationStages{"verify", "bench"};
 
@@ -56,6 +56,7 @@ const std::map<std::string, std::set<std::string>> kCoreAllowed{
     {"physics", {"base", "model", "physics"}},
     {"surface", {"base", "model", "surface"}},
     {"sim", {"base", "model", "physics", "sim", "surface"}},
+    {"haptics", {"base", "model", "physics", "sim", "surface", "haptics"}},
 };
 
 std::string first_folder(const std::string& header) {
@@ -114,9 +115,10 @@ const std::map<std::string, std::vector<std::string>> kRoomOrder{
       "elements physics_model element_batches"}},
     {"src/surface", {"surface", "slice_surface"}},
     {"src/sim",
-     {"integrator_kind", "time_step", "state", "step_report", "contact_constraint", "sparse_factor",
-      "contact_active_set", "local_compliance", "projective_solver", "region_stiffening", "static_solver",
-      "integrators", "contact", "probe", "device_force", "local_contact", "simulation"}},
+     {"integrator_kind", "time_step", "state", "step_report", "contact_constraint",
+      "sparse_factor sparse_factor_solve sparse_factor_file", "contact_active_set", "projective_solver",
+      "region_stiffening", "static_solver", "integrators", "probe", "contact", "simulation"}},
+    {"src/haptics", {"device_force", "local_compliance", "local_contact", "device_side"}},
     {"pipeline/util", {"thread_priority", "exit_codes", "text", "log", "progress", "atomic_file", "vtk_messages"}},
     {"pipeline/io",
      {"read_options", "volume", "compression", "jpeg2000", "dicom_common", "dicom_series_parts", "dicom_header",
@@ -124,7 +126,7 @@ const std::map<std::string, std::vector<std::string>> kRoomOrder{
       "element_faces", "vtk_arrays", "vti_io", "metaimage_io", "nifti_io", "nrrd_io", "raw_io", "volume_io",
       "segmentation_io", "model_io", "surface_io", "factor_cache"}},
     {"pipeline/convert", {"threshold", "stats", "phantom", "iso_surface", "decimate_surface", "prepare"}},
-    {"pipeline/scene", {"strict_json", "sim_output", "scene", "run_outputs", "material_field", "prepare_scene", "palpation_map", "palpation_map_output"}},
+    {"pipeline/scene", {"strict_json", "fast_configuration", "sim_output", "scene", "run_outputs", "material_field", "prepare_scene", "palpation_map", "palpation_map_output"}},
     {"pipeline/render", {"palette", "plot", "render"}},
     {"evaluation/verify",
      {"case_helpers", "surface_accuracy", "verify", "cases", "statics_cases", "dynamics_cases", "geometry_cases",

@@ -282,9 +282,10 @@ namespace {
 /// it at the end, with regional solves of `radius_mm` (0: none).
 double pressed_force(const std::shared_ptr<const PhysicsModel>& p, double radius_mm, std::int64_t* region_nodes) {
   SimulationSettings ss;
-  ss.integrator.kind = FastConfiguration::kind;
-  ss.integrator.time_step_s = FastConfiguration::time_step_s;
-  ss.integrator.max_iterations = FastConfiguration::iterations;
+  // the fast configuration's (pipeline/scene/fast_configuration.h): implicit, 20 ms, one iteration
+  ss.integrator.kind = IntegratorKind::implicit;
+  ss.integrator.time_step_s = kImplicitAutomaticTimeStepS;
+  ss.integrator.max_iterations = 1;
   ss.integrator.region_radius_mm = radius_mm;
   ss.integrator.threads = 1;
   ss.fixed_nodes = bottom_cap(*p->model, 3.0);

@@ -1,6 +1,7 @@
 // The simulation loop against analytic solutions: Hertz indentation, plate compression, a tap
-// (impulse = momentum), a rebound from a wall, a two-probe grasp under gravity; the device force
-// inside a run; skipping changes no result; the live API across threads.
+// (impulse = momentum), a rebound from a wall, a two-probe grasp under gravity; skipping changes
+// no result; the live API across threads (the device force and the local
+// contact models: tests/core/haptics/device_side_test.cpp).
 #include "sim/simulation.h"
 
 #include <gtest/gtest.h>
@@ -14,49 +15,12 @@
 
 #include "base/error.h"
 #include "model/gradational_builder.h"
+#include "support/sim_helpers.h"
 
 using namespace vx;
+using namespace vx::testing;
 
 namespace {
-
-/// An all-tissue block of nx x ny x nz voxels of 1 mm spanning [0, n] mm on each axis.
-std::shared_ptr<const Model> block_model(int nx, int ny, int nz, Layout r = Layout::gradational) {
-  GridGeometry g;
-  g.dims = {nx, ny, nz};
-  g.origin_mm = {0.5, 0.5, 0.5};
-  VoxelGrid grid(g);
-  for (auto& v : grid.data()) v = 1;
-  BuildSettings b;
-  b.layout = r;
-  return std::make_shared<const Model>(build_model(grid, b));
-}
-
-std::shared_ptr<const PhysicsModel> physics_of(std::shared_ptr<const Model> m, double e_kpa, double damping = 0.1) {
-  Material mat;
-  mat.youngs_modulus_kpa = e_kpa;
-  mat.density_kg_m3 = 1000;
-  mat.damping_ratio = damping;
-  mat.poisson_ratio = 0.0;
-  return make_physics_model(std::move(m), mat);
-}
-
-IntegratorSettings symplectic(const PhysicsModel& p, double fraction = 0.5) {
-  IntegratorSettings s;
-  s.kind = IntegratorKind::symplectic_euler;
-  s.time_step_s = fraction * stable_time_step(p, s.kind);
-  s.threads = 1;  // the tests share the machine; SameResultsOnOneAndTwoThreads checks threads
-  return s;
-}
-
-ProbeSettings path_probe(const std::string& name, ProbeShape shape, double radius, std::vector<PathKey> path) {
-  ProbeSettings p;
-  p.name = name;
-  p.geometry.shape = shape;
-  p.geometry.radius_mm = radius;
-  p.drive = ProbeDrive::path;
-  p.path = std::move(path);
-  return p;
-}
 
 Eigen::Vector3d centre_of_mass(const Simulation& sim) {
   const auto& m = sim.physics().node_mass_kg;
@@ -347,41 +311,10 @@ TEST(Simulation, TwoProbesGraspAndLiftABlock) {
   EXPECT_GT(slips.floor_n, 0.5 * slips.weight_n);
 }
 
-// The device force inside a run: zero at every device update, its mean follows the raw mean.
-TEST(Simulation, DeviceForceZeroAtUpdatesMeanFollowsRaw) {
-  auto phys = physics_of(block_model(20, 20, 10), 10.0);
-  SimulationSettings s;
-  s.integrator = symplectic(*phys);
-  s.fixed_nodes = nodes_on_face(*phys->model, BoxFace::z_min);
-  s.probes = {path_probe("ball", ProbeShape::sphere, 5.0, {{0.0, {10, 10, 15.2}}, {0.2, {10, 10, 13.5}}, {0.5, {10, 10, 13.5}}})};
-  DeviceForceSettings dev;
-  dev.update_interval_s = 0.01;
-  s.device = dev;
-  Simulation sim(phys, s);
-  double raw = 0, shaped = 0;
-  int updates = 0, samples = 0;
-  while (sim.time_s() < 0.5 - 0.5 * sim.dt_s()) {
-    ASSERT_EQ(sim.step(), StepStatus::ok);
-    const ProbeOutput& o = sim.probe(0);
-    if (o.pulse.start_s == o.time_s && sim.time_s() > 0) {
-      EXPECT_EQ(o.shaped_force_n, Eigen::Vector3d::Zero()) << "at t = " << o.time_s;
-      ++updates;
-    }
-    if (sim.time_s() > 0.3) {  // held: compare means
-      raw += o.raw_force_n.z();
-      shaped += o.shaped_force_n.z();
-      ++samples;
-    }
-  }
-  EXPECT_GE(updates, 48);
-  EXPECT_GT(raw / samples, 0.01);
-  EXPECT_NEAR(shaped / raw, 1.0, 0.02);
-  EXPECT_EQ(sim.counters().device_shaping_steps, sim.counters().steps);
-}
-
 namespace {
 
-/// A scene that exercises every optional piece of work: probes near and far, walls, a device.
+/// A scene that exercises every optional piece of work: probes near and far, walls (the device
+/// side's share: tests/core/haptics/device_side_test.cpp).
 SimulationSettings busy_scene(const PhysicsModel& phys, bool skip) {
   SimulationSettings s;
   s.integrator = symplectic(phys);
@@ -394,8 +327,6 @@ SimulationSettings busy_scene(const PhysicsModel& phys, bool skip) {
   ProbeSettings cap = path_probe("rod", ProbeShape::capsule, 2.0, {{0.0, {6, 6, 14}}, {0.05, {6, 6, 10.5}}});
   cap.geometry.length_mm = 20;
   s.probes = {cap, path_probe("far", ProbeShape::sphere, 2.0, {{0.0, {40, 40, 40}}})};
-  s.device = DeviceForceSettings{};
-  s.device->update_interval_s = 0.005;
   s.skip_unneeded = skip;
   return s;
 }
@@ -411,7 +342,6 @@ TEST(Simulation, SkippingChangesNoResult) {
     ASSERT_EQ(full.step(), StepStatus::ok);
     for (int p = 0; p < 2; ++p) {
       ASSERT_EQ(lean.probe(p).raw_force_n, full.probe(p).raw_force_n) << "step " << k;
-      ASSERT_EQ(lean.probe(p).shaped_force_n, full.probe(p).shaped_force_n) << "step " << k;
     }
     ASSERT_EQ(lean.wall_force_n(), full.wall_force_n());
   }
@@ -467,8 +397,6 @@ TEST(Simulation, LiveProbeAcrossThreads) {
   live.start_mm = {6, 6, 9.5};
   live.max_speed_mm_s = 50;
   s.probes = {live};
-  s.device = DeviceForceSettings{};
-  s.device->update_interval_s = 0.004;
   Simulation sim(phys, s);
   EXPECT_THROW(sim.set_live(3, {}), Error);
 
@@ -500,100 +428,4 @@ TEST(Simulation, LiveProbeAcrossThreads) {
   SimulationFrame frame;
   EXPECT_TRUE(sim.take_frame(frame) || sim.counters().frames_published > 0);
   EXPECT_GT(sim.counters().frames_published, 0);
-}
-
-// The probe app's hand-over: a physics thread steps and publishes a model per update while a
-// device thread takes them (sim/simulation.h, "any thread"). Every model the device sees is
-// whole (valid, one update's anchor force exactly, the newest: updates only go up) and the last
-// one published reaches it. scripts/tsan.sh runs this under ThreadSanitizer.
-TEST(Simulation, LocalContactModelsAcrossThreads) {
-  auto phys = physics_of(block_model(16, 16, 8), 5.0);
-  const double tp = 1.0 / 60.0;
-  SimulationSettings s;
-  s.integrator.kind = IntegratorKind::implicit;
-  s.integrator.time_step_s = tp;
-  s.integrator.threads = 1;
-  s.fixed_nodes = nodes_on_face(*phys->model, BoxFace::z_min);
-  ProbeSettings probe;
-  probe.name = "tool";
-  probe.geometry.radius_mm = 4;
-  probe.drive = ProbeDrive::live;
-  probe.start_mm = {8, 8, 12.3};
-  probe.max_speed_mm_s = 500;
-  s.probes = {probe};
-  s.local_contact = LocalContactSettings{};
-  s.local_contact->update_period_s = tp;
-  Simulation sim(phys, s);
-  constexpr int kUpdates = 40;
-  // physics thread: press 2 mm over the updates; what each update published, by update number
-  std::vector<Eigen::Vector3d> published(kUpdates + 1, Eigen::Vector3d::Zero());
-  std::vector<int> published_size(kUpdates + 1, 0);
-  std::atomic<bool> done{false};
-  std::thread physics([&] {
-    const Eigen::Vector3d from = sim.probe(0).pose.position_mm, to(8, 8, 10.0);
-    for (int k = 1; k <= kUpdates; ++k) {
-      sim.set_live(0, {LiveCommand::Kind::position, from + (to - from) * (double(k) / kUpdates)});
-      if (sim.step() != StepStatus::ok) break;
-      sim.publish_local_contact();
-      LocalContactModel check;
-      sim.build_local_contact(0, check);
-      published[std::size_t(k)] = check.anchor_force_n;
-      published_size[std::size_t(k)] = check.size();
-      std::this_thread::sleep_for(std::chrono::microseconds(200));  // let the device thread interleave
-    }
-    done.store(true, std::memory_order_release);
-  });
-  // device thread (this one): take what is new, solve at the anchor
-  struct Seen {
-    std::int64_t update;
-    bool valid;
-    Eigen::Vector3d anchor_force_n, solved_n;
-    int size;
-  };
-  std::vector<Seen> seen;
-  seen.reserve(kUpdates + 1);
-  LocalContactSolver solver;
-  const auto take = [&] {
-    const LocalContactModel* m = sim.take_local_contact(0);
-    if (!m) return;
-    EXPECT_EQ(m->validate(), "") << "update " << m->update;
-    Eigen::Vector3d solved = Eigen::Vector3d::Zero();
-    if (m->valid && solver.set(*m, 0.0)) solved = solver.solve(m->anchor_mm).force_n;
-    seen.push_back({m->update, m->valid, m->anchor_force_n, solved, m->size()});
-  };
-  while (!done.load(std::memory_order_acquire)) {
-    take();
-    std::this_thread::yield();
-  }
-  physics.join();
-  take();
-  ASSERT_EQ(sim.local_contact_updates(), kUpdates);
-  ASSERT_FALSE(seen.empty());
-  EXPECT_EQ(seen.back().update, kUpdates);  // the newest reached the device
-  std::int64_t last = -1;
-  int in_contact = 0;
-  for (const Seen& x : seen) {
-    ASSERT_GT(x.update, last);  // never an older model after a newer one
-    // the construction's "no model yet" (Simulation::reset), when taken before update 1
-    if (x.update == 0) {
-      EXPECT_FALSE(x.valid);
-      EXPECT_EQ(x.size, 0);
-      last = 0;
-      continue;
-    }
-    EXPECT_TRUE(x.valid) << "update " << x.update;
-    ASSERT_LE(x.update, kUpdates);
-    last = x.update;
-    EXPECT_EQ(x.anchor_force_n, published[std::size_t(x.update)]) << "update " << x.update;
-    EXPECT_EQ(x.size, published_size[std::size_t(x.update)]) << "update " << x.update;
-    if (x.anchor_force_n.norm() > 0) {
-      ++in_contact;
-      EXPECT_LT((x.solved_n - x.anchor_force_n).norm(), 1e-9 * x.anchor_force_n.norm() + 1e-12)
-          << "update " << x.update;
-    }
-  }
-  EXPECT_GT(published[kUpdates].z(), 0.0);  // the tool pressed (force on the tool upwards)
-  EXPECT_GT(in_contact, 0);
-  std::printf("%zu of %d updates taken by the device thread, %d in contact; last force %.4f N\n", seen.size(), kUpdates,
-              in_contact, published[kUpdates].z());
 }

@@ -18,6 +18,7 @@
 
 #include "base/error.h"
 #include "convert/phantom.h"
+#include "scene/fast_configuration.h"
 #include "scene/scene.h"
 #include "support/png_stats.h"
 
@@ -412,14 +413,14 @@ TEST(BenchRun, ReportIsWrittenAllOrNothing) {
 }
 
 TEST(ScaleBench, ImplicitReferenceAndTheLargeModelConfiguration) {
-  // the standard suite holds the fast configuration of large models (time_step.h); the implicit
+  // the standard suite holds the fast configuration of large models (scene/fast_configuration.h); the implicit
   // reference replaces symplectic Euler where that would take an hour
   ScaleBenchSettings s = ScaleBenchSettings::standard();
   const auto large = std::find_if(s.configs.begin(), s.configs.end(),
                                   [](const ScaleConfig& c) { return c.name.find("larger models") != std::string::npos; });
   ASSERT_NE(large, s.configs.end());
-  EXPECT_DOUBLE_EQ(large->time_step_s, FastConfiguration::large_model_time_step_s);
-  EXPECT_DOUBLE_EQ(large->region_radius_mm, FastConfiguration::large_model_region_radius_mm);
+  EXPECT_DOUBLE_EQ(large->time_step_s, default_fast_configuration().large_model_time_step_s);
+  EXPECT_DOUBLE_EQ(large->region_radius_mm, default_fast_configuration().large_model_region_radius_mm);
   s.use_implicit_reference();
   const auto ref = std::find_if(s.configs.begin(), s.configs.end(), [](const ScaleConfig& c) { return c.reference; });
   ASSERT_NE(ref, s.configs.end());

@@ -39,12 +39,13 @@ TEST(RunOutputs, WritesWhatTheSceneAsksForAndSummarisesTheRun) {
   const Scene scene = indent_scene();
   const PreparedScene prepared = prepare_scene(scene);
   Simulation sim(prepared.physics, prepared.settings);
+  const DeviceSide device(sim, prepared.device_side);
   const fs::path dir = fs::temp_directory_path() / ("vx_run_outputs_test_" + std::to_string(::getpid()));
   fs::remove_all(dir);
   fs::create_directories(dir);
   const std::int64_t steps = std::int64_t(std::ceil(scene.duration_s / sim.dt_s() - 1e-9));
   ASSERT_EQ(steps, 250);
-  RunOutputs outputs(sim, prepared, scene.outputs, dir, steps);
+  RunOutputs outputs(sim, device, prepared, scene.outputs, dir, steps);
   EXPECT_EQ(outputs.frames(), 1);  // the start
   for (std::int64_t k = 1; k <= steps; ++k) {
     ASSERT_EQ(sim.step(), StepStatus::ok);
@@ -99,10 +100,11 @@ TEST(RunOutputs, TheSummaryGivesTheRegionalSolvesEstimatedError) {
   const PreparedScene prepared = prepare_scene(scene);
   ASSERT_TRUE(prepared.region_stiffening.has_value());
   Simulation sim(prepared.physics, prepared.settings);
+  const DeviceSide device(sim, prepared.device_side);
   const fs::path dir = fs::temp_directory_path() / ("vx_run_outputs_region_" + std::to_string(::getpid()));
   fs::remove_all(dir);
   fs::create_directories(dir);
-  RunOutputs outputs(sim, prepared, scene.outputs, dir, 1);
+  RunOutputs outputs(sim, device, prepared, scene.outputs, dir, 1);
   ASSERT_EQ(sim.step(), StepStatus::ok);
   outputs.after_step(sim, 1);
   outputs.finish(sim);

@@ -23,6 +23,7 @@
 #include <sstream>
 
 #include "base/error.h"
+#include "scene/fast_configuration.h"
 #include "scene/run_outputs.h"
 #include "scene/sim_output.h"
 #include "support/png_stats.h"
@@ -567,7 +568,8 @@ TEST(SimOutput, ForcesCsvPvdAndSkippingThroughAScene) {
   full_opt.skip_unneeded = false;
   const PreparedScene lean_p = prepare_scene(s, lean_opt), full_p = prepare_scene(s, full_opt);
   Simulation lean(lean_p.physics, lean_p.settings), full(full_p.physics, full_p.settings);
-  ForceRecorder rec(lean, 0.002);
+  const DeviceSide lean_device(lean, lean_p.device_side), full_device(full, full_p.device_side);
+  ForceRecorder rec(lean, &lean_device, 0.002);
   const fs::path dir = temp_dir("out");
   PvdSeries series(dir, "model", "vtu"), surf(dir, "surface", "vtp");
   ModelFrameWriter mw(*lean_p.model);
@@ -576,7 +578,7 @@ TEST(SimOutput, ForcesCsvPvdAndSkippingThroughAScene) {
     ASSERT_EQ(lean.step(), StepStatus::ok);
     ASSERT_EQ(full.step(), StepStatus::ok);
     ASSERT_EQ(lean.probe(0).raw_force_n, full.probe(0).raw_force_n);
-    ASSERT_EQ(lean.probe(0).shaped_force_n, full.probe(0).shaped_force_n);
+    ASSERT_EQ(lean_device.output(0).shaped_force_n, full_device.output(0).shaped_force_n);
     rec.record(lean);
   }
   rec.finish(lean);
@@ -760,10 +762,12 @@ TEST(Scene, WithoutAnIntegratorKeyTheFastConfigurationRuns) {
   nlohmann::json j = base_scene();
   j.erase("integrator");
   PreparedScene p = prepare_scene(parse_scene(j, ".", "t"));
+  const FastConfiguration fast = default_fast_configuration();
   EXPECT_EQ(p.settings.integrator.kind, IntegratorKind::implicit);
-  EXPECT_EQ(p.settings.integrator.max_iterations, FastConfiguration::iterations);
+  EXPECT_EQ(p.settings.integrator.max_iterations, fast.iterations);
+  EXPECT_EQ(fast.iterations, 1);
   EXPECT_GT(p.settings.integrator.time_step_s, 0.0);
-  EXPECT_LE(p.settings.integrator.time_step_s, FastConfiguration::time_step_s);
+  EXPECT_LE(p.settings.integrator.time_step_s, fast.time_step_s);
   for (const auto& probe : p.settings.probes)
     EXPECT_LE(probe.max_scripted_speed_mm_s() * p.settings.integrator.time_step_s, 0.25 * probe.geometry.radius_mm + 1e-12);
   j["contact"] = {{"friction", 0.5}};
@@ -818,7 +822,7 @@ TEST(Scene, LatticeOriginKey) {
 }
 
 TEST(Scene, LargeModelsGetRegionalSolvesAtLongerSteps) {
-  // time_step.h FastConfiguration: 20,000 nodes or more and no integrator key: 30 ms steps
+  // the fast configuration (scene/fast_configuration.h): 20,000 nodes or more and no integrator key: 30 ms steps
   // (capped by the probe's speed as any automatic step) with regional solves within 30 mm
   json j = base_scene();
   j.erase("integrator");
@@ -827,20 +831,24 @@ TEST(Scene, LargeModelsGetRegionalSolvesAtLongerSteps) {
   j["probes"][0]["path"] = json::array({{{"t_s", 0}, {"position_mm", {0, 0, 45}}}, {{"t_s", 1}, {"position_mm", {0, 0, 40}}}});
   j["duration_s"] = 1.0;
   const PreparedScene p = prepare_scene(parse_scene(j, ".", "t"));
-  ASSERT_GE(p.model->num_nodes(), FastConfiguration::large_model_nodes);
+  const FastConfiguration fast = default_fast_configuration();
+  EXPECT_EQ(fast.large_model_nodes, 20000);
+  ASSERT_GE(p.model->num_nodes(), fast.large_model_nodes);
   EXPECT_EQ(p.settings.integrator.kind, IntegratorKind::implicit);
-  EXPECT_DOUBLE_EQ(p.settings.integrator.time_step_s, FastConfiguration::large_model_time_step_s);
-  EXPECT_DOUBLE_EQ(p.settings.integrator.region_radius_mm, FastConfiguration::large_model_region_radius_mm);
+  EXPECT_DOUBLE_EQ(p.settings.integrator.time_step_s, fast.large_model_time_step_s);
+  EXPECT_DOUBLE_EQ(p.settings.integrator.time_step_s, 0.03);
+  EXPECT_DOUBLE_EQ(p.settings.integrator.region_radius_mm, fast.large_model_region_radius_mm);
+  EXPECT_DOUBLE_EQ(p.settings.integrator.region_radius_mm, 30.0);
   // an explicit integrator block keeps its own choices
   j["integrator"] = {{"type", "implicit"}};
   const PreparedScene q = prepare_scene(parse_scene(j, ".", "t"));
   EXPECT_DOUBLE_EQ(q.settings.integrator.region_radius_mm, 0.0);
-  EXPECT_DOUBLE_EQ(q.settings.integrator.time_step_s, FastConfiguration::time_step_s);
+  EXPECT_DOUBLE_EQ(q.settings.integrator.time_step_s, fast.time_step_s);
   // a small model keeps 20 ms and no region
   j = base_scene();
   j.erase("integrator");
   const PreparedScene small = prepare_scene(parse_scene(j, ".", "t"));
-  EXPECT_LT(small.model->num_nodes(), FastConfiguration::large_model_nodes);
+  EXPECT_LT(small.model->num_nodes(), fast.large_model_nodes);
   EXPECT_DOUBLE_EQ(small.settings.integrator.region_radius_mm, 0.0);
 }
 

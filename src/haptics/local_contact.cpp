@@ -1,4 +1,4 @@
-#include "sim/local_contact.h"
+#include "haptics/local_contact.h"
 
 #include <algorithm>
 #include <cmath>

@@ -60,7 +60,7 @@
 #include <string>
 #include <vector>
 
-#include "sim/contact.h"
+#include "sim/probe.h"
 
 namespace vx {
 

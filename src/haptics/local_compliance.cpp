@@ -1,4 +1,4 @@
-#include "sim/local_compliance.h"
+#include "haptics/local_compliance.h"
 
 #include <algorithm>
 #include <cmath>

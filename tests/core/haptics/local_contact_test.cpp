@@ -1,4 +1,4 @@
-// The local contact model (sim/local_contact.h): the LCP solver on hand-made cases, the model a
+// The local contact model (haptics/local_contact.h): the LCP solver on hand-made cases, the model a
 // simulation publishes (its force at the anchor is the physics' force; small tool moves follow the
 // full implicit solution), the patch compliance against the whole model's, and the passivity of
 // the rendered force in a closed loop with the physics at 60 Hz and the device at 1 kHz and 250 Hz.
@@ -7,11 +7,13 @@
 #include <cmath>
 #include <cstdio>
 #include <Eigen/Eigenvalues>
+#include <optional>
 #include <random>
 
+#include "haptics/device_side.h"
+#include "haptics/local_compliance.h"
+#include "haptics/local_contact.h"
 #include "model/gradational_builder.h"
-#include "sim/local_compliance.h"
-#include "sim/local_contact.h"
 #include "sim/simulation.h"
 #include "support/allocation_counter.h"
 
@@ -279,8 +281,22 @@ std::shared_ptr<const PhysicsModel> block(double lesion_kpa = 0.0, double tissue
 
 constexpr double kR = 4.0, kTop = 8.0;
 
-SimulationSettings scene(const PhysicsModel& p, IntegratorKind kind, double dt) {
-  SimulationSettings s;
+/// A simulation's settings and its local contact models'.
+struct RigSettings : SimulationSettings {
+  std::optional<LocalContactSettings> local_contact;
+};
+
+/// A simulation with its device side building the local contact models.
+struct Rig : Simulation {
+  Rig(std::shared_ptr<const PhysicsModel> p, const RigSettings& s)
+      : Simulation(std::move(p), s), side(*this, DeviceSideSettings{std::nullopt, s.local_contact}) {}
+  void build_local_contact(int i, LocalContactModel& m) { side.build_local_contact(i, m); }
+  [[nodiscard]] const PatchCompliance& patch_compliance() const { return side.patch_compliance(); }
+  DeviceSide side;
+};
+
+RigSettings scene(const PhysicsModel& p, IntegratorKind kind, double dt) {
+  RigSettings s;
   s.integrator.kind = kind;
   s.integrator.time_step_s = dt;
   s.integrator.threads = 1;
@@ -323,10 +339,10 @@ Eigen::Vector3d tool_at(double depth, double x = 8.0) { return {x, 8.0, kTop + k
 TEST(LocalContactModel, ImplicitModelIsTheStepAtTheAnchorAndFollowsSmallMoves) {
   const auto phys = block();
   for (const int iterations : {1, 10}) {
-    SimulationSettings s = scene(*phys, IntegratorKind::implicit, 2e-3);
+    RigSettings s = scene(*phys, IntegratorKind::implicit, 2e-3);
     s.integrator.max_iterations = iterations;
     s.local_contact->update_period_s = 2e-3;  // one step per update: the integrator's factor
-    Simulation a(phys, s);
+    Rig a(phys, s);
     move_tool(a, tool_at(1.5), 0.15);
     move_tool(a, tool_at(1.5), 0.05);  // settle
     LocalContactModel model;
@@ -348,7 +364,7 @@ TEST(LocalContactModel, ImplicitModelIsTheStepAtTheAnchorAndFollowsSmallMoves) {
     // the same step again from the same state, with the tool moved by d: the full solution
     for (const Eigen::Vector3d& d : {Eigen::Vector3d(0, 0, -0.05), Eigen::Vector3d(0, 0, 0.05),
                                      Eigen::Vector3d(0.1, 0, 0), Eigen::Vector3d(0.05, -0.05, -0.05)}) {
-      Simulation b(phys, s), c(phys, s);
+      Rig b(phys, s), c(phys, s);
       for (Simulation* sim : {&b, &c}) {
         move_tool(*sim, tool_at(1.5), 0.15);
         move_tool(*sim, tool_at(1.5), 0.05 - s.integrator.time_step_s);
@@ -383,20 +399,20 @@ TEST(LocalContactModel, ImplicitModelIsTheStepAtTheAnchorAndFollowsSmallMoves) {
 // T to the last digits; the automatic patch (held beyond 6 tool radii) is a little stiffer.
 TEST(LocalContactModel, PatchComplianceIsTheImplicitFactorOverTheWholeModel) {
   const auto phys = block();
-  SimulationSettings si = scene(*phys, IntegratorKind::implicit, 0.02);
-  Simulation imp(phys, si);
+  RigSettings si = scene(*phys, IntegratorKind::implicit, 0.02);
+  Rig imp(phys, si);
   move_tool(imp, tool_at(1.5), 0.2);
   LocalContactModel ref;
   imp.build_local_contact(0, ref);
   ASSERT_EQ(ref.source, ComplianceSource::integrator);
   ASSERT_GT(ref.size(), 10);
 
-  SimulationSettings sp = si;
+  RigSettings sp = si;
   sp.local_contact->integrator_compliance = false;
   sp.local_contact->horizon_s = 0.02;
   for (const double radius : {1000.0, 0.0, 12.0}) {
     sp.local_contact->patch_radius_mm = radius;
-    Simulation pat(phys, sp);
+    Rig pat(phys, sp);
     move_tool(pat, tool_at(1.5), 0.2);
     LocalContactModel m;
     pat.build_local_contact(0, m);
@@ -422,9 +438,9 @@ TEST(LocalContactModel, PatchComplianceIsTheImplicitFactorOverTheWholeModel) {
 // exponential mean (2 ms), and the model's force at the anchor is the mean of the raw force.
 TEST(LocalContactModel, ExplicitAnchorIsTheMeanForceAtTheMeanToolPosition) {
   const auto phys = block();
-  SimulationSettings s = scene(*phys, IntegratorKind::symplectic_euler, 0.5 * stable_time_step(*phys, IntegratorKind::symplectic_euler));
+  RigSettings s = scene(*phys, IntegratorKind::symplectic_euler, 0.5 * stable_time_step(*phys, IntegratorKind::symplectic_euler));
   s.contact.restitution = 1.0;
-  Simulation sim(phys, s);
+  Rig sim(phys, s);
   const double tau = 0.002, dt = sim.dt_s();
   const double alpha = 1.0 - std::exp(-dt / tau);
   Eigen::Vector3d mean_force = Eigen::Vector3d::Zero(), mean_pose = sim.probe(0).pose.position_mm;
@@ -476,10 +492,10 @@ LoopResult closed_loop(double device_hz, double physics_hz, double lesion_kpa, d
                        bool guard = true, double coupling_n_mm = 0.0, double margin = 1.0, double scale = 1.0) {
   const auto phys = block(lesion_kpa, 20.0);
   const double tp = 1.0 / physics_hz, td = 1.0 / device_hz;
-  SimulationSettings s = scene(*phys, IntegratorKind::implicit, tp);
+  RigSettings s = scene(*phys, IntegratorKind::implicit, tp);
   s.local_contact->update_period_s = tp;
   s.local_contact->compliance_scale = scale;
-  Simulation sim(phys, s);
+  Rig sim(phys, s);
   HapticCouplingSettings hs;
   hs.device_rate_hz = device_hz;
   hs.energy_guard = guard;

@@ -1,4 +1,4 @@
-#include "sim/device_force.h"
+#include "haptics/device_force.h"
 
 #include <algorithm>
 #include <cmath>

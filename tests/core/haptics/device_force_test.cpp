@@ -1,6 +1,6 @@
 // The device force (paper 4.3): mean of the last raw forces at a slow update interval, played as
 // positive half sines that are zero at every update instant.
-#include "sim/device_force.h"
+#include "haptics/device_force.h"
 
 #include <gtest/gtest.h>
 

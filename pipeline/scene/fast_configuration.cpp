@@ -1,0 +1,33 @@
+#include "scene/fast_configuration.h"
+
+#include "sim/time_step.h"
+
+namespace vx {
+
+FastConfiguration default_fast_configuration() {
+  return {.kind = IntegratorKind::implicit,
+          .time_step_s = kImplicitAutomaticTimeStepS,
+          .iterations = 1,
+          .large_model_nodes = 20000,
+          .large_model_time_step_s = 0.03,
+          .large_model_region_radius_mm = 30.0,
+          .device_update_steps = 2.0};
+}
+
+IntegratorSettings FastConfiguration::integrator_for(int nodes) const {
+  IntegratorSettings s;
+  s.kind = kind;
+  s.time_step_s = time_step_for(nodes);
+  s.region_radius_mm = region_radius_for(nodes);
+  s.max_iterations = iterations;
+  s.threads = 1;
+  return s;
+}
+
+DeviceForceSettings FastConfiguration::device_for(int nodes) const {
+  DeviceForceSettings d;
+  d.update_interval_s = device_update_interval_for(nodes);
+  return d;
+}
+
+}  // namespace vx

@@ -1,0 +1,58 @@
+#pragma once
+/// @file fast_configuration.h
+/// The fast configuration for real-time palpation (docs/bench.md, "Palpation at organ size"), as
+/// data: what a scene without an `integrator` key runs (prepare_scene) and what the probe app's
+/// default scene runs (apps/probe/probe_scene.cpp). Start from default_fast_configuration() and
+/// change what you need, as Box2D's b2DefaultBodyDef.
+///
+/// The implicit integrator (backward Euler by projective dynamics, contact inside its solve) at
+/// a 20 ms step with one local/global iteration per step, each step starting from the last
+/// (x_n + dt v_n, the last rotations and contact set). A slow press is quasi-static: the
+/// tissue's waves (h/c = 0.3 ms at 1 mm and 10 kPa) play no part in the force a hand feels at a
+/// few mm/s, so the step is set by the tool's motion and the device's update rate, not by the
+/// element's period. Measured on the press-and-slide of docs/bench.md: 3 % RMS force error
+/// against symplectic Euler at its stable step on the 64 sphere.
+///
+/// Units: s, mm.
+
+#include "haptics/device_force.h"
+#include "sim/integrator_kind.h"
+#include "sim/integrators.h"
+
+namespace vx {
+
+struct FastConfiguration {
+  IntegratorKind kind{IntegratorKind::implicit};
+  double time_step_s{0.0};  ///< the step of a model below large_model_nodes, s
+  int iterations{0};        ///< local/global iterations per step
+  /// Large models (large_model_nodes nodes or more): 30 ms steps with regional solves within
+  /// 30 mm of a tool. Measured (docs/bench.md): the 128 sphere (60,580 nodes) 1.05x real time on
+  /// one thread, 1.22x on two, at 3.8 % RMS force error, against 0.27-0.32x at 1.8 % for 20 ms
+  /// steps without a region.
+  int large_model_nodes{0};
+  double large_model_time_step_s{0.0};
+  double large_model_region_radius_mm{0.0};
+  /// The device's force updates span this many steps (a half sine spans at least two).
+  double device_update_steps{0.0};
+
+  [[nodiscard]] bool large(int nodes) const { return nodes >= large_model_nodes; }
+  /// The step of a model with `nodes` nodes: the large model's for a large model.
+  [[nodiscard]] double time_step_for(int nodes) const { return large(nodes) ? large_model_time_step_s : time_step_s; }
+  /// Regional solves within this radius of a tool (mm) for a large model; 0 (none) otherwise.
+  [[nodiscard]] double region_radius_for(int nodes) const { return large(nodes) ? large_model_region_radius_mm : 0.0; }
+  /// The device's force update interval that goes with the step, s.
+  [[nodiscard]] double device_update_interval_for(int nodes) const {
+    return device_update_steps * time_step_for(nodes);
+  }
+  /// The integrator for a model of `nodes` nodes (kind, step, iterations, region; one thread).
+  [[nodiscard]] IntegratorSettings integrator_for(int nodes) const;
+  /// The device with the paper's half sines for a model of `nodes` nodes.
+  [[nodiscard]] DeviceForceSettings device_for(int nodes) const;
+};
+
+/// The fast configuration's values: implicit, 20 ms steps (kImplicitAutomaticTimeStepS,
+/// sim/time_step.h), one iteration; from 20,000 nodes 30 ms steps with regional solves within
+/// 30 mm of a tool; the device updated every two steps.
+[[nodiscard]] FastConfiguration default_fast_configuration();
+
+}  // namespace vx

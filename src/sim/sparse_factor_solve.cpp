@@ -1,0 +1,387 @@
+#include "sim/sparse_factor.h"
+// The solves with the factor (sparse_factor.h): the simplicial and supernodal sweeps, the
+// regional (partial) solves on an elimination-tree closure, the unit columns' forward halves.
+
+#include <Eigen/Core>
+#include <algorithm>
+#include <cstdint>
+#include <vector>
+
+namespace vx {
+
+void SparseFactor::solve3(const Eigen::MatrixX3d& b, Eigen::MatrixX3d& x) {
+  const int n = size_;
+  double* w = work3_.data();
+  for (int i = 0; i < n; ++i)
+    for (int c = 0; c < 3; ++c) w[3 * perm_[std::size_t(i)] + c] = b(i, c);
+  if (supernodal_) {
+    // keep b and the forward solution for regional solves
+    last_b_.assign(w, w + 3 * std::size_t(n));
+    all_supers_.resize(super_.size() - 1);
+    for (std::size_t q = 0; q < all_supers_.size(); ++q) all_supers_[q] = int(q);
+    forward_supers<3>(w, all_supers_);
+    forward_.assign(w, w + 3 * std::size_t(n));
+    have_forward_ = true;
+    backward_supers<3>(w, all_supers_);
+  } else {
+    solve_in_place<3>(w, 0);
+  }
+  for (int i = 0; i < n; ++i)
+    for (int c = 0; c < 3; ++c) x(i, c) = w[3 * perm_[std::size_t(i)] + c];
+}
+
+void SparseFactor::solve_unit(int i, double* out) {
+  const int n = size_;
+  double* w = work1_.data();
+  std::fill(work1_.begin(), work1_.end(), 0.0);
+  w[perm_[std::size_t(i)]] = 1.0;
+  if (supernodal_)
+    solve_supernodal<1>(w, perm_[std::size_t(i)]);
+  else
+    solve_in_place<1>(w, perm_[std::size_t(i)]);
+  for (int k = 0; k < n; ++k) out[k] = w[perm_[std::size_t(k)]];
+}
+
+template <int K>
+void SparseFactor::solve_in_place(double* w, int first) const {
+  const int n = size_;
+  const std::int64_t* outer = outer_.data();
+  const int* inner = inner_.data();
+  const double* val = values_.data();
+  // forward: L z = w (L strictly lower, unit diagonal)
+  for (int j = first; j < n; ++j) {
+    double wj[K];
+    bool zero = true;
+    for (int c = 0; c < K; ++c) {
+      wj[c] = w[K * j + c];
+      zero = zero && wj[c] == 0.0;
+    }
+    if (zero) continue;  // nothing to carry (sparse right-hand sides)
+    for (std::int64_t p = outer[j]; p < outer[j + 1]; ++p) {
+      double* wi = w + K * std::int64_t(inner[p]);
+      for (int c = 0; c < K; ++c) wi[c] -= val[p] * wj[c];
+    }
+  }
+  // diagonal
+  for (int j = 0; j < n; ++j) {
+    const double inv = inv_d_[std::size_t(j)];
+    for (int c = 0; c < K; ++c) w[K * j + c] *= inv;
+  }
+  // backward: L^T x = z
+  for (int j = n - 1; j >= 0; --j) {
+    double wj[K];
+    for (int c = 0; c < K; ++c) wj[c] = w[K * j + c];
+    for (std::int64_t p = outer[j]; p < outer[j + 1]; ++p) {
+      const double* wi = w + K * std::int64_t(inner[p]);
+      for (int c = 0; c < K; ++c) wj[c] -= val[p] * wi[c];
+    }
+    for (int c = 0; c < K; ++c) w[K * j + c] = wj[c];
+  }
+}
+
+namespace {
+
+/// One supernode of L as the sweeps read it: columns k1 .. k1 + nscol - 1, rows r[0 .. nsrow)
+/// (its own columns first), values x column by column (nsrow each).
+struct Supernode {
+  int k1, nscol, nsrow;
+  const int* r;
+  const double* x;
+};
+
+Supernode supernode(const std::vector<int>& super, const std::vector<std::int64_t>& row_start,
+                    const std::vector<std::int64_t>& value_start, const int* rows, const double* val, int q) {
+  const int k1 = super[std::size_t(q)], nscol = super[std::size_t(q) + 1] - k1;
+  const std::int64_t r0 = row_start[std::size_t(q)];
+  const int nsrow = int(row_start[std::size_t(q) + 1] - r0);
+  return {k1, nscol, nsrow, rows + r0, val + value_start[std::size_t(q)]};
+}
+
+/// The forward sweep L z = w over one supernode (K right-hand sides interleaved in w), each
+/// column streamed once; a column whose value is zero for every right-hand side is skipped.
+template <int K>
+void forward_supernode(double* w, const Supernode& s) {
+  for (int jj = 0; jj < s.nscol; ++jj) {
+    const double* col = s.x + std::int64_t(jj) * s.nsrow;
+    double* wj = w + K * std::int64_t(s.k1 + jj);
+    bool zero = true;
+    for (int c = 0; c < K; ++c) {
+      wj[c] /= col[jj];
+      zero = zero && wj[c] == 0.0;
+    }
+    if (zero) continue;
+    double v[K];
+    for (int c = 0; c < K; ++c) v[c] = wj[c];
+    for (int ii = jj + 1; ii < s.nsrow; ++ii) {
+      double* wi = w + K * std::int64_t(s.r[ii]);
+      const double l = col[ii];
+      for (int c = 0; c < K; ++c) wi[c] -= l * v[c];
+    }
+  }
+}
+
+/// The backward sweep L^T x = z over one supernode, its columns last to first.
+template <int K>
+void backward_supernode(double* w, const Supernode& s) {
+  for (int jj = s.nscol - 1; jj >= 0; --jj) {
+    const double* col = s.x + std::int64_t(jj) * s.nsrow;
+    double acc[K];
+    double* wj = w + K * std::int64_t(s.k1 + jj);
+    for (int c = 0; c < K; ++c) acc[c] = wj[c];
+    for (int ii = jj + 1; ii < s.nsrow; ++ii) {
+      const double* wi = w + K * std::int64_t(s.r[ii]);
+      const double l = col[ii];
+      for (int c = 0; c < K; ++c) acc[c] -= l * wi[c];
+    }
+    for (int c = 0; c < K; ++c) wj[c] = acc[c] / col[jj];
+  }
+}
+
+}  // namespace
+
+template <int K>
+void SparseFactor::solve_supernodal(double* w, int first) const {
+  const int ns = int(super_.size()) - 1;
+  // forward: L z = w, supernode by supernode (columns in order), from the one holding `first`
+  for (int q = first > 0 ? column_super_[std::size_t(first)] : 0; q < ns; ++q)
+    forward_supernode<K>(w, supernode(super_, row_start_, value_start_, rows_.data(), values_.data(), q));
+  // backward: L^T x = z
+  for (int q = ns - 1; q >= 0; --q)
+    backward_supernode<K>(w, supernode(super_, row_start_, value_start_, rows_.data(), values_.data(), q));
+}
+
+template <int K>
+void SparseFactor::forward_supers(double* w, const std::vector<int>& supers) const {
+  for (const int q : supers)
+    forward_supernode<K>(w, supernode(super_, row_start_, value_start_, rows_.data(), values_.data(), q));
+}
+
+template <int K>
+void SparseFactor::backward_supers(double* w, const std::vector<int>& supers) const {
+  for (auto it = supers.rbegin(); it != supers.rend(); ++it)
+    backward_supernode<K>(w, supernode(super_, row_start_, value_start_, rows_.data(), values_.data(), *it));
+}
+
+/// Adds the ancestors of `supers` (marked with a new generation) and sorts: a closed set under
+/// the elimination tree's parent, in ascending (forward) order.
+void SparseFactor::ancestors(std::vector<int>& supers) {
+  if (++generation_ == 0) {
+    std::fill(mark_.begin(), mark_.end(), 0u);
+    generation_ = 1;
+  }
+  const std::size_t given = supers.size();
+  std::vector<int> seeds(supers.begin(), supers.end());
+  supers.clear();
+  for (std::size_t k = 0; k < given; ++k)
+    for (int q = seeds[k]; q >= 0 && mark_[std::size_t(q)] != generation_; q = super_parent_[std::size_t(q)]) {
+      mark_[std::size_t(q)] = generation_;
+      supers.push_back(q);
+    }
+  std::sort(supers.begin(), supers.end());
+}
+
+const std::vector<int>& SparseFactor::set_partial_rows(const std::vector<int>& rows) {
+  closure_supers_.clear();
+  closure_rows_.clear();
+  closure_columns_ = 0;
+  if (!supernodal_) return closure_rows_;
+  for (const int i : rows) closure_supers_.push_back(column_super_[std::size_t(perm_[std::size_t(i)])]);
+  ancestors(closure_supers_);
+  std::vector<int> inverse(static_cast<std::size_t>(size_));
+  for (int i = 0; i < size_; ++i) inverse[std::size_t(perm_[std::size_t(i)])] = i;
+  for (const int q : closure_supers_)
+    for (int j = super_[std::size_t(q)]; j < super_[std::size_t(q) + 1]; ++j)
+      closure_rows_.push_back(inverse[std::size_t(j)]);
+  closure_columns_ = std::int64_t(closure_rows_.size());
+  std::sort(closure_rows_.begin(), closure_rows_.end());
+  return closure_rows_;
+}
+
+int SparseFactor::solve3_partial(const Eigen::MatrixX3d& b, Eigen::MatrixX3d& x) {
+  if (!supernodal_ || !have_forward_ || closure_supers_.empty()) {
+    solve3(b, x);
+    return size_;
+  }
+  const int n = size_;
+  double* w = work3_.data();  // zero outside what a pass touches (restored below)
+  // the rows where b changed, exactly, and their supernodes
+  changed_supers_.clear();
+  int changed = 0;
+  for (int i = 0; i < n; ++i) {
+    const int k = perm_[std::size_t(i)];
+    bool diff = false;
+    for (int c = 0; c < 3; ++c) {
+      const double d = b(i, c) - last_b_[3 * std::size_t(k) + std::size_t(c)];
+      w[3 * k + c] = d;
+      diff = diff || d != 0.0;
+    }
+    if (diff) {
+      ++changed;
+      for (int c = 0; c < 3; ++c) last_b_[3 * std::size_t(k) + std::size_t(c)] = b(i, c);
+      changed_supers_.push_back(column_super_[std::size_t(k)]);
+    }
+  }
+  // forward on the changed rows' ancestors: z += L^-1 P (b - last b)
+  if (!changed_supers_.empty()) {
+    ancestors(changed_supers_);
+    forward_supers<3>(w, changed_supers_);
+    for (const int q : changed_supers_)
+      for (int j = super_[std::size_t(q)]; j < super_[std::size_t(q) + 1]; ++j)
+        for (int c = 0; c < 3; ++c) forward_[3 * std::size_t(j) + std::size_t(c)] += w[3 * j + c];
+  }
+  std::fill(work3_.begin(), work3_.end(), 0.0);
+  // backward on the closure
+  for (const int q : closure_supers_)
+    for (int j = super_[std::size_t(q)]; j < super_[std::size_t(q) + 1]; ++j)
+      for (int c = 0; c < 3; ++c) w[3 * j + c] = forward_[3 * std::size_t(j) + std::size_t(c)];
+  backward_supers<3>(w, closure_supers_);
+  for (const int i : closure_rows_)
+    for (int c = 0; c < 3; ++c) x(i, c) = w[3 * perm_[std::size_t(i)] + c];
+  std::fill(work3_.begin(), work3_.end(), 0.0);
+  return changed;
+}
+
+void SparseFactor::solve_unit_partial(int i, double* out) {
+  if (!supernodal_ || closure_supers_.empty()) return solve_unit(i, out);
+  const int n = size_;
+  double* w = work1_.data();
+  std::fill(work1_.begin(), work1_.end(), 0.0);
+  const int k = perm_[std::size_t(i)];
+  w[k] = 1.0;
+  changed_supers_.assign(1, column_super_[std::size_t(k)]);
+  ancestors(changed_supers_);
+  forward_supers<1>(w, changed_supers_);
+  // backward on the closure only (columns of the closure off the ancestors hold 0: right)
+  for (const int q : changed_supers_)
+    if (!std::binary_search(closure_supers_.begin(), closure_supers_.end(), q))
+      for (int j = super_[std::size_t(q)]; j < super_[std::size_t(q) + 1]; ++j) w[j] = 0.0;
+  backward_supers<1>(w, closure_supers_);
+  std::fill(out, out + n, 0.0);
+  for (const int r : closure_rows_) out[r] = w[perm_[std::size_t(r)]];
+}
+
+void SparseFactor::forward_unit(int i, UnitForward& z) {
+  z.first.clear();
+  z.count.clear();
+  z.offset.clear();
+  z.value.clear();
+  double* w = work1_.data();
+  const int k = perm_[std::size_t(i)];
+  path_.clear();
+  if (supernodal_) {
+    for (int q = column_super_[std::size_t(k)]; q >= 0; q = super_parent_[std::size_t(q)]) path_.push_back(q);
+    std::sort(path_.begin(), path_.end());
+    for (const int q : path_)
+      for (int j = super_[std::size_t(q)]; j < super_[std::size_t(q) + 1]; ++j) w[j] = 0.0;
+    w[k] = 1.0;
+    forward_supers<1>(w, path_);  // writes only the path's columns (a supernode's rows are its ancestors')
+    for (const int q : path_) {
+      const int j0 = super_[std::size_t(q)], nc = super_[std::size_t(q) + 1] - j0;
+      z.first.push_back(j0);
+      z.count.push_back(nc);
+      z.offset.push_back(std::int64_t(z.value.size()));
+      z.value.insert(z.value.end(), w + j0, w + j0 + nc);
+      std::fill(w + j0, w + j0 + nc, 0.0);
+    }
+    return;
+  }
+  // simplicial L D L^T: the path of columns k, parent(k), ... (ascending)
+  for (int j = k; j >= 0; j = parent_[std::size_t(j)]) path_.push_back(j);
+  for (const int j : path_) w[j] = 0.0;
+  w[k] = 1.0;
+  const std::int64_t* outer = outer_.data();
+  const int* inner = inner_.data();
+  const double* val = values_.data();
+  for (const int j : path_) {
+    const double wj = w[j];
+    if (wj == 0.0) continue;
+    for (std::int64_t p = outer[j]; p < outer[j + 1]; ++p) w[inner[p]] -= val[p] * wj;  // rows: j's ancestors
+  }
+  for (const int j : path_) {
+    if (z.first.empty() || z.first.back() + z.count.back() != j) {
+      z.first.push_back(j);
+      z.count.push_back(0);
+      z.offset.push_back(std::int64_t(z.value.size()));
+    }
+    ++z.count.back();
+    z.value.push_back(w[j] * inv_sqrt_d_[std::size_t(j)]);
+    w[j] = 0.0;
+  }
+}
+
+double SparseFactor::dot(const UnitForward& a, const UnitForward& b) {
+  double acc = 0.0;
+  std::size_t i = 0, j = 0;
+  while (i < a.first.size() && j < b.first.size()) {
+    const int a0 = a.first[i], a1 = a0 + a.count[i];
+    const int b0 = b.first[j], b1 = b0 + b.count[j];
+    const int lo = std::max(a0, b0), hi = std::min(a1, b1);
+    if (lo < hi) {
+      const double* x = a.value.data() + a.offset[i] + (lo - a0);
+      const double* y = b.value.data() + b.offset[j] + (lo - b0);
+      double s = 0.0;
+      for (int t = 0; t < hi - lo; ++t) s += x[t] * y[t];
+      acc += s;
+    }
+    if (a1 <= b1) ++i;
+    if (b1 <= a1) ++j;
+  }
+  return acc;
+}
+
+void SparseFactor::add_response3(const std::vector<const UnitForward*>& z, const std::vector<double>& forces3,
+                                 Eigen::MatrixX3d& x, bool partial) {
+  if (z.empty()) return;
+  const int n = size_;
+  std::fill(work3_.begin(), work3_.end(), 0.0);  // (solve3 leaves its solution there)
+  double* w = work3_.data();
+  for (std::size_t k = 0; k < z.size(); ++k) {
+    const UnitForward& zk = *z[k];
+    const double f0 = forces3[3 * k], f1 = forces3[3 * k + 1], f2 = forces3[3 * k + 2];
+    for (std::size_t g = 0; g < zk.first.size(); ++g) {
+      const double* v = zk.value.data() + zk.offset[g];
+      double* wg = w + 3 * std::int64_t(zk.first[g]);
+      for (int t = 0; t < zk.count[g]; ++t) {
+        wg[3 * t] += v[t] * f0;
+        wg[3 * t + 1] += v[t] * f1;
+        wg[3 * t + 2] += v[t] * f2;
+      }
+    }
+  }
+  if (supernodal_) {
+    const bool on_closure = partial && !closure_supers_.empty();
+    backward_supers<3>(w, on_closure ? closure_supers_ : all_supers_);
+    if (on_closure) {
+      for (const int i : closure_rows_)
+        for (int c = 0; c < 3; ++c) x(i, c) += w[3 * perm_[std::size_t(i)] + c];
+    } else {
+      for (int i = 0; i < n; ++i)
+        for (int c = 0; c < 3; ++c) x(i, c) += w[3 * perm_[std::size_t(i)] + c];
+    }
+  } else {
+    // D^-1/2, then L^T x = w
+    for (int j = 0; j < n; ++j)
+      for (int c = 0; c < 3; ++c) w[3 * j + c] *= inv_sqrt_d_[std::size_t(j)];
+    const std::int64_t* outer = outer_.data();
+    const int* inner = inner_.data();
+    const double* val = values_.data();
+    for (int j = n - 1; j >= 0; --j) {
+      double acc[3] = {w[3 * j], w[3 * j + 1], w[3 * j + 2]};
+      for (std::int64_t p = outer[j]; p < outer[j + 1]; ++p) {
+        const double* wi = w + 3 * std::int64_t(inner[p]);
+        for (int c = 0; c < 3; ++c) acc[c] -= val[p] * wi[c];
+      }
+      for (int c = 0; c < 3; ++c) w[3 * j + c] = acc[c];
+    }
+    for (int i = 0; i < n; ++i)
+      for (int c = 0; c < 3; ++c) x(i, c) += w[3 * perm_[std::size_t(i)] + c];
+  }
+  std::fill(work3_.begin(), work3_.end(), 0.0);  // solve3_partial expects it zero
+}
+
+template void SparseFactor::solve_supernodal<1>(double*, int) const;
+template void SparseFactor::solve_supernodal<3>(double*, int) const;
+template void SparseFactor::solve_in_place<1>(double*, int) const;
+template void SparseFactor::solve_in_place<3>(double*, int) const;
+
+}  // namespace vx
