@@ -323,8 +323,10 @@ std::string LocalContactSettings::validate() const {
 }
 
 bool Simulation::use_integrator_compliance() const {
+  // not with a volume term (Poisson > 0): the factor's projective volume matrix is far stiffer than
+  // the converged step (docs/model.md 9.1); the patch compliance follows nu
   return settings_.local_contact && settings_.local_contact->integrator_compliance && integrator_->solves_contact() &&
-         dt_s() >= 0.5 * settings_.local_contact->update_period_s;
+         !physics_->has_volume_term() && dt_s() >= 0.5 * settings_.local_contact->update_period_s;
 }
 
 double Simulation::local_compliance_scale() const { return settings_.local_contact->compliance_scale; }
