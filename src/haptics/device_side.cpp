@@ -110,8 +110,10 @@ DeviceOutput DeviceSide::output_snapshot(int i) const {
 }
 
 bool DeviceSide::use_integrator_compliance() const {
+  // not with a volume term (Poisson > 0): the factor's projective volume matrix is far stiffer than
+  // the converged step (docs/model.md 9.1); the patch compliance follows nu
   return settings_.local_contact && settings_.local_contact->integrator_compliance && sim_.solves_contact() &&
-         sim_.dt_s() >= 0.5 * settings_.local_contact->update_period_s;
+         !sim_.physics().has_volume_term() && sim_.dt_s() >= 0.5 * settings_.local_contact->update_period_s;
 }
 
 double DeviceSide::local_compliance_scale() const { return settings_.local_contact->compliance_scale; }

@@ -47,8 +47,8 @@ struct LocalContactSettings {
   /// The time between two physics updates (the probe app sets its physics period), s.
   double update_period_s{0.02};
   /// The compliance: the implicit integrator's own factor when it has one and one step spans
-  /// at least half an update (its step's exact linearisation, as SOFA does); else, or when
-  /// false, A_T on a patch (local_compliance.h) at the horizon.
+  /// at least half an update (its step's exact linearisation, as SOFA does) and the material
+  /// has Poisson 0; else, or when false, A_T on a patch (local_compliance.h) at the horizon.
   bool integrator_compliance{true};
   /// The patch's T, s: long enough for the quasi-static response of a tissue the tool moves
   /// smoothly (a short T adds the inertia of a sudden jump: on a 16 mm block the contact

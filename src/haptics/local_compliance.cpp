@@ -8,6 +8,8 @@
 
 namespace vx {
 
+double poisson_compliance_stiffening(double nu) { return nu > 0 ? 1.0 / (1.0 - nu) : 1.0; }
+
 void PatchCompliance::init(std::shared_ptr<const PhysicsModel> physics, const std::vector<std::uint8_t>& node_fixed,
                            double horizon_s) {
   if (!physics || !physics->model) throw Error("patch compliance: no physics model");
@@ -25,17 +27,19 @@ void PatchCompliance::init(std::shared_ptr<const PhysicsModel> physics, const st
   for (int e = 0; e < ne; ++e) guess += std::size_t(m.num_vertices(e)) * std::size_t(m.num_vertices(e));
   trip.reserve(guess);
   Eigen::MatrixXd ke;
+  const double nu_scale = poisson_compliance_stiffening(p.material.poisson_ratio);
   for (int e = 0; e < ne; ++e) {
     const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
     const double kap = p.damped ? p.element_damping[std::size_t(e)] / t : 0.0;
     const double* w = p.entry_weight.data() + b;
     double wsum = 0;
     for (int i = 0; i < n; ++i) wsum += w[i];
-    element_elastic_matrix(p, e, ke);
+    // the volume term left out, its effect on the contact a factor in nu (the header)
+    element_elastic_matrix(p, e, ke, true, false);
     for (int i = 0; i < n; ++i)
       for (int j = 0; j < n; ++j)
         trip.emplace_back(m.element_vertices[b + i], m.element_vertices[b + j],
-                          ke(i, j) + kap * ((i == j ? w[i] : 0.0) - w[i] * w[j] / wsum));
+                          nu_scale * ke(i, j) + kap * ((i == j ? w[i] : 0.0) - w[i] * w[j] / wsum));
   }
   for (int i = 0; i < nn; ++i) trip.emplace_back(i, i, p.node_mass[std::size_t(i)] / (t * t));
   a_.resize(nn, nn);

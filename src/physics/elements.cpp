@@ -346,6 +346,30 @@ inline Eigen::Matrix<double, 3, kBendingModes> mode_amplitudes(const PhysicsMode
   return qm;
 }
 
+/// The volume points' forces of element e (docs/model.md section 5, "Volume points"), added to
+/// its entries' slots of `ef`: f_j += (sum_s G_s) g_j + sum_s G_s delta_sj with
+/// G_s = k_s (T_s - F_s). Returns their energy sum_s k_s/2 |F_s - T_s|^2.
+double add_volume_point_forces(const PhysicsModel& phys, const double* xs, std::int64_t e, const Eigen::Matrix3d& fg,
+                               const Eigen::Quaterniond& q, const RotationFitSettings& fit, double* ef) {
+  const Model& m = *phys.model;
+  const std::int32_t* slot = phys.entry_slot.data();
+  Eigen::Matrix3d gsum = Eigen::Matrix3d::Zero();
+  double en = 0;
+  for_each_volume_point(phys, xs, int(e), fg, q, fit, [&](int s, const Eigen::Matrix3d& fs, const Eigen::Matrix3d& ts) {
+    const double ks = phys.volume_point_stiffness[std::size_t(s)];
+    const Eigen::Matrix3d gs = ks * (ts - fs);
+    gsum += gs;
+    en += 0.5 * ks * (fs - ts).squaredNorm();
+    for (int t = phys.volume_point_term_offsets[std::size_t(s)]; t < phys.volume_point_term_offsets[std::size_t(s) + 1];
+         ++t)
+      Eigen::Map<Eigen::Vector3d>(ef + 3 * std::int64_t(slot[phys.volume_term_entry[std::size_t(t)]])) +=
+          gs * phys.volume_term_delta.col(t);
+  });
+  for (int j = m.element_offsets[std::size_t(e)]; j < m.element_offsets[std::size_t(e) + 1]; ++j)
+    Eigen::Map<Eigen::Vector3d>(ef + 3 * std::int64_t(slot[j])) += gsum * phys.entry_gradient.col(j);
+  return en;
+}
+
 template <bool kDamping, bool kEnergy, bool kVolume, bool kModes>
 void element_range_reference(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot,
                    double* ef, double* energy_out, std::int64_t e0, std::int64_t e1,
@@ -438,6 +462,9 @@ void element_range_reference(const PhysicsModel& phys, const double* xs, const d
         out[2] += g20 * g[0] + g21 * g[1] + g22 * g[2];
       }
     }
+    double point_energy = 0;
+    if constexpr (kVolume)
+      if (phys.has_volume_points()) point_energy = add_volume_point_forces(phys, xs, e, fg, rot[e], fit, ef);
     if constexpr (kDamping) {
       // pass 3: the weighted rigid velocity fit: v_c, angular momentum and inertia about c
       RigidSums<double> rs;
@@ -472,7 +499,7 @@ void element_range_reference(const PhysicsModel& phys, const double* xs, const d
         const Eigen::Vector3d rr = phys.entry_rest.col(j);
         en += 0.5 * k * wts[j] * (fg * rr - r).squaredNorm();
       }
-      if constexpr (kVolume) en += 0.5 * wv * (fg - t).squaredNorm();
+      if constexpr (kVolume) en += 0.5 * wv * (fg - t).squaredNorm() + point_energy;
       if constexpr (kModes) en -= 0.5 * qm.squaredNorm();
       energy_out[e] = en;
       st.elastic_energy += en;
@@ -619,6 +646,9 @@ void element_range_packed(const PhysicsModel& phys, const double* xs, const doub
         out[2] = o2;
       }
     }
+    double point_energy = 0;
+    if constexpr (kVolume)
+      if (phys.has_volume_points()) point_energy = add_volume_point_forces(phys, xs, e, fg, rot[e], fit, ef);
     if constexpr (kEnergy) {
       double en = 0.5 * phys.element_affine_stiffness[std::size_t(e)] * (fg - q).squaredNorm();
       const Eigen::Vector3d ca = Eigen::Vector3d(ox, oy, oz) + c;
@@ -627,7 +657,7 @@ void element_range_packed(const PhysicsModel& phys, const double* xs, const doub
         const Eigen::Vector3d rr = phys.entry_rest.col(b + j);
         en += 0.5 * k * pe[j].weight * (fg * rr - r).squaredNorm();
       }
-      if constexpr (kVolume) en += 0.5 * wv * (fg - t).squaredNorm();
+      if constexpr (kVolume) en += 0.5 * wv * (fg - t).squaredNorm() + point_energy;
       if constexpr (kModes) en -= 0.5 * qm.squaredNorm();
       energy_out[e] = en;
       st.elastic_energy += en;
@@ -731,7 +761,7 @@ void gather_node_forces(const PhysicsModel& phys, const Eigen::Matrix3Xd& entry_
   });
 }
 
-void element_elastic_matrix(const PhysicsModel& phys, int e, Eigen::MatrixXd& k, bool relieved) {
+void element_elastic_matrix(const PhysicsModel& phys, int e, Eigen::MatrixXd& k, bool relieved, bool volume) {
   const Model& m = *phys.model;
   const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
   const auto g = phys.entry_gradient.middleCols(b, n);
@@ -740,12 +770,22 @@ void element_elastic_matrix(const PhysicsModel& phys, int e, Eigen::MatrixXd& k,
   Eigen::MatrixXd p = -r0.transpose() * g;  // P_lj = delta_lj - w_j / W - R0_l . g_j
   p.rowwise() -= w.transpose() / w.sum();
   p.diagonal().array() += 1.0;
-  const double kv = phys.has_volume_term() ? phys.element_volume_stiffness[std::size_t(e)] : 0.0;
+  const double kv = volume && phys.has_volume_term() ? phys.element_volume_stiffness[std::size_t(e)] : 0.0;
   k.noalias() = (phys.element_affine_stiffness[std::size_t(e)] + kv) * (g.transpose() * g);
   k.noalias() += phys.element_stiffness[std::size_t(e)] * (p.transpose() * w.asDiagonal() * p);
   if (relieved && phys.has_bending_modes()) {
     const auto h = phys.entry_modes.middleCols(b, n);
     k.noalias() -= h.transpose() * h;
+  }
+  if (volume && phys.has_volume_points()) {  // k_s (g + delta_s)(g + delta_s)^T per volume point
+    Eigen::Matrix3Xd gs(3, n);
+    for (int s = phys.volume_point_offsets[std::size_t(e)]; s < phys.volume_point_offsets[std::size_t(e) + 1]; ++s) {
+      gs = g;
+      for (int t = phys.volume_point_term_offsets[std::size_t(s)];
+           t < phys.volume_point_term_offsets[std::size_t(s) + 1]; ++t)
+        gs.col(phys.volume_term_entry[std::size_t(t)] - b) += phys.volume_term_delta.col(t);
+      k.noalias() += phys.volume_point_stiffness[std::size_t(s)] * (gs.transpose() * gs);
+    }
   }
 }
 
@@ -779,6 +819,11 @@ double element_energy(const PhysicsModel& phys, int e, const Eigen::Matrix3Xd& x
     Eigen::Quaterniond qv = q;
     const Eigen::Matrix3d t = element_closest_with_determinant(phys, fg, 1.0, qv, settings);
     en += 0.5 * phys.element_volume_stiffness[e] * (fg - t).squaredNorm();
+    if (phys.has_volume_points())
+      for_each_volume_point(phys, x.data(), e, fg, q, settings,
+                            [&](int s, const Eigen::Matrix3d& fs, const Eigen::Matrix3d& ts) {
+                              en += 0.5 * phys.volume_point_stiffness[std::size_t(s)] * (fs - ts).squaredNorm();
+                            });
   }
   return en;
 }

@@ -105,6 +105,29 @@ int fit_element_rotation(const PhysicsModel& physics, const Eigen::Matrix3d& a, 
                                                                double det, Eigen::Quaterniond& q,
                                                                const RotationFitSettings& settings);
 
+/// Calls fn(s, F_s, T_s) for each volume point s of element e (PhysicsModel::volume_point_offsets):
+/// F_s = fg + sum_t y_t delta_t^T (fg: the element's consistent F, y: positions in `xs`, 3 x
+/// nodes, relative to the element's first vertex) and T_s its closest matrix with det 1 (the
+/// projection warm-started from `q`, not written back).
+template <typename Fn>
+void for_each_volume_point(const PhysicsModel& phys, const double* xs, int e, const Eigen::Matrix3d& fg,
+                           const Eigen::Quaterniond& q, const RotationFitSettings& fit, Fn&& fn) {
+  const Model& m = *phys.model;
+  const double* x0 = xs + 3 * std::int64_t(m.element_vertices[std::size_t(m.element_offsets[std::size_t(e)])]);
+  for (int s = phys.volume_point_offsets[std::size_t(e)]; s < phys.volume_point_offsets[std::size_t(e) + 1]; ++s) {
+    Eigen::Matrix3d fs = fg;
+    for (int t = phys.volume_point_term_offsets[std::size_t(s)]; t < phys.volume_point_term_offsets[std::size_t(s) + 1];
+         ++t) {
+      const double* xp = xs + 3 * std::int64_t(m.element_vertices[std::size_t(phys.volume_term_entry[std::size_t(t)])]);
+      fs.noalias() +=
+          Eigen::Vector3d(xp[0] - x0[0], xp[1] - x0[1], xp[2] - x0[2]) * phys.volume_term_delta.col(t).transpose();
+    }
+    Eigen::Quaterniond qs = q;
+    const Eigen::Matrix3d ts = closest_with_determinant(fs, 1.0, qs, fit);
+    fn(s, fs, ts);
+  }
+}
+
 /// det F of an element's deformation gradient (2D: of its in-plane block); <= 0: inverted or flat.
 [[nodiscard]] double element_determinant(const PhysicsModel& physics, const Eigen::Matrix3d& f);
 
@@ -189,7 +212,10 @@ void gather_node_forces(const PhysicsModel& physics, const Eigen::Matrix3Xd& ent
 /// rotation's curvature; rows sum to zero (translations cost nothing). The hourglass element
 /// (element_modes.h) subtracts its relief sum_p h_p h_p^T, unless `relieved` is false (the
 /// paper's matrix of the same element: an upper bound of it, for the stable-step estimates).
-void element_elastic_matrix(const PhysicsModel& physics, int element, Eigen::MatrixXd& k, bool relieved = true);
+/// `volume` false leaves the volume term out (the local contact model's compliance,
+/// local_compliance.h, replaces it by a factor in nu).
+void element_elastic_matrix(const PhysicsModel& physics, int element, Eigen::MatrixXd& k, bool relieved = true,
+                            bool volume = true);
 
 /// Elastic energy of one element at `positions` with rotation warm start `q` (updated), N*mm.
 /// Includes the volume term. For tests and diagnostics (not the hot path).

@@ -4,6 +4,7 @@
 #include <Eigen/QR>
 #include <Eigen/SVD>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 
@@ -73,6 +74,11 @@ void check_inputs(const Model* model, const Material& material, const MaterialFi
   if (m.rest_offsets.cols() != m.num_vertex_entries() || int(m.element_volume_mm3.size()) != ne)
     throw Error("make_physics_model: the model is not finalized (call Model::finalize())");
   if (const std::string bad = m.validate(); !bad.empty()) throw Error("make_physics_model: model: " + bad);
+  if (!(options.volume_mean_fraction >= 0.0 && options.volume_mean_fraction <= 1.0) ||
+      !(options.volume_point_position > 0.0 && options.volume_point_position <= 1.0))
+    throw Error("calibration: volume mean fraction " + std::to_string(options.volume_mean_fraction) +
+                " must be in [0, 1] and volume point position " + std::to_string(options.volume_point_position) +
+                " in (0, 1]");
   check_field(field.youngs_modulus_kpa, ne, "youngs_modulus_kpa");
   check_field(field.density_kg_m3, ne, "density_kg_m3");
 }
@@ -198,6 +204,129 @@ void set_gradients(PhysicsModel& p, const std::vector<std::uint8_t>& bad) {
     for (int j = m.element_offsets[e]; j < m.element_offsets[e + 1]; ++j)
       p.entry_gradient.col(j) = inv * p.entry_rest_weighted.col(j);
   }
+}
+
+/// The volume points (PhysicsModel::volume_point_offsets; docs/model.md section 5, "Volume
+/// points"): per covered cell of a volume model's element, 8 points at (+-p, +-p, +-p) of the
+/// cell's half-width, F_s = F + sum_a y_a delta_a^T with delta_a = grad N_a(point) (the cell's
+/// trilinear shape functions on its 8 corners) less the element's mean over its cells of
+/// grad N_a(cell centre); k_s = (1 - fraction) k_v V_cell / V_cells / 8, the element's own
+/// term keeping fraction k_v. An element whose cell corners are not all its vertices keeps
+/// all of k_v on its mean (none here: every cell corner is a lattice node of its element).
+void set_volume_points(PhysicsModel& p, const CalibrationOptions& options) {
+  double alpha = options.volume_mean_fraction;
+  if (options.volume_variation_cap > 0) {  // (1 - alpha) lambda <= cap mu
+    const double nu = p.material.poisson_ratio;
+    const double lambda_over_mu = 2.0 * nu / (1.0 - 2.0 * nu);
+    if (lambda_over_mu > 0) alpha = std::max(0.0, 1.0 - options.volume_variation_cap / lambda_over_mu);
+  }
+  if (!p.has_volume_term() || p.is_2d() || !(alpha < 1.0)) return;
+  const Model& m = *p.model;
+  const int ne = m.num_elements();
+  const double pos = options.volume_point_position;
+  p.volume_point_offsets.assign(1, 0);
+  std::vector<Eigen::Vector3d> deltas;
+  for (int e = 0; e < ne; ++e) {
+    const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+    const int w = m.layout == Layout::voxel ? 1 : m.element_cell_voxels[std::size_t(e)];
+    const Eigen::Vector3i anchor = m.element_anchor.col(e);
+    const int mask = m.layout == Layout::voxel ? 1 : m.element_cells[std::size_t(e)];
+    // the boxes: the union of the tissue cells when it is a box (a full group, a slab, a bar, a
+    // cell: its corners are the element's vertices), else each cell (when its corners are)
+    Eigen::Vector3i lo(2, 2, 2), hi(-1, -1, -1);
+    int count = 0;
+    for (int bit = 0; bit < 8; ++bit) {
+      if (!(mask & (1 << bit))) continue;
+      const Eigen::Vector3i cell(bit & 1, (bit >> 1) & 1, (bit >> 2) & 1);
+      lo = lo.cwiseMin(cell);
+      hi = hi.cwiseMax(cell);
+      ++count;
+    }
+    std::vector<std::pair<Eigen::Vector3i, Eigen::Vector3i>> boxes;  // lowest cell, extent in cells
+    const Eigen::Vector3i ext = (hi - lo).array() + 1;
+    if (count == ext.prod()) {
+      boxes.emplace_back(lo, ext);
+    } else {
+      for (int bit = 0; bit < 8; ++bit)
+        if (mask & (1 << bit))
+          boxes.emplace_back(Eigen::Vector3i(bit & 1, (bit >> 1) & 1, (bit >> 2) & 1), Eigen::Vector3i(1, 1, 1));
+    }
+    // their corners' local indices, rest Jacobians
+    std::vector<std::array<int, 8>> corners;
+    std::vector<Eigen::Matrix3d> jinv_t;
+    std::vector<double> cell_volume;
+    bool ok = true;
+    for (const auto& [cell, size] : boxes) {
+      std::array<int, 8> c{};
+      for (int a = 0; a < 8 && ok; ++a) {
+        const Eigen::Vector3i lat =
+            anchor + w * (cell + Eigen::Vector3i(a & 1, (a >> 1) & 1, (a >> 2) & 1).cwiseProduct(size));
+        c[std::size_t(a)] = -1;
+        for (int i = 0; i < n; ++i)
+          if (m.node_lattice.col(m.element_vertices[b + i]) == lat) c[std::size_t(a)] = i;
+        ok = c[std::size_t(a)] >= 0;
+      }
+      if (!ok) break;
+      // J = dx/dxi (xi in [-1, 1]^3): half the mean edge along each axis
+      Eigen::Matrix3d jac = Eigen::Matrix3d::Zero();
+      for (int a = 0; a < 8; ++a) {
+        const Eigen::Vector3d x = m.rest_positions.col(m.element_vertices[b + c[std::size_t(a)]]);
+        jac.col(0) += ((a & 1) ? 0.125 : -0.125) * x;
+        jac.col(1) += (((a >> 1) & 1) ? 0.125 : -0.125) * x;
+        jac.col(2) += (((a >> 2) & 1) ? 0.125 : -0.125) * x;
+      }
+      const double det = jac.determinant();
+      if (!(std::abs(det) > 0)) {
+        ok = false;
+        break;
+      }
+      corners.push_back(c);
+      jinv_t.push_back(jac.inverse().transpose());
+      cell_volume.push_back(8.0 * std::abs(det));
+    }
+    if (!ok || corners.empty()) {
+      p.volume_point_offsets.push_back(p.volume_point_offsets.back());
+      continue;
+    }
+    const int nc = int(corners.size());
+    double vsum = 0;
+    for (const double v : cell_volume) vsum += v;
+    // grad N_a at xi of one cell (physical, 1/mm)
+    auto grad = [&](int cell, int a, const Eigen::Vector3d& xi) {
+      const Eigen::Vector3d s((a & 1) ? 1.0 : -1.0, ((a >> 1) & 1) ? 1.0 : -1.0, ((a >> 2) & 1) ? 1.0 : -1.0);
+      const Eigen::Vector3d d(s.x() * (1 + s.y() * xi.y()) * (1 + s.z() * xi.z()),
+                              s.y() * (1 + s.x() * xi.x()) * (1 + s.z() * xi.z()),
+                              s.z() * (1 + s.x() * xi.x()) * (1 + s.y() * xi.y()));
+      return Eigen::Vector3d(jinv_t[std::size_t(cell)] * (0.125 * d));
+    };
+    Eigen::Matrix3Xd mean = Eigen::Matrix3Xd::Zero(3, n);  // the element's mean of the cells' centre gradients
+    for (int cl = 0; cl < nc; ++cl)
+      for (int a = 0; a < 8; ++a)
+        mean.col(corners[std::size_t(cl)][std::size_t(a)]) += grad(cl, a, Eigen::Vector3d::Zero()) / nc;
+    const double kv = p.element_volume_stiffness[std::size_t(e)];
+    for (int cl = 0; cl < nc; ++cl) {
+      const double ks = (1.0 - alpha) * kv * cell_volume[std::size_t(cl)] / vsum / 8.0;
+      for (int q = 0; q < 8; ++q) {
+        const Eigen::Vector3d xi((q & 1) ? pos : -pos, ((q >> 1) & 1) ? pos : -pos, ((q >> 2) & 1) ? pos : -pos);
+        Eigen::Matrix3Xd d = -mean;
+        for (int a = 0; a < 8; ++a) d.col(corners[std::size_t(cl)][std::size_t(a)]) += grad(cl, a, xi);
+        if (p.volume_point_term_offsets.empty()) p.volume_point_term_offsets.push_back(0);
+        const double scale = d.cwiseAbs().maxCoeff();
+        for (int i = 0; i < n; ++i) {
+          if (!(d.col(i).cwiseAbs().maxCoeff() > 1e-12 * scale)) continue;
+          p.volume_term_entry.push_back(b + i);
+          deltas.push_back(d.col(i));
+        }
+        p.volume_point_term_offsets.push_back(std::int32_t(p.volume_term_entry.size()));
+        p.volume_point_stiffness.push_back(ks);
+      }
+    }
+    p.element_volume_stiffness[std::size_t(e)] = alpha * kv;
+    p.volume_point_offsets.push_back(std::int32_t(p.volume_point_stiffness.size()));
+  }
+  p.volume_term_delta.resize(3, Eigen::Index(deltas.size()));
+  for (std::size_t t = 0; t < deltas.size(); ++t) p.volume_term_delta.col(Eigen::Index(t)) = deltas[t];
+  if (p.volume_point_stiffness.empty()) p.volume_point_offsets.clear();
 }
 
 /// The hourglass element's relief weights (element_modes.h), per element in its grid axes.
@@ -384,6 +513,7 @@ std::shared_ptr<const PhysicsModel> make_physics_model(std::shared_ptr<const Mod
   std::vector<std::uint8_t> bad;
   calibrate_elements(*p, field, options, anisotropy, bad);
   set_gradients(*p, bad);
+  set_volume_points(*p, options);
   set_bending_modes(*p, options);
   lump_masses(*p, anisotropy, bad);
   index_entries(*p);

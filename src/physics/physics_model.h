@@ -124,6 +124,17 @@ struct CalibrationOptions {
   double min_weight{0.1};        ///< lower bound of a vertex weight (mean weight is 1)
   double max_weight{4.0};        ///< upper bound of a vertex weight
   MassScaling mass_scaling;      ///< none by default: the physical masses
+  /// Poisson ratio > 0, volume models: the fraction of the volume term's stiffness kept on the
+  /// element's mean dilatation (one constraint per element); the rest goes to volume points
+  /// inside its cells (docs/model.md section 5, "Volume points"). 1: no volume points.
+  double volume_mean_fraction{1.0};
+  /// Where the volume points sit in each covered cell: (+-p, +-p, +-p) of its half-width
+  /// (1/sqrt(3): the 2 x 2 x 2 Gauss points, exact for the trilinear field's linear variation).
+  double volume_point_position{0.57735026918962576};
+  /// > 0: the volume points' share of k_v per element is at most cap mu / lambda (the dilatation's
+  /// variation inside an element costs at most cap mu instead of lambda: no locking as nu -> 0.5),
+  /// the rest stays on the mean; <= 0: no cap (volume_mean_fraction alone).
+  double volume_variation_cap{0.0};
 };
 
 /// The per-entry constants of the element pass of one vertex entry, packed into one 64-byte
@@ -175,6 +186,16 @@ struct PhysicsModel {
   /// gamma_pi, sqrt(N/mm) (element_modes.h; the element's energy gets -1/2 sum_p |sum_i h_pi x_i|^2);
   /// empty for the paper's element
   ModeWeights entry_modes;
+  /// Volume points (CalibrationOptions::volume_mean_fraction < 1; docs/model.md section 5): per
+  /// point s of element e, a volume term k_s/2 min_{det T = 1} |F_s - T|^2 on
+  /// F_s = F + sum_t y_(j_t) delta_t^T (F the element's consistent gradient, y positions
+  /// relative to the element's first vertex; the deltas of an element's points sum to zero
+  /// weighted by k_s, so a uniform strain gives every point F and the patch test holds).
+  std::vector<std::int32_t> volume_point_offsets;       ///< elements + 1: the points of e (empty: none)
+  std::vector<double> volume_point_stiffness;           ///< points: k_s, N*mm
+  std::vector<std::int32_t> volume_point_term_offsets;  ///< points + 1: the terms of s
+  std::vector<std::int32_t> volume_term_entry;          ///< terms: the vertex entry j_t
+  Eigen::Matrix3Xd volume_term_delta;                   ///< 3 x terms: delta_t, 1/mm
   std::int64_t bending_relief_clamped{0};  ///< hourglass: elements whose calibrated relief was clamped
   std::int64_t gradient_fallback_elements{0};    ///< elements keeping the least-squares gradient
   std::int64_t anisotropic_elements{0};  ///< elements whose weighted spread stayed anisotropic (> 1e-6)
@@ -212,6 +233,7 @@ struct PhysicsModel {
   [[nodiscard]] int num_elements() const { return model->num_elements(); }
   [[nodiscard]] std::int64_t num_vertex_entries() const { return model->num_vertex_entries(); }
   [[nodiscard]] bool has_volume_term() const { return !element_volume_stiffness.empty(); }
+  [[nodiscard]] bool has_volume_points() const { return !volume_point_offsets.empty(); }
   [[nodiscard]] bool has_bending_modes() const { return entry_modes.cols() > 0; }
   [[nodiscard]] bool is_2d() const { return dimensions == 2; }
   /// 2D: the slice plane's unit normal

@@ -389,6 +389,19 @@ ElementPassStats ProjectiveSolver::local_step(SimState& s, const Eigen::Matrix3X
         for (int j = o; j < o + n; ++j)
           targets_.col(slot[j]).noalias() = mg * p.entry_gradient.col(j);
       }
+      if (volume && p.has_volume_points()) {  // + sum_s k_s T_s (g_j + delta_sj)
+        Eigen::Matrix3d tsum = Eigen::Matrix3d::Zero();
+        for_each_volume_point(p, x.data(), int(el), fg, s.rotations[std::size_t(el)], fit,
+                              [&](int sp, const Eigen::Matrix3d&, const Eigen::Matrix3d& ts) {
+                                const Eigen::Matrix3d kt = p.volume_point_stiffness[std::size_t(sp)] * ts;
+                                tsum += kt;
+                                for (int t = p.volume_point_term_offsets[std::size_t(sp)];
+                                     t < p.volume_point_term_offsets[std::size_t(sp) + 1]; ++t)
+                                  targets_.col(slot[p.volume_term_entry[std::size_t(t)]]).noalias() +=
+                                      kt * p.volume_term_delta.col(t);
+                              });
+        for (int j = o; j < o + n; ++j) targets_.col(slot[j]).noalias() += tsum * p.entry_gradient.col(j);
+      }
     }
     element_chunk_stats_[std::size_t(chunk)] = st;
   });

@@ -28,7 +28,10 @@ TimeStepEstimate estimate_time_steps(const PhysicsModel& p) {
   for (int e = 0; e < ne; ++e) {
     const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
     // the volume term stiffens the element's affine (volumetric) motion by k_v / (2 mu V) times
-    const double kv = p.has_volume_term() ? p.element_volume_stiffness[e] : 0.0;
+    double kv = p.has_volume_term() ? p.element_volume_stiffness[e] : 0.0;
+    if (p.has_volume_points())  // the volume points' share of k_v
+      for (int s = p.volume_point_offsets[std::size_t(e)]; s < p.volume_point_offsets[std::size_t(e) + 1]; ++s)
+        kv += p.volume_point_stiffness[std::size_t(s)];
     const double kappa = p.element_stiffness[e] * (1.0 + kv / p.element_affine_stiffness[e]);
     if (p.element_damping[e] > 0) damped = true;
     double wsum = 0;

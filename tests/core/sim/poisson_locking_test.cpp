@@ -8,7 +8,9 @@
 // label "slow").
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <iostream>
 #include <numbers>
 
@@ -24,6 +26,9 @@ namespace vx {
 namespace {
 
 constexpr double kPi = std::numbers::pi;
+
+/// The calibration of the presses and bars below (the default; PoissonLocking.DISABLED_Measure sets it).
+CalibrationOptions g_options;
 
 /// A W x W x H mm block of voxels of edge h mm filling its grid, corner at the origin.
 std::shared_ptr<const Model> block(Layout r, double w, double height, double h) {
@@ -61,7 +66,7 @@ double bonded_layer_n(double e_kpa, double nu, double r, double d, double h) {
 constexpr double kW = 32.0, kH = 16.0, kR = 4.0, kDepth = 2.0;
 
 double press_force_n(const std::shared_ptr<const Model>& m, double nu, int iterations = 60) {
-  const auto p = make_physics_model(m, tissue(nu));
+  const auto p = make_physics_model(m, tissue(nu), {}, g_options);
   SimulationSettings s;
   s.integrator.kind = IntegratorKind::implicit;
   s.integrator.time_step_s = 0.01;
@@ -98,7 +103,7 @@ struct Bulge {
 /// A W x W x 4W bar clamped at both ends, the top pressed down by 1 %, solved statically.
 Bulge bulge(Layout r, double nu, double w, double h) {
   const auto m = block(r, w, 4 * w, h);
-  const auto p = make_physics_model(m, tissue(nu));
+  const auto p = make_physics_model(m, tissue(nu), {}, g_options);
   SimState s = make_state(p);
   const auto bottom = nodes_on_face(*m, BoxFace::z_min), top = nodes_on_face(*m, BoxFace::z_max);
   s.fix_nodes(bottom);
@@ -189,23 +194,29 @@ TEST(PoissonLocking, ClampedBarBulgesByPoissonsRatio) {
 // (the patch test) with the volume term at nu = 0.49.
 TEST(PoissonLocking, RigidMotionIsFreeAndTheVolumeTermPassesThePatchTest) {
   const auto m = block(Layout::gradational, 16.0, 16.0, 1.0);
-  const auto p = make_physics_model(m, tissue(0.49));
-  ASSERT_TRUE(p->has_volume_term());
-  const Eigen::Matrix3d rot = Eigen::AngleAxisd(2.1, Eigen::Vector3d(1, -2, 0.5).normalized()).toRotationMatrix();
-  const Eigen::Matrix3Xd moved = (rot * m->rest_positions).colwise() + Eigen::Vector3d(3, -7, 11);
-  EXPECT_LT(node_forces(*p, moved).cwiseAbs().maxCoeff(), 1e-12);
-  // a uniform strain with volume change (2 % compression, shear): the interior nodes feel nothing
-  Eigen::Matrix3d f;
-  f << 0.98, 0.03, 0.0, 0.01, 1.01, -0.02, 0.0, 0.02, 1.015;
-  const Eigen::Matrix3Xd strained = rot * f * m->rest_positions;
-  const Eigen::Matrix3Xd nf = node_forces(*p, strained);
-  double interior = 0, boundary = 0;
-  for (int i = 0; i < m->num_nodes(); ++i)
-    (m->node_surface[std::size_t(i)] ? boundary : interior) =
-        std::max(m->node_surface[std::size_t(i)] ? boundary : interior, nf.col(i).norm());
-  std::cout << "uniform strain: largest interior force " << interior << " N, boundary " << boundary << " N\n";
-  EXPECT_GT(boundary, 1e-4);
-  EXPECT_LT(interior, 1e-9 * boundary);
+  for (const double cap : {0.0, 9.0}) {  // the default; the volume points (docs/model.md section 5)
+    CalibrationOptions o;
+    o.volume_variation_cap = cap;
+    const auto p = make_physics_model(m, tissue(0.49), {}, o);
+    ASSERT_TRUE(p->has_volume_term());
+    ASSERT_EQ(p->has_volume_points(), cap > 0);
+    const Eigen::Matrix3d rot = Eigen::AngleAxisd(2.1, Eigen::Vector3d(1, -2, 0.5).normalized()).toRotationMatrix();
+    const Eigen::Matrix3Xd moved = (rot * m->rest_positions).colwise() + Eigen::Vector3d(3, -7, 11);
+    EXPECT_LT(node_forces(*p, moved).cwiseAbs().maxCoeff(), 1e-12);
+    // a uniform strain with volume change (2 % compression, shear): the interior nodes feel nothing
+    Eigen::Matrix3d f;
+    f << 0.98, 0.03, 0.0, 0.01, 1.01, -0.02, 0.0, 0.02, 1.015;
+    const Eigen::Matrix3Xd strained = rot * f * m->rest_positions;
+    const Eigen::Matrix3Xd nf = node_forces(*p, strained);
+    double interior = 0, boundary = 0;
+    for (int i = 0; i < m->num_nodes(); ++i)
+      (m->node_surface[std::size_t(i)] ? boundary : interior) =
+          std::max(m->node_surface[std::size_t(i)] ? boundary : interior, nf.col(i).norm());
+    std::cout << "cap " << cap << ": uniform strain: largest interior force " << interior << " N, boundary " << boundary
+              << " N\n";
+    EXPECT_GT(boundary, 1e-4);
+    EXPECT_LT(interior, 1e-9 * boundary);
+  }
 }
 
 // The stable step shrinks like the inverse P-wave speed, sqrt((1 + nu)(1 - 2 nu) / (1 - nu))
@@ -215,13 +226,52 @@ TEST(PoissonLocking, StableStepFollowsThePWaveSpeed) {
   const auto m = block(Layout::gradational, 16.0, 16.0, 1.0);
   const double dt0 = estimate_time_steps(*make_physics_model(m, tissue(0.0))).symplectic_euler_s;
   for (double nu : {0.3, 0.45, 0.49}) {
-    const double dt = estimate_time_steps(*make_physics_model(m, tissue(nu))).symplectic_euler_s;
+    const double dt = estimate_time_steps(*make_physics_model(m, tissue(nu), {}, g_options)).symplectic_euler_s;
     const double wave = std::sqrt((1 + nu) * (1 - 2 * nu) / (1 - nu));
     std::cout << "nu " << nu << ": stable step " << dt << " s, / step at 0 = " << dt / dt0 << " (P-wave scaling "
               << wave << ")\n";
     EXPECT_LT(dt, dt0);
     EXPECT_NEAR(dt / dt0 / wave, 1.0, 0.35) << nu;
   }
+}
+
+// The measurement behind docs/model.md section 5's volume-point table (not run by default: it
+// prints, it asserts nothing). Run with --gtest_also_run_disabled_tests and, optionally,
+// VX_VMF (CalibrationOptions::volume_mean_fraction), VX_VPP (volume_point_position), VX_CAP
+// (volume_variation_cap), VX_LAYOUT (gradational | voxel), VX_NU (0.45 or 0.49 only),
+// VX_BULGE (also the clamped bar).
+TEST(PoissonLocking, DISABLED_Measure) {
+  if (const char* v = std::getenv("VX_VMF")) g_options.volume_mean_fraction = std::atof(v);
+  if (const char* v = std::getenv("VX_VPP")) g_options.volume_point_position = std::atof(v);
+  if (const char* v = std::getenv("VX_CAP")) g_options.volume_variation_cap = std::atof(v);
+  const Layout lay = std::getenv("VX_LAYOUT") ? parse_layout(std::getenv("VX_LAYOUT")) : Layout::gradational;
+  const auto m = block(lay, kW, kH, 1.0);
+  {
+    const auto p = make_physics_model(m, tissue(0.45), {}, g_options);
+    double ks = 0, kv = 0;
+    for (double k : p->volume_point_stiffness) ks += k;
+    for (double k : p->element_volume_stiffness) kv += k;
+    std::cout << "MEASURE elements " << m->num_elements() << " points " << p->volume_point_stiffness.size() << " terms "
+              << p->volume_term_entry.size() << " k points " << ks << " k mean " << kv << std::endl;
+  }
+  const double f0 = press_force_n(m, 0.0);
+  for (double nu : {0.45, 0.49}) {
+    if (std::getenv("VX_NU") && std::atof(std::getenv("VX_NU")) != nu) continue;
+    const double ref = bonded_layer_n(10, nu, kR, kDepth, kH) / bonded_layer_n(10, 0.0, kR, kDepth, kH);
+    const auto t0 = std::chrono::steady_clock::now();
+    const double f = press_force_n(m, nu);
+    std::cout << "MEASURE press s " << std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()
+              << " stable step "
+              << estimate_time_steps(*make_physics_model(m, tissue(nu), {}, g_options)).symplectic_euler_s << std::endl;
+    std::cout << "MEASURE " << to_string(lay) << " vmf " << g_options.volume_mean_fraction << " vpp "
+              << g_options.volume_point_position << " cap " << g_options.volume_variation_cap << " nu " << nu << ": F0 "
+              << f0 << " ratio " << f / f0 << " / ref " << ref << " = " << f / f0 / ref << std::endl;
+  }
+  if (std::getenv("VX_BULGE"))
+    for (double nu : {0.45, 0.49}) {
+      const Bulge b = bulge(lay, nu, 8.0, 1.0);
+      std::cout << "MEASURE bulge " << nu << ": " << b.lateral_ratio << " modulus " << b.modulus_ratio << std::endl;
+    }
 }
 
 }  // namespace vx
