@@ -448,10 +448,10 @@ TEST(LocalContactModel, PatchComplianceFollowsThePoissonRatio) {
   for (int c = 0; c < 2; ++c) {
     const double nu = c == 0 ? 0.0 : 0.45;
     const auto phys = block(0.0, 5.0, nu);
-    SimulationSettings s = scene(*phys, IntegratorKind::implicit, 0.01);
+    RigSettings s = scene(*phys, IntegratorKind::implicit, 0.01);
     s.integrator.max_iterations = 200;
     s.integrator.residual_tolerance_n = 1e-9;
-    Simulation sim(phys, s);  // (integrator_compliance left on: at Poisson > 0 the patch all the same)
+    Rig sim(phys, s);  // (integrator_compliance left on: at Poisson > 0 the patch all the same)
     move_tool(sim, tool_at(1.5), 0.2);
     move_tool(sim, tool_at(1.5), 0.2);  // settle
     LocalContactModel model;
