@@ -429,13 +429,13 @@ void App::soak_summary() {
       "second at least {:.0f} over {} one-second windows; tissue at the end {:.4f} mm from its rest ({}), {:.2f} % "
       "of its largest displacement {:.3f} mm; energy guard {} ticks",
       options_.soak_s, options_.soak_seed, r.faults.load() + non_finite, r.faults.load(), non_finite,
-      1e-6 * double(m.warm_bytes()), m.warm_at_s(), 1e-6 * double(m.end_bytes()), growth, 1e-6 * double(m.warm_cache_bytes()),
-      1e-6 * double(m.end_cache_bytes()), m.min_forces_per_s(),
-      m.windows(), r.soak_final_mm,
+      1e-6 * double(m.warm_bytes()), m.warm_at_s(), 1e-6 * double(m.end_bytes()), growth,
+      1e-6 * double(m.warm_cache_bytes()), 1e-6 * double(m.end_cache_bytes()), m.min_forces_per_s(), m.windows(),
+      r.soak_final_mm,
       r.soak_ref_is_shape ? std::string("the model's shape: no gravity")
-                       : fmt::format("its state at t = {:.2f} s, sagged under gravity", r.soak_ref_s),
-      r.soak_peak_mm > 0 ? 100.0 * r.soak_final_mm / r.soak_peak_mm : 0.0,
-      r.soak_peak_mm, local_ ? std::to_string(guard_ticks) : std::string("(paper shaping: none)")));
+                          : fmt::format("its state at t = {:.2f} s, sagged under gravity", r.soak_ref_s),
+      r.soak_peak_mm > 0 ? 100.0 * r.soak_final_mm / r.soak_peak_mm : 0.0, r.soak_peak_mm,
+      local_ ? std::to_string(guard_ticks) : std::string("(paper shaping: none)")));
 }
 
 int App::finish(ProbeView* view, std::string error) {

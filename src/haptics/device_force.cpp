@@ -14,7 +14,8 @@ const char* to_string(ForceShaping s) { return s == ForceShaping::local ? "local
 ForceShaping parse_force_shaping(const std::string& s) {
   if (s == "paper") return ForceShaping::paper;
   if (s == "local") return ForceShaping::local;
-  throw Error("unknown force shaping \"" + s + "\": use local (the local contact model at 1 kHz) or paper (half sines)");
+  throw Error("unknown force shaping \"" + s +
+              "\": use local (the local contact model at 1 kHz) or paper (half sines)");
 }
 
 std::string DeviceForceSettings::validate() const {

@@ -79,8 +79,8 @@ class DeviceForceShaper {
   [[nodiscard]] const HalfSinePulse& pulse() const { return pulse_; }      ///< the pulse being played
   [[nodiscard]] int steps_per_update() const { return steps_per_update_; }
   [[nodiscard]] int window_steps() const { return window_; }
-  [[nodiscard]] std::int64_t updates() const { return updates_; }          ///< device updates so far
-  [[nodiscard]] double scale() const { return scale_; }                    ///< s: peak / mean
+  [[nodiscard]] std::int64_t updates() const { return updates_; }  ///< device updates so far
+  [[nodiscard]] double scale() const { return scale_; }            ///< s: peak / mean
 
  private:
   DeviceForceSettings settings_;
@@ -91,8 +91,8 @@ class DeviceForceShaper {
   std::vector<Eigen::Vector3d> ring_;  ///< the last `window_` raw forces
   int ring_next_{0};
   int ring_filled_{0};
-  std::int64_t step_{0};               ///< steps pushed
-  std::int64_t update_step_{0};        ///< step of the current pulse's start
+  std::int64_t step_{0};         ///< steps pushed
+  std::int64_t update_step_{0};  ///< step of the current pulse's start
   std::int64_t updates_{0};
   HalfSinePulse pulse_;
   Eigen::Vector3d shaped_{Eigen::Vector3d::Zero()};

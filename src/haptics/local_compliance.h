@@ -44,8 +44,7 @@ namespace vx {
 class PatchCompliance {
  public:
   /// Assembles A_T over the whole model (not factored). `node_fixed`: nodes held (never in a patch).
-  void init(std::shared_ptr<const PhysicsModel> physics, const std::vector<std::uint8_t>& node_fixed,
-            double horizon_s);
+  void init(std::shared_ptr<const PhysicsModel> physics, const std::vector<std::uint8_t>& node_fixed, double horizon_s);
   [[nodiscard]] bool ready() const { return bool(physics_); }
 
   /// g (m x m) = the scalar compliance between `nodes` (free nodes), mm/N, from the patch of
@@ -64,16 +63,16 @@ class PatchCompliance {
   std::shared_ptr<const PhysicsModel> physics_;
   std::vector<std::uint8_t> fixed_;
   double horizon_{0.02};
-  Eigen::SparseMatrix<double> a_;       ///< all nodes x all nodes, A_T (both triangles)
+  Eigen::SparseMatrix<double> a_;  ///< all nodes x all nodes, A_T (both triangles)
   // the patch
   bool has_patch_{false};
   Eigen::Vector3d centre_{Eigen::Vector3d::Zero()};
   double radius_{0.0};
-  std::vector<int> patch_index_;        ///< nodes -> patch index or -1
-  std::vector<int> patch_nodes_;        ///< patch index -> node
+  std::vector<int> patch_index_;  ///< nodes -> patch index or -1
+  std::vector<int> patch_nodes_;  ///< patch index -> node
   SparseFactor factor_;
-  std::vector<int> column_slot_;        ///< patch index -> column slot or -1
-  Eigen::MatrixXd columns_;             ///< patch nodes x slots
+  std::vector<int> column_slot_;  ///< patch index -> column slot or -1
+  Eigen::MatrixXd columns_;       ///< patch nodes x slots
   int used_{0};
   std::int64_t refactors_{0};
   std::int64_t columns_solved_{0};

@@ -107,8 +107,7 @@ bool LocalContactSolver::set(const LocalContactModel& model, double coupling_mm_
     double wl = 0.0;
     for (int j = 0; j < m; ++j) wl += model.compliance(i, j) * model.force_n[j];
     free_gap_[i] = model.gap_mm[i] - wl;
-    for (int j = 0; j < m; ++j)
-      w_(i, j) = model.compliance(i, j) + coupling_ * normal_.col(i).dot(normal_.col(j));
+    for (int j = 0; j < m; ++j) w_(i, j) = model.compliance(i, j) + coupling_ * normal_.col(i).dot(normal_.col(j));
   }
   // warm start: the anchor's contact set (the solution at the anchor without coupling)
   set_.clear();

@@ -74,21 +74,21 @@ enum class ComplianceSource : std::uint8_t {
 
 /// The contact of one tool, linearised at the end of a physics update (its "anchor").
 struct LocalContactModel {
-  bool valid{false};                 ///< false: no physics update yet (no force)
-  std::int64_t update{0};            ///< physics updates published so far (1 for the first)
-  std::int64_t step{0};              ///< the physics step of the anchor
-  double time_s{0.0};                ///< simulated time of the anchor, s
+  bool valid{false};                                        ///< false: no physics update yet (no force)
+  std::int64_t update{0};                                   ///< physics updates published so far (1 for the first)
+  std::int64_t step{0};                                     ///< the physics step of the anchor
+  double time_s{0.0};                                       ///< simulated time of the anchor, s
   Eigen::Vector3d anchor_mm{Eigen::Vector3d::Zero()};       ///< tool position the anchor force belongs to
   Eigen::Vector3d anchor_force_n{Eigen::Vector3d::Zero()};  ///< force of the tissue on the tool there, N
-  ProbeGeometry tool;                ///< the tool's shape (its normals turn as it moves)
+  ProbeGeometry tool;                                       ///< the tool's shape (its normals turn as it moves)
   ComplianceSource source{ComplianceSource::none};
   // the candidates: nodes in contact at the anchor, then nodes within the margin
-  std::vector<std::int32_t> node;    ///< node ids
-  Eigen::Matrix3Xd point_mm;         ///< 3 x m: node positions at the anchor
-  Eigen::Matrix3Xd normal;           ///< 3 x m: the tool's outward unit normal at each node
-  Eigen::VectorXd force_n;           ///< m: lambda0, the contact force along the normal, N (>= 0)
-  Eigen::VectorXd gap_mm;            ///< m: g0, the gap along the normal, mm (0 where lambda0 > 0)
-  Eigen::MatrixXd compliance;        ///< m x m: W, symmetric positive definite, mm/N
+  std::vector<std::int32_t> node;  ///< node ids
+  Eigen::Matrix3Xd point_mm;       ///< 3 x m: node positions at the anchor
+  Eigen::Matrix3Xd normal;         ///< 3 x m: the tool's outward unit normal at each node
+  Eigen::VectorXd force_n;         ///< m: lambda0, the contact force along the normal, N (>= 0)
+  Eigen::VectorXd gap_mm;          ///< m: g0, the gap along the normal, mm (0 where lambda0 > 0)
+  Eigen::MatrixXd compliance;      ///< m x m: W, symmetric positive definite, mm/N
 
   [[nodiscard]] int size() const { return int(node.size()); }
   /// Sizes every array for m candidates (keeps capacity: no allocation when m does not grow).
@@ -102,8 +102,8 @@ struct LocalContactModel {
 /// construction for models of up to kMaxNodes candidates (larger ones are refused by set()).
 class LocalContactSolver {
  public:
-  static constexpr int kMaxNodes = 256;   ///< candidates a model may hold
-  static constexpr int kMaxRounds = 64;   ///< active-set rounds per solve
+  static constexpr int kMaxNodes = 256;  ///< candidates a model may hold
+  static constexpr int kMaxRounds = 64;  ///< active-set rounds per solve
 
   LocalContactSolver();
 
@@ -116,11 +116,11 @@ class LocalContactSolver {
 
   /// The solution for device position `device_mm`.
   struct Result {
-    Eigen::Vector3d force_n{Eigen::Vector3d::Zero()};  ///< force of the tissue on the tool (= on the hand), N
-    Eigen::Vector3d proxy_mm{Eigen::Vector3d::Zero()}; ///< where the tool is (device + coupling stretch)
+    Eigen::Vector3d force_n{Eigen::Vector3d::Zero()};         ///< force of the tissue on the tool (= on the hand), N
+    Eigen::Vector3d proxy_mm{Eigen::Vector3d::Zero()};        ///< where the tool is (device + coupling stretch)
     Eigen::Matrix3d stiffness_n_mm{Eigen::Matrix3d::Zero()};  ///< -d force / d device (symmetric psd), N/mm
-    int active{0};                                     ///< nodes in contact
-    int rounds{0};                                     ///< active-set rounds taken
+    int active{0};                                            ///< nodes in contact
+    int rounds{0};                                            ///< active-set rounds taken
     bool converged{true};
   };
   /// Solves the LCP at `device_mm`, warm-started from the last active set.
@@ -142,28 +142,28 @@ class LocalContactSolver {
   double coupling_{0.0};
   Eigen::Vector3d anchor_{Eigen::Vector3d::Zero()};
   ProbeGeometry tool_;
-  bool curved_{false};             ///< the tool's normals turn as it moves
-  Eigen::Matrix3Xd point_;         ///< 3 x cap: node positions at the anchor
-  Eigen::VectorXd phi0_;           ///< cap: their signed distance from the tool at the anchor
-  Eigen::Matrix3Xd turn0_;         ///< 3 x cap: the tool's normal there (the normals turn from it)
-  Eigen::Matrix3Xd normal_now_;    ///< 3 x cap: the normals at the current tool position
-  Eigen::Matrix3Xd normal_;        ///< 3 x cap
-  Eigen::VectorXd free_gap_;       ///< cap: u = g0 - W lambda0
-  Eigen::MatrixXd w_;              ///< cap x cap: W + coupling N^T N
-  Eigen::VectorXd lambda_;         ///< cap
-  Eigen::VectorXd gap_;            ///< cap: b at the current device position
+  bool curved_{false};           ///< the tool's normals turn as it moves
+  Eigen::Matrix3Xd point_;       ///< 3 x cap: node positions at the anchor
+  Eigen::VectorXd phi0_;         ///< cap: their signed distance from the tool at the anchor
+  Eigen::Matrix3Xd turn0_;       ///< 3 x cap: the tool's normal there (the normals turn from it)
+  Eigen::Matrix3Xd normal_now_;  ///< 3 x cap: the normals at the current tool position
+  Eigen::Matrix3Xd normal_;      ///< 3 x cap
+  Eigen::VectorXd free_gap_;     ///< cap: u = g0 - W lambda0
+  Eigen::MatrixXd w_;            ///< cap x cap: W + coupling N^T N
+  Eigen::VectorXd lambda_;       ///< cap
+  Eigen::VectorXd gap_;          ///< cap: b at the current device position
   std::vector<std::uint8_t> in_set_;
-  std::vector<int> set_;           ///< the working set (sorted)
-  std::vector<int> factored_set_;  ///< the set the factor is of
-  Eigen::MatrixXd chol_;           ///< cap x cap: lower Cholesky factor of W'_SS
-  Eigen::VectorXd rhs_, sol_;      ///< cap
+  std::vector<int> set_;                        ///< the working set (sorted)
+  std::vector<int> factored_set_;               ///< the set the factor is of
+  Eigen::MatrixXd chol_;                        ///< cap x cap: lower Cholesky factor of W'_SS
+  Eigen::VectorXd rhs_, sol_;                   ///< cap
   Eigen::Matrix<double, Eigen::Dynamic, 3> y_;  ///< cap x 3: L^-1 N_S^T (stiffness)
   Result result_;
 };
 
 /// The virtual coupling and damping of the device (LocalForceRenderer).
 struct HapticCouplingSettings {
-  double device_rate_hz{1000.0};        ///< the device thread's rate, 1/T
+  double device_rate_hz{1000.0};  ///< the device thread's rate, 1/T
   /// b: the physical damping of the device the coupling is sized for, N s/mm (1.5 N s/m: a
   /// modest desktop device; a joystick's friction is larger).
   double device_damping_n_s_mm{1.5e-3};
@@ -194,13 +194,13 @@ class LocalForceRenderer {
 
   /// One device tick at device position `device_mm` and time `now_s`.
   struct Output {
-    Eigen::Vector3d force_n{Eigen::Vector3d::Zero()};      ///< to the hand (spring + damping + fading offset), N
-    Eigen::Vector3d contact_n{Eigen::Vector3d::Zero()};    ///< the local model's force at the proxy, N
-    Eigen::Vector3d damping_n{Eigen::Vector3d::Zero()};    ///< the damping part, N
-    Eigen::Vector3d offset_n{Eigen::Vector3d::Zero()};     ///< the fading re-anchoring offset, N
-    Eigen::Vector3d guard_n{Eigen::Vector3d::Zero()};      ///< the energy guard's correction, N
-    double energy_mj{0.0};                                 ///< energy the hand has put in so far, N mm
-    Eigen::Vector3d proxy_mm{Eigen::Vector3d::Zero()};     ///< the tool (proxy) position, mm
+    Eigen::Vector3d force_n{Eigen::Vector3d::Zero()};    ///< to the hand (spring + damping + fading offset), N
+    Eigen::Vector3d contact_n{Eigen::Vector3d::Zero()};  ///< the local model's force at the proxy, N
+    Eigen::Vector3d damping_n{Eigen::Vector3d::Zero()};  ///< the damping part, N
+    Eigen::Vector3d offset_n{Eigen::Vector3d::Zero()};   ///< the fading re-anchoring offset, N
+    Eigen::Vector3d guard_n{Eigen::Vector3d::Zero()};    ///< the energy guard's correction, N
+    double energy_mj{0.0};                               ///< energy the hand has put in so far, N mm
+    Eigen::Vector3d proxy_mm{Eigen::Vector3d::Zero()};   ///< the tool (proxy) position, mm
     Eigen::Matrix3d stiffness_n_mm{Eigen::Matrix3d::Zero()};
     int contacts{0};
     bool converged{true};
@@ -228,7 +228,7 @@ class LocalForceRenderer {
   Eigen::Vector3d offset0_{Eigen::Vector3d::Zero()};  ///< offset at the re-anchoring instant
   double offset_start_{0.0};
   std::int64_t models_{0};
-  double energy_{0.0};                                ///< the hand's net work on the device so far, N mm
+  double energy_{0.0};                                 ///< the hand's net work on the device so far, N mm
   Eigen::Vector3d velocity_{Eigen::Vector3d::Zero()};  ///< the device's, over the last tick
   std::int64_t guard_ticks_{0};
   double guard_energy_{0.0};

@@ -75,9 +75,7 @@ class ContactActiveSet {
   [[nodiscard]] const std::vector<ContactConstraint>& active() const { return active_; }
   /// Memory held by the cache of forward vectors and G between them, bytes (bounded by
   /// kColumnBudgetBytes and kMaxSlots: it fills as tools visit new nodes).
-  [[nodiscard]] std::size_t cache_bytes() const {
-    return forward_bytes_ + std::size_t(gram_.size()) * sizeof(double);
-  }
+  [[nodiscard]] std::size_t cache_bytes() const { return forward_bytes_ + std::size_t(gram_.size()) * sizeof(double); }
 
   /// g (m x m) = G restricted to the free nodes `free` (free indices): the scalar compliance
   /// between them, mm/N, from the cached columns (solving the missing ones; allocates when the

@@ -363,8 +363,8 @@ class ImplicitIntegrator final : public Integrator {
     });
     finish_node_pass(s, p, settings_, track, s.energies.elastic, rep);
     // at rest: no tool touches and a full solve moved no node faster than the rest speed
-    if (regional && settling_ && contacts_.empty() && solver.last_solve_full() && settings_.region_rest_speed_mm_s > 0 &&
-        !s.failed() && max_speed_mm_s(s) < settings_.region_rest_speed_mm_s)
+    if (regional && settling_ && contacts_.empty() && solver.last_solve_full() &&
+        settings_.region_rest_speed_mm_s > 0 && !s.failed() && max_speed_mm_s(s) < settings_.region_rest_speed_mm_s)
       fall_asleep(s);
     // the contact warm start holds for the step that follows this one
     s.integrator_cache.next_step = s.steps;
@@ -482,9 +482,9 @@ class ImplicitIntegrator final : public Integrator {
   std::uint64_t contact_epoch_{0};
   std::vector<Eigen::Vector3d> focus_, centres_;
   std::vector<int> awake_;
-  bool settling_{true};                      ///< the tissue may be moving (from the start, and after a contact)
-  std::int64_t idle_steps_{0};               ///< steps since the last contact
-  bool asleep_{false};                       ///< at rest: steps only advance the time (fall_asleep)
+  bool settling_{true};         ///< the tissue may be moving (from the start, and after a contact)
+  std::int64_t idle_steps_{0};  ///< steps since the last contact
+  bool asleep_{false};          ///< at rest: steps only advance the time (fall_asleep)
   Eigen::Vector3d asleep_gravity_{Eigen::Vector3d::Zero()};
   std::uint64_t asleep_fixed_version_{0};
   std::int64_t asleep_step_{0};

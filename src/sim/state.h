@@ -50,7 +50,8 @@ struct StepScratch {
   std::vector<double> element_energy; ///< elements, N*mm (when energies are tracked)
   ElementPassScratch element_pass;
   std::vector<std::uint8_t> node_chunk_flags;  ///< per node chunk: bit 0 non-finite, bit 1 runaway
-  std::vector<double> node_chunk_sums;         ///< per node chunk: partial kinetic and gravitational energies, the implicit step's largest squared speed
+  std::vector<double> node_chunk_sums;  ///< per node chunk: partial kinetic and gravitational energies, the implicit
+                                        ///< step's largest squared speed
 };
 
 class ProjectiveSolver;

@@ -37,9 +37,12 @@ std::vector<std::map<std::string, std::string>> read_csv(const std::string& text
     std::vector<std::string> out(1);
     bool quoted = false;
     for (char c : l) {
-      if (c == '"') quoted = !quoted;
-      else if (c == ',' && !quoted) out.emplace_back();
-      else out.back() += c;
+      if (c == '"')
+        quoted = !quoted;
+      else if (c == ',' && !quoted)
+        out.emplace_back();
+      else
+        out.back() += c;
     }
     return out;
   };
@@ -76,9 +79,9 @@ TEST_F(CliBench, QuickSuiteWritesASaneReport) {
   const fs::path q = dir_ / "work" / "q";
   std::set<std::string> files;
   for (const auto& f : fs::directory_iterator(q)) files.insert(f.path().filename().string());
-  EXPECT_EQ(files, (std::set<std::string>{"step.csv", "step.png", "bench.csv", "bench.json", "bench.md", "bench_error.png",
-                                          "bench_cost.png", "bench_curves.png", "reference_scene.json",
-                                          "best_scene.json"}));
+  EXPECT_EQ(files,
+            (std::set<std::string>{"step.csv", "step.png", "bench.csv", "bench.json", "bench.md", "bench_error.png",
+                                   "bench_cost.png", "bench_curves.png", "reference_scene.json", "best_scene.json"}));
   for (const char* png : {"step.png", "bench_error.png", "bench_cost.png", "bench_curves.png"})
     EXPECT_GT(fs::file_size(q / png), 10000u) << png;
   // progress on stderr, the conclusion on stdout
@@ -155,7 +158,8 @@ TEST_F(CliBench, QuickSuiteWritesASaneReport) {
     EXPECT_LT(err, 1.5);
     EXPECT_EQ(row.at("real_time"), wall <= 1.0 ? "1" : "0");
     // the voxel-level model with symplectic Euler at half its stable step is close to the reference
-    if (row.at("resolution") == "voxel" && row.at("integrator") == "symplectic_euler" && row.at("dt_fraction") == "0.5") {
+    if (row.at("resolution") == "voxel" && row.at("integrator") == "symplectic_euler" &&
+        row.at("dt_fraction") == "0.5") {
       EXPECT_LT(err, 0.05) << row.at("size");
       EXPECT_NEAR(std::stod(row.at("peak_force_n")), ref_peak, 0.1 * ref_peak);
       ++close_voxel;

@@ -41,12 +41,12 @@ TEST_F(CliVerify, UsageErrorsExitTwoWithAMessage) {
   struct Case {
     std::string args, says;
   };
-  for (const Case& c : {Case{"verify --shard 3/2 --out o", "I must be below N"}, Case{"verify --shard 0/0 --out o", "N must be"},
-                        Case{"verify --shard x --out o", "I/N"}, Case{"verify --suite medium --out o", "medium"},
-                        Case{"verify --jobs 0 --out o", "jobs"}, Case{"verify --case no-such-case --out o", "no-such-case"},
-                        Case{"verify --case compression-gradational --out o", "not a case of the quick suite"},
-                        Case{"verify --case model-counts --shard 1/2 --out o", "holds no case"},
-                        Case{"verify-merge --out o", "DIR"}}) {
+  for (const Case& c :
+       {Case{"verify --shard 3/2 --out o", "I must be below N"}, Case{"verify --shard 0/0 --out o", "N must be"},
+        Case{"verify --shard x --out o", "I/N"}, Case{"verify --suite medium --out o", "medium"},
+        Case{"verify --jobs 0 --out o", "jobs"}, Case{"verify --case no-such-case --out o", "no-such-case"},
+        Case{"verify --case compression-gradational --out o", "not a case of the quick suite"},
+        Case{"verify --case model-counts --shard 1/2 --out o", "holds no case"}, Case{"verify-merge --out o", "DIR"}}) {
     const RunResult r = run(c.args);
     EXPECT_EQ(r.code, 2) << c.args << "\n" << r.err;
     EXPECT_NE(r.err.find(c.says), std::string::npos) << c.args << "\n" << r.err;
@@ -104,7 +104,8 @@ TEST_F(CliVerify, SimdEnvironmentVariableIsCheckedAndObeyed) {
 // passing, the plots the report links to present. About 1-2 minutes on 2 cores.
 TEST_F(CliVerify, QuickSuiteInTwoShardsMergesAndPasses) {
   for (int i = 0; i < 2; ++i) {
-    const RunResult r = run("verify --suite quick --jobs 2 --shard " + std::to_string(i) + "/2 --out shard" + std::to_string(i));
+    const RunResult r =
+        run("verify --suite quick --jobs 2 --shard " + std::to_string(i) + "/2 --out shard" + std::to_string(i));
     EXPECT_EQ(r.code, 0) << r.err;
   }
   const RunResult r = run("verify-merge shard0 shard1 --out all");

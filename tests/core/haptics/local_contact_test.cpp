@@ -4,9 +4,9 @@
 // the rendered force in a closed loop with the physics at 60 Hz and the device at 1 kHz and 250 Hz.
 #include <gtest/gtest.h>
 
+#include <Eigen/Eigenvalues>
 #include <cmath>
 #include <cstdio>
-#include <Eigen/Eigenvalues>
 #include <optional>
 #include <random>
 
@@ -479,7 +479,8 @@ TEST(LocalContactModel, PatchComplianceFollowsThePoissonRatio) {
 // exponential mean (2 ms), and the model's force at the anchor is the mean of the raw force.
 TEST(LocalContactModel, ExplicitAnchorIsTheMeanForceAtTheMeanToolPosition) {
   const auto phys = block();
-  RigSettings s = scene(*phys, IntegratorKind::symplectic_euler, 0.5 * stable_time_step(*phys, IntegratorKind::symplectic_euler));
+  RigSettings s =
+      scene(*phys, IntegratorKind::symplectic_euler, 0.5 * stable_time_step(*phys, IntegratorKind::symplectic_euler));
   s.contact.restitution = 1.0;
   Rig sim(phys, s);
   const double tau = 0.002, dt = sim.dt_s();
@@ -506,7 +507,8 @@ TEST(LocalContactModel, ExplicitAnchorIsTheMeanForceAtTheMeanToolPosition) {
   ASSERT_TRUE(solver.set(m, 0.0));
   EXPECT_LT((solver.solve(m.anchor_mm).force_n - mean_force).norm(), 1e-9 * mean_force.norm());
   std::printf("explicit: mean force %.5f N (last raw %.5f N), %d nodes pushing, stiffness z %.4f N/mm\n",
-              mean_force.z(), sim.probe(0).raw_force_n.z(), solver.result().active, solver.result().stiffness_n_mm(2, 2));
+              mean_force.z(), sim.probe(0).raw_force_n.z(), solver.result().active,
+              solver.result().stiffness_n_mm(2, 2));
 }
 
 // ------------------------------------------------------------------ passivity
@@ -517,8 +519,8 @@ struct LoopResult {
   double min_energy_mj{0};    ///< the least energy the hand had put in, over the run (>= 0: passive)
   double final_energy_mj{0};  ///< at the end (what the device dissipated)
   double peak_force_n{0};
-  double max_jump_n{0};       ///< largest tick-to-tick change of the force
-  double hold_force_n{0};     ///< at the end of the hold
+  double max_jump_n{0};    ///< largest tick-to-tick change of the force
+  double hold_force_n{0};  ///< at the end of the hold
   int ticks{0};
   std::int64_t guard_ticks{0};  ///< ticks the energy guard cut the force
   double guard_mj{0};           ///< energy it withheld
@@ -595,19 +597,21 @@ LoopResult closed_loop(double device_hz, double physics_hz, double lesion_kpa, d
 }  // namespace
 
 // A stiff tool (the coupling from Colgate's condition: 1 N/mm at 1 kHz, 0.25 N/mm at 250 Hz)
-// pressed 2.5 mm into a 20 kPa block over a lesion 100x stiffer (2 MPa, just under the top), held there 0.3 s with a 0.05 mm, 8 Hz tremor and lifted, at 10 mm/s and at 40 mm/s; the
-// physics at 60 Hz, one update late. The energy the hand has put in never goes below zero: the device never gives back
-// more than it got. Without the energy guard the coupling and damping alone keep the slow press
-// passive; the fast one is not (the new anchors lag the tool: printed), which the guard catches.
+// pressed 2.5 mm into a 20 kPa block over a lesion 100x stiffer (2 MPa, just under the top), held there 0.3 s with a
+// 0.05 mm, 8 Hz tremor and lifted, at 10 mm/s and at 40 mm/s; the physics at 60 Hz, one update late. The energy the
+// hand has put in never goes below zero: the device never gives back more than it got. Without the energy guard the
+// coupling and damping alone keep the slow press passive; the fast one is not (the new anchors lag the tool: printed),
+// which the guard catches.
 TEST(LocalForceRenderer, PassiveInAClosedLoopAt1kHzAnd250Hz) {
   for (const double device_hz : {1000.0, 250.0})
     for (const double speed : {10.0, 40.0})
       for (const bool guard : {false, true}) {
         const LoopResult r = closed_loop(device_hz, 60.0, 2000.0, 2.5, speed, guard);
-        std::printf("device %4.0f Hz, %2.0f mm/s, guard %-3s: peak %.4f N, held %.4f N, largest step %.5f N; energy in: "
-                    "least %.3e N mm, at the end %.3e N mm; guard %lld ticks, %.2e N mm (%d ticks)\n",
-                    device_hz, speed, guard ? "on" : "off", r.peak_force_n, r.hold_force_n, r.max_jump_n,
-                    r.min_energy_mj, r.final_energy_mj, static_cast<long long>(r.guard_ticks), r.guard_mj, r.ticks);
+        std::printf(
+            "device %4.0f Hz, %2.0f mm/s, guard %-3s: peak %.4f N, held %.4f N, largest step %.5f N; energy in: "
+            "least %.3e N mm, at the end %.3e N mm; guard %lld ticks, %.2e N mm (%d ticks)\n",
+            device_hz, speed, guard ? "on" : "off", r.peak_force_n, r.hold_force_n, r.max_jump_n, r.min_energy_mj,
+            r.final_energy_mj, static_cast<long long>(r.guard_ticks), r.guard_mj, r.ticks);
         EXPECT_GT(r.peak_force_n, 0.05);
         EXPECT_GE(r.min_energy_mj, -1e-12) << device_hz << " Hz, " << speed << " mm/s";
         EXPECT_GE(r.final_energy_mj, 0.0);
@@ -627,10 +631,10 @@ TEST(LocalForceRenderer, PassiveInAClosedLoopAt1kHzAnd250Hz) {
   for (const double device_hz : {1000.0, 250.0}) {
     const LoopResult r = closed_loop(device_hz, 60.0, 2000.0, 2.5, 10.0, false, 0.0, 1.0, 1.2);
     const LoopResult g = closed_loop(device_hz, 60.0, 2000.0, 2.5, 10.0, true, 0.0, 1.0, 1.2);
-    std::printf("compliance x 1.2, device %4.0f Hz, 10 mm/s: least energy in %.3e N mm; with the guard %.3e N mm "
-                "(%lld ticks, %.2e N mm, largest step %.4f N)\n",
-                device_hz, r.min_energy_mj, g.min_energy_mj, static_cast<long long>(g.guard_ticks), g.guard_mj,
-                g.max_jump_n);
+    std::printf(
+        "compliance x 1.2, device %4.0f Hz, 10 mm/s: least energy in %.3e N mm; with the guard %.3e N mm "
+        "(%lld ticks, %.2e N mm, largest step %.4f N)\n",
+        device_hz, r.min_energy_mj, g.min_energy_mj, static_cast<long long>(g.guard_ticks), g.guard_mj, g.max_jump_n);
     EXPECT_GE(g.min_energy_mj, -1e-12);
     // the guard fades the force over 10 ms instead of cutting it in a tick (measured: 2.2 % and
     // 5.7 % of the peak; a cut to what the energy allows in one tick gave 16 % and 11 %)

@@ -304,6 +304,23 @@ double pressed_force(const std::shared_ptr<const PhysicsModel>& p, double radius
   return sim.probe(0).raw_force_n.z();
 }
 
+/// The regional tests' press: implicit 20 ms steps of one iteration, an 8 mm region, one
+/// thread, the bottom 3 mm held, a ball tool of radius 3 mm named "ball" (its path left to the test).
+SimulationSettings regional_ball_press(const Model& m) {
+  SimulationSettings ss;
+  ss.integrator.kind = IntegratorKind::implicit;
+  ss.integrator.time_step_s = 0.02;
+  ss.integrator.max_iterations = 1;
+  ss.integrator.region_radius_mm = 8.0;
+  ss.integrator.threads = 1;
+  ss.fixed_nodes = bottom_cap(m, 3.0);
+  ProbeSettings probe;
+  probe.name = "ball";
+  probe.geometry.radius_mm = 3.0;
+  ss.probes = {probe};
+  return ss;
+}
+
 TEST(RegionalSolve, TheForceOfAPressMatchesTheFullSolve) {
   if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "needs CHOLMOD (supernodal)";
   const auto p = make_physics_model(ball(24), tissue(0.2));
@@ -344,20 +361,11 @@ TEST(RegionalSolve, ASleepingNodeWakesWhenPressed) {
   std::sort(near_plus.begin(), near_plus.end());
   int watched = -1;
   const double z_at = m.rest_positions(2, near_plus.front().second);
-  SimulationSettings ss;
-  ss.integrator.kind = IntegratorKind::implicit;
-  ss.integrator.time_step_s = 0.02;
-  ss.integrator.max_iterations = 1;
-  ss.integrator.region_radius_mm = 8.0;
-  ss.integrator.threads = 1;
-  ss.fixed_nodes = bottom_cap(m, 3.0);
-  ProbeSettings probe;
-  probe.name = "ball";
-  probe.geometry.radius_mm = 3.0;
+  SimulationSettings ss = regional_ball_press(m);
+  ProbeSettings& probe = ss.probes.front();
   probe.path = {{0.0, {c.x() - 8.0, c.y(), ztop + 3.0}},    {0.4, {c.x() - 8.0, c.y(), ztop + 1.5}},
                 {0.6, {c.x() - 8.0, c.y(), ztop + 5.0}},    {1.2, {c.x() + 8.0, c.y(), z_at + 5.0}},
                 {1.6, {c.x() + 8.0, c.y(), z_at + 1.5}}};
-  ss.probes = {probe};
   Simulation sim(p, ss);
   // the first press: after the first step (a full solve), the nodes off the region's closure sleep
   sim.step();
@@ -402,22 +410,13 @@ TEST(RegionalSolve, TheFarFieldReturnsToRestAfterTheRelease) {
   const Eigen::Vector3d c = 0.5 * (m.rest_positions.rowwise().minCoeff() + m.rest_positions.rowwise().maxCoeff());
   const double ztop = m.rest_positions.row(2).maxCoeff();
   const auto offset_after = [&](int refresh_steps, double* peak) {
-    SimulationSettings ss;
-    ss.integrator.kind = IntegratorKind::implicit;
-    ss.integrator.time_step_s = 0.02;
-    ss.integrator.max_iterations = 1;
-    ss.integrator.region_radius_mm = 8.0;
+    SimulationSettings ss = regional_ball_press(m);
     ss.integrator.region_idle_refresh_steps = refresh_steps;
-    ss.integrator.threads = 1;
-    ss.fixed_nodes = bottom_cap(m, 3.0);
-    ProbeSettings probe;
-    probe.name = "ball";
-    probe.geometry.radius_mm = 3.0;
+    ProbeSettings& probe = ss.probes.front();
     probe.path = {{0.0, {c.x(), c.y(), ztop + 3.5}},
                   {0.4, {c.x(), c.y(), ztop + 0.5}},
                   {0.6, {c.x(), c.y(), ztop + 0.5}},
                   {0.8, {c.x(), c.y(), ztop + 12.0}}};
-    ss.probes = {probe};
     Simulation sim(p, ss);
     *peak = 0.0;
     while (sim.time_s() < 2.3 - 1e-9 && !sim.failed()) {
@@ -455,21 +454,12 @@ TEST(RegionalSolve, ATissueAtRestSleepsUntilAToolComesBack) {
     bool still_while_asleep{true};
   };
   const auto run = [&](double rest_speed_mm_s) {
-    SimulationSettings ss;
-    ss.integrator.kind = IntegratorKind::implicit;
-    ss.integrator.time_step_s = 0.02;
-    ss.integrator.max_iterations = 1;
-    ss.integrator.region_radius_mm = 8.0;
+    SimulationSettings ss = regional_ball_press(m);
     ss.integrator.region_rest_speed_mm_s = rest_speed_mm_s;
-    ss.integrator.threads = 1;
-    ss.fixed_nodes = bottom_cap(m, 3.0);
-    ProbeSettings probe;
-    probe.name = "ball";
-    probe.geometry.radius_mm = 3.0;
+    ProbeSettings& probe = ss.probes.front();
     probe.path = {{0.0, {c.x(), c.y(), ztop + 6.0}},  {0.4, {c.x(), c.y(), ztop + 0.5}},
                   {0.6, {c.x(), c.y(), ztop + 0.5}},  {0.8, {c.x(), c.y(), ztop + 12.0}},
                   {3.6, {c.x(), c.y(), ztop + 12.0}}, {4.1, {c.x(), c.y(), ztop + 0.5}}};
-    ss.probes = {probe};
     Simulation sim(p, ss);
     Run r;
     for (int k = 0; k < 5; ++k) sim.step();
@@ -478,7 +468,8 @@ TEST(RegionalSolve, ATissueAtRestSleepsUntilAToolComesBack) {
       const Eigen::Matrix3Xd before = sim.state().positions;
       const std::int64_t slept = sim.counters().steps_at_rest;
       sim.step();
-      if (sim.counters().steps_at_rest > slept) r.still_while_asleep = r.still_while_asleep && sim.state().positions == before;
+      if (sim.counters().steps_at_rest > slept)
+        r.still_while_asleep = r.still_while_asleep && sim.state().positions == before;
       r.peak_mm = std::max(r.peak_mm, (sim.state().positions - m.rest_positions).colwise().norm().maxCoeff());
     }
     r.offset_mm = (sim.state().positions - m.rest_positions).colwise().norm().maxCoeff();

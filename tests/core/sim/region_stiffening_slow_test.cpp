@@ -182,7 +182,8 @@ TEST(RegionStiffening, NoEstimateWithoutAHold) {
   auto physics = make_physics_model(hand_block(3, 3, 3, kSpacing), tissue());
   RegionStiffeningSettings s;
   s.tool_mm = Eigen::Vector3d(3, 3, 10);
-  const RegionStiffeningEstimate e = estimate_region_stiffening(*physics, std::vector<std::uint8_t>(std::size_t(physics->num_nodes()), 0), s);
+  const RegionStiffeningEstimate e =
+      estimate_region_stiffening(*physics, std::vector<std::uint8_t>(std::size_t(physics->num_nodes()), 0), s);
   EXPECT_FALSE(e.valid);
   EXPECT_NE(e.reason.find("floats"), std::string::npos);
 }
