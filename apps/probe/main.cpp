@@ -84,9 +84,9 @@ int main(int argc, char** argv) {
   g_run->add_option("--threads", o.threads, "physics threads (0: all cores)")->check(CLI::Range(0, 256));
   g_run->add_option(
       "--factor-cache", o.factor_cache,
-      "where the implicit solver keeps its factors by the matrix's content, so the next start of the same "
-      "organ loads instead of factoring: a folder, or off (default: $VOXELASTIC_FACTOR_CACHE, else "
-      "~/.cache/voxelastic/factors)");
+      "where the implicit solver keeps its factors by the matrix's content, and the material's calibration by "
+      "the model's, so the next start of the same organ loads instead of factoring and calibrating: a folder, or "
+      "off (default: $VOXELASTIC_FACTOR_CACHE, else ~/.cache/voxelastic/factors)");
   g_run->add_option("--size", size, "window size WIDTHxHEIGHT");
   g_run->add_flag("--levels", o.show_levels, "start with the element levels view");
   g_run->add_option("--display-triangles", o.scene.display_triangles,

@@ -18,6 +18,7 @@
 #include "gui_loop.h"
 #include "haptics/device_side.h"
 #include "haptics/local_contact.h"
+#include "io/calibration_cache.h"
 #include "io/factor_cache.h"
 #include "joystick_script.h"
 #include "physics_loop.h"
@@ -507,6 +508,8 @@ int run_probe_app(const AppOptions& options) {
   if (!options.quiet) fmt::print("voxelastic-probe: loading {} ...\n", options.input.string());
   DefaultSceneOptions scene_options = options.scene;
   scene_options.surface_method = options.surface_method;
+  // the second start of the same organ loads its calibration (io/calibration_cache.h, beside the factors)
+  scene_options.calibration_cache = make_calibration_cache(options.factor_cache);
   const auto load_start = SteadyClock::now();
   ProbeScene scene = load_probe_scene(options.input, scene_options);
   scene.load_s = seconds(SteadyClock::now() - load_start);

@@ -78,6 +78,7 @@ ProbeScene load_scene_file(const std::filesystem::path& path, const DefaultScene
   PrepareSceneOptions prep;
   prep.surface = options.surface_method != SurfaceMethod::iso;  // the scene's own (paper) surface
   prep.region_check = RegionCheckTiming::background;            // seconds on a large organ: not before the run
+  prep.calibration_cache = options.calibration_cache;
   PreparedScene built = prepare_scene(file, prep);
   ProbeScene scene;
   scene.name = path.stem().string();
@@ -291,7 +292,7 @@ ProbeScene make_default_scene(std::shared_ptr<const Model> model, std::shared_pt
   material.youngs_modulus_kpa = options.youngs_modulus_kpa;
   material.damping_ratio = options.damping_ratio;
   if (const std::string bad = validate(material); !bad.empty()) throw Error("material: " + bad);
-  scene.physics = make_physics_model(model, material);
+  scene.physics = make_physics_model(model, material, {}, {}, options.calibration_cache.get());
 
   SimulationSettings& sim = scene.simulation;
   sim.surface = surface;

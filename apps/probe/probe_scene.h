@@ -14,6 +14,7 @@
 #include "haptics/device_side.h"
 #include "model/model.h"
 #include "model/voxel_grid.h"
+#include "physics/calibration_key.h"
 #include "physics/physics_model.h"
 #include "sim/simulation.h"
 #include "stick_control.h"
@@ -43,6 +44,8 @@ struct DefaultSceneOptions {
   /// Any input: the displayed surface is decimated to about this many triangles when it has
   /// more (convert/decimate_surface.h); 0 = show the full surface.
   int display_triangles{100000};
+  /// The material's calibration kept by the model's content (io/calibration_cache.h); null: none.
+  std::shared_ptr<CalibrationCache> calibration_cache;
 };
 
 /// Where the default tool starts (default_tool_start).

@@ -15,6 +15,7 @@
 
 #include "base/error.h"
 #include "commands.h"
+#include "io/calibration_cache.h"
 #include "io/factor_cache.h"
 #include "render/plot.h"
 #include "scene/run_outputs.h"
@@ -151,6 +152,7 @@ void run_simulate(const SimulateOptions& o) {
   popt.region_check = RegionCheckTiming::background;  // seconds on a large model: the run starts meanwhile
   popt.region_check_nice = 0;                         // a batch run: its end waits for the check
   popt.factor_cache = make_factor_cache(o.factor_cache);
+  popt.calibration_cache = make_calibration_cache(o.factor_cache);  // the same folder
   if (o.quiet) log::set_level(std::max(log::level(), log::Level::warn));
   const auto open = std::chrono::steady_clock::now();
   PreparedScene prepared = prepare_scene(scene, popt);
@@ -221,6 +223,8 @@ void run_simulate(const SimulateOptions& o) {
   startup.emplace_back("first step", secs(t0, first_step_done));
   const SimulationCounters& c = sim.counters();
   const double startup_s = secs(open, first_step_done);
+  const auto* calibrations = dynamic_cast<const FolderCalibrationCache*>(popt.calibration_cache.get());
+  const bool calibration_loaded = calibrations && calibrations->counters().hits > 0;
 
   // the outputs, summary.json last
   if (interrupted) outputs.last_frame(sim);
@@ -232,6 +236,7 @@ void run_simulate(const SimulateOptions& o) {
   summary["factorisations"] = c.factorisations;
   summary["factors_from_cache"] = c.factors_from_cache;
   summary["factor_s"] = c.factor_s;
+  summary["calibration_from_cache"] = calibration_loaded;
   nlohmann::json& stages = summary["startup_stages_s"];
   for (const auto& [name, s] : startup) stages[name] = s;
   if (interrupted) summary["status"] = "interrupted";
@@ -249,7 +254,8 @@ void run_simulate(const SimulateOptions& o) {
       factor = c.factors_from_cache == c.factorisations
                    ? fmt::format("; the factor loaded from the cache in {:.2f} s", c.factor_s)
                    : fmt::format("; factoring took {:.2f} s", c.factor_s);
-    fmt::print("start-up {:.2f} s, open to the end of the first step ({}{}{})\n", startup_s, parts, factor,
+    fmt::print("start-up {:.2f} s, open to the end of the first step ({}{}{}{})\n", startup_s, parts,
+               calibration_loaded ? "; the calibration loaded from the cache" : "", factor,
                prepared.region_stiffening ? "; the region check ran beside the run" : "");
   }
   const ForceRecorder* recorder = outputs.forces();
@@ -279,9 +285,9 @@ void add_simulate_command(CLI::App& app) {
   sub->add_option("-o,--out", opts->out, "output folder (created if missing)")->required();
   sub->add_option("--threads", opts->threads, "threads for the physics (0: all cores; default: the scene's)");
   sub->add_option("--factor-cache", opts->factor_cache,
-                  "where the implicit solver keeps its factors by the matrix's content, so the next start of the same "
-                  "model loads instead of factoring: a folder, or off (default: $VOXELASTIC_FACTOR_CACHE, else "
-                  "~/.cache/voxelastic/factors)");
+                  "where the implicit solver keeps its factors by the matrix's content, and the material's calibration "
+                  "by the model's, so the next start of the same model loads instead of factoring and calibrating: a "
+                  "folder, or off (default: $VOXELASTIC_FACTOR_CACHE, else ~/.cache/voxelastic/factors)");
   sub->callback([opts] {
     opts->quiet = quiet();  // -q: no progress or summary on the console (warnings still go to stderr)
     run_simulate(*opts);

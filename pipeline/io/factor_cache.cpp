@@ -1,9 +1,5 @@
 #include "io/factor_cache.h"
 
-#include <fcntl.h>
-#include <sys/mman.h>
-#include <unistd.h>
-
 #include <algorithm>
 #include <cerrno>
 #include <chrono>
@@ -15,6 +11,7 @@
 #include <vector>
 
 #include "base/error.h"
+#include "io/cache_file.h"
 #include "util/atomic_file.h"
 #include "util/log.h"
 
@@ -24,29 +21,6 @@ namespace fs = std::filesystem;
 namespace {
 
 constexpr const char* kExtension = ".vxfactor";
-
-/// The file mapped read-only (private, its pages brought in at once: a factor's values are
-/// used straight from the page cache, without a copy); null with `why` on failure. The mapping
-/// lives as long as the pointer.
-std::shared_ptr<const void> map_file(const fs::path& file, std::size_t size, std::string& why) {
-  if (size == 0) {
-    why = "it is empty";
-    return nullptr;
-  }
-  const int fd = ::open(file.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) {
-    why = std::string("it cannot be opened: ") + std::strerror(errno);
-    return nullptr;
-  }
-  void* p = ::mmap(nullptr, size, PROT_READ, MAP_PRIVATE | MAP_POPULATE, fd, 0);
-  const int err = errno;
-  ::close(fd);  // the mapping keeps the file
-  if (p == MAP_FAILED) {
-    why = std::string("it cannot be mapped: ") + std::strerror(err);
-    return nullptr;
-  }
-  return std::shared_ptr<const void>(p, [size](const void* q) { ::munmap(const_cast<void*>(q), size); });
-}
 
 double seconds_since(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -73,15 +47,7 @@ std::shared_ptr<FactorCache> make_factor_cache(const std::string& option) {
   if (!folder) return nullptr;
   FactorCacheSettings s;
   s.folder = *folder;
-  if (const char* min = std::getenv("VOXELASTIC_FACTOR_CACHE_MIN_S"); min && *min) {
-    char* end = nullptr;
-    const double v = std::strtod(min, &end);
-    if (end && *end == 0 && v >= 0)
-      s.min_factor_s = v;
-    else
-      log::warn("VOXELASTIC_FACTOR_CACHE_MIN_S='{}' is not a number of seconds >= 0; keeping {} s", min,
-                s.min_factor_s);
-  }
+  s.min_factor_s = cache_min_seconds(s.min_factor_s);
   return std::make_shared<FolderFactorCache>(std::move(s));
 }
 
@@ -115,7 +81,7 @@ bool FolderFactorCache::load(const FactorKey& key, SparseFactor& factor) {
   }
   const auto t0 = std::chrono::steady_clock::now();
   std::string why;
-  std::shared_ptr<const void> mapping = map_file(file, std::size_t(size), why);
+  std::shared_ptr<const void> mapping = map_cache_file(file, std::size_t(size), why);
   if (!mapping || !factor.read(static_cast<const unsigned char*>(mapping.get()), std::size_t(size), mapping, &why)) {
     ++counters_.misses;
     ++counters_.damaged;
@@ -124,7 +90,7 @@ bool FolderFactorCache::load(const FactorKey& key, SparseFactor& factor) {
     return false;
   }
   ++counters_.hits;
-  fs::last_write_time(file, fs::file_time_type::clock::now(), ec);  // recently used: kept longest
+  touch_cache_file(file);  // recently used: kept longest
   log::info("factor cache: loaded the factor ({} rows, {:.0f} MB) from {} in {:.2f} s", key.rows, double(size) / 1e6,
             file.string(), seconds_since(t0));
   return true;
@@ -172,32 +138,7 @@ void FolderFactorCache::store(const FactorKey& key, const SparseFactor& factor) 
 }
 
 void FolderFactorCache::evict(const fs::path& keep) {
-  struct Entry {
-    fs::path path;
-    fs::file_time_type time;
-    std::uintmax_t bytes;
-  };
-  std::vector<Entry> entries;
-  std::uint64_t total = 0;
-  std::error_code ec;
-  for (fs::directory_iterator it(settings_.folder, ec), end; !ec && it != end; it.increment(ec)) {
-    if (!it->is_regular_file(ec) || it->path().extension() != kExtension) continue;
-    Entry e{it->path(), it->last_write_time(ec), it->file_size(ec)};
-    if (ec) continue;
-    total += e.bytes;
-    entries.push_back(std::move(e));
-  }
-  std::sort(entries.begin(), entries.end(), [](const Entry& a, const Entry& b) { return a.time < b.time; });
-  for (const Entry& e : entries) {
-    if (total <= settings_.max_bytes) break;
-    if (e.path == keep) continue;
-    if (fs::remove(e.path, ec)) {
-      total -= e.bytes;
-      ++counters_.evicted;
-      log::debug("factor cache: removed {} (the folder is over {:.0f} MB)", e.path.string(),
-                 double(settings_.max_bytes) / 1e6);
-    }
-  }
+  counters_.evicted += evict_cache_files(settings_.folder, settings_.max_bytes, keep);
 }
 
 }  // namespace vx

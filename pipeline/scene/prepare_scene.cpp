@@ -90,12 +90,13 @@ std::optional<Volume> build_object(const Scene& scene, PreparedScene& out) {
 }
 
 /// The material per element when heterogeneous (HU table, inclusions), and the physics.
-void calibrate_material(const Scene& scene, const Volume* volume, PreparedScene& out) {
+void calibrate_material(const Scene& scene, const Volume* volume, const PrepareSceneOptions& options,
+                        PreparedScene& out) {
   const MaterialField field = material_field(*out.model, scene.material, volume);
   CalibrationOptions calibration;
   calibration.element = scene.material.element;
   calibration.mass_scaling = scene.material.mass_scaling;
-  out.physics = make_physics_model(out.model, scene.material.base, field, calibration);
+  out.physics = make_physics_model(out.model, scene.material.base, field, calibration, options.calibration_cache.get());
   if (scene.material.mass_scaling.active())
     out.log.push_back(fmt::format("mass scaling: factor {:g}, floor for a {:.3g} ms step: {} nodes heavier, +{:.3g} % mass",
                                   scene.material.mass_scaling.factor, 1e3 * scene.material.mass_scaling.time_step_s,
@@ -362,7 +363,7 @@ PreparedScene prepare_scene(const Scene& scene, const PrepareSceneOptions& optio
   const SceneErrors errors{scene.file.empty() ? std::string("scene") : scene.file.string()};
   std::optional<Volume> volume;
   timed(out, "object", [&] { volume = build_object(scene, out); });
-  timed(out, "material", [&] { calibrate_material(scene, volume ? &*volume : nullptr, out); });
+  timed(out, "material", [&] { calibrate_material(scene, volume ? &*volume : nullptr, options, out); });
   std::vector<std::uint8_t> fixed;
   timed(out, "support and probes", [&] {
     choose_integrator(scene, options, errors, out);

@@ -29,6 +29,7 @@
 #include "io/volume.h"
 #include "io/volume_io.h"
 #include "model/gradational_builder.h"
+#include "physics/calibration_key.h"
 #include "physics/physics_model.h"
 #include "sim/contact.h"
 #include "sim/integrators.h"
@@ -158,6 +159,8 @@ struct PrepareSceneOptions {
   int region_check_nice{10};
   /// implicit: the factor cache (io/factor_cache.h; make_factor_cache); null: none
   std::shared_ptr<FactorCache> factor_cache;
+  /// the calibration cache (io/calibration_cache.h; make_calibration_cache); null: none
+  std::shared_ptr<CalibrationCache> calibration_cache;
 };
 
 /// The regional solves' error on a scene's support: the estimate of the probe where it is worst,

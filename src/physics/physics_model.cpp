@@ -5,11 +5,13 @@
 #include <Eigen/SVD>
 #include <algorithm>
 #include <array>
+#include <chrono>
 #include <cmath>
 #include <limits>
 
 #include "base/error.h"
 #include "base/parallel.h"
+#include "physics/calibration_key.h"
 #include "physics/element_gradient.h"
 #include "physics/elements.h"
 #include "physics/vertex_weights.h"
@@ -378,11 +380,18 @@ void lump_masses(PhysicsModel& p, const std::vector<double>& anisotropy, const s
     for (int i = 0; i < n; ++i)
       p.node_mass_kg[std::size_t(m.element_vertices[b + i])] += p.element_mass_kg[e] * p.entry_weight[std::size_t(b + i)] / wsum;
   }
+  for (int i = 0; i < nn; ++i)
+    if (!(p.node_mass_kg[i] > 0))
+      throw Error("make_physics_model: node " + std::to_string(i) + " belongs to no element");
+}
+
+/// The inertial masses of the lumped ones (before mass scaling).
+void set_node_masses(PhysicsModel& p) {
+  const int nn = p.num_nodes();
   p.node_mass.resize(std::size_t(nn));
   p.node_inv_mass.resize(std::size_t(nn));
   p.node_gravity_ratio.assign(std::size_t(nn), 1.0);
   for (int i = 0; i < nn; ++i) {
-    if (!(p.node_mass_kg[i] > 0)) throw Error("make_physics_model: node " + std::to_string(i) + " belongs to no element");
     p.node_mass[i] = p.node_mass_kg[i] * kKgToNs2PerMm;
     p.node_inv_mass[i] = 1.0 / p.node_mass[i];
   }
@@ -498,24 +507,32 @@ double mass_for_time_step(double sk, double sc, double dt) {
   return 0.25 * dt * dt * sk + 0.5 * dt * sc;
 }
 
-std::shared_ptr<const PhysicsModel> make_physics_model(std::shared_ptr<const Model> model_ptr,
-                                                       const Material& material,
-                                                       const MaterialField& field,
-                                                       const CalibrationOptions& options) {
+std::shared_ptr<const PhysicsModel> make_physics_model(std::shared_ptr<const Model> model_ptr, const Material& material,
+                                                       const MaterialField& field, const CalibrationOptions& options,
+                                                       CalibrationCache* cache) {
   check_inputs(model_ptr.get(), material, field, options);
   auto p = std::make_shared<PhysicsModel>();
   p->model = std::move(model_ptr);
   p->material = material;
   p->element = options.element;
   set_plane(*p);
-  allocate(*p);
-  std::vector<double> anisotropy;
-  std::vector<std::uint8_t> bad;
-  calibrate_elements(*p, field, options, anisotropy, bad);
-  set_gradients(*p, bad);
-  set_volume_points(*p, options);
-  set_bending_modes(*p, options);
-  lump_masses(*p, anisotropy, bad);
+  // the calibrated part: the per-element work, loaded when the cache holds it
+  CalibrationKey key;
+  if (cache) key = calibration_key(*p->model, material, field, options);
+  if (!cache || !cache->load(key, *p)) {
+    const auto t0 = std::chrono::steady_clock::now();
+    allocate(*p);
+    std::vector<double> anisotropy;
+    std::vector<std::uint8_t> bad;
+    calibrate_elements(*p, field, options, anisotropy, bad);
+    set_gradients(*p, bad);
+    set_volume_points(*p, options);
+    set_bending_modes(*p, options);
+    lump_masses(*p, anisotropy, bad);
+    if (cache) cache->store(key, *p, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+  }
+  // the derived part
+  set_node_masses(*p);
   index_entries(*p);
   build_element_batches(*p, kElementGrain, p->element_batches);
   scale_masses(*p, options.mass_scaling);
@@ -524,6 +541,11 @@ std::shared_ptr<const PhysicsModel> make_physics_model(std::shared_ptr<const Mod
   const Eigen::Matrix3Xd& r = p->model->rest_positions;
   p->rest_diagonal_mm = (r.rowwise().maxCoeff() - r.rowwise().minCoeff()).norm();
   return p;
+}
+
+std::shared_ptr<const PhysicsModel> make_physics_model(std::shared_ptr<const Model> model, const Material& material,
+                                                       const MaterialField& field, const CalibrationOptions& options) {
+  return make_physics_model(std::move(model), material, field, options, nullptr);
 }
 
 std::shared_ptr<const PhysicsModel> make_physics_model(const Model& model, const Material& material,

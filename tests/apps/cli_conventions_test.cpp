@@ -61,7 +61,7 @@ std::string box_scene(double duration_s, double pvd_s, double ball_z_mm = 9.2) {
 
 }  // namespace
 
-TEST_F(CliConventions, TheSecondRunOfAnImplicitSceneLoadsItsFactorAndGivesTheSameForces) {
+TEST_F(CliConventions, TheSecondRunOfAnImplicitSceneLoadsItsFactorAndCalibrationAndGivesTheSameForces) {
   nlohmann::json j = nlohmann::json::parse(box_scene(0.1, 0.05));
   j["integrator"] = {{"type", "implicit"}, {"dt_s", 0.01}, {"iterations", 3}};
   j["outputs"].erase("pvd");
@@ -73,10 +73,13 @@ TEST_F(CliConventions, TheSecondRunOfAnImplicitSceneLoadsItsFactorAndGivesTheSam
   ASSERT_EQ(first.code, 0) << first.err;
   EXPECT_NE(first.err.find("factor cache: kept the factor"), std::string::npos) << first.err;
   EXPECT_NE(first.out.find("factoring took"), std::string::npos) << first.out;
+  EXPECT_NE(first.err.find("calibration cache: kept the calibration"), std::string::npos) << first.err;
   const RunResult second = run("simulate implicit.json --out b --factor-cache fc", keep_all);
   ASSERT_EQ(second.code, 0) << second.err;
   EXPECT_NE(second.err.find("factor cache: loaded the factor"), std::string::npos) << second.err;
   EXPECT_NE(second.out.find("the factor loaded from the cache"), std::string::npos) << second.out;
+  EXPECT_NE(second.err.find("calibration cache: loaded the calibration"), std::string::npos) << second.err;
+  EXPECT_NE(second.out.find("the calibration loaded from the cache"), std::string::npos) << second.out;
   const nlohmann::json sa = nlohmann::json::parse(slurp(dir_ / "a" / "summary.json"));
   const nlohmann::json sb = nlohmann::json::parse(slurp(dir_ / "b" / "summary.json"));
   EXPECT_EQ(sa.at("factorisations"), 1);
@@ -86,19 +89,26 @@ TEST_F(CliConventions, TheSecondRunOfAnImplicitSceneLoadsItsFactorAndGivesTheSam
   const std::string fa = slurp(dir_ / "a" / "forces.csv");
   EXPECT_GT(fa.size(), 100u);
   EXPECT_EQ(fa, slurp(dir_ / "b" / "forces.csv"));
-  int files = 0;
-  for (const auto& e : fs::directory_iterator(dir_ / "fc")) files += e.path().extension() == ".vxfactor" ? 1 : 0;
+  int files = 0, calibrations = 0;
+  for (const auto& e : fs::directory_iterator(dir_ / "fc")) {
+    files += e.path().extension() == ".vxfactor" ? 1 : 0;
+    calibrations += e.path().extension() == ".vxcalib" ? 1 : 0;
+  }
   EXPECT_EQ(files, 1);
+  EXPECT_EQ(calibrations, 1);
   // another step: another matrix, factored anew and kept beside
   j["integrator"]["dt_s"] = 0.02;
   std::ofstream(dir_ / "implicit.json") << j.dump(2);
   const RunResult third = run("simulate implicit.json --out c --factor-cache fc", keep_all);
   ASSERT_EQ(third.code, 0) << third.err;
   EXPECT_EQ(nlohmann::json::parse(slurp(dir_ / "c" / "summary.json")).at("factors_from_cache"), 0);
+  // the calibration does not depend on the step: loaded
+  EXPECT_NE(third.err.find("calibration cache: loaded the calibration"), std::string::npos) << third.err;
   // off: nothing looked up
   const RunResult off = run("simulate implicit.json --out d --factor-cache off", keep_all);
   ASSERT_EQ(off.code, 0) << off.err;
   EXPECT_EQ(off.err.find("factor cache"), std::string::npos) << off.err;
+  EXPECT_EQ(off.err.find("calibration cache"), std::string::npos) << off.err;
 }
 
 TEST_F(CliConventions, CtrlCInSimulateKeepsAUsablePvdAndSaysWhereItStopped) {

@@ -1,0 +1,87 @@
+#pragma once
+/// @file calibration_cache.h
+/// The calibration cache: the calibrated part of a PhysicsModel (physics/calibration_key.h,
+/// CalibrationCache: vertex weights, rest offsets, consistent gradients, bending-mode weights,
+/// per-element stiffness, damping and masses, node masses) kept by the content of what it was
+/// calibrated from (CalibrationKey: the model, the material, the per-element field, the options),
+/// so the second start of a model loads what the first computed element by element (the folded
+/// organ: 2.0 s of calibration on both cores; docs/bench.md). It lives in the factor cache's
+/// folder (factor_cache.h: the same option, environment variable and size limit over both kinds
+/// of file).
+///
+/// One file per calibration, `calibration-<elements>e-<entries>v-<hash>.vxcalib`: a header
+/// (magic, format version, the key, the sizes), the arrays at 64-byte boundaries, a checksum;
+/// written to a temporary name and renamed; read back through a mapping and checked (header,
+/// key, every size against the model, the volume points' indices, the checksum): a damaged file
+/// is removed with a warning and the model calibrated. Nothing here may stop a run.
+
+#include <cstdint>
+#include <filesystem>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <ostream>
+#include <string>
+
+#include "physics/calibration_key.h"
+#include "physics/physics_model.h"
+
+namespace vx {
+
+struct CalibrationCacheSettings {
+  std::filesystem::path folder;
+  /// the folder's cache files (factors and calibrations) together at most this many bytes; the
+  /// least recently used go first
+  std::uint64_t max_bytes{std::uint64_t(8) << 30};
+  /// calibrations computed faster than this are not kept, s
+  double min_calibration_s{0.25};
+};
+
+/// The calibration cache of a command-line option (`--factor-cache`), in the factor cache's
+/// folder: "" the default folder (default_factor_cache_folder(), or none), "off" none, anything
+/// else a folder (created when used). Null: no cache. $VOXELASTIC_FACTOR_CACHE_MIN_S sets
+/// min_calibration_s (0: keep every calibration).
+[[nodiscard]] std::shared_ptr<CalibrationCache> make_calibration_cache(const std::string& option);
+
+/// The file form of the calibrated part of `physics` under `key` (what the folder keeps). Throws
+/// vx::Error when the stream fails.
+void write_calibration(std::ostream& out, const CalibrationKey& key, const PhysicsModel& physics);
+/// Reads what write_calibration wrote (`bytes` bytes at `data`) into the calibrated part of
+/// `physics` (its model set: every size is checked against it). False with `why` when it is not
+/// a calibration of `key` for that model or is damaged; `physics` is then left as it was.
+[[nodiscard]] bool read_calibration(const unsigned char* data, std::size_t bytes, const CalibrationKey& key,
+                                    PhysicsModel& physics, std::string* why);
+
+/// A CalibrationCache in a folder. Thread-safe (one lock around each call).
+class FolderCalibrationCache final : public CalibrationCache {
+ public:
+  explicit FolderCalibrationCache(CalibrationCacheSettings settings);
+
+  bool load(const CalibrationKey& key, PhysicsModel& physics) override;
+  void store(const CalibrationKey& key, const PhysicsModel& physics, double seconds) override;
+
+  [[nodiscard]] const CalibrationCacheSettings& settings() const { return settings_; }
+  /// The file of `key`.
+  [[nodiscard]] std::filesystem::path file_of(const CalibrationKey& key) const;
+
+  struct Counters {
+    int hits{0};     ///< calibrations loaded
+    int misses{0};   ///< looked up and not found (or not readable)
+    int stored{0};   ///< written
+    int skipped{0};  ///< not written: computed faster than min_calibration_s
+    int damaged{0};  ///< files found unreadable and removed
+    int evicted{0};  ///< cache files removed to keep the folder under max_bytes
+  };
+  [[nodiscard]] Counters counters() const;
+
+ private:
+  /// A warning the first time the folder cannot be used, debug lines after.
+  void complain(const std::string& what);
+
+  CalibrationCacheSettings settings_;
+  mutable std::mutex mutex_;
+  Counters counters_;
+  bool complained_{false};
+};
+
+}  // namespace vx

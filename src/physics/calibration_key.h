@@ -1,0 +1,75 @@
+#pragma once
+/// @file calibration_key.h
+/// The core's half of the calibration cache (the folder and the file form are
+/// pipeline/io/calibration_cache.h, as the factor cache is split between sim/sparse_factor.h and
+/// pipeline/io/factor_cache.h): what a calibration is the calibration of (CalibrationKey), the
+/// store that keeps calibrations by it (CalibrationCache), and make_physics_model with such a
+/// store. The calibration (physics_model.h) is the same per-element work at every start of the
+/// same model and material: 2.0 s on both cores for the folded organ (docs/bench.md).
+
+#include <cstdint>
+#include <memory>
+#include <string>
+
+namespace vx {
+
+struct Model;
+struct Material;
+struct MaterialField;
+struct CalibrationOptions;
+struct PhysicsModel;
+
+/// What a calibration is the calibration of (the calibration cache's key, as FactorKey is the
+/// factor cache's): a 64-bit hash of everything the calibrated part of a PhysicsModel depends
+/// on: the model's content (every array of Model, bit for bit), the material, the per-element
+/// field, the calibration options, a version (physics_model_key.cpp), and the calibration of a
+/// small reference object built like the model with the same material and options by this
+/// build (so a change of the calibration's code that shows there changes the key, and a file
+/// written by an older build is not used).
+struct CalibrationKey {
+  std::uint64_t hash{0};     ///< ContentHash (base/content_hash.h)
+  std::int64_t elements{0};  ///< sizes of the model (for the file name; the hash holds the content)
+  std::int64_t entries{0};   ///< vertex entries
+  /// A file-name-safe name: "calibration-43616e-1302388v-0123456789abcdef".
+  [[nodiscard]] std::string name() const;
+  [[nodiscard]] bool operator==(const CalibrationKey&) const = default;
+};
+
+/// The key of calibrating `model` with `material`, `field` and `options` (make_physics_model's
+/// arguments). Hashes the model at about 6 GB/s and calibrates the reference object (a few ms).
+/// Throws vx::Error where make_physics_model would (an invalid material or options).
+[[nodiscard]] CalibrationKey calibration_key(const Model& model, const Material& material, const MaterialField& field,
+                                             const CalibrationOptions& options);
+
+/// A store of calibrations by key (pipeline/io/calibration_cache.h keeps one in a folder, beside
+/// the factors). make_physics_model asks it before calibrating and offers it the result after.
+/// It holds the calibrated part of a PhysicsModel, the per-element work:
+///   entry_weight, entry_rest, entry_rest_weighted, entry_gradient, entry_modes,
+///   element_stiffness, element_damping, element_volume_stiffness, element_mass_kg,
+///   element_spread_mm2, element_fit_scale, element_affine_stiffness, element_spread,
+///   volume_point_offsets, volume_point_stiffness, volume_point_term_offsets, volume_term_entry,
+///   volume_term_delta, node_mass_kg, and the counts bending_relief_clamped,
+///   gradient_fallback_elements, anisotropic_elements, max_anisotropy.
+/// The rest (the inertial masses and their scaling, the node -> entry index, the packed entries
+/// and the batches of the element pass) is derived from these at every start.
+class CalibrationCache {
+ public:
+  virtual ~CalibrationCache() = default;
+  /// Fills the calibrated part of `physics` (its model, material, element and dimensions set)
+  /// with the stored calibration of `key`; false when there is none or it cannot be read (then
+  /// `physics` is as it was).
+  virtual bool load(const CalibrationKey& key, PhysicsModel& physics) = 0;
+  /// Offers the calibration of `key`, just computed in `seconds` (wall time).
+  virtual void store(const CalibrationKey& key, const PhysicsModel& physics, double seconds) = 0;
+};
+
+/// make_physics_model (physics_model.h) with a calibration cache (may be null: none): the
+/// calibrated part is loaded from it when it holds this calibration (bit for bit what
+/// calibrating gives: the same arrays, the same steps), else computed and offered to it.
+[[nodiscard]] std::shared_ptr<const PhysicsModel> make_physics_model(std::shared_ptr<const Model> model,
+                                                                     const Material& material,
+                                                                     const MaterialField& field,
+                                                                     const CalibrationOptions& options,
+                                                                     CalibrationCache* cache);
+
+}  // namespace vx

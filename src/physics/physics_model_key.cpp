@@ -1,0 +1,158 @@
+#include "physics/calibration_key.h"
+// The calibration cache's key (calibration_key.h): what a calibration depends on,
+// hashed.
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "base/content_hash.h"
+#include "model/gradational_builder.h"
+#include "physics/physics_model.h"
+
+namespace vx {
+
+namespace {
+
+/// Raised by hand when the calibration's output changes in a way the reference model below would
+/// not show (an element shape it lacks): the keys of older files then no longer match.
+constexpr std::uint64_t kCalibrationVersion = 1;
+
+template <typename T>
+void add_vector(ContentHash& h, const std::vector<T>& v) {
+  h.add_value(std::uint64_t(v.size()));
+  if (!v.empty()) h.add(v.data(), v.size() * sizeof(T));
+}
+
+template <typename Derived>
+void add_matrix(ContentHash& h, const Eigen::DenseBase<Derived>& m) {
+  h.add_value(std::int64_t(m.rows()));
+  h.add_value(std::int64_t(m.cols()));
+  if (m.size() > 0) h.add(m.derived().data(), std::size_t(m.size()) * sizeof(typename Derived::Scalar));
+}
+
+/// Every array of the model, bit for bit (the values one by one: no padding is hashed).
+void add_model(ContentHash& h, const Model& m) {
+  h.add_value(std::uint8_t(m.layout));
+  h.add_value(std::int32_t(m.dimensions));
+  add_matrix(h, m.grid.dims);
+  add_matrix(h, m.grid.spacing_mm);
+  add_matrix(h, m.grid.origin_mm);
+  add_matrix(h, m.grid.direction);
+  add_matrix(h, m.rest_positions);
+  add_matrix(h, m.node_lattice);
+  add_vector(h, m.node_surface);
+  add_vector(h, m.element_offsets);
+  add_vector(h, m.element_vertices);
+  add_vector(h, m.element_level);
+  add_vector(h, m.element_cell_voxels);
+  add_matrix(h, m.element_anchor);
+  add_vector(h, m.element_cells);
+  add_matrix(h, m.rest_offsets);
+  add_matrix(h, m.rest_centroids);
+  add_vector(h, m.element_volume_mm3);
+  add_vector(h, m.element_size_mm);
+}
+
+void add_material(ContentHash& h, const Material& material, const MaterialField& field, const CalibrationOptions& o) {
+  h.add_value(material.youngs_modulus_kpa);
+  h.add_value(material.density_kg_m3);
+  h.add_value(material.damping_ratio);
+  h.add_value(material.poisson_ratio);
+  add_vector(h, field.youngs_modulus_kpa);
+  add_vector(h, field.density_kg_m3);
+  h.add_value(std::uint8_t(o.element));
+  h.add_value(o.bending_relief);
+  h.add_value(o.xyz_relief);
+  h.add_value(std::uint8_t(o.isotropic_weights ? 1 : 0));
+  h.add_value(o.min_weight);
+  h.add_value(o.max_weight);
+  h.add_value(o.mass_scaling.factor);
+  h.add_value(o.mass_scaling.time_step_s);
+  h.add_value(o.volume_mean_fraction);
+  h.add_value(o.volume_point_position);
+  h.add_value(o.volume_variation_cap);
+}
+
+/// The calibrated part of a PhysicsModel (CalibrationCache's list), bit for bit.
+void add_calibration(ContentHash& h, const PhysicsModel& p) {
+  add_vector(h, p.entry_weight);
+  add_matrix(h, p.entry_rest);
+  add_matrix(h, p.entry_rest_weighted);
+  add_matrix(h, p.entry_gradient);
+  add_matrix(h, p.entry_modes);
+  add_vector(h, p.element_stiffness);
+  add_vector(h, p.element_damping);
+  add_vector(h, p.element_volume_stiffness);
+  add_vector(h, p.element_mass_kg);
+  add_vector(h, p.element_spread_mm2);
+  add_vector(h, p.element_fit_scale);
+  add_vector(h, p.element_affine_stiffness);
+  for (const Eigen::Matrix3d& c : p.element_spread) add_matrix(h, c);
+  add_vector(h, p.volume_point_offsets);
+  add_vector(h, p.volume_point_stiffness);
+  add_vector(h, p.volume_point_term_offsets);
+  add_vector(h, p.volume_term_entry);
+  add_matrix(h, p.volume_term_delta);
+  add_vector(h, p.node_mass_kg);
+  h.add_value(p.bending_relief_clamped);
+  h.add_value(p.gradient_fallback_elements);
+  h.add_value(p.anisotropic_elements);
+  h.add_value(p.max_anisotropy);
+  add_vector(h, p.node_mass);  // the derived masses too (mass scaling)
+}
+
+/// The calibration of a small reference object built like `model` (its layout, dimensions, voxel
+/// spacing and directions: a ball of radius 5.5 voxels, whose surface has partly filled elements
+/// and extra face vertices, the inside larger elements) with the same material and options,
+/// hashed: this build's calibration code, as far as the reference shows it.
+std::uint64_t reference_calibration(const Model& model, const Material& material, const CalibrationOptions& options) {
+  GridGeometry g;
+  const bool flat = model.is_2d();
+  g.dims = flat ? Eigen::Vector3i(14, 14, 1) : Eigen::Vector3i(14, 14, 14);
+  g.spacing_mm = model.grid.spacing_mm;
+  g.direction = model.grid.direction;
+  VoxelGrid grid(g);
+  const Eigen::Vector3d c = 0.5 * (g.dims.cast<double>() - Eigen::Vector3d::Ones());
+  for (int k = 0; k < g.dims.z(); ++k)
+    for (int j = 0; j < g.dims.y(); ++j)
+      for (int i = 0; i < g.dims.x(); ++i) {
+        const Eigen::Vector3d d = Eigen::Vector3d(i, j, k) - c;
+        const double r2 = flat ? d.head<2>().squaredNorm() : d.squaredNorm();
+        grid.set(i, j, k, r2 <= 5.5 * 5.5 ? 1 : 0);
+      }
+  BuildSettings build;
+  build.layout = model.layout;
+  build.dimensions = model.dimensions;
+  const auto physics = make_physics_model(build_model(grid, build), material, {}, options);
+  ContentHash h;
+  add_calibration(h, *physics);
+  return h.value();
+}
+
+}  // namespace
+
+std::string CalibrationKey::name() const {
+  char hex[17];
+  static constexpr char kDigits[] = "0123456789abcdef";
+  for (int i = 0; i < 16; ++i) hex[i] = kDigits[(hash >> (60 - 4 * i)) & 0xF];
+  hex[16] = 0;
+  return "calibration-" + std::to_string(elements) + "e-" + std::to_string(entries) + "v-" + hex;
+}
+
+CalibrationKey calibration_key(const Model& model, const Material& material, const MaterialField& field,
+                               const CalibrationOptions& options) {
+  ContentHash h;
+  h.add_value(kCalibrationVersion);
+  add_model(h, model);
+  add_material(h, material, field, options);
+  h.add_value(reference_calibration(model, material, options));
+  CalibrationKey key;
+  key.hash = h.value();
+  key.elements = model.num_elements();
+  key.entries = model.num_vertex_entries();
+  return key;
+}
+
+}  // namespace vx
