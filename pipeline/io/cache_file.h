@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "base/content_hash.h"
+#include "base/huge_pages.h"
 
 namespace vx {
 
@@ -91,6 +92,9 @@ class CacheFileReader {
   void copy(std::vector<T>& v, std::int64_t expected, const char* what) {
     const auto [p, n] = array(sizeof(T), expected, what);
     if (!p) return;
+    v.clear();
+    v.reserve(n);
+    prefer_huge_pages(v.data(), n * sizeof(T));  // fresh memory: most of the load's cost
     v.resize(n);
     if (n > 0) std::memcpy(v.data(), p, n * sizeof(T));
   }

@@ -45,6 +45,7 @@ void read_matrix(CacheFileReader& r, Eigen::PlainObjectBase<Derived>& m, Eigen::
     return;
   }
   m.resize(rows, Eigen::Index(n / std::size_t(rows)));
+  prefer_huge_pages(m.data(), n * sizeof(Scalar));  // before the first touch
   if (n > 0) std::memcpy(m.data(), p, n * sizeof(Scalar));
 }
 
@@ -138,6 +139,8 @@ bool read_calibration(const unsigned char* data, std::size_t bytes, const Calibr
   r.copy(t.element_spread_mm2, ne, "the element spreads");
   r.copy(t.element_fit_scale, ne, "the fit scales");
   r.copy(t.element_affine_stiffness, ne, "the affine stiffness");
+  t.element_spread.reserve(std::size_t(ne));
+  prefer_huge_pages(t.element_spread.data(), std::size_t(ne) * sizeof(Eigen::Matrix3d));
   t.element_spread.resize(std::size_t(ne));
   r.copy_to(t.element_spread.data(), std::size_t(ne), sizeof(Eigen::Matrix3d), "the spread matrices");
   r.copy(t.volume_point_offsets, -1, "the volume point offsets");

@@ -10,6 +10,7 @@
 #include <limits>
 
 #include "base/error.h"
+#include "base/huge_pages.h"
 #include "base/parallel.h"
 #include "physics/calibration_key.h"
 #include "physics/element_gradient.h"
@@ -461,6 +462,8 @@ void index_entries(PhysicsModel& p) {
     p.node_entries[std::size_t(slot)] = std::int32_t(j);
     p.entry_slot[j] = slot;
   }
+  p.entry_packed.reserve(m.element_vertices.size());
+  prefer_huge_pages(p.entry_packed.data(), m.element_vertices.size() * sizeof(PackedEntry));
   p.entry_packed.resize(m.element_vertices.size());
   for (std::size_t j = 0; j < m.element_vertices.size(); ++j) {
     PackedEntry& pe = p.entry_packed[j];
