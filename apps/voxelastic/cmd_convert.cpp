@@ -463,7 +463,10 @@ void run_convert(const ConvertOptions& o) {
 
 /// The Slicer Execution Model description of `convert` (what `convert --xml` prints): 3D Slicer
 /// reads it to build the module's panel, then runs `voxelastic convert` with the values.
-/// tests/apps/cli_slicer_xml_test.cpp checks that it names every option of convert.
+/// Slicer's parser (ModuleDescriptionParser) takes a <longflag> of letters, digits and '_' only,
+/// so the flags are written with '_' for '-' (`--fill_holes`), which the command line takes too
+/// (usage.h, hyphenated_long_options). tests/apps/cli_slicer_xml_test.cpp checks the parser's
+/// rules and that it names every option of convert.
 std::string slicer_xml() {
   return std::string(R"(<?xml version="1.0" encoding="utf-8"?>
 <executable>
@@ -543,7 +546,7 @@ std::string slicer_xml() {
       <name>youngs_modulus_kpa</name>
       <label>Young's modulus (kPa)</label>
       <description><![CDATA[Written per element to the model (cell data youngs_modulus_kpa) when no Hounsfield table is given, kPa.]]></description>
-      <longflag>youngs-modulus-kpa</longflag>
+      <longflag>youngs_modulus_kpa</longflag>
       <default>5</default>
       <constraints>
         <minimum>0.001</minimum>
@@ -555,28 +558,28 @@ std::string slicer_xml() {
       <name>hounsfield_table</name>
       <label>Hounsfield table</label>
       <description><![CDATA[HU:KPA,HU:KPA,...: each voxel's modulus from its HU (linear between rows), averaged over each element. Empty: the modulus above.]]></description>
-      <longflag>hounsfield-table</longflag>
+      <longflag>hounsfield_table</longflag>
       <default></default>
     </string>
     <boolean>
       <name>largest_component</name>
       <label>Largest component only</label>
       <description><![CDATA[Keep only the largest connected piece of tissue.]]></description>
-      <longflag>largest-component</longflag>
+      <longflag>largest_component</longflag>
       <default>false</default>
     </boolean>
     <boolean>
       <name>fill_holes</name>
       <label>Fill holes</label>
       <description><![CDATA[Fill cavities inside the tissue.]]></description>
-      <longflag>fill-holes</longflag>
+      <longflag>fill_holes</longflag>
       <default>false</default>
     </boolean>
     <boolean>
       <name>no_crop</name>
       <label>Do not crop</label>
       <description><![CDATA[Keep the whole volume instead of cropping to the tissue.]]></description>
-      <longflag>no-crop</longflag>
+      <longflag>no_crop</longflag>
       <default>false</default>
     </boolean>
     <double>
@@ -609,7 +612,7 @@ std::string slicer_xml() {
       <name>max_level</name>
       <label>Largest element level</label>
       <description><![CDATA[Largest element level (cells of 2^L voxels); -1: no limit.]]></description>
-      <longflag>max-level</longflag>
+      <longflag>max_level</longflag>
       <default>-1</default>
       <constraints>
         <minimum>-1</minimum>
@@ -621,7 +624,7 @@ std::string slicer_xml() {
       <name>surface_method</name>
       <label>Surface method</label>
       <description><![CDATA[iso: smoothed iso-surface (default); paper: the voxel surface with concave steps bridged; staircase: raw voxel faces.]]></description>
-      <longflag>surface-method</longflag>
+      <longflag>surface_method</longflag>
       <default>iso</default>
       <element>iso</element>
       <element>paper</element>
@@ -631,7 +634,7 @@ std::string slicer_xml() {
       <name>lattice_origin</name>
       <label>Lattice origin</label>
       <description><![CDATA[best: the origin with the fewest vertex entries (default); crop: the crop's 1-voxel margin.]]></description>
-      <longflag>lattice-origin</longflag>
+      <longflag>lattice_origin</longflag>
       <default>best</default>
       <element>best</element>
       <element>crop</element>

@@ -3,6 +3,7 @@
 
 #include <exception>
 #include <string>
+#include <vector>
 
 #include "base/error.h"
 #include "base/version.h"
@@ -32,20 +33,25 @@ int main(int argc, char** argv) {
   vx::cli::add_bench_command(app);
   vx::cli::add_palpate_map_command(app);
   vx::cli::add_plot_command(app);
+  // long options with '_' for '-' too, as 3D Slicer writes them (convert --xml)
+  const std::vector<std::string> args = vx::cli::hyphenated_long_options(argc, argv);
+  std::vector<const char*> arg_ptrs;
+  for (const std::string& a : args) arg_ptrs.push_back(a.c_str());
+  const char* const* av = arg_ptrs.data();
   // a mistyped command is told as one, with the nearest command (CLI11 would say "A subcommand
   // is required")
-  if (const std::string unknown = vx::cli::unknown_subcommand_message(app, argc, argv); !unknown.empty()) {
+  if (const std::string unknown = vx::cli::unknown_subcommand_message(app, argc, av); !unknown.empty()) {
     fmt::print(stderr, "voxelastic: {}\n", unknown);
     return vx::exit_code::usage;
   }
   try {
     (void)vx::best_simd_level();  // a bad VOXELASTIC_SIMD is an error here, not inside a worker
-    app.parse(argc, argv);
+    app.parse(argc, av);
   } catch (const CLI::ParseError& e) {
     // --help and --version exit 0; every usage mistake exits 2 (the convention of Unix tools),
     // with the nearest option for a typo
     if (app.exit(e) == 0) return vx::exit_code::ok;
-    if (const std::string hint = vx::cli::option_suggestion(app, argc, argv); !hint.empty())
+    if (const std::string hint = vx::cli::option_suggestion(app, argc, av); !hint.empty())
       fmt::print(stderr, "voxelastic: {}\n", hint);
     return vx::exit_code::usage;
   } catch (const vx::NoDisplay& e) {

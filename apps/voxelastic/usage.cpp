@@ -69,6 +69,17 @@ std::string option_suggestion(const CLI::App& app, int argc, const char* const* 
   return "";
 }
 
+std::vector<std::string> hyphenated_long_options(int argc, const char* const* argv) {
+  std::vector<std::string> out(argv, argv + argc);
+  for (std::size_t i = 1; i < out.size(); ++i) {
+    std::string& w = out[i];
+    if (w == "--") break;  // the rest are operands
+    if (w.rfind("--", 0) != 0) continue;
+    std::replace(w.begin(), std::find(w.begin(), w.end(), '='), '_', '-');
+  }
+  return out;
+}
+
 CLI::Validator threshold_check() {
   return CLI::Validator(
       [](std::string& text) {

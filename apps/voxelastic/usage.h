@@ -8,6 +8,7 @@
 #include <CLI/CLI.hpp>
 
 #include <string>
+#include <vector>
 
 namespace vx::cli {
 
@@ -19,6 +20,11 @@ namespace vx::cli {
 /// For a parse error on an unknown option: "did you mean '--threshold'?" for the first option
 /// of the line that neither the subcommand given nor the app knows, if one is near; else "".
 [[nodiscard]] std::string option_suggestion(const CLI::App& app, int argc, const char* const* argv);
+
+/// The command line with each long option's '_' written '-' (`--fill_holes` -> `--fill-holes`;
+/// the name only, before an '=', and nothing after a bare "--"): 3D Slicer runs a CLI module
+/// with the <longflag>s of its description, which may hold no '-' (convert --xml).
+[[nodiscard]] std::vector<std::string> hyphenated_long_options(int argc, const char* const* argv);
 
 /// --threshold: a preset name or HU window (convert/threshold.h), checked while parsing.
 [[nodiscard]] CLI::Validator threshold_check();

@@ -195,7 +195,7 @@ void run_hertz(VerifyContext& ctx, Layout r, const std::vector<double>& voxels_m
   ctx.plot("force-depth", "Hertz indentation: force against depth^1.5 (a straight line for Hertz)",
            {{fmt::format("Ball R = {} mm into a {}x{}x{} mm block, {} layout, E = {} kPa", radius, dims.x(), dims.y(),
                          dims.z(), layout_name(r), e_kpa),
-             "depth^1.5, mm^1.5", "force, N", series}});
+             "depth^{1.5}, mm^{1.5}", "force, N", series}});
 }
 
 // --- mechanics: cantilever bending; convergence in resolution ----------------------------------

@@ -292,9 +292,108 @@ vtkNew<vtkTextProperty> text_property(const Font& f, HJust h, VJust v) {
   return tp;
 }
 
+/// A text in runs, plain and raised: superscripts as gnuplot's enhanced text writes them, `^c`
+/// raises one character (`n^3`), `^{...}` a group (`depth^{1.5}`); a '^' with nothing after it,
+/// or before an unclosed '{', is drawn as it is. (VTK's built-in fonts have no superscript
+/// digits: a "¹" or "⁵" in the text is not drawn.)
+struct TextRun {
+  std::string text;
+  bool raised{false};
+};
+
+std::vector<TextRun> text_runs(const std::string& s) {
+  std::vector<TextRun> runs;
+  std::string plain;
+  const auto flush = [&] {
+    if (!plain.empty()) runs.push_back({plain, false});
+    plain.clear();
+  };
+  for (std::size_t i = 0; i < s.size(); ++i) {
+    if (s[i] != '^' || i + 1 == s.size()) {
+      plain += s[i];
+      continue;
+    }
+    std::string up;
+    if (s[i + 1] == '{') {
+      const std::size_t close = s.find('}', i + 2);
+      if (close == std::string::npos) {
+        plain += s[i];
+        continue;
+      }
+      up = s.substr(i + 2, close - i - 2);
+      i = close;
+    } else {
+      // one character: a UTF-8 sequence whole
+      const auto lead = static_cast<unsigned char>(s[i + 1]);
+      const std::size_t n = lead >= 0xF0 ? 4 : lead >= 0xE0 ? 3 : lead >= 0xC0 ? 2 : 1;
+      up = s.substr(i + 1, n);
+      i += n;
+    }
+    flush();
+    if (!up.empty()) runs.push_back({up, true});
+  }
+  flush();
+  return runs;
+}
+
+bool has_raised_run(const std::vector<TextRun>& runs) {
+  return std::any_of(runs.begin(), runs.end(), [](const TextRun& r) { return r.raised; });
+}
+
+/// The coverage of a text with raised runs, unrotated: `w` x `h` alphas, u to the right and v
+/// up from the left end of the box's bottom (FreeType's bottom: the face's descent, the same for
+/// every text of a size). A raised run is 0.7 times the size, its bottom 0.42 sizes up.
+struct TextMask {
+  int w{0}, h{0};
+  std::vector<float> alpha;  ///< w x h, index v * w + u
+};
+
+TextMask text_mask(const std::vector<TextRun>& runs, const Font& f) {
+  struct Piece {
+    vtkSmartPointer<vtkImageData> img;
+    int u{0}, v{0};
+  };
+  std::vector<Piece> pieces;
+  vtkFreeTypeTools* ft = vtkFreeTypeTools::GetInstance();
+  ft->ScaleToPowerTwoOff();
+  TextMask m;
+  for (const TextRun& r : runs) {
+    const Font rf{r.raised ? std::max(6.0, std::round(0.7 * f.size)) : f.size, f.bold, 0};
+    const auto tp = text_property(rf, HJust::left, VJust::bottom);
+    auto img = vtkSmartPointer<vtkImageData>::New();
+    if (!ft->RenderString(tp.GetPointer(), vtkStdString(r.text), 72, img.GetPointer()))
+      throw Error("plot: FreeType cannot draw the text '" + r.text + "'");
+    if (img->GetNumberOfScalarComponents() < 4) throw Error("plot: FreeType gave no alpha channel");
+    int e[6];
+    img->GetExtent(e);
+    const int v = r.raised ? int(std::lround(0.42 * f.size)) : 0;
+    pieces.push_back({img, m.w - e[0], v - e[2]});
+    m.w += e[1] - e[0] + 1;  // the box's width is the run's advance, spaces included
+    m.h = std::max(m.h, v + e[3] - e[2] + 1);
+  }
+  m.alpha.assign(std::size_t(m.w) * std::size_t(m.h), 0.f);
+  for (const Piece& p : pieces) {
+    int e[6];
+    p.img->GetExtent(e);
+    for (int j = e[2]; j <= e[3]; ++j)
+      for (int i = e[0]; i <= e[1]; ++i) {
+        const int u = p.u + i, v = p.v + j;
+        if (u < 0 || v < 0 || u >= m.w || v >= m.h) continue;
+        const auto* px = static_cast<const unsigned char*>(p.img->GetScalarPointer(i, j, 0));
+        float& a = m.alpha[std::size_t(v) * std::size_t(m.w) + std::size_t(u)];
+        a = std::max(a, float(px[3]) / 255.f);
+      }
+  }
+  return m;
+}
+
 /// Width and height of a text in pixels (0, 0 for an empty one).
 std::array<int, 2> text_size(const std::string& s, const Font& f) {
   if (s.empty()) return {0, 0};
+  if (const auto runs = text_runs(s); has_raised_run(runs)) {
+    const TextMask m = text_mask(runs, f);
+    return std::abs(std::remainder(f.angle, 180.0)) > 45 ? std::array<int, 2>{m.h, m.w} : std::array<int, 2>{m.w, m.h};
+  }
   int bbox[4] = {0, -1, 0, -1};
   const auto tp = text_property(f, HJust::left, VJust::bottom);
   if (!vtkFreeTypeTools::GetInstance()->GetBoundingBox(tp.GetPointer(), vtkStdString(s), 72, bbox))
@@ -302,10 +401,34 @@ std::array<int, 2> text_size(const std::string& s, const Font& f) {
   return {bbox[1] - bbox[0] + 1, bbox[3] - bbox[2] + 1};
 }
 
+/// Draws a text with raised runs (text_mask), justified in its own frame and turned by a right
+/// angle (0 or 90 degrees, the angles plots use) about its anchor (x, y).
+void draw_text_runs(Canvas& cv, const std::vector<TextRun>& runs, double x, double y, const Font& f, Rgb c, HJust h,
+                    VJust v) {
+  const TextMask m = text_mask(runs, f);
+  const int quarter = int(std::lround(f.angle / 90.0)) % 4;
+  if (std::abs(f.angle - 90.0 * std::lround(f.angle / 90.0)) > 1e-9 || (quarter != 0 && quarter != 1))
+    throw Error(fmt::format("plot: text with a superscript at {} degrees (0 or 90 only)", f.angle));
+  const int du = h == HJust::left ? 0 : h == HJust::center ? -m.w / 2 : -m.w;
+  const int dv = v == VJust::bottom ? 0 : v == VJust::center ? -m.h / 2 : -m.h;
+  const int ax = int(std::lround(x)), ay = int(std::lround(y));
+  for (int j = 0; j < m.h; ++j)
+    for (int i = 0; i < m.w; ++i) {
+      const float a = m.alpha[std::size_t(j) * std::size_t(m.w) + std::size_t(i)];
+      if (a <= 0) continue;
+      const int u = i + du, w = j + dv;  // in the text's frame, w up
+      if (quarter == 0)
+        cv.blend(ax + u, ay - w, c, a);
+      else  // turned a quarter counter-clockwise: the text reads upwards
+        cv.blend(ax - w, ay - u, c, a);
+    }
+}
+
 /// Draws `s` with its anchor (by the justifications) at pixel (x, y) of the canvas (y down).
 void draw_text(Canvas& cv, const std::string& s, double x, double y, const Font& f, Rgb c, HJust h = HJust::left,
                VJust v = VJust::bottom) {
   if (s.empty()) return;
+  if (const auto runs = text_runs(s); has_raised_run(runs)) return draw_text_runs(cv, runs, x, y, f, c, h, v);
   const auto tp = text_property(f, h, v);
   vtkNew<vtkImageData> img;
   vtkFreeTypeTools* ft = vtkFreeTypeTools::GetInstance();

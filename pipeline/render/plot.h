@@ -4,6 +4,8 @@
 /// palpation map) and text, rasterised on the CPU into a VTK image (anti-aliased lines and
 /// markers; text by VTK's FreeType tools, no OpenGL) and written by vtkPNGWriter. No shell, no
 /// external program: works headless (CI, a server). Pixel sizes; data in the caller's units.
+/// In every text (titles, axis labels, legends), `^c` and `^{...}` are superscripts, as in
+/// gnuplot's enhanced text: "8 n^3", "depth^{1.5}, mm^{1.5}".
 
 #include <filesystem>
 #include <limits>

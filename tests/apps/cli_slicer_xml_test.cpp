@@ -1,8 +1,14 @@
 // `voxelastic convert --xml`: the Slicer Execution Model description that makes convert a 3D
-// Slicer CLI module (issue #29). Checked the way Slicer uses it: well-formed XML (xmllint when
-// installed, and VTK's expat parser), the elements of a module description in their order,
-// every option of `convert --help` described once with a flag Slicer can pass, and a run with
-// the described defaults, as Slicer would start it, that converts a phantom.
+// Slicer CLI module (issue #29). Checked the way Slicer reads it: well-formed XML (xmllint, a
+// hard requirement: libxml2-utils, scripts/install-deps.sh), then the rules of Slicer's own
+// reader, ModuleDescriptionParser (SlicerExecutionModel), restated here: the elements and
+// attributes it knows, a <name> and <longflag> of letters, digits and '_' only (it refuses the
+// module otherwise), a one-letter <flag>, a flag or an index but not both. Slicer's
+// ModuleDescription.xsd is no check: libxml2 cannot compile it (an attribute after
+// complexContent), and repaired it still refuses what the parser takes (a <longflag> on an
+// <image>, more than one <element>), Slicer's own test descriptions among them. Then every
+// option of `convert --help` described once, and a run with the described defaults and flags,
+// as Slicer starts it (`--fill_holes`: '_' for '-'), that converts a phantom.
 #include <gtest/gtest.h>
 #include <unistd.h>
 #include <vtkNew.h>
@@ -11,6 +17,7 @@
 #include <vtkXMLUtilities.h>
 
 #include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -76,6 +83,35 @@ std::set<std::string> help_long_options(const std::string& help) {
   return out;
 }
 
+/// ModuleDescriptionParser's test for a <name> or <longflag> (after dropping leading '-'): a
+/// letter or '_' first, then letters, digits and '_'.
+bool slicer_variable(const std::string& s) { return std::regex_match(s, std::regex("[A-Za-z_][A-Za-z0-9_]*")); }
+
+/// What ModuleDescriptionParser accepts inside a parameter, and the attributes of the kinds we
+/// use (any other is an error there, and Slicer does not load the module).
+const std::set<std::string> kParameterChildren = {"name",        "flag",        "longflag", "label",
+                                                  "description", "default",     "channel",  "index",
+                                                  "element",     "constraints", "reference"};
+const std::map<std::string, std::set<std::string>> kAttributes = {
+    {"image", {"type", "fileExtensions", "multiple", "hidden", "reference"}},
+    {"geometry", {"type", "fileExtensions", "multiple", "aggregate", "reference"}},
+    {"file", {"fileExtensions", "multiple"}},
+    {"integer", {"hidden", "multiple"}},
+    {"double", {"hidden", "multiple"}},
+    {"float", {"hidden", "multiple"}},
+    {"boolean", {"hidden"}},
+    {"string", {"hidden", "multiple"}},
+    {"string-enumeration", {"hidden"}}};
+const std::set<std::string> kImageTypes = {"any",
+                                           "scalar",
+                                           "label",
+                                           "tensor",
+                                           "diffusion-weighted",
+                                           "vector",
+                                           "signal",
+                                           "multichannel",
+                                           "dynamic-contrast-enhanced"};
+
 struct Parameter {
   std::string kind, name, longflag, flag, index, channel, default_value;
   std::vector<std::string> elements;
@@ -89,12 +125,14 @@ TEST_F(CliSlicerXml, ConvertDescribesItselfAsASlicerCliModule) {
   const fs::path xml = dir_ / "convert.xml";
   std::ofstream(xml) << r.out;
 
-  // well-formed, by libxml2 when installed (scripts/install-deps.sh installs it)
-  if (fs::exists("/usr/bin/xmllint")) {
-    const RunResult lint =
-        vx::testing::run_binary("/usr/bin/xmllint", "--noout '" + xml.string() + "'", dir_, dir_ / "..");
-    EXPECT_EQ(lint.code, 0) << lint.err;
-  }
+  // well-formed, by libxml2 (a test dependency: it cannot pass without it)
+  const fs::path xmllint = VX_XMLLINT;
+  ASSERT_TRUE(fs::exists(xmllint)) << "xmllint was not found when configuring (" << xmllint
+                                   << "): install libxml2-utils (scripts/install-deps.sh) and configure again";
+  fs::create_directories(dir_ / "lint");
+  const RunResult lint = vx::testing::run_binary(xmllint, "--noout '" + xml.string() + "'", dir_, dir_ / "lint");
+  EXPECT_EQ(lint.code, 0) << lint.err;
+  EXPECT_EQ(lint.err, "");
 
   // the module description: its header elements in the order the schema sets
   vtkSmartPointer<vtkXMLDataElement> root;
@@ -109,8 +147,9 @@ TEST_F(CliSlicerXml, ConvertDescribesItselfAsASlicerCliModule) {
   EXPECT_EQ(child_text(root, "version"), vx::kVersion);
   EXPECT_EQ(child_text(root, "title"), "voxelastic convert");
   EXPECT_EQ(child_text(root, "license"), "BSD-3-Clause");
+  EXPECT_EQ(root->GetNumberOfAttributes(), 0);
 
-  // the parameter groups and their parameters
+  // the parameter groups (attribute: advanced) and their parameters
   const std::set<std::string> kinds = {"integer", "double", "float", "boolean", "string", "string-enumeration",
                                        "image", "geometry", "file"};
   std::vector<Parameter> params;
@@ -120,12 +159,38 @@ TEST_F(CliSlicerXml, ConvertDescribesItselfAsASlicerCliModule) {
     vtkXMLDataElement* group = root->GetNestedElement(g);
     ASSERT_STREQ(group->GetName(), "parameters") << "after the header, only parameter groups";
     ++groups;
+    for (int a = 0; a < group->GetNumberOfAttributes(); ++a)
+      EXPECT_STREQ(group->GetAttributeName(a), "advanced") << "<parameters> takes no other attribute";
+    if (const char* adv = group->GetAttribute("advanced")) {
+      EXPECT_TRUE(std::string(adv) == "true" || std::string(adv) == "false") << adv;
+    }
     EXPECT_NE(child_text(group, "label"), "") << "group " << groups << " has a label";
     for (int i = 0; i < group->GetNumberOfNestedElements(); ++i) {
       vtkXMLDataElement* e = group->GetNestedElement(i);
       const std::string kind = e->GetName();
       if (kind == "label" || kind == "description") continue;
       EXPECT_TRUE(kinds.count(kind)) << "unknown parameter type <" << kind << ">";
+      for (int k = 0; k < e->GetNumberOfNestedElements(); ++k)
+        EXPECT_TRUE(kParameterChildren.count(e->GetNestedElement(k)->GetName()))
+            << "<" << kind << "> has a <" << e->GetNestedElement(k)->GetName() << ">, which Slicer refuses";
+      for (int a = 0; a < e->GetNumberOfAttributes(); ++a) {
+        const std::string attr = e->GetAttributeName(a), value = e->GetAttributeValue(a);
+        const auto allowed = kAttributes.find(kind);
+        EXPECT_TRUE(allowed != kAttributes.end() && allowed->second.count(attr))
+            << "<" << kind << " " << attr << "=...>: not an attribute Slicer takes there";
+        if (attr == "type" && kind == "image") {
+          EXPECT_TRUE(kImageTypes.count(value)) << "image type " << value;
+        }
+        if (attr == "type" && kind == "geometry") {
+          EXPECT_TRUE(value == "model" || value == "fiberbundle") << value;
+        }
+        if (attr == "multiple" || attr == "hidden") {
+          EXPECT_TRUE(value == "true" || value == "false") << value;
+        }
+        if (attr == "fileExtensions") {
+          EXPECT_TRUE(std::regex_match(value, std::regex(R"((\.[a-z]+)+)"))) << value;
+        }
+      }
       Parameter p{kind,
                   child_text(e, "name"),
                   child_text(e, "longflag"),
@@ -138,7 +203,7 @@ TEST_F(CliSlicerXml, ConvertDescribesItselfAsASlicerCliModule) {
         if (std::string(e->GetNestedElement(k)->GetName()) == "element")
           p.elements.push_back(trimmed(e->GetNestedElement(k)->GetCharacterData()));
       // each parameter: a unique C-identifier name, a label, a description, one name of each kind
-      EXPECT_TRUE(std::regex_match(p.name, std::regex("[A-Za-z_][A-Za-z0-9_]*"))) << "<name> '" << p.name << "'";
+      EXPECT_TRUE(slicer_variable(p.name)) << "<name> '" << p.name << "'";
       EXPECT_TRUE(names.insert(p.name).second) << "two parameters named " << p.name;
       EXPECT_NE(child_text(e, "label"), "") << p.name;
       EXPECT_NE(child_text(e, "description"), "") << p.name;
@@ -147,7 +212,30 @@ TEST_F(CliSlicerXml, ConvertDescribesItselfAsASlicerCliModule) {
       // Slicer passes it by flag or by position, never both or neither
       EXPECT_NE(p.longflag.empty(), p.index.empty()) << p.name << ": a <longflag> or an <index>";
       if (!p.longflag.empty()) {
+        // the parser drops leading '-' and refuses anything but letters, digits and '_'
+        EXPECT_TRUE(slicer_variable(p.longflag)) << "<longflag>" << p.longflag << "</longflag>: Slicer refuses it";
         EXPECT_TRUE(longflags.insert(p.longflag).second) << "two --" << p.longflag;
+      }
+      if (!p.flag.empty()) {
+        EXPECT_TRUE(std::regex_match(p.flag, std::regex("[A-Za-z]"))) << "<flag>" << p.flag << "</flag>: one letter";
+        EXPECT_FALSE(p.longflag.empty()) << p.name << ": a <flag> beside its <longflag>";
+      }
+      if (!p.index.empty()) {
+        EXPECT_TRUE(p.flag.empty()) << p.name << ": Slicer refuses a <flag> beside an <index>";
+      }
+      // a number's default inside its constraints, as the panel's slider holds it
+      if (kind == "integer" || kind == "double" || kind == "float") {
+        vtkXMLDataElement* c = e->FindNestedElementWithName("constraints");
+        const double v = std::stod(p.default_value);
+        if (kind == "integer") {
+          EXPECT_EQ(p.default_value, std::to_string(std::lround(v))) << p.name;
+        }
+        if (c) {
+          EXPECT_LE(std::stod(child_text(c, "minimum")), v) << p.name;
+          EXPECT_GE(std::stod(child_text(c, "maximum")), v) << p.name;
+          EXPECT_GT(std::stod(child_text(c, "step")), 0.0) << p.name;
+          EXPECT_EQ(c->GetNumberOfNestedElements(), 3) << p.name << ": minimum, maximum, step";
+        }
       }
       // files and data carry their direction
       if (kind == "image" || kind == "geometry" || kind == "file") {
@@ -173,12 +261,18 @@ TEST_F(CliSlicerXml, ConvertDescribesItselfAsASlicerCliModule) {
   EXPECT_EQ(input->channel, "input");
   EXPECT_EQ(std::count_if(params.begin(), params.end(), [](const Parameter& p) { return !p.index.empty(); }), 1);
 
-  // every option of convert described, and nothing else
+  // every option of convert described, and nothing else (the flags with '_' for '-')
   const RunResult help = run("convert --help");
   ASSERT_EQ(help.code, 0);
   const std::set<std::string> options = help_long_options(help.out);
   EXPECT_GE(options.size(), 14u) << help.out;
-  EXPECT_EQ(longflags, options);
+  std::set<std::string> hyphenated;
+  for (std::string f : longflags) {
+    std::replace(f.begin(), f.end(), '_', '-');
+    hyphenated.insert(f);
+  }
+  EXPECT_EQ(hyphenated, options);
+  EXPECT_TRUE(longflags.count("fill_holes")) << "the flags Slicer passes: '_' for '-'";
 }
 
 TEST_F(CliSlicerXml, TheDescribedDefaultsConvertAPhantomAsSlicerWouldRunIt) {
@@ -209,19 +303,25 @@ TEST_F(CliSlicerXml, TheDescribedDefaultsConvertAPhantomAsSlicerWouldRunIt) {
   ps.size = 16;
   vx::PhantomShape shape;
   vx::write_volume(vx::make_phantom(ps, &shape), dir_ / "in.nrrd");
-  const RunResult c = run("convert" + args + " --output model.vtu --stats stats.json in.nrrd");
+  ASSERT_NE(args.find("--max_level -1"), std::string::npos) << "Slicer's flags, '_' for '-': " << args;
+  const RunResult c = run("convert" + args + " --output=model_slicer.vtu --stats stats.json in.nrrd");
   ASSERT_EQ(c.code, 0) << args << "\n" << c.err;
-  EXPECT_TRUE(fs::exists(dir_ / "model.vtu"));
+  EXPECT_TRUE(fs::exists(dir_ / "model_slicer.vtu"));  // a value keeps its '_'
   // the defaults are convert's own: the same model as without any option
   const RunResult plain = run("convert in.nrrd -o plain.vtu --stats plain.json");
   ASSERT_EQ(plain.code, 0) << plain.err;
-  const std::string a = vx::testing::slurp(dir_ / "stats.json"), b = vx::testing::slurp(dir_ / "plain.json");
-  const std::regex elements(R"re("elements": ([0-9]+))re");
-  std::smatch ma, mb;
-  ASSERT_TRUE(std::regex_search(a, ma, elements)) << a;
-  ASSERT_TRUE(std::regex_search(b, mb, elements)) << b;
-  EXPECT_EQ(ma[1], mb[1]);
-  EXPECT_GT(std::stoi(ma[1]), 0);
+  const auto elements = [&](const char* stats) {
+    const std::string text = vx::testing::slurp(dir_ / stats);
+    std::smatch m;
+    return std::regex_search(text, m, std::regex(R"re("elements": ([0-9]+))re")) ? std::stoi(m[1]) : -1;
+  };
+  EXPECT_EQ(elements("stats.json"), elements("plain.json"));
+  EXPECT_GT(elements("plain.json"), 0);
+  // a value Slicer passes by an '_' flag takes effect as its '-' twin: level 0 only
+  ASSERT_EQ(run("convert in.nrrd -o a.vtu --max_level 0 --stats level0_slicer.json").code, 0);
+  ASSERT_EQ(run("convert in.nrrd -o b.vtu --max-level 0 --stats level0.json").code, 0);
+  EXPECT_EQ(elements("level0_slicer.json"), elements("level0.json"));
+  EXPECT_GT(elements("level0.json"), elements("plain.json"));
 }
 
 }  // namespace

@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -110,6 +112,76 @@ TEST_F(Plot, DrawsLinesInTheirColoursAndTheText) {
   EXPECT_GT(png_dark_pixels(without, 0, 30, 60, 360), 40);
   for (const auto& f : fs::directory_iterator(dir_))  // no temporary files left
     EXPECT_EQ(f.path().filename().string().find(".tmp"), std::string::npos) << f.path();
+}
+
+namespace {
+
+/// The box of the pixels darker than 128 in [x0, x1) x [y0, y1): {left, top, right, bottom},
+/// inclusive ({x1, y1, x0 - 1, y0 - 1} when there are none).
+std::array<int, 4> ink_box(const fs::path& png, int x0, int y0, int x1, int y1) {
+  vtkNew<vtkPNGReader> rd;
+  rd->SetFileName(png.string().c_str());
+  rd->Update();
+  std::array<int, 4> b{x1, y1, x0 - 1, y0 - 1};
+  for (int y = y0; y < y1; ++y)
+    for (int x = x0; x < x1; ++x) {
+      const auto c = vx::testing::png_pixel(rd->GetOutput(), x, y);
+      if (c[0] < 128 && c[1] < 128 && c[2] < 128)
+        b = {std::min(b[0], x), std::min(b[1], y), std::max(b[2], x), std::max(b[3], y)};
+    }
+  return b;
+}
+
+}  // namespace
+
+TEST_F(Plot, CaretsAreSuperscriptsAsInGnuplot) {
+  // "n^{22}" against "n22": the 22 raised above the n and smaller (a narrower label), the caret
+  // and braces not drawn; the same turned on the y axis, and a one-character "n^2"
+  const auto draw = [&](const std::string& x_text, const std::string& y_text, const char* name) {
+    PlotPanel p = two_curves(false);
+    p.xlabel = x_text;
+    p.ylabel = y_text;
+    plot_png({p}, dir_ / name, 800, 400);
+    return dir_ / name;
+  };
+  const fs::path plain = draw("n22", "n22", "plain.png"), raised = draw("n^{22}", "n^{22}", "raised.png"),
+                 one = draw("n^2", "n^2", "one.png"), digit = draw("n2", "n2", "digit.png");
+  // along the x label: smaller digits, no caret or braces
+  const auto w = [](const std::array<int, 4>& b) { return b[2] - b[0] + 1; };
+  const auto h = [](const std::array<int, 4>& b) { return b[3] - b[1] + 1; };
+  const auto px = ink_box(plain, 200, 360, 600, 400), rx = ink_box(raised, 200, 360, 600, 400);
+  ASSERT_GT(w(px), 0);
+  ASSERT_GT(w(rx), 0);
+  EXPECT_LT(w(rx), w(px) - 3);
+  EXPECT_GT(w(rx), w(px) / 2);
+  // across it: the last digit's lowest ink (its baseline) above the n's, for the raised ones only
+  const auto raised_by = [&](const fs::path& png, const std::array<int, 4>& b) {
+    const auto first = ink_box(png, b[0], b[1], b[0] + 3, b[3] + 1),
+               last = ink_box(png, b[2] - 2, b[1], b[2] + 1, b[3] + 1);
+    return first[3] - last[3];
+  };
+  EXPECT_LE(std::abs(raised_by(plain, px)), 1);
+  EXPECT_GE(raised_by(raised, rx), 4);
+  const auto ox = ink_box(one, 200, 360, 600, 400), dx = ink_box(digit, 200, 360, 600, 400);
+  EXPECT_LT(w(ox), w(dx));
+  EXPECT_LE(std::abs(raised_by(digit, dx)), 1);
+  EXPECT_GE(raised_by(one, ox), 4);
+  // turned: the label reads upwards, the n at its bottom, the digits raised to the left
+  const auto py = ink_box(plain, 0, 100, 30, 350), ry = ink_box(raised, 0, 100, 30, 350);
+  ASSERT_GT(h(py), 0);
+  ASSERT_GT(h(ry), 0);
+  EXPECT_LT(h(ry), h(py) - 3);
+  const auto turned_raised_by = [&](const fs::path& png, const std::array<int, 4>& b) {
+    const auto first = ink_box(png, b[0], b[3] - 2, b[2] + 1, b[3] + 1),
+               last = ink_box(png, b[0], b[1], b[2] + 1, b[1] + 3);
+    return first[2] - last[2];
+  };
+  EXPECT_LE(std::abs(turned_raised_by(plain, py)), 1);
+  EXPECT_GE(turned_raised_by(raised, ry), 4);
+  // a '^' with nothing after it, or an unclosed group, is drawn as written
+  const fs::path caret = draw("n^", " ", "caret.png"), bare = draw("n", " ", "bare.png");
+  EXPECT_GT(png_dark_pixels(caret, 200, 365, 600, 400), png_dark_pixels(bare, 200, 365, 600, 400));
+  EXPECT_NO_THROW(draw("n^{22", " ", "open.png"));
 }
 
 TEST_F(Plot, LogAxesBoxesColourBarAndStackedPanels) {
