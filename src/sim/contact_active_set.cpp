@@ -196,12 +196,22 @@ int ContactActiveSet::iterate_working_set(SparseFactor& factor, ContactSolveCoun
 
 /// solution = x_u + sum over the working set of G e_j lambda_j n_j^T: one backward pass for all
 /// of them (SparseFactor::add_response3), on the region's rows with regional solves.
-void ContactActiveSet::apply_working_forces(Eigen::MatrixX3d& solution, SparseFactor& factor) {
-  solution = unconstrained_;
-  if (working_.empty()) return;
+/// With `from_forward`, one backward pass gives x_u and the response together on the closure.
+void ContactActiveSet::apply_working_forces(Eigen::MatrixX3d& solution, SparseFactor& factor, bool from_forward) {
+  if (!from_forward) solution = unconstrained_;
   working_forward_.clear();
   for (std::size_t b = 0; b < working_.size(); ++b) working_forward_.push_back(&forward_[std::size_t(working_column_[b])]);
-  factor.add_response3(working_forward_, working_force_, solution, partial_);
+  if (from_forward)
+    factor.backward3_partial(working_forward_, working_force_, solution);
+  else if (!working_.empty())
+    factor.add_response3(working_forward_, working_force_, solution, partial_);
+}
+
+void ContactActiveSet::unconstrained_from_forward(std::size_t from, SparseFactor& factor, ContactSolveCounters& counters) {
+  for (std::size_t c = from; c < candidates_.size(); ++c) {
+    const int f = candidate_free_[c];
+    unconstrained_.row(f) = factor.solution_row(forward_[std::size_t(column_of(f, factor, counters))]).transpose();
+  }
 }
 
 /// Keeps the candidates from `from` on whose nodes are free and records their free indices.
@@ -230,11 +240,11 @@ void ContactActiveSet::compliance(const std::vector<int>& free, SparseFactor& fa
 }
 
 void ContactActiveSet::solve(ContactProvider& provider, const Eigen::Matrix3Xd& x, SparseFactor& factor,
-                             Eigen::MatrixX3d& solution, ContactSolveCounters& counters) {
+                             Eigen::MatrixX3d& solution, ContactSolveCounters& counters, bool from_forward) {
   const std::vector<int>& free_index = *free_index_;
   const std::vector<int>& free_nodes = *free_nodes_;
   ++solve_count_;
-  unconstrained_ = solution;
+  if (!from_forward) unconstrained_ = solution;
   // candidates near the surfaces at the current iterate, sorted by (owner, node)
   candidates_.clear();
   provider.collect(x, true, candidates_);
@@ -242,6 +252,7 @@ void ContactActiveSet::solve(ContactProvider& provider, const Eigen::Matrix3Xd& 
   std::sort(candidates_.begin(), candidates_.end(), key_less);
   for (std::size_t c = 0; c < candidates_.size(); ++c)
     candidate_free_[c] = free_index[std::size_t(candidates_[c].node)];
+  if (from_forward) unconstrained_from_forward(0, factor, counters);
   // warm start: the last solve's active set (both sorted by key)
   std::fill(in_working_set_.begin(), in_working_set_.end(), std::uint8_t(0));
   for (std::size_t c = 0, a = 0; c < candidates_.size() && a < active_.size();) {
@@ -258,7 +269,7 @@ void ContactActiveSet::solve(ContactProvider& provider, const Eigen::Matrix3Xd& 
   const std::size_t sorted = candidates_.size();
   for (int pass = 0;; ++pass) {
     counters.rounds += iterate_working_set(factor, counters);
-    apply_working_forces(solution, factor);
+    apply_working_forces(solution, factor, from_forward);
     if (pass + 1 >= kMaxPasses) break;
     // nodes that were not candidates but that the constrained solution puts inside a probe
     // (they moved farther than the provider's margin in this solve): add them and redo
@@ -277,6 +288,7 @@ void ContactActiveSet::solve(ContactProvider& provider, const Eigen::Matrix3Xd& 
     }
     index_candidates(before);
     if (candidates_.size() == before) break;
+    if (from_forward) unconstrained_from_forward(before, factor, counters);
   }
   // the active set, sorted by key, with the multipliers
   active_.clear();

@@ -67,8 +67,12 @@ class ContactActiveSet {
   /// constrained one. `x` (3 x nodes) is the iterate before this solve, where the provider
   /// linearises the constraints; `factor` is the global matrix's factor bound by bind(). Serial:
   /// the substitutions it runs are serial (SparseFactor::add_response3 is one backward pass).
+  /// With `from_forward` (a regional solve) the factor has run only the forward half of the
+  /// unconstrained solve (SparseFactor::forward3_partial) and `solution` holds the last values
+  /// outside the closure: the candidates' unconstrained positions come from dot products with
+  /// the forward solution and the forces join the one backward pass (backward3_partial).
   void solve(ContactProvider& provider, const Eigen::Matrix3Xd& x, SparseFactor& factor,
-             Eigen::MatrixX3d& solution, ContactSolveCounters& counters);
+             Eigen::MatrixX3d& solution, ContactSolveCounters& counters, bool from_forward = false);
 
   /// The constraints active after the last solve, sorted by (owner, node), with their
   /// multipliers (N); the next solve starts from them (warm start).
@@ -90,7 +94,9 @@ class ContactActiveSet {
   double gram(int slot_a, int slot_b);
   [[nodiscard]] Eigen::Vector3d constrained_position(int candidate, SparseFactor& factor, ContactSolveCounters& counters);
   int iterate_working_set(SparseFactor& factor, ContactSolveCounters& counters);
-  void apply_working_forces(Eigen::MatrixX3d& solution, SparseFactor& factor);
+  void apply_working_forces(Eigen::MatrixX3d& solution, SparseFactor& factor, bool from_forward);
+  /// unconstrained_ on the candidates from `from` on, from the factor's forward solution.
+  void unconstrained_from_forward(std::size_t from, SparseFactor& factor, ContactSolveCounters& counters);
   void index_candidates(std::size_t from);
 
   bool partial_{false};

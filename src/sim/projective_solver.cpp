@@ -252,13 +252,18 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
       if (its.tolerance_mm > 0 && max_update <= its.tolerance_mm) break;
       if (its.residual_tolerance_n > 0 && largest <= its.residual_tolerance_n) break;
     }
-    if (region_)
+    // with contact on a region, the solve's backward half waits for the contact forces: one
+    // backward pass for both (docs/model.md section 8)
+    const bool halves = region_ && contact && factor_.partial_ready();
+    if (halves)
+      factor_.forward3_partial(rhs_);
+    else if (region_)
       factor_.solve3_partial(rhs_, solution_);
     else
       factor_.solve3(rhs_, solution_);
     if (contact) {
       contact_set_.set_partial(region_);  // the full refresh after a region move applies contact everywhere
-      contact_set_.solve(*contact, x, factor_, solution_, counters);
+      contact_set_.solve(*contact, x, factor_, solution_, counters, halves);
     }
     max_update = scatter(x, threads);
     rhs_previous_.swap(rhs_);

@@ -217,6 +217,20 @@ class SparseFactor {
   /// x = A^-1 b on the closure rows (others untouched). Needs a full solve3() since compute().
   /// Returns the number of rows where b changed.
   int solve3_partial(const Eigen::MatrixX3d& b, Eigen::MatrixX3d& x);
+  // solve3_partial in two halves, so that the contact set can add its forces between them and
+  // substitute backward once (docs/model.md section 8, "One backward pass"):
+  /// True when the two halves below can run (a supernodal factor, a full solve3() since
+  /// compute(), a closure set).
+  [[nodiscard]] bool partial_ready() const { return supernodal_ && have_forward_ && !closure_supers_.empty(); }
+  /// The forward half: z = L^-1 P b kept current on the ancestors of the rows where b changed.
+  /// Needs partial_ready(). Returns the number of rows where b changed.
+  int forward3_partial(const Eigen::MatrixX3d& b);
+  /// Row i of A^-1 b for the right-hand side of the last forward half: z_i . z (no backward pass).
+  [[nodiscard]] Eigen::Vector3d solution_row(const UnitForward& zi) const;
+  /// The backward half: x = A^-1 (b + sum_k e_(row k) f_k^T) on the closure rows (others
+  /// untouched), b the last forward half's, f_k as add_response3's (z and forces3 may be empty).
+  void backward3_partial(const std::vector<const UnitForward*>& z, const std::vector<double>& forces3,
+                         Eigen::MatrixX3d& x);
   /// out = A^-1 e_i on the closure rows, 0 elsewhere (n values).
   void solve_unit_partial(int i, double* out);
 
@@ -273,6 +287,8 @@ class SparseFactor {
   template <int K>
   void backward_supers(double* w, const std::vector<int>& supers) const;
   void ancestors(std::vector<int>& supers);
+  static void scatter_forward_forces(const std::vector<const UnitForward*>& z, const std::vector<double>& forces3,
+                                     double* w);
   std::vector<double> work3_;        ///< n x 3, row-major, permuted order
   std::vector<double> work1_;        ///< n, permuted order
 };

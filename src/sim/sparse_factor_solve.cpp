@@ -198,10 +198,16 @@ const std::vector<int>& SparseFactor::set_partial_rows(const std::vector<int>& r
 }
 
 int SparseFactor::solve3_partial(const Eigen::MatrixX3d& b, Eigen::MatrixX3d& x) {
-  if (!supernodal_ || !have_forward_ || closure_supers_.empty()) {
+  if (!partial_ready()) {
     solve3(b, x);
     return size_;
   }
+  const int changed = forward3_partial(b);
+  backward3_partial({}, {}, x);
+  return changed;
+}
+
+int SparseFactor::forward3_partial(const Eigen::MatrixX3d& b) {
   const int n = size_;
   double* w = work3_.data();  // zero outside what a pass touches (restored below)
   // the rows where b changed, exactly, and their supernodes
@@ -230,15 +236,31 @@ int SparseFactor::solve3_partial(const Eigen::MatrixX3d& b, Eigen::MatrixX3d& x)
         for (int c = 0; c < 3; ++c) forward_[3 * std::size_t(j) + std::size_t(c)] += w[3 * j + c];
   }
   std::fill(work3_.begin(), work3_.end(), 0.0);
-  // backward on the closure
+  return changed;
+}
+
+Eigen::Vector3d SparseFactor::solution_row(const UnitForward& zi) const {
+  Eigen::Vector3d acc = Eigen::Vector3d::Zero();
+  for (std::size_t g = 0; g < zi.first.size(); ++g) {
+    const double* v = zi.value.data() + zi.offset[g];
+    const double* f = forward_.data() + 3 * std::int64_t(zi.first[g]);
+    for (int t = 0; t < zi.count[g]; ++t)
+      for (int c = 0; c < 3; ++c) acc[c] += v[t] * f[3 * t + c];
+  }
+  return acc;
+}
+
+void SparseFactor::backward3_partial(const std::vector<const UnitForward*>& z, const std::vector<double>& forces3,
+                                     Eigen::MatrixX3d& x) {
+  double* w = work3_.data();
   for (const int q : closure_supers_)
     for (int j = super_[std::size_t(q)]; j < super_[std::size_t(q) + 1]; ++j)
       for (int c = 0; c < 3; ++c) w[3 * j + c] = forward_[3 * std::size_t(j) + std::size_t(c)];
+  scatter_forward_forces(z, forces3, w);
   backward_supers<3>(w, closure_supers_);
   for (const int i : closure_rows_)
     for (int c = 0; c < 3; ++c) x(i, c) = w[3 * perm_[std::size_t(i)] + c];
   std::fill(work3_.begin(), work3_.end(), 0.0);
-  return changed;
 }
 
 void SparseFactor::solve_unit_partial(int i, double* out) {
@@ -329,12 +351,9 @@ double SparseFactor::dot(const UnitForward& a, const UnitForward& b) {
   return acc;
 }
 
-void SparseFactor::add_response3(const std::vector<const UnitForward*>& z, const std::vector<double>& forces3,
-                                 Eigen::MatrixX3d& x, bool partial) {
-  if (z.empty()) return;
-  const int n = size_;
-  std::fill(work3_.begin(), work3_.end(), 0.0);  // (solve3 leaves its solution there)
-  double* w = work3_.data();
+/// w += sum_k z_k f_k^T (K = 3 interleaved, factored positions).
+void SparseFactor::scatter_forward_forces(const std::vector<const UnitForward*>& z, const std::vector<double>& forces3,
+                                          double* w) {
   for (std::size_t k = 0; k < z.size(); ++k) {
     const UnitForward& zk = *z[k];
     const double f0 = forces3[3 * k], f1 = forces3[3 * k + 1], f2 = forces3[3 * k + 2];
@@ -348,6 +367,15 @@ void SparseFactor::add_response3(const std::vector<const UnitForward*>& z, const
       }
     }
   }
+}
+
+void SparseFactor::add_response3(const std::vector<const UnitForward*>& z, const std::vector<double>& forces3,
+                                 Eigen::MatrixX3d& x, bool partial) {
+  if (z.empty()) return;
+  const int n = size_;
+  std::fill(work3_.begin(), work3_.end(), 0.0);  // (solve3 leaves its solution there)
+  double* w = work3_.data();
+  scatter_forward_forces(z, forces3, w);
   if (supernodal_) {
     const bool on_closure = partial && !closure_supers_.empty();
     backward_supers<3>(w, on_closure ? closure_supers_ : all_supers_);

@@ -266,7 +266,28 @@ TEST(RegionalSolve, PartialSolvesAreExactOnTheirRows) {
     }
     EXPECT_LT(perr, 1e-10 * whole.norm());
     EXPECT_EQ(outside, 0.0);
-    x = xp;
+    // the two halves with the force between them (one backward pass): the solve plus the
+    // response on the closure, and a row of the solution from its forward vector alone
+    b.row(rows[2]) += Eigen::RowVector3d::Random();
+    full.solve3(b, ref);
+    ASSERT_TRUE(f.partial_ready());
+    EXPECT_EQ(f.forward3_partial(b), 1);
+    SparseFactor::UnitForward z2;
+    f.forward_unit(rows[2], z2);
+    const Eigen::Vector3d row2 = f.solution_row(z2);
+    EXPECT_LT((row2.transpose() - ref.row(rows[2])).norm(), 1e-10 * ref.norm());
+    Eigen::MatrixX3d halves = xp;
+    f.backward3_partial({&z}, {0.3, -0.1, 0.2}, halves);
+    double herr = 0, hout = 0;
+    for (int i = 0; i < nn; ++i) {
+      if (in[std::size_t(i)])
+        herr = std::max(herr, (halves.row(i) - ref.row(i) - whole.row(i)).norm());
+      else
+        hout = std::max(hout, (halves.row(i) - xp.row(i)).norm());
+    }
+    EXPECT_LT(herr, 1e-10 * ref.norm());
+    EXPECT_EQ(hout, 0.0);
+    x = halves;
   }
 }
 
