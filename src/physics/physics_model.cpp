@@ -10,6 +10,7 @@
 
 #include "base/error.h"
 #include "base/parallel.h"
+#include "physics/element_batches.h"
 #include "physics/element_gradient.h"
 #include "physics/elements.h"
 #include "physics/vertex_weights.h"
