@@ -7,10 +7,11 @@
 ///                           the local contact models (DeviceSide::publish_local_contact /
 ///                           take_local_contact: one triple buffer per probe, haptics/device_side.h);
 ///                           paper shaping: the half sine to play (DeviceSide::output_snapshot);
-///                           the deformed surface (Simulation::request_frame / take_frame: a
-///                           triple buffer, never waited for)
+///                           each probe's output after every step and the deformed surface
+///                           (`exchange`: SimulationExchange::probe, request_frame / take_frame,
+///                           never waited for; sim_exchange.h)
 ///   device  -> physics:     `tool_targets` (local shaping: the proxy positions, a triple buffer);
-///                           paper shaping: the live stick commands (Simulation::set_live)
+///                           paper shaping: the live stick commands (SimulationExchange::set_live)
 ///   device  -> GUI:         `DeviceReport` under its mutex (held only to copy, never while
 ///                           rendering or stepping)
 ///   GUI     -> device:      the view basis (a mutex held for a copy); the keyboard (KeyboardStick)
@@ -28,17 +29,17 @@
 #include <string>
 #include <vector>
 
-#include "probe_app.h"
+#include "app_options.h"
 #include "probe_view.h"
 #include "rate_thread.h"
 #include "real_time_meter.h"
+#include "sim_exchange.h"
 
 namespace vx {
 class BackgroundRegionCheck;  // scene/scene.h
 }  // namespace vx
 
 namespace vx {
-class Simulation;
 class DeviceSide;
 }
 
@@ -170,10 +171,11 @@ struct DeviceReport {
 
 /// Everything the loops share; the app owns it and outlives the threads.
 struct AppShared {
-  AppShared(const AppOptions& o, Simulation& s, DeviceSide& d) : options(o), sim(s), device_side(d) {}
+  AppShared(const AppOptions& o, Simulation& s, DeviceSide& d) : options(o), sim(s), device_side(d), exchange(s) {}
   const AppOptions& options;
-  Simulation& sim;
+  Simulation& sim;          ///< the physics thread's alone; the others go through `exchange`
   DeviceSide& device_side;  ///< the simulation's device force and local contact models
+  SimulationExchange exchange;  ///< live commands in, probe outputs and frames out
   int probes{0};
   bool local{false};  ///< local shaping (else the paper's half sines)
   double physics_period_s{0.001};

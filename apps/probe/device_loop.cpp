@@ -90,7 +90,7 @@ void DeviceLoop::run_tick() {
   tick.probes = std::min(s_.probes, kMaxSticks);
   std::array<ProbeTick, kMaxSticks> t{};
   for (int p = 0; p < tick.probes; ++p) {
-    const ProbeOutput snap = s_.sim.probe_snapshot(p);
+    const ProbeOutput snap = s_.exchange.probe(p);
     t[std::size_t(p)] = stick_of(p);
     ProbeForce& f = tick.probe[std::size_t(p)];
     f.physics_s = snap.time_s;
@@ -221,12 +221,11 @@ void DeviceLoop::local_probe(int p, ProbeTick& t, double dt, bool paused, double
 
 void DeviceLoop::paper_probe(int p, ProbeTick& t, const ProbeOutput& snap, bool paused, bool sim_paused, double now_s,
                              ProbeForce& f) {
-  Simulation& sim = s_.sim;
   const bool device = s_.device_side.has_device();
   const HalfSinePulse pulse = device ? s_.device_side.output_snapshot(p).pulse : HalfSinePulse{};
   if (!paused)
-    sim.set_live(p, commanders_[std::size_t(p)].update(t.cmd, t.drag, basis_, snap.pose.position_mm,
-                                                        s_.device_period_s));
+    s_.exchange.set_live(
+        p, commanders_[std::size_t(p)].update(t.cmd, t.drag, basis_, snap.pose.position_mm, s_.device_period_s));
   // the device force: the paper's half sine, at the device's own clock
   if (!paused && !sim_paused) {
     f.device_N = device ? pulse.at(std::max(now_s, snap.time_s)) : snap.raw_force_n;

@@ -146,8 +146,8 @@ HudInfo GuiLoop::hud(SteadyClock::time_point now) {
 void GuiLoop::take_frame(ProbeView& view) {
   // the newest frame, if the physics made one since; never waited for (no new frame: the
   // surface is not touched)
-  s_.sim.request_frame();
-  if (!s_.sim.take_frame(frame_)) return;
+  s_.exchange.request_frame();
+  if (!s_.exchange.take_frame(frame_)) return;
   for (int p = 0; p < s_.probes && p < int(frame_.probes.size()); ++p) {
     probe_pos_[std::size_t(p)] = frame_.probes[std::size_t(p)].pose.position_mm;
     probe_contacts_[std::size_t(p)] = frame_.probes[std::size_t(p)].contacts;

@@ -133,6 +133,7 @@ void PhysicsLoop::soak_watch() {
 void PhysicsLoop::apply_reset() {
   if (!s_.controls.reset_requested.exchange(false)) return;
   s_.sim.reset();
+  s_.exchange.publish(s_.sim);
   good_ = TissueSnapshot{};
   faults_since_good_ = 0;
   sim_target_s_ = 0.0;
@@ -153,13 +154,11 @@ int PhysicsLoop::advance(SteadyClock::time_point now, double elapsed) {
     int want = std::clamp(int(std::floor((sim_target_s_ - t0) / sim.dt_s() + 0.5)), 0, budget);
     if (step_cost_s_ > 0) want = std::min(want, std::max(1, int(0.9 * period / step_cost_s_)));
     done = local_update(want, now);
-  } else if (step_delay_s_ > 0 || first_step_delay_s_ > 0 || !faults_.empty()) {
+  } else {
     while (done < budget && !sim.failed() && sim.time_s() < sim_target_s_ - 0.5 * sim.dt_s()) {
       step_once();
       ++done;
     }
-  } else {
-    done = sim.advance_to(sim_target_s_, budget);
   }
   const double lag = sim_target_s_ - sim.time_s();
   if (lag > std::max(0.05, 3.0 * period)) {
@@ -174,6 +173,8 @@ int PhysicsLoop::advance(SteadyClock::time_point now, double elapsed) {
 
 void PhysicsLoop::step_once() {
   Simulation& sim = s_.sim;
+  // the device's live commands since the last step
+  s_.exchange.apply_live(sim);
   // an injected fault (tests): into the state the step starts from, through the same checks
   for (InjectedFault& f : faults_) {
     if (f.step != sim.steps() + 1) continue;
@@ -191,6 +192,8 @@ void PhysicsLoop::step_once() {
     sim.restore_tissue(bad);
   }
   sim.step();
+  // the probes' outputs (and a frame when the GUI asked) for the other threads
+  if (!sim.failed()) s_.exchange.publish(sim);
   double delay = step_delay_s_;
   if (first_step_delay_s_ > 0 && !first_step_done_) delay += first_step_delay_s_;
   first_step_done_ = true;

@@ -51,7 +51,8 @@ class PhysicsLoop {
   /// one physics period of wall time even when it has not taken all `steps` (a slow physics
   /// publishes at its rate and falls behind in simulated time, not in updates).
   int local_update(int steps, SteadyClock::time_point start);
-  /// One step (the injected fault, the test hook's delay).
+  /// One step: the live commands handed over before it, its outputs published after it
+  /// (sim_exchange.h); the injected fault, the test hook's delay.
   void step_once();
   /// The state after a fault back to the last good one; `what` for the console and the HUD.
   void recover(const std::string& what, bool drop_solver);

@@ -2,8 +2,9 @@
 /// @file probe_scene.h
 /// What the probe app runs: a physics model, its deforming surface and the simulation
 /// settings, from a scene file (pipeline/scene/scene.h), or from a volume or a model file with
-/// default palpation settings (a capsule probe above the tissue, the tissue's bottom held
-/// on a table, walls around it). Every probe becomes a `live` probe driven by the app.
+/// the palpation defaults (a capsule probe above the tissue, the tissue's lower part held, walls
+/// around it: scene/palpation_defaults.h); both built by the same prepare_scene. Every probe
+/// becomes a `live` probe driven by the app.
 
 #include <Eigen/Core>
 #include <filesystem>
@@ -16,6 +17,7 @@
 #include "model/voxel_grid.h"
 #include "physics/calibration_key.h"
 #include "physics/physics_model.h"
+#include "scene/palpation_defaults.h"
 #include "sim/simulation.h"
 #include "stick_control.h"
 #include "surface/surface.h"
@@ -26,7 +28,8 @@ class BackgroundRegionCheck;  // scene/scene.h
 
 namespace vx::probe {
 
-/// Settings for inputs that are not scene files (volumes and models).
+/// Settings for inputs that are not scene files (volumes and models): what the app's options
+/// fill in of the palpation defaults (default_palpation_scene).
 struct DefaultSceneOptions {
   std::string threshold{"soft-tissue"};  ///< HU window or preset (volumes)
   double voxel_mm{0.0};                  ///< resample volumes to this voxel size first; 0 = keep
@@ -47,30 +50,6 @@ struct DefaultSceneOptions {
   /// The material's calibration kept by the model's content (io/calibration_cache.h); null: none.
   std::shared_ptr<CalibrationCache> calibration_cache;
 };
-
-/// Where the default tool starts (default_tool_start).
-struct ToolStart {
-  Eigen::Vector3d start_mm{0, 0, 0};    ///< the tool's reference point (its tip sphere's centre)
-  Eigen::Vector3d surface_mm{0, 0, 0};  ///< the tissue's top on the tool's axis below it
-  double tissue_below_mm{0.0};          ///< tissue under surface_mm along -up, mm (>= the press depth when found)
-  bool found{false};                    ///< false: no column holds the press depth (start above the centre)
-};
-
-/// The start of a tool of radius `radius_mm` pressed straight down (against `up`): above the
-/// highest top of tissue near the top centre (within a lateral radius of the tissue box's
-/// centre, widened until one qualifies) whose column holds tissue at least `press_depth_mm`
-/// deep, and whose neighbours within the tool's radius (else half of it) hold tissue from within
-/// half the press depth of it down to the press depth: a fissure or a hole at the centre is
-/// passed over, and the tool does not sit on its edge. Tissue thinner than the press depth
-/// everywhere: the thickest column near the centre. The start is `clearance_mm` plus the radius
-/// above the highest tissue within the tool's radius.
-/// `grid` is the voxel grid of `model` (grid_from_model).
-[[nodiscard]] ToolStart default_tool_start(const Model& model, const VoxelGrid& grid, const Eigen::Vector3d& up,
-                                           double radius_mm, double press_depth_mm, double clearance_mm);
-
-/// Nodes whose height along `up` lies in the lowest `fraction` of the model's height (the
-/// default support).
-[[nodiscard]] std::vector<int> lower_part_nodes(const Model& model, const Eigen::Vector3d& up, double fraction);
 
 struct ProbeScene;
 /// The displayed surface: decimated to `options.display_triangles` when it has more
@@ -100,15 +79,6 @@ struct ProbeScene {
 /// Loads a scene (`.json`), a volume (`.vti .mha .mhd .nii .nii.gz .nrrd .nhdr`, a DICOM
 /// folder or file) or a model (`.vtu`). Throws vx::Error with a clear message.
 [[nodiscard]] ProbeScene load_probe_scene(const std::filesystem::path& input, const DefaultSceneOptions& options);
-
-/// Default palpation settings around a built model: the nodes of its lower part held
-/// (lower_part_nodes, against `up`), walls, one capsule tool just above tissue near the top
-/// centre (default_tool_start), the fast implicit configuration, a device with the paper's
-/// shaping. Exposed for tests.
-[[nodiscard]] ProbeScene make_default_scene(std::shared_ptr<const Model> model,
-                                            std::shared_ptr<const EmbeddedSurface> surface,
-                                            const DefaultSceneOptions& options, const Eigen::Vector3d& up,
-                                            const std::string& name);
 
 /// Turns every probe into a live probe (keeping its shape and start) and fills
 /// `probe_allowed` (the walls shrunk by the probe radius, else the tissue box with margins).

@@ -2,7 +2,7 @@
 /// @file fast_configuration.h
 /// The fast configuration for real-time palpation (docs/bench.md, "Palpation at organ size"), as
 /// data: what a scene without an `integrator` key runs (prepare_scene) and what the probe app's
-/// default scene runs (apps/probe/probe_scene.cpp). Start from default_fast_configuration() and
+/// default scene runs (scene/palpation_defaults.h). Start from default_fast_configuration() and
 /// change what you need, as Box2D's b2DefaultBodyDef.
 ///
 /// The implicit integrator (backward Euler by projective dynamics, contact inside its solve) at

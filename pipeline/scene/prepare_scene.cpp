@@ -12,6 +12,7 @@
 #include "base/error.h"
 #include "io/model_io.h"
 #include "scene/fast_configuration.h"
+#include "scene/palpation_defaults.h"
 #include "scene/scene.h"
 #include "sim/region_stiffening.h"
 #include "sim/time_step.h"
@@ -366,12 +367,18 @@ PreparedScene prepare_scene(const Scene& scene, const PrepareSceneOptions& optio
   timed(out, "material", [&] { calibrate_material(scene, volume ? &*volume : nullptr, options, out); });
   std::vector<std::uint8_t> fixed;
   timed(out, "support and probes", [&] {
+    if (scene.palpation) {
+      // an object without a scene of its own: the probe app's defaults around it
+      fixed = place_palpation_defaults(*scene.palpation, options, out);
+      return;
+    }
     choose_integrator(scene, options, errors, out);
     fixed = fix_nodes(scene, errors, out);
     place_walls_and_probes(scene, fixed, errors, out);
   });
   const IntegratorSettings& integ = out.settings.integrator;
-  if (integ.kind == IntegratorKind::implicit && integ.region_radius_mm > 0) {
+  if (integ.kind == IntegratorKind::implicit && integ.region_radius_mm > 0 &&
+      options.region_check != RegionCheckTiming::none) {
     if (options.region_check == RegionCheckTiming::background) {
       // the estimate reads only what it is given (the physics is immutable and shared)
       out.pending_region_check = std::make_shared<BackgroundRegionCheck>(

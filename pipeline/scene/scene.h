@@ -107,6 +107,18 @@ struct SceneOutputs {
   SurfaceMethod surface_method{SurfaceMethod::paper};
 };
 
+/// Defaults placed around an object that comes without a scene of its own (the probe app given a
+/// volume or a model): prepare_scene holds its lower part, puts walls around it and one capsule
+/// tool just above tissue the tool touches when pressed down, and runs the fast configuration
+/// (scene/palpation_defaults.h). No JSON key: default_palpation_scene() sets it.
+struct PalpationDefaults {
+  Eigen::Vector3d up{0.0, -1.0, 0.0};  ///< up (LPS direction; in the slice plane of a 2D model); default anterior
+  /// The support holds every node in this lowest fraction of the tissue's height along `up`.
+  double held_fraction{0.25};
+  /// The tool starts above a point with tissue at least this deep beneath it, mm.
+  double press_depth_mm{5.0};
+};
+
 /// A whole scene, loaded and checked, nothing built yet.
 struct Scene {
   std::filesystem::path file;        ///< the scene file ("" when parsed from text)
@@ -130,6 +142,9 @@ struct Scene {
   double duration_s{0.0};
   SceneOutputs outputs;
   int threads{0};
+  /// Set: the support, walls, probe, integrator and device come from these defaults once the
+  /// object is built (fixed, workspace, probes, integrator keys and device are not read).
+  std::optional<PalpationDefaults> palpation;
 };
 
 /// Reads and checks a scene file. Throws vx::Error (file, JSON path, what, how to fix).
@@ -146,6 +161,7 @@ struct Scene {
 enum class RegionCheckTiming {
   before_run,  ///< in prepare_scene: the result is in PreparedScene when it returns
   background,  ///< on a thread of its own at low priority while the run starts (take_region_check)
+  none,        ///< not at all
 };
 
 /// What to build besides the physics.
@@ -206,6 +222,8 @@ struct PreparedScene {
   double min_modulus_kpa{0.0}, max_modulus_kpa{0.0};
   std::vector<std::string> warnings;               ///< plausible but risky choices
   std::vector<std::string> log;                    ///< what was built, one line each
+  /// Scene::palpation: up as the defaults used it (in the slice plane of a 2D model); zero otherwise.
+  Eigen::Vector3d up{0, 0, 0};
   /// Implicit with regional solves: how much the region over-stiffens the press of the probe
   /// where it is worst (region_stiffening.h; docs/model.md section 7); empty without a region.
   std::optional<RegionStiffeningEstimate> region_stiffening;

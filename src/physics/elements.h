@@ -51,6 +51,7 @@
 #include <vector>
 
 #include "base/parallel.h"
+#include "physics/element_batch_layout.h"
 #include "physics/physics_model.h"
 
 namespace vx {

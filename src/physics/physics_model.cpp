@@ -13,6 +13,7 @@
 #include "base/huge_pages.h"
 #include "base/parallel.h"
 #include "physics/calibration_key.h"
+#include "physics/element_batches.h"
 #include "physics/element_gradient.h"
 #include "physics/elements.h"
 #include "physics/vertex_weights.h"

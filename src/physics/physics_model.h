@@ -70,7 +70,7 @@
 #include <vector>
 
 #include "model/model.h"
-#include "physics/element_batches.h"
+#include "physics/element_batch_layout.h"
 #include "physics/element_modes.h"
 #include "physics/material.h"
 #include "physics/vertex_weights.h"
@@ -226,7 +226,8 @@ struct PhysicsModel {
   std::vector<std::int32_t> entry_slot;          ///< vertex entries: their slot (inverse of node_entries)
   /// vertex entries: the element pass's constants packed per entry (derived from the above)
   std::vector<PackedEntry> entry_packed;
-  /// the same constants in batches of elements, one per SIMD lane (element_batches.h)
+  /// the same constants in batches of elements, one per SIMD lane (element_batch_layout.h; built and run by
+  /// element_batches.h)
   ElementBatches element_batches;
 
   [[nodiscard]] int num_nodes() const { return model->num_nodes(); }

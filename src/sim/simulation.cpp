@@ -85,9 +85,6 @@ Simulation::Simulation(std::shared_ptr<const PhysicsModel> physics, SimulationSe
   }
 
   outputs_.resize(np);
-  published_.resize(np);
-  live_.resize(np);
-  live_dirty_.assign(np, false);
   reset();
 }
 
@@ -105,9 +102,6 @@ void Simulation::reset() {
   wall_force_.setZero();
   surface_step_ = -1;
   if (listener_) listener_->after_reset();
-  std::lock_guard<std::mutex> lock(mutex_);
-  published_ = outputs_;
-  frame_ready_ = false;
 }
 
 void Simulation::set_step_listener(StepListener* listener, bool record_contacts) {
@@ -155,16 +149,6 @@ int Simulation::probe_index(const std::string& name) const {
 StepStatus Simulation::step() {
   if (state_.failed()) return state_.status;
   const double dt = dt_s();
-
-  // live input from other threads
-  if (live_pending_.exchange(false, std::memory_order_acq_rel)) {
-    std::lock_guard<std::mutex> lock(mutex_);
-    for (std::size_t i = 0; i < drivers_.size(); ++i)
-      if (live_dirty_[i]) {
-        drivers_[i].set_live(live_[i]);
-        live_dirty_[i] = false;
-      }
-  }
 
   // probes to the end of the step
   const double t_new = state_.time_s + dt;
@@ -220,7 +204,6 @@ StepStatus Simulation::step() {
 
   ++counters_.steps;
   counters_.surface_updates_skipped = counters_.steps - counters_.surface_updates;
-  publish();
   return state_.status;
 }
 
@@ -296,25 +279,16 @@ const Eigen::Matrix3Xd& Simulation::surface_vertices() {
   return surface_frame_.vertices;
 }
 
-void Simulation::publish() {
-  const bool frame = frame_requested_.exchange(false, std::memory_order_acq_rel);
-  if (frame && settings_.surface) (void)surface_vertices();
-  std::lock_guard<std::mutex> lock(mutex_);
-  for (std::size_t i = 0; i < outputs_.size(); ++i) published_[i] = outputs_[i];
-  if (frame) {
-    frame_.time_s = state_.time_s;
-    frame_.step = state_.steps;
-    frame_.positions = state_.positions;
-    if (settings_.surface) {
-      frame_.surface_vertices = surface_frame_.vertices;
-      frame_.surface_normals = surface_frame_.normals;
-    }
-    frame_.probes = outputs_;
-    frame_ready_ = true;
-    ++counters_.frames_published;
-  } else {
-    ++counters_.frames_skipped;
+void Simulation::copy_frame(SimulationFrame& out) {
+  if (settings_.surface) (void)surface_vertices();
+  out.time_s = state_.time_s;
+  out.step = state_.steps;
+  out.positions = state_.positions;
+  if (settings_.surface) {
+    out.surface_vertices = surface_frame_.vertices;
+    out.surface_normals = surface_frame_.normals;
   }
+  out.probes = outputs_;
 }
 
 void Simulation::set_live(int i, const LiveCommand& command) {
@@ -325,23 +299,7 @@ void Simulation::set_live(int i, const LiveCommand& command) {
     throw Error("simulation: probe " + std::to_string(i) + " (" + settings_.probes[std::size_t(i)].name +
                 ") is driven by its " + to_string(settings_.probes[std::size_t(i)].drive) +
                 ", not live; give it \"live\": {} in the scene");
-  std::lock_guard<std::mutex> lock(mutex_);
-  live_[std::size_t(i)] = command;
-  live_dirty_[std::size_t(i)] = true;
-  live_pending_.store(true, std::memory_order_release);
-}
-
-ProbeOutput Simulation::probe_snapshot(int i) const {
-  std::lock_guard<std::mutex> lock(mutex_);
-  return published_.at(std::size_t(i));
-}
-
-bool Simulation::take_frame(SimulationFrame& out) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  if (!frame_ready_) return false;
-  std::swap(out, frame_);
-  frame_ready_ = false;
-  return true;
+  drivers_[std::size_t(i)].set_live(command);
 }
 
 }  // namespace vx

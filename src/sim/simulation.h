@@ -15,25 +15,22 @@
 ///      contact is perfectly inelastic (restitution does not apply) and frictionless;
 ///   4. the step listener, when one is attached: the device side (haptics/device_side.h: the
 ///      device force, the local contact models) takes the step's forces and contacts;
-///   5. a frame for a display thread, only when one was requested; the embedded surface is
-///      deformed only when someone asks for it.
+///   5. the embedded surface is deformed only when someone asks for it (surface_vertices,
+///      copy_frame).
 ///
 /// Work a scene does not need is skipped and counted (SimulationCounters); with
 /// `skip_unneeded = false` every optional piece of work is done every step, which changes no
 /// result (tests/core/simulation_test.cpp checks this bit for bit).
 ///
-/// Threads. The physics thread owns the Simulation and calls step() / advance_to(). Other
-/// threads may call only the methods marked "any thread": set_live() (input thread),
-/// probe_snapshot() (device thread: read the raw force), request_frame() / take_frame()
-/// (display thread).
+/// Threads. A Simulation belongs to one thread: every method is called from the thread that
+/// steps it (OpenMP inside a step aside). An app that feeds it from other threads hands data over
+/// itself (the probe app: apps/probe/sim_exchange.h).
 ///
 /// Units: mm, s, N; gravity mm/s^2 here (the scene file takes m/s^2).
 
 #include <Eigen/Core>
-#include <atomic>
 #include <cstdint>
 #include <memory>
-#include <mutex>
 #include <optional>
 #include <string>
 #include <vector>
@@ -76,8 +73,6 @@ struct SimulationCounters {
   ContactCounters contact;                  ///< narrow-phase tests done / skipped by the broad phase
   std::int64_t surface_updates{0};          ///< surface deformations
   std::int64_t surface_updates_skipped{0};  ///< steps that ended without one (nobody looked)
-  std::int64_t frames_published{0};         ///< frames copied for a display thread
-  std::int64_t frames_skipped{0};           ///< steps without a requested frame
   /// implicit with regional solves (IntegratorSettings::region_radius_mm): element rotation
   /// fits and node solves left out because they sleep, summed over steps
   std::int64_t sleeping_element_updates{0};
@@ -91,7 +86,7 @@ struct SimulationCounters {
   double factor_s{0.0};
 };
 
-/// A frame for a display thread.
+/// The state at one step as a display draws it (Simulation::copy_frame).
 struct SimulationFrame {
   double time_s{0.0};
   std::int64_t step{0};
@@ -161,28 +156,28 @@ class Simulation {
   [[nodiscard]] const std::shared_ptr<const PhysicsModel>& shared_physics() const { return physics_; }
 
   [[nodiscard]] int num_probes() const { return int(drivers_.size()); }
-  /// Probe `i` after the last step (physics thread).
+  /// Probe `i` after the last step.
   [[nodiscard]] const ProbeOutput& probe(int i) const { return outputs_[std::size_t(i)]; }
-  /// Force of the tissue on the walls this step, N (physics thread).
+  /// Force of the tissue on the walls this step, N.
   [[nodiscard]] const Eigen::Vector3d& wall_force_n() const { return wall_force_; }
-  /// Probe `i`'s shape (physics thread).
+  /// Probe `i`'s shape.
   [[nodiscard]] const ProbeGeometry& probe_geometry(int i) const { return geometry_[std::size_t(i)]; }
   /// Index of the probe named `name`, or -1.
   [[nodiscard]] int probe_index(const std::string& name) const;
 
   /// Deformed surface vertices (3 x V, mm) at the current step, deforming it now if the
-  /// surface is stale. Throws vx::Error when the simulation has no surface. Physics thread.
+  /// surface is stale. Throws vx::Error when the simulation has no surface.
   const Eigen::Matrix3Xd& surface_vertices();
   [[nodiscard]] bool has_surface() const { return bool(settings_.surface); }
 
-  // --- any thread ---------------------------------------------------------------------------
   /// Live input for probe `i` (a `live` probe); applied from the next step on.
   /// Throws vx::Error for a bad index or a probe that is not live.
   void set_live(int i, const LiveCommand& command);
-  /// Probe `i` after the last completed step: pose and raw force.
-  [[nodiscard]] ProbeOutput probe_snapshot(int i) const;
+  /// The state now as a frame (positions, the deformed surface and its normals, the probes),
+  /// into `out` (its buffers reused); deforms the surface when it is stale.
+  void copy_frame(SimulationFrame& out);
 
-  // --- physics thread: what the device side (haptics/device_side.h) reads -------------------
+  // --- what the device side (haptics/device_side.h) reads ------------------------------------
   /// Attaches `listener` (null: none), told after every step and reset. `record_contacts`: the
   /// explicit integrators keep each step's probe contacts for step_contacts().
   void set_step_listener(StepListener* listener, bool record_contacts);
@@ -194,11 +189,6 @@ class Simulation {
   [[nodiscard]] bool solves_contact() const;
   /// The integrator's compliance between `nodes` (integrators.h contact_compliance); false when it has none.
   bool contact_compliance(const std::vector<std::int32_t>& nodes, Eigen::MatrixXd& g);
-
-  /// Asks the physics thread to copy a frame at the end of its next step.
-  void request_frame() { frame_requested_.store(true, std::memory_order_release); }
-  /// Swaps the latest frame into `out` if a new one is ready; returns whether it was.
-  bool take_frame(SimulationFrame& out);
 
  private:
   /// Hands the probes and walls to an implicit integrator (contact inside its solve).
@@ -212,7 +202,6 @@ class Simulation {
     Simulation& sim_;
   };
 
-  void publish();
   /// Probe and wall forces from the implicit integrator's contact multipliers.
   void take_implicit_contact_forces();
   /// 2D (a slice model): the probes' centres on the slice plane (a sphere becomes the circle
@@ -246,16 +235,6 @@ class Simulation {
   // surface
   SurfaceFrame surface_frame_;  ///< the deformed surface and its normals (each triangle's normal once)
   std::int64_t surface_step_{-1};  ///< step the surface was deformed at (-1: never)
-
-  // shared with other threads
-  mutable std::mutex mutex_;
-  std::vector<LiveCommand> live_;        ///< guarded
-  std::vector<bool> live_dirty_;         ///< guarded
-  std::atomic<bool> live_pending_{false};
-  std::vector<ProbeOutput> published_;   ///< guarded
-  std::atomic<bool> frame_requested_{false};
-  SimulationFrame frame_;                ///< guarded
-  bool frame_ready_{false};              ///< guarded
 };
 
 /// What collides: every node that is not fixed. The surface nodes meet a probe first; the

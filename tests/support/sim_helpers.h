@@ -54,4 +54,20 @@ inline ProbeSettings path_probe(const std::string& name, ProbeShape shape, doubl
   return p;
 }
 
+/// A block held at its z_min face under a live ball "hand" (radius 3 mm, starting at (6, 6, 9.5)
+/// mm, at most 50 mm/s) and a path probe "still" far away: a live press, on a symplectic step.
+inline SimulationSettings live_press_settings(const PhysicsModel& phys) {
+  SimulationSettings s;
+  s.integrator = symplectic(phys);
+  s.fixed_nodes = nodes_on_face(*phys.model, BoxFace::z_min);
+  ProbeSettings live;
+  live.name = "hand";
+  live.drive = ProbeDrive::live;
+  live.geometry.radius_mm = 3;
+  live.start_mm = {6, 6, 9.5};
+  live.max_speed_mm_s = 50;
+  s.probes = {live, path_probe("still", ProbeShape::sphere, 1, {{0.0, {30, 30, 30}}})};
+  return s;
+}
+
 }  // namespace vx::testing

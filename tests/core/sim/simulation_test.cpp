@@ -1,16 +1,13 @@
 // The simulation loop against analytic solutions: Hertz indentation, plate compression, a tap
 // (impulse = momentum), a rebound from a wall, a two-probe grasp under gravity; skipping changes
-// no result; the live API across threads (the device force and the local
-// contact models: tests/core/haptics/device_side_test.cpp).
+// no result; a live probe (handed across threads by the probe app: apps/probe/sim_exchange.h; the
+// device force and the local contact models: tests/core/haptics/device_side_test.cpp).
 #include "sim/simulation.h"
 
 #include <gtest/gtest.h>
 
-#include <atomic>
-#include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <thread>
 #include <vector>
 
 #include "base/error.h"
@@ -367,7 +364,6 @@ TEST(Simulation, NoProbesNoWallsNoDeviceSkipsContactAndShaping) {
   EXPECT_EQ(sim.counters().contact_passes, 0);
   EXPECT_EQ(sim.counters().contact_passes_skipped, 50);
   EXPECT_EQ(sim.counters().surface_updates_skipped, 50);
-  EXPECT_EQ(sim.counters().frames_skipped, 50);
 }
 
 TEST(Simulation, SameResultsOnOneAndTwoThreads) {
@@ -383,49 +379,30 @@ TEST(Simulation, SameResultsOnOneAndTwoThreads) {
   EXPECT_EQ(sa.probe(0).raw_force_n, sb.probe(0).raw_force_n);
 }
 
-// The probe app's use: a physics thread steps in real time while an input thread moves a live
-// probe and a device thread reads the force.
-TEST(Simulation, LiveProbeAcrossThreads) {
+// A live probe: a position target reached at no more than its speed, the force read after
+// each step, a frame copied on demand (the probe app hands these across threads itself:
+// apps/probe/sim_exchange.h, tests/apps/probe_sim_exchange_test.cpp).
+TEST(Simulation, LiveProbeReachesItsTarget) {
   auto phys = physics_of(block_model(12, 12, 6), 10.0);
-  SimulationSettings s;
-  s.integrator = symplectic(*phys);
-  s.fixed_nodes = nodes_on_face(*phys->model, BoxFace::z_min);
-  ProbeSettings live;
-  live.name = "hand";
-  live.drive = ProbeDrive::live;
-  live.geometry.radius_mm = 3;
-  live.start_mm = {6, 6, 9.5};
-  live.max_speed_mm_s = 50;
-  s.probes = {live};
-  Simulation sim(phys, s);
+  Simulation sim(phys, live_press_settings(*phys));
   EXPECT_THROW(sim.set_live(3, {}), Error);
-
-  std::atomic<bool> done{false}, sent{false};
-  std::thread physics([&] {
-    // simulated clock: 400 steps' worth, in chunks like a real-time loop would take them; it
-    // starts once the input thread has sent its command (on a loaded machine the 400 steps
-    // could otherwise all run before the command arrives, and the probe would never move)
-    while (!sent) std::this_thread::yield();
-    const double dt = sim.dt_s();
-    for (int chunk = 1; chunk <= 40; ++chunk) sim.advance_to(chunk * 10 * dt, 1000);
-    done = true;
-  });
-  // input thread: press down, the device thread reads forces meanwhile
+  EXPECT_THROW(sim.set_live(1, {}), Error);  // driven by its path
   sim.set_live(0, {LiveCommand::Kind::position, {6, 6, 7.0}});
-  sent = true;
-  double seen = 0;
-  while (!done) {
-    const ProbeOutput o = sim.probe_snapshot(0);
-    seen = std::max(seen, o.raw_force_n.z());
-    sim.request_frame();
-    std::this_thread::yield();
+  double seen = 0, fastest = 0;
+  Eigen::Vector3d last = sim.probe(0).pose.position_mm;
+  for (int k = 0; k < 400; ++k) {
+    sim.step();
+    seen = std::max(seen, sim.probe(0).raw_force_n.z());
+    fastest = std::max(fastest, (sim.probe(0).pose.position_mm - last).norm() / sim.dt_s());
+    last = sim.probe(0).pose.position_mm;
   }
-  physics.join();
-  EXPECT_EQ(sim.steps(), 400);
-  const ProbeOutput o = sim.probe_snapshot(0);
-  EXPECT_NEAR(o.pose.position_mm.z(), 7.0, 1e-9);  // reached the target at <= 50 mm/s
-  EXPECT_GT(seen, 0.0);
+  EXPECT_NEAR(sim.probe(0).pose.position_mm.z(), 7.0, 1e-9);  // reached the target
+  EXPECT_LE(fastest, 50.0 + 1e-6);                            // at <= 50 mm/s
+  EXPECT_GT(seen, 0.0);                                       // pressing into the block
   SimulationFrame frame;
-  EXPECT_TRUE(sim.take_frame(frame) || sim.counters().frames_published > 0);
-  EXPECT_GT(sim.counters().frames_published, 0);
+  sim.copy_frame(frame);
+  EXPECT_EQ(frame.step, 400);
+  EXPECT_EQ(frame.positions, sim.state().positions);
+  ASSERT_EQ(frame.probes.size(), 2u);
+  EXPECT_EQ(frame.probes[0].raw_force_n, sim.probe(0).raw_force_n);
 }

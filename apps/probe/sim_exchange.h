@@ -1,0 +1,63 @@
+#pragma once
+/// @file sim_exchange.h
+/// The hand-off between the physics thread, which owns the Simulation (one single-threaded
+/// step: sim/simulation.h), and the app's other loops:
+///
+///   device -> physics: a live command per probe (set_live), handed to the simulation before the
+///                      physics thread's next step (apply_live);
+///   physics -> device: each probe's output after the last step or reset (publish, probe);
+///   physics -> GUI:    a frame (positions, the deformed surface, the probes) copied at the end
+///                      of a step once the GUI asked for one (request_frame, publish,
+///                      take_frame), never waited for.
+///
+/// One mutex guards the commands, the outputs and the frame; it is held only to copy.
+
+#include <atomic>
+#include <cstdint>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "sim/probe.h"
+#include "sim/simulation.h"
+
+namespace vx::probe {
+
+class SimulationExchange {
+ public:
+  /// Sized for `sim`'s probes, their outputs now published (before any thread starts).
+  explicit SimulationExchange(const Simulation& sim);
+
+  // --- any thread -----------------------------------------------------------------------------
+  /// Live input for probe `i` (a `live` probe), handed to the simulation before its next step.
+  /// Throws vx::Error for a bad index or a probe that is not live.
+  void set_live(int i, const LiveCommand& command);
+  /// Probe `i` after the last published step: pose, raw force, contacts.
+  [[nodiscard]] ProbeOutput probe(int i) const;
+  /// Asks the physics thread to copy a frame at the end of its next step.
+  void request_frame() { frame_requested_.store(true, std::memory_order_release); }
+  /// Swaps the latest frame into `out` if a new one is ready; returns whether it was.
+  bool take_frame(SimulationFrame& out);
+  [[nodiscard]] std::int64_t frames_published() const { return frames_published_.load(std::memory_order_relaxed); }
+
+  // --- the physics thread ---------------------------------------------------------------------
+  /// The live commands set since the last call, to `sim` (before a step).
+  void apply_live(Simulation& sim);
+  /// After a step or a reset: the probes' outputs, and a frame when one was asked for.
+  void publish(Simulation& sim);
+
+ private:
+  std::vector<std::string> names_;  ///< per probe, for messages
+  std::vector<bool> live_probe_;    ///< per probe: driven live
+  mutable std::mutex mutex_;
+  std::vector<LiveCommand> live_;  ///< guarded
+  std::vector<bool> live_dirty_;   ///< guarded
+  std::atomic<bool> live_pending_{false};
+  std::vector<ProbeOutput> published_;  ///< guarded
+  std::atomic<bool> frame_requested_{false};
+  SimulationFrame frame_;    ///< guarded
+  bool frame_ready_{false};  ///< guarded
+  std::atomic<std::int64_t> frames_published_{0};
+};
+
+}  // namespace vx::probe

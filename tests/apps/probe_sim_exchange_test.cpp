@@ -1,0 +1,88 @@
+// The hand-off between the probe app's physics thread and its other loops (sim_exchange.h): a
+// physics thread steps while an input thread moves a live probe and a device thread reads the
+// force and asks for frames; commands reach the simulation, outputs and frames come back.
+#include "sim_exchange.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <atomic>
+#include <thread>
+
+#include "base/error.h"
+#include "support/sim_helpers.h"
+
+using namespace vx;
+using namespace vx::probe;
+using namespace vx::testing;
+
+TEST(SimulationExchange, LiveProbeAcrossThreads) {
+  auto phys = physics_of(block_model(12, 12, 6), 10.0);
+  Simulation sim(phys, live_press_settings(*phys));
+  SimulationExchange exchange(sim);
+  EXPECT_THROW(exchange.set_live(3, {}), Error);
+  EXPECT_THROW(exchange.set_live(1, {}), Error);                              // driven by its path
+  EXPECT_EQ(exchange.probe(0).pose.position_mm, Eigen::Vector3d(6, 6, 9.5));  // published at the start
+
+  std::atomic<bool> done{false}, sent{false};
+  std::thread physics([&] {
+    // 400 steps, as the physics loop takes them; it starts once the input thread has sent its
+    // command (on a loaded machine the steps could otherwise all run before it arrives)
+    while (!sent) std::this_thread::yield();
+    for (int k = 0; k < 400; ++k) {
+      exchange.apply_live(sim);
+      sim.step();
+      exchange.publish(sim);
+    }
+    done = true;
+  });
+  // input thread: press down; the device thread reads forces and asks for frames meanwhile
+  exchange.set_live(0, {LiveCommand::Kind::position, {6, 6, 7.0}});
+  sent = true;
+  double seen = 0;
+  int frames = 0;
+  SimulationFrame frame;
+  while (!done) {
+    seen = std::max(seen, exchange.probe(0).raw_force_n.z());
+    exchange.request_frame();
+    if (exchange.take_frame(frame)) {
+      ++frames;
+      EXPECT_EQ(frame.positions.cols(), phys->model->num_nodes());
+      EXPECT_EQ(frame.probes.size(), 2u);
+    }
+    std::this_thread::yield();
+  }
+  physics.join();
+  EXPECT_EQ(sim.steps(), 400);
+  const ProbeOutput o = exchange.probe(0);
+  EXPECT_NEAR(o.pose.position_mm.z(), 7.0, 1e-9);  // reached the target at <= 50 mm/s
+  EXPECT_EQ(o.time_s, sim.time_s());               // the last step's
+  EXPECT_GT(seen, 0.0);
+  EXPECT_GT(exchange.frames_published(), 0);
+  EXPECT_GE(exchange.frames_published(), frames);
+}
+
+TEST(SimulationExchange, AFrameOnlyWhenAskedAndTakenOnce) {
+  auto phys = physics_of(block_model(6, 6, 4), 10.0);
+  Simulation sim(phys, live_press_settings(*phys));
+  SimulationExchange exchange(sim);
+  SimulationFrame frame;
+  sim.step();
+  exchange.publish(sim);
+  EXPECT_FALSE(exchange.take_frame(frame));  // nobody asked
+  EXPECT_EQ(exchange.frames_published(), 0);
+  exchange.request_frame();
+  sim.step();
+  exchange.publish(sim);
+  ASSERT_TRUE(exchange.take_frame(frame));
+  EXPECT_EQ(frame.step, 2);
+  EXPECT_EQ(frame.positions, sim.state().positions);
+  EXPECT_FALSE(exchange.take_frame(frame));  // taken
+  // a command waits for apply_live: the simulation has not seen it before
+  exchange.set_live(0, {LiveCommand::Kind::velocity, {0, 0, -20}});
+  sim.step();
+  EXPECT_EQ(sim.probe(0).pose.velocity_mm_s.z(), 0.0);
+  exchange.apply_live(sim);
+  sim.step();
+  EXPECT_LT(sim.probe(0).pose.velocity_mm_s.z(), 0.0);
+}
