@@ -23,6 +23,7 @@
 #include <Eigen/Dense>
 #include <Eigen/SparseCore>
 
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <stdexcept>
@@ -95,6 +96,11 @@ struct BrickPress {
   BrickIntegration integration{BrickIntegration::bbar};
   bool quarter{true};      ///< the symmetry planes through the ball's axis (force x 4)
   bool paraboloid{false};  ///< Hertz's paraboloid z = r^2 / 2R under the ball instead of its sphere
+  /// the sphere's own normals instead of the vertical: node i may only move along n_i (from the
+  /// ball's centre through its rest position) to the sphere, n_i . u_i >= R - |X_i - c|, and the
+  /// ball pushes it along n_i (outwards as well as down), as the model's contact does; the force
+  /// is the vertical part of the pushes (still linearised: n_i at rest)
+  bool radial_normals{false};
 };
 
 struct BrickPressResult {
@@ -105,6 +111,77 @@ struct BrickPressResult {
   double factor_s{0}, total_s{0};
   long long factor_nonzeros{0};
 };
+
+/// The ball's force on a linear body of stiffness `stiffness` (free degrees of freedom, symmetric; the
+/// lower triangle is read): candidate c may move along normal[c] (its free degrees of freedom
+/// rows[c], -1 where held) by at least need[c] and is pushed along normal[c]; the active set
+/// finds the pushes (see the file comment). The force is `scale` times the pushes' downward part.
+inline BrickPressResult press_with_matrix(const SparseFactor::Matrix& stiffness,
+                                          const std::vector<std::array<int, 3>>& rows,
+                                          const std::vector<Eigen::Vector3d>& normal, const std::vector<double>& need,
+                                          double scale) {
+  SparseFactor factor;
+  const auto tf = std::chrono::steady_clock::now();
+  if (!factor.compute(stiffness)) throw std::runtime_error("brick_press: the stiffness is not positive definite");
+  BrickPressResult out;
+  out.factor_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - tf).count();
+  out.factor_nonzeros = factor.nonzeros();
+  out.dofs = int(stiffness.rows());
+  const int m = int(rows.size());
+  // forward vectors of every free degree of freedom a push moves (3 per candidate; held ones -1)
+  std::vector<SparseFactor::UnitForward> z(static_cast<std::size_t>(3 * m));
+  for (int c = 0; c < m; ++c)
+    for (int a = 0; a < 3; ++a)
+      if (rows[std::size_t(c)][std::size_t(a)] >= 0 && normal[std::size_t(c)](a) != 0.0)
+        factor.forward_unit(rows[std::size_t(c)][std::size_t(a)], z[std::size_t(3 * c + a)]);
+  // mm / N: the motion of i along n_i under a unit push at j along n_j
+  Eigen::MatrixXd compliance = Eigen::MatrixXd::Zero(m, m);
+  for (int i = 0; i < m; ++i)
+    for (int j = 0; j <= i; ++j) {
+      double g = 0;
+      for (int a = 0; a < 3; ++a)
+        for (int b = 0; b < 3; ++b) {
+          const double w = normal[std::size_t(i)](a) * normal[std::size_t(j)](b);
+          if (w == 0.0 || rows[std::size_t(i)][std::size_t(a)] < 0 || rows[std::size_t(j)][std::size_t(b)] < 0)
+            continue;
+          g += w * SparseFactor::dot(z[std::size_t(3 * i + a)], z[std::size_t(3 * j + b)]);
+        }
+      compliance(i, j) = compliance(j, i) = g;
+    }
+  const Eigen::Map<const Eigen::VectorXd> d(need.data(), m);
+  std::vector<bool> active(static_cast<std::size_t>(m));
+  for (int c = 0; c < m; ++c) active[std::size_t(c)] = need[std::size_t(c)] > 0;
+  Eigen::VectorXd p = Eigen::VectorXd::Zero(m);
+  for (int round = 0; round < 200; ++round) {
+    ++out.active_set_rounds;
+    std::vector<int> on;
+    for (int c = 0; c < m; ++c)
+      if (active[std::size_t(c)]) on.push_back(c);
+    Eigen::MatrixXd caa(on.size(), on.size());
+    Eigen::VectorXd da(on.size());
+    for (std::size_t i = 0; i < on.size(); ++i) {
+      da(Eigen::Index(i)) = d(on[i]);
+      for (std::size_t j = 0; j < on.size(); ++j) caa(Eigen::Index(i), Eigen::Index(j)) = compliance(on[i], on[j]);
+    }
+    const Eigen::VectorXd pa = caa.ldlt().solve(da);
+    p.setZero();
+    for (std::size_t i = 0; i < on.size(); ++i) p(on[i]) = pa(Eigen::Index(i));
+    bool changed = false;
+    for (int c : on)
+      if (p(c) < 0) active[std::size_t(c)] = false, changed = true;  // pulled up: released
+    if (!changed) {
+      const Eigen::VectorXd w = compliance * p;
+      for (int c = 0; c < m; ++c)
+        if (!active[std::size_t(c)] && w(c) < d(c) - 1e-12) active[std::size_t(c)] = true, changed = true;
+    }
+    if (!changed) break;
+  }
+  for (int c = 0; c < m; ++c) out.contact_nodes += active[std::size_t(c)] ? 1 : 0;
+  double down = 0;
+  for (int c = 0; c < m; ++c) down -= p(c) * normal[std::size_t(c)].z();
+  out.force_n = scale * down;
+  return out;
+}
 
 /// The press at Poisson's ratio nu (see the file comment); with `element`, that 24 x 24 stiffness
 /// (brick_stiffness's numbering, for a cube of edge s.voxel_mm) instead of the brick's: another
@@ -150,63 +227,31 @@ inline BrickPressResult brick_press(const BrickPress& s, double nu, const BrickM
   SparseFactor::Matrix a(n, n);
   a.setFromTriplets(t.begin(), t.end());
   t = {};
-  SparseFactor factor;
-  const auto tf = std::chrono::steady_clock::now();
-  if (!factor.compute(a)) throw std::runtime_error("brick_press: the stiffness is not positive definite");
-  BrickPressResult out;
-  out.factor_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - tf).count();
-  out.factor_nonzeros = factor.nonzeros();
-  out.dofs = n;
-  // candidates: the top nodes under the ball; need_i = the downward displacement that puts node i
-  // on the ball's surface
-  std::vector<int> rows;
+  // candidates: the top nodes under the ball; need_i = the motion along n_i (vertical: downward)
+  // that puts node i on the ball's surface
+  std::vector<std::array<int, 3>> rows;
+  std::vector<Eigen::Vector3d> normal;
   std::vector<double> need;
   const double r2 = s.radius_mm * s.radius_mm;
+  const Eigen::Vector3d centre(0, 0, s.height_mm + s.radius_mm - s.depth_mm);
   for (int j = 0; j <= ny; ++j)
     for (int i = 0; i <= nx; ++i) {
       const double x = x0 + i * h, y = x0 + j * h, rr = x * x + y * y;
       if (rr >= r2) continue;
-      const double lift = s.paraboloid ? rr / (2 * s.radius_mm) : s.radius_mm - std::sqrt(r2 - rr);
-      rows.push_back(dof[std::size_t(3 * node(i, j, nz) + 2)]);
-      need.push_back(s.depth_mm - lift);
+      std::array<int, 3> r{};
+      for (int c = 0; c < 3; ++c) r[std::size_t(c)] = dof[std::size_t(3 * node(i, j, nz) + c)];
+      rows.push_back(r);
+      if (s.radial_normals) {
+        const Eigen::Vector3d rel = Eigen::Vector3d(x, y, s.height_mm) - centre;
+        normal.push_back(rel.normalized());
+        need.push_back(s.radius_mm - rel.norm());
+      } else {
+        const double lift = s.paraboloid ? rr / (2 * s.radius_mm) : s.radius_mm - std::sqrt(r2 - rr);
+        normal.emplace_back(0, 0, -1);
+        need.push_back(s.depth_mm - lift);
+      }
     }
-  const int m = int(rows.size());
-  std::vector<SparseFactor::UnitForward> z(static_cast<std::size_t>(m));
-  for (int c = 0; c < m; ++c) factor.forward_unit(rows[std::size_t(c)], z[std::size_t(c)]);
-  Eigen::MatrixXd compliance(m, m);  // mm / N: the downward motion of i under a downward unit force at j
-  for (int i = 0; i < m; ++i)
-    for (int j = 0; j <= i; ++j)
-      compliance(i, j) = compliance(j, i) = SparseFactor::dot(z[std::size_t(i)], z[std::size_t(j)]);
-  const Eigen::Map<const Eigen::VectorXd> d(need.data(), m);
-  std::vector<bool> active(static_cast<std::size_t>(m));
-  for (int c = 0; c < m; ++c) active[std::size_t(c)] = need[std::size_t(c)] > 0;
-  Eigen::VectorXd p = Eigen::VectorXd::Zero(m);
-  for (int round = 0; round < 200; ++round) {
-    ++out.active_set_rounds;
-    std::vector<int> on;
-    for (int c = 0; c < m; ++c)
-      if (active[std::size_t(c)]) on.push_back(c);
-    Eigen::MatrixXd caa(on.size(), on.size());
-    Eigen::VectorXd da(on.size());
-    for (std::size_t i = 0; i < on.size(); ++i) {
-      da(Eigen::Index(i)) = d(on[i]);
-      for (std::size_t j = 0; j < on.size(); ++j) caa(Eigen::Index(i), Eigen::Index(j)) = compliance(on[i], on[j]);
-    }
-    const Eigen::VectorXd pa = caa.ldlt().solve(da);
-    p.setZero();
-    for (std::size_t i = 0; i < on.size(); ++i) p(on[i]) = pa(Eigen::Index(i));
-    bool changed = false;
-    for (int c : on)
-      if (p(c) < 0) active[std::size_t(c)] = false, changed = true;  // pulled up: released
-    if (!changed) {
-      const Eigen::VectorXd w = compliance * p;
-      for (int c = 0; c < m; ++c)
-        if (!active[std::size_t(c)] && w(c) < d(c) - 1e-12) active[std::size_t(c)] = true, changed = true;
-    }
-    if (!changed) break;
-  }
-  for (int c = 0; c < m; ++c) out.contact_nodes += active[std::size_t(c)] ? 1 : 0;
-  out.force_n = (s.quarter ? 4.0 : 1.0) * p.sum();
+  BrickPressResult out = press_with_matrix(a, rows, normal, need, s.quarter ? 4.0 : 1.0);
   out.total_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return out;
 }
