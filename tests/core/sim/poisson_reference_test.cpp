@@ -222,10 +222,12 @@ TEST(BrickReference, DISABLED_Measure) {
   s.radial_normals = std::getenv("VX_RADIAL") != nullptr;
   if (std::getenv("VX_FULL_INTEGRATION")) s.integration = BrickIntegration::full;
   // VX_MODEL_ELEMENT: the model's voxel element linearised (model_element_stiffness) with
-  // VX_CAP (CalibrationOptions::volume_variation_cap), VX_RELIEF (bending_relief), VX_XYZ (xyz_relief)
+  // VX_CAP (CalibrationOptions::volume_variation_cap), VX_VMF (volume_mean_fraction), VX_RELIEF (bending_relief),
+  // VX_XYZ (xyz_relief)
   const bool model = std::getenv("VX_MODEL_ELEMENT") != nullptr;
   CalibrationOptions options;
   if (const char* v = std::getenv("VX_CAP")) options.volume_variation_cap = std::atof(v);
+  if (const char* v = std::getenv("VX_VMF")) options.volume_mean_fraction = std::atof(v);
   if (const char* v = std::getenv("VX_RELIEF")) options.bending_relief = std::atof(v);
   if (const char* v = std::getenv("VX_XYZ")) options.xyz_relief = std::atof(v);
   auto press = [&](double nu) {
@@ -237,9 +239,9 @@ TEST(BrickReference, DISABLED_Measure) {
     const Layout lay = std::getenv("VX_LAYOUT") ? parse_layout(std::getenv("VX_LAYOUT")) : Layout::gradational;
     const auto r0 = linearised_model_press(lay, 0.0, options, s.depth_mm);
     const double ref0 = hertz_bonded_layer_n(10, 0.0, s.radius_mm, s.depth_mm, s.height_mm);
-    std::cout << "MEASURE linearised " << to_string(lay) << " cap " << options.volume_variation_cap << " depth "
-              << s.depth_mm << ": dofs " << r0.dofs << " F(0) " << r0.force_n << " quotient " << r0.force_n / ref0
-              << std::endl;
+    std::cout << "MEASURE linearised " << to_string(lay) << " vmf " << options.volume_mean_fraction << " cap "
+              << options.volume_variation_cap << " depth " << s.depth_mm << ": dofs " << r0.dofs << " F(0) "
+              << r0.force_n << " quotient " << r0.force_n / ref0 << std::endl;
     for (const double nu : {0.3, 0.45, 0.49}) {
       const auto r = linearised_model_press(lay, nu, options, s.depth_mm);
       const double ref = hertz_bonded_layer_n(10, nu, s.radius_mm, s.depth_mm, s.height_mm) / ref0;
