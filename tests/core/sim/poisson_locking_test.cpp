@@ -64,8 +64,10 @@ double bonded_layer_n(double e_kpa, double nu, double r, double d, double h) {
 // at its base (E = 10 kPa), over 0.2 s from 0.2 mm above, held until 0.4 s; the force is the
 // mean over the last 0.1 s of the hold.
 constexpr double kW = 32.0, kH = 16.0, kR = 4.0, kDepth = 2.0;
+double g_depth_mm = kDepth;  ///< the press's depth (PoissonLocking.DISABLED_Measure sets it)
+int g_iterations = 60;       ///< implicit iterations per step (DISABLED_Measure sets it)
 
-double press_force_n(const std::shared_ptr<const Model>& m, double nu, int iterations = 60) {
+double press_force_n(const std::shared_ptr<const Model>& m, double nu, int iterations = g_iterations) {
   const auto p = make_physics_model(m, tissue(nu), {}, g_options);
   SimulationSettings s;
   s.integrator.kind = IntegratorKind::implicit;
@@ -81,7 +83,7 @@ double press_force_n(const std::shared_ptr<const Model>& m, double nu, int itera
   ball.drive = ProbeDrive::path;
   const Eigen::Vector3d lo = m->rest_positions.rowwise().minCoeff(), hi = m->rest_positions.rowwise().maxCoeff();
   const double cx = 0.5 * (lo.x() + hi.x()), cy = 0.5 * (lo.y() + hi.y());
-  const Eigen::Vector3d up(cx, cy, hi.z() + kR + 0.2), down(cx, cy, hi.z() + kR - kDepth);
+  const Eigen::Vector3d up(cx, cy, hi.z() + kR + 0.2), down(cx, cy, hi.z() + kR - g_depth_mm);
   ball.path = {{0.0, up}, {0.2, down}, {0.4, down}};
   s.probes = {ball};
   Simulation sim(p, s);
@@ -158,7 +160,9 @@ Eigen::Matrix3Xd node_forces(const PhysicsModel& p, const Eigen::Matrix3Xd& x) {
 // lock (ratio below the reference + 10 %). Second round (docs/model.md section 5, "Why soft"): the
 // shortfall is not the relief's (1 + nu) calibration (no relief at all still reads 11 % short, the
 // voxel layout 16 %) but the dilatation's variation inside an element, which costs no lambda; the
-// 5 % bound is not reached, so the bounds stay as they are.
+// 5 % bound is not reached, so the bounds stay as they are. Fourth round (poisson_reference_test):
+// linearised and pressed with a vertical contact the voxel element reads 0.972 of the reference
+// ratio and the gradational model 0.911; the contact's normal pushes move the ratio, not the element.
 TEST(PoissonLocking, IndentationForceRatioNoLongerLocks) {
   const double ref45 = bonded_layer_n(10, 0.45, kR, kDepth, kH) / bonded_layer_n(10, 0.0, kR, kDepth, kH);
   const double ref49 = bonded_layer_n(10, 0.49, kR, kDepth, kH) / bonded_layer_n(10, 0.0, kR, kDepth, kH);
@@ -239,8 +243,10 @@ TEST(PoissonLocking, StableStepFollowsThePWaveSpeed) {
 // prints, it asserts nothing). Run with --gtest_also_run_disabled_tests and, optionally,
 // VX_VMF (CalibrationOptions::volume_mean_fraction), VX_VPP (volume_point_position), VX_CAP
 // (volume_variation_cap), VX_LAYOUT (gradational | voxel), VX_NU (0.45 or 0.49 only),
-// VX_BULGE (also the clamped bar).
+// VX_BULGE (also the clamped bar), VX_DEPTH (mm, default 2), VX_ITERATIONS (per step, default 60).
 TEST(PoissonLocking, DISABLED_Measure) {
+  if (const char* v = std::getenv("VX_DEPTH")) g_depth_mm = std::atof(v);
+  if (const char* v = std::getenv("VX_ITERATIONS")) g_iterations = std::atoi(v);
   if (const char* v = std::getenv("VX_VMF")) g_options.volume_mean_fraction = std::atof(v);
   if (const char* v = std::getenv("VX_VPP")) g_options.volume_point_position = std::atof(v);
   if (const char* v = std::getenv("VX_CAP")) g_options.volume_variation_cap = std::atof(v);
@@ -257,15 +263,16 @@ TEST(PoissonLocking, DISABLED_Measure) {
   const double f0 = press_force_n(m, 0.0);
   for (double nu : {0.45, 0.49}) {
     if (std::getenv("VX_NU") && std::atof(std::getenv("VX_NU")) != nu) continue;
-    const double ref = bonded_layer_n(10, nu, kR, kDepth, kH) / bonded_layer_n(10, 0.0, kR, kDepth, kH);
+    const double ref = bonded_layer_n(10, nu, kR, g_depth_mm, kH) / bonded_layer_n(10, 0.0, kR, g_depth_mm, kH);
     const auto t0 = std::chrono::steady_clock::now();
     const double f = press_force_n(m, nu);
     std::cout << "MEASURE press s " << std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()
               << " stable step "
               << estimate_time_steps(*make_physics_model(m, tissue(nu), {}, g_options)).symplectic_euler_s << std::endl;
     std::cout << "MEASURE " << to_string(lay) << " vmf " << g_options.volume_mean_fraction << " vpp "
-              << g_options.volume_point_position << " cap " << g_options.volume_variation_cap << " nu " << nu << ": F0 "
-              << f0 << " ratio " << f / f0 << " / ref " << ref << " = " << f / f0 / ref << std::endl;
+              << g_options.volume_point_position << " cap " << g_options.volume_variation_cap << " depth " << g_depth_mm
+              << " iterations " << g_iterations << " nu " << nu << ": F0 " << f0 << " ratio " << f / f0 << " / ref "
+              << ref << " = " << f / f0 / ref << std::endl;
   }
   if (std::getenv("VX_BULGE"))
     for (double nu : {0.45, 0.49}) {
