@@ -150,9 +150,10 @@ void check_label(const Volume& volume, int label, const std::string& input) {
   std::int64_t count = 0;
   for (const float v : volume.hu) {
     if (v != std::round(v))
-      throw Error(fmt::format("--label {}: '{}' holds the value {:g}, so it is not a labelmap (labels are whole "
-                              "numbers); give --threshold instead",
-                              label, input, double(v)));
+      throw CLI::ValidationError("--label", fmt::format("'{}' holds the value {:g}, so it is not a labelmap "
+                                                        "(labels are whole numbers) and --label {} does not apply; "
+                                                        "give --threshold instead",
+                                                        input, double(v), label));
     count += v == float(label);
     if (values.size() <= 20) values.insert(v);
   }
@@ -161,8 +162,9 @@ void check_label(const Volume& volume, int label, const std::string& input) {
   int shown = 0;
   for (const float v : values)
     if (shown++ < 20) list += fmt::format("{}{:g}", list.empty() ? "" : ", ", double(v));
-  throw Error(fmt::format("--label {}: no voxel of the labelmap has this label; its labels are {}{}", label, list,
-                          values.size() > 20 ? ", ..." : ""));
+  throw CLI::ValidationError("--label", fmt::format("no voxel of the labelmap has label {}; its labels are "
+                                                    "{}{}",
+                                                    label, list, values.size() > 20 ? ", ..." : ""));
 }
 
 /// --label as given: a number (>= 0), a segment's name, or nothing ("" or -1).

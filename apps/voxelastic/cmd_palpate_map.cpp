@@ -106,7 +106,7 @@ void run_palpate_map(PalpateMapOptions o) {
              "each; stiffness {:.4g} N/mm (median) to {:.4g} N/mm; contrast {:.3g}; lesion estimate ({:.2f}, {:.2f}, "
              "{:.2f}) mm, extent {:.3g} x {:.3g} mm -> {}\n",
              s.points, face_name(map.settings.face), s.failed, map.wall_s, map.threads, map.steps_per_press,
-             1e3 * map.time_step_s, s.background_n_per_mm, s.peak_n_per_mm, s.contrast, tidy(s.lesion_estimate_mm.x()),
+             1e3 * map.time_step_s, s.background_n_mm, s.peak_n_mm, s.contrast, tidy(s.lesion_estimate_mm.x()),
              tidy(s.lesion_estimate_mm.y()), tidy(s.lesion_estimate_mm.z()), s.extent_u_mm, s.extent_v_mm, dir.string());
   if (s.failed > 0)
     throw Error(fmt::format("{} of {} presses failed (first: {}); the map of the others is in {}", s.failed, s.points,

@@ -224,7 +224,7 @@ void run_palpation_map(VerifyContext& ctx) {
     ctx.log(fmt::format("lesion top {:g} mm deep: {} presses in {:.1f} s; stiffness {:.4g} N/mm (median) to {:.4g}; "
                         "contrast {:.3f}; estimate ({:.2f}, {:.2f}) mm, {:.2f} mm from the lesion's axis; {} points above "
                         "the threshold",
-                        depths[k], s.points, map.wall_s, s.background_n_per_mm, s.peak_n_per_mm, s.contrast,
+                        depths[k], s.points, map.wall_s, s.background_n_mm, s.peak_n_mm, s.contrast,
                         s.lesion_estimate_mm.x(), s.lesion_estimate_mm.y(), error.back(), s.points_above));
     // the profile along x through the lesion's row
     profile_series[k].title = fmt::format("lesion top {:g} mm deep", depths[k]);
@@ -232,7 +232,7 @@ void run_palpation_map(VerifyContext& ctx) {
     for (const PalpationPoint& p : map.points)
       if (std::abs(p.v_mm - truth.y()) < 0.5 * m.spacing_mm + 1e-9) {
         profile_series[k].x.push_back(p.u_mm);
-        profile_series[k].y.push_back(p.stiffness_n_per_mm);
+        profile_series[k].y.push_back(p.stiffness_n_mm);
       }
     const std::string d = fmt::format("depth_{:g}mm", depths[k]);
     // the grid is 2 mm: the estimate lands within one spacing of the lesion's axis

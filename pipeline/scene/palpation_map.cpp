@@ -286,7 +286,7 @@ PalpationMap palpation_map(const PreparedScene& prepared, const PalpationMapSett
       PalpationPoint& p = map.points[std::size_t(k)];
       if (!sims[t]) {
         p.failure = setup_error[t];
-        p.force_n = p.stiffness_n_per_mm = kNaN;
+        p.force_n = p.stiffness_n_mm = kNaN;
       } else try {
         Simulation& sim = *sims[t];
         sim.reset();
@@ -306,15 +306,15 @@ PalpationMap palpation_map(const PreparedScene& prepared, const PalpationMapSett
         }
         if (!ok || sim.failed()) {
           p.failure = sim.state().message.empty() ? std::string("the press stopped") : sim.state().message;
-          p.force_n = p.stiffness_n_per_mm = kNaN;
+          p.force_n = p.stiffness_n_mm = kNaN;
         } else {
           p.depth_mm = settings.depth_mm;
           p.force_n = sum / average_steps;
-          p.stiffness_n_per_mm = p.force_n / p.depth_mm;
+          p.stiffness_n_mm = p.force_n / p.depth_mm;
         }
       } catch (const std::exception& ex) {  // nothing may leave the parallel loop
         p.failure = ex.what();
-        p.force_n = p.stiffness_n_per_mm = kNaN;
+        p.force_n = p.stiffness_n_mm = kNaN;
       }
       std::lock_guard<std::mutex> g(lock);
       ++done;
@@ -329,30 +329,30 @@ PalpationSummary summarize_palpation_map(const PalpationMap& map) {
   PalpationSummary s;
   std::vector<double> k;
   for (const PalpationPoint& p : map.points) {
-    if (!p.failure.empty() || !std::isfinite(p.stiffness_n_per_mm)) {
+    if (!p.failure.empty() || !std::isfinite(p.stiffness_n_mm)) {
       ++s.failed;
       continue;
     }
-    k.push_back(p.stiffness_n_per_mm);
+    k.push_back(p.stiffness_n_mm);
   }
   s.points = int(map.points.size());
   if (k.empty()) return s;
-  s.background_n_per_mm = median(k);
-  s.peak_n_per_mm = *std::max_element(k.begin(), k.end());
-  s.threshold_n_per_mm = s.background_n_per_mm + 0.5 * (s.peak_n_per_mm - s.background_n_per_mm);
+  s.background_n_mm = median(k);
+  s.peak_n_mm = *std::max_element(k.begin(), k.end());
+  s.threshold_n_mm = s.background_n_mm + 0.5 * (s.peak_n_mm - s.background_n_mm);
   // the points above the threshold: weighted centroid, extent; the rest: the surroundings
   Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
   double weight = 0;
   double umin = 1e300, umax = -1e300, vmin = 1e300, vmax = -1e300;
   std::vector<double> below;
   for (const PalpationPoint& p : map.points) {
-    if (!p.failure.empty() || !std::isfinite(p.stiffness_n_per_mm)) continue;
-    if (p.stiffness_n_per_mm < s.threshold_n_per_mm || s.peak_n_per_mm == s.background_n_per_mm) {
-      below.push_back(p.stiffness_n_per_mm);
-      if (s.peak_n_per_mm > s.background_n_per_mm) continue;
+    if (!p.failure.empty() || !std::isfinite(p.stiffness_n_mm)) continue;
+    if (p.stiffness_n_mm < s.threshold_n_mm || s.peak_n_mm == s.background_n_mm) {
+      below.push_back(p.stiffness_n_mm);
+      if (s.peak_n_mm > s.background_n_mm) continue;
     }
     ++s.points_above;
-    const double w = std::max(p.stiffness_n_per_mm - s.background_n_per_mm, 1e-300);
+    const double w = std::max(p.stiffness_n_mm - s.background_n_mm, 1e-300);
     centroid += w * p.surface_mm;
     weight += w;
     umin = std::min(umin, p.u_mm);
@@ -367,8 +367,8 @@ PalpationSummary summarize_palpation_map(const PalpationMap& map) {
     s.extent_v_mm = vmax - vmin + sp;
     s.equivalent_diameter_mm = 2.0 * std::sqrt(double(s.points_above) * sp * sp / std::numbers::pi);
   }
-  s.surrounding_n_per_mm = below.empty() ? s.background_n_per_mm : median(below);
-  s.contrast = s.surrounding_n_per_mm > 0 ? s.peak_n_per_mm / s.surrounding_n_per_mm : kNaN;
+  s.surrounding_n_mm = below.empty() ? s.background_n_mm : median(below);
+  s.contrast = s.surrounding_n_mm > 0 ? s.peak_n_mm / s.surrounding_n_mm : kNaN;
   return s;
 }
 

@@ -40,10 +40,10 @@ json number(double x) { return std::isfinite(x) ? json(x) : json(nullptr); }
 std::string map_csv(const PalpationMap& map) {
   std::ostringstream out;
   out.precision(8);
-  out << "x_mm,y_mm,z_mm,force_n,stiffness_n_per_mm\n";
+  out << "x_mm,y_mm,z_mm,force_n,stiffness_n_mm\n";
   for (const PalpationPoint& p : map.points)
     out << p.surface_mm.x() << "," << p.surface_mm.y() << "," << p.surface_mm.z() << "," << p.force_n << ","
-        << p.stiffness_n_per_mm << "\n";
+        << p.stiffness_n_mm << "\n";
   return out.str();
 }
 
@@ -52,7 +52,7 @@ void write_map_vtp(const PalpationMap& map, const fs::path& path) {
   vtkNew<vtkPoints> points;
   points->SetDataTypeToDouble();
   points->SetNumberOfPoints(n);
-  auto stiffness = make_array<vtkDoubleArray>("stiffness_n_per_mm", 1, n);
+  auto stiffness = make_array<vtkDoubleArray>("stiffness_n_mm", 1, n);
   auto force = make_array<vtkDoubleArray>("force_n", 1, n);
   auto grid = make_array<vtkIntArray>("grid_index", 2, n);
   std::map<std::pair<int, int>, vtkIdType> index;
@@ -60,7 +60,7 @@ void write_map_vtp(const PalpationMap& map, const fs::path& path) {
   for (vtkIdType k = 0; k < n; ++k) {
     const PalpationPoint& p = map.points[std::size_t(k)];
     points->SetPoint(k, p.surface_mm.data());
-    stiffness->SetValue(k, p.stiffness_n_per_mm);
+    stiffness->SetValue(k, p.stiffness_n_mm);
     force->SetValue(k, p.force_n);
     grid->SetTypedComponent(k, 0, p.i);
     grid->SetTypedComponent(k, 1, p.j);
@@ -88,7 +88,7 @@ void write_map_vtp(const PalpationMap& map, const fs::path& path) {
   pd->GetPointData()->AddArray(stiffness);
   pd->GetPointData()->AddArray(force);
   pd->GetPointData()->AddArray(grid);
-  pd->GetPointData()->SetActiveScalars("stiffness_n_per_mm");
+  pd->GetPointData()->SetActiveScalars("stiffness_n_mm");
   mark_lps(pd->GetFieldData());
   save_polydata(*pd, path);
 }
@@ -124,14 +124,14 @@ void write_map_png(const PalpationMap& map, const PalpationSummary& s, const fs:
   const double half = 0.5 * map.settings.spacing_mm;
   double lo = 1e300;
   for (const PalpationPoint& q : map.points)
-    if (std::isfinite(q.stiffness_n_per_mm)) {
-      p.rects.push_back({q.u_mm - half, q.v_mm - half, q.u_mm + half, q.v_mm + half, "", q.stiffness_n_per_mm});
-      lo = std::min(lo, q.stiffness_n_per_mm);
+    if (std::isfinite(q.stiffness_n_mm)) {
+      p.rects.push_back({q.u_mm - half, q.v_mm - half, q.u_mm + half, q.v_mm + half, "", q.stiffness_n_mm});
+      lo = std::min(lo, q.stiffness_n_mm);
     }
   p.color_bar.label = "stiffness (force / depth), N/mm";
   p.color_bar.lo = lo < 1e300 ? lo : 0.0;
   p.color_bar.hi =
-      std::isfinite(s.peak_n_per_mm) && s.peak_n_per_mm > p.color_bar.lo ? s.peak_n_per_mm : p.color_bar.lo + 1.0;
+      std::isfinite(s.peak_n_mm) && s.peak_n_mm > p.color_bar.lo ? s.peak_n_mm : p.color_bar.lo + 1.0;
   const double u_lo = map.bin_u0_mm - map.bin_mm, u_hi = map.bin_u0_mm + map.bins_u * map.bin_mm;
   const double v_lo = map.bin_v0_mm - map.bin_mm, v_hi = map.bin_v0_mm + map.bins_v * map.bin_mm;
   const double margin = 0.12 * (v_hi - v_lo);  // room under the object for the scale bar
@@ -144,7 +144,7 @@ void write_map_png(const PalpationMap& map, const PalpationSummary& s, const fs:
   p.subtitle = fmt::format(
       "contrast {:.3g} (peak {:.3g} / surroundings {:.3g} N/mm); lesion estimate ({:.1f}, {:.1f}, "
       "{:.1f}) mm",
-      s.contrast, s.peak_n_per_mm, s.surrounding_n_per_mm, tidy(e.x()), tidy(e.y()), tidy(e.z()));
+      s.contrast, s.peak_n_mm, s.surrounding_n_mm, tidy(e.x()), tidy(e.y()), tidy(e.z()));
   p.equal_aspect = true;
   p.xlabel = u + " (mm)";
   p.ylabel = v + " (mm)";
@@ -187,10 +187,10 @@ json palpation_summary_json(const PalpationMap& map, const PalpationSummary& s) 
               {"threads", map.threads},
               {"wall_s", map.wall_s},
               {"model", {{"nodes", map.nodes}, {"elements", map.elements}}}};
-  j["stiffness_n_per_mm"] = {{"background", number(s.background_n_per_mm)},
-                             {"peak", number(s.peak_n_per_mm)},
-                             {"threshold", number(s.threshold_n_per_mm)},
-                             {"surrounding", number(s.surrounding_n_per_mm)}};
+  j["stiffness_n_mm"] = {{"background", number(s.background_n_mm)},
+                             {"peak", number(s.peak_n_mm)},
+                             {"threshold", number(s.threshold_n_mm)},
+                             {"surrounding", number(s.surrounding_n_mm)}};
   j["lesion_estimate_mm"] = {number(s.lesion_estimate_mm.x()), number(s.lesion_estimate_mm.y()),
                              number(s.lesion_estimate_mm.z())};
   j["extent_mm"] = {{axis_name(map.u_axis), number(s.extent_u_mm)},

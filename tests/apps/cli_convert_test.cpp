@@ -237,11 +237,12 @@ TEST_F(CliConvert, LabelmapSelectsOneLabelAndAllTissueWarns) {
   EXPECT_NE(r.err.find("warning: every voxel of the volume (13824 voxels, values 0 to 2)"), std::string::npos) << r.err;
   EXPECT_NE(r.err.find("--label N"), std::string::npos) << r.err;
   // a label that is not there: the labels that are; a volume that is not a labelmap: said so
+  // (exit 2, as a segment name that is not there: the argument does not fit the input)
   r = run("convert labels.nrrd --label 7 -o none.vtu");
-  EXPECT_EQ(r.code, 1);
+  EXPECT_EQ(r.code, 2);
   EXPECT_NE(r.err.find("its labels are 0, 1, 2"), std::string::npos) << r.err;
   r = run("convert " + input("sphere.vti") + " --label 1 -o none.vtu");
-  EXPECT_EQ(r.code, 1);  // the sphere phantom holds 40 and -1000 HU: no label 1
+  EXPECT_EQ(r.code, 2);  // the sphere phantom holds 40 and -1000 HU: no label 1
   EXPECT_NE(r.err.find("its labels are -1000, 40"), std::string::npos) << r.err;
   write_volume([] {
     Volume v = make_phantom(PhantomSettings{});
@@ -249,7 +250,7 @@ TEST_F(CliConvert, LabelmapSelectsOneLabelAndAllTissueWarns) {
     return v;
   }(), out_ / "ct.nrrd");
   r = run("convert ct.nrrd --label 1 -o none.vtu");
-  EXPECT_EQ(r.code, 1);
+  EXPECT_EQ(r.code, 2);
   EXPECT_NE(r.err.find("holds the value 0.5, so it is not a labelmap"), std::string::npos) << r.err;
   EXPECT_FALSE(fs::exists(out_ / "none.vtu"));
   // --label with an HU window or resampling: a command-line mistake

@@ -21,7 +21,7 @@ import tempfile
 
 CASE = re.compile(r"r([0-9.]+)_d([0-9.]+)_k([0-9.]+)$")
 COLUMNS = ["lesion_radius_mm", "lesion_depth_mm", "stiffness_ratio", "contrast", "estimate_x_mm", "estimate_y_mm",
-           "error_mm", "found", "peak_n_per_mm", "surrounding_n_per_mm", "points", "map_wall_s"]
+           "error_mm", "found", "peak_n_mm", "surrounding_n_mm", "points", "map_wall_s"]
 
 
 def fail(message):
@@ -42,7 +42,7 @@ def read_case(path, lesion_xy, found_within):
     est = s.get("lesion_estimate_mm") or [None, None, None]
     ok = est[0] is not None and est[1] is not None
     error = math.hypot(est[0] - lesion_xy[0], est[1] - lesion_xy[1]) if ok else float("nan")
-    st = s.get("stiffness_n_per_mm", {})
+    st = s.get("stiffness_n_mm", {})
     return {
         "lesion_radius_mm": float(m.group(1)),
         "lesion_depth_mm": float(m.group(2)),
@@ -52,8 +52,8 @@ def read_case(path, lesion_xy, found_within):
         "estimate_y_mm": est[1],
         "error_mm": error,
         "found": int(ok and error <= found_within),
-        "peak_n_per_mm": st.get("peak"),
-        "surrounding_n_per_mm": st.get("surrounding"),
+        "peak_n_mm": st.get("peak"),
+        "surrounding_n_mm": st.get("surrounding"),
         "points": s.get("map", {}).get("points"),
         "map_wall_s": s.get("map", {}).get("wall_s"),
     }

@@ -102,14 +102,14 @@ TEST_F(PalpationMapTest, FindsTheLesionUnderTheSurface) {
   std::printf("lesion estimate (%.2f, %.2f, %.2f) mm, in-plane error %.2f mm; contrast %.3f; background %.4g, peak "
               "%.4g N/mm; %d of %d points above threshold; %.2f s on %d threads\n",
               s.lesion_estimate_mm.x(), s.lesion_estimate_mm.y(), s.lesion_estimate_mm.z(), error, s.contrast,
-              s.background_n_per_mm, s.peak_n_per_mm, s.points_above, s.points, map.wall_s, map.threads);
+              s.background_n_mm, s.peak_n_mm, s.points_above, s.points, map.wall_s, map.threads);
   EXPECT_LT(error, 2.0);
   EXPECT_NEAR(s.lesion_estimate_mm.z(), 6.0, 1e-9);  // on the top
   EXPECT_GT(s.contrast, 1.5);
   EXPECT_GT(s.extent_u_mm, 0.0);
   // the stiffest point is within one spacing (and the diagonal) of the lesion's axis
   const auto stiffest = std::max_element(map.points.begin(), map.points.end(), [](const auto& a, const auto& b) {
-    return a.stiffness_n_per_mm < b.stiffness_n_per_mm;
+    return a.stiffness_n_mm < b.stiffness_n_mm;
   });
   EXPECT_LT((stiffest->surface_mm.head<2>() - truth.head<2>()).norm(), 2.0 * std::sqrt(2.0) + 1e-9);
 }
@@ -120,8 +120,8 @@ TEST_F(PalpationMapTest, UniformBlockHasNoContrast) {
   s.size = 32;
   const PalpationMap map = palpation_map(prepare(s), quick(2.0));
   const PalpationSummary sum = summarize_palpation_map(map);
-  std::printf("uniform block: contrast %.3f, stiffness %.4g to %.4g N/mm\n", sum.contrast, sum.background_n_per_mm,
-              sum.peak_n_per_mm);
+  std::printf("uniform block: contrast %.3f, stiffness %.4g to %.4g N/mm\n", sum.contrast, sum.background_n_mm,
+              sum.peak_n_mm);
   EXPECT_EQ(sum.failed, 0);
   EXPECT_GT(sum.contrast, 1.0 - 1e-12);  // peak over a median: never below 1
   EXPECT_LT(sum.contrast, 1.15);
@@ -186,7 +186,7 @@ TEST_F(PalpationMapTest, WritesItsFiles) {
   std::ifstream csv(dir_ / "map.csv");
   std::string line;
   std::getline(csv, line);
-  EXPECT_EQ(line, "x_mm,y_mm,z_mm,force_n,stiffness_n_per_mm");
+  EXPECT_EQ(line, "x_mm,y_mm,z_mm,force_n,stiffness_n_mm");
   int rows = 0;
   while (std::getline(csv, line)) ++rows;
   EXPECT_EQ(rows, int(map.points.size()));
