@@ -102,12 +102,13 @@ void run_palpate_map(PalpateMapOptions o) {
                        {"modulus_range_kpa", {prepared.min_modulus_kpa, prepared.max_modulus_kpa}}};
   write_palpation_map(map, s, dir, extra, o.png);
 
-  fmt::print("palpate-map: {} points of the {} face ({} failed) in {:.3g} s on {} thread(s), {} steps of {:g} ms "
-             "each; stiffness {:.4g} N/mm (median) to {:.4g} N/mm; contrast {:.3g}; lesion estimate ({:.2f}, {:.2f}, "
-             "{:.2f}) mm, extent {:.3g} x {:.3g} mm -> {}\n",
-             s.points, face_name(map.settings.face), s.failed, map.wall_s, map.threads, map.steps_per_press,
-             1e3 * map.time_step_s, s.background_n_mm, s.peak_n_mm, s.contrast, tidy(s.lesion_estimate_mm.x()),
-             tidy(s.lesion_estimate_mm.y()), tidy(s.lesion_estimate_mm.z()), s.extent_u_mm, s.extent_v_mm, dir.string());
+  fmt::print(
+      "palpate-map: {} points of the {} face ({} failed) in {:.3g} s on {} thread(s), {} steps of {:g} ms "
+      "each; stiffness {:.4g} N/mm (median) to {:.4g} N/mm; contrast {:.3g}; lesion estimate ({:.2f}, {:.2f}, "
+      "{:.2f}) mm, extent {:.3g} x {:.3g} mm -> {}\n",
+      s.points, face_name(map.settings.face), s.failed, map.wall_s, map.threads, map.steps_per_press,
+      1e3 * map.time_step_s, s.background_n_mm, s.peak_n_mm, s.contrast, tidy(s.lesion_estimate_mm.x()),
+      tidy(s.lesion_estimate_mm.y()), tidy(s.lesion_estimate_mm.z()), s.extent_u_mm, s.extent_v_mm, dir.string());
   if (s.failed > 0)
     throw Error(fmt::format("{} of {} presses failed (first: {}); the map of the others is in {}", s.failed, s.points,
                             std::find_if(map.points.begin(), map.points.end(),

@@ -221,11 +221,12 @@ void run_palpation_map(VerifyContext& ctx) {
     if (s.failed > 0) throw Error(fmt::format("{} presses failed", s.failed));
     contrast.push_back(s.contrast);
     error.push_back((s.lesion_estimate_mm.head<2>() - truth).norm());
-    ctx.log(fmt::format("lesion top {:g} mm deep: {} presses in {:.1f} s; stiffness {:.4g} N/mm (median) to {:.4g}; "
-                        "contrast {:.3f}; estimate ({:.2f}, {:.2f}) mm, {:.2f} mm from the lesion's axis; {} points above "
-                        "the threshold",
-                        depths[k], s.points, map.wall_s, s.background_n_mm, s.peak_n_mm, s.contrast,
-                        s.lesion_estimate_mm.x(), s.lesion_estimate_mm.y(), error.back(), s.points_above));
+    ctx.log(
+        fmt::format("lesion top {:g} mm deep: {} presses in {:.1f} s; stiffness {:.4g} N/mm (median) to {:.4g}; "
+                    "contrast {:.3f}; estimate ({:.2f}, {:.2f}) mm, {:.2f} mm from the lesion's axis; {} points above "
+                    "the threshold",
+                    depths[k], s.points, map.wall_s, s.background_n_mm, s.peak_n_mm, s.contrast,
+                    s.lesion_estimate_mm.x(), s.lesion_estimate_mm.y(), error.back(), s.points_above));
     // the profile along x through the lesion's row
     profile_series[k].title = fmt::format("lesion top {:g} mm deep", depths[k]);
     profile_series[k].with_points = true;

@@ -62,7 +62,7 @@ struct PalpationPoint {
   Eigen::Vector3d surface_mm{Eigen::Vector3d::Zero()};  ///< where the ball first touches (its lowest point), LPS mm
   double depth_mm{0};                               ///< reached press depth, mm
   double force_n{0};                                ///< force along the face normal at depth, N (NaN on failure)
-  double stiffness_n_mm{0};                     ///< force_n / depth_mm
+  double stiffness_n_mm{0};                         ///< force_n / depth_mm
   std::string failure;                              ///< "" when the press ran
 };
 
@@ -91,16 +91,16 @@ struct PalpationMap {
 /// What the map says about a lesion.
 struct PalpationSummary {
   int points{0}, failed{0};
-  double background_n_mm{0};  ///< median stiffness of the map
-  double peak_n_mm{0};        ///< the stiffest point
-  double threshold_n_mm{0};   ///< halfway between background and peak
+  double background_n_mm{0};      ///< median stiffness of the map
+  double peak_n_mm{0};            ///< the stiffest point
+  double threshold_n_mm{0};       ///< halfway between background and peak
   int points_above{0};            ///< points at or above the threshold
   /// stiffness-weighted (stiffness - background) centroid of the points above the threshold,
   /// on the surface, LPS mm
   Eigen::Vector3d lesion_estimate_mm{Eigen::Vector3d::Constant(std::nan(""))};
   double extent_u_mm{0}, extent_v_mm{0};  ///< extent of the points above the threshold (one spacing per point row)
   double equivalent_diameter_mm{0};       ///< diameter of the disc of the same area as those points
-  double surrounding_n_mm{0};         ///< median stiffness of the points below the threshold
+  double surrounding_n_mm{0};             ///< median stiffness of the points below the threshold
   double contrast{0};                     ///< peak / surrounding
 };
 

@@ -130,8 +130,7 @@ void write_map_png(const PalpationMap& map, const PalpationSummary& s, const fs:
     }
   p.color_bar.label = "stiffness (force / depth), N/mm";
   p.color_bar.lo = lo < 1e300 ? lo : 0.0;
-  p.color_bar.hi =
-      std::isfinite(s.peak_n_mm) && s.peak_n_mm > p.color_bar.lo ? s.peak_n_mm : p.color_bar.lo + 1.0;
+  p.color_bar.hi = std::isfinite(s.peak_n_mm) && s.peak_n_mm > p.color_bar.lo ? s.peak_n_mm : p.color_bar.lo + 1.0;
   const double u_lo = map.bin_u0_mm - map.bin_mm, u_hi = map.bin_u0_mm + map.bins_u * map.bin_mm;
   const double v_lo = map.bin_v0_mm - map.bin_mm, v_hi = map.bin_v0_mm + map.bins_v * map.bin_mm;
   const double margin = 0.12 * (v_hi - v_lo);  // room under the object for the scale bar
@@ -188,9 +187,9 @@ json palpation_summary_json(const PalpationMap& map, const PalpationSummary& s) 
               {"wall_s", map.wall_s},
               {"model", {{"nodes", map.nodes}, {"elements", map.elements}}}};
   j["stiffness_n_mm"] = {{"background", number(s.background_n_mm)},
-                             {"peak", number(s.peak_n_mm)},
-                             {"threshold", number(s.threshold_n_mm)},
-                             {"surrounding", number(s.surrounding_n_mm)}};
+                         {"peak", number(s.peak_n_mm)},
+                         {"threshold", number(s.threshold_n_mm)},
+                         {"surrounding", number(s.surrounding_n_mm)}};
   j["lesion_estimate_mm"] = {number(s.lesion_estimate_mm.x()), number(s.lesion_estimate_mm.y()),
                              number(s.lesion_estimate_mm.z())};
   j["extent_mm"] = {{axis_name(map.u_axis), number(s.extent_u_mm)},

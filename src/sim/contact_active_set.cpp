@@ -207,7 +207,8 @@ void ContactActiveSet::apply_working_forces(Eigen::MatrixX3d& solution, SparseFa
     factor.add_response3(working_forward_, working_force_, solution, partial_);
 }
 
-void ContactActiveSet::unconstrained_from_forward(std::size_t from, SparseFactor& factor, ContactSolveCounters& counters) {
+void ContactActiveSet::unconstrained_from_forward(std::size_t from, SparseFactor& factor,
+                                                  ContactSolveCounters& counters) {
   for (std::size_t c = from; c < candidates_.size(); ++c) {
     const int f = candidate_free_[c];
     unconstrained_.row(f) = factor.solution_row(forward_[std::size_t(column_of(f, factor, counters))]).transpose();

@@ -71,8 +71,8 @@ class ContactActiveSet {
   /// unconstrained solve (SparseFactor::forward3_partial) and `solution` holds the last values
   /// outside the closure: the candidates' unconstrained positions come from dot products with
   /// the forward solution and the forces join the one backward pass (backward3_partial).
-  void solve(ContactProvider& provider, const Eigen::Matrix3Xd& x, SparseFactor& factor,
-             Eigen::MatrixX3d& solution, ContactSolveCounters& counters, bool from_forward = false);
+  void solve(ContactProvider& provider, const Eigen::Matrix3Xd& x, SparseFactor& factor, Eigen::MatrixX3d& solution,
+             ContactSolveCounters& counters, bool from_forward = false);
 
   /// The constraints active after the last solve, sorted by (owner, node), with their
   /// multipliers (N); the next solve starts from them (warm start).

@@ -99,10 +99,11 @@ TEST_F(PalpationMapTest, FindsTheLesionUnderTheSurface) {
   const PalpationSummary s = summarize_palpation_map(map);
   EXPECT_EQ(s.failed, 0);
   const double error = (s.lesion_estimate_mm.head<2>() - truth.head<2>()).norm();
-  std::printf("lesion estimate (%.2f, %.2f, %.2f) mm, in-plane error %.2f mm; contrast %.3f; background %.4g, peak "
-              "%.4g N/mm; %d of %d points above threshold; %.2f s on %d threads\n",
-              s.lesion_estimate_mm.x(), s.lesion_estimate_mm.y(), s.lesion_estimate_mm.z(), error, s.contrast,
-              s.background_n_mm, s.peak_n_mm, s.points_above, s.points, map.wall_s, map.threads);
+  std::printf(
+      "lesion estimate (%.2f, %.2f, %.2f) mm, in-plane error %.2f mm; contrast %.3f; background %.4g, peak "
+      "%.4g N/mm; %d of %d points above threshold; %.2f s on %d threads\n",
+      s.lesion_estimate_mm.x(), s.lesion_estimate_mm.y(), s.lesion_estimate_mm.z(), error, s.contrast,
+      s.background_n_mm, s.peak_n_mm, s.points_above, s.points, map.wall_s, map.threads);
   EXPECT_LT(error, 2.0);
   EXPECT_NEAR(s.lesion_estimate_mm.z(), 6.0, 1e-9);  // on the top
   EXPECT_GT(s.contrast, 1.5);
