@@ -80,6 +80,9 @@ struct PlotSpec {
 /// Throws vx::Error naming the key ("panels[0].series[2].x: ...") for invalid JSON, an unknown
 /// key or a value of the wrong type.
 [[nodiscard]] PlotSpec parse_plot_spec(const std::string& json_text);
+/// Throws vx::Error unless `color` is one plot_png draws: "#rrggbb", or black, white, red, blue,
+/// green, orange, purple, brown, gray (grey), grayNN (NN percent of white).
+void check_plot_color(const std::string& color);
 
 /// Tick positions for an axis over [lo, hi]: round steps (1, 2 or 5 times a power of ten) about
 /// `target` apart, or decades on a log axis. Exposed for tests.

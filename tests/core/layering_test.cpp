@@ -131,7 +131,7 @@ const std::map<std::string, std::vector<std::string>> kRoomOrder{
       "segmentation_io", "model_io", "surface_io", "cache_file", "factor_cache", "calibration_cache"}},
     {"pipeline/convert", {"threshold", "stats", "phantom", "iso_surface", "decimate_surface", "prepare"}},
     {"pipeline/scene", {"strict_json", "fast_configuration", "sim_output", "scene", "run_outputs", "material_field", "palpation_defaults", "prepare_scene", "palpation_map", "palpation_map_output"}},
-    {"pipeline/render", {"palette", "plot", "render"}},
+    {"pipeline/render", {"palette", "plot", "plot_spec", "render"}},
     {"evaluation/verify",
      {"case_helpers", "surface_accuracy", "verify", "cases", "statics_cases", "dynamics_cases", "geometry_cases",
       "plane_cases", "robustness_cases", "verify_cases"}},

@@ -384,8 +384,10 @@ TEST(RegionalSolve, ASleepingNodeWakesWhenPressed) {
   const double z_at = m.rest_positions(2, near_plus.front().second);
   SimulationSettings ss = regional_ball_press(m);
   ProbeSettings& probe = ss.probes.front();
-  probe.path = {{0.0, {c.x() - 8.0, c.y(), ztop + 3.0}},    {0.4, {c.x() - 8.0, c.y(), ztop + 1.5}},
-                {0.6, {c.x() - 8.0, c.y(), ztop + 5.0}},    {1.2, {c.x() + 8.0, c.y(), z_at + 5.0}},
+  probe.path = {{0.0, {c.x() - 8.0, c.y(), ztop + 3.0}},
+                {0.4, {c.x() - 8.0, c.y(), ztop + 1.5}},
+                {0.6, {c.x() - 8.0, c.y(), ztop + 5.0}},
+                {1.2, {c.x() + 8.0, c.y(), z_at + 5.0}},
                 {1.6, {c.x() + 8.0, c.y(), z_at + 1.5}}};
   Simulation sim(p, ss);
   // the first press: after the first step (a full solve), the nodes off the region's closure sleep
