@@ -19,6 +19,7 @@
 #include "haptics/device_side.h"
 #include "haptics/local_contact.h"
 #include "io/calibration_cache.h"
+#include "io/surface_cache.h"
 #include "io/factor_cache.h"
 #include "joystick_script.h"
 #include "physics_loop.h"
@@ -479,6 +480,9 @@ int run_probe_app(const AppOptions& options) {
   scene_options.surface_method = options.surface_method;
   // the second start of the same organ loads its calibration (io/calibration_cache.h, beside the factors)
   scene_options.calibration_cache = make_calibration_cache(options.factor_cache);
+  // ... and its decimated display surface (io/surface_cache.h); headless: no surface at all
+  scene_options.surface_cache = make_surface_cache(options.factor_cache);
+  scene_options.display = !options.headless;
   const auto load_start = SteadyClock::now();
   ProbeScene scene = load_probe_scene(options.input, scene_options);
   scene.load_s = seconds(SteadyClock::now() - load_start);

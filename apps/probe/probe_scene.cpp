@@ -2,6 +2,8 @@
 
 #include <fmt/core.h>
 
+#include <optional>
+
 #include "base/error.h"
 #include "convert/decimate_surface.h"
 #include "convert/iso_surface.h"
@@ -105,7 +107,7 @@ void use_display_surface(ProbeScene& scene, const DefaultSceneOptions& options) 
   DecimationSettings settings;
   settings.target_triangles = options.display_triangles;
   DecimationReport report;
-  EmbeddedSurface shown = decimate_surface(*scene.model, *scene.surface, settings, &report);
+  EmbeddedSurface shown = decimate_surface(*scene.model, *scene.surface, settings, &report, options.surface_cache.get());
   if (!report.decimated) return;
   // the physics deforms the surface it publishes: the decimated one only
   scene.surface = std::make_shared<const EmbeddedSurface>(std::move(shown));
@@ -169,7 +171,8 @@ ProbeScene load_probe_scene(const std::filesystem::path& input, const DefaultSce
   const Scene file = scene_of_input(input, options);
   const bool defaults = file.palpation.has_value();
   PrepareSceneOptions prep;
-  prep.surface = !defaults && options.surface_method != SurfaceMethod::iso;  // a scene's own (paper) surface
+  // a scene's own (paper) surface; none when nothing is shown
+  prep.surface = options.display && !defaults && options.surface_method != SurfaceMethod::iso;
   // a scene file: seconds on a large organ, not before the run; the defaults: none
   prep.region_check = defaults ? RegionCheckTiming::none : RegionCheckTiming::background;
   prep.calibration_cache = options.calibration_cache;
@@ -183,13 +186,21 @@ ProbeScene load_probe_scene(const std::filesystem::path& input, const DefaultSce
   scene.region_check = built.pending_region_check;
   if (scene.simulation.probes.empty())
     throw Error(input.string() + ": $.probes: the scene has no probe to palpate with");
-  if (defaults && !options.surface.empty()) {
+  std::optional<DecimationReport> built_display;  // the built surface: decimated on the way
+  if (!options.display) {
+    // headless: nothing is shown, so no surface is built, decimated or deformed
+  } else if (defaults && !options.surface.empty()) {
     // a model's surface written with it by `voxelastic convert`
     scene.surface = std::make_shared<const EmbeddedSurface>(load_surface(options.surface, scene.model.get()));
   } else if (defaults || options.surface_method == SurfaceMethod::iso) {
-    // the voxels' surface (a smoothed iso-surface, or the paper's), embedded in the elements
+    // the voxels' surface (a smoothed iso-surface, or the paper's), embedded in the elements and
+    // decimated for display; a second start of the same organ loads it (io/surface_cache.h)
+    DecimationSettings settings;
+    settings.target_triangles = options.display_triangles;
+    built_display.emplace();
     scene.surface = std::make_shared<const EmbeddedSurface>(
-        make_surface(*built.model, built.grid, nullptr, defaults ? options.surface_method : SurfaceMethod::iso));
+        display_surface_of_grid(*built.model, built.grid, defaults ? options.surface_method : SurfaceMethod::iso,
+                                settings, &*built_display, options.surface_cache.get()));
   } else {
     scene.surface = built.surface;
   }
@@ -197,9 +208,18 @@ ProbeScene load_probe_scene(const std::filesystem::path& input, const DefaultSce
   scene.world_up = defaults ? built.up : scene_up(file, *scene.model, scene.simulation);
   if (!file.description.empty()) scene.notes.push_back(file.description);
   for (const auto& l : built.log) scene.notes.push_back(l);
-  scene.notes.push_back(fmt::format("surface: {}{} ({} triangles)", to_string(scene.surface->method),
-                                    defaults && !options.surface.empty() ? " from " + options.surface.string() : "",
-                                    scene.surface->num_triangles()));
+  if (built_display && built_display->from_cache)
+    scene.notes.push_back(fmt::format("surface: {} ({} triangles)", to_string(scene.surface->method),
+                                      built_display->triangles_before));
+  else if (built_display)
+    scene.notes.push_back(fmt::format("surface: {} ({} triangles, built in {:.2f} s)", to_string(scene.surface->method),
+                                      built_display->triangles_before, built_display->build_s));
+  else if (scene.surface)
+    scene.notes.push_back(fmt::format("surface: {}{} ({} triangles)", to_string(scene.surface->method),
+                                      defaults && !options.surface.empty() ? " from " + options.surface.string() : "",
+                                      scene.surface->num_triangles()));
+  else
+    scene.notes.push_back("surface: none (headless: nothing is shown)");
   scene.notes.push_back(fmt::format("physics: {}{}", physics_configuration(scene.simulation.integrator, *scene.physics),
                                     !scene.device_side.device ? std::string(", no device shaping (raw force)")
                                     : scene.device_side.device->shaping == ForceShaping::local
@@ -208,7 +228,11 @@ ProbeScene load_probe_scene(const std::filesystem::path& input, const DefaultSce
                                                       1e3 * scene.device_side.device->update_interval_s)));
   for (const auto& w : built.warnings) scene.notes.push_back("warning: " + w);
   make_probes_live(scene);
-  use_display_surface(scene, options);
+  if (built_display) {
+    if (built_display->decimated || built_display->from_cache) scene.notes.push_back(built_display->summary());
+  } else {
+    use_display_surface(scene, options);
+  }
   return scene;
 }
 

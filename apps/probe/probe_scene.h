@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "haptics/device_side.h"
+#include "io/surface_cache.h"
 #include "model/model.h"
 #include "model/voxel_grid.h"
 #include "physics/calibration_key.h"
@@ -49,6 +50,11 @@ struct DefaultSceneOptions {
   int display_triangles{100000};
   /// The material's calibration kept by the model's content (io/calibration_cache.h); null: none.
   std::shared_ptr<CalibrationCache> calibration_cache;
+  /// The decimated display surface kept by the content of the model and its full surface
+  /// (io/surface_cache.h); null: none.
+  std::shared_ptr<SurfaceCache> surface_cache;
+  /// false (headless): nothing is shown, so no surface is built, decimated or deformed.
+  bool display{true};
 };
 
 struct ProbeScene;

@@ -16,9 +16,12 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <optional>
 #include <vector>
 
 #include "base/error.h"
+#include "convert/iso_surface.h"
+#include "io/surface_cache.h"
 #include "util/vtk_messages.h"
 
 namespace vx {
@@ -51,7 +54,10 @@ vtkSmartPointer<vtkPolyData> to_poly(const Eigen::Matrix3Xd& vertices, const Eig
 }  // namespace
 
 std::string DecimationReport::summary() const {
-  if (!decimated) return fmt::format("display surface: {} triangles (not decimated)", triangles_before);
+  if (!decimated && !from_cache) return fmt::format("display surface: {} triangles (not decimated)", triangles_before);
+  if (from_cache)
+    return fmt::format("display surface {} -> {} triangles ({} -> {} vertices): loaded from the cache in {:.2f} s",
+                       triangles_before, triangles_after, vertices_before, vertices_after, cache_s);
   return fmt::format("display surface decimated {} -> {} triangles ({} -> {} vertices; {}) in {:.2f} s; embedding: {} "
                      "({:.2f} s)",
                      triangles_before, triangles_after, vertices_before, vertices_after, method, decimate_s, embedding,
@@ -59,7 +65,7 @@ std::string DecimationReport::summary() const {
 }
 
 EmbeddedSurface decimate_surface(const Model& model, const EmbeddedSurface& full, const DecimationSettings& settings,
-                                 DecimationReport* report_out) {
+                                 DecimationReport* report_out, SurfaceCache* cache) {
   DecimationReport report;
   report.triangles_before = report.triangles_after = full.num_triangles();
   report.vertices_before = report.vertices_after = full.num_vertices();
@@ -72,6 +78,23 @@ EmbeddedSurface decimate_surface(const Model& model, const EmbeddedSurface& full
   if (keep) {
     if (report_out) *report_out = report;
     return full;
+  }
+
+  std::optional<SurfaceKey> key;
+  if (cache) {
+    const auto tc = std::chrono::steady_clock::now();
+    ContentHash h = surface_key_hash(model, settings.target_triangles, settings.feature_angle_deg);
+    h.add_value(std::uint8_t(1));  // decimated from this full surface
+    add_surface_content(h, full);
+    key = SurfaceKey{h.value(), model.num_nodes(), settings.target_triangles};
+    if (std::optional<CachedSurface> kept = cache->load(*key)) {
+      report.decimated = report.from_cache = true;
+      report.triangles_after = kept->surface.num_triangles();
+      report.vertices_after = kept->surface.num_vertices();
+      report.cache_s = seconds_since(tc);
+      if (report_out) *report_out = report;
+      return std::move(kept->surface);
+    }
   }
 
   // the rest surface, each point carrying its vertex id in the full surface
@@ -187,8 +210,54 @@ EmbeddedSurface decimate_surface(const Model& model, const EmbeddedSurface& full
   report.decimated = true;
   report.triangles_after = s.num_triangles();
   report.vertices_after = s.num_vertices();
+  if (cache && key) cache->store(*key, CachedSurface{s, full.num_triangles(), full.num_vertices()}, report.decimate_s + report.embed_s);
   if (report_out) *report_out = report;
   return s;
+}
+
+EmbeddedSurface display_surface_of_grid(const Model& model, const VoxelGrid& grid, SurfaceMethod method,
+                                        const DecimationSettings& settings, DecimationReport* report_out,
+                                        SurfaceCache* cache, const IsoSurfaceSettings& iso) {
+  std::optional<SurfaceKey> key;
+  const auto t0 = std::chrono::steady_clock::now();
+  if (cache) {
+    ContentHash h = surface_key_hash(model, settings.target_triangles, settings.feature_angle_deg);
+    h.add_value(std::uint8_t(2));  // built from this grid by make_surface, then decimated
+    const GridGeometry& g = grid.geometry();
+    h.add(g.dims.data(), sizeof(int) * 3);
+    h.add(g.spacing_mm.data(), sizeof(double) * 3);
+    h.add(g.origin_mm.data(), sizeof(double) * 3);
+    h.add(g.direction.data(), sizeof(double) * 9);
+    h.add_value(std::uint64_t(grid.data().size()));
+    if (!grid.data().empty()) h.add(grid.data().data(), grid.data().size());
+    h.add_value(std::int32_t(method));
+    h.add_value(iso.iso_hu);
+    h.add_value(std::int32_t(iso.smoothing_iterations));
+    h.add_value(iso.pass_band);
+    key = SurfaceKey{h.value(), model.num_nodes(), settings.target_triangles};
+    if (std::optional<CachedSurface> kept = cache->load(*key)) {
+      DecimationReport report;
+      report.from_cache = true;
+      report.triangles_before = int(kept->source_triangles);
+      report.vertices_before = int(kept->source_vertices);
+      report.triangles_after = kept->surface.num_triangles();
+      report.vertices_after = kept->surface.num_vertices();
+      report.decimated = report.triangles_after != report.triangles_before;
+      report.cache_s = seconds_since(t0);
+      if (report_out) *report_out = report;
+      return std::move(kept->surface);
+    }
+  }
+  const EmbeddedSurface full = make_surface(model, grid, nullptr, method, iso);
+  const double build_s = seconds_since(t0);
+  DecimationReport report;
+  EmbeddedSurface shown = decimate_surface(model, full, settings, &report);
+  report.build_s = build_s;
+  if (cache && key)
+    cache->store(*key, CachedSurface{shown, full.num_triangles(), full.num_vertices()},
+                 build_s + report.decimate_s + report.embed_s);
+  if (report_out) *report_out = report;
+  return shown;
 }
 
 MeshDistance mesh_distance_mm(const Eigen::Matrix3Xd& a_vertices, const Eigen::Matrix3Xi& a_triangles,

@@ -9,10 +9,14 @@
 #include <Eigen/Core>
 #include <string>
 
+#include "convert/iso_surface.h"
 #include "model/model.h"
+#include "model/voxel_grid.h"
 #include "surface/surface.h"
 
 namespace vx {
+
+class SurfaceCache;
 
 /// How far to decimate.
 struct DecimationSettings {
@@ -35,6 +39,9 @@ struct DecimationReport {
   double embed_s{0.0};          ///< wall time of embedding the decimated vertices
   std::string method;           ///< the VTK filter that made it
   std::string embedding;        ///< "the full surface's" (kept vertices) or "embed_surface" (moved ones)
+  bool from_cache{false};       ///< loaded from the display surface cache (io/surface_cache.h)
+  double build_s{0.0};          ///< display_surface_of_grid: wall time of building the full surface, s
+  double cache_s{0.0};          ///< wall time of the key and the load (from_cache), s
   /// One line for a log, e.g. "display surface decimated 350768 -> 100002 triangles in 1.9 s".
   [[nodiscard]] std::string summary() const;
 };
@@ -48,10 +55,23 @@ struct DecimationReport {
 /// `full` (so the decimated surface moves exactly as the full one at those vertices, at no
 /// embedding cost); moved ones (quadric) are embedded with embed_surface.
 /// Triangles stay counter-clockwise seen from outside. Throws vx::Error when `full` does not
-/// belong to `model` or VTK fails.
+/// belong to `model` or VTK fails. With a `cache` (may be null) the decimation of the same model,
+/// surface and settings is loaded from it when it holds one (the same arrays: what this function
+/// computed and kept there at an earlier start), else computed and offered to it.
 [[nodiscard]] EmbeddedSurface decimate_surface(const Model& model, const EmbeddedSurface& full,
                                                const DecimationSettings& settings = {},
-                                               DecimationReport* report = nullptr);
+                                               DecimationReport* report = nullptr, SurfaceCache* cache = nullptr);
+
+/// The display surface of `model` built from `grid` (make_surface(model, grid, nullptr,
+/// method, iso): the grid the model was built from) and decimated by decimate_surface. With a
+/// `cache` (may be null), loaded from it when it holds the same (the key: the model, the grid,
+/// the method, the iso-surface and decimation settings, the VTK version), so a second start of
+/// an organ neither builds nor decimates its surface (the folded organ: 4 + 10 s, quiet, to
+/// 0.2 s); else built, decimated and offered to it. `report->build_s` is the full surface's
+/// time; `report->from_cache` says it was loaded.
+[[nodiscard]] EmbeddedSurface display_surface_of_grid(const Model& model, const VoxelGrid& grid, SurfaceMethod method,
+                                                      const DecimationSettings& settings, DecimationReport* report,
+                                                      SurfaceCache* cache, const IsoSurfaceSettings& iso = {});
 
 /// Distances between two triangle meshes (LPS mm): every vertex of each to the nearest point on
 /// the other's triangles (vtkStaticCellLocator). `max_mm` is the symmetric vertex-sampled

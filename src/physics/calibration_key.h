@@ -13,6 +13,7 @@
 
 namespace vx {
 
+class ContentHash;
 struct Model;
 struct Material;
 struct MaterialField;
@@ -40,6 +41,10 @@ struct CalibrationKey {
 /// Throws vx::Error where make_physics_model would (an invalid material or options).
 [[nodiscard]] CalibrationKey calibration_key(const Model& model, const Material& material, const MaterialField& field,
                                              const CalibrationOptions& options);
+
+/// Feeds every array of `model` to `h`, bit for bit (the key's model part; the display surface
+/// cache keys by it too: pipeline/io/surface_cache.h).
+void add_model_content(ContentHash& h, const Model& model);
 
 /// A store of calibrations by key (pipeline/io/calibration_cache.h keeps one in a folder, beside
 /// the factors). make_physics_model asks it before calibrating and offers it the result after.

@@ -32,29 +32,6 @@ void add_matrix(ContentHash& h, const Eigen::DenseBase<Derived>& m) {
   if (m.size() > 0) h.add(m.derived().data(), std::size_t(m.size()) * sizeof(typename Derived::Scalar));
 }
 
-/// Every array of the model, bit for bit (the values one by one: no padding is hashed).
-void add_model(ContentHash& h, const Model& m) {
-  h.add_value(std::uint8_t(m.layout));
-  h.add_value(std::int32_t(m.dimensions));
-  add_matrix(h, m.grid.dims);
-  add_matrix(h, m.grid.spacing_mm);
-  add_matrix(h, m.grid.origin_mm);
-  add_matrix(h, m.grid.direction);
-  add_matrix(h, m.rest_positions);
-  add_matrix(h, m.node_lattice);
-  add_vector(h, m.node_surface);
-  add_vector(h, m.element_offsets);
-  add_vector(h, m.element_vertices);
-  add_vector(h, m.element_level);
-  add_vector(h, m.element_cell_voxels);
-  add_matrix(h, m.element_anchor);
-  add_vector(h, m.element_cells);
-  add_matrix(h, m.rest_offsets);
-  add_matrix(h, m.rest_centroids);
-  add_vector(h, m.element_volume_mm3);
-  add_vector(h, m.element_size_mm);
-}
-
 void add_material(ContentHash& h, const Material& material, const MaterialField& field, const CalibrationOptions& o) {
   h.add_value(material.youngs_modulus_kpa);
   h.add_value(material.density_kg_m3);
@@ -133,6 +110,29 @@ std::uint64_t reference_calibration(const Model& model, const Material& material
 
 }  // namespace
 
+// the values one by one: no padding is hashed
+void add_model_content(ContentHash& h, const Model& m) {
+  h.add_value(std::uint8_t(m.layout));
+  h.add_value(std::int32_t(m.dimensions));
+  add_matrix(h, m.grid.dims);
+  add_matrix(h, m.grid.spacing_mm);
+  add_matrix(h, m.grid.origin_mm);
+  add_matrix(h, m.grid.direction);
+  add_matrix(h, m.rest_positions);
+  add_matrix(h, m.node_lattice);
+  add_vector(h, m.node_surface);
+  add_vector(h, m.element_offsets);
+  add_vector(h, m.element_vertices);
+  add_vector(h, m.element_level);
+  add_vector(h, m.element_cell_voxels);
+  add_matrix(h, m.element_anchor);
+  add_vector(h, m.element_cells);
+  add_matrix(h, m.rest_offsets);
+  add_matrix(h, m.rest_centroids);
+  add_vector(h, m.element_volume_mm3);
+  add_vector(h, m.element_size_mm);
+}
+
 std::string CalibrationKey::name() const {
   char hex[17];
   static constexpr char kDigits[] = "0123456789abcdef";
@@ -145,7 +145,7 @@ CalibrationKey calibration_key(const Model& model, const Material& material, con
                                const CalibrationOptions& options) {
   ContentHash h;
   h.add_value(kCalibrationVersion);
-  add_model(h, model);
+  add_model_content(h, model);
   add_material(h, material, field, options);
   h.add_value(reference_calibration(model, material, options));
   CalibrationKey key;
