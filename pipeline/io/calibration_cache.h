@@ -23,8 +23,8 @@
 #include <ostream>
 #include <string>
 
+#include "physics/calibration.h"
 #include "physics/calibration_key.h"
-#include "physics/physics_model.h"
 
 namespace vx {
 

@@ -1,4 +1,4 @@
-#include "physics/physics_model.h"
+#include "physics/calibration.h"
 
 #include <Eigen/Eigenvalues>
 #include <Eigen/QR>
@@ -12,33 +12,12 @@
 #include "base/error.h"
 #include "base/huge_pages.h"
 #include "base/parallel.h"
-#include "physics/calibration_key.h"
 #include "physics/element_batches.h"
 #include "physics/element_gradient.h"
 #include "physics/elements.h"
 #include "physics/vertex_weights.h"
 
 namespace vx {
-
-const char* to_string(ElementKind kind) {
-  switch (kind) {
-    case ElementKind::paper: return "paper";
-    case ElementKind::hourglass: return "hourglass";
-  }
-  return "?";
-}
-
-ElementKind element_kind_from_string(const std::string& name) {
-  for (const ElementKind k : {ElementKind::paper, ElementKind::hourglass})
-    if (name == to_string(k)) return k;
-  throw Error("unknown element '" + name + "': choose paper or hourglass");
-}
-
-double PhysicsModel::total_mass_kg() const {
-  double m = 0;
-  for (double x : node_mass_kg) m += x;
-  return m;
-}
 
 namespace {
 
