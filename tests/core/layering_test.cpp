@@ -129,7 +129,7 @@ const std::map<std::string, std::vector<std::string>> kRoomOrder{
      {"read_options", "volume", "compression", "jpeg2000", "dicom_common", "dicom_series_parts", "dicom_header",
       "dicom_slice_layout", "dicom_pixels", "dicom_series", "dicom_writer", "volume_formats", "vti_check",
       "element_faces", "vtk_arrays", "vti_io", "metaimage_io", "nifti_io", "nrrd_io", "raw_io", "volume_io",
-      "segmentation_io", "model_io", "surface_io", "cache_file", "factor_cache", "calibration_cache"}},
+      "segmentation_io", "model_io", "surface_io", "cache_file", "folder_cache", "factor_cache", "calibration_cache"}},
     {"pipeline/convert", {"threshold", "stats", "phantom", "iso_surface", "decimate_surface", "prepare"}},
     {"pipeline/scene", {"strict_json", "fast_configuration", "sim_output", "scene", "run_outputs", "material_field", "palpation_defaults", "prepare_scene", "palpation_map", "palpation_map_output"}},
     {"pipeline/render", {"palette", "plot", "plot_spec", "render"}},
