@@ -5,45 +5,22 @@
 
 #include "base/parallel.h"
 #include "physics/element_batches.h"
+#include "physics/element_law.h"
 #include "physics/rigid_sums.h"
 
 namespace vx {
 
 namespace {
 
-/// The reference element kernel for elements [e0, e1) (ElementKernel::reference): writes 3
-/// doubles per vertex entry. Vertex i has weight w_i and weighted rest offset R0'_i = w_i R0_i
-/// (material.h). Each loop over the vertices keeps at most ~16 values live, so that baseline
-/// x86-64 (16 SSE registers) does not spill: elastic and damping parts run as separate loops,
-/// each gathering the positions again and reading the per-entry constants from separate arrays.
-/// The element's best rigid velocity (damping): from the weighted sums of velocities (sv),
-/// angular momenta (l) and second moments (i) of the offsets y = x - x0, about the centroid c
-/// (relative to x0): the centroid velocity vc and the angular velocity omega (zero for a
-/// collapsed or collinear element).
-inline void rigid_velocity(const RigidSums<double>& r, double sw, double inv_w, const Eigen::Vector3d& c,
-                           Eigen::Vector3d& vc, Eigen::Vector3d& omega) {
-  vc = Eigen::Vector3d(r.svx * inv_w, r.svy * inv_w, r.svz * inv_w);
-  const Eigen::Vector3d ang = Eigen::Vector3d(r.lx, r.ly, r.lz) - sw * c.cross(vc);
-  Eigen::Matrix3d yy;
-  yy << r.ixx, r.ixy, r.ixz, r.ixy, r.iyy, r.iyz, r.ixz, r.iyz, r.izz;
-  yy -= sw * c * c.transpose();  // sum w r r^T about the centroid
-  Eigen::Matrix3d inertia = -yy;
-  const double tr = yy.trace();
-  inertia.diagonal().array() += tr * (1.0 + 1e-10);  // + tiny regularisation (collinear)
-  omega.setZero();
-  if (tr > 0) omega = inertia.inverse() * ang;
-  if (!omega.allFinite()) omega.setZero();
-}
-
-/// The per-element 3 x 3 work shared by both kernels: the warm-started rotation fit of F and
-/// the matrices of the force f_i = M R0'_i - k_tot w_i (x_i - c) + G g_i,
-///   G = 2 mu V (Q - F) + k (A - F C0) (+ k_v (T - F)),  M = k F,  k_tot = k
-/// (T: the volume term's closest matrix to the consistent F with det T = 1; docs/model.md
-/// section 5, "Locking").
+/// The per-element 3 x 3 work of the scalar kernels: the warm-started rotation fit of F (q),
+/// the volume term's closest matrix T to F with det T = 1 (t; docs/model.md section 5,
+/// "Locking"), and the matrices of the force (element_law.h, element_stress: G and M; G with
+/// the volume term's k_v (T - F)).
 template <bool kVolume>
 struct ElementMatrices {
-  Eigen::Matrix3d q, gm, mq, t;
-  double k{0}, ktot{0}, wv{0};
+  Eigen::Matrix3d q, t;
+  double wv{0};
+  law::ElementForce<double> force;
 
   ElementMatrices(const PhysicsModel& phys, std::int64_t e, const Eigen::Matrix3d& a, const Eigen::Matrix3d& fg,
                   Eigen::Quaterniond& rot, const RotationFitSettings& fit, ElementPassStats& st) {
@@ -51,15 +28,21 @@ struct ElementMatrices {
     st.rotation_iterations += fit_element_rotation(phys, fg, rot, fit, &conv, &q);
     st.unconverged += conv ? 0 : 1;
     if (element_determinant(phys, fg) <= 0.0) ++st.inverted;
-    k = phys.element_stiffness[std::size_t(e)];
-    gm = phys.element_affine_stiffness[std::size_t(e)] * (q - fg) + k * (a - fg * phys.element_spread[std::size_t(e)]);
-    mq = k * fg;
-    ktot = k;
+    const Eigen::Matrix3d& c0 = phys.element_spread[std::size_t(e)];
+    double ar[9], fr[9], qr[9], cr[9];  // row-major
+    for (int i = 0; i < 9; ++i) {
+      ar[i] = a(i / 3, i % 3);
+      fr[i] = fg(i / 3, i % 3);
+      qr[i] = q(i / 3, i % 3);
+      cr[i] = c0(i / 3, i % 3);
+    }
+    law::element_stress(ar, fr, qr, cr, phys.element_stiffness[std::size_t(e)],
+                        phys.element_affine_stiffness[std::size_t(e)], force);
     if constexpr (kVolume) {
       wv = phys.element_volume_stiffness[std::size_t(e)];
       Eigen::Quaterniond qv = rot;
       t = element_closest_with_determinant(phys, fg, 1.0, qv, fit);
-      gm += wv * (t - fg);
+      for (int i = 0; i < 9; ++i) force.g[i] += wv * (t(i / 3, i % 3) - fg(i / 3, i % 3));
     }
   }
 };
@@ -100,6 +83,13 @@ double add_volume_point_forces(const PhysicsModel& phys, const double* xs, std::
   return en;
 }
 
+/// The reference element kernel for elements [e0, e1) (ElementKernel::reference): writes 3
+/// doubles per vertex entry. Vertex i has weight w_i and weighted rest offset R0'_i = w_i R0_i
+/// (material.h). Each loop over the vertices keeps at most ~16 values live, so that baseline
+/// x86-64 (16 SSE registers) does not spill: elastic and damping parts run as separate loops,
+/// each gathering the positions again and reading the per-entry constants from separate arrays.
+/// The element's law (G, M, the rigid velocity) is element_law.h's, as in the other kernels;
+/// the per-entry terms are written out here loop by loop (entry_force sums them in one).
 template <bool kDamping, bool kEnergy, bool kVolume, bool kModes>
 void element_range_reference(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot,
                    double* ef, double* energy_out, std::int64_t e0, std::int64_t e1,
@@ -153,18 +143,20 @@ void element_range_reference(const PhysicsModel& phys, const double* xs, const d
       if constexpr (kEnergy) energy_out[e] = 0.0;
       continue;
     }
-    const ElementMatrices<kVolume> em(phys, e, a, fg, rot[e], fit, st);
-    const Eigen::Matrix3d &q = em.q, &gm = em.gm, &mq = em.mq, &t = em.t;
-    const double k = em.k, ktot = em.ktot, wv = em.wv;
-    // pass 2: elastic force f = M R0' - w ktot (x - c)   (M = k F + k_v T, R0' = w R0)
+    ElementMatrices<kVolume> em(phys, e, a, fg, rot[e], fit, st);
+    const Eigen::Matrix3d &q = em.q, &t = em.t;
+    const double k = em.force.k, wv = em.wv;
+    const double* mq = em.force.m;
+    const double* gm = em.force.g;
+    // pass 2: elastic force f = M R0' - w k (x - c)   (M = k F, R0' = w R0)
     {
-      const double m00 = mq(0, 0), m01 = mq(0, 1), m02 = mq(0, 2), m10 = mq(1, 0), m11 = mq(1, 1),
-                   m12 = mq(1, 2), m20 = mq(2, 0), m21 = mq(2, 1), m22 = mq(2, 2);
+      const double m00 = mq[0], m01 = mq[1], m02 = mq[2], m10 = mq[3], m11 = mq[4], m12 = mq[5], m20 = mq[6],
+                   m21 = mq[7], m22 = mq[8];
       const double cx = ox + c.x(), cy = oy + c.y(), cz = oz + c.z();
       for (int j = b; j < b + n; ++j) {
         const double* xp = xs + 3 * std::int64_t(vert[j]);
         const double* r0 = r0s + 3 * std::int64_t(j);
-        const double kw = ktot * wts[j];
+        const double kw = k * wts[j];
         double* out = ef + 3 * std::int64_t(slot[j]);
         out[0] = m00 * r0[0] + m01 * r0[1] + m02 * r0[2] - kw * (xp[0] - cx);
         out[1] = m10 * r0[0] + m11 * r0[1] + m12 * r0[2] - kw * (xp[1] - cy);
@@ -182,8 +174,8 @@ void element_range_reference(const PhysicsModel& phys, const double* xs, const d
     }
     // pass 2b: f += G g
     {
-      const double g00 = gm(0, 0), g01 = gm(0, 1), g02 = gm(0, 2), g10 = gm(1, 0), g11 = gm(1, 1),
-                   g12 = gm(1, 2), g20 = gm(2, 0), g21 = gm(2, 1), g22 = gm(2, 2);
+      const double g00 = gm[0], g01 = gm[1], g02 = gm[2], g10 = gm[3], g11 = gm[4], g12 = gm[5], g20 = gm[6],
+                   g21 = gm[7], g22 = gm[8];
       for (int j = b; j < b + n; ++j) {
         const double* g = gs + 3 * std::int64_t(j);
         double* out = ef + 3 * std::int64_t(slot[j]);
@@ -204,12 +196,11 @@ void element_range_reference(const PhysicsModel& phys, const double* xs, const d
         rs.add(wts[j], xp[0] - ox, xp[1] - oy, xp[2] - oz, vp[0], vp[1], vp[2]);
       }
       const double cd = phys.element_damping[std::size_t(e)];
-      Eigen::Vector3d vc, omega;
-      rigid_velocity(rs, sw, inv_w, c, vc, omega);
+      law::rigid_velocity(rs, sw, inv_w, c.x(), c.y(), c.z(), em.force);
       // pass 4: f += c w (v_c + omega x r - v)
-      const double wx = omega.x(), wy = omega.y(), wz = omega.z();
+      const double wx = em.force.omega[0], wy = em.force.omega[1], wz = em.force.omega[2];
       const double cx = ox + c.x(), cy = oy + c.y(), cz = oz + c.z();
-      const double ux = vc.x(), uy = vc.y(), uz = vc.z();
+      const double ux = em.force.vc[0], uy = em.force.vc[1], uz = em.force.vc[2];
       for (int j = b; j < b + n; ++j) {
         const double* xp = xs + 3 * std::int64_t(vert[j]);
         const double* vp = vs + 3 * std::int64_t(vert[j]);
@@ -321,59 +312,36 @@ void element_range_packed(const PhysicsModel& phys, const double* xs, const doub
       if constexpr (kEnergy) energy_out[e] = 0.0;
       continue;
     }
-    const ElementMatrices<kVolume> em(phys, e, a, fg, rot[e], fit, st);
-    const Eigen::Matrix3d &q = em.q, &gm = em.gm, &mq = em.mq, &t = em.t;
-    const double k = em.k, ktot = em.ktot, wv = em.wv;
+    ElementMatrices<kVolume> em(phys, e, a, fg, rot[e], fit, st);
+    const Eigen::Matrix3d &q = em.q, &t = em.t;
+    const double k = em.force.k, wv = em.wv;
     // the bending modes' amplitudes (a loop of its own: a separate stream of constants)
     Eigen::Matrix<double, 3, kBendingModes> qm;
     if constexpr (kModes) qm = mode_amplitudes(phys, xs, m.element_vertices.data(), b, n, Eigen::Vector3d(ox, oy, oz));
     // the rigid velocity fit about the centroid (damping)
-    double cd = 0, wx = 0, wy = 0, wz = 0, ux = 0, uy = 0, uz = 0;
     if constexpr (kDamping) {
-      cd = phys.element_damping[std::size_t(e)];
-      Eigen::Vector3d vc, omega;
-      rigid_velocity(rs, sw, inv_w, c, vc, omega);
-      wx = omega.x(), wy = omega.y(), wz = omega.z();
-      ux = vc.x(), uy = vc.y(), uz = vc.z();
+      em.force.damping = phys.element_damping[std::size_t(e)];
+      law::rigid_velocity(rs, sw, inv_w, c.x(), c.y(), c.z(), em.force);
     }
-    // pass 2: f = M R0' - w ktot (x - c) + G g  (M = k F + k_v T, R0' = w R0)
-    //           [+ c w (v_c + omega x r - v)], summed in the reference kernel's order
+    // pass 2: each entry's force (element_law.h, entry_force: f = M R0' - w k (x - c) + G g
+    // [+ modes] [+ c w (v_c + omega x r - v)]), written once
     {
-      const double m00 = mq(0, 0), m01 = mq(0, 1), m02 = mq(0, 2), m10 = mq(1, 0), m11 = mq(1, 1),
-                   m12 = mq(1, 2), m20 = mq(2, 0), m21 = mq(2, 1), m22 = mq(2, 2);
-      const double g00 = gm(0, 0), g01 = gm(0, 1), g02 = gm(0, 2), g10 = gm(1, 0), g11 = gm(1, 1),
-                   g12 = gm(1, 2), g20 = gm(2, 0), g21 = gm(2, 1), g22 = gm(2, 2);
       const double cx = ox + c.x(), cy = oy + c.y(), cz = oz + c.z();
       for (int j = 0; j < n; ++j) {
         const PackedEntry& en = pe[j];
         const double* xp = xs + 3 * std::int64_t(en.vertex);
-        const double* r0 = en.rest_weighted;
-        const double* g = en.gradient;
-        const double kw = ktot * en.weight;
-        const double rx = xp[0] - cx, ry = xp[1] - cy, rz = xp[2] - cz;
-        double o0 = m00 * r0[0] + m01 * r0[1] + m02 * r0[2] - kw * rx;
-        double o1 = m10 * r0[0] + m11 * r0[1] + m12 * r0[2] - kw * ry;
-        double o2 = m20 * r0[0] + m21 * r0[1] + m22 * r0[2] - kw * rz;
-        o0 += g00 * g[0] + g01 * g[1] + g02 * g[2];
-        o1 += g10 * g[0] + g11 * g[1] + g12 * g[2];
-        o2 += g20 * g[0] + g21 * g[1] + g22 * g[2];
-        if constexpr (kModes) {
-          const Eigen::Vector3d fm = qm * phys.entry_modes.col(b + j);
-          o0 += fm.x();
-          o1 += fm.y();
-          o2 += fm.z();
-        }
+        const double r[3] = {xp[0] - cx, xp[1] - cy, xp[2] - cz};
+        double fm[3] = {0.0, 0.0, 0.0}, v[3] = {0.0, 0.0, 0.0}, o[3];
+        if constexpr (kModes) Eigen::Vector3d::Map(fm) = qm * phys.entry_modes.col(b + j);
         if constexpr (kDamping) {
           const double* vp = vs + 3 * std::int64_t(en.vertex);
-          const double cw = cd * en.weight;
-          o0 += cw * (ux + wy * rz - wz * ry - vp[0]);
-          o1 += cw * (uy + wz * rx - wx * rz - vp[1]);
-          o2 += cw * (uz + wx * ry - wy * rx - vp[2]);
+          v[0] = vp[0], v[1] = vp[1], v[2] = vp[2];
         }
+        law::entry_force<kModes, kDamping>(em.force, en.rest_weighted, en.gradient, en.weight, r, fm, v, o);
         double* out = ef + 3 * std::int64_t(en.slot);
-        out[0] = o0;
-        out[1] = o1;
-        out[2] = o2;
+        out[0] = o[0];
+        out[1] = o[1];
+        out[2] = o[2];
       }
     }
     double point_energy = 0;

@@ -20,6 +20,49 @@ Eigen::Quaterniond rotate_by(const Eigen::Quaterniond& q, const Eigen::Vector3d&
   return r;
 }
 
+/// The closest point x to `s0` on the surface x_1 ... x_N = 1 (N = 2, 3; the singular values
+/// of the volume term's closest matrix, in units where det = 1), by Newton on the KKT system
+/// x_i - s0_i = lambda prod_{j != i} x_j, prod x = 1, started from the scaled (or
+/// sign-repaired) values, which already satisfy the constraint. Returns a point on the positive
+/// branch that is a constrained minimum, else that start.
+template <int N>
+Eigen::Matrix<double, N, 1> closest_on_unit_product(const Eigen::Matrix<double, N, 1>& s0) {
+  using Vec = Eigen::Matrix<double, N, 1>;
+  const auto root = [](double v) { return N == 3 ? std::cbrt(v) : std::sqrt(v); };
+  const double top = std::max(s0.cwiseAbs().maxCoeff(), 1e-3);
+  Vec start = s0.cwiseMax(0.1 * top);
+  start /= root(start.prod());
+  Vec x = start;
+  double lambda = 0;
+  bool ok = false;
+  for (int it = 0; it < 30; ++it) {
+    Vec pr;  // prod_{j != i} x_j
+    if constexpr (N == 3)
+      pr << x(1) * x(2), x(0) * x(2), x(0) * x(1);
+    else
+      pr << x(1), x(0);
+    Eigen::Matrix<double, N + 1, 1> r;
+    r.template head<N>() = x - s0 - lambda * pr;
+    r(N) = x.prod() - 1.0;
+    if (r.cwiseAbs().maxCoeff() < 1e-14) {
+      ok = true;
+      break;
+    }
+    Eigen::Matrix<double, N + 1, N + 1> jac = Eigen::Matrix<double, N + 1, N + 1>::Zero();
+    for (int i = 0; i < N; ++i)
+      for (int j = 0; j < N; ++j)  // 1 on the diagonal, -lambda prod_{k != i, j} x_k off it
+        jac(i, j) = i == j ? 1.0 : -lambda * (N == 3 ? x(3 - i - j) : 1.0);
+    jac.template block<N, 1>(0, N) = -pr;
+    jac.template block<1, N>(N, 0) = pr.transpose();
+    const Eigen::Matrix<double, N + 1, 1> step = jac.fullPivLu().solve(-r);
+    if (!step.allFinite()) break;
+    x += step.template head<N>();
+    lambda += step(N);
+  }
+  if (!ok || (x.array() <= 0).any() || (x - s0).squaredNorm() > (start - s0).squaredNorm()) x = start;
+  return x;
+}
+
 }  // namespace
 
 int fit_rotation(const Eigen::Matrix3d& a, Eigen::Quaterniond& q, const RotationFitSettings& settings, bool* converged,
@@ -137,40 +180,10 @@ Eigen::Matrix3d closest_with_determinant(const Eigen::Matrix3d& b, double det, E
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
   eig.computeDirect(s);
   const Eigen::Vector3d sig = eig.eigenvalues();
-  // closest point x to the singular values (in units where det = 1) on x1 x2 x3 = 1:
-  // Newton on the KKT system x_i - s_i = lambda prod_{j != i} x_j, prod x = 1, started from
-  // the scaled (or sign-repaired) values, which already satisfy the constraint
+  // the closest point to the singular values (in units where det = 1) on x1 x2 x3 = 1
   const double unit = std::cbrt(det);
   const Eigen::Vector3d s0 = sig / unit;
-  const double top = std::max(s0.cwiseAbs().maxCoeff(), 1e-3);
-  Eigen::Vector3d start = s0.cwiseMax(0.1 * top);
-  start /= std::cbrt(start.prod());
-  Eigen::Vector3d x = start;
-  double lambda = 0;
-  bool ok = false;
-  for (int it = 0; it < 30; ++it) {
-    const Eigen::Vector3d pr(x.y() * x.z(), x.x() * x.z(), x.x() * x.y());
-    Eigen::Matrix<double, 4, 1> r;
-    r.head<3>() = x - s0 - lambda * pr;
-    r(3) = x.prod() - 1.0;
-    if (r.cwiseAbs().maxCoeff() < 1e-14) {
-      ok = true;
-      break;
-    }
-    Eigen::Matrix4d jac = Eigen::Matrix4d::Zero();
-    jac.topLeftCorner<3, 3>().setIdentity();
-    jac(0, 1) = jac(1, 0) = -lambda * x.z();
-    jac(0, 2) = jac(2, 0) = -lambda * x.y();
-    jac(1, 2) = jac(2, 1) = -lambda * x.x();
-    jac.block<3, 1>(0, 3) = -pr;
-    jac.block<1, 3>(3, 0) = pr.transpose();
-    const Eigen::Matrix<double, 4, 1> step = jac.fullPivLu().solve(-r);
-    if (!step.allFinite()) break;
-    x += step.head<3>();
-    lambda += step(3);
-  }
-  // a point on the positive branch that is a constrained minimum; else the scaled start
-  if (!ok || (x.array() <= 0).any() || (x - s0).squaredNorm() > (start - s0).squaredNorm()) x = start;
+  const Eigen::Vector3d x = closest_on_unit_product<3>(s0);
   const Eigen::Vector3d d = x - s0;
   const Eigen::Vector3d sp = (s0 + d) * unit;
   return rot * eig.eigenvectors() * sp.asDiagonal() * eig.eigenvectors().transpose();
@@ -201,8 +214,7 @@ int fit_plane_rotation(const Eigen::Matrix3d& a, const Eigen::Matrix3d& frame, E
 
 Eigen::Matrix3d closest_with_determinant_in_plane(const Eigen::Matrix3d& b, double det, const Eigen::Matrix3d& frame) {
   // b2 = R S (R the closed-form best rotation, S = R^T b2 symmetric), S = V diag(sig) V^T;
-  // the closest x on x1 x2 = det (units where det = 1): Newton on the KKT system
-  // x_i - s_i = lambda x_j (j != i), x1 x2 = 1, as closest_with_determinant does in 3D
+  // the closest x on x1 x2 = det (closest_on_unit_product, as in 3D)
   const auto e = frame.leftCols<2>();
   const Eigen::Matrix2d b2 = e.transpose() * b * e;
   const double c = b2(0, 0) + b2(1, 1), sn = b2(1, 0) - b2(0, 1);
@@ -214,28 +226,7 @@ Eigen::Matrix3d closest_with_determinant_in_plane(const Eigen::Matrix3d& b, doub
   const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> eig(sym);
   const double unit = std::sqrt(det);
   const Eigen::Vector2d s0 = eig.eigenvalues() / unit;
-  const double top = std::max(s0.cwiseAbs().maxCoeff(), 1e-3);
-  Eigen::Vector2d start = s0.cwiseMax(0.1 * top);
-  start /= std::sqrt(start.prod());
-  Eigen::Vector2d x = start;
-  double lambda = 0;
-  bool ok = false;
-  for (int it = 0; it < 30; ++it) {
-    const Eigen::Vector3d r(x.x() - s0.x() - lambda * x.y(), x.y() - s0.y() - lambda * x.x(), x.prod() - 1.0);
-    if (r.cwiseAbs().maxCoeff() < 1e-14) {
-      ok = true;
-      break;
-    }
-    Eigen::Matrix3d jac;
-    jac << 1.0, -lambda, -x.y(),  //
-        -lambda, 1.0, -x.x(),     //
-        x.y(), x.x(), 0.0;
-    const Eigen::Vector3d step = jac.fullPivLu().solve(-r);
-    if (!step.allFinite()) break;
-    x += step.head<2>();
-    lambda += step(2);
-  }
-  if (!ok || (x.array() <= 0).any() || (x - s0).squaredNorm() > (start - s0).squaredNorm()) x = start;
+  const Eigen::Vector2d x = closest_on_unit_product<2>(s0);
   const Eigen::Matrix2d x2 = rot * eig.eigenvectors() * (x * unit).asDiagonal() * eig.eigenvectors().transpose();
   return e * x2 * e.transpose();
 }
