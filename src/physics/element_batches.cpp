@@ -1,9 +1,5 @@
 #include "physics/element_batches.h"
 
-// The lane vectors here and in element_law.h never cross a function boundary (everything is
-// always_inline), so the ABI note GCC gives for vector arguments without AVX does not apply.
-#pragma GCC diagnostic ignored "-Wpsabi"
-
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
@@ -12,11 +8,14 @@
 
 #include "base/error.h"
 #include "base/huge_pages.h"
-#include "physics/element_law.h"
 #include "physics/element_pass.h"
 #include "physics/physics_model.h"
 #include "physics/rigid_sums.h"
 #include "physics/rotation_fit.h"
+
+// The lane vectors below never cross a function boundary (everything is always_inline), so the
+// ABI note GCC gives for vector arguments without AVX does not apply.
+#pragma GCC diagnostic ignored "-Wpsabi"
 
 namespace vx {
 
@@ -110,7 +109,7 @@ namespace {
 
 #define VX_INLINE [[gnu::always_inline]] inline
 
-using d4 = law::Lanes;
+using d4 = double __attribute__((vector_size(32)));
 
 VX_INLINE d4 load(const double* p) {
   d4 v;
@@ -319,50 +318,98 @@ VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const 
     }
   }
   // the rotation of each lane
-  Mat3 q = t0.r;
-  for (int l = 0; l < kBatchLanes; ++l)
-    for (int i = 0; i < 9; ++i) {
-      if (how[l] == Fit::stepped) q.m[i][l] = t1.r.m[i][l];
-      if (how[l] == Fit::scalar) q.m[i][l] = fitted[l](i / 3, i % 3);
-    }
-  // the element's law in lanes (element_law.h): G = 2 mu V (Q - F) + k (A - F C0), M = k F, and
-  // the rigid velocity about the centroid (damping)
-  law::ElementForce<d4> force;
+  d4 q00, q01, q02, q10, q11, q12, q20, q21, q22;
+  {
+    Mat3 q = t0.r;
+    for (int l = 0; l < kBatchLanes; ++l)
+      for (int i = 0; i < 9; ++i) {
+        if (how[l] == Fit::stepped) q.m[i][l] = t1.r.m[i][l];
+        if (how[l] == Fit::scalar) q.m[i][l] = fitted[l](i / 3, i % 3);
+      }
+    q00 = q.m[0], q01 = q.m[1], q02 = q.m[2], q10 = q.m[3], q11 = q.m[4], q12 = q.m[5];
+    q20 = q.m[6], q21 = q.m[7], q22 = q.m[8];
+  }
+  // G = 2 mu V (Q - F) + k (A - F C0), M = k F
+  const d4 k = load(bt.stiffness), kaff = load(bt.affine_stiffness);
+  d4 gm[9];
   {
     const d4 f[9] = {f00, f01, f02, f10, f11, f12, f20, f21, f22};
     const d4 a[9] = {a00, a01, a02, a10, a11, a12, a20, a21, a22};
-    d4 c0[9];
-    for (int i = 0; i < 9; ++i) c0[i] = load(bt.spread[i]);
-    law::element_stress(a, f, q.m, c0, load(bt.stiffness), load(bt.affine_stiffness), force);
+    const d4 q[9] = {q00, q01, q02, q10, q11, q12, q20, q21, q22};
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) {
+        const d4 fc = f[3 * i] * load(bt.spread[j]) + f[3 * i + 1] * load(bt.spread[3 + j]) +
+                      f[3 * i + 2] * load(bt.spread[6 + j]);
+        gm[3 * i + j] = kaff * (q[3 * i + j] - f[3 * i + j]) + k * (a[3 * i + j] - fc);
+      }
   }
+  const d4 m00 = k * f00, m01 = k * f01, m02 = k * f02, m10 = k * f10, m11 = k * f11, m12 = k * f12, m20 = k * f20,
+           m21 = k * f21, m22 = k * f22;
+  // the rigid velocity about the centroid (elements.cpp, rigid_velocity)
+  d4 cd{}, ux{}, uy{}, uz{}, wx{}, wy{}, wz{};
   if constexpr (kDamping) {
-    force.damping = load(bt.damping);
-    law::rigid_velocity(rs, sw, inv_w, cx, cy, cz, force);
+    cd = load(bt.damping);
+    ux = rs.svx * inv_w, uy = rs.svy * inv_w, uz = rs.svz * inv_w;
+    // angular momentum about the centroid: L - sw c x vc
+    const d4 angx = rs.lx - sw * (cy * uz - cz * uy), angy = rs.ly - sw * (cz * ux - cx * uz),
+             angz = rs.lz - sw * (cx * uy - cy * ux);
+    // sum w r r^T about the centroid, the inertia tr 1 - that (+ tiny regularisation)
+    const d4 yxx = rs.ixx - sw * cx * cx, yxy = rs.ixy - sw * cx * cy, yxz = rs.ixz - sw * cx * cz;
+    const d4 yyy = rs.iyy - sw * cy * cy, yyz = rs.iyz - sw * cy * cz, yzz = rs.izz - sw * cz * cz;
+    const d4 tr = yxx + yyy + yzz;
+    const d4 reg = tr * (1.0 + 1e-10);
+    const d4 i00 = reg - yxx, i11 = reg - yyy, i22 = reg - yzz, i01 = -yxy, i02 = -yxz, i12 = -yyz;
+    // omega = I^{-1} ang by the adjugate of the symmetric I
+    const d4 c00 = i11 * i22 - i12 * i12, c01 = i02 * i12 - i01 * i22, c02 = i01 * i12 - i02 * i11;
+    const d4 c11 = i00 * i22 - i02 * i02, c12 = i01 * i02 - i00 * i12, c22 = i00 * i11 - i01 * i01;
+    const d4 inv_det = 1.0 / (i00 * c00 + i01 * c01 + i02 * c02);
+    wx = (c00 * angx + c01 * angy + c02 * angz) * inv_det;
+    wy = (c01 * angx + c11 * angy + c12 * angz) * inv_det;
+    wz = (c02 * angx + c12 * angy + c22 * angz) * inv_det;
+    // zero for a collapsed or collinear element
+    const d4 wprobe = (wx + wy + wz) * 0.0;
+    for (int l = 0; l < kBatchLanes; ++l)
+      if (!(tr[l] > 0.0) || wprobe[l] != 0.0) wx[l] = wy[l] = wz[l] = 0.0;
   }
-  // pass 2: each entry's force (entry_force), written once
+  // pass 2: f = M R0' - w k (x - c) + G g [+ c w (v_c + omega x r - v)], each force written once
   for (int r = 0; r < nr; ++r) {
     const BatchRow& row = rows[r];
-    const d4 rr[3] = {ys[r][0] - cx, ys[r][1] - cy, ys[r][2] - cz};
-    const d4 rw[3] = {load(row.rest_weighted[0]), load(row.rest_weighted[1]), load(row.rest_weighted[2])};
-    const d4 g[3] = {load(row.gradient[0]), load(row.gradient[1]), load(row.gradient[2])};
-    d4 fm[3] = {};
+    const d4 rx = ys[r][0] - cx, ry = ys[r][1] - cy, rz = ys[r][2] - cz;
+    const d4 w = load(row.weight);
+    const d4 kw = k * w;
+    const d4 c0 = load(row.rest_weighted[0]), c1 = load(row.rest_weighted[1]), c2 = load(row.rest_weighted[2]);
+    const d4 g0 = load(row.gradient[0]), g1 = load(row.gradient[1]), g2 = load(row.gradient[2]);
+    d4 o0 = m00 * c0 + m01 * c1 + m02 * c2 - kw * rx;
+    d4 o1 = m10 * c0 + m11 * c1 + m12 * c2 - kw * ry;
+    d4 o2 = m20 * c0 + m21 * c1 + m22 * c2 - kw * rz;
+    o0 += gm[0] * g0 + gm[1] * g1 + gm[2] * g2;
+    o1 += gm[3] * g0 + gm[4] * g1 + gm[5] * g2;
+    o2 += gm[6] * g0 + gm[7] * g1 + gm[8] * g2;
     if constexpr (kModes) {
       const ModeRow& mr = mrows[r];
+      d4 m0{}, m1{}, m2{};
       for (int p = 0; p < kBendingModes; ++p) {
         const d4 h = load(mr.mode[p]);
-        fm[0] += qm[0][p] * h;
-        fm[1] += qm[1][p] * h;
-        fm[2] += qm[2][p] * h;
+        m0 += qm[0][p] * h;
+        m1 += qm[1][p] * h;
+        m2 += qm[2][p] * h;
       }
+      o0 += m0;
+      o1 += m1;
+      o2 += m2;
     }
-    d4 o[3];
-    law::entry_force<kModes, kDamping>(force, rw, g, load(row.weight), rr, fm, vel[kDamping ? r : 0], o);
+    if constexpr (kDamping) {
+      const d4 cw = cd * w;
+      o0 += cw * (ux + wy * rz - wz * ry - vel[r][0]);
+      o1 += cw * (uy + wz * rx - wx * rz - vel[r][1]);
+      o2 += cw * (uz + wx * ry - wy * rx - vel[r][2]);
+    }
     for (int l = 0; l < kBatchLanes; ++l) {
       if (r >= bt.count[l]) continue;
       double* out = ef + 3 * std::int64_t(row.slot[l]);
-      out[0] = finite[l] ? o[0][l] : 0.0;
-      out[1] = finite[l] ? o[1][l] : 0.0;
-      out[2] = finite[l] ? o[2][l] : 0.0;
+      out[0] = finite[l] ? o0[l] : 0.0;
+      out[1] = finite[l] ? o1[l] : 0.0;
+      out[2] = finite[l] ? o2[l] : 0.0;
     }
   }
 }
