@@ -11,6 +11,7 @@
 
 #include "base/error.h"
 #include "convert/phantom.h"
+#include "physics/calibration.h"
 #include "render/plot.h"
 #include "scene/scene.h"
 #include "sim/simulation.h"

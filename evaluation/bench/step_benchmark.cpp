@@ -9,6 +9,7 @@
 #include "base/parallel.h"
 #include "model/gradational_builder.h"
 #include "model/voxel_shapes.h"
+#include "physics/calibration.h"
 #include "sim/state.h"
 
 namespace vx {

@@ -16,6 +16,7 @@
 #include "base/parallel.h"
 #include "bench/step_benchmark.h"
 #include "model/gradational_builder.h"
+#include "physics/calibration.h"
 #include "physics/elements.h"
 #include "sim/integrators.h"
 #include "sim/state.h"

@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "base/error.h"
+#include "physics/calibration.h"
 #include "sim/contact.h"
 #include "sim/state.h"
 #include "sim/static_solver.h"

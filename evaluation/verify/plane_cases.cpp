@@ -12,6 +12,7 @@
 
 #include "base/error.h"
 #include "model/gradational_builder.h"
+#include "physics/calibration.h"
 #include "sim/simulation.h"
 #include "sim/static_solver.h"
 #include "verify/case_helpers.h"

@@ -13,6 +13,7 @@
 #include <nlohmann/json.hpp>
 
 #include "base/error.h"
+#include "physics/calibration.h"
 #include "scene/palpation_map.h"
 #include "scene/scene.h"
 #include "sim/contact.h"

@@ -17,6 +17,7 @@
 #include "convert/phantom.h"
 #include "convert/threshold.h"
 #include "model/gradational_builder.h"
+#include "physics/calibration.h"
 #include "scene/sim_output.h"
 #include "sim/contact.h"
 #include "sim/simulation.h"

@@ -1,32 +1,24 @@
 #include "io/calibration_cache.h"
 
-#include <chrono>
 #include <cmath>
-#include <fstream>
-#include <system_error>
+#include <cstring>
 #include <utility>
 #include <vector>
 
-#include "base/error.h"
+#include "base/huge_pages.h"
 #include "io/cache_file.h"
-#include "io/factor_cache.h"
-#include "util/atomic_file.h"
 #include "util/log.h"
 
 namespace vx {
-namespace fs = std::filesystem;
 
 namespace {
 
-constexpr const char* kExtension = ".vxcalib";
+constexpr FolderCacheWords kWords{"calibration cache", "calibration", ".vxcalib",
+                                  "the model is calibrated as without a cache"};
 constexpr char kMagic[8] = {'V', 'X', 'C', 'A', 'L', 'I', 'B', '\n'};
 constexpr std::uint32_t kFormatVersion = 1;
 
 static_assert(sizeof(Eigen::Matrix3d) == 9 * sizeof(double), "C0 is stored as 9 doubles per element");
-
-double seconds_since(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
 
 template <typename Derived>
 void write_matrix(CacheFileWriter& w, const Eigen::PlainObjectBase<Derived>& m) {
@@ -204,100 +196,25 @@ bool read_calibration(const unsigned char* data, std::size_t bytes, const Calibr
 }
 
 std::shared_ptr<CalibrationCache> make_calibration_cache(const std::string& option) {
-  if (option == "off") return nullptr;
-  const std::optional<fs::path> folder =
-      option.empty() ? default_factor_cache_folder() : std::optional<fs::path>(fs::path(option));
-  if (!folder) return nullptr;
-  CalibrationCacheSettings s;
-  s.folder = *folder;
-  s.min_calibration_s = cache_min_seconds(s.min_calibration_s);
-  return std::make_shared<FolderCalibrationCache>(std::move(s));
+  return make_folder_cache<FolderCalibrationCache>(option, &CalibrationCacheSettings::min_calibration_s);
 }
 
-FolderCalibrationCache::FolderCalibrationCache(CalibrationCacheSettings settings) : settings_(std::move(settings)) {}
-
-fs::path FolderCalibrationCache::file_of(const CalibrationKey& key) const {
-  return settings_.folder / (key.name() + kExtension);
-}
-
-FolderCalibrationCache::Counters FolderCalibrationCache::counters() const {
-  std::lock_guard lock(mutex_);
-  return counters_;
-}
-
-void FolderCalibrationCache::complain(const std::string& what) {
-  if (!complained_) {
-    complained_ = true;
-    log::warn("calibration cache: {} (the model is calibrated as without a cache; --factor-cache off silences this)",
-              what);
-  } else {
-    log::debug("calibration cache: {}", what);
-  }
-}
+FolderCalibrationCache::FolderCalibrationCache(CalibrationCacheSettings settings)
+    : settings_(std::move(settings)), folder_(kWords, settings_.folder, settings_.max_bytes) {}
 
 bool FolderCalibrationCache::load(const CalibrationKey& key, PhysicsModel& physics) {
-  std::lock_guard lock(mutex_);
-  const fs::path file = file_of(key);
-  std::error_code ec;
-  const std::uintmax_t size = fs::file_size(file, ec);
-  if (ec) {
-    ++counters_.misses;
-    log::debug("calibration cache: no calibration {} in {}", key.name(), settings_.folder.string());
-    return false;
-  }
-  const auto t0 = std::chrono::steady_clock::now();
-  std::string why;
-  const std::shared_ptr<const void> mapping = map_cache_file(file, std::size_t(size), why);
-  if (!mapping ||
-      !read_calibration(static_cast<const unsigned char*>(mapping.get()), std::size_t(size), key, physics, &why)) {
-    ++counters_.misses;
-    ++counters_.damaged;
-    fs::remove(file, ec);
-    complain(fmt::format("{} could not be read ({}); removed it", file.string(), why));
-    return false;
-  }
-  ++counters_.hits;
-  touch_cache_file(file);  // recently used: kept longest
-  log::info("calibration cache: loaded the calibration ({} elements, {:.0f} MB) from {} in {:.2f} s", key.elements,
-            double(size) / 1e6, file.string(), seconds_since(t0));
-  return true;
+  return folder_.load(key.name(), fmt::format("{} elements", key.elements),
+                      [&](const unsigned char* data, std::size_t bytes, const std::shared_ptr<const void>&,
+                          std::string& why) { return read_calibration(data, bytes, key, physics, &why); });
 }
 
 void FolderCalibrationCache::store(const CalibrationKey& key, const PhysicsModel& physics, double seconds) {
-  std::lock_guard lock(mutex_);
-  if (seconds < settings_.min_calibration_s) {
-    ++counters_.skipped;
-    return;
-  }
-  const fs::path file = file_of(key);
-  const auto t0 = std::chrono::steady_clock::now();
-  std::uint64_t bytes = 0;
-  try {
-    std::error_code ec;
-    fs::create_directories(settings_.folder, ec);
-    if (ec) throw Error(fmt::format("cannot create {} ({})", settings_.folder.string(), ec.message()));
-    // a cache: a crash of the machine may lose the file (the checksum then finds it damaged)
-    write_atomically(
-        file,
-        [&](const fs::path& tmp) {
-          std::ofstream out(tmp, std::ios::binary);
-          if (!out) throw Error(fmt::format("cannot write {}", tmp.string()));
-          write_calibration(out, key, physics);
-          out.close();
-          if (!out) throw Error(fmt::format("writing {} failed (disk full?)", tmp.string()));
-        },
-        Durability::process_crash);
-    bytes = fs::file_size(file, ec);
-  } catch (const std::exception& e) {
-    complain(fmt::format("the calibration could not be kept: {}", e.what()));
-    return;
-  }
-  ++counters_.stored;
-  log::info(
-      "calibration cache: kept the calibration ({:.0f} MB, calibrated in {:.2f} s) in {} ({:.2f} s); the next start of "
-      "this model and material loads it",
-      double(bytes) / 1e6, seconds, file.string(), seconds_since(t0));
-  counters_.evicted += evict_cache_files(settings_.folder, settings_.max_bytes, file);
+  folder_.store({.name = key.name(),
+                 .seconds = seconds,
+                 .min_seconds = settings_.min_calibration_s,
+                 .made = fmt::format("calibrated in {:.2f} s", seconds),
+                 .next_start = "this model and material"},
+                [&](std::ostream& out) { write_calibration(out, key, physics); });
 }
 
 }  // namespace vx

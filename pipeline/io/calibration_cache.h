@@ -18,13 +18,12 @@
 #include <cstdint>
 #include <filesystem>
 #include <memory>
-#include <mutex>
-#include <optional>
 #include <ostream>
 #include <string>
 
+#include "io/folder_cache.h"
+#include "physics/calibration.h"
 #include "physics/calibration_key.h"
-#include "physics/physics_model.h"
 
 namespace vx {
 
@@ -38,7 +37,7 @@ struct CalibrationCacheSettings {
 };
 
 /// The calibration cache of a command-line option (`--factor-cache`), in the factor cache's
-/// folder: "" the default folder (default_factor_cache_folder(), or none), "off" none, anything
+/// folder: "" the default folder (default_factor_cache_folder(), folder_cache.h, or none), "off" none, anything
 /// else a folder (created when used). Null: no cache. $VOXELASTIC_FACTOR_CACHE_MIN_S sets
 /// min_calibration_s (0: keep every calibration).
 [[nodiscard]] std::shared_ptr<CalibrationCache> make_calibration_cache(const std::string& option);
@@ -52,7 +51,8 @@ void write_calibration(std::ostream& out, const CalibrationKey& key, const Physi
 [[nodiscard]] bool read_calibration(const unsigned char* data, std::size_t bytes, const CalibrationKey& key,
                                     PhysicsModel& physics, std::string* why);
 
-/// A CalibrationCache in a folder. Thread-safe (one lock around each call).
+/// A CalibrationCache in a folder (folder_cache.h: the folder's bookkeeping; here what a file
+/// holds: write_calibration, read_calibration). Thread-safe (one lock around each call).
 class FolderCalibrationCache final : public CalibrationCache {
  public:
   explicit FolderCalibrationCache(CalibrationCacheSettings settings);
@@ -62,26 +62,15 @@ class FolderCalibrationCache final : public CalibrationCache {
 
   [[nodiscard]] const CalibrationCacheSettings& settings() const { return settings_; }
   /// The file of `key`.
-  [[nodiscard]] std::filesystem::path file_of(const CalibrationKey& key) const;
+  [[nodiscard]] std::filesystem::path file_of(const CalibrationKey& key) const { return folder_.file_of(key.name()); }
 
-  struct Counters {
-    int hits{0};     ///< calibrations loaded
-    int misses{0};   ///< looked up and not found (or not readable)
-    int stored{0};   ///< written
-    int skipped{0};  ///< not written: computed faster than min_calibration_s
-    int damaged{0};  ///< files found unreadable and removed
-    int evicted{0};  ///< cache files removed to keep the folder under max_bytes
-  };
-  [[nodiscard]] Counters counters() const;
+  /// hits: calibrations loaded; skipped: computed faster than min_calibration_s (folder_cache.h)
+  using Counters = FolderCacheCounters;
+  [[nodiscard]] Counters counters() const { return folder_.counters(); }
 
  private:
-  /// A warning the first time the folder cannot be used, debug lines after.
-  void complain(const std::string& what);
-
   CalibrationCacheSettings settings_;
-  mutable std::mutex mutex_;
-  Counters counters_;
-  bool complained_{false};
+  FolderCache folder_;
 };
 
 }  // namespace vx

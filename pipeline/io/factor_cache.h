@@ -15,10 +15,9 @@
 #include <cstdint>
 #include <filesystem>
 #include <memory>
-#include <mutex>
-#include <optional>
 #include <string>
 
+#include "io/folder_cache.h"
 #include "sim/sparse_factor.h"
 
 namespace vx {
@@ -31,17 +30,13 @@ struct FactorCacheSettings {
   double min_factor_s{1.0};
 };
 
-/// The default folder: $VOXELASTIC_FACTOR_CACHE when set (a folder; "off" or empty: no cache),
-/// else $XDG_CACHE_HOME/voxelastic/factors, else $HOME/.cache/voxelastic/factors; none when
-/// there is no home either.
-[[nodiscard]] std::optional<std::filesystem::path> default_factor_cache_folder();
-
-/// The factor cache of a command-line option (`--factor-cache`): "" the default folder (or none,
-/// as above), "off" none, anything else a folder (created when used). Null: no cache.
-/// $VOXELASTIC_FACTOR_CACHE_MIN_S sets min_factor_s (0: keep every factor).
+/// The factor cache of a command-line option (`--factor-cache`): "" the default folder
+/// (default_factor_cache_folder(), folder_cache.h, or none), "off" none, anything else a folder
+/// (created when used). Null: no cache. $VOXELASTIC_FACTOR_CACHE_MIN_S sets min_factor_s (0: keep every factor).
 [[nodiscard]] std::shared_ptr<FactorCache> make_factor_cache(const std::string& option);
 
-/// A FactorCache in a folder. Thread-safe (one lock around each call).
+/// A FactorCache in a folder (folder_cache.h: the folder's bookkeeping; here what a file
+/// holds: SparseFactor::write and read). Thread-safe (one lock around each call).
 class FolderFactorCache final : public FactorCache {
  public:
   explicit FolderFactorCache(FactorCacheSettings settings);
@@ -51,27 +46,15 @@ class FolderFactorCache final : public FactorCache {
 
   [[nodiscard]] const FactorCacheSettings& settings() const { return settings_; }
   /// The file of `key`.
-  [[nodiscard]] std::filesystem::path file_of(const FactorKey& key) const;
+  [[nodiscard]] std::filesystem::path file_of(const FactorKey& key) const { return folder_.file_of(key.name()); }
 
-  struct Counters {
-    int hits{0};     ///< factors loaded
-    int misses{0};   ///< factors looked up and not found (or not readable)
-    int stored{0};   ///< factors written
-    int skipped{0};  ///< factors not written: computed faster than min_factor_s
-    int damaged{0};  ///< files found unreadable and removed
-    int evicted{0};  ///< files removed to keep the folder under max_bytes
-  };
-  [[nodiscard]] Counters counters() const;
+  /// hits: factors loaded; skipped: computed faster than min_factor_s (folder_cache.h)
+  using Counters = FolderCacheCounters;
+  [[nodiscard]] Counters counters() const { return folder_.counters(); }
 
  private:
-  void evict(const std::filesystem::path& keep);
-  /// A warning the first time the folder cannot be used, debug lines after.
-  void complain(const std::string& what);
-
   FactorCacheSettings settings_;
-  mutable std::mutex mutex_;
-  Counters counters_;
-  bool complained_{false};
+  FolderCache folder_;
 };
 
 }  // namespace vx

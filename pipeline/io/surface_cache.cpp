@@ -3,32 +3,22 @@
 #include <fmt/core.h>
 #include <vtkVersionMacros.h>
 
-#include <chrono>
 #include <cstring>
-#include <fstream>
-#include <system_error>
 #include <utility>
 
-#include "base/error.h"
 #include "io/cache_file.h"
-#include "io/factor_cache.h"
 #include "physics/calibration_key.h"
-#include "util/atomic_file.h"
-#include "util/log.h"
 
 namespace vx {
 namespace fs = std::filesystem;
 
 namespace {
 
-constexpr const char* kExtension = ".vxsurf";
+constexpr FolderCacheWords kWords{"display surface cache", "display surface", ".vxsurf",
+                                  "the surface is built and decimated as without a cache"};
 constexpr char kMagic[8] = {'V', 'X', 'S', 'U', 'R', 'F', '\n', '\0'};
 /// Raised when the file form or what decimate_surface makes of the same input changes.
 constexpr std::uint32_t kFormatVersion = 1;
-
-double seconds_since(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
 
 template <typename Derived>
 void add_matrix(ContentHash& h, const Eigen::DenseBase<Derived>& m) {
@@ -152,88 +142,30 @@ std::optional<CachedSurface> read_surface_cache_file(const unsigned char* data, 
   return c;
 }
 
-SurfaceCache::SurfaceCache(SurfaceCacheSettings settings) : settings_(std::move(settings)) {}
-
-fs::path SurfaceCache::file_of(const SurfaceKey& key) const { return settings_.folder / (key.name() + kExtension); }
-
-SurfaceCache::Counters SurfaceCache::counters() const {
-  std::lock_guard lock(mutex_);
-  return counters_;
-}
-
-void SurfaceCache::complain(const std::string& what) {
-  if (!complained_) {
-    complained_ = true;
-    log::warn("display surface cache: {} (the surface is decimated as without a cache; --factor-cache off silences this)",
-              what);
-  } else {
-    log::debug("display surface cache: {}", what);
-  }
-}
+SurfaceCache::SurfaceCache(SurfaceCacheSettings settings)
+    : settings_(std::move(settings)), folder_(kWords, settings_.folder, settings_.max_bytes) {}
 
 std::optional<CachedSurface> SurfaceCache::load(const SurfaceKey& key) {
-  std::lock_guard lock(mutex_);
-  const fs::path file = file_of(key);
-  std::error_code ec;
-  const std::uintmax_t size = fs::file_size(file, ec);
-  if (ec) {
-    ++counters_.misses;
-    return std::nullopt;
-  }
-  std::string why;
-  const std::shared_ptr<const void> mapping = map_cache_file(file, std::size_t(size), why);
   std::optional<CachedSurface> s;
-  if (mapping) s = read_surface_cache_file(static_cast<const unsigned char*>(mapping.get()), std::size_t(size), key, &why);
-  if (!s) {
-    ++counters_.misses;
-    ++counters_.damaged;
-    fs::remove(file, ec);
-    complain(fmt::format("{} could not be read ({}); removed it", file.string(), why));
-    return std::nullopt;
-  }
-  ++counters_.hits;
-  touch_cache_file(file);  // recently used: kept longest
+  folder_.load(key.name(), fmt::format("{} nodes", key.model_nodes),
+               [&](const unsigned char* data, std::size_t bytes, const std::shared_ptr<const void>&, std::string& why) {
+                 s = read_surface_cache_file(data, bytes, key, &why);
+                 return s.has_value();
+               });
   return s;
 }
 
 void SurfaceCache::store(const SurfaceKey& key, const CachedSurface& cached, double seconds) {
-  std::lock_guard lock(mutex_);
-  if (seconds < settings_.min_seconds) {
-    ++counters_.skipped;
-    return;
-  }
-  const fs::path file = file_of(key);
-  try {
-    std::error_code ec;
-    fs::create_directories(settings_.folder, ec);
-    if (ec) throw Error(fmt::format("cannot create {} ({})", settings_.folder.string(), ec.message()));
-    write_atomically(
-        file,
-        [&](const fs::path& tmp) {
-          std::ofstream out(tmp, std::ios::binary);
-          if (!out) throw Error(fmt::format("cannot write {}", tmp.string()));
-          write_surface_cache_file(out, key, cached);
-          out.close();
-          if (!out) throw Error(fmt::format("writing {} failed (disk full?)", tmp.string()));
-        },
-        Durability::process_crash);
-  } catch (const std::exception& e) {
-    complain(fmt::format("the display surface could not be kept: {}", e.what()));
-    return;
-  }
-  ++counters_.stored;
-  (void)evict_cache_files(settings_.folder, settings_.max_bytes, file);
+  folder_.store({.name = key.name(),
+                 .seconds = seconds,
+                 .min_seconds = settings_.min_seconds,
+                 .made = fmt::format("built and decimated in {:.2f} s", seconds),
+                 .next_start = "this organ"},
+                [&](std::ostream& out) { write_surface_cache_file(out, key, cached); });
 }
 
 std::shared_ptr<SurfaceCache> make_surface_cache(const std::string& option) {
-  if (option == "off") return nullptr;
-  const std::optional<fs::path> folder =
-      option.empty() ? default_factor_cache_folder() : std::optional<fs::path>(fs::path(option));
-  if (!folder) return nullptr;
-  SurfaceCacheSettings s;
-  s.folder = *folder;
-  s.min_seconds = cache_min_seconds(s.min_seconds);
-  return std::make_shared<SurfaceCache>(std::move(s));
+  return make_folder_cache<SurfaceCache>(option, &SurfaceCacheSettings::min_seconds);
 }
 
 }  // namespace vx

@@ -17,12 +17,12 @@
 #include <cstdint>
 #include <filesystem>
 #include <memory>
-#include <mutex>
 #include <optional>
 #include <ostream>
 #include <string>
 
 #include "base/content_hash.h"
+#include "io/folder_cache.h"
 #include "model/model.h"
 #include "surface/surface.h"
 
@@ -72,7 +72,7 @@ struct SurfaceCacheSettings {
   double min_seconds{0.25};
 };
 
-/// Display surfaces in a folder. Thread-safe (one lock around each call).
+/// Display surfaces in a folder (folder_cache.h does the folder's bookkeeping). Thread-safe.
 class SurfaceCache {
  public:
   explicit SurfaceCache(SurfaceCacheSettings settings);
@@ -81,26 +81,18 @@ class SurfaceCache {
   /// Offers the surface of `key`, just made in `seconds` (wall time).
   void store(const SurfaceKey& key, const CachedSurface& cached, double seconds);
   [[nodiscard]] const SurfaceCacheSettings& settings() const { return settings_; }
-  [[nodiscard]] std::filesystem::path file_of(const SurfaceKey& key) const;
-  struct Counters {
-    int hits{0};
-    int misses{0};
-    int stored{0};
-    int skipped{0};  ///< decimated faster than min_seconds: not written
-    int damaged{0};  ///< files found unreadable and removed
-  };
-  [[nodiscard]] Counters counters() const;
+  [[nodiscard]] std::filesystem::path file_of(const SurfaceKey& key) const { return folder_.file_of(key.name()); }
+  /// hits: surfaces loaded; skipped: made faster than min_seconds (folder_cache.h)
+  using Counters = FolderCacheCounters;
+  [[nodiscard]] Counters counters() const { return folder_.counters(); }
 
  private:
-  void complain(const std::string& what);
   SurfaceCacheSettings settings_;
-  mutable std::mutex mutex_;
-  Counters counters_;
-  bool complained_{false};
+  FolderCache folder_;
 };
 
 /// The surface cache of a command-line option (`--factor-cache`), in the factor cache's folder:
-/// "" the default folder (default_factor_cache_folder(), or none), "off" none, anything else a
+/// "" the default folder (default_factor_cache_folder(), folder_cache.h, or none), "off" none, anything else a
 /// folder. Null: no cache. $VOXELASTIC_FACTOR_CACHE_MIN_S sets min_seconds.
 [[nodiscard]] std::shared_ptr<SurfaceCache> make_surface_cache(const std::string& option);
 

@@ -11,6 +11,7 @@
 
 #include "base/error.h"
 #include "io/model_io.h"
+#include "physics/calibration.h"
 #include "scene/fast_configuration.h"
 #include "scene/palpation_defaults.h"
 #include "scene/scene.h"

@@ -3,8 +3,8 @@
 /// The core's half of the calibration cache (the folder and the file form are
 /// pipeline/io/calibration_cache.h, as the factor cache is split between sim/sparse_factor.h and
 /// pipeline/io/factor_cache.h): what a calibration is the calibration of (CalibrationKey), the
-/// store that keeps calibrations by it (CalibrationCache), and make_physics_model with such a
-/// store. The calibration (physics_model.h) is the same per-element work at every start of the
+/// store that keeps calibrations by it (CalibrationCache; make_physics_model takes one,
+/// calibration.h). The calibration (calibration.h) is the same per-element work at every start of the
 /// same model and material: 2.0 s on both cores for the folded organ (docs/bench.md).
 
 #include <cstdint>
@@ -67,14 +67,5 @@ class CalibrationCache {
   /// Offers the calibration of `key`, just computed in `seconds` (wall time).
   virtual void store(const CalibrationKey& key, const PhysicsModel& physics, double seconds) = 0;
 };
-
-/// make_physics_model (physics_model.h) with a calibration cache (may be null: none): the
-/// calibrated part is loaded from it when it holds this calibration (bit for bit what
-/// calibrating gives: the same arrays, the same steps), else computed and offered to it.
-[[nodiscard]] std::shared_ptr<const PhysicsModel> make_physics_model(std::shared_ptr<const Model> model,
-                                                                     const Material& material,
-                                                                     const MaterialField& field,
-                                                                     const CalibrationOptions& options,
-                                                                     CalibrationCache* cache);
 
 }  // namespace vx

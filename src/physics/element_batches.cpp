@@ -8,9 +8,10 @@
 
 #include "base/error.h"
 #include "base/huge_pages.h"
-#include "physics/elements.h"
+#include "physics/element_pass.h"
 #include "physics/physics_model.h"
 #include "physics/rigid_sums.h"
+#include "physics/rotation_fit.h"
 
 // The lane vectors below never cross a function boundary (everything is always_inline), so the
 // ABI note GCC gives for vector arguments without AVX does not apply.
@@ -139,7 +140,7 @@ VX_INLINE Mat3 rotation_matrix(d4 qx, d4 qy, d4 qz, d4 qw) {
                1.0 - (txx + tyy)}};
 }
 
-/// One evaluation of the rotation fit (fit_rotation, elements.cpp) at the quaternions q for the
+/// One evaluation of the rotation fit (fit_rotation, rotation_fit.cpp) at the quaternions q for the
 /// normalised matrices an: the rotation r, the trace of P = an r^T, the squared moment
 /// imbalance g2, whether the negated Hessian is positive definite, and the Newton step's squared
 /// length and the quaternions it leads to (rotate_by: n = normalise(q + (0, theta / 2) q)).
@@ -259,7 +260,7 @@ VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const 
     if (bt.count[l] > 0 && !finite[l]) ++st.non_finite;
   }
 
-  // the rotation fit (fit_rotation, elements.cpp) as far as almost every element goes in a
+  // the rotation fit (fit_rotation, rotation_fit.cpp) as far as almost every element goes in a
   // running simulation, in lanes: the warm start passes its first test (it maximises tr(Q^T F):
   // moment balance within the tolerance, negated Hessian positive definite), or one Newton step
   // ends the fit (a step short enough, or one after which the test passes); the other lanes

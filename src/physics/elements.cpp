@@ -1,319 +1,26 @@
 #include "physics/elements.h"
 
-#include <Eigen/Cholesky>
-#include <Eigen/Eigenvalues>
 #include <Eigen/LU>
-#include <Eigen/SVD>
 #include <cmath>
 
 #include "base/parallel.h"
 #include "physics/element_batches.h"
+#include "physics/element_law.h"
 #include "physics/rigid_sums.h"
 
 namespace vx {
 
-const char* to_string(ElementKernel k) {
-  switch (k) {
-    case ElementKernel::batched: return "batched";
-    case ElementKernel::packed: return "packed";
-    case ElementKernel::reference: return "reference";
-  }
-  return "?";
-}
-
-void ElementPassStats::add(const ElementPassStats& o) {
-  inverted += o.inverted;
-  unconverged += o.unconverged;
-  rotation_iterations += o.rotation_iterations;
-  non_finite += o.non_finite;
-  elastic_energy += o.elastic_energy;
-}
-
 namespace {
 
-/// q rotated by the small rotation vector theta (applied after q), first order and normalised:
-/// exact direction, angle 2 atan(|theta|/2); no trigonometry.
-Eigen::Quaterniond rotate_by(const Eigen::Quaterniond& q, const Eigen::Vector3d& theta) {
-  const Eigen::Quaterniond dq(0.0, 0.5 * theta.x(), 0.5 * theta.y(), 0.5 * theta.z());
-  Eigen::Quaterniond r = dq * q;
-  r.coeffs() += q.coeffs();
-  r.normalize();
-  return r;
-}
-
-}  // namespace
-
-int fit_rotation(const Eigen::Matrix3d& a, Eigen::Quaterniond& q, const RotationFitSettings& settings,
-                 bool* converged, Eigen::Matrix3d* rotation) {
-  // scale out the size: thresholds are relative
-  const double scale2 = a.squaredNorm();
-  const auto finish = [&](bool ok, int it) {
-    if (converged) *converged = ok;
-    if (rotation) *rotation = q.toRotationMatrix();
-    return it;
-  };
-  if (!std::isfinite(scale2)) return finish(false, 0);
-  if (scale2 < 1e-300) return finish(true, 0);  // collapsed to a point: every rotation fits; keep the warm start
-  const Eigen::Matrix3d an = a * (1.0 / std::sqrt(scale2));
-  const double tol2 = settings.tolerance * settings.tolerance;
-  // from here on r is always q's rotation matrix: the exits hand it out instead of recomputing it
-  Eigen::Matrix3d r = q.toRotationMatrix();
-  const auto done = [&](int it) {
-    if (converged) *converged = true;
-    if (rotation) *rotation = r;
-    return it;
-  };
-  Eigen::Matrix3d p = an * r.transpose();
-  double f = p.trace();
-  int it = 0;
-  for (; it < settings.max_iterations; ++it) {
-    // gradient of tr(Q^T A) over rotations applied after Q: the moment imbalance
-    const Eigen::Vector3d g(p(2, 1) - p(1, 2), p(0, 2) - p(2, 0), p(1, 0) - p(0, 1));
-    // Hessian (negated): h = tr(P) 1 - sym(P); its cofactors give the Sylvester test and the
-    // Newton step at once
-    const double h00 = f - p(0, 0), h11 = f - p(1, 1), h22 = f - p(2, 2);
-    const double h01 = -0.5 * (p(0, 1) + p(1, 0)), h02 = -0.5 * (p(0, 2) + p(2, 0)), h12 = -0.5 * (p(1, 2) + p(2, 1));
-    const double c00 = h11 * h22 - h12 * h12, c01 = h02 * h12 - h01 * h22, c02 = h01 * h12 - h02 * h11;
-    const double det = h00 * c00 + h01 * c01 + h02 * c02;
-    const bool pd = h00 > 1e-6 && h00 * h11 - h01 * h01 > 1e-12 && det > 1e-18;
-    if (g.squaredNorm() <= tol2) {
-      if (pd) return done(it);  // a strict maximum
-      Eigen::Matrix3d h;
-      h << h00, h01, h02, h01, h11, h12, h02, h12, h22;
-      Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
-      eig.computeDirect(h);
-      if (eig.eigenvalues()(0) >= -1e-9) return done(it);  // flat direction of a degenerate A: a maximum too
-      // a saddle or minimum of the trace: half a revolution about the worst axis gains
-      // 2 |u^T h u| exactly
-      const Eigen::Vector3d u = eig.eigenvectors().col(0).normalized();
-      q = Eigen::Quaterniond(0.0, u.x(), u.y(), u.z()) * q;
-      q.normalize();
-      r = q.toRotationMatrix();
-      p = an * r.transpose();
-      f = p.trace();
-      continue;
-    }
-    // Newton where the Hessian is positive definite (quadratic convergence near the optimum)
-    if (pd) {
-      const double c11 = h00 * h22 - h02 * h02, c12 = h01 * h02 - h00 * h12, c22 = h00 * h11 - h01 * h01;
-      Eigen::Vector3d theta(c00 * g.x() + c01 * g.y() + c02 * g.z(), c01 * g.x() + c11 * g.y() + c12 * g.z(),
-                            c02 * g.x() + c12 * g.y() + c22 * g.z());
-      theta *= 1.0 / det;
-      const double len2 = theta.squaredNorm();
-      if (len2 > 1.0) theta *= 1.0 / std::sqrt(len2);  // at most about one radian per iteration
-      const Eigen::Quaterniond qn = rotate_by(q, theta);
-      const Eigen::Matrix3d rn = qn.toRotationMatrix();
-      // a small Newton step leaves an error of order |theta|^2: done without re-evaluating
-      if (len2 <= settings.tolerance) {
-        q = qn;
-        if (rotation) *rotation = rn;
-        if (converged) *converged = true;
-        return it + 1;
-      }
-      const Eigen::Matrix3d pn = an * rn.transpose();
-      const double fn = pn.trace();
-      if (fn >= f - 1e-13) {  // an increase, up to rounding of the trace
-        q = qn;
-        r = rn;
-        p = pn;
-        f = fn;
-        continue;
-      }
-    }
-    // else the exact maximum along the gradient axis u: the trace is
-    // tr P + alpha sin(phi) - beta (1 - cos(phi)), alpha = |g|, beta = u^T h u,
-    // maximal at phi = atan2(alpha, beta) (a half turn or more where the curvature is negative)
-    const double alpha = g.norm();
-    const Eigen::Vector3d u = g / alpha;
-    const double beta = h00 * u.x() * u.x() + h11 * u.y() * u.y() + h22 * u.z() * u.z() +
-                        2.0 * (h01 * u.x() * u.y() + h02 * u.x() * u.z() + h12 * u.y() * u.z());
-    const double half = 0.5 * std::atan2(alpha, beta);
-    const double sh = std::sin(half);
-    q = Eigen::Quaterniond(std::cos(half), sh * u.x(), sh * u.y(), sh * u.z()) * q;
-    q.normalize();
-    r = q.toRotationMatrix();
-    p = an * r.transpose();
-    f = p.trace();
-  }
-  if (converged) *converged = false;
-  if (rotation) *rotation = r;
-  return it;
-}
-
-Eigen::Matrix3d optimal_rotation_svd(const Eigen::Matrix3d& a) {
-  Eigen::JacobiSVD<Eigen::Matrix3d> svd(a, Eigen::ComputeFullU | Eigen::ComputeFullV);
-  Eigen::Matrix3d u = svd.matrixU();
-  const Eigen::Matrix3d v = svd.matrixV();
-  if ((u * v.transpose()).determinant() < 0) u.col(2) *= -1.0;
-  return u * v.transpose();
-}
-
-Eigen::Matrix3d closest_with_determinant(const Eigen::Matrix3d& b, double det, Eigen::Quaterniond& q,
-                                         const RotationFitSettings& settings) {
-  // signed SVD b = U diag(s) V^T with U, V proper: polar rotation + symmetric eigen
-  fit_rotation(b, q, settings);
-  const Eigen::Matrix3d rot = q.toRotationMatrix();
-  Eigen::Matrix3d s = rot.transpose() * b;
-  s = 0.5 * (s + s.transpose());
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
-  eig.computeDirect(s);
-  const Eigen::Vector3d sig = eig.eigenvalues();
-  // closest point x to the singular values (in units where det = 1) on x1 x2 x3 = 1:
-  // Newton on the KKT system x_i - s_i = lambda prod_{j != i} x_j, prod x = 1, started from
-  // the scaled (or sign-repaired) values, which already satisfy the constraint
-  const double unit = std::cbrt(det);
-  const Eigen::Vector3d s0 = sig / unit;
-  const double top = std::max(s0.cwiseAbs().maxCoeff(), 1e-3);
-  Eigen::Vector3d start = s0.cwiseMax(0.1 * top);
-  start /= std::cbrt(start.prod());
-  Eigen::Vector3d x = start;
-  double lambda = 0;
-  bool ok = false;
-  for (int it = 0; it < 30; ++it) {
-    const Eigen::Vector3d pr(x.y() * x.z(), x.x() * x.z(), x.x() * x.y());
-    Eigen::Matrix<double, 4, 1> r;
-    r.head<3>() = x - s0 - lambda * pr;
-    r(3) = x.prod() - 1.0;
-    if (r.cwiseAbs().maxCoeff() < 1e-14) {
-      ok = true;
-      break;
-    }
-    Eigen::Matrix4d jac = Eigen::Matrix4d::Zero();
-    jac.topLeftCorner<3, 3>().setIdentity();
-    jac(0, 1) = jac(1, 0) = -lambda * x.z();
-    jac(0, 2) = jac(2, 0) = -lambda * x.y();
-    jac(1, 2) = jac(2, 1) = -lambda * x.x();
-    jac.block<3, 1>(0, 3) = -pr;
-    jac.block<1, 3>(3, 0) = pr.transpose();
-    const Eigen::Matrix<double, 4, 1> step = jac.fullPivLu().solve(-r);
-    if (!step.allFinite()) break;
-    x += step.head<3>();
-    lambda += step(3);
-  }
-  // a point on the positive branch that is a constrained minimum; else the scaled start
-  if (!ok || (x.array() <= 0).any() || (x - s0).squaredNorm() > (start - s0).squaredNorm()) x = start;
-  const Eigen::Vector3d d = x - s0;
-  const Eigen::Vector3d sp = (s0 + d) * unit;
-  return rot * eig.eigenvectors() * sp.asDiagonal() * eig.eigenvectors().transpose();
-}
-
-int fit_plane_rotation(const Eigen::Matrix3d& a, const Eigen::Matrix3d& frame, Eigen::Quaterniond& q,
-                       bool* converged, Eigen::Matrix3d* rotation) {
-  const auto e = frame.leftCols<2>();
-  const Eigen::Matrix2d a2 = e.transpose() * a * e;
-  const double c = a2(0, 0) + a2(1, 1), s = a2(1, 0) - a2(0, 1);
-  double theta = 0;
-  if (c * c + s * s > 1e-28 * (a2.squaredNorm() + 1e-300) && std::isfinite(c) && std::isfinite(s)) {
-    theta = std::atan2(s, c);
-    q = Eigen::Quaterniond(Eigen::AngleAxisd(theta, frame.col(2)));
-  } else {
-    // no rotational part (collapsed): keep the warm start's angle about the normal
-    const Eigen::Vector3d rotated = q * frame.col(0);
-    theta = std::atan2(rotated.dot(frame.col(1)), rotated.dot(frame.col(0)));
-  }
-  if (rotation) {
-    Eigen::Matrix2d q2;
-    q2 << std::cos(theta), -std::sin(theta), std::sin(theta), std::cos(theta);
-    *rotation = e * q2 * e.transpose();
-  }
-  if (converged) *converged = true;
-  return 1;
-}
-
-Eigen::Matrix3d closest_with_determinant_in_plane(const Eigen::Matrix3d& b, double det, const Eigen::Matrix3d& frame) {
-  // b2 = R S (R the closed-form best rotation, S = R^T b2 symmetric), S = V diag(sig) V^T;
-  // the closest x on x1 x2 = det (units where det = 1): Newton on the KKT system
-  // x_i - s_i = lambda x_j (j != i), x1 x2 = 1, as closest_with_determinant does in 3D
-  const auto e = frame.leftCols<2>();
-  const Eigen::Matrix2d b2 = e.transpose() * b * e;
-  const double c = b2(0, 0) + b2(1, 1), sn = b2(1, 0) - b2(0, 1);
-  const double theta = (c * c + sn * sn > 0) ? std::atan2(sn, c) : 0.0;
-  Eigen::Matrix2d rot;
-  rot << std::cos(theta), -std::sin(theta), std::sin(theta), std::cos(theta);
-  Eigen::Matrix2d sym = rot.transpose() * b2;
-  sym = 0.5 * (sym + sym.transpose());
-  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> eig(sym);
-  const double unit = std::sqrt(det);
-  const Eigen::Vector2d s0 = eig.eigenvalues() / unit;
-  const double top = std::max(s0.cwiseAbs().maxCoeff(), 1e-3);
-  Eigen::Vector2d start = s0.cwiseMax(0.1 * top);
-  start /= std::sqrt(start.prod());
-  Eigen::Vector2d x = start;
-  double lambda = 0;
-  bool ok = false;
-  for (int it = 0; it < 30; ++it) {
-    const Eigen::Vector3d r(x.x() - s0.x() - lambda * x.y(), x.y() - s0.y() - lambda * x.x(), x.prod() - 1.0);
-    if (r.cwiseAbs().maxCoeff() < 1e-14) {
-      ok = true;
-      break;
-    }
-    Eigen::Matrix3d jac;
-    jac << 1.0, -lambda, -x.y(),  //
-        -lambda, 1.0, -x.x(),     //
-        x.y(), x.x(), 0.0;
-    const Eigen::Vector3d step = jac.fullPivLu().solve(-r);
-    if (!step.allFinite()) break;
-    x += step.head<2>();
-    lambda += step(2);
-  }
-  if (!ok || (x.array() <= 0).any() || (x - s0).squaredNorm() > (start - s0).squaredNorm()) x = start;
-  const Eigen::Matrix2d x2 = rot * eig.eigenvectors() * (x * unit).asDiagonal() * eig.eigenvectors().transpose();
-  return e * x2 * e.transpose();
-}
-
-int fit_element_rotation(const PhysicsModel& phys, const Eigen::Matrix3d& a, Eigen::Quaterniond& q,
-                         const RotationFitSettings& settings, bool* converged, Eigen::Matrix3d* rotation) {
-  if (phys.is_2d()) return fit_plane_rotation(a, phys.plane_frame, q, converged, rotation);
-  return fit_rotation(a, q, settings, converged, rotation);
-}
-
-Eigen::Matrix3d element_closest_with_determinant(const PhysicsModel& phys, const Eigen::Matrix3d& b, double det,
-                                                 Eigen::Quaterniond& q, const RotationFitSettings& settings) {
-  if (phys.is_2d()) return closest_with_determinant_in_plane(b, det, phys.plane_frame);
-  return closest_with_determinant(b, det, q, settings);
-}
-
-double element_determinant(const PhysicsModel& phys, const Eigen::Matrix3d& f) {
-  if (!phys.is_2d()) return f.determinant();
-  const auto e = phys.plane_frame.leftCols<2>();
-  return (e.transpose() * f * e).determinant();
-}
-
-namespace {
-
-/// The reference element kernel for elements [e0, e1) (ElementKernel::reference): writes 3
-/// doubles per vertex entry. Vertex i has weight w_i and weighted rest offset R0'_i = w_i R0_i
-/// (material.h). Each loop over the vertices keeps at most ~16 values live, so that baseline
-/// x86-64 (16 SSE registers) does not spill: elastic and damping parts run as separate loops,
-/// each gathering the positions again and reading the per-entry constants from separate arrays.
-/// The element's best rigid velocity (damping): from the weighted sums of velocities (sv),
-/// angular momenta (l) and second moments (i) of the offsets y = x - x0, about the centroid c
-/// (relative to x0): the centroid velocity vc and the angular velocity omega (zero for a
-/// collapsed or collinear element).
-inline void rigid_velocity(const RigidSums<double>& r, double sw, double inv_w, const Eigen::Vector3d& c,
-                           Eigen::Vector3d& vc, Eigen::Vector3d& omega) {
-  vc = Eigen::Vector3d(r.svx * inv_w, r.svy * inv_w, r.svz * inv_w);
-  const Eigen::Vector3d ang = Eigen::Vector3d(r.lx, r.ly, r.lz) - sw * c.cross(vc);
-  Eigen::Matrix3d yy;
-  yy << r.ixx, r.ixy, r.ixz, r.ixy, r.iyy, r.iyz, r.ixz, r.iyz, r.izz;
-  yy -= sw * c * c.transpose();  // sum w r r^T about the centroid
-  Eigen::Matrix3d inertia = -yy;
-  const double tr = yy.trace();
-  inertia.diagonal().array() += tr * (1.0 + 1e-10);  // + tiny regularisation (collinear)
-  omega.setZero();
-  if (tr > 0) omega = inertia.inverse() * ang;
-  if (!omega.allFinite()) omega.setZero();
-}
-
-/// The per-element 3 x 3 work shared by both kernels: the warm-started rotation fit of F and
-/// the matrices of the force f_i = M R0'_i - k_tot w_i (x_i - c) + G g_i,
-///   G = 2 mu V (Q - F) + k (A - F C0) (+ k_v (T - F)),  M = k F,  k_tot = k
-/// (T: the volume term's closest matrix to the consistent F with det T = 1; docs/model.md
-/// section 5, "Locking").
+/// The per-element 3 x 3 work of the scalar kernels: the warm-started rotation fit of F (q),
+/// the volume term's closest matrix T to F with det T = 1 (t; docs/model.md section 5,
+/// "Locking"), and the matrices of the force (element_law.h, element_stress: G and M; G with
+/// the volume term's k_v (T - F)).
 template <bool kVolume>
 struct ElementMatrices {
-  Eigen::Matrix3d q, gm, mq, t;
-  double k{0}, ktot{0}, wv{0};
+  Eigen::Matrix3d q, t;
+  double wv{0};
+  law::ElementForce<double> force;
 
   ElementMatrices(const PhysicsModel& phys, std::int64_t e, const Eigen::Matrix3d& a, const Eigen::Matrix3d& fg,
                   Eigen::Quaterniond& rot, const RotationFitSettings& fit, ElementPassStats& st) {
@@ -321,15 +28,21 @@ struct ElementMatrices {
     st.rotation_iterations += fit_element_rotation(phys, fg, rot, fit, &conv, &q);
     st.unconverged += conv ? 0 : 1;
     if (element_determinant(phys, fg) <= 0.0) ++st.inverted;
-    k = phys.element_stiffness[std::size_t(e)];
-    gm = phys.element_affine_stiffness[std::size_t(e)] * (q - fg) + k * (a - fg * phys.element_spread[std::size_t(e)]);
-    mq = k * fg;
-    ktot = k;
+    const Eigen::Matrix3d& c0 = phys.element_spread[std::size_t(e)];
+    double ar[9], fr[9], qr[9], cr[9];  // row-major
+    for (int i = 0; i < 9; ++i) {
+      ar[i] = a(i / 3, i % 3);
+      fr[i] = fg(i / 3, i % 3);
+      qr[i] = q(i / 3, i % 3);
+      cr[i] = c0(i / 3, i % 3);
+    }
+    law::element_stress(ar, fr, qr, cr, phys.element_stiffness[std::size_t(e)],
+                        phys.element_affine_stiffness[std::size_t(e)], force);
     if constexpr (kVolume) {
       wv = phys.element_volume_stiffness[std::size_t(e)];
       Eigen::Quaterniond qv = rot;
       t = element_closest_with_determinant(phys, fg, 1.0, qv, fit);
-      gm += wv * (t - fg);
+      for (int i = 0; i < 9; ++i) force.g[i] += wv * (t(i / 3, i % 3) - fg(i / 3, i % 3));
     }
   }
 };
@@ -370,6 +83,13 @@ double add_volume_point_forces(const PhysicsModel& phys, const double* xs, std::
   return en;
 }
 
+/// The reference element kernel for elements [e0, e1) (ElementKernel::reference): writes 3
+/// doubles per vertex entry. Vertex i has weight w_i and weighted rest offset R0'_i = w_i R0_i
+/// (material.h). Each loop over the vertices keeps at most ~16 values live, so that baseline
+/// x86-64 (16 SSE registers) does not spill: elastic and damping parts run as separate loops,
+/// each gathering the positions again and reading the per-entry constants from separate arrays.
+/// The element's law (G, M, the rigid velocity) is element_law.h's, as in the other kernels;
+/// the per-entry terms are written out here loop by loop (entry_force sums them in one).
 template <bool kDamping, bool kEnergy, bool kVolume, bool kModes>
 void element_range_reference(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot,
                    double* ef, double* energy_out, std::int64_t e0, std::int64_t e1,
@@ -423,18 +143,20 @@ void element_range_reference(const PhysicsModel& phys, const double* xs, const d
       if constexpr (kEnergy) energy_out[e] = 0.0;
       continue;
     }
-    const ElementMatrices<kVolume> em(phys, e, a, fg, rot[e], fit, st);
-    const Eigen::Matrix3d &q = em.q, &gm = em.gm, &mq = em.mq, &t = em.t;
-    const double k = em.k, ktot = em.ktot, wv = em.wv;
-    // pass 2: elastic force f = M R0' - w ktot (x - c)   (M = k F + k_v T, R0' = w R0)
+    ElementMatrices<kVolume> em(phys, e, a, fg, rot[e], fit, st);
+    const Eigen::Matrix3d &q = em.q, &t = em.t;
+    const double k = em.force.k, wv = em.wv;
+    const double* mq = em.force.m;
+    const double* gm = em.force.g;
+    // pass 2: elastic force f = M R0' - w k (x - c)   (M = k F, R0' = w R0)
     {
-      const double m00 = mq(0, 0), m01 = mq(0, 1), m02 = mq(0, 2), m10 = mq(1, 0), m11 = mq(1, 1),
-                   m12 = mq(1, 2), m20 = mq(2, 0), m21 = mq(2, 1), m22 = mq(2, 2);
+      const double m00 = mq[0], m01 = mq[1], m02 = mq[2], m10 = mq[3], m11 = mq[4], m12 = mq[5], m20 = mq[6],
+                   m21 = mq[7], m22 = mq[8];
       const double cx = ox + c.x(), cy = oy + c.y(), cz = oz + c.z();
       for (int j = b; j < b + n; ++j) {
         const double* xp = xs + 3 * std::int64_t(vert[j]);
         const double* r0 = r0s + 3 * std::int64_t(j);
-        const double kw = ktot * wts[j];
+        const double kw = k * wts[j];
         double* out = ef + 3 * std::int64_t(slot[j]);
         out[0] = m00 * r0[0] + m01 * r0[1] + m02 * r0[2] - kw * (xp[0] - cx);
         out[1] = m10 * r0[0] + m11 * r0[1] + m12 * r0[2] - kw * (xp[1] - cy);
@@ -452,8 +174,8 @@ void element_range_reference(const PhysicsModel& phys, const double* xs, const d
     }
     // pass 2b: f += G g
     {
-      const double g00 = gm(0, 0), g01 = gm(0, 1), g02 = gm(0, 2), g10 = gm(1, 0), g11 = gm(1, 1),
-                   g12 = gm(1, 2), g20 = gm(2, 0), g21 = gm(2, 1), g22 = gm(2, 2);
+      const double g00 = gm[0], g01 = gm[1], g02 = gm[2], g10 = gm[3], g11 = gm[4], g12 = gm[5], g20 = gm[6],
+                   g21 = gm[7], g22 = gm[8];
       for (int j = b; j < b + n; ++j) {
         const double* g = gs + 3 * std::int64_t(j);
         double* out = ef + 3 * std::int64_t(slot[j]);
@@ -474,12 +196,11 @@ void element_range_reference(const PhysicsModel& phys, const double* xs, const d
         rs.add(wts[j], xp[0] - ox, xp[1] - oy, xp[2] - oz, vp[0], vp[1], vp[2]);
       }
       const double cd = phys.element_damping[std::size_t(e)];
-      Eigen::Vector3d vc, omega;
-      rigid_velocity(rs, sw, inv_w, c, vc, omega);
+      law::rigid_velocity(rs, sw, inv_w, c.x(), c.y(), c.z(), em.force);
       // pass 4: f += c w (v_c + omega x r - v)
-      const double wx = omega.x(), wy = omega.y(), wz = omega.z();
+      const double wx = em.force.omega[0], wy = em.force.omega[1], wz = em.force.omega[2];
       const double cx = ox + c.x(), cy = oy + c.y(), cz = oz + c.z();
-      const double ux = vc.x(), uy = vc.y(), uz = vc.z();
+      const double ux = em.force.vc[0], uy = em.force.vc[1], uz = em.force.vc[2];
       for (int j = b; j < b + n; ++j) {
         const double* xp = xs + 3 * std::int64_t(vert[j]);
         const double* vp = vs + 3 * std::int64_t(vert[j]);
@@ -591,59 +312,36 @@ void element_range_packed(const PhysicsModel& phys, const double* xs, const doub
       if constexpr (kEnergy) energy_out[e] = 0.0;
       continue;
     }
-    const ElementMatrices<kVolume> em(phys, e, a, fg, rot[e], fit, st);
-    const Eigen::Matrix3d &q = em.q, &gm = em.gm, &mq = em.mq, &t = em.t;
-    const double k = em.k, ktot = em.ktot, wv = em.wv;
+    ElementMatrices<kVolume> em(phys, e, a, fg, rot[e], fit, st);
+    const Eigen::Matrix3d &q = em.q, &t = em.t;
+    const double k = em.force.k, wv = em.wv;
     // the bending modes' amplitudes (a loop of its own: a separate stream of constants)
     Eigen::Matrix<double, 3, kBendingModes> qm;
     if constexpr (kModes) qm = mode_amplitudes(phys, xs, m.element_vertices.data(), b, n, Eigen::Vector3d(ox, oy, oz));
     // the rigid velocity fit about the centroid (damping)
-    double cd = 0, wx = 0, wy = 0, wz = 0, ux = 0, uy = 0, uz = 0;
     if constexpr (kDamping) {
-      cd = phys.element_damping[std::size_t(e)];
-      Eigen::Vector3d vc, omega;
-      rigid_velocity(rs, sw, inv_w, c, vc, omega);
-      wx = omega.x(), wy = omega.y(), wz = omega.z();
-      ux = vc.x(), uy = vc.y(), uz = vc.z();
+      em.force.damping = phys.element_damping[std::size_t(e)];
+      law::rigid_velocity(rs, sw, inv_w, c.x(), c.y(), c.z(), em.force);
     }
-    // pass 2: f = M R0' - w ktot (x - c) + G g  (M = k F + k_v T, R0' = w R0)
-    //           [+ c w (v_c + omega x r - v)], summed in the reference kernel's order
+    // pass 2: each entry's force (element_law.h, entry_force: f = M R0' - w k (x - c) + G g
+    // [+ modes] [+ c w (v_c + omega x r - v)]), written once
     {
-      const double m00 = mq(0, 0), m01 = mq(0, 1), m02 = mq(0, 2), m10 = mq(1, 0), m11 = mq(1, 1),
-                   m12 = mq(1, 2), m20 = mq(2, 0), m21 = mq(2, 1), m22 = mq(2, 2);
-      const double g00 = gm(0, 0), g01 = gm(0, 1), g02 = gm(0, 2), g10 = gm(1, 0), g11 = gm(1, 1),
-                   g12 = gm(1, 2), g20 = gm(2, 0), g21 = gm(2, 1), g22 = gm(2, 2);
       const double cx = ox + c.x(), cy = oy + c.y(), cz = oz + c.z();
       for (int j = 0; j < n; ++j) {
         const PackedEntry& en = pe[j];
         const double* xp = xs + 3 * std::int64_t(en.vertex);
-        const double* r0 = en.rest_weighted;
-        const double* g = en.gradient;
-        const double kw = ktot * en.weight;
-        const double rx = xp[0] - cx, ry = xp[1] - cy, rz = xp[2] - cz;
-        double o0 = m00 * r0[0] + m01 * r0[1] + m02 * r0[2] - kw * rx;
-        double o1 = m10 * r0[0] + m11 * r0[1] + m12 * r0[2] - kw * ry;
-        double o2 = m20 * r0[0] + m21 * r0[1] + m22 * r0[2] - kw * rz;
-        o0 += g00 * g[0] + g01 * g[1] + g02 * g[2];
-        o1 += g10 * g[0] + g11 * g[1] + g12 * g[2];
-        o2 += g20 * g[0] + g21 * g[1] + g22 * g[2];
-        if constexpr (kModes) {
-          const Eigen::Vector3d fm = qm * phys.entry_modes.col(b + j);
-          o0 += fm.x();
-          o1 += fm.y();
-          o2 += fm.z();
-        }
+        const double r[3] = {xp[0] - cx, xp[1] - cy, xp[2] - cz};
+        double fm[3] = {0.0, 0.0, 0.0}, v[3] = {0.0, 0.0, 0.0}, o[3];
+        if constexpr (kModes) Eigen::Vector3d::Map(fm) = qm * phys.entry_modes.col(b + j);
         if constexpr (kDamping) {
           const double* vp = vs + 3 * std::int64_t(en.vertex);
-          const double cw = cd * en.weight;
-          o0 += cw * (ux + wy * rz - wz * ry - vp[0]);
-          o1 += cw * (uy + wz * rx - wx * rz - vp[1]);
-          o2 += cw * (uz + wx * ry - wy * rx - vp[2]);
+          v[0] = vp[0], v[1] = vp[1], v[2] = vp[2];
         }
+        law::entry_force<kModes, kDamping>(em.force, en.rest_weighted, en.gradient, en.weight, r, fm, v, o);
         double* out = ef + 3 * std::int64_t(en.slot);
-        out[0] = o0;
-        out[1] = o1;
-        out[2] = o2;
+        out[0] = o[0];
+        out[1] = o[1];
+        out[2] = o[2];
       }
     }
     double point_energy = 0;

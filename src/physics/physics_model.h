@@ -1,7 +1,7 @@
 #pragma once
 /// @file physics_model.h
 /// The immutable physical model: a Model calibrated with a Material (docs/model.md sections 5
-/// and 6), and its factory make_physics_model().
+/// and 6). Its factory, make_physics_model(), is calibration.h (above the element pass it uses).
 ///
 /// Vertex weights. The paper's element weights its vertices equally, but the gradational
 /// layout places vertices asymmetrically (dense where smaller neighbours share their nodes),
@@ -242,28 +242,5 @@ struct PhysicsModel {
   /// Total mass, kg.
   [[nodiscard]] double total_mass_kg() const;
 };
-
-/// Per node, the Gershgorin row sums of the linearised system (docs/model.md section 7):
-/// sk_i = sum_e (|K_e| row sum at i + 2 w_i (1 - w_i/W_e) k_v,e) (N/mm; K_e the paper's element
-/// matrix, unrelieved: an upper bound of the hourglass element's) and
-/// sc_i = sum_e 2 w_i (1 - w_i/W_e) c_e (N*s/mm). omega_i^2 <= sk_i / m_i, gamma_i <= sc_i / m_i.
-void node_gershgorin_sums(const PhysicsModel& physics, std::vector<double>& sk, std::vector<double>& sc);
-
-/// The physical mass of node i for a symplectic Euler step of at least `dt` (s) at that node:
-/// m >= D^2 sk / 4 + D sc / 2 with D = dt (the inverse of the undamped-or-damped bound
-/// dt <= (sqrt(4 sk m + sc^2) - sc) / sk), N*s^2/mm.
-[[nodiscard]] double mass_for_time_step(double sk, double sc, double dt);
-
-/// Calibrates `model` (finalized: rest_offsets, element volumes) with `material` and optional
-/// per-element overrides. Throws vx::Error for an invalid material, an override of the wrong
-/// size or with non-positive values, or an empty/inconsistent model.
-[[nodiscard]] std::shared_ptr<const PhysicsModel> make_physics_model(
-    std::shared_ptr<const Model> model, const Material& material, const MaterialField& field = {},
-    const CalibrationOptions& options = {});
-
-/// Convenience: copies `model` into shared ownership.
-[[nodiscard]] std::shared_ptr<const PhysicsModel> make_physics_model(
-    const Model& model, const Material& material, const MaterialField& field = {},
-    const CalibrationOptions& options = {});
 
 }  // namespace vx

@@ -9,7 +9,7 @@
 
 #include "base/content_hash.h"
 #include "model/gradational_builder.h"
-#include "physics/physics_model.h"
+#include "physics/calibration.h"
 
 namespace vx {
 

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <vector>
 
+#include "physics/calibration.h"
 #include "physics/elements.h"
 
 namespace vx {

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "model/gradational_builder.h"
+#include "physics/calibration.h"
 #include "physics/physics_model.h"
 #include "sim/simulation.h"
 #include "sim/time_step.h"

@@ -14,6 +14,7 @@
 #include "haptics/local_compliance.h"
 #include "haptics/local_contact.h"
 #include "model/gradational_builder.h"
+#include "physics/calibration.h"
 #include "sim/simulation.h"
 #include "support/allocation_counter.h"
 

@@ -8,6 +8,7 @@
 #include <iostream>
 
 #include "model/gradational_builder.h"
+#include "physics/calibration.h"
 #include "sim/integrators.h"
 #include "sim/static_solver.h"
 #include "support/physics_helpers.h"

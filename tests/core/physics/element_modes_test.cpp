@@ -14,6 +14,7 @@
 #include "base/error.h"
 #include "model/gradational_builder.h"
 #include "model/voxel_shapes.h"
+#include "physics/calibration.h"
 #include "physics/elements.h"
 #include "sim/integrators.h"
 #include "sim/static_solver.h"

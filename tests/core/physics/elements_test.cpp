@@ -12,6 +12,7 @@
 #include "base/parallel.h"
 #include "model/gradational_builder.h"
 #include "model/voxel_shapes.h"
+#include "physics/calibration.h"
 #include "physics/element_batches.h"
 #include "sim/state.h"
 #include "support/physics_helpers.h"

@@ -9,6 +9,7 @@
 
 #include "base/error.h"
 #include "model/gradational_builder.h"
+#include "physics/calibration.h"
 #include "physics/elements.h"
 #include "sim/state.h"
 #include "support/physics_helpers.h"

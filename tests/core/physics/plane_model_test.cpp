@@ -16,6 +16,7 @@
 
 #include "base/error.h"
 #include "model/gradational_builder.h"
+#include "physics/calibration.h"
 #include "physics/element_gradient.h"
 #include "physics/elements.h"
 #include "sim/simulation.h"

@@ -16,6 +16,7 @@
 #include "sim/integrators.h"
 #include "sim/simulation.h"
 
+#include "physics/calibration.h"
 #include "support/allocation_counter.h"
 
 using namespace vx;

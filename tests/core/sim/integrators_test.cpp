@@ -19,6 +19,7 @@
 #include "model/voxel_shapes.h"
 #include "support/physics_helpers.h"
 
+#include "physics/calibration.h"
 #include "support/allocation_counter.h"
 
 namespace vx {

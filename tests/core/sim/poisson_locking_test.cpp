@@ -15,6 +15,7 @@
 #include <numbers>
 
 #include "model/gradational_builder.h"
+#include "physics/calibration.h"
 #include "physics/elements.h"
 #include "physics/material.h"
 #include "sim/simulation.h"

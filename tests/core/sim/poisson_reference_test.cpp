@@ -11,6 +11,7 @@
 #include <string>
 
 #include "model/gradational_builder.h"
+#include "physics/calibration.h"
 #include "physics/elements.h"
 #include "physics/material.h"
 #include "physics/physics_model.h"

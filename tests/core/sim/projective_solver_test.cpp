@@ -14,6 +14,7 @@
 #include <memory>
 
 #include "base/error.h"
+#include "physics/calibration.h"
 #include "sim/integrators.h"
 #include "sim/state.h"
 #include "sim/static_solver.h"

@@ -294,6 +294,7 @@ TEST(RegionalSolve, PartialSolvesAreExactOnTheirRows) {
 }  // namespace
 }  // namespace vx
 
+#include "physics/calibration.h"
 #include "sim/simulation.h"
 
 namespace vx {

@@ -12,6 +12,7 @@
 #include <cmath>
 #include <iostream>
 
+#include "physics/calibration.h"
 #include "sim/integrators.h"
 #include "sim/projective_solver.h"
 #include "sim/state.h"

@@ -6,6 +6,7 @@
 #include <cstdio>
 
 #include "model/gradational_builder.h"
+#include "physics/calibration.h"
 #include "sim/simulation.h"
 
 using namespace vx;

@@ -13,6 +13,7 @@
 
 #include "base/content_hash.h"
 #include "model/gradational_builder.h"
+#include "physics/calibration.h"
 #include "physics/physics_model.h"
 #include "sim/sparse_factor.h"
 #include "support/physics_helpers.h"

@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include "base/error.h"
+#include "physics/calibration.h"
 #include "support/physics_helpers.h"
 
 namespace vx {
