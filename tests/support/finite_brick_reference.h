@@ -20,10 +20,16 @@
 /// (0, 0, H + R - d). Every top node gets the penalty energy kp/2 max(0, R - |x_i - c|)^2 with
 /// kp = `penalty_n_mm` (N/mm): its push kp g_i n_i along the sphere's normal n_i = (x_i - c) /
 /// |x_i - c| at the node's current position, frictionless; the depth grows in `steps` equal
-/// steps, each solved by Newton's method on the total energy (the exact Hessian; a backtracking
-/// line search on the energy; a diagonal shift when a Hessian is not positive definite) to a
-/// residual below `residual_n`. The force is the vertical part of the pushes (x 4 with the
-/// quarter), recorded at every step's depth. Units: mm, N, kPa.
+/// steps (each started from the last step's change again), each solved by Newton's method on the
+/// total energy to a residual below `residual_n`: the penalty on an active set of nodes (its
+/// quadratic continued past the surface, so the energy is smooth), a node that goes inside
+/// joining at once and the set taken anew from the solution until it does not change; the exact
+/// Hessian (its contact part's indefinite term capped), solved by conjugate gradients
+/// preconditioned with a factor of an earlier Hessian of the step (factored anew when they stall;
+/// a diagonal shift when a Hessian is not positive definite); a backtracking line search on the
+/// energy. The force is the vertical part of the pushes (x 4 with the quarter), recorded at every
+/// step's depth. The law: `FiniteMaterial` (the element above, or corotational_brick_energy).
+/// Units: mm, N, kPa.
 #include <Eigen/Core>
 #include <Eigen/Dense>
 #include <Eigen/SparseCore>
@@ -417,6 +423,10 @@ inline FinitePressResult finite_brick_press(const FinitePress& s, double nu) {
         if (floor && g.cwiseAbs().maxCoeff() < 100 * s.residual_n) break;  // converged to rounding
         if (floor) trial = x + dx;
         x = trial;
+        // a node that went inside the sphere joins at once (it would sink freely until the set's
+        // next update); nodes leave only when a set has converged
+        for (std::size_t q = 0; q < top.size(); ++q)
+          if (!active[q] && inside(q)) active[q] = 1;
         if (log)
           std::fprintf(stderr, "step %d round %d it %d residual %.3e shift %.1e length %.3g at %.2f s\n", step, round,
                        it, g.cwiseAbs().maxCoeff(), shift, step_length,

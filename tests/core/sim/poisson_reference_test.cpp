@@ -264,7 +264,7 @@ TEST(FiniteBrickReference, LinearisedAtRestIsTheBBarBrickAndItsDerivativesAreExa
 // The finite-strain reference pressed (prints, asserts nothing): F(nu) / F(0) over the finite
 // layer's ratio at each depth step. Run with --gtest_also_run_disabled_tests and, optionally,
 // VX_VOXEL, VX_DEPTH (mm), VX_STEPS, VX_PENALTY (N/mm), VX_NU (one ratio only), VX_COROTATIONAL
-// (the corotational law instead of the neo-Hookean).
+// (the corotational law instead of the neo-Hookean), VX_ONLY_NU (one ratio's forces, no F(0)).
 TEST(FiniteBrickReference, DISABLED_Measure) {
   FinitePress s;
   if (const char* v = std::getenv("VX_VOXEL")) s.voxel_mm = std::atof(v);
@@ -272,6 +272,13 @@ TEST(FiniteBrickReference, DISABLED_Measure) {
   if (const char* v = std::getenv("VX_STEPS")) s.steps = std::atoi(v);
   if (const char* v = std::getenv("VX_PENALTY")) s.penalty_n_mm = std::atof(v);
   if (std::getenv("VX_COROTATIONAL")) s.material = testing::FiniteMaterial::corotational;
+  if (const char* v = std::getenv("VX_ONLY_NU")) {  // that ratio's forces only (no F(0))
+    const auto r = finite_brick_press(s, std::atof(v));
+    for (std::size_t k = 0; k < r.depth_mm.size(); ++k)
+      std::cout << "MEASURE finite nu " << v << " depth " << r.depth_mm[k] << ": F " << r.force_n[k] << " newton "
+                << r.newton_iterations[k] << " s " << r.total_s << std::endl;
+    return;
+  }
   const auto r0 = finite_brick_press(s, 0.0);
   std::cout << "MEASURE finite voxel " << s.voxel_mm << " dofs " << r0.dofs << " s " << r0.total_s << "\n";
   for (std::size_t k = 0; k < r0.depth_mm.size(); ++k)
