@@ -208,7 +208,7 @@ TEST(PoissonLocking, ClampedBarBulgesByPoissonsRatio) {
 // vertical contact on the same mesh 0.951. So the model's press agrees with the reference to
 // 2 % in F(0) and 1 % in the ratio: its ratio below the finite layer's is what finite strain and
 // the sphere's normal contact give on this mesh (a / R = 0.71 at 2 mm depth), not a defect. On
-// 1 mm voxels (FiniteBrickReference.DISABLED_Measure, about 10 min per ratio) the reference
+// 1 mm voxels (FiniteBrickReference.DISABLED_Measure, 4 to 10 min per ratio) the reference
 // reads 0.838 and the model 0.837.
 TEST(PoissonLocking, ModelPressMatchesTheFiniteStrainReference) {
   const double voxel_mm = 2.0,
