@@ -18,6 +18,7 @@
 #include "scene/sim_output.h"
 #include "sim/state.h"
 #include "support/brick_reference.h"
+#include "support/finite_brick_reference.h"
 #include "support/physics_helpers.h"
 
 namespace vx {
@@ -28,6 +29,11 @@ using testing::brick_stiffness;
 using testing::BrickIntegration;
 using testing::BrickMatrix;
 using testing::BrickPress;
+using testing::finite_brick_energy;
+using testing::finite_brick_press;
+using testing::FiniteBrickMatrix;
+using testing::FiniteBrickVector;
+using testing::FinitePress;
 
 constexpr double kR = 4.0, kDepth = 2.0, kH = 16.0;
 
@@ -139,8 +145,8 @@ testing::BrickPressResult linearised_model_press(Layout layout, double nu, const
   return testing::press_with_matrix(a, rows, normal, need, 1.0);
 }
 
-double finite_layer_ratio(double nu) {
-  return hertz_bonded_layer_n(10, nu, kR, kDepth, kH) / hertz_bonded_layer_n(10, 0.0, kR, kDepth, kH);
+double finite_layer_ratio(double nu, double depth_mm = kDepth) {
+  return hertz_bonded_layer_n(10, nu, kR, depth_mm, kH) / hertz_bonded_layer_n(10, 0.0, kR, depth_mm, kH);
 }
 
 }  // namespace
@@ -204,6 +210,92 @@ TEST(BrickReference, PressOnOneMillimetreVoxels) {
   const double full49 = brick_press(s, 0.49).force_n;  // its F(0) is 1.009 times the B-bar's
   std::cout << "fully integrated, 1 mm: F(0.49) / the B-bar's " << full49 / r49.force_n << "\n";
   EXPECT_GT(full49 / r49.force_n, 1.08);  // it locks
+}
+
+// The finite-strain brick (support/finite_brick_reference.h): linearised at rest it is the B-bar
+// brick exactly; its gradient and Hessian are the energy's (central differences at a finite,
+// non-uniform deformation, nu = 0.49); it keeps rigid motion free at finite rotation.
+TEST(FiniteBrickReference, LinearisedAtRestIsTheBBarBrickAndItsDerivativesAreExact) {
+  const double h = 0.7, e = 0.01, nu = 0.49, mu = e / (2 * (1 + nu)), lambda = e * nu / ((1 + nu) * (1 - 2 * nu));
+  FiniteBrickVector g;
+  FiniteBrickMatrix k;
+  EXPECT_EQ(finite_brick_energy(FiniteBrickVector::Zero(), h, mu, lambda, &g, &k), 0.0);
+  EXPECT_LT(g.cwiseAbs().maxCoeff(), 1e-18);
+  const BrickMatrix bbar = brick_stiffness(h, mu, lambda, BrickIntegration::bbar);
+  EXPECT_LT((k - bbar).cwiseAbs().maxCoeff(), 1e-12 * bbar.cwiseAbs().maxCoeff());
+  // a finite rotation (0.6 rad) and shift: no energy, no force
+  const Eigen::Matrix3d turn = Eigen::AngleAxisd(0.6, Eigen::Vector3d(1, 2, 2).normalized()).toRotationMatrix();
+  const FiniteBrickVector rigid = displacement_of(h, turn - Eigen::Matrix3d::Identity(), {0.3, -0.1, 0.2});
+  EXPECT_NEAR(finite_brick_energy(rigid, h, mu, lambda, &g), 0.0, 1e-15);
+  EXPECT_LT(g.cwiseAbs().maxCoeff(), 1e-15);
+  // a finite non-uniform deformation: about 20 % strains, a corner pushed in
+  Eigen::Matrix3d grad;
+  grad << 0.15, 0.05, -0.1, 0.02, -0.2, 0.08, 0.1, 0.0, -0.25;
+  FiniteBrickVector u = displacement_of(h, grad, {0, 0, 0});
+  u.segment<3>(21) += Eigen::Vector3d(-0.05, 0.03, -0.08);
+  for (const auto energy : {&finite_brick_energy, &testing::corotational_brick_energy}) {
+    energy(u, h, mu, lambda, &g, &k);
+    const double step = 1e-6;
+    double worst_g = 0, worst_k = 0;
+    for (int b = 0; b < 24; ++b) {
+      FiniteBrickVector up = u, down = u, gp, gm;
+      up(b) += step;
+      down(b) -= step;
+      const double fd =
+          (energy(up, h, mu, lambda, &gp, nullptr) - energy(down, h, mu, lambda, &gm, nullptr)) / (2 * step);
+      worst_g = std::max(worst_g, std::abs(fd - g(b)));
+      worst_k = std::max(worst_k, ((gp - gm) / (2 * step) - k.col(b)).cwiseAbs().maxCoeff());
+    }
+    EXPECT_LT(worst_g, 1e-7 * g.cwiseAbs().maxCoeff());
+    EXPECT_LT(worst_k, 1e-6 * k.cwiseAbs().maxCoeff());
+    EXPECT_LT((k - k.transpose()).cwiseAbs().maxCoeff(), 1e-9 * k.cwiseAbs().maxCoeff());
+  }
+  // the corotational law at rest: linear elasticity's energy under a uniform strain, no force
+  // under a finite rotation
+  const FiniteBrickVector strain = displacement_of(h, 1e-3 * (grad + grad.transpose()), {0, 0, 0});
+  testing::corotational_brick_energy(FiniteBrickVector::Zero(), h, mu, lambda, &g, &k);
+  const Eigen::Matrix3d eps = 1e-3 * (grad + grad.transpose());
+  EXPECT_NEAR(0.5 * strain.dot(k * strain) /
+                  (h * h * h * (mu * (eps.array() * eps.array()).sum() + 0.5 * lambda * eps.trace() * eps.trace())),
+              1.0, 1e-9);
+  EXPECT_NEAR(testing::corotational_brick_energy(rigid, h, mu, lambda, &g), 0.0, 1e-15);
+  EXPECT_LT(g.cwiseAbs().maxCoeff(), 1e-15);
+}
+
+// The finite-strain reference pressed (prints, asserts nothing): F(nu) / F(0) over the finite
+// layer's ratio at each depth step. Run with --gtest_also_run_disabled_tests and, optionally,
+// VX_VOXEL, VX_DEPTH (mm), VX_STEPS, VX_PENALTY (N/mm), VX_NU (one ratio only), VX_COROTATIONAL
+// (the corotational law instead of the neo-Hookean), VX_ONLY_NU (one ratio's forces, no F(0)).
+TEST(FiniteBrickReference, DISABLED_Measure) {
+  FinitePress s;
+  if (const char* v = std::getenv("VX_VOXEL")) s.voxel_mm = std::atof(v);
+  if (const char* v = std::getenv("VX_DEPTH")) s.depth_mm = std::atof(v);
+  if (const char* v = std::getenv("VX_STEPS")) s.steps = std::atoi(v);
+  if (const char* v = std::getenv("VX_PENALTY")) s.penalty_n_mm = std::atof(v);
+  if (std::getenv("VX_COROTATIONAL")) s.material = testing::FiniteMaterial::corotational;
+  if (const char* v = std::getenv("VX_ONLY_NU")) {  // that ratio's forces only (no F(0))
+    const auto r = finite_brick_press(s, std::atof(v));
+    for (std::size_t k = 0; k < r.depth_mm.size(); ++k)
+      std::cout << "MEASURE finite nu " << v << " depth " << r.depth_mm[k] << ": F " << r.force_n[k] << " newton "
+                << r.newton_iterations[k] << " s " << r.total_s << std::endl;
+    return;
+  }
+  const auto r0 = finite_brick_press(s, 0.0);
+  std::cout << "MEASURE finite voxel " << s.voxel_mm << " dofs " << r0.dofs << " s " << r0.total_s << "\n";
+  for (std::size_t k = 0; k < r0.depth_mm.size(); ++k)
+    std::cout << "MEASURE finite nu 0 depth " << r0.depth_mm[k] << ": F(0) " << r0.force_n[k] << " / finite layer "
+              << r0.force_n[k] / hertz_bonded_layer_n(10, 0.0, kR, r0.depth_mm[k], kH) << " newton "
+              << r0.newton_iterations[k] << " contact " << r0.contact_nodes[k] << std::endl;
+  for (const double nu : {0.3, 0.45, 0.49}) {
+    if (std::getenv("VX_NU") && std::atof(std::getenv("VX_NU")) != nu) continue;
+    const auto r = finite_brick_press(s, nu);
+    for (std::size_t k = 0; k < r.depth_mm.size(); ++k)
+      std::cout << "MEASURE finite nu " << nu << " depth " << r.depth_mm[k] << ": ratio "
+                << r.force_n[k] / r0.force_n[k] << " / ref " << finite_layer_ratio(nu, r.depth_mm[k]) << " = "
+                << r.force_n[k] / r0.force_n[k] / finite_layer_ratio(nu, r.depth_mm[k]) << " newton "
+                << r.newton_iterations[k] << " contact " << r.contact_nodes[k] << " s " << r.total_s << " penetration "
+                << r.max_penetration_mm << std::endl;
+  }
 }
 
 // The measurement behind the doc's table (prints, asserts nothing). Run with
