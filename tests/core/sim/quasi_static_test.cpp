@@ -299,6 +299,56 @@ TEST(RegionalSolve, PartialSolvesAreExactOnTheirRows) {
 namespace vx {
 namespace {
 
+TEST(RegionalSolve, ForwardFieldsCarryARightHandSideAndGiveItsProducts) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "needs CHOLMOD (supernodal)";
+  // b += c g added through the forward field of g gives the solution of b + c g on the closure,
+  // and the backward half gives g^T x (x with a contact force) without a pass outside it
+  const auto model = ball(16);
+  const auto p = make_physics_model(model, tissue(0.0));
+  const Model& m = *model;
+  const int nn = m.num_nodes();
+  const SparseFactor::Matrix a =
+      testing::elastic_matrix_plus(*p, [&](int i) { return 1e-2 * p->node_mass[std::size_t(i)] / 1e-8; });
+  SparseFactor f, full;
+  ASSERT_TRUE(f.compute(a, SparseFactor::Backend::cholmod));
+  ASSERT_TRUE(full.compute(a, SparseFactor::Backend::cholmod));
+  Eigen::MatrixX3d b = Eigen::MatrixX3d::Random(nn, 3), x(nn, 3), ref(nn, 3);
+  f.solve3(b, x);
+  const double ztop = m.rest_positions.row(2).maxCoeff();
+  std::vector<int> rows;
+  for (int i = 0; i < nn; ++i)
+    if (m.rest_positions(2, i) > ztop - 4.0) rows.push_back(i);
+  const std::vector<int>& closure = f.set_partial_rows(rows);
+  // two fields (6 columns), nonzero off the closure only
+  std::vector<std::uint8_t> in(static_cast<std::size_t>(nn), 0);
+  for (int i : closure) in[std::size_t(i)] = 1;
+  Eigen::MatrixXd g = Eigen::MatrixXd::Random(nn, 6);
+  for (int i = 0; i < nn; ++i)
+    if (in[std::size_t(i)]) g.row(i).setZero();
+  std::vector<double> w;
+  f.forward_fields(g, w);
+  f.set_product_fields(&w, 2);
+  const double coef[2] = {0.7, -1.3};
+  b.row(rows[0]) += Eigen::RowVector3d::Random();  // a change the forward half sees
+  const Eigen::MatrixX3d b_total = b + coef[0] * g.leftCols(3) + coef[1] * g.rightCols(3);
+  ASSERT_TRUE(f.partial_ready());
+  f.forward3_partial(b);
+  f.add_forward_fields(w, 2, coef);
+  SparseFactor::UnitForward z;
+  f.forward_unit(rows[1], z);
+  f.backward3_partial({&z}, {0.3, -0.1, 0.2}, x);
+  Eigen::MatrixX3d force = Eigen::MatrixX3d::Zero(nn, 3);
+  force.row(rows[1]) << 0.3, -0.1, 0.2;
+  full.solve3(b_total + force, ref);
+  double err = 0;
+  for (int i : closure) err = std::max(err, (x.row(i) - ref.row(i)).norm());
+  EXPECT_LT(err, 1e-10 * ref.norm());
+  for (int k = 0; k < 2; ++k) {
+    const double want = (g.middleCols(3 * k, 3).array() * ref.array()).sum();
+    EXPECT_NEAR(f.field_products()[std::size_t(k)], want, 1e-9 * std::abs(want) + 1e-12) << "field " << k;
+  }
+}
+
 /// A ball pressed 3 mm into the top of a 24-voxel ball by the fast configuration; the force on
 /// it at the end, with regional solves of `radius_mm` (0: none).
 double pressed_force(const std::shared_ptr<const PhysicsModel>& p, double radius_mm, std::int64_t* region_nodes) {
