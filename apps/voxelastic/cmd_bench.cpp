@@ -3,6 +3,7 @@
 // bench.md and plots), with the configuration that is best for real time. See docs/bench.md.
 #include <fmt/format.h>
 
+#include <cstdio>
 #include <filesystem>
 #include <memory>
 #include <string>
@@ -71,10 +72,18 @@ void run_scale_command(const BenchOptions& o) {
       bool found = false;
       for (const auto& m : set.models)
         if (m.name == name || m.name == "sphere " + name) keep.push_back(m), found = true;
+      // "organ N": the organ phantom at N voxels across (214: the suite's), held as the suite holds it
+      int size = 0;
+      char rest = 0;
+      if (!found && std::sscanf(name.c_str(), "organ %d%c", &size, &rest) == 1 && size >= 16 && size <= 512) {
+        keep.push_back({name, "organ", size});
+        found = true;
+      }
       if (!found)
-        throw Error(fmt::format("--scale-models: unknown model '{}' (32, 64, 128, 256, organ, \"folded (stem)\", "
-                                "\"folded (lower third)\")",
-                                name));
+        throw Error(
+            fmt::format("--scale-models: unknown model '{}' (32, 64, 128, 256, organ, \"organ N\" (N voxels "
+                        "across, 16 to 512), \"folded (stem)\", \"folded (lower third)\")",
+                        name));
     }
     set.models = keep;
   }
@@ -95,8 +104,9 @@ void run_scale_command(const BenchOptions& o) {
   if (o.scale_reference_max_wall_s > 0) set.reference_max_wall_s = o.scale_reference_max_wall_s;
   if (o.scale_reference == "implicit") set.use_implicit_reference();
   if (!o.scale_configs.empty()) {
-    std::vector<ScaleConfig> keep;
-    for (const auto& c : set.configs)
+    std::vector<ScaleConfig> keep, all = set.configs;
+    for (const ScaleConfig& c : ScaleBenchSettings::diagnostic_configs()) all.push_back(c);
+    for (const auto& c : all)
       for (const auto& want : o.scale_configs)
         if (c.name.find(want) != std::string::npos) {
           keep.push_back(c);
@@ -112,6 +122,7 @@ void run_scale_command(const BenchOptions& o) {
   if (ec || !fs::is_directory(dir))
     throw Error(fmt::format("--out '{}': cannot create the folder ({})", o.out, ec ? ec.message() : "not a folder"));
   check_output_path(dir / "scale.csv");
+  set.curves_dir = dir / "curves";
   if (!o.quiet) set.log = [](const std::string& line) { fmt::print(stderr, "{}\n", line); };
   const ScaleBenchResult res = run_scale_bench(set);
   const std::vector<std::string> written = write_scale_report(res, dir);

@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <map>
@@ -69,6 +70,33 @@ ScaleBenchSettings ScaleBenchSettings::standard() {
   const ScaleConfig region60_30 = implicit(30, 1, 60, "");
   s.configs = {ref, floor, floor_scale, implicit10, implicit20, implicit30, region15, region30, region30_30, region45_30, region60_30};
   return s;
+}
+
+std::vector<ScaleConfig> ScaleBenchSettings::diagnostic_configs() {
+  ScaleConfig c;
+  c.kind = IntegratorKind::implicit;
+  c.time_step_s = 0.03;
+  c.max_iterations = 1;
+  c.region_radius_mm = 30;
+  std::vector<ScaleConfig> out;
+  c.name = "implicit 30 ms, 1 iteration, region 30 mm, far field held";  // before 2026-11-26
+  c.region_far_field_degree = 0;
+  out.push_back(c);
+  c.name = "implicit 30 ms, 1 iteration, region 30 mm, far field held, no refresh on move";
+  c.region_refresh_on_move = false;
+  out.push_back(c);
+  c.name = "implicit 30 ms, 1 iteration, region 30 mm, far field solved";
+  c.region_refresh_on_move = true;
+  c.region_solve_far_field = true;
+  out.push_back(c);
+  c.name = "implicit 30 ms, 1 iteration, region 30 mm, far field solved, no refresh on move";
+  c.region_refresh_on_move = false;
+  out.push_back(c);
+  c.name = "implicit 30 ms, 1 iteration, region 30 mm, far field carried, no refresh on move";
+  c.region_solve_far_field = false;
+  c.region_far_field_degree = 1;
+  out.push_back(c);
+  return out;
 }
 
 void ScaleBenchSettings::use_implicit_reference() {
@@ -199,6 +227,9 @@ RunOutput run_one(const ScaleModelSpec& spec, const PreparedScene& prepared,
   ss.integrator.max_iterations = cfg.max_iterations;
   ss.integrator.residual_tolerance_n = cfg.residual_tolerance_n;
   ss.integrator.region_radius_mm = cfg.region_radius_mm;
+  ss.integrator.region_solve_far_field = cfg.region_solve_far_field;
+  ss.integrator.region_refresh_on_move = cfg.region_refresh_on_move;
+  ss.integrator.region_far_field_degree = cfg.region_far_field_degree;
   ProbeSettings probe;
   probe.name = "ball";
   probe.geometry.shape = ProbeShape::sphere;
@@ -272,6 +303,22 @@ double rms_error(const std::vector<double>& t, const std::vector<double>& f, con
   return std::sqrt(s / double(rt.size())) / peak;
 }
 
+/// A file-name-safe form of `name` (letters, digits, '-', '.'; the rest '_').
+std::string file_safe(const std::string& name) {
+  std::string o;
+  for (const char ch : name) o += (std::isalnum(static_cast<unsigned char>(ch)) || ch == '-' || ch == '.') ? ch : '_';
+  return o;
+}
+
+void write_curve(const fs::path& dir, const ScaleModelSpec& spec, const ScaleConfig& cfg, const RunOutput& r) {
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  std::ostringstream o;
+  o << "t_s,force_n\n";
+  for (std::size_t k = 0; k < r.t.size(); ++k) o << fmt::format("{:.6g},{:.9g}\n", r.t[k], r.f[k]);
+  write_text_atomically(dir / (file_safe(spec.name) + "__" + file_safe(cfg.name) + ".csv"), o.str());
+}
+
 }  // namespace
 
 ScaleBenchResult run_scale_bench(const ScaleBenchSettings& s) {
@@ -311,6 +358,7 @@ ScaleBenchResult run_scale_bench(const ScaleBenchSettings& s) {
       for (int th : threads) {
         RunOutput r = run_one(spec, prepared, physics, *cfg, th, window, s);
         if (th == most_threads) {
+          if (!s.curves_dir.empty() && r.row.complete) write_curve(s.curves_dir, spec, *cfg, r);
           if (cfg->reference && r.row.complete) {
             ref_t = r.t;
             ref_f = r.f;

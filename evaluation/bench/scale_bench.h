@@ -40,6 +40,9 @@ struct ScaleConfig {
   double residual_tolerance_n{0}; ///< implicit
   double region_radius_mm{0};     ///< implicit: regional solves within this distance of the ball (0: everywhere)
   bool reference{false};          ///< the model's reference (the error of the others is against it)
+  bool region_solve_far_field{false};  ///< diagnostic: IntegratorSettings::region_solve_far_field
+  bool region_refresh_on_move{true};   ///< diagnostic: IntegratorSettings::region_refresh_on_move
+  int region_far_field_degree{1};      ///< IntegratorSettings::region_far_field_degree (0: held)
 };
 
 /// One model: a phantom at 1 mm voxels, gradational layout.
@@ -76,12 +79,20 @@ struct ScaleBenchSettings {
   double reference_max_wall_s{1800.0};
   double force_interval_s{0.01};
   std::string element;             ///< "paper" or "hourglass" (docs/model.md section 5); empty: the default
+  /// Not empty: every complete run on the most threads writes its force curve there as it ends
+  /// (`<model>__<configuration>.csv`: t_s, force_n, the ball's +z force, mean per interval), so
+  /// a curve outlives a suite that is stopped and another binary's run can be judged against it.
+  std::filesystem::path curves_dir;
   std::function<void(const std::string&)> log;  ///< progress (may be empty)
 
   /// The default suite: spheres 32, 64, 128, 256, the organ phantom, and the folded phantom
   /// held at its stem ("folded (stem)") and over its lower third ("folded (lower third)"); the
   /// configurations of docs/bench.md.
   [[nodiscard]] static ScaleBenchSettings standard();
+  /// Configurations outside the suite, run only when `--scale-configs` names them: the fast
+  /// configuration of larger models with one source of its regional error switched off
+  /// (docs/bench.md, "Where the regional error comes from").
+  [[nodiscard]] static std::vector<ScaleConfig> diagnostic_configs();
   /// Replaces the reference (symplectic Euler at its stable step, an hour on the organ) by the
   /// implicit integrator at 3 ms steps iterated to convergence (largest force imbalance below
   /// 1e-5 N, at most 30 iterations): the other converged reference, minutes there.

@@ -71,6 +71,19 @@ struct IntegratorSettings {
   /// 1.5 s after the release: 12 % without, 2 % every 8th step, 0.5 % every 4th). A full step
   /// costs about 2.5 regional ones on an organ. 0: never.
   int region_idle_refresh_steps{4};
+  /// implicit with a region: the nodes outside the region's closure move by a polynomial
+  /// displacement field of this degree over their positions (1: affine, 2: quadratic), the
+  /// mass-weighted projection of their exact solution in every step, instead of sleeping where
+  /// the last full solve left them, so their inertia follows the press (docs/model.md section 7,
+  /// "The far field carried"). 0: held (the regional solves before 2026-11-26).
+  int region_far_field_degree{1};
+  /// Diagnostics of the regional error (docs/bench.md, "Where the regional error comes from"):
+  /// true: the regional steps fit rotations in the region only but solve the whole model, so the
+  /// far field moves (its inertia is right) and only its rotations sleep. Costs a full solve.
+  bool region_solve_far_field{false};
+  /// false: a region move keeps the far field as it is (no full solve at the move; the elements
+  /// that join the region are fitted from the next step on).
+  bool region_refresh_on_move{true};
   /// ... for at most this long after the last contact, s: a tissue that has not come to rest by
   /// then (region_rest_speed_mm_s) is left to the regional solves.
   double region_idle_refresh_window_s{10.0};

@@ -236,6 +236,19 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
   const bool region = region_;
   if (!targets_valid_) region_ = false;
   last_full_ = !region_;
+  // the far field carried (docs/model.md section 7): anchored at the first regional solve after a
+  // full one, its rows' right-hand side held bitwise at the anchor's (so the forward half does not
+  // see them change) and its motion put into the forward solution by the forward fields
+  const bool carry = far_degree_ > 0 && region_ && !solve_far_field_ && setup_.inertia && factor_.partial_ready();
+  if (!carry) far_.ready = false;
+  if (carry && !far_.ready) far_.ready = anchor_far_field(s, x);
+  const bool carried = carry && far_.ready;
+  if (carried) {
+    for (std::size_t r = 0; r < far_.rows.size(); ++r)
+      rhs_const_.row(far_.rows[r]) = far_.frozen_rhs.row(Eigen::Index(r));
+    carry_far_field_in(setup_.time_step_s);
+    factor_.set_product_fields(&far_.forward, far_.fields);
+  }
   if (setup_.damping) record_start_shape(s.positions, threads);
   double max_update = std::numeric_limits<double>::infinity();
   ElementPassStats last;
@@ -254,19 +267,24 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
     }
     // with contact on a region, the solve's backward half waits for the contact forces: one
     // backward pass for both (docs/model.md section 8)
-    const bool halves = region_ && contact && factor_.partial_ready();
+    const bool partial = region_ && !solve_far_field_;
+    const bool halves = partial && contact && factor_.partial_ready();
     if (halves)
       factor_.forward3_partial(rhs_);
-    else if (region_)
+    else if (partial)
       factor_.solve3_partial(rhs_, solution_);
     else
       factor_.solve3(rhs_, solution_);
     if (contact) {
-      contact_set_.set_partial(region_);  // the full refresh after a region move applies contact everywhere
+      contact_set_.set_partial(partial);  // the full refresh after a region move applies contact everywhere
       contact_set_.solve(*contact, x, factor_, solution_, counters, halves);
     }
     max_update = scatter(x, threads);
     rhs_previous_.swap(rhs_);
+  }
+  if (carried) {
+    carry_far_field_out(x);
+    factor_.set_product_fields(nullptr, 0);
   }
   region_ = region;
   targets_valid_ = true;
@@ -278,6 +296,124 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
   rep.inverted_elements = last.inverted;
   rep.unconverged_rotations = last.unconverged;
   s.element_stats = last;
+}
+
+namespace {
+
+/// The monomials of degree <= `degree` of r (1, x, y, z, x^2, y^2, z^2, xy, xz, yz).
+int monomials(int degree, const Eigen::Vector3d& r, double* out) {
+  int n = 0;
+  out[n++] = 1.0;
+  if (degree >= 1)
+    for (int c = 0; c < 3; ++c) out[n++] = r[c];
+  if (degree >= 2) {
+    for (int c = 0; c < 3; ++c) out[n++] = r[c] * r[c];
+    out[n++] = r.x() * r.y();
+    out[n++] = r.x() * r.z();
+    out[n++] = r.y() * r.z();
+  }
+  return n;
+}
+
+}  // namespace
+
+/// Anchors the far field at the state's positions (the last full solve's): its rows (the free
+/// rows outside the closure), the fields' forward solutions (one forward pass over the factor for
+/// 18 columns at a time), their mass matrix, and the start velocity's projection. False when
+/// there is no far field to carry (too few rows for the fields).
+bool ProjectiveSolver::anchor_far_field(const SimState& s, const Eigen::Matrix3Xd& x) {
+  const PhysicsModel& p = *physics_;
+  const int nf = num_free();
+  const double dt = setup_.time_step_s, inv_dt2 = 1.0 / (dt * dt);
+  std::vector<std::uint8_t> in_closure(std::size_t(nf), 0);
+  for (const int r : factor_.partial_rows()) in_closure[std::size_t(r)] = 1;
+  far_.rows.clear();
+  for (int f = 0; f < nf; ++f)
+    if (!in_closure[std::size_t(f)]) far_.rows.push_back(f);
+  const Eigen::Index m = Eigen::Index(far_.rows.size());
+  double scratch[10];
+  const int nm = monomials(far_degree_, Eigen::Vector3d::Zero(), scratch), fields = 3 * nm;
+  if (m < 4 * nm) return false;
+  far_.anchor.resize(m, 3);
+  far_.frozen_rhs.resize(m, 3);
+  double mass = 0;
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero(), lo = Eigen::Vector3d::Constant(1e300), hi = -lo;
+  for (Eigen::Index r = 0; r < m; ++r) {
+    const int f = far_.rows[std::size_t(r)], i = numbering_.free_nodes[std::size_t(f)];
+    const double mi = p.node_mass[std::size_t(i)];
+    far_.anchor.row(r) = s.positions.col(i).transpose();
+    mass += mi;
+    centre += mi * s.positions.col(i);
+    lo = lo.cwiseMin(s.positions.col(i));
+    hi = hi.cwiseMax(s.positions.col(i));
+  }
+  if (!(mass > 0)) return false;
+  far_.centre = centre / mass;
+  const double scale = std::max(0.5 * (hi - lo).maxCoeff(), 1e-9);
+  // g_k = M U_k on the far rows, U^T M U, (M U)^T a, and the projection of the start iterate's
+  // displacement (dt v); the right-hand side at q = 0
+  far_.phi.resize(m, nm);
+  Eigen::MatrixXd g = Eigen::MatrixXd::Zero(nf, 3 * fields), gram = Eigen::MatrixXd::Zero(fields, fields);
+  far_.anchor_products = Eigen::VectorXd::Zero(fields);
+  Eigen::VectorXd start = Eigen::VectorXd::Zero(fields);
+  Eigen::MatrixXd mono_gram = Eigen::MatrixXd::Zero(nm, nm);
+  for (Eigen::Index r = 0; r < m; ++r) {
+    const int f = far_.rows[std::size_t(r)], i = numbering_.free_nodes[std::size_t(f)];
+    const double mi = p.node_mass[std::size_t(i)];
+    const Eigen::Vector3d a = far_.anchor.row(r).transpose(), d = x.col(i) - a;  // d: dt v
+    double ph[10];
+    monomials(far_degree_, (a - far_.centre) / scale, ph);
+    for (int j = 0; j < nm; ++j) {
+      far_.phi(r, j) = ph[j];
+      for (int c = 0; c < 3; ++c) {
+        g(f, 3 * (3 * j + c) + c) = mi * ph[j];  // field k = 3 j + c: e_c phi_j
+        far_.anchor_products[3 * j + c] += mi * ph[j] * a[c];
+        start[3 * j + c] += mi * ph[j] * d[c];
+      }
+      for (int l = 0; l < nm; ++l) mono_gram(j, l) += mi * ph[j] * ph[l];
+    }
+    far_.frozen_rhs.row(r) = rhs_const_.row(f) - (mi * inv_dt2) * d.transpose();
+  }
+  for (int j = 0; j < nm; ++j)
+    for (int l = 0; l < nm; ++l)
+      for (int c = 0; c < 3; ++c) gram(3 * j + c, 3 * l + c) = mono_gram(j, l);
+  far_.scale = scale;
+  far_.fields = fields;
+  far_.gram.compute(gram);
+  if (far_.gram.info() != Eigen::Success || !(far_.gram.rcond() > 1e-12)) return false;
+  factor_.forward_fields(g, far_.forward);
+  far_.q = Eigen::VectorXd::Zero(fields);
+  far_.q_previous = -far_.gram.solve(start);
+  far_.applied = Eigen::VectorXd::Zero(fields);
+  return true;
+}
+
+/// Puts this step's far-field inertia into the forward solution: the anchor moved to
+/// a + U (2 q - q_previous) (y = x_n + dt v_n), i.e. the far rows' right-hand side changed by
+/// M U (2 q - q_previous) / dt^2 since the anchor.
+void ProjectiveSolver::carry_far_field_in(double dt) {
+  const Eigen::VectorXd coef = (2.0 * far_.q - far_.q_previous) / (dt * dt);
+  const Eigen::VectorXd delta = coef - far_.applied;
+  factor_.add_forward_fields(far_.forward, far_.fields, delta.data());
+  far_.applied = coef;
+}
+
+/// After the solve: q from the products of the fields with the exact solution (the far rows'
+/// mass-weighted projection onto the fields), and the far nodes moved there.
+void ProjectiveSolver::carry_far_field_out(Eigen::Matrix3Xd& x) {
+  const Eigen::Index fields = far_.fields, nm = fields / 3;
+  Eigen::VectorXd products(fields);
+  for (Eigen::Index k = 0; k < fields; ++k) products[k] = factor_.field_products()[std::size_t(k)];
+  far_.q_previous = far_.q;
+  far_.q = far_.gram.solve(products - far_.anchor_products);
+  const Eigen::Map<const Eigen::Matrix3Xd> coef(far_.q.data(), 3, nm);  // column j: phi_j's vector
+  for (std::size_t r = 0; r < far_.rows.size(); ++r) {
+    const int f = far_.rows[r], i = numbering_.free_nodes[std::size_t(f)];
+    const Eigen::Vector3d pos =
+        far_.anchor.row(Eigen::Index(r)).transpose() + coef * far_.phi.row(Eigen::Index(r)).transpose();
+    x.col(i) = pos;
+    solution_.row(f) = pos.transpose();
+  }
 }
 
 bool ProjectiveSolver::contact_compliance(const std::vector<std::int32_t>& nodes, Eigen::MatrixXd& g) {
@@ -313,8 +449,8 @@ void ProjectiveSolver::set_region(const std::vector<int>& awake_nodes) {
   region_ = true;
   // the next solve is a full one: every element's targets and every node's position brought up
   // to date (the far field that slept while the tool moved), then regional solves again
-  targets_valid_ = false;
-  contact_set_.set_partial(true);  // the cached forward vectors hold for any region
+  if (refresh_on_move_) targets_valid_ = false;
+  contact_set_.set_partial(!solve_far_field_);  // the cached forward vectors hold for any region
 }
 
 void ProjectiveSolver::clear_region() {

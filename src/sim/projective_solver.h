@@ -26,6 +26,7 @@
 /// cache of columns, which grows when a node first touches.
 /// Units: positions mm, forces N, masses N*s^2/mm, dt s.
 
+#include <Eigen/Cholesky>
 #include <Eigen/Core>
 #include <cstdint>
 #include <memory>
@@ -135,6 +136,28 @@ class ProjectiveSolver {
   void set_region(const std::vector<int>& awake_nodes);
   /// Back to full solves.
   void clear_region();
+  /// Diagnostics (IntegratorSettings::region_solve_far_field, region_refresh_on_move): with
+  /// `solve_far_field` the regional solves fit rotations in the region only but solve every
+  /// node; without `refresh_on_move` set_region() does not make the next solve a full one.
+  void set_region_diagnostics(bool solve_far_field, bool refresh_on_move) {
+    solve_far_field_ = solve_far_field;
+    refresh_on_move_ = refresh_on_move;
+  }
+  /// Regional solves carry the far field (IntegratorSettings::region_carry_far_field; docs/model.md
+  /// section 7, "The far field carried"): the nodes outside the region's closure move by a
+  /// polynomial displacement field of degree `degree` (1: affine, 2: quadratic) over their anchor
+  /// positions, the mass-weighted projection of their exact solution in every step, instead of
+  /// being held where the last full solve left them. 0: held.
+  void set_carry_far_field(int degree) {
+    if (degree != far_degree_) far_.ready = false;
+    far_degree_ = degree;
+  }
+  /// The far field's displacement since its anchor (the last full solve) at its centre of mass,
+  /// mm; zero when it is not carried.
+  [[nodiscard]] Eigen::Vector3d far_field_motion() const {
+    return far_.ready ? Eigen::Vector3d(far_.q.head<3>()) : Eigen::Vector3d::Zero();
+  }
+
   /// The next solve is full (every node and element brought up to date), the region kept for
   /// the solves after it: the far field relaxes once the tool has let go (the implicit
   /// integrator's IntegratorSettings::region_idle_refresh_steps).
@@ -202,6 +225,31 @@ class ProjectiveSolver {
   bool region_{false};
   bool targets_valid_{false};  ///< every element's targets computed once (by a full solve)
   bool last_full_{false};      ///< the last solve() was a full one
+  bool solve_far_field_{false};  ///< set_region_diagnostics()
+  bool refresh_on_move_{true};
+  int far_degree_{1};  ///< set_carry_far_field()
+  /// The carried far field (the free rows outside the region's closure): positions
+  /// a + sum_k q_k U_k with U_k = e_c phi_j((a - centre) / scale) for the monomials phi_j of
+  /// degree <= far_degree_ (1 first: the translations are q_0..q_2), q = 0 at the anchor.
+  struct FarField {
+    bool ready{false};        ///< anchored since the last full solve
+    std::vector<int> rows;    ///< free rows outside the closure
+    Eigen::MatrixX3d anchor;  ///< rows x 3: a, mm
+    Eigen::MatrixXd phi;      ///< rows x monomials: phi_j at the anchor
+    Eigen::Vector3d centre{Eigen::Vector3d::Zero()};
+    double scale{1.0};                  ///< mm: the monomials' unit length
+    int fields{0};                      ///< 3 x monomials
+    Eigen::MatrixX3d frozen_rhs;        ///< rows x 3: their right-hand side at q = 0 (M a / dt^2 + loads)
+    std::vector<double> forward;        ///< forward fields of g_k = M U_k (SparseFactor::forward_fields)
+    Eigen::LDLT<Eigen::MatrixXd> gram;  ///< U^T M U
+    Eigen::VectorXd anchor_products;    ///< (M U)^T a
+    Eigen::VectorXd q, q_previous;      ///< this step's and the last
+    Eigen::VectorXd applied;            ///< the coefficients in the forward solution: (2 q - q_previous) / dt^2
+  };
+  FarField far_;
+  bool anchor_far_field(const SimState& s, const Eigen::Matrix3Xd& x);
+  void carry_far_field_in(double dt);
+  void carry_far_field_out(Eigen::Matrix3Xd& x);
   std::vector<int> region_elements_;  ///< ascending
   std::vector<double> free_chunk_sums_;  ///< per node chunk: 2 partial sums
   ContactActiveSet contact_set_;

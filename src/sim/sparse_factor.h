@@ -234,6 +234,31 @@ class SparseFactor {
   /// out = A^-1 e_i on the closure rows, 0 elsewhere (n values).
   void solve_unit_partial(int i, double* out);
 
+  // --- forward fields: a far field carried in the forward solution (projective_solver.h) ------
+  // A right-hand side that changes on the rows outside the closure by a combination of a few
+  // fixed fields, b += sum_k c_k g_k, changes the forward solution by sum_k c_k w_k with
+  // w_k = L^-1 P g_k, and the products g_k^T A^-1 b = w_k . z (A^-1 = P^T L^-T L^-1 P): so with
+  // the w_k computed once, a regional solve carries such a change and reads the products without
+  // a pass over the rows outside the closure. Supernodal factors only (D = I).
+  /// w (permuted, row-major n x 3m: row j holds w_0 (3 values), .., w_{m-1}) = L^-1 P g for the m
+  /// fields g (n x 3m, original numbering, field k in columns 3k..3k+2). One forward pass over the
+  /// whole factor for all of them. Needs a supernodal factor. Allocates.
+  void forward_fields(const Eigen::MatrixXd& g, std::vector<double>& w) const;
+  /// The forward solution of the last forward half += sum_k coef[k] w_k (w from forward_fields():
+  /// the right-hand side changed by sum_k coef[k] g_k on rows whose b the next forward half does
+  /// not see change). Needs partial_ready().
+  void add_forward_fields(const std::vector<double>& w, int m, const double* coef);
+  /// From now on every backward half (backward3_partial) also computes g_k^T x for the m fields
+  /// of `w` (as forward_fields(); kept by pointer, so it must outlive their use), x the solution it
+  /// substitutes (contact forces included): field_products(). m = 0: none.
+  void set_product_fields(const std::vector<double>* w, int m) {
+    product_fields_ = m > 0 ? w : nullptr;
+    product_count_ = m;
+    field_products_.assign(std::size_t(m), 0.0);
+  }
+  /// g_k^T x of the last backward half (set_product_fields()).
+  [[nodiscard]] const std::vector<double>& field_products() const { return field_products_; }
+
  private:
   /// Solves L D L^T w = w in place on the factor (permuted order; K right-hand sides
   /// interleaved, row-major n x K). Entries before `first` must be zero in every lane: the
@@ -289,6 +314,10 @@ class SparseFactor {
   void ancestors(std::vector<int>& supers);
   static void scatter_forward_forces(const std::vector<const UnitForward*>& z, const std::vector<double>& forces3,
                                      double* w);
+  const std::vector<double>* product_fields_{nullptr};  ///< set_product_fields()
+  int product_count_{0};
+  std::vector<double> field_products_;
+  std::vector<std::uint8_t> in_closure_;  ///< factored positions: 1 in the closure
   std::vector<double> work3_;        ///< n x 3, row-major, permuted order
   std::vector<double> work1_;        ///< n, permuted order
 };

@@ -189,9 +189,12 @@ const std::vector<int>& SparseFactor::set_partial_rows(const std::vector<int>& r
   ancestors(closure_supers_);
   std::vector<int> inverse(static_cast<std::size_t>(size_));
   for (int i = 0; i < size_; ++i) inverse[std::size_t(perm_[std::size_t(i)])] = i;
+  in_closure_.assign(std::size_t(size_), 0);
   for (const int q : closure_supers_)
-    for (int j = super_[std::size_t(q)]; j < super_[std::size_t(q) + 1]; ++j)
+    for (int j = super_[std::size_t(q)]; j < super_[std::size_t(q) + 1]; ++j) {
       closure_rows_.push_back(inverse[std::size_t(j)]);
+      in_closure_[std::size_t(j)] = 1;
+    }
   closure_columns_ = std::int64_t(closure_rows_.size());
   std::sort(closure_rows_.begin(), closure_rows_.end());
   return closure_rows_;
@@ -257,6 +260,19 @@ void SparseFactor::backward3_partial(const std::vector<const UnitForward*>& z, c
     for (int j = super_[std::size_t(q)]; j < super_[std::size_t(q) + 1]; ++j)
       for (int c = 0; c < 3; ++c) w[3 * j + c] = forward_[3 * std::size_t(j) + std::size_t(c)];
   scatter_forward_forces(z, forces3, w);
+  if (product_fields_) {
+    // g_k^T x = w_k . (the forward solution with the forces): the closure's positions from w,
+    // the others from the forward solution (the forces' forward vectors lie on the closure)
+    const int m = product_count_, stride = 3 * m;
+    const double* wf = product_fields_->data();
+    std::fill(field_products_.begin(), field_products_.end(), 0.0);
+    double* out = field_products_.data();
+    for (int j = 0; j < size_; ++j) {
+      const double* zj = in_closure_[std::size_t(j)] ? w + 3 * std::int64_t(j) : forward_.data() + 3 * std::int64_t(j);
+      const double* row = wf + std::int64_t(j) * stride;
+      for (int k = 0; k < m; ++k) out[k] += row[3 * k] * zj[0] + row[3 * k + 1] * zj[1] + row[3 * k + 2] * zj[2];
+    }
+  }
   backward_supers<3>(w, closure_supers_);
   for (const int i : closure_rows_)
     for (int c = 0; c < 3; ++c) x(i, c) = w[3 * perm_[std::size_t(i)] + c];
@@ -405,6 +421,42 @@ void SparseFactor::add_response3(const std::vector<const UnitForward*>& z, const
       for (int c = 0; c < 3; ++c) x(i, c) += w[3 * perm_[std::size_t(i)] + c];
   }
   std::fill(work3_.begin(), work3_.end(), 0.0);  // solve3_partial expects it zero
+}
+
+void SparseFactor::forward_fields(const Eigen::MatrixXd& g, std::vector<double>& w) const {
+  const int n = size_, cols = int(g.cols());
+  w.assign(std::size_t(n) * std::size_t(cols), 0.0);
+  if (!supernodal_ || cols == 0) return;
+  for (int i = 0; i < n; ++i)
+    for (int c = 0; c < cols; ++c) w[std::size_t(perm_[std::size_t(i)]) * std::size_t(cols) + std::size_t(c)] = g(i, c);
+  std::vector<int> all(super_.size() - 1);
+  for (std::size_t q = 0; q < all.size(); ++q) all[q] = int(q);
+  // 18 columns per pass (each entry of L read once for all of them), the last padded
+  constexpr int kPass = 18;
+  std::vector<double> part(std::size_t(kPass) * std::size_t(n));
+  for (int c0 = 0; c0 < cols; c0 += kPass) {
+    const int nc = std::min(kPass, cols - c0);
+    std::fill(part.begin(), part.end(), 0.0);
+    for (int j = 0; j < n; ++j)
+      for (int c = 0; c < nc; ++c)
+        part[std::size_t(kPass) * std::size_t(j) + std::size_t(c)] =
+            w[std::size_t(j) * std::size_t(cols) + std::size_t(c0 + c)];
+    forward_supers<kPass>(part.data(), all);
+    for (int j = 0; j < n; ++j)
+      for (int c = 0; c < nc; ++c)
+        w[std::size_t(j) * std::size_t(cols) + std::size_t(c0 + c)] =
+            part[std::size_t(kPass) * std::size_t(j) + std::size_t(c)];
+  }
+}
+
+void SparseFactor::add_forward_fields(const std::vector<double>& w, int m, const double* coef) {
+  const int stride = 3 * m;
+  for (int j = 0; j < size_; ++j) {
+    const double* row = w.data() + std::int64_t(j) * stride;
+    double* z = forward_.data() + 3 * std::int64_t(j);
+    for (int k = 0; k < m; ++k)
+      for (int c = 0; c < 3; ++c) z[c] += coef[k] * row[3 * k + c];
+  }
 }
 
 template void SparseFactor::solve_supernodal<1>(double*, int) const;
