@@ -79,7 +79,7 @@ std::vector<ScaleConfig> ScaleBenchSettings::diagnostic_configs() {
   c.max_iterations = 1;
   c.region_radius_mm = 30;
   std::vector<ScaleConfig> out;
-  c.name = "implicit 30 ms, 1 iteration, region 30 mm, far field held";  // before 2026-11-26
+  c.name = "implicit 30 ms, 1 iteration, region 30 mm, far field held";  // the default
   c.region_far_field_degree = 0;
   out.push_back(c);
   c.name = "implicit 30 ms, 1 iteration, region 30 mm, far field held, no refresh on move";
@@ -92,9 +92,13 @@ std::vector<ScaleConfig> ScaleBenchSettings::diagnostic_configs() {
   c.name = "implicit 30 ms, 1 iteration, region 30 mm, far field solved, no refresh on move";
   c.region_refresh_on_move = false;
   out.push_back(c);
-  c.name = "implicit 30 ms, 1 iteration, region 30 mm, far field carried, no refresh on move";
+  c.name = "implicit 30 ms, 1 iteration, region 30 mm, far field carried";  // \"region_far_field\": \"carried\"
+  c.region_refresh_on_move = true;
   c.region_solve_far_field = false;
   c.region_far_field_degree = 1;
+  out.push_back(c);
+  c.name = "implicit 30 ms, 1 iteration, region 30 mm, far field carried, no refresh on move";
+  c.region_refresh_on_move = false;
   out.push_back(c);
   return out;
 }

@@ -153,6 +153,7 @@ void choose_integrator(const Scene& scene, const PrepareSceneOptions& options, c
     s.integrator.residual_tolerance_n = scene.residual_tolerance_n;
     s.integrator.factor_cache = options.factor_cache;
     s.integrator.region_radius_mm = large ? fast.region_radius_for(out.model->num_nodes()) : scene.region_radius_mm;
+    s.integrator.region_far_field_degree = scene.region_far_field_degree;
     if (large)
       out.log.push_back(
           fmt::format("the fast configuration of a large model ({} nodes, {} or more): implicit, {:g} ms steps, "

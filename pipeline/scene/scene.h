@@ -136,6 +136,9 @@ struct Scene {
   int iterations{0};                 ///< implicit: local/global iterations per step (0: 10, or 1 by default)
   double residual_tolerance_n{0.0};  ///< implicit: stop once the largest force imbalance is below (N)
   double region_radius_mm{0.0};      ///< implicit: regional solves within this distance of a probe (0: off)
+  /// implicit with regional solves: 0 the far field held ("held", the default), 1 carried by an
+  /// affine field ("carried": IntegratorSettings::region_far_field_degree)
+  int region_far_field_degree{0};
   ContactSettings contact;
   std::optional<DeviceForceSettings> device;
   std::vector<ProbeSettings> probes;

@@ -75,8 +75,9 @@ struct IntegratorSettings {
   /// displacement field of this degree over their positions (1: affine, 2: quadratic), the
   /// mass-weighted projection of their exact solution in every step, instead of sleeping where
   /// the last full solve left them, so their inertia follows the press (docs/model.md section 7,
-  /// "The far field carried"). 0: held (the regional solves before 2026-11-26).
-  int region_far_field_degree{1};
+  /// "The far field carried"). 0: held, the default: carried costs 1.2 to 1.4x per step on the
+  /// organ phantom and 1.66x on the folded organ for 0.1 to 1 % of force error (docs/bench.md).
+  int region_far_field_degree{0};
   /// Diagnostics of the regional error (docs/bench.md, "Where the regional error comes from"):
   /// true: the regional steps fit rotations in the region only but solve the whole model, so the
   /// far field moves (its inertia is right) and only its rotations sleep. Costs a full solve.
