@@ -13,6 +13,7 @@
 
 #include "base/error.h"
 #include "model/gradational_builder.h"
+#include "physics/calibration.h"
 #include "sim/integrators.h"
 #include "sim/projective_solver.h"
 #include "sim/sparse_factor.h"
