@@ -81,6 +81,12 @@ struct AppOptions {
   std::uint32_t soak_seed{1};
   double test_unplug_s{-1.0};
   double test_replug_s{-1.0};
+  /// Test hook: the contact solve's cache fills as the tool goes (IntegratorSettings::
+  /// reserve_contact_cache off), to measure what reserving it changes.
+  bool lazy_contact_cache{false};
+  /// Test hook: IntegratorSettings::region_rest_fraction (< 0: its default; 0: a tissue falls
+  /// asleep by speed alone, as before), to measure the rest criterion.
+  double test_rest_fraction{-1.0};
 };
 
 }  // namespace vx::probe

@@ -112,6 +112,10 @@ struct PhysicsReport {
   /// with each last-good-state snapshot in a soak.
   std::atomic<std::int64_t> contact_cache_bytes{0};
   double soak_final_mm{-1.0};
+  /// ... and the simulation's counters then (whether, when and how far from its rest shape the
+  /// tissue last fell asleep) with the simulated time at the end, s.
+  SimulationCounters soak_counters;
+  double soak_end_s{0.0};
 
   [[nodiscard]] std::string last_fault() const {
     std::lock_guard lock(fault_mutex_);

@@ -104,6 +104,12 @@ int main(int argc, char** argv) {
   app.add_option("--test-fault", faults, "inject a physics fault: nan@STEP, runaway@STEP or throw@STEP")->group("");
   app.add_option("--test-unplug", o.test_unplug_s, "unplug virtual stick 0 at this device time, s")->group("");
   app.add_option("--test-replug", o.test_replug_s, "plug virtual stick 0 back at this device time, s")->group("");
+  app.add_flag("--test-lazy-contact-cache", o.lazy_contact_cache,
+               "the contact solve's cache filled as the tool goes, not reserved at the start")
+      ->group("");
+  app.add_option("--test-rest-fraction", o.test_rest_fraction,
+                 "the rest criterion's fraction of the release displacement (0: by speed alone)")
+      ->group("");
 
   auto* g_scene = app.add_option_group("defaults", "volumes and models (scene files set these themselves)");
   g_scene->add_option("--threshold", o.scene.threshold, "tissue HU window LO[:HI] or preset (volumes)");

@@ -101,6 +101,8 @@ void PhysicsLoop::keep_good_state(SteadyClock::time_point now) {
 
 void PhysicsLoop::finish() {
   if (s_.options.soak_s > 0 && soak_ref_.cols() > 0) s_.physics.soak_final_mm = soak_displacement_mm();
+  s_.physics.soak_counters = s_.sim.counters();
+  s_.physics.soak_end_s = s_.sim.time_s();
 }
 
 double PhysicsLoop::soak_displacement_mm() const {
@@ -110,6 +112,9 @@ double PhysicsLoop::soak_displacement_mm() const {
 
 void PhysicsLoop::soak_watch() {
   Simulation& sim = s_.sim;
+  // the contact solve's cache, from the first snapshot on (reserved when the solver was set up)
+  if (const auto& solver = sim.state().integrator_cache.solver)
+    s_.physics.contact_cache_bytes.store(std::int64_t(solver->contact_cache_bytes()), std::memory_order_relaxed);
   if (soak_ref_.cols() == 0) {
     // without gravity the rest is the model's own shape; with it, the tissue's state once it has
     // sagged for a second with no tool touching
@@ -126,8 +131,6 @@ void PhysicsLoop::soak_watch() {
     return;
   }
   s_.physics.soak_peak_mm = std::max(s_.physics.soak_peak_mm, soak_displacement_mm());
-  if (const auto& solver = sim.state().integrator_cache.solver)
-    s_.physics.contact_cache_bytes.store(std::int64_t(solver->contact_cache_bytes()), std::memory_order_relaxed);
 }
 
 void PhysicsLoop::apply_reset() {

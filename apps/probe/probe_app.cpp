@@ -182,6 +182,10 @@ void App::start_simulation() {
   scene_.simulation.integrator.threads = options_.threads;
   // the second start of the same organ loads its factor instead of computing it (io/factor_cache.h)
   scene_.simulation.integrator.factor_cache = make_factor_cache(options_.factor_cache);
+  // a session's memory flat: the contact solve's cache resident from the start, not filling as
+  // the tool visits new places (--test-lazy-contact-cache: as before, to measure the difference)
+  scene_.simulation.integrator.reserve_contact_cache = !options_.lazy_contact_cache;
+  if (options_.test_rest_fraction >= 0) scene_.simulation.integrator.region_rest_fraction = options_.test_rest_fraction;
   std::optional<DeviceForceSettings>& dev = scene_.device_side.device;
   local_ = options_.force_shaping.value_or(dev ? dev->shaping : ForceShaping::paper) == ForceShaping::local;
   if (local_ && !dev) dev = DeviceForceSettings{};
@@ -393,20 +397,42 @@ void App::soak_summary() {
   }
   const double growth =
       m.warm_bytes() > 0 ? 100.0 * double(m.end_bytes() - m.warm_bytes()) / double(m.warm_bytes()) : 0;
+  // the same without the contact solve's cache: what the cache's growth is, beside the whole
+  const double warm_rest = double(m.warm_bytes() - m.warm_cache_bytes()),
+               end_rest = double(m.end_bytes() - m.end_cache_bytes());
+  const double rest_growth = warm_rest > 0 ? 100.0 * (end_rest - warm_rest) / warm_rest : 0;
   say(fmt::format(
       "soak: {:.0f} s, seed {}: non-finite {} (physics faults {}, device forces refused {}); resident "
       "memory {:.1f} MB after the warm-up (at {:.1f} s), {:.1f} MB at the end ({:+.2f} %; the contact solve's "
-      "bounded cache {:.1f} -> {:.1f} MB); device forces per "
+      "bounded cache {:.1f} -> {:.1f} MB, {}, the rest {:+.2f} %); device forces per "
       "second at least {:.0f} over {} one-second windows; tissue at the end {:.4f} mm from its rest ({}), {:.2f} % "
       "of its largest displacement {:.3f} mm; energy guard {} ticks",
       options_.soak_s, options_.soak_seed, r.faults.load() + non_finite, r.faults.load(), non_finite,
       1e-6 * double(m.warm_bytes()), m.warm_at_s(), 1e-6 * double(m.end_bytes()), growth,
-      1e-6 * double(m.warm_cache_bytes()), 1e-6 * double(m.end_cache_bytes()), m.min_forces_per_s(), m.windows(),
-      r.soak_final_mm,
+      1e-6 * double(m.warm_cache_bytes()), 1e-6 * double(m.end_cache_bytes()),
+      options_.lazy_contact_cache ? "filled as the tools went" : "reserved at the start", rest_growth,
+      m.min_forces_per_s(), m.windows(), r.soak_final_mm,
       r.soak_ref_is_shape ? std::string("the model's shape: no gravity")
                           : fmt::format("its state at t = {:.2f} s, sagged under gravity", r.soak_ref_s),
       r.soak_peak_mm > 0 ? 100.0 * r.soak_final_mm / r.soak_peak_mm : 0.0, r.soak_peak_mm,
       local_ ? std::to_string(guard_ticks) : std::string("(paper shaping: none)")));
+  // whether the tissue slept at the end, and from how far (docs/model.md 7, "A tissue at rest sleeps")
+  const SimulationCounters& c = r.soak_counters;
+  if (c.sleeps == 0)
+    say(fmt::format("soak: the tissue never fell asleep (simulated {:.2f} s)", r.soak_end_s));
+  else
+    say(
+        fmt::format("soak: the tissue fell asleep {} times, the last at t = {:.2f} s ({:.2f} s before the end at "
+                    "{:.2f} s), {:.2f} s after a tool let go of it ({:.4f} mm from its rest shape then), {}; {} steps "
+                    "at rest",
+                    c.sleeps, c.last_sleep_s, r.soak_end_s - c.last_sleep_s, r.soak_end_s, c.last_sleep_since_release_s,
+                    c.last_release_offset_mm,
+                    c.last_sleep_offset_mm < 0 ? std::string("its rest shape not known (gravity): slow enough")
+                    : c.last_sleep_cause == SleepCause::slow
+                        ? fmt::format("{:.4f} mm from its rest shape and left there (slow)", c.last_sleep_offset_mm)
+                        : fmt::format("{:.4f} mm from its rest shape and put there ({})", c.last_sleep_offset_mm,
+                                      to_string(c.last_sleep_cause)),
+                    c.steps_at_rest));
 }
 
 int App::finish(ProbeView* view, std::string error) {

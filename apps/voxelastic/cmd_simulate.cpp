@@ -132,6 +132,7 @@ struct SimulateOptions {
   int threads{-1};
   std::string factor_cache;  ///< "" the default folder, "off", or a folder
   bool quiet{false};
+  double test_rest_fraction{-1.0};  ///< hidden: IntegratorSettings::region_rest_fraction (< 0: the default)
 };
 
 void run_simulate(const SimulateOptions& o) {
@@ -168,6 +169,7 @@ void run_simulate(const SimulateOptions& o) {
       for (const auto& w : c->warnings) log::warn("{}", w);
     }
   };
+  if (o.test_rest_fraction >= 0) prepared.settings.integrator.region_rest_fraction = o.test_rest_fraction;
   Simulation sim(prepared.physics, prepared.settings);
   const DeviceSide device(sim, prepared.device_side);
   const double dt = sim.dt_s();
@@ -264,6 +266,20 @@ void run_simulate(const SimulateOptions& o) {
     fmt::print("{} steps, {:.4g} s simulated in {:.3g} s (x{:.3g} real time); max force {:.4g} N -> {}\n", c.steps,
                sim.time_s(), wall_s, wall_s > 0 ? sim.time_s() / wall_s : 0.0, recorder ? recorder->max_force_n() : 0.0,
                dir.string());
+  // a tissue at rest sleeps (regional solves): when it last fell asleep, and how far from its rest
+  if (!o.quiet && c.sleeps > 0)
+    fmt::print(
+        "the tissue fell asleep {} time(s), the last at t = {:.3f} s, {:.3f} s after a tool let go ({:.4f} mm "
+        "from its rest shape then), {}\n",
+        c.sleeps, c.last_sleep_s, c.last_sleep_since_release_s, c.last_release_offset_mm,
+        c.last_sleep_offset_mm < 0 ? std::string("its rest shape not known (gravity or a load): slow enough")
+        : c.last_sleep_cause == SleepCause::slow
+            ? fmt::format("{:.4f} mm from its rest shape and left there (slow)", c.last_sleep_offset_mm)
+            : fmt::format("{:.4f} mm from its rest shape and put there ({})", c.last_sleep_offset_mm,
+                          to_string(c.last_sleep_cause)));
+  if (!o.quiet && sim.state().gravity_mm_s2.isZero(0.0))
+    fmt::print("the tissue at the end: {:.4f} mm from its rest shape (the largest node displacement)\n",
+               (sim.state().positions - sim.physics().model->rest_positions).colwise().norm().maxCoeff());
   // the work the run left out, for who tunes it (-v; summary.json's "skipped" always)
   log::debug("skipped: {} narrow-phase tests, {} device shapings, {} surface updates, {} steps at rest",
              c.contact.narrow_tests_skipped, device.counters().device_shaping_skipped, c.surface_updates_skipped,
@@ -288,6 +304,10 @@ void add_simulate_command(CLI::App& app) {
                   "where the implicit solver keeps its factors by the matrix's content, and the material's calibration "
                   "by the model's, so the next start of the same model loads instead of factoring and calibrating: a "
                   "folder, or off (default: $VOXELASTIC_FACTOR_CACHE, else ~/.cache/voxelastic/factors)");
+  sub->add_option("--test-rest-fraction", opts->test_rest_fraction,
+                  "a tissue at rest: the fraction of its release displacement it falls asleep within (0: by speed "
+                  "alone, as before)")
+      ->group("");
   sub->callback([opts] {
     opts->quiet = quiet();  // -q: no progress or summary on the console (warnings still go to stderr)
     run_simulate(*opts);

@@ -253,6 +253,12 @@ json run_summary_json(const Scene& scene, const fs::path& scene_file, const Prep
                   {"sleeping_node_solves", c.sleeping_node_solves},
                   {"steps_at_rest", c.steps_at_rest},
                   {"outputs_not_requested", outputs.not_requested()}};
+  j["rest"] = {{"sleeps", c.sleeps},
+               {"last_sleep_s", c.last_sleep_s},
+               {"last_sleep_since_release_s", c.last_sleep_since_release_s},
+               {"last_sleep_offset_mm", c.last_sleep_offset_mm},
+               {"last_release_offset_mm", c.last_release_offset_mm},
+               {"last_sleep_cause", to_string(c.last_sleep_cause)}};
   j["warnings"] = prepared.warnings;
   std::vector<std::string> written = outputs.written();
   written.push_back("summary.json");

@@ -59,6 +59,38 @@ void ContactActiveSet::bind(const std::vector<int>& free_index, const std::vecto
   forward_bytes_ = 0;
   for (auto& z : forward_) z.value.clear();
   gram_.setConstant(std::numeric_limits<double>::quiet_NaN());
+  reserved_ = false;
+}
+
+void ContactActiveSet::reserve(const SparseFactor& factor) {
+  const auto [values, segments] = factor.longest_unit_forward();
+  const double per_slot = double(values) * sizeof(double) + double(segments) * (2 * sizeof(int) + sizeof(std::int64_t));
+  int slots = std::min(kMaxSlots, num_free());
+  slots = std::max(std::min(slots, 16), std::min(slots, int(kColumnBudgetBytes / std::max(per_slot, 1.0))));
+  if (int(forward_.size()) < slots) grow_slots(slots);
+  gram_.setConstant(std::numeric_limits<double>::quiet_NaN());  // written once: resident
+  for (SparseFactor::UnitForward& z : forward_) {
+    // written once at the longest size (resident), then emptied: the capacity stays
+    z.value.assign(std::size_t(values), 0.0);
+    z.first.assign(std::size_t(segments), 0);
+    z.count.assign(std::size_t(segments), 0);
+    z.offset.assign(std::size_t(segments), 0);
+    z.value.clear(), z.first.clear(), z.count.clear(), z.offset.clear();
+  }
+  used_slots_ = 0;
+  forward_bytes_ = 0;
+  column_slot_.assign(std::size_t(num_free()), -1);
+  std::fill(slot_free_.begin(), slot_free_.end(), -1);
+  std::fill(slot_last_used_.begin(), slot_last_used_.end(), 0);
+  reserved_ = true;
+}
+
+std::size_t ContactActiveSet::cache_bytes() const {
+  std::size_t bytes = std::size_t(gram_.size()) * sizeof(double);
+  for (const SparseFactor::UnitForward& z : forward_)
+    bytes += z.value.capacity() * sizeof(double) + z.first.capacity() * sizeof(int) + z.count.capacity() * sizeof(int) +
+             z.offset.capacity() * sizeof(std::int64_t);
+  return bytes;
 }
 
 /// Room for `capacity` slots; the cached columns and G entries keep their slots (the new
@@ -78,7 +110,7 @@ int ContactActiveSet::column_of(int f, SparseFactor& factor, ContactSolveCounter
   int slot = column_slot_[std::size_t(f)];
   if (slot < 0) {
     if (used_slots_ < int(forward_.size()) ||
-        (used_slots_ < kMaxSlots && double(forward_bytes_) < kColumnBudgetBytes)) {
+        (!reserved_ && used_slots_ < kMaxSlots && double(forward_bytes_) < kColumnBudgetBytes)) {
       slot = used_slots_++;
       if (slot >= int(forward_.size())) grow_slots(int(forward_.size()) + std::max(16, int(forward_.size())));
     } else {

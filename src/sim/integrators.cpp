@@ -364,10 +364,7 @@ class ImplicitIntegrator final : public Integrator {
       s.scratch.node_chunk_sums[3 * std::size_t(c) + 2] = v2;
     });
     finish_node_pass(s, p, settings_, track, s.energies.elastic, rep);
-    // at rest: no tool touches and a full solve moved no node faster than the rest speed
-    if (regional && settling_ && contacts_.empty() && solver.last_solve_full() &&
-        settings_.region_rest_speed_mm_s > 0 && !s.failed() && max_speed_mm_s(s) < settings_.region_rest_speed_mm_s)
-      fall_asleep(s);
+    if (regional && !s.failed()) settle(s, solver, rep);
     // the contact warm start holds for the step that follows this one
     s.integrator_cache.next_step = s.steps;
     s.integrator_cache.next_time_s = s.time_s;
@@ -398,6 +395,7 @@ class ImplicitIntegrator final : public Integrator {
           new ProjectiveSolver(s.physics, s.node_fixed, setup, settings_.factor_cache.get(), settings_.threads),
           [](ProjectiveSolver* p) { delete p; });
       cache.fixed_version = s.fixed_version;
+      if (settings_.reserve_contact_cache) cache.solver->reserve_contact_cache();
       rep.refactored = true;
       rep.factor_from_cache = cache.solver->factor().from_cache();
       rep.factor_s = cache.solver->factor().factor_seconds();
@@ -416,10 +414,84 @@ class ImplicitIntegrator final : public Integrator {
     return std::sqrt(m);
   }
 
+  /// Whether the tissue's one equilibrium is its rest shape: no gravity, no external force and
+  /// every fixed node at its rest position (no tool touches: the caller knows).
+  static bool rest_shape_known(const SimState& s) {
+    if (!s.gravity_mm_s2.isZero(0.0) || !s.external_forces.isZero(0.0)) return false;
+    const Eigen::Matrix3Xd& rest = s.physics->model->rest_positions;
+    for (int i = 0; i < s.num_nodes(); ++i)
+      if (s.node_fixed[std::size_t(i)] && (s.positions.col(i) - rest.col(i)).squaredNorm() > 1e-18) return false;
+    return true;
+  }
+
+  /// The largest node displacement from the rest shape, mm.
+  double offset_from_rest_mm(const SimState& s, int threads) {
+    const Eigen::Matrix3Xd& rest = s.physics->model->rest_positions;
+    std::vector<double>& largest = chunk_largest_;
+    largest.assign(std::size_t(chunk_count(s.num_nodes(), kNodeGrain)), 0.0);
+    parallel_for_chunks(s.num_nodes(), kNodeGrain, threads, [&](std::int64_t c, std::int64_t b, std::int64_t e) {
+      double m = 0.0;
+      for (std::int64_t i = b; i < e; ++i) m = std::max(m, (s.positions.col(i) - rest.col(i)).squaredNorm());
+      largest[std::size_t(c)] = m;
+    });
+    return std::sqrt(*std::max_element(largest.begin(), largest.end()));
+  }
+
+  /// After a regional step: the release (the displacement the tissue returns from), and whether
+  /// the tissue, untouched, is at rest now: a full solve found no node faster than the rest speed
+  /// and, when its rest shape is known, every node within the rest fraction of it (then it is
+  /// put there); or, rest shape known, the idle refresh window is over (no full solve comes to
+  /// tell: it is put at its rest shape, the static solution).
+  void settle(SimState& s, ProjectiveSolver& solver, StepReport& rep) {
+    const double dt = settings_.time_step_s;
+    if (!contacts_.empty()) {
+      touching_ = true;
+      return;
+    }
+    if (touching_) {
+      touching_ = false;
+      release_time_s_ = s.time_s;
+      release_offset_mm_ = rest_shape_known(s) ? offset_from_rest_mm(s, settings_.threads) : 0.0;
+    }
+    if (!settling_ || settings_.region_rest_speed_mm_s <= 0) return;
+    const bool full = solver.last_solve_full();
+    const bool window_over = settings_.region_idle_refresh_steps > 0 && solver.has_region() &&
+                             double(idle_steps_ + 1) * dt > settings_.region_idle_refresh_window_s;
+    if (!full && !window_over) return;
+    const bool known = rest_shape_known(s);
+    const bool slow = full && max_speed_mm_s(s) < settings_.region_rest_speed_mm_s;
+    if (!known || settings_.region_rest_fraction <= 0) {
+      // by speed alone (the offset reported when it is known, the tissue left where it is)
+      if (slow) fall_asleep(s, rep, SleepCause::slow, known ? offset_from_rest_mm(s, settings_.threads) : -1.0, false);
+      return;
+    }
+    const double offset = offset_from_rest_mm(s, settings_.threads);
+    const double near = std::max(kRestFloorMm, settings_.region_rest_fraction * release_offset_mm_);
+    // put at its rest shape unless it is within the floor of it already (then left where it is,
+    // as the regional solves' far field and forward solution have it)
+    const bool move = offset > kRestFloorMm;
+    if (slow && offset <= near)
+      fall_asleep(s, rep, SleepCause::near_rest, offset, move);
+    else if (window_over)
+      fall_asleep(s, rep, SleepCause::window_end, offset, move);
+    // moved to its rest: the first solve after the sleep brings every node and element up to
+    // date (the regional solves' far field and forward solution are the state's before)
+    if (asleep_ && move) solver.refresh_all_next();
+  }
+
   /// The tissue is at rest: from now on its steps only advance the time, until still_at_rest()
-  /// says otherwise. What it watches is recorded here.
-  void fall_asleep(SimState& s) {
+  /// says otherwise. What it watches is recorded here. With `to_rest` it is put at its rest
+  /// shape: positions at rest, rotations the identity (as Simulation::reset).
+  void fall_asleep(SimState& s, StepReport& rep, SleepCause cause, double offset_mm, bool to_rest) {
     s.velocities.setZero();
+    if (to_rest) {
+      s.positions = s.physics->model->rest_positions;
+      std::fill(s.rotations.begin(), s.rotations.end(), Eigen::Quaterniond::Identity());
+    }
+    rep.fell_asleep = cause;
+    rep.sleep_offset_mm = offset_mm;
+    rep.since_release_s = s.time_s - release_time_s_;
+    rep.release_offset_mm = release_offset_mm_;
     asleep_ = true;
     settling_ = false;
     asleep_gravity_ = s.gravity_mm_s2;
@@ -484,14 +556,20 @@ class ImplicitIntegrator final : public Integrator {
   std::uint64_t contact_epoch_{0};
   std::vector<Eigen::Vector3d> focus_, centres_;
   std::vector<int> awake_;
+  /// a displacement from the rest shape this small is at rest whatever the release, mm
+  static constexpr double kRestFloorMm = 1e-3;
   bool settling_{true};         ///< the tissue may be moving (from the start, and after a contact)
   std::int64_t idle_steps_{0};  ///< steps since the last contact
+  bool touching_{false};        ///< a tool touched in the last step
+  double release_time_s_{0.0};  ///< when the last contact ended (0: the start), s
+  double release_offset_mm_{0.0};  ///< the largest displacement from the rest shape then (0: unknown or none), mm
   bool asleep_{false};          ///< at rest: steps only advance the time (fall_asleep)
   Eigen::Vector3d asleep_gravity_{Eigen::Vector3d::Zero()};
   std::uint64_t asleep_fixed_version_{0};
   std::int64_t asleep_step_{0};
   double asleep_time_s_{0.0};
   std::vector<ContactConstraint> near_;      ///< still_at_rest(): candidates near a tool or wall
+  std::vector<double> chunk_largest_;        ///< offset_from_rest_mm(): per node chunk
   std::vector<ContactConstraint> contacts_;  ///< active at the end of the last step
 };
 
@@ -503,6 +581,8 @@ void check_settings(const IntegratorSettings& s) {
   if (!(s.tolerance_mm >= 0)) err << "tolerance " << s.tolerance_mm << " mm must be >= 0; ";
   if (!(s.region_radius_mm >= 0)) err << "region radius " << s.region_radius_mm << " mm must be >= 0; ";
   if (!(s.residual_tolerance_n >= 0)) err << "residual tolerance " << s.residual_tolerance_n << " N must be >= 0; ";
+  if (!(s.region_rest_fraction >= 0) || !std::isfinite(s.region_rest_fraction))
+    err << "region rest fraction " << s.region_rest_fraction << " must be >= 0; ";
   if (s.rotation.max_iterations < 1) err << "rotation max_iterations must be >= 1; ";
   if (!(s.limits.max_speed_mm_s > 0)) err << "max speed must be > 0; ";
   if (!err.str().empty()) throw Error("integrator settings: " + err.str());

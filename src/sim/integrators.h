@@ -71,6 +71,13 @@ struct IntegratorSettings {
   /// 1.5 s after the release: 12 % without, 2 % every 8th step, 0.5 % every 4th). A full step
   /// costs about 2.5 regional ones on an organ. 0: never.
   int region_idle_refresh_steps{4};
+  /// ... for at most this long after the last contact, s. A tissue with no tool, no gravity, no
+  /// external force and its fixed nodes at their rest positions has its rest shape as its one
+  /// equilibrium: if it is not at rest by then (region_rest_fraction), it is put there and
+  /// sleeps (the static solution; so such a tissue always sleeps within this time). With gravity
+  /// or a load, a tissue not at rest by then (region_rest_speed_mm_s) is left to the regional
+  /// solves without sleeping.
+  double region_idle_refresh_window_s{10.0};
   /// implicit with a region: the nodes outside the region's closure move by a polynomial
   /// displacement field of this degree over their positions (1: affine, 2: quadratic), the
   /// mass-weighted projection of their exact solution in every step, instead of sleeping where
@@ -85,16 +92,27 @@ struct IntegratorSettings {
   /// false: a region move keeps the far field as it is (no full solve at the move; the elements
   /// that join the region are fitted from the next step on).
   bool region_refresh_on_move{true};
-  /// ... for at most this long after the last contact, s: a tissue that has not come to rest by
-  /// then (region_rest_speed_mm_s) is left to the regional solves.
-  double region_idle_refresh_window_s{10.0};
-  /// implicit with a region: once no tool touches and a full solve finds no node faster than
-  /// this, mm/s, the tissue is at rest and sleeps as a whole: its steps only advance the time
-  /// (no rotation fit, no solve, velocities 0) until a tool comes within the contact margin of a
-  /// node, the state is replaced, or the gravity, the external forces or the fixed nodes change.
-  /// A tissue left alone costs nothing (docs/model.md section 7, "A tissue at rest sleeps").
-  /// 0: never.
+  /// implicit with a region: once no tool touches and a full solve finds the tissue at rest, it
+  /// sleeps as a whole: its steps only advance the time (no rotation fit, no solve, velocities
+  /// 0) until a tool comes within the contact margin of a node, the state is replaced, or the
+  /// gravity, the external forces or the fixed nodes change. A tissue left alone costs nothing
+  /// (docs/model.md section 7, "A tissue at rest sleeps"). At rest means no node faster than this,
+  /// mm/s, and, when its rest shape is known (no gravity, no external force, the fixed nodes at
+  /// their rest positions), every node within region_rest_fraction of it too: then it is put
+  /// exactly at its rest shape as it falls asleep. 0: never.
   double region_rest_speed_mm_s{0.05};
+  /// ... the largest node displacement from the rest shape at which a tissue with a known rest
+  /// shape may fall asleep (and is put at rest), as a fraction of its largest node displacement
+  /// when the last tool let go (or 1 um, whichever is larger). A speed alone stopped the folded
+  /// organ's return at 0.8 % of the press (a stem-held organ creeps back at under 0.05 mm/s, and
+  /// the regional steps between full ones zero the far field's velocity).
+  /// 0: by speed alone, never put at rest (as before).
+  double region_rest_fraction{0.005};
+  /// implicit: the contact solve's cache (forward vectors and G between the nodes tools touch,
+  /// contact_active_set.h) reserved and resident from each factorisation on, instead of filling
+  /// as tools visit new nodes (up to tens of MB on an organ): for a long session whose memory must
+  /// stay flat (the probe app). Costs its whole bound at once (ContactActiveSet::reserve).
+  bool reserve_contact_cache{false};
   /// implicit: where factors are looked up before and kept after a factorisation (by the
   /// content of the matrix: sparse_factor.h); null: every solver factors. Shared, not owned by
   /// one integrator: pipeline/io/factor_cache.h keeps one in a folder.

@@ -176,6 +176,9 @@ class ProjectiveSolver {
   [[nodiscard]] const std::vector<ContactConstraint>& active_contacts() const { return contact_set_.active(); }
   /// The contact solve's cache (ContactActiveSet::cache_bytes), bytes.
   [[nodiscard]] std::size_t contact_cache_bytes() const { return contact_set_.cache_bytes(); }
+  /// Reserves (and touches) the contact solve's cache for this factor now, so that it never grows
+  /// later (ContactActiveSet::reserve: a long session's memory flat). Allocates.
+  void reserve_contact_cache() { contact_set_.reserve(factor_); }
   /// Forgets the contact warm start (the next solve does not follow the last one).
   void forget_contacts() { contact_set_.forget_warm_start(); }
   /// g (m x m) = (A^-1)_ij between `nodes`, mm/N: the compliance of one step between them (the

@@ -167,6 +167,14 @@ StepStatus Simulation::step() {
     counters_.factor_s += report.factor_s;
   }
   counters_.steps_at_rest += report.asleep ? 1 : 0;
+  if (report.fell_asleep != SleepCause::none) {
+    ++counters_.sleeps;
+    counters_.last_sleep_s = state_.time_s;
+    counters_.last_sleep_since_release_s = report.since_release_s;
+    counters_.last_sleep_offset_mm = report.sleep_offset_mm;
+    counters_.last_release_offset_mm = report.release_offset_mm;
+    counters_.last_sleep_cause = report.fell_asleep;
+  }
   if (report.region_elements > 0) {
     counters_.sleeping_element_updates += physics_->num_elements() - report.region_elements;
     counters_.sleeping_node_solves += (state_.num_nodes() - state_.num_fixed()) - report.region_nodes;

@@ -80,6 +80,15 @@ struct SimulationCounters {
   /// implicit with regional solves: steps of a tissue at rest that computed nothing
   /// (IntegratorSettings::region_rest_speed_mm_s)
   std::int64_t steps_at_rest{0};
+  /// ... times it fell asleep, and the last time: when (simulated, s; < 0: never), how long
+  /// after a tool last let go of it (or after the start), s, its largest node displacement from
+  /// its rest shape then, mm (< 0: not known), and why (it was put at rest unless `slow`)
+  std::int64_t sleeps{0};
+  double last_sleep_s{-1.0};
+  double last_sleep_since_release_s{0.0};
+  double last_sleep_offset_mm{-1.0};
+  double last_release_offset_mm{0.0};  ///< its largest displacement from its rest shape when let go, mm (0: unknown)
+  SleepCause last_sleep_cause{SleepCause::none};
   /// implicit: system matrices factored (or loaded from the factor cache), and their wall time, s
   std::int64_t factorisations{0};
   std::int64_t factors_from_cache{0};

@@ -28,6 +28,7 @@
 #include <iosfwd>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace vx {
@@ -187,6 +188,9 @@ class SparseFactor {
   };
   /// z = z_i for row i (original numbering). Allocates z's storage when it grows.
   void forward_unit(int i, UnitForward& z);
+  /// The storage of the largest z_i of this factor, {values, segments}: its longest path to a root
+  /// of the elimination tree (a bound for every forward_unit(); ContactActiveSet::reserve).
+  [[nodiscard]] std::pair<std::int64_t, std::int64_t> longest_unit_forward() const;
   /// z_a . z_b = (A^-1)_ij.
   [[nodiscard]] static double dot(const UnitForward& a, const UnitForward& b);
   /// x += A^-1 sum_k e_(row k) f_k^T for the forces f_k (3 per k, in `forces3`) at the rows whose

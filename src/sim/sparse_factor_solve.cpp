@@ -347,6 +347,31 @@ void SparseFactor::forward_unit(int i, UnitForward& z) {
   }
 }
 
+std::pair<std::int64_t, std::int64_t> SparseFactor::longest_unit_forward() const {
+  // per supernode (or column): values and segments on its path to the root, parents first (in
+  // an elimination tree a parent comes after its children; walked otherwise)
+  const bool sup = supernodal_;
+  const std::vector<int>& parent = sup ? super_parent_ : parent_;
+  const int n = int(parent.size());
+  const auto width = [&](int q) { return sup ? std::int64_t(super_[std::size_t(q) + 1] - super_[std::size_t(q)]) : 1; };
+  std::vector<std::int64_t> values(std::size_t(n), 0), segments(std::size_t(n), 0);
+  std::int64_t most_values = 0, most_segments = 0;
+  for (int q = n - 1; q >= 0; --q) {
+    std::int64_t v = 0, g = 0;
+    const int up = parent[std::size_t(q)];
+    if (up > q) {
+      v = values[std::size_t(up)], g = segments[std::size_t(up)];
+    } else {
+      for (int a = up; a >= 0; a = parent[std::size_t(a)]) v += width(a), ++g;
+    }
+    values[std::size_t(q)] = v + width(q);
+    segments[std::size_t(q)] = g + 1;
+    most_values = std::max(most_values, values[std::size_t(q)]);
+    most_segments = std::max(most_segments, segments[std::size_t(q)]);
+  }
+  return {most_values, most_segments};
+}
+
 double SparseFactor::dot(const UnitForward& a, const UnitForward& b) {
   double acc = 0.0;
   std::size_t i = 0, j = 0;

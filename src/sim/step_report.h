@@ -10,6 +10,26 @@
 
 namespace vx {
 
+/// Why a tissue fell asleep (implicit with a region; docs/model.md section 7, "A tissue at rest
+/// sleeps").
+enum class SleepCause : std::uint8_t {
+  none,        ///< it did not fall asleep in this step
+  near_rest,   ///< no tool or load: within IntegratorSettings::region_rest_fraction of its rest shape, put there
+  window_end,  ///< no tool or load: still short of that at the end of the idle refresh window, put at rest
+  slow,        ///< by speed alone (gravity or a load: the rest shape unknown; or region_rest_fraction 0): no
+               ///< node faster than region_rest_speed_mm_s, the tissue left where it is
+};
+
+[[nodiscard]] inline const char* to_string(SleepCause c) {
+  switch (c) {
+    case SleepCause::none: return "none";
+    case SleepCause::near_rest: return "near_rest";
+    case SleepCause::window_end: return "window_end";
+    case SleepCause::slow: return "slow";
+  }
+  return "none";
+}
+
 /// What one step did.
 struct StepReport {
   StepStatus status{StepStatus::ok};
@@ -29,6 +49,11 @@ struct StepReport {
   std::int64_t region_elements{0}; ///< implicit with a region: elements computed (0: all)
   std::int64_t region_nodes{0};    ///< implicit with a region: free nodes solved for (0: all)
   bool asleep{false};              ///< implicit with a region: the tissue was at rest, nothing computed
+  SleepCause fell_asleep{SleepCause::none};  ///< implicit with a region: the tissue fell asleep after this step
+  double sleep_offset_mm{-1.0};              ///< ... its largest node displacement from its rest shape then, mm (before
+                                             ///< it was put there); < 0: not known (gravity or a load)
+  double since_release_s{0.0};    ///< ... simulated time since a tool last touched it (or since the start), s
+  double release_offset_mm{0.0};  ///< ... its largest node displacement from its rest shape then, mm (0: unknown)
 };
 
 }  // namespace vx

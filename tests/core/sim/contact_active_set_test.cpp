@@ -173,3 +173,33 @@ TEST(ContactActiveSet, TheComplianceIsTheInverseOfTheMatrix) {
     for (int j = 0; j < 4; ++j)
       EXPECT_NEAR(g(i, j), inverse(nodes[std::size_t(i)], nodes[std::size_t(j)]), 1e-12) << i << " " << j;
 }
+
+namespace vx {
+namespace {
+
+TEST(ContactActiveSet, AReservedCacheAnswersTheSameAndNeverGrows) {
+  // reserved when set up (a long session's memory flat): every node's forward vector fits the
+  // storage kept for the factor's longest, so using them all allocates nothing more
+  Chain c;
+  ContactActiveSet set;
+  set.bind(c.free_index, c.free_nodes);
+  set.reserve(c.factor);
+  ASSERT_TRUE(set.reserved());
+  const std::size_t reserved = set.cache_bytes();
+  const auto [values, segments] = c.factor.longest_unit_forward();
+  EXPECT_GE(values, 1);
+  EXPECT_LE(values, kNodes);
+  EXPECT_GE(segments, 1);
+  // G between kNodes slots (fewer free nodes than kMaxSlots) and every slot's vectors
+  EXPECT_GE(reserved, std::size_t(kNodes) * kNodes * sizeof(double) + std::size_t(kNodes * values) * sizeof(double));
+  std::vector<int> nodes(kNodes);
+  std::iota(nodes.begin(), nodes.end(), 0);
+  Eigen::MatrixXd g;
+  set.compliance(nodes, c.factor, g);
+  const Eigen::MatrixXd inverse = Eigen::MatrixXd(c.a).inverse();
+  EXPECT_LT((g - inverse).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_EQ(set.cache_bytes(), reserved);
+}
+
+}  // namespace
+}  // namespace vx

@@ -515,6 +515,77 @@ TEST(RegionalSolve, TheFarFieldReturnsToRestAfterTheRelease) {
   EXPECT_GT(off, 0.05 * peak_off);
 }
 
+TEST(RegionalSolve, AStemHeldTissueFallsAsleepAtItsRestShape) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "needs CHOLMOD (supernodal)";
+  // the 32-voxel ball held at a small patch at its bottom (a stem: it sways about it, as the
+  // folded organ does), the fast configuration (30 ms, one iteration, a region), pressed about
+  // 3 mm off its axis and let go. By speed alone (no node faster than 0.05 mm/s in a full solve;
+  // region_rest_fraction 0, as before) it fell asleep 2.6 s after the release 0.74 % of its
+  // largest displacement from rest and stayed there; now it falls asleep within the idle refresh
+  // window (here at its end, 0.3 % from rest: the regional steps between the full ones make the
+  // far field creep back slowly) and is put at its rest shape.
+  const auto p = make_physics_model(ball(32), tissue(0.2));
+  const Model& m = *p->model;
+  const Eigen::Vector3d c = 0.5 * (m.rest_positions.rowwise().minCoeff() + m.rest_positions.rowwise().maxCoeff());
+  const double ztop = m.rest_positions.row(2).maxCoeff();
+  struct Run {
+    double peak_mm{0}, at_sleep_mm{-1}, after_mm{-1}, since_release_s{0};
+    std::int64_t sleeps{0}, at_rest{0};
+    SleepCause cause{SleepCause::none};
+  };
+  const auto run = [&](double rest_fraction) {
+    SimulationSettings ss = regional_ball_press(m);
+    ss.integrator.time_step_s = 0.03;
+    ss.integrator.region_rest_fraction = rest_fraction;
+    ss.fixed_nodes = bottom_cap(m, 1.0);
+    ProbeSettings& probe = ss.probes.front();
+    probe.path = {{0.0, {c.x() + 6.0, c.y(), ztop + 4.0}},
+                  {0.6, {c.x() + 6.0, c.y(), ztop - 1.5}},
+                  {0.9, {c.x() + 6.0, c.y(), ztop - 1.5}},
+                  {1.2, {c.x() + 6.0, c.y(), ztop + 12.0}}};
+    Simulation sim(p, ss);
+    Run r;
+    const std::int64_t first = [&] {
+      for (int k = 0; k < 3; ++k) sim.step();
+      return sim.counters().sleeps;  // asleep from the start (at rest, the tool above)
+    }();
+    while (sim.time_s() < 12.0 - 1e-9 && !sim.failed() && sim.counters().sleeps == first) {
+      sim.step();
+      r.peak_mm = std::max(r.peak_mm, (sim.state().positions - m.rest_positions).colwise().norm().maxCoeff());
+    }
+    EXPECT_FALSE(sim.failed()) << sim.state().message;
+    EXPECT_EQ(first, 1) << "asleep at the start";
+    const SimulationCounters& k = sim.counters();
+    r.sleeps = k.sleeps - first;
+    r.at_sleep_mm = k.last_sleep_offset_mm;
+    r.since_release_s = k.last_sleep_since_release_s;
+    r.cause = k.last_sleep_cause;
+    const std::int64_t rest_before = k.steps_at_rest;
+    for (int s = 0; s < 10; ++s) sim.step();
+    r.at_rest = sim.counters().steps_at_rest - rest_before;
+    r.after_mm = (sim.state().positions - m.rest_positions).colwise().norm().maxCoeff();
+    return r;
+  };
+  const Run now = run(IntegratorSettings{}.region_rest_fraction), speed = run(0.0);
+  std::cout << "asleep " << now.since_release_s << " s after the release (" << to_string(now.cause) << "), "
+            << now.at_sleep_mm << " mm from rest then, " << now.after_mm << " mm after, of a largest " << now.peak_mm
+            << " mm; by speed alone " << speed.since_release_s << " s after, " << speed.at_sleep_mm << " mm ("
+            << 100.0 * speed.at_sleep_mm / speed.peak_mm << " %)\n";
+  EXPECT_GT(now.peak_mm, 1.5);
+  ASSERT_EQ(now.sleeps, 1) << "asleep again after the release";
+  EXPECT_TRUE(now.cause == SleepCause::near_rest || now.cause == SleepCause::window_end) << to_string(now.cause);
+  EXPECT_GE(now.at_sleep_mm, 0.0);
+  EXPECT_LT(now.at_sleep_mm, 0.01 * now.peak_mm) << "the issue's bound: within 1 % of rest once released";
+  EXPECT_EQ(now.after_mm, 0.0) << "put at its rest shape, and kept there asleep";
+  EXPECT_EQ(now.at_rest, 10);
+  EXPECT_LE(now.since_release_s, IntegratorSettings{}.region_idle_refresh_window_s + 0.03);
+  // the criterion before: slow, but left short of its rest (beyond the 0.5 % it is put at rest from)
+  ASSERT_EQ(speed.sleeps, 1);
+  EXPECT_EQ(speed.cause, SleepCause::slow);
+  EXPECT_GT(speed.at_sleep_mm, 0.005 * speed.peak_mm);
+  EXPECT_EQ(speed.after_mm, speed.at_sleep_mm);
+}
+
 TEST(RegionalSolve, ATissueAtRestSleepsUntilAToolComesBack) {
   if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "needs CHOLMOD (supernodal)";
   // the press and release above, the tool away until 3.6 s, then the same press again: at the
