@@ -107,7 +107,8 @@ void use_display_surface(ProbeScene& scene, const DefaultSceneOptions& options) 
   DecimationSettings settings;
   settings.target_triangles = options.display_triangles;
   DecimationReport report;
-  EmbeddedSurface shown = decimate_surface(*scene.model, *scene.surface, settings, &report, options.surface_cache.get());
+  EmbeddedSurface shown =
+      decimate_surface(*scene.model, *scene.surface, settings, &report, options.surface_cache.get());
   if (!report.decimated) return;
   // the physics deforms the surface it publishes: the decimated one only
   scene.surface = std::make_shared<const EmbeddedSurface>(std::move(shown));
@@ -209,8 +210,8 @@ ProbeScene load_probe_scene(const std::filesystem::path& input, const DefaultSce
   if (!file.description.empty()) scene.notes.push_back(file.description);
   for (const auto& l : built.log) scene.notes.push_back(l);
   if (built_display && built_display->from_cache)
-    scene.notes.push_back(fmt::format("surface: {} ({} triangles)", to_string(scene.surface->method),
-                                      built_display->triangles_before));
+    scene.notes.push_back(
+        fmt::format("surface: {} ({} triangles)", to_string(scene.surface->method), built_display->triangles_before));
   else if (built_display)
     scene.notes.push_back(fmt::format("surface: {} ({} triangles, built in {:.2f} s)", to_string(scene.surface->method),
                                       built_display->triangles_before, built_display->build_s));

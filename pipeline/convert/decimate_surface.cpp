@@ -210,7 +210,8 @@ EmbeddedSurface decimate_surface(const Model& model, const EmbeddedSurface& full
   report.decimated = true;
   report.triangles_after = s.num_triangles();
   report.vertices_after = s.num_vertices();
-  if (cache && key) cache->store(*key, CachedSurface{s, full.num_triangles(), full.num_vertices()}, report.decimate_s + report.embed_s);
+  if (cache && key)
+    cache->store(*key, CachedSurface{s, full.num_triangles(), full.num_vertices()}, report.decimate_s + report.embed_s);
   if (report_out) *report_out = report;
   return s;
 }

@@ -44,9 +44,7 @@ void write_header(CacheFileWriter& w, const SurfaceKey& key) {
 
 }  // namespace
 
-std::string SurfaceKey::name() const {
-  return fmt::format("surface-{}n-{}t-{:016x}", model_nodes, target, hash);
-}
+std::string SurfaceKey::name() const { return fmt::format("surface-{}n-{}t-{:016x}", model_nodes, target, hash); }
 
 ContentHash surface_key_hash(const Model& model, int target_triangles, double feature_angle_deg) {
   ContentHash h;
@@ -102,7 +100,8 @@ std::optional<CachedSurface> read_surface_cache_file(const unsigned char* data, 
   r.value(stored.model_nodes, "key");
   r.value(stored.target, "key");
   if (!r.ok()) return fail(r.error());
-  if (version != kFormatVersion) return fail(fmt::format("format version {} (this build reads {})", version, kFormatVersion));
+  if (version != kFormatVersion)
+    return fail(fmt::format("format version {} (this build reads {})", version, kFormatVersion));
   if (!(stored == key)) return fail("the file holds another surface's decimation");
   CachedSurface c;
   EmbeddedSurface& s = c.surface;
@@ -115,7 +114,8 @@ std::optional<CachedSurface> read_surface_cache_file(const unsigned char* data, 
   if (method < 0 || method > std::int32_t(SurfaceMethod::iso)) return fail("unknown surface method");
   s.method = SurfaceMethod(method);
   s.model_nodes = nodes;
-  if (nodes != key.model_nodes) return fail(fmt::format("embedded in {} nodes, the model has {}", nodes, key.model_nodes));
+  if (nodes != key.model_nodes)
+    return fail(fmt::format("embedded in {} nodes, the model has {}", nodes, key.model_nodes));
   {
     const auto [p, n] = r.array(sizeof(double), -1, "vertices");
     if (p && n % 3 != 0) r.fail("vertices: not a whole number of points");

@@ -542,12 +542,14 @@ Scene parse_scene(const json& j, const fs::path& base, const std::string& name) 
     require(s.region_radius_mm >= 0, in.at_where("region_radius_mm"), "must be >= 0 mm (0: every node every step)");
     const std::string far = in.string("region_far_field", "held");
     if (far != "held" && far != "carried")
-      in.at_where("region_far_field").fail("unknown \"" + far + "\"; use held (the default) or carried (docs/model.md section 7)");
+      in.at_where("region_far_field")
+          .fail("unknown \"" + far + "\"; use held (the default) or carried (docs/model.md section 7)");
     s.region_far_field_degree = far == "carried" ? 1 : 0;
     if ((s.iterations > 0 || s.residual_tolerance_n > 0 || s.region_radius_mm > 0 || in.has("region_far_field")) &&
         s.integrator != IntegratorKind::implicit)
       in.where().fail(
-          "iterations, residual_tolerance_n, region_radius_mm and region_far_field are settings of the implicit integrator");
+          "iterations, residual_tolerance_n, region_radius_mm and region_far_field are settings of the implicit "
+          "integrator");
   }
   if (o.has("contact")) {
     const Obj c(o.at("contact"), o.at_where("contact"), {"restitution", "friction", "skin_mm"});

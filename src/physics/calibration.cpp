@@ -182,8 +182,9 @@ void set_gradients(PhysicsModel& p, const std::vector<std::uint8_t>& bad) {
   for (int e = 0; e < m.num_elements(); ++e) {
     if (!grads.element_fallback[std::size_t(e)] || bad[std::size_t(e)]) continue;
     // 2D: the inverse in the slice plane (C0 has no normal part)
-    const Eigen::Matrix3d inv = p.is_2d() ? Eigen::Matrix3d(p.element_spread[std::size_t(e)].completeOrthogonalDecomposition().pseudoInverse())
-                                          : Eigen::Matrix3d(p.element_spread[std::size_t(e)].inverse());
+    const Eigen::Matrix3d inv =
+        p.is_2d() ? Eigen::Matrix3d(p.element_spread[std::size_t(e)].completeOrthogonalDecomposition().pseudoInverse())
+                  : Eigen::Matrix3d(p.element_spread[std::size_t(e)].inverse());
     for (int j = m.element_offsets[e]; j < m.element_offsets[e + 1]; ++j)
       p.entry_gradient.col(j) = inv * p.entry_rest_weighted.col(j);
   }
@@ -359,7 +360,8 @@ void lump_masses(PhysicsModel& p, const std::vector<double>& anisotropy, const s
     double wsum = 0;
     for (int i = 0; i < n; ++i) wsum += p.entry_weight[std::size_t(b + i)];
     for (int i = 0; i < n; ++i)
-      p.node_mass_kg[std::size_t(m.element_vertices[b + i])] += p.element_mass_kg[e] * p.entry_weight[std::size_t(b + i)] / wsum;
+      p.node_mass_kg[std::size_t(m.element_vertices[b + i])] +=
+          p.element_mass_kg[e] * p.entry_weight[std::size_t(b + i)] / wsum;
   }
   for (int i = 0; i < nn; ++i)
     if (!(p.node_mass_kg[i] > 0))
