@@ -10,6 +10,7 @@
 
 #include "haptics/device_side.h"
 #include "sim/simulation.h"
+#include "soak.h"
 #include "util/thread_priority.h"
 
 namespace vx::probe {
@@ -31,6 +32,12 @@ DeviceLoop::DeviceLoop(AppShared& shared, DeviceParts parts) : s_(shared), parts
   ForceGuardSettings g;
   g.max_force_N = shared.options.max_force_N;  // the device's rated maximum
   for (auto& guard : guards_) guard = DeviceForceGuard(g);
+  // a soak's end waits (in simulated time) for the tissue to fall asleep, at most the idle window
+  // after which it is put at rest (read here, before the threads start)
+  const IntegratorSettings& integ = shared.sim.settings().integrator;
+  settle_window_s_ = integ.region_radius_mm > 0 && integ.region_idle_refresh_steps > 0
+                         ? integ.region_idle_refresh_window_s
+                         : kSoakSettleSim_s;
 }
 
 void DeviceLoop::add_commander(const Eigen::Vector3d& start_mm, const Box& allowed) {
@@ -278,10 +285,45 @@ void DeviceLoop::report(const DeviceTick& tick, const std::array<ProbeTick, kMax
 
 void DeviceLoop::check_stop(double now_s, double script_s) {
   const AppOptions& o = s_.options;
-  if (o.exit_after_script && parts_.script && script_s > parts_.script->duration_s() + 0.25)
-    s_.controls.request_quit(fmt::format("the joystick script ended ({:.2f} s)", parts_.script->duration_s()));
+  // a soak's release: its tools are up from here on (soak.h)
+  if (o.soak_s > 0 && release_sim_s_ < 0 && script_s >= o.soak_s - soak_rest_s(o.soak_s))
+    release_sim_s_ = 1e-6 * double(s_.physics.sim_advanced_us.load(std::memory_order_relaxed));
+  if (o.exit_after_script && parts_.script && script_s > parts_.script->duration_s() + 0.25 && soak_settled())
+    s_.controls.request_quit(fmt::format("the joystick script ended ({:.2f} s){}", parts_.script->duration_s(),
+                                         settle_.empty() ? "" : "; " + settle_));
   if (o.duration_s > 0 && now_s >= o.duration_s)
     s_.controls.request_quit(fmt::format("simulated {:.2f} s (--duration)", o.duration_s));
+}
+
+bool DeviceLoop::soak_settled() {
+  if (s_.options.soak_s <= 0) return true;
+  if (!settle_.empty()) return true;
+  // the script's rest runs in wall time: a tissue simulated slower than real time may not have
+  // had its idle window since the release yet. Go on until it falls asleep, or until the window
+  // has passed in simulated time since the release (then it has been put at rest, or with
+  // gravity or without regional solves left to settle), or kSoakSettleWall_s of wall time more.
+  const double wall_s = seconds(SteadyClock::now() - s_.start);
+  const double sim_s = 1e-6 * double(s_.physics.sim_advanced_us.load(std::memory_order_relaxed));
+  if (settle_wall_s_ < 0) {
+    settle_wall_s_ = wall_s;
+    settle_sim_s_ = sim_s;
+  }
+  const double waited_wall_s = wall_s - settle_wall_s_, waited_sim_s = sim_s - settle_sim_s_;
+  const double since_release_s = sim_s - std::max(0.0, release_sim_s_);
+  const char* why = nullptr;
+  if (s_.physics.asleep.load(std::memory_order_relaxed))
+    why = "the tissue asleep";
+  else if (since_release_s >= settle_window_s_ + 0.5)
+    why = "its idle window since the release over";
+  else if (waited_wall_s >= kSoakSettleWall_s)
+    why = "the wall-time limit";
+  else if (s_.physics.failed.load())
+    why = "the physics stopped";
+  if (!why) return false;
+  settle_ = fmt::format("the rest went on {:.1f} s more ({:.1f} s simulated; {:.1f} s simulated since the release) "
+                        "until {}",
+                        waited_wall_s, waited_sim_s, since_release_s, why);
+  return true;
 }
 
 }  // namespace vx::probe

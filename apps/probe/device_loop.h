@@ -99,6 +99,9 @@ class DeviceLoop {
   void report(const DeviceTick& tick, const std::array<ProbeTick, kMaxSticks>& t, std::vector<std::string> msgs);
   /// Stop conditions in the device's time (the script's end in the script's time, --duration).
   void check_stop(double now_s, double script_s);
+  /// A soak's end, after its script: true once the tissue sleeps, its idle window has passed in
+  /// simulated time, or kSoakSettleWall_s of wall time (true at once outside a soak).
+  [[nodiscard]] bool soak_settled();
 
   AppShared& s_;
   DeviceParts parts_;
@@ -110,6 +113,14 @@ class DeviceLoop {
   std::array<int, kMaxSticks> connection_seen_{};
   bool unplugged_{false}, replugged_{false};  ///< the test hooks done
   double script_start_s_{-1.0};               ///< soak: the device time its script started at (the physics' start)
+  /// soak: after the script, the wait for the tissue to rest (soak_settled): the simulated time
+  /// it waits at most, s, when the wait began (wall and simulated, s; < 0: not yet) and how it ended
+  static constexpr double kSoakSettleSim_s = 10.0;  ///< without regional solves (nothing sleeps)
+  static constexpr double kSoakSettleWall_s = 120.0;
+  double settle_window_s_{kSoakSettleSim_s};
+  double settle_wall_s_{-1.0}, settle_sim_s_{0.0};
+  double release_sim_s_{-1.0};  ///< the simulated time at the soak script's release (its tools up), s
+  std::string settle_;
   std::int64_t ticks_{0};
   SteadyClock::time_point last_{};
   bool started_{false};

@@ -194,7 +194,12 @@ void PhysicsLoop::step_once() {
       bad.velocities.col(node) = Eigen::Vector3d(1e7, 0.0, 0.0);
     sim.restore_tissue(bad);
   }
+  const std::int64_t rest_steps = sim.counters().steps_at_rest, sleeps = sim.counters().sleeps;
   sim.step();
+  // asleep: this step computed nothing, or the tissue fell asleep in it
+  const SimulationCounters& c = sim.counters();
+  s_.physics.asleep.store(c.steps_at_rest > rest_steps || c.sleeps > sleeps, std::memory_order_relaxed);
+  s_.physics.sleeps.store(c.sleeps, std::memory_order_relaxed);
   // the probes' outputs (and a frame when the GUI asked) for the other threads
   if (!sim.failed()) s_.exchange.publish(sim);
   double delay = step_delay_s_;

@@ -25,8 +25,11 @@ struct SoakMotion {
 /// 2 to 6 mm/s, a hold, a slide of up to 8 mm (two sticks, 3 in 10 episodes: a grasp, both
 /// towards each other) and back, a hold, up by as much as it went down, a pause.
 [[nodiscard]] std::string make_soak_script(double duration_s, std::uint32_t seed, int sticks, const SoakMotion& motion);
-/// The rest at the end of a soak, after the release (the tools lifted for 2 s), s: the tissue is
-/// judged at its end. 8 s, or 10 % of a longer soak.
+/// The rest at the end of a soak's script, after the release (the tools lifted for 2 s), s of
+/// the device's clock (wall time): 8 s, or 10 % of a longer soak. The session then goes on until
+/// the tissue sleeps or its idle window has passed in simulated time since the release
+/// (DeviceLoop::soak_settled: a tissue slower than real time gets its rest), and the tissue is
+/// judged at the end.
 [[nodiscard]] inline double soak_rest_s(double duration_s) { return duration_s < 80.0 ? 8.0 : 0.1 * duration_s; }
 
 /// Resident memory of this process now, bytes (0 where /proc is not there).
