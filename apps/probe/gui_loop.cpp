@@ -57,10 +57,12 @@ std::string GuiLoop::run(const FixedRateThread& physics, const FixedRateThread& 
 SteadyClock::time_point GuiLoop::measure(const FixedRateThread& device) {
   const auto now = SteadyClock::now();
   device_rate_.sample(device.ticks(), now);
-  if (s_.options.soak_s > 0)
+  if (s_.options.soak_s > 0) {
+    if (background_done_s_ < 0 && !s_.region_check) background_done_s_ = seconds(now - s_.start);
     soak_.sample(seconds(now - s_.start), device.ticks(),
                  s_.physics.started.load(std::memory_order_acquire) ? s_.physics.startup_s : -1.0,
-                 s_.physics.contact_cache_bytes.load(std::memory_order_relaxed));
+                 s_.physics.contact_cache_bytes.load(std::memory_order_relaxed), background_done_s_);
+  }
   update_rate_.sample(s_.physics.updates.load(), now);
   // the tissue's rate: simulated over wall time of the same window, from the first completed
   // step on; a pause (or a failed physics) restarts the window and is not counted

@@ -77,7 +77,8 @@ std::int64_t resident_bytes() {
   return n == 2 ? std::int64_t(resident) * std::int64_t(sysconf(_SC_PAGESIZE)) : 0;
 }
 
-void SoakMonitor::sample(double wall_s, std::int64_t device_ticks, double started_at_s, std::int64_t cache_bytes) {
+void SoakMonitor::sample(double wall_s, std::int64_t device_ticks, double started_at_s, std::int64_t cache_bytes,
+                         double quiet_from_s) {
   // the device's rate over each whole second (from the first second on)
   if (window_start_s_ < 0) {
     window_start_s_ = wall_s;
@@ -95,10 +96,12 @@ void SoakMonitor::sample(double wall_s, std::int64_t device_ticks, double starte
     window_ticks_ = device_ticks;
   }
   // memory: once after the warm-up, then at the end (sampled at most 10 times a second)
-  if (started_at_s < 0 || (last_rss_s_ >= 0 && wall_s - last_rss_s_ < 0.1)) return;
+  // (the warm-up counts from the physics' start, or from the end of the start-up's background
+  // work if that is later: the region check holds a copy of the model until it ends)
+  if (started_at_s < 0 || quiet_from_s < 0 || (last_rss_s_ >= 0 && wall_s - last_rss_s_ < 0.1)) return;
   last_rss_s_ = wall_s;
   const std::int64_t rss = resident_bytes();
-  if (warm_at_s_ < 0 && wall_s >= started_at_s + warm_up_s_) {
+  if (warm_at_s_ < 0 && wall_s >= std::max(started_at_s, quiet_from_s) + warm_up_s_) {
     warm_bytes_ = rss;
     warm_cache_ = cache_bytes;
     warm_at_s_ = wall_s;

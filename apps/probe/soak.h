@@ -43,7 +43,10 @@ class SoakMonitor {
   /// Called often (every GUI pass): wall time since the open, the device's ticks so far, the
   /// wall time the physics started at (< 0: not yet). The windows count from the physics' start.
   /// `cache_bytes`: the contact solver's bounded cache now (kept beside the resident memory).
-  void sample(double wall_s, std::int64_t device_ticks, double started_at_s, std::int64_t cache_bytes = 0);
+  /// `quiet_from_s`: when the start-up's background work (the region check) ended, wall s (< 0:
+  /// not yet); memory's warm-up counts from it when it is later than the physics' start.
+  void sample(double wall_s, std::int64_t device_ticks, double started_at_s, std::int64_t cache_bytes = 0,
+              double quiet_from_s = 0.0);
   [[nodiscard]] double min_forces_per_s() const { return min_rate_; }
   [[nodiscard]] int windows() const { return windows_; }
   [[nodiscard]] std::int64_t warm_bytes() const { return warm_bytes_; }
