@@ -320,9 +320,10 @@ bool DeviceLoop::soak_settled() {
   else if (s_.physics.failed.load())
     why = "the physics stopped";
   if (!why) return false;
-  settle_ = fmt::format("the rest went on {:.1f} s more ({:.1f} s simulated; {:.1f} s simulated since the release) "
-                        "until {}",
-                        waited_wall_s, waited_sim_s, since_release_s, why);
+  settle_ = fmt::format(
+      "the rest went on {:.1f} s more ({:.1f} s simulated; {:.1f} s simulated since the release) "
+      "until {}",
+      waited_wall_s, waited_sim_s, since_release_s, why);
   return true;
 }
 
