@@ -20,27 +20,6 @@ constexpr std::uint32_t kFormatVersion = 1;
 
 static_assert(sizeof(Eigen::Matrix3d) == 9 * sizeof(double), "C0 is stored as 9 doubles per element");
 
-template <typename Derived>
-void write_matrix(CacheFileWriter& w, const Eigen::PlainObjectBase<Derived>& m) {
-  w.array(m.data(), std::size_t(m.size()), sizeof(typename Derived::Scalar));
-}
-
-/// Reads an array of `rows` x `cols` (cols = -1: any count divisible by rows) into `m`.
-template <typename Derived>
-void read_matrix(CacheFileReader& r, Eigen::PlainObjectBase<Derived>& m, Eigen::Index rows, std::int64_t cols,
-                 const char* what) {
-  using Scalar = typename Derived::Scalar;
-  const auto [p, n] = r.array(sizeof(Scalar), cols >= 0 ? rows * cols : -1, what);
-  if (!p) return;
-  if (n % std::size_t(rows) != 0) {
-    r.fail(std::string(what) + ": not a whole number of columns");
-    return;
-  }
-  m.resize(rows, Eigen::Index(n / std::size_t(rows)));
-  prefer_huge_pages(m.data(), n * sizeof(Scalar));  // before the first touch
-  if (n > 0) std::memcpy(m.data(), p, n * sizeof(Scalar));
-}
-
 /// True when `offsets` is empty or starts at 0, never falls and ends at `last`.
 bool good_offsets(const std::vector<std::int32_t>& offsets, std::size_t last) {
   if (offsets.empty()) return true;
@@ -65,10 +44,10 @@ void write_calibration(std::ostream& out, const CalibrationKey& key, const Physi
   w.value(std::uint32_t(0));
   // vertex entries
   w.array(p.entry_weight);
-  write_matrix(w, p.entry_rest);
-  write_matrix(w, p.entry_rest_weighted);
-  write_matrix(w, p.entry_gradient);
-  write_matrix(w, p.entry_modes);
+  w.array(p.entry_rest);
+  w.array(p.entry_rest_weighted);
+  w.array(p.entry_gradient);
+  w.array(p.entry_modes);
   // elements
   w.array(p.element_stiffness);
   w.array(p.element_damping);
@@ -83,7 +62,7 @@ void write_calibration(std::ostream& out, const CalibrationKey& key, const Physi
   w.array(p.volume_point_stiffness);
   w.array(p.volume_point_term_offsets);
   w.array(p.volume_term_entry);
-  write_matrix(w, p.volume_term_delta);
+  w.array(p.volume_term_delta);
   // nodes, counts
   w.array(p.node_mass_kg);
   w.value(p.bending_relief_clamped);
@@ -119,11 +98,11 @@ bool read_calibration(const unsigned char* data, std::size_t bytes, const Calibr
   // into a scratch model first: `physics` changes only when all of it is read
   PhysicsModel t;
   r.copy(t.entry_weight, entries, "the vertex weights");
-  read_matrix(r, t.entry_rest, 3, entries, "the rest offsets");
-  read_matrix(r, t.entry_rest_weighted, 3, entries, "the weighted rest offsets");
-  read_matrix(r, t.entry_gradient, 3, entries, "the gradients");
-  read_matrix(r, t.entry_modes, kBendingModes, physics.element == ElementKind::paper ? 0 : entries,
-              "the bending-mode weights");
+  r.matrix(t.entry_rest, 3, entries, "the rest offsets");
+  r.matrix(t.entry_rest_weighted, 3, entries, "the weighted rest offsets");
+  r.matrix(t.entry_gradient, 3, entries, "the gradients");
+  r.matrix(t.entry_modes, kBendingModes, physics.element == ElementKind::paper ? 0 : entries,
+           "the bending-mode weights");
   r.copy(t.element_stiffness, ne, "the element stiffness");
   r.copy(t.element_damping, ne, "the element damping");
   r.copy(t.element_volume_stiffness, physics.material.poisson_ratio > 0 ? ne : 0, "the volume stiffness");
@@ -139,7 +118,7 @@ bool read_calibration(const unsigned char* data, std::size_t bytes, const Calibr
   r.copy(t.volume_point_stiffness, -1, "the volume point stiffness");
   r.copy(t.volume_point_term_offsets, -1, "the volume point term offsets");
   r.copy(t.volume_term_entry, -1, "the volume point terms");
-  read_matrix(r, t.volume_term_delta, 3, std::int64_t(t.volume_term_entry.size()), "the volume point deltas");
+  r.matrix(t.volume_term_delta, 3, std::int64_t(t.volume_term_entry.size()), "the volume point deltas");
   r.copy(t.node_mass_kg, nn, "the node masses");
   r.value(t.bending_relief_clamped, "the counts");
   r.value(t.gradient_fallback_elements, "the counts");

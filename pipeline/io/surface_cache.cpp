@@ -20,19 +20,6 @@ constexpr char kMagic[8] = {'V', 'X', 'S', 'U', 'R', 'F', '\n', '\0'};
 /// Raised when the file form or what decimate_surface makes of the same input changes.
 constexpr std::uint32_t kFormatVersion = 1;
 
-template <typename Derived>
-void add_matrix(ContentHash& h, const Eigen::DenseBase<Derived>& m) {
-  h.add_value(std::int64_t(m.rows()));
-  h.add_value(std::int64_t(m.cols()));
-  if (m.size() > 0) h.add(m.derived().data(), std::size_t(m.size()) * sizeof(typename Derived::Scalar));
-}
-
-template <typename T>
-void add_vector(ContentHash& h, const std::vector<T>& v) {
-  h.add_value(std::uint64_t(v.size()));
-  if (!v.empty()) h.add(v.data(), v.size() * sizeof(T));
-}
-
 void write_header(CacheFileWriter& w, const SurfaceKey& key) {
   w.bytes(kMagic, sizeof kMagic);
   w.value(kFormatVersion);
@@ -60,11 +47,11 @@ ContentHash surface_key_hash(const Model& model, int target_triangles, double fe
 void add_surface_content(ContentHash& h, const EmbeddedSurface& s) {
   h.add_value(std::int32_t(s.method));
   h.add_value(std::int32_t(s.model_nodes));
-  add_matrix(h, s.rest_vertices);
-  add_matrix(h, s.triangles);
-  add_vector(h, s.embed_offsets);
-  add_vector(h, s.embed_nodes);
-  add_vector(h, s.embed_weights);
+  h.add_matrix(s.rest_vertices);
+  h.add_matrix(s.triangles);
+  h.add_vector(s.embed_offsets);
+  h.add_vector(s.embed_nodes);
+  h.add_vector(s.embed_weights);
 }
 
 void write_surface_cache_file(std::ostream& out, const SurfaceKey& key, const CachedSurface& cached) {
@@ -75,8 +62,8 @@ void write_surface_cache_file(std::ostream& out, const SurfaceKey& key, const Ca
   w.value(cached.source_vertices);
   w.value(std::int32_t(s.method));
   w.value(std::int32_t(s.model_nodes));
-  w.array(s.rest_vertices.data(), std::size_t(s.rest_vertices.size()), sizeof(double));
-  w.array(s.triangles.data(), std::size_t(s.triangles.size()), sizeof(int));
+  w.array(s.rest_vertices);
+  w.array(s.triangles);
   w.array(s.embed_offsets);
   w.array(s.embed_nodes);
   w.array(s.embed_weights);
@@ -116,22 +103,8 @@ std::optional<CachedSurface> read_surface_cache_file(const unsigned char* data, 
   s.model_nodes = nodes;
   if (nodes != key.model_nodes)
     return fail(fmt::format("embedded in {} nodes, the model has {}", nodes, key.model_nodes));
-  {
-    const auto [p, n] = r.array(sizeof(double), -1, "vertices");
-    if (p && n % 3 != 0) r.fail("vertices: not a whole number of points");
-    if (r.ok()) {
-      s.rest_vertices.resize(3, Eigen::Index(n / 3));
-      if (n > 0) std::memcpy(s.rest_vertices.data(), p, n * sizeof(double));
-    }
-  }
-  {
-    const auto [p, n] = r.array(sizeof(int), -1, "triangles");
-    if (p && n % 3 != 0) r.fail("triangles: not a whole number of triangles");
-    if (r.ok()) {
-      s.triangles.resize(3, Eigen::Index(n / 3));
-      if (n > 0) std::memcpy(s.triangles.data(), p, n * sizeof(int));
-    }
-  }
+  r.matrix(s.rest_vertices, 3, -1, "vertices", "points");
+  r.matrix(s.triangles, 3, -1, "triangles", "triangles");
   r.copy(s.embed_offsets, s.rest_vertices.cols() + 1, "embedding offsets");
   r.copy(s.embed_nodes, -1, "embedding nodes");
   r.copy(s.embed_weights, std::int64_t(s.embed_nodes.size()), "embedding weights");
