@@ -4,6 +4,7 @@
 #include <vtkVersionMacros.h>
 
 #include <cstring>
+#include <type_traits>
 #include <utility>
 
 #include "io/cache_file.h"
@@ -21,12 +22,24 @@ constexpr char kMagic[8] = {'V', 'X', 'S', 'U', 'R', 'F', '\n', '\0'};
 constexpr std::uint32_t kFormatVersion = 1;
 
 void write_header(CacheFileWriter& w, const SurfaceKey& key) {
-  w.bytes(kMagic, sizeof kMagic);
-  w.value(kFormatVersion);
+  w.header(kMagic, kFormatVersion);
   w.value(std::uint32_t(0));
   w.value(key.hash);
   w.value(key.model_nodes);
   w.value(key.target);
+}
+
+/// The surface's content in the one order in which the key hashes it and the file holds it:
+/// f(part) for the method and the node count (int32) and each array.
+template <typename F>
+void for_each_surface_part(const EmbeddedSurface& s, F&& f) {
+  f(std::int32_t(s.method));
+  f(std::int32_t(s.model_nodes));
+  f(s.rest_vertices);
+  f(s.triangles);
+  f(s.embed_offsets);
+  f(s.embed_nodes);
+  f(s.embed_weights);
 }
 
 }  // namespace
@@ -45,13 +58,15 @@ ContentHash surface_key_hash(const Model& model, int target_triangles, double fe
 }
 
 void add_surface_content(ContentHash& h, const EmbeddedSurface& s) {
-  h.add_value(std::int32_t(s.method));
-  h.add_value(std::int32_t(s.model_nodes));
-  h.add_matrix(s.rest_vertices);
-  h.add_matrix(s.triangles);
-  h.add_vector(s.embed_offsets);
-  h.add_vector(s.embed_nodes);
-  h.add_vector(s.embed_weights);
+  for_each_surface_part(s, [&h](const auto& v) {
+    using V = std::decay_t<decltype(v)>;
+    if constexpr (std::is_arithmetic_v<V>)
+      h.add_value(v);
+    else if constexpr (std::is_base_of_v<Eigen::EigenBase<V>, V>)
+      h.add_matrix(v);
+    else
+      h.add_vector(v);
+  });
 }
 
 void write_surface_cache_file(std::ostream& out, const SurfaceKey& key, const CachedSurface& cached) {
@@ -60,13 +75,12 @@ void write_surface_cache_file(std::ostream& out, const SurfaceKey& key, const Ca
   write_header(w, key);
   w.value(cached.source_triangles);
   w.value(cached.source_vertices);
-  w.value(std::int32_t(s.method));
-  w.value(std::int32_t(s.model_nodes));
-  w.array(s.rest_vertices);
-  w.array(s.triangles);
-  w.array(s.embed_offsets);
-  w.array(s.embed_nodes);
-  w.array(s.embed_weights);
+  for_each_surface_part(s, [&w](const auto& v) {
+    if constexpr (std::is_arithmetic_v<std::decay_t<decltype(v)>>)
+      w.value(v);
+    else
+      w.array(v);
+  });
   w.finish();
 }
 

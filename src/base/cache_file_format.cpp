@@ -36,6 +36,15 @@ const unsigned char* CacheFileReader::bytes(std::size_t n, const char* what) {
   return p;
 }
 
+void CacheFileReader::header(const char (&magic)[8], std::uint32_t version, const char* not_this) {
+  if (const unsigned char* m = bytes(sizeof magic, "the header"); m && std::memcmp(m, magic, sizeof magic) != 0)
+    fail(not_this);
+  std::uint32_t v = 0;
+  value(v, "the header");
+  if (ok() && v != version)
+    fail("format version " + std::to_string(v) + ", this build reads " + std::to_string(version));
+}
+
 std::pair<const unsigned char*, std::size_t> CacheFileReader::array(std::size_t item_bytes, std::int64_t expected,
                                                                     const char* what) {
   std::uint64_t n = 0;

@@ -30,6 +30,11 @@ class CacheFileWriter {
   void value(const T& v) {
     bytes(&v, sizeof v);
   }
+  /// A file's first 12 bytes: its kind's 8-byte magic and the version of its form.
+  void header(const char (&magic)[8], std::uint32_t version) {
+    bytes(magic, sizeof magic);
+    value(version);
+  }
   /// The count, zeros up to the next boundary, the values.
   void array(const void* data, std::size_t count, std::size_t item_bytes);
   /// The values of a contiguous container (a std::vector, an Eigen matrix, a shared array).
@@ -60,6 +65,9 @@ class CacheFileReader {
     if (p) std::memcpy(&v, p, sizeof v);
     return p != nullptr;
   }
+  /// Reads what CacheFileWriter::header wrote: fails with `not_this` where the magic is
+  /// another's, or with "format version N, this build reads M".
+  void header(const char (&magic)[8], std::uint32_t version, const char* not_this);
   /// An array's values in place and their count; null on failure. `expected` >= 0: fails
   /// unless the count is that.
   std::pair<const unsigned char*, std::size_t> array(std::size_t item_bytes, std::int64_t expected, const char* what);

@@ -5,10 +5,12 @@
 #include <Eigen/Core>
 #include <cstdint>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include "base/content_hash.h"
 #include "model/gradational_builder.h"
+#include "physics/calibrated_fields.h"
 #include "physics/calibration.h"
 
 namespace vx {
@@ -39,31 +41,21 @@ void add_material(ContentHash& h, const Material& material, const MaterialField&
   h.add_value(o.volume_variation_cap);
 }
 
-/// The calibrated part of a PhysicsModel (CalibrationCache's list), bit for bit.
+/// The calibrated part of a PhysicsModel (calibrated_fields.h), bit for bit.
 void add_calibration(ContentHash& h, const PhysicsModel& p) {
-  h.add_vector(p.entry_weight);
-  h.add_matrix(p.entry_rest);
-  h.add_matrix(p.entry_rest_weighted);
-  h.add_matrix(p.entry_gradient);
-  h.add_matrix(p.entry_modes);
-  h.add_vector(p.element_stiffness);
-  h.add_vector(p.element_damping);
-  h.add_vector(p.element_volume_stiffness);
-  h.add_vector(p.element_mass_kg);
-  h.add_vector(p.element_spread_mm2);
-  h.add_vector(p.element_fit_scale);
-  h.add_vector(p.element_affine_stiffness);
-  for (const Eigen::Matrix3d& c : p.element_spread) h.add_matrix(c);
-  h.add_vector(p.volume_point_offsets);
-  h.add_vector(p.volume_point_stiffness);
-  h.add_vector(p.volume_point_term_offsets);
-  h.add_vector(p.volume_term_entry);
-  h.add_matrix(p.volume_term_delta);
-  h.add_vector(p.node_mass_kg);
-  h.add_value(p.bending_relief_clamped);
-  h.add_value(p.gradient_fallback_elements);
-  h.add_value(p.anisotropic_elements);
-  h.add_value(p.max_anisotropy);
+  for_each_calibrated_field(
+      [&h](const char*, CalibratedCount, const auto& v) {
+        using V = std::decay_t<decltype(v)>;
+        if constexpr (std::is_arithmetic_v<V>)
+          h.add_value(v);
+        else if constexpr (std::is_same_v<V, std::vector<Eigen::Matrix3d>>)
+          for (const Eigen::Matrix3d& c : v) h.add_matrix(c);
+        else if constexpr (std::is_base_of_v<Eigen::EigenBase<V>, V>)
+          h.add_matrix(v);
+        else
+          h.add_vector(v);
+      },
+      p);
   h.add_vector(p.node_mass);  // the derived masses too (mass scaling)
 }
 

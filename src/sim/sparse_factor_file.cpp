@@ -80,8 +80,7 @@ std::uint64_t SparseFactor::stored_bytes() const {
 
 void SparseFactor::write(std::ostream& out) const {
   CacheFileWriter w(out);
-  w.bytes(kMagic, sizeof kMagic);
-  w.value(kFormatVersion);
+  w.header(kMagic, kFormatVersion);
   w.value(std::uint32_t(sizeof(int)));
   w.value(std::uint8_t(backend_));
   w.value(std::uint8_t(supernodal_ ? 1 : 0));
@@ -106,15 +105,10 @@ bool SparseFactor::read(const unsigned char* data, std::size_t bytes, std::share
   const auto t0 = std::chrono::steady_clock::now();
   reset();
   CacheFileReader r(data, bytes);
-  std::uint32_t version = 0, int_bytes = 0;
+  std::uint32_t int_bytes = 0;
   std::uint8_t backend = 0, supernodal = 0;
   std::int64_t n = 0;
-  if (const unsigned char* magic = r.bytes(sizeof kMagic, "the header");
-      magic && std::memcmp(magic, kMagic, sizeof kMagic) != 0)
-    r.fail("not a voxelastic factor file");
-  r.value(version, "the header");
-  if (r.ok() && version != kFormatVersion)
-    r.fail("format version " + std::to_string(version) + ", this build reads " + std::to_string(kFormatVersion));
+  r.header(kMagic, kFormatVersion, "not a voxelastic factor file");
   r.value(int_bytes, "the header");
   r.value(backend, "the header");
   r.value(supernodal, "the header");
