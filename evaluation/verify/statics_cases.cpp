@@ -273,7 +273,7 @@ Material tissue_nu(double e_kpa, double nu) {
 
 /// A ball of R 4 mm pressed 2 mm into the centre of a 32 x 32 x 16 mm block (voxel `h`) bonded at
 /// its base, quasi-static: the implicit integrator at 10 ms steps, the press over 0.2 s from 0.2 mm
-/// above, held to 0.4 s; the mean force over the last 0.1 s, N (as poisson_locking_test).
+/// above, held to 0.4 s; the mean force over the last 0.1 s, N (as poisson_locking_slow_test).
 double quasi_static_press_n(Layout r, double h, double nu) {
   const int n = int(std::lround(32.0 / h)), nz = int(std::lround(16.0 / h));
   const auto p = make_physics_model(block_model(r, {n, n, nz}, h), tissue_nu(10.0, nu));

@@ -2,11 +2,13 @@
 
 #include <cmath>
 #include <cstring>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
 #include "base/huge_pages.h"
 #include "io/cache_file.h"
+#include "physics/calibrated_fields.h"
 #include "util/log.h"
 
 namespace vx {
@@ -20,26 +22,25 @@ constexpr std::uint32_t kFormatVersion = 1;
 
 static_assert(sizeof(Eigen::Matrix3d) == 9 * sizeof(double), "C0 is stored as 9 doubles per element");
 
-template <typename Derived>
-void write_matrix(CacheFileWriter& w, const Eigen::PlainObjectBase<Derived>& m) {
-  w.array(m.data(), std::size_t(m.size()), sizeof(typename Derived::Scalar));
+/// Reads one calibrated field of `count` items (-1: any) into `v` (calibrated_fields.h).
+template <typename T>
+void read_field(CacheFileReader& r, std::vector<T>& v, std::int64_t count, const char* what) {
+  r.copy(v, count, what);
 }
-
-/// Reads an array of `rows` x `cols` (cols = -1: any count divisible by rows) into `m`.
-template <typename Derived>
-void read_matrix(CacheFileReader& r, Eigen::PlainObjectBase<Derived>& m, Eigen::Index rows, std::int64_t cols,
-                 const char* what) {
-  using Scalar = typename Derived::Scalar;
-  const auto [p, n] = r.array(sizeof(Scalar), cols >= 0 ? rows * cols : -1, what);
-  if (!p) return;
-  if (n % std::size_t(rows) != 0) {
-    r.fail(std::string(what) + ": not a whole number of columns");
-    return;
-  }
-  m.resize(rows, Eigen::Index(n / std::size_t(rows)));
-  prefer_huge_pages(m.data(), n * sizeof(Scalar));  // before the first touch
-  if (n > 0) std::memcpy(m.data(), p, n * sizeof(Scalar));
+void read_field(CacheFileReader& r, std::vector<Eigen::Matrix3d>& v, std::int64_t count, const char* what) {
+  v.clear();
+  v.reserve(std::size_t(count));
+  prefer_huge_pages(v.data(), std::size_t(count) * sizeof(Eigen::Matrix3d));
+  v.resize(std::size_t(count));
+  r.copy_to(v.data(), std::size_t(count), sizeof(Eigen::Matrix3d), what);
 }
+template <typename Derived>
+void read_field(CacheFileReader& r, Eigen::PlainObjectBase<Derived>& m, std::int64_t count, const char* what) {
+  r.matrix(m.derived(), Derived::RowsAtCompileTime, count, what);
+}
+template <typename T>
+requires std::is_arithmetic_v<T>
+void read_field(CacheFileReader& r, T& v, std::int64_t, const char* what) { r.value(v, what); }
 
 /// True when `offsets` is empty or starts at 0, never falls and ends at `last`.
 bool good_offsets(const std::vector<std::int32_t>& offsets, std::size_t last) {
@@ -54,8 +55,7 @@ bool good_offsets(const std::vector<std::int32_t>& offsets, std::size_t last) {
 
 void write_calibration(std::ostream& out, const CalibrationKey& key, const PhysicsModel& p) {
   CacheFileWriter w(out);
-  w.bytes(kMagic, sizeof kMagic);
-  w.value(kFormatVersion);
+  w.header(kMagic, kFormatVersion);
   w.value(std::uint32_t(p.dimensions));
   w.value(key.hash);
   w.value(std::int64_t(p.num_elements()));
@@ -63,33 +63,14 @@ void write_calibration(std::ostream& out, const CalibrationKey& key, const Physi
   w.value(std::int64_t(p.num_nodes()));
   w.value(std::uint32_t(p.element));
   w.value(std::uint32_t(0));
-  // vertex entries
-  w.array(p.entry_weight);
-  write_matrix(w, p.entry_rest);
-  write_matrix(w, p.entry_rest_weighted);
-  write_matrix(w, p.entry_gradient);
-  write_matrix(w, p.entry_modes);
-  // elements
-  w.array(p.element_stiffness);
-  w.array(p.element_damping);
-  w.array(p.element_volume_stiffness);
-  w.array(p.element_mass_kg);
-  w.array(p.element_spread_mm2);
-  w.array(p.element_fit_scale);
-  w.array(p.element_affine_stiffness);
-  w.array(p.element_spread.data(), p.element_spread.size(), sizeof(Eigen::Matrix3d));
-  // volume points
-  w.array(p.volume_point_offsets);
-  w.array(p.volume_point_stiffness);
-  w.array(p.volume_point_term_offsets);
-  w.array(p.volume_term_entry);
-  write_matrix(w, p.volume_term_delta);
-  // nodes, counts
-  w.array(p.node_mass_kg);
-  w.value(p.bending_relief_clamped);
-  w.value(p.gradient_fallback_elements);
-  w.value(p.anisotropic_elements);
-  w.value(p.max_anisotropy);
+  for_each_calibrated_field(
+      [&w](const char*, CalibratedCount, const auto& v) {
+        if constexpr (std::is_arithmetic_v<std::decay_t<decltype(v)>>)
+          w.value(v);
+        else
+          w.array(v);
+      },
+      p);
   w.finish();
 }
 
@@ -97,15 +78,10 @@ bool read_calibration(const unsigned char* data, std::size_t bytes, const Calibr
                       std::string* why) {
   CacheFileReader r(data, bytes);
   const std::int64_t ne = physics.num_elements(), entries = physics.num_vertex_entries(), nn = physics.num_nodes();
-  if (const unsigned char* magic = r.bytes(sizeof kMagic, "the header");
-      magic && std::memcmp(magic, kMagic, sizeof kMagic) != 0)
-    r.fail("not a voxelastic calibration file");
-  std::uint32_t version = 0, dimensions = 0, element = 0, reserved = 0;
+  r.header(kMagic, kFormatVersion, "not a voxelastic calibration file");
+  std::uint32_t dimensions = 0, element = 0, reserved = 0;
   std::uint64_t hash = 0;
   std::int64_t file_ne = 0, file_entries = 0, file_nn = 0;
-  r.value(version, "the header");
-  if (r.ok() && version != kFormatVersion)
-    r.fail("format version " + std::to_string(version) + ", this build reads " + std::to_string(kFormatVersion));
   r.value(dimensions, "the header");
   r.value(hash, "the header");
   r.value(file_ne, "the header");
@@ -118,33 +94,20 @@ bool read_calibration(const unsigned char* data, std::size_t bytes, const Calibr
     r.fail("the calibration of another model or material");
   // into a scratch model first: `physics` changes only when all of it is read
   PhysicsModel t;
-  r.copy(t.entry_weight, entries, "the vertex weights");
-  read_matrix(r, t.entry_rest, 3, entries, "the rest offsets");
-  read_matrix(r, t.entry_rest_weighted, 3, entries, "the weighted rest offsets");
-  read_matrix(r, t.entry_gradient, 3, entries, "the gradients");
-  read_matrix(r, t.entry_modes, kBendingModes, physics.element == ElementKind::paper ? 0 : entries,
-              "the bending-mode weights");
-  r.copy(t.element_stiffness, ne, "the element stiffness");
-  r.copy(t.element_damping, ne, "the element damping");
-  r.copy(t.element_volume_stiffness, physics.material.poisson_ratio > 0 ? ne : 0, "the volume stiffness");
-  r.copy(t.element_mass_kg, ne, "the element masses");
-  r.copy(t.element_spread_mm2, ne, "the element spreads");
-  r.copy(t.element_fit_scale, ne, "the fit scales");
-  r.copy(t.element_affine_stiffness, ne, "the affine stiffness");
-  t.element_spread.reserve(std::size_t(ne));
-  prefer_huge_pages(t.element_spread.data(), std::size_t(ne) * sizeof(Eigen::Matrix3d));
-  t.element_spread.resize(std::size_t(ne));
-  r.copy_to(t.element_spread.data(), std::size_t(ne), sizeof(Eigen::Matrix3d), "the spread matrices");
-  r.copy(t.volume_point_offsets, -1, "the volume point offsets");
-  r.copy(t.volume_point_stiffness, -1, "the volume point stiffness");
-  r.copy(t.volume_point_term_offsets, -1, "the volume point term offsets");
-  r.copy(t.volume_term_entry, -1, "the volume point terms");
-  read_matrix(r, t.volume_term_delta, 3, std::int64_t(t.volume_term_entry.size()), "the volume point deltas");
-  r.copy(t.node_mass_kg, nn, "the node masses");
-  r.value(t.bending_relief_clamped, "the counts");
-  r.value(t.gradient_fallback_elements, "the counts");
-  r.value(t.anisotropic_elements, "the counts");
-  r.value(t.max_anisotropy, "the counts");
+  const auto count = [&](CalibratedCount c) -> std::int64_t {
+    switch (c) {
+      case CalibratedCount::entries: return entries;
+      case CalibratedCount::mode_entries: return physics.element == ElementKind::paper ? 0 : entries;
+      case CalibratedCount::elements: return ne;
+      case CalibratedCount::volume_elements: return physics.material.poisson_ratio > 0 ? ne : 0;
+      case CalibratedCount::terms: return std::int64_t(t.volume_term_entry.size());
+      case CalibratedCount::nodes: return nn;
+      case CalibratedCount::any:
+      case CalibratedCount::one: break;
+    }
+    return -1;
+  };
+  for_each_calibrated_field([&](const char* what, CalibratedCount c, auto& v) { read_field(r, v, count(c), what); }, t);
   r.finish();
   // the structure: whatever a step indexes must be in range
   if (r.ok()) {
@@ -169,29 +132,8 @@ bool read_calibration(const unsigned char* data, std::size_t bytes, const Calibr
     if (why) *why = r.error();
     return false;
   }
-  physics.entry_weight = std::move(t.entry_weight);
-  physics.entry_rest = std::move(t.entry_rest);
-  physics.entry_rest_weighted = std::move(t.entry_rest_weighted);
-  physics.entry_gradient = std::move(t.entry_gradient);
-  physics.entry_modes = std::move(t.entry_modes);
-  physics.element_stiffness = std::move(t.element_stiffness);
-  physics.element_damping = std::move(t.element_damping);
-  physics.element_volume_stiffness = std::move(t.element_volume_stiffness);
-  physics.element_mass_kg = std::move(t.element_mass_kg);
-  physics.element_spread_mm2 = std::move(t.element_spread_mm2);
-  physics.element_fit_scale = std::move(t.element_fit_scale);
-  physics.element_affine_stiffness = std::move(t.element_affine_stiffness);
-  physics.element_spread = std::move(t.element_spread);
-  physics.volume_point_offsets = std::move(t.volume_point_offsets);
-  physics.volume_point_stiffness = std::move(t.volume_point_stiffness);
-  physics.volume_point_term_offsets = std::move(t.volume_point_term_offsets);
-  physics.volume_term_entry = std::move(t.volume_term_entry);
-  physics.volume_term_delta = std::move(t.volume_term_delta);
-  physics.node_mass_kg = std::move(t.node_mass_kg);
-  physics.bending_relief_clamped = t.bending_relief_clamped;
-  physics.gradient_fallback_elements = t.gradient_fallback_elements;
-  physics.anisotropic_elements = t.anisotropic_elements;
-  physics.max_anisotropy = t.max_anisotropy;
+  for_each_calibrated_field([](const char*, CalibratedCount, auto& to, auto& from) { to = std::move(from); }, physics,
+                            t);
   return true;
 }
 

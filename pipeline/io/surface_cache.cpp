@@ -4,6 +4,7 @@
 #include <vtkVersionMacros.h>
 
 #include <cstring>
+#include <type_traits>
 #include <utility>
 
 #include "io/cache_file.h"
@@ -20,26 +21,25 @@ constexpr char kMagic[8] = {'V', 'X', 'S', 'U', 'R', 'F', '\n', '\0'};
 /// Raised when the file form or what decimate_surface makes of the same input changes.
 constexpr std::uint32_t kFormatVersion = 1;
 
-template <typename Derived>
-void add_matrix(ContentHash& h, const Eigen::DenseBase<Derived>& m) {
-  h.add_value(std::int64_t(m.rows()));
-  h.add_value(std::int64_t(m.cols()));
-  if (m.size() > 0) h.add(m.derived().data(), std::size_t(m.size()) * sizeof(typename Derived::Scalar));
-}
-
-template <typename T>
-void add_vector(ContentHash& h, const std::vector<T>& v) {
-  h.add_value(std::uint64_t(v.size()));
-  if (!v.empty()) h.add(v.data(), v.size() * sizeof(T));
-}
-
 void write_header(CacheFileWriter& w, const SurfaceKey& key) {
-  w.bytes(kMagic, sizeof kMagic);
-  w.value(kFormatVersion);
+  w.header(kMagic, kFormatVersion);
   w.value(std::uint32_t(0));
   w.value(key.hash);
   w.value(key.model_nodes);
   w.value(key.target);
+}
+
+/// The surface's content in the one order in which the key hashes it and the file holds it:
+/// f(part) for the method and the node count (int32) and each array.
+template <typename F>
+void for_each_surface_part(const EmbeddedSurface& s, F&& f) {
+  f(std::int32_t(s.method));
+  f(std::int32_t(s.model_nodes));
+  f(s.rest_vertices);
+  f(s.triangles);
+  f(s.embed_offsets);
+  f(s.embed_nodes);
+  f(s.embed_weights);
 }
 
 }  // namespace
@@ -58,13 +58,15 @@ ContentHash surface_key_hash(const Model& model, int target_triangles, double fe
 }
 
 void add_surface_content(ContentHash& h, const EmbeddedSurface& s) {
-  h.add_value(std::int32_t(s.method));
-  h.add_value(std::int32_t(s.model_nodes));
-  add_matrix(h, s.rest_vertices);
-  add_matrix(h, s.triangles);
-  add_vector(h, s.embed_offsets);
-  add_vector(h, s.embed_nodes);
-  add_vector(h, s.embed_weights);
+  for_each_surface_part(s, [&h](const auto& v) {
+    using V = std::decay_t<decltype(v)>;
+    if constexpr (std::is_arithmetic_v<V>)
+      h.add_value(v);
+    else if constexpr (std::is_base_of_v<Eigen::EigenBase<V>, V>)
+      h.add_matrix(v);
+    else
+      h.add_vector(v);
+  });
 }
 
 void write_surface_cache_file(std::ostream& out, const SurfaceKey& key, const CachedSurface& cached) {
@@ -73,13 +75,12 @@ void write_surface_cache_file(std::ostream& out, const SurfaceKey& key, const Ca
   write_header(w, key);
   w.value(cached.source_triangles);
   w.value(cached.source_vertices);
-  w.value(std::int32_t(s.method));
-  w.value(std::int32_t(s.model_nodes));
-  w.array(s.rest_vertices.data(), std::size_t(s.rest_vertices.size()), sizeof(double));
-  w.array(s.triangles.data(), std::size_t(s.triangles.size()), sizeof(int));
-  w.array(s.embed_offsets);
-  w.array(s.embed_nodes);
-  w.array(s.embed_weights);
+  for_each_surface_part(s, [&w](const auto& v) {
+    if constexpr (std::is_arithmetic_v<std::decay_t<decltype(v)>>)
+      w.value(v);
+    else
+      w.array(v);
+  });
   w.finish();
 }
 
@@ -116,22 +117,8 @@ std::optional<CachedSurface> read_surface_cache_file(const unsigned char* data, 
   s.model_nodes = nodes;
   if (nodes != key.model_nodes)
     return fail(fmt::format("embedded in {} nodes, the model has {}", nodes, key.model_nodes));
-  {
-    const auto [p, n] = r.array(sizeof(double), -1, "vertices");
-    if (p && n % 3 != 0) r.fail("vertices: not a whole number of points");
-    if (r.ok()) {
-      s.rest_vertices.resize(3, Eigen::Index(n / 3));
-      if (n > 0) std::memcpy(s.rest_vertices.data(), p, n * sizeof(double));
-    }
-  }
-  {
-    const auto [p, n] = r.array(sizeof(int), -1, "triangles");
-    if (p && n % 3 != 0) r.fail("triangles: not a whole number of triangles");
-    if (r.ok()) {
-      s.triangles.resize(3, Eigen::Index(n / 3));
-      if (n > 0) std::memcpy(s.triangles.data(), p, n * sizeof(int));
-    }
-  }
+  r.matrix(s.rest_vertices, 3, -1, "vertices", "points");
+  r.matrix(s.triangles, 3, -1, "triangles", "triangles");
   r.copy(s.embed_offsets, s.rest_vertices.cols() + 1, "embedding offsets");
   r.copy(s.embed_nodes, -1, "embedding nodes");
   r.copy(s.embed_weights, std::int64_t(s.embed_nodes.size()), "embedding weights");

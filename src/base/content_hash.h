@@ -40,6 +40,21 @@ class ContentHash {
     add(&v, sizeof v);
   }
 
+  /// Feeds a vector's count (64 bits) and its values.
+  template <typename V>
+  void add_vector(const V& v) {
+    add_value(std::uint64_t(v.size()));
+    if (!v.empty()) add(v.data(), v.size() * sizeof(*v.data()));
+  }
+  /// Feeds a matrix's rows and columns (64 bits each) and its values as stored (an Eigen matrix
+  /// or vector that owns its storage, not an expression).
+  template <typename M>
+  void add_matrix(const M& m) {
+    add_value(std::int64_t(m.rows()));
+    add_value(std::int64_t(m.cols()));
+    if (m.size() > 0) add(m.data(), std::size_t(m.size()) * sizeof(*m.data()));
+  }
+
   /// The hash of everything fed so far (feeding may go on).
   [[nodiscard]] std::uint64_t value() const {
     std::uint64_t h = h_ + total_;

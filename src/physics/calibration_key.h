@@ -48,13 +48,10 @@ void add_model_content(ContentHash& h, const Model& model);
 
 /// A store of calibrations by key (pipeline/io/calibration_cache.h keeps one in a folder, beside
 /// the factors). make_physics_model asks it before calibrating and offers it the result after.
-/// It holds the calibrated part of a PhysicsModel, the per-element work:
-///   entry_weight, entry_rest, entry_rest_weighted, entry_gradient, entry_modes,
-///   element_stiffness, element_damping, element_volume_stiffness, element_mass_kg,
-///   element_spread_mm2, element_fit_scale, element_affine_stiffness, element_spread,
-///   volume_point_offsets, volume_point_stiffness, volume_point_term_offsets, volume_term_entry,
-///   volume_term_delta, node_mass_kg, and the counts bending_relief_clamped,
-///   gradient_fallback_elements, anisotropic_elements, max_anisotropy.
+/// It holds the calibrated part of a PhysicsModel, the per-element work: the fields that
+/// calibrated_fields.h lists (the vertex entries' weights, rest offsets, gradients and
+/// bending-mode weights, the elements' stiffness, damping, masses and spreads, the volume
+/// points, the node masses and four counts).
 /// The rest (the inertial masses and their scaling, the node -> entry index, the packed entries
 /// and the batches of the element pass) is derived from these at every start.
 class CalibrationCache {

@@ -8,6 +8,7 @@
 
 #include "base/error.h"
 #include "base/huge_pages.h"
+#include "physics/element_law.h"
 #include "physics/element_pass.h"
 #include "physics/physics_model.h"
 #include "physics/rigid_sums.h"
@@ -345,31 +346,15 @@ VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const 
   }
   const d4 m00 = k * f00, m01 = k * f01, m02 = k * f02, m10 = k * f10, m11 = k * f11, m12 = k * f12, m20 = k * f20,
            m21 = k * f21, m22 = k * f22;
-  // the rigid velocity about the centroid (elements.cpp, rigid_velocity)
+  // the rigid velocity about the centroid (element_law.h, rigid_velocity, on the lanes: the scalar
+  // kernels' arithmetic, the same bits lane by lane)
   d4 cd{}, ux{}, uy{}, uz{}, wx{}, wy{}, wz{};
   if constexpr (kDamping) {
     cd = load(bt.damping);
-    ux = rs.svx * inv_w, uy = rs.svy * inv_w, uz = rs.svz * inv_w;
-    // angular momentum about the centroid: L - sw c x vc
-    const d4 angx = rs.lx - sw * (cy * uz - cz * uy), angy = rs.ly - sw * (cz * ux - cx * uz),
-             angz = rs.lz - sw * (cx * uy - cy * ux);
-    // sum w r r^T about the centroid, the inertia tr 1 - that (+ tiny regularisation)
-    const d4 yxx = rs.ixx - sw * cx * cx, yxy = rs.ixy - sw * cx * cy, yxz = rs.ixz - sw * cx * cz;
-    const d4 yyy = rs.iyy - sw * cy * cy, yyz = rs.iyz - sw * cy * cz, yzz = rs.izz - sw * cz * cz;
-    const d4 tr = yxx + yyy + yzz;
-    const d4 reg = tr * (1.0 + 1e-10);
-    const d4 i00 = reg - yxx, i11 = reg - yyy, i22 = reg - yzz, i01 = -yxy, i02 = -yxz, i12 = -yyz;
-    // omega = I^{-1} ang by the adjugate of the symmetric I
-    const d4 c00 = i11 * i22 - i12 * i12, c01 = i02 * i12 - i01 * i22, c02 = i01 * i12 - i02 * i11;
-    const d4 c11 = i00 * i22 - i02 * i02, c12 = i01 * i02 - i00 * i12, c22 = i00 * i11 - i01 * i01;
-    const d4 inv_det = 1.0 / (i00 * c00 + i01 * c01 + i02 * c02);
-    wx = (c00 * angx + c01 * angy + c02 * angz) * inv_det;
-    wy = (c01 * angx + c11 * angy + c12 * angz) * inv_det;
-    wz = (c02 * angx + c12 * angy + c22 * angz) * inv_det;
-    // zero for a collapsed or collinear element
-    const d4 wprobe = (wx + wy + wz) * 0.0;
-    for (int l = 0; l < kBatchLanes; ++l)
-      if (!(tr[l] > 0.0) || wprobe[l] != 0.0) wx[l] = wy[l] = wz[l] = 0.0;
+    law::ElementForce<d4> rv;
+    law::rigid_velocity(rs, sw, inv_w, cx, cy, cz, rv);
+    ux = rv.vc[0], uy = rv.vc[1], uz = rv.vc[2];
+    wx = rv.omega[0], wy = rv.omega[1], wz = rv.omega[2];
   }
   // pass 2: f = M R0' - w k (x - c) + G g [+ c w (v_c + omega x r - v)], each force written once
   for (int r = 0; r < nr; ++r) {

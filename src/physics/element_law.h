@@ -6,10 +6,11 @@
 /// kernel), as Box2D v3 keeps the scalar and the wide form of its contact solver in one source.
 /// Values in, values out: where the numbers come from (separate arrays, packed records) and where
 /// the forces go stays in the kernels, and so does the rotation fit (rotation_fit.h). Used by
-/// the reference and packed kernels (elements.cpp). The batched kernel (element_batches.cpp)
-/// still writes the same arithmetic in its lanes: on it, these templates measured 10 to 15 %
-/// more CPU time per pass on the 128^3 sphere (none on 32^3 and 64^3; issue 26, not understood
-/// yet), so it keeps its own form for now.
+/// the reference and packed kernels (elements.cpp); the batched kernel (element_batches.cpp)
+/// takes the rigid velocity from here on its lanes (the same instructions per element as its
+/// own copy had, under callgrind) but still writes G, M and the entry force in its lanes: with
+/// all of these templates it measured 10 to 15 % more CPU time per pass on the 128^3 sphere
+/// (none on 32^3 and 64^3; issue 26, not understood yet).
 ///
 ///   G = 2 mu V (Q - F) + k (A - F C0),   M = k F                      element_stress
 ///   v_c = sum_i w_i v_i / W,   omega = I^{-1} (L - W c x v_c),

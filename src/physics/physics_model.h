@@ -25,7 +25,7 @@
 /// i.e. E = 2 k / h. Every level and shape (extra face vertices, partly filled groups) gets
 /// its own V_e and S_e, so all levels represent the same material; where the weights cannot
 /// make a spread isotropic (counted in PhysicsModel::anisotropic_elements) k is the isotropic
-/// average. Verified by tests/core/calibration_test.cpp (static compression and sag of one
+/// average. Verified by tests/core/physics/calibration_slow_test.cpp (static compression and sag of one
 /// block for the voxel, uniform and gradational layouts against E).
 ///
 /// The element as implemented (elements.h): the shape-keeping energy split into its affine and

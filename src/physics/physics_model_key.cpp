@@ -5,10 +5,12 @@
 #include <Eigen/Core>
 #include <cstdint>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include "base/content_hash.h"
 #include "model/gradational_builder.h"
+#include "physics/calibrated_fields.h"
 #include "physics/calibration.h"
 
 namespace vx {
@@ -19,26 +21,13 @@ namespace {
 /// not show (an element shape it lacks): the keys of older files then no longer match.
 constexpr std::uint64_t kCalibrationVersion = 1;
 
-template <typename T>
-void add_vector(ContentHash& h, const std::vector<T>& v) {
-  h.add_value(std::uint64_t(v.size()));
-  if (!v.empty()) h.add(v.data(), v.size() * sizeof(T));
-}
-
-template <typename Derived>
-void add_matrix(ContentHash& h, const Eigen::DenseBase<Derived>& m) {
-  h.add_value(std::int64_t(m.rows()));
-  h.add_value(std::int64_t(m.cols()));
-  if (m.size() > 0) h.add(m.derived().data(), std::size_t(m.size()) * sizeof(typename Derived::Scalar));
-}
-
 void add_material(ContentHash& h, const Material& material, const MaterialField& field, const CalibrationOptions& o) {
   h.add_value(material.youngs_modulus_kpa);
   h.add_value(material.density_kg_m3);
   h.add_value(material.damping_ratio);
   h.add_value(material.poisson_ratio);
-  add_vector(h, field.youngs_modulus_kpa);
-  add_vector(h, field.density_kg_m3);
+  h.add_vector(field.youngs_modulus_kpa);
+  h.add_vector(field.density_kg_m3);
   h.add_value(std::uint8_t(o.element));
   h.add_value(o.bending_relief);
   h.add_value(o.xyz_relief);
@@ -52,32 +41,22 @@ void add_material(ContentHash& h, const Material& material, const MaterialField&
   h.add_value(o.volume_variation_cap);
 }
 
-/// The calibrated part of a PhysicsModel (CalibrationCache's list), bit for bit.
+/// The calibrated part of a PhysicsModel (calibrated_fields.h), bit for bit.
 void add_calibration(ContentHash& h, const PhysicsModel& p) {
-  add_vector(h, p.entry_weight);
-  add_matrix(h, p.entry_rest);
-  add_matrix(h, p.entry_rest_weighted);
-  add_matrix(h, p.entry_gradient);
-  add_matrix(h, p.entry_modes);
-  add_vector(h, p.element_stiffness);
-  add_vector(h, p.element_damping);
-  add_vector(h, p.element_volume_stiffness);
-  add_vector(h, p.element_mass_kg);
-  add_vector(h, p.element_spread_mm2);
-  add_vector(h, p.element_fit_scale);
-  add_vector(h, p.element_affine_stiffness);
-  for (const Eigen::Matrix3d& c : p.element_spread) add_matrix(h, c);
-  add_vector(h, p.volume_point_offsets);
-  add_vector(h, p.volume_point_stiffness);
-  add_vector(h, p.volume_point_term_offsets);
-  add_vector(h, p.volume_term_entry);
-  add_matrix(h, p.volume_term_delta);
-  add_vector(h, p.node_mass_kg);
-  h.add_value(p.bending_relief_clamped);
-  h.add_value(p.gradient_fallback_elements);
-  h.add_value(p.anisotropic_elements);
-  h.add_value(p.max_anisotropy);
-  add_vector(h, p.node_mass);  // the derived masses too (mass scaling)
+  for_each_calibrated_field(
+      [&h](const char*, CalibratedCount, const auto& v) {
+        using V = std::decay_t<decltype(v)>;
+        if constexpr (std::is_arithmetic_v<V>)
+          h.add_value(v);
+        else if constexpr (std::is_same_v<V, std::vector<Eigen::Matrix3d>>)
+          for (const Eigen::Matrix3d& c : v) h.add_matrix(c);
+        else if constexpr (std::is_base_of_v<Eigen::EigenBase<V>, V>)
+          h.add_matrix(v);
+        else
+          h.add_vector(v);
+      },
+      p);
+  h.add_vector(p.node_mass);  // the derived masses too (mass scaling)
 }
 
 /// The calibration of a small reference object built like `model` (its layout, dimensions, voxel
@@ -114,23 +93,23 @@ std::uint64_t reference_calibration(const Model& model, const Material& material
 void add_model_content(ContentHash& h, const Model& m) {
   h.add_value(std::uint8_t(m.layout));
   h.add_value(std::int32_t(m.dimensions));
-  add_matrix(h, m.grid.dims);
-  add_matrix(h, m.grid.spacing_mm);
-  add_matrix(h, m.grid.origin_mm);
-  add_matrix(h, m.grid.direction);
-  add_matrix(h, m.rest_positions);
-  add_matrix(h, m.node_lattice);
-  add_vector(h, m.node_surface);
-  add_vector(h, m.element_offsets);
-  add_vector(h, m.element_vertices);
-  add_vector(h, m.element_level);
-  add_vector(h, m.element_cell_voxels);
-  add_matrix(h, m.element_anchor);
-  add_vector(h, m.element_cells);
-  add_matrix(h, m.rest_offsets);
-  add_matrix(h, m.rest_centroids);
-  add_vector(h, m.element_volume_mm3);
-  add_vector(h, m.element_size_mm);
+  h.add_matrix(m.grid.dims);
+  h.add_matrix(m.grid.spacing_mm);
+  h.add_matrix(m.grid.origin_mm);
+  h.add_matrix(m.grid.direction);
+  h.add_matrix(m.rest_positions);
+  h.add_matrix(m.node_lattice);
+  h.add_vector(m.node_surface);
+  h.add_vector(m.element_offsets);
+  h.add_vector(m.element_vertices);
+  h.add_vector(m.element_level);
+  h.add_vector(m.element_cell_voxels);
+  h.add_matrix(m.element_anchor);
+  h.add_vector(m.element_cells);
+  h.add_matrix(m.rest_offsets);
+  h.add_matrix(m.rest_centroids);
+  h.add_vector(m.element_volume_mm3);
+  h.add_vector(m.element_size_mm);
 }
 
 std::string CalibrationKey::name() const {

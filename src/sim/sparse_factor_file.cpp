@@ -9,9 +9,10 @@
 #include <memory>
 #include <ostream>
 #include <string>
+#include <utility>
+#include <vector>
 
-#include "base/content_hash.h"
-#include "base/error.h"
+#include "base/cache_file_format.h"
 
 namespace vx {
 
@@ -20,112 +21,35 @@ namespace {
 constexpr char kMagic[8] = {'V', 'X', 'F', 'A', 'C', 'T', 'O', 'R'};
 constexpr std::uint32_t kFormatVersion = 2;
 
-constexpr std::size_t kAlign = 64;  ///< every array starts at a multiple of this in the file
+/// An array of T in place (aligned for T) and its count; null on failure.
+template <typename T>
+std::pair<const T*, std::size_t> typed_array(CacheFileReader& r, const char* what) {
+  const auto [p, n] = r.array(sizeof(T), -1, what);
+  if (!p) return {nullptr, 0};
+  if (reinterpret_cast<std::uintptr_t>(p) % alignof(T) != 0) {
+    r.fail("the data is not aligned");
+    return {nullptr, 0};
+  }
+  return {reinterpret_cast<const T*>(p), n};
+}
 
-/// Writes values and feeds them to the checksum.
-class HashedWriter {
- public:
-  explicit HashedWriter(std::ostream& out) : out_(out) {}
-  void bytes(const void* p, std::size_t n) {
-    hash_.add(p, n);
-    out_.write(static_cast<const char*>(p), std::streamsize(n));
-    at_ += n;
-  }
-  template <typename T>
-  void value(const T& v) {
-    bytes(&v, sizeof v);
-  }
-  /// The count, zeros up to the next kAlign boundary, the values.
-  template <typename T>
-  void array(const T* data, std::size_t n) {
-    value(std::uint64_t(n));
-    static constexpr unsigned char kZeros[kAlign] = {};
-    bytes(kZeros, (kAlign - at_ % kAlign) % kAlign);
-    bytes(data, n * sizeof(T));
-  }
-  template <typename V>
-  void array(const V& v) {
-    array(v.data(), v.size());
-  }
-  [[nodiscard]] std::uint64_t checksum() const { return hash_.value(); }
+/// Copies an array of any count.
+template <typename T>
+void copy(CacheFileReader& r, std::vector<T>& v, const char* what) {
+  const auto [p, n] = typed_array<T>(r, what);
+  if (p) v.assign(p, p + n);
+}
 
- private:
-  std::ostream& out_;
-  ContentHash hash_;
-  std::size_t at_{0};
-};
-
-/// Reads what HashedWriter wrote from memory; the first failure sticks.
-class HashedReader {
- public:
-  HashedReader(const unsigned char* data, std::size_t size) : data_(data), size_(size) {}
-  /// The next n bytes (null on failure).
-  const unsigned char* bytes(std::size_t n, const char* what) {
-    if (!error_.empty()) return nullptr;
-    if (n > size_ - at_) {
-      fail(std::string("truncated at ") + what);
-      return nullptr;
-    }
-    const unsigned char* p = data_ + at_;
-    hash_.add(p, n);
-    at_ += n;
-    return p;
-  }
-  template <typename T>
-  bool value(T& v, const char* what) {
-    const unsigned char* p = bytes(sizeof v, what);
-    if (p) std::memcpy(&v, p, sizeof v);
-    return p != nullptr;
-  }
-  /// An array's values in place (aligned for T) and their count.
-  template <typename T>
-  std::pair<const T*, std::size_t> array(const char* what) {
-    std::uint64_t n = 0;
-    if (!value(n, what)) return {nullptr, 0};
-    bytes((kAlign - at_ % kAlign) % kAlign, what);
-    if (!error_.empty()) return {nullptr, 0};
-    if (n > (size_ - at_) / sizeof(T)) {
-      fail(std::string("truncated: the size of ") + what + " runs past the end of the file");
-      return {nullptr, 0};
-    }
-    const unsigned char* p = bytes(std::size_t(n) * sizeof(T), what);
-    if (!p) return {nullptr, 0};
-    if (reinterpret_cast<std::uintptr_t>(p) % alignof(T) != 0) {
-      fail("the data is not aligned");
-      return {nullptr, 0};
-    }
-    return {reinterpret_cast<const T*>(p), std::size_t(n)};
-  }
-  /// Copies an array.
-  template <typename T>
-  void copy(std::vector<T>& v, const char* what) {
-    const auto [p, n] = array<T>(what);
-    if (p) v.assign(p, p + n);
-  }
-  /// Views an array (with `keep`) or copies it.
-  template <typename T>
-  void share(SharedArray<T>& v, const std::shared_ptr<const void>& keep, const char* what) {
-    const auto [p, n] = array<T>(what);
-    if (!p) return;
-    if (keep)
-      v.view(p, n, keep);
-    else
-      v.own(std::vector<T>(p, p + n));
-  }
-  void fail(std::string why) {
-    if (error_.empty()) error_ = std::move(why);
-  }
-  [[nodiscard]] std::uint64_t checksum() const { return hash_.value(); }
-  [[nodiscard]] const std::string& error() const { return error_; }
-  [[nodiscard]] std::size_t remaining() const { return size_ - at_; }
-
- private:
-  const unsigned char* data_;
-  std::size_t size_;
-  std::size_t at_{0};
-  ContentHash hash_;
-  std::string error_;
-};
+/// Views an array (with `keep`) or copies it.
+template <typename T>
+void share(CacheFileReader& r, SharedArray<T>& v, const std::shared_ptr<const void>& keep, const char* what) {
+  const auto [p, n] = typed_array<T>(r, what);
+  if (!p) return;
+  if (keep)
+    v.view(p, n, keep);
+  else
+    v.own(std::vector<T>(p, p + n));
+}
 
 /// True when v holds 0 .. v.size()-1 each once.
 bool is_permutation(const std::vector<int>& v) {
@@ -155,9 +79,8 @@ std::uint64_t SparseFactor::stored_bytes() const {
 }
 
 void SparseFactor::write(std::ostream& out) const {
-  HashedWriter w(out);
-  w.bytes(kMagic, sizeof kMagic);
-  w.value(kFormatVersion);
+  CacheFileWriter w(out);
+  w.header(kMagic, kFormatVersion);
   w.value(std::uint32_t(sizeof(int)));
   w.value(std::uint8_t(backend_));
   w.value(std::uint8_t(supernodal_ ? 1 : 0));
@@ -174,54 +97,43 @@ void SparseFactor::write(std::ostream& out) const {
     w.array(inner_);
     w.array(inv_d_);
   }
-  const std::uint64_t sum = w.checksum();
-  out.write(reinterpret_cast<const char*>(&sum), sizeof sum);  // not hashed: the hash of what precedes
-  if (!out) throw Error("sparse factor: writing the factor failed (disk full?)");
+  w.finish("sparse factor: writing the factor failed (disk full?)");
 }
 
 bool SparseFactor::read(const unsigned char* data, std::size_t bytes, std::shared_ptr<const void> keep,
                         std::string* why) {
   const auto t0 = std::chrono::steady_clock::now();
   reset();
-  HashedReader r(data, bytes);
-  std::uint32_t version = 0, int_bytes = 0;
+  CacheFileReader r(data, bytes);
+  std::uint32_t int_bytes = 0;
   std::uint8_t backend = 0, supernodal = 0;
   std::int64_t n = 0;
-  if (const unsigned char* magic = r.bytes(sizeof kMagic, "the header");
-      magic && std::memcmp(magic, kMagic, sizeof kMagic) != 0)
-    r.fail("not a voxelastic factor file");
-  r.value(version, "the header");
-  if (r.error().empty() && version != kFormatVersion)
-    r.fail("format version " + std::to_string(version) + ", this build reads " + std::to_string(kFormatVersion));
+  r.header(kMagic, kFormatVersion, "not a voxelastic factor file");
   r.value(int_bytes, "the header");
   r.value(backend, "the header");
   r.value(supernodal, "the header");
   r.value(n, "the header");
-  if (r.error().empty() && (int_bytes != sizeof(int) || backend > std::uint8_t(Backend::eigen_amd) || supernodal > 1 ||
-                            n < 0 || n > std::numeric_limits<int>::max()))
+  if (r.ok() && (int_bytes != sizeof(int) || backend > std::uint8_t(Backend::eigen_amd) || supernodal > 1 || n < 0 ||
+                 n > std::numeric_limits<int>::max()))
     r.fail("a header this build cannot read");
-  r.copy(perm_, "the permutation");
-  r.share(values_, keep, "the values");
+  copy(r, perm_, "the permutation");
+  share(r, values_, keep, "the values");
   if (supernodal) {
-    r.copy(super_, "the supernodes");
-    r.share(rows_, keep, "the row indices");
-    r.copy(row_start_, "the row starts");
-    r.copy(value_start_, "the value starts");
+    copy(r, super_, "the supernodes");
+    share(r, rows_, keep, "the row indices");
+    copy(r, row_start_, "the row starts");
+    copy(r, value_start_, "the value starts");
   } else {
-    r.copy(outer_, "the column starts");
-    r.copy(inner_, "the row indices");
-    r.copy(inv_d_, "the diagonal");
+    copy(r, outer_, "the column starts");
+    copy(r, inner_, "the row indices");
+    copy(r, inv_d_, "the diagonal");
   }
-  const std::uint64_t expected = r.checksum();
-  std::uint64_t sum = 0;
-  if (r.value(sum, "the checksum") && sum != expected) r.fail("the checksum does not match (a damaged file)");
-  if (r.error().empty() && r.remaining() != 0)
-    r.fail(std::to_string(r.remaining()) + " bytes after the end of the factor");
+  r.finish("the factor");
   // the structure: whatever a solve indexes must be in range
   const int size = int(n);
-  if (r.error().empty() && (perm_.size() != std::size_t(size) || !is_permutation(perm_)))
+  if (r.ok() && (perm_.size() != std::size_t(size) || !is_permutation(perm_)))
     r.fail("the permutation is not one of the matrix's rows");
-  if (r.error().empty() && supernodal) {
+  if (r.ok() && supernodal) {
     const std::size_t ns = super_.empty() ? 0 : super_.size() - 1;
     bool good = !super_.empty() && super_.front() == 0 && super_.back() == size && row_start_.size() == ns + 1 &&
                 value_start_.size() == ns + 1 && row_start_.front() == 0 && value_start_.front() == 0 &&
@@ -238,7 +150,7 @@ bool SparseFactor::read(const unsigned char* data, std::size_t bytes, std::share
       }
     }
     if (!good) r.fail("the supernodes do not tile the matrix");
-  } else if (r.error().empty()) {
+  } else if (r.ok()) {
     bool good = outer_.size() == std::size_t(size) + 1 && outer_.front() == 0 &&
                 outer_.back() == std::int64_t(inner_.size()) && inner_.size() == values_.size() &&
                 inv_d_.size() == std::size_t(size);
@@ -252,8 +164,8 @@ bool SparseFactor::read(const unsigned char* data, std::size_t bytes, std::share
   }
   size_ = size;
   supernodal_ = supernodal != 0;
-  if (r.error().empty() && supernodal_ && !index_supernodes()) r.fail("a diagonal entry is not positive");
-  if (!r.error().empty()) {
+  if (r.ok() && supernodal_ && !index_supernodes()) r.fail("a diagonal entry is not positive");
+  if (!r.ok()) {
     if (why) *why = r.error();
     reset();
     return false;

@@ -1,6 +1,6 @@
 #pragma once
 /// @file brick_reference.h
-/// An independent reference for the Poisson press of poisson_locking_test (issue 27,
+/// An independent reference for the Poisson press of poisson_locking_slow_test (issue 27,
 /// docs/model.md section 5, "Against a B-bar brick on the same mesh"): plain small-strain
 /// linear finite elements on the voxel layout's mesh, none of the model's code but the sparse
 /// factor.

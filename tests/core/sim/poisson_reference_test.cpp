@@ -1,5 +1,5 @@
 // An independent reference for the Poisson press (issue 27, docs/model.md section 5, "Against a
-// B-bar brick on the same mesh"): poisson_locking_test's scene (a ball of R 4 mm pressed 2 mm
+// B-bar brick on the same mesh"): poisson_locking_slow_test's scene (a ball of R 4 mm pressed 2 mm
 // into a 32 x 32 x 16 mm block bonded at its base) solved with plain linear finite elements on
 // the voxel layout's mesh (support/brick_reference.h: trilinear bricks, B-bar), its force ratio
 // F(nu) / F(0) against the bonded finite-layer solution's. It tells what any trilinear element
@@ -79,7 +79,7 @@ BrickMatrix model_element_stiffness(double h, double nu, const CalibrationOption
   return 0.5 * (k + k.transpose());
 }
 
-/// The whole model (poisson_locking_test's block at `layout`, 1 mm voxels) linearised at rest by
+/// The whole model (poisson_locking_slow_test's block at `layout`, 1 mm voxels) linearised at rest by
 /// central differences of its element pass, one degree of freedom at a time, and pressed with
 /// brick_press's linear contact (vertical; the top nodes under the ball): the model's own
 /// stiffness with the reference's contact. Seconds for the gradational layout; the voxel

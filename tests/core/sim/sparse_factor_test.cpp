@@ -138,6 +138,10 @@ TEST(SparseFactor, BackendsAgreeOnTheSameMatrix) {
     SparseFactor f;
     EXPECT_FALSE(f.compute(bad, backend)) << SparseFactor::to_string(backend);
   }
+  // the agreement above needs two different backends: a build with Eigen's AMD alone has
+  // compared one with itself, so says so rather than pass
+  if (backends().size() < 2)
+    GTEST_SKIP() << "one sparse backend in this build (no METIS, no CHOLMOD): nothing compared";
 }
 
 TEST(SparseFactor, AFactorReadBackSolvesBitForBitAsTheOneComputed) {
