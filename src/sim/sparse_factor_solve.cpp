@@ -7,8 +7,6 @@
 #include <cstdint>
 #include <vector>
 
-#include "base/parallel.h"
-
 namespace vx {
 
 void SparseFactor::solve3(const Eigen::MatrixX3d& b, Eigen::MatrixX3d& x) {
@@ -101,9 +99,8 @@ Supernode supernode(const std::vector<int>& super, const std::vector<std::int64_
 
 /// The forward sweep L z = w over one supernode (K right-hand sides interleaved in w), each
 /// column streamed once; a column whose value is zero for every right-hand side is skipped.
-/// Updates the rows r[.. row_end) (row_end >= nscol; the rest: forward_external()).
 template <int K>
-void forward_supernode(double* w, const Supernode& s, int row_end) {
+void forward_supernode(double* w, const Supernode& s) {
   for (int jj = 0; jj < s.nscol; ++jj) {
     const double* col = s.x + std::int64_t(jj) * s.nsrow;
     double* wj = w + K * std::int64_t(s.k1 + jj);
@@ -115,33 +112,7 @@ void forward_supernode(double* w, const Supernode& s, int row_end) {
     if (zero) continue;
     double v[K];
     for (int c = 0; c < K; ++c) v[c] = wj[c];
-    for (int ii = jj + 1; ii < row_end; ++ii) {
-      double* wi = w + K * std::int64_t(s.r[ii]);
-      const double l = col[ii];
-      for (int c = 0; c < K; ++c) wi[c] -= l * v[c];
-    }
-  }
-}
-
-template <int K>
-void forward_supernode(double* w, const Supernode& s) {
-  forward_supernode<K>(w, s, s.nsrow);
-}
-
-/// What forward_supernode(w, s, ext) left out: the updates of the rows r[ext ..] from the
-/// supernode's columns (their values final), column by column as it would have made them.
-template <int K>
-void forward_external(double* w, const Supernode& s, int ext) {
-  if (ext >= s.nsrow) return;
-  for (int jj = 0; jj < s.nscol; ++jj) {
-    const double* col = s.x + std::int64_t(jj) * s.nsrow;
-    const double* wj = w + K * std::int64_t(s.k1 + jj);
-    bool zero = true;
-    for (int c = 0; c < K; ++c) zero = zero && wj[c] == 0.0;
-    if (zero) continue;
-    double v[K];
-    for (int c = 0; c < K; ++c) v[c] = wj[c];
-    for (int ii = ext; ii < s.nsrow; ++ii) {
+    for (int ii = jj + 1; ii < s.nsrow; ++ii) {
       double* wi = w + K * std::int64_t(s.r[ii]);
       const double l = col[ii];
       for (int c = 0; c < K; ++c) wi[c] -= l * v[c];
@@ -179,144 +150,16 @@ void SparseFactor::solve_supernodal(double* w, int first) const {
     backward_supernode<K>(w, supernode(super_, row_start_, value_start_, rows_.data(), values_.data(), q));
 }
 
-/// Cuts `supers` (ascending, closed under the parent) for a tree-parallel pass (sparse_factor.h):
-/// tasks_ (by position) and task_order_ (largest first). Splits the largest subtree (its root
-/// goes to the serial rest) while that shortens the estimated pass (the rest plus the larger of
-/// the largest subtree and an even share of the subtrees); false (serial) when the pass is
-/// shorter than min_parallel_entries_ or the split gains less than a sixth. Which split it
-/// picks changes the time, never the result.
-bool SparseFactor::plan_tree(const std::vector<int>& supers) const {
-  tasks_.clear();
-  const int threads = resolve_threads(threads_);
-  const int m = int(supers.size());
-  if (threads <= 1 || !tree_ok_ || m < 2) return false;
-  std::int64_t total = 0;
-  for (int p = 0; p < m; ++p) {
-    const int q = supers[std::size_t(p)];
-    tree_pos_[std::size_t(q)] = p;
-    tree_work_[std::size_t(q)] = super_work_[std::size_t(q)];
-    tree_child_[std::size_t(q)] = -1;
-    total += super_work_[std::size_t(q)];
-  }
-  if (total < min_parallel_entries_) return false;
-  const auto in_list = [&](int q) {
-    const int p = tree_pos_[std::size_t(q)];
-    return p >= 0 && p < m && supers[std::size_t(p)] == q;
-  };
-  std::vector<int> roots;
-  for (int p = 0; p < m; ++p) {
-    const int q = supers[std::size_t(p)], up = super_parent_[std::size_t(q)];
-    if (up >= 0 && in_list(up)) {
-      tree_work_[std::size_t(up)] += tree_work_[std::size_t(q)];
-      tree_sibling_[std::size_t(q)] = tree_child_[std::size_t(up)];
-      tree_child_[std::size_t(up)] = q;
-    } else {
-      roots.push_back(q);
-    }
-  }
-  const auto lighter = [&](int a, int b) { return tree_work_[std::size_t(a)] < tree_work_[std::size_t(b)]; };
-  // splits the heaviest subtree of frontier_ (a heap) once; false when it is one supernode
-  const auto split = [&](std::int64_t& rest) {
-    const int t = frontier_.front();
-    if (tree_child_[std::size_t(t)] < 0) return false;
-    std::pop_heap(frontier_.begin(), frontier_.end(), lighter);
-    frontier_.pop_back();
-    rest += super_work_[std::size_t(t)];
-    for (int c = tree_child_[std::size_t(t)]; c >= 0; c = tree_sibling_[std::size_t(c)]) {
-      frontier_.push_back(c);
-      std::push_heap(frontier_.begin(), frontier_.end(), lighter);
-    }
-    return true;
-  };
-  const auto estimate = [&](std::int64_t rest) {
-    return rest + std::max(tree_work_[std::size_t(frontier_.front())], (total - rest + threads - 1) / threads);
-  };
-  constexpr int kMostSplits = 32;
-  frontier_.assign(roots.begin(), roots.end());
-  std::make_heap(frontier_.begin(), frontier_.end(), lighter);
-  std::int64_t rest = 0, best = estimate(0);
-  int best_splits = 0;
-  for (int k = 1; k <= kMostSplits && split(rest); ++k) {
-    const std::int64_t e = estimate(rest);
-    if (e < best) best = e, best_splits = k;
-  }
-  if (best * 6 > total * 5) return false;
-  frontier_.assign(roots.begin(), roots.end());
-  std::make_heap(frontier_.begin(), frontier_.end(), lighter);
-  rest = 0;
-  for (int k = 0; k < best_splits; ++k) split(rest);
-  for (const int t : frontier_) {
-    const int b = int(std::lower_bound(supers.begin(), supers.end(), first_desc_[std::size_t(t)]) - supers.begin());
-    tasks_.push_back({b, tree_pos_[std::size_t(t)] + 1, tree_work_[std::size_t(t)]});
-  }
-  std::sort(tasks_.begin(), tasks_.end(), [](const TreeTask& a, const TreeTask& b) { return a.begin < b.begin; });
-  task_order_.resize(tasks_.size());
-  for (std::size_t k = 0; k < tasks_.size(); ++k) task_order_[k] = int(k);
-  std::stable_sort(task_order_.begin(), task_order_.end(),
-                   [&](int a, int b) { return tasks_[std::size_t(a)].work > tasks_[std::size_t(b)].work; });
-  ++tree_passes_;
-  return true;
-}
-
 template <int K>
 void SparseFactor::forward_supers(double* w, const std::vector<int>& supers) const {
-  const auto node = [&](int q) { return supernode(super_, row_start_, value_start_, rows_.data(), values_.data(), q); };
-  if (!plan_tree(supers)) {
-    for (const int q : supers) forward_supernode<K>(w, node(q));
-    return;
-  }
-  // the subtrees on the threads: a subtree's rows take updates from its own supernodes only;
-  // those of the rows above it wait (but the first slice's: nothing comes before them)
-  parallel_for_chunks(std::int64_t(tasks_.size()), 1, threads_, [&](std::int64_t c, std::int64_t, std::int64_t) {
-    const TreeTask& t = tasks_[std::size_t(task_order_[std::size_t(c)])];
-    const int end_column = super_[std::size_t(supers[std::size_t(t.end - 1)]) + 1];
-    for (int p = t.begin; p < t.end; ++p) {
-      const int q = supers[std::size_t(p)];
-      const Supernode s = node(q);
-      const int ext = t.begin == 0 ? s.nsrow : int(std::lower_bound(s.r + s.nscol, s.r + s.nsrow, end_column) - s.r);
-      ext_start_[std::size_t(q)] = ext;
-      forward_supernode<K>(w, s, ext);
-    }
-  });
-  // the rest and the updates put off, in the serial order (each row's updates as serially)
-  std::size_t k = 0;
-  for (int p = 0; p < int(supers.size());) {
-    if (k < tasks_.size() && p == tasks_[k].begin) {
-      const TreeTask& t = tasks_[k++];
-      if (t.begin > 0)
-        for (int pp = t.begin; pp < t.end; ++pp) {
-          const int q = supers[std::size_t(pp)];
-          forward_external<K>(w, node(q), ext_start_[std::size_t(q)]);
-        }
-      p = t.end;
-    } else {
-      forward_supernode<K>(w, node(supers[std::size_t(p)]));
-      ++p;
-    }
-  }
+  for (const int q : supers)
+    forward_supernode<K>(w, supernode(super_, row_start_, value_start_, rows_.data(), values_.data(), q));
 }
 
 template <int K>
 void SparseFactor::backward_supers(double* w, const std::vector<int>& supers) const {
-  const auto node = [&](int q) { return supernode(super_, row_start_, value_start_, rows_.data(), values_.data(), q); };
-  if (!plan_tree(supers)) {
-    for (auto it = supers.rbegin(); it != supers.rend(); ++it) backward_supernode<K>(w, node(*it));
-    return;
-  }
-  // the rest first (a column reads only its ancestors'), then the subtrees on the threads
-  std::size_t k = tasks_.size();
-  for (int p = int(supers.size()) - 1; p >= 0;) {
-    if (k > 0 && p == tasks_[k - 1].end - 1) {
-      p = tasks_[--k].begin - 1;
-      continue;
-    }
-    backward_supernode<K>(w, node(supers[std::size_t(p)]));
-    --p;
-  }
-  parallel_for_chunks(std::int64_t(tasks_.size()), 1, threads_, [&](std::int64_t c, std::int64_t, std::int64_t) {
-    const TreeTask& t = tasks_[std::size_t(task_order_[std::size_t(c)])];
-    for (int p = t.end - 1; p >= t.begin; --p) backward_supernode<K>(w, node(supers[std::size_t(p)]));
-  });
+  for (auto it = supers.rbegin(); it != supers.rend(); ++it)
+    backward_supernode<K>(w, supernode(super_, row_start_, value_start_, rows_.data(), values_.data(), *it));
 }
 
 /// Adds the ancestors of `supers` (marked with a new generation) and sorts: a closed set under
