@@ -83,13 +83,17 @@ TEST(ModelFile, OpensWithThePalpationDefaults) {
   EXPECT_EQ(int(scene.simulation.fixed_nodes.size()), expected);
   EXPECT_EQ(scene.simulation.integrator.kind, IntegratorKind::implicit);
   EXPECT_NEAR(scene.simulation.integrator.time_step_s, 0.02, 1e-15);
+  // tissue-like Poisson ratio by default (issue 27): the volume term is in the model
+  EXPECT_EQ(scene.physics->material.poisson_ratio, 0.45);
+  EXPECT_TRUE(scene.physics->has_volume_term());
   ASSERT_TRUE(scene.device_side.device.has_value());
   EXPECT_FALSE(scene.region_check);
   ASSERT_TRUE(scene.surface);
   EXPECT_EQ(scene.surface->method, SurfaceMethod::paper);
   EXPECT_EQ(scene.simulation.surface, scene.surface);
   bool noted = false;
-  for (const auto& n : scene.notes) noted = noted || n.find("default palpation scene: E = 10 kPa") != std::string::npos;
+  for (const auto& n : scene.notes)
+    noted = noted || n.find("default palpation scene: E = 10 kPa, Poisson ratio 0.45") != std::string::npos;
   EXPECT_TRUE(noted);
   // the tool may go where the walls allow, its start included
   ASSERT_EQ(scene.probe_allowed.size(), 1u);
