@@ -117,6 +117,11 @@ int main(int argc, char** argv) {
       ->check(CLI::NonNegativeNumber);
   g_scene->add_option("--youngs-modulus", o.scene.youngs_modulus_kpa, "tissue stiffness, kPa")
       ->check(CLI::PositiveNumber);
+  g_scene
+      ->add_option("--poisson-ratio", o.scene.poisson_ratio,
+                   "tissue Poisson ratio in [0, 0.5): 0 (the default) is the paper's model; soft tissue keeps its "
+                   "volume, 0.45-0.49")
+      ->check(CLI::Range(0.0, 0.4999));
   g_scene->add_option("--surface-method", surface,
                        "displayed surface: iso (smoothed iso-surface in the elements) or paper (voxel surface with "
                        "the concave steps hidden, paper 3.3)")

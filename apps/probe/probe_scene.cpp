@@ -93,6 +93,7 @@ Scene scene_of_input(const std::filesystem::path& input, const DefaultSceneOptio
   }
   Material material;
   material.youngs_modulus_kpa = options.youngs_modulus_kpa;
+  material.poisson_ratio = options.poisson_ratio;
   material.damping_ratio = options.damping_ratio;
   PalpationDefaults defaults;
   defaults.held_fraction = options.held_fraction;

@@ -31,12 +31,13 @@ void run_hertz(VerifyContext& ctx, Layout r, const std::vector<double>& voxels_m
 /// A cantilever under its own weight at the voxel sizes `voxels_mm`: convergence, and the finest
 /// within `tolerance` of beam theory.
 void run_cantilever(VerifyContext& ctx, Layout r, const std::vector<double>& voxels_mm, double tolerance);
-/// Tissue-like Poisson ratios (0.3, 0.45, 0.49): a ball pressed into a bonded block, F(nu) / F(0)
-/// against the finite-layer solution's ratio.
+/// Tissue-like Poisson ratios (0.3, 0.45, 0.49): a ball pressed into a bonded block, against a
+/// finite-strain reference on the same mesh (finite_brick_reference.h), at 2 and 1 mm voxels.
 void run_poisson_hertz(VerifyContext& ctx);
 /// The same ratios: a clamped bar's bulge and modulus under compression.
 void run_poisson_bulge(VerifyContext& ctx);
-/// The same ratios: a cantilever under its own weight against Timoshenko beam theory.
+/// The same ratios: a cantilever under its own weight against Timoshenko beam theory (Newton's
+/// method on the model's forces), at 2, 1 and 0.5 mm voxels.
 void run_poisson_cantilever(VerifyContext& ctx);
 /// One indentation on the three layouts, against the voxel-level model.
 void run_layouts(VerifyContext& ctx);

@@ -208,6 +208,35 @@ void run_stability_dt(VerifyContext& ctx, IntegratorKind kind, bool implicit) {
               "energy after 500 implicit steps at 100x the symplectic limit / initial: backward Euler never gains energy",
               CheckRule::at_most);
   }
+  // full suite, symplectic Euler: the step as the Poisson ratio nears 0.5 (issue 27; docs/model.md
+  // section 5, "The stable step"): the volume term stiffens the volumetric modes, the step falls
+  // like the inverse P-wave speed, sqrt((1 + nu)(1 - 2 nu) / (1 - nu)) of the step at Poisson 0
+  if (ctx.full() && kind == IntegratorKind::symplectic_euler) {
+    double dt0 = 0;
+    for (double nu : {0.0, 0.3, 0.45, 0.49}) {
+      Material m = tissue(10.0, 0.0);
+      m.poisson_ratio = nu;
+      const auto p = make_physics_model(model, m);
+      const double est = stable_time_step(*p, kind), dt = measured_stable_dt(p, kind, est);
+      if (nu == 0.0) dt0 = dt;
+      const double wave = std::sqrt((1 + nu) * (1 - 2 * nu) / (1 - nu));
+      ctx.log(
+          fmt::format("symplectic Euler, E = 10 kPa, Poisson {}: largest stable step {:.4g} s (x{:.3f} the step at "
+                      "0; P-wave scaling x{:.3f}), estimate {:.4g} s (x{:.2f})",
+                      nu, dt, dt / dt0, wave, est, dt / est));
+      if (nu == 0.0) continue;
+      ctx.check(fmt::format("poisson{}.estimate_is_safe", nu), dt / est, 1.0, 0.0, "",
+                fmt::format("largest stable step / estimate at Poisson {}: the estimate (with the volume term's "
+                            "k_v g g^T) stays safe (measured 1.61, 1.80, 1.86 at 0.3, 0.45, 0.49; 1.26 at 0)",
+                            nu),
+                CheckRule::at_least);
+      ctx.check(fmt::format("poisson{}.step_ratio", nu), dt / dt0 / wave, 1.0, 0.15, "",
+                fmt::format("largest stable step at Poisson {} / at 0, over the P-wave scaling {:.3f} (the volume "
+                            "term stiffens the element's volumetric mode by 3 nu / (1 - 2 nu); the highest mode mixes "
+                            "shape and volume, so not exactly: measured 1.09, 1.06, 1.04 at 0.3, 0.45, 0.49)",
+                            nu, wave));
+    }
+  }
   ctx.plot("stable-dt", "Largest stable time step against Young's modulus, measured (points) and estimated (lines)",
            {{fmt::format("Stable time step of a gradational 8^3 mm cube, {} (damping {})", to_string(kind),
                          kind == IntegratorKind::explicit_euler ? 0.1 : 0.0),

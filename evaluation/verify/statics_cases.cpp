@@ -1,8 +1,11 @@
 // The verify cases on mechanics against theory: plate compression (stress = E strain), Hertz
 // indentation (finite-layer Hertz), a cantilever under its own weight (Timoshenko), the
-// three layouts on one indentation against the voxel-level model, and the folded phantom
-// hanging from its stem (the support carries its weight).
+// three layouts on one indentation against the voxel-level model, the folded phantom
+// hanging from its stem (the support carries its weight), and the same at tissue-like Poisson
+// ratios (the press against the finite-strain reference of finite_brick_reference.h).
 #include <fmt/format.h>
+#include <Eigen/SparseCholesky>
+#include <Eigen/SparseCore>
 
 #include <algorithm>
 #include <cmath>
@@ -18,6 +21,7 @@
 #include "convert/threshold.h"
 #include "model/gradational_builder.h"
 #include "physics/calibration.h"
+#include "physics/elements.h"
 #include "scene/sim_output.h"
 #include "sim/contact.h"
 #include "sim/simulation.h"
@@ -25,6 +29,7 @@
 #include "sim/static_solver.h"
 #include "verify/case_helpers.h"
 #include "verify/cases.h"
+#include "verify/finite_brick_reference.h"
 
 namespace vx::cases {
 
@@ -305,40 +310,105 @@ double quasi_static_press_n(Layout r, double h, double nu) {
 }  // namespace
 
 void run_poisson_hertz(VerifyContext& ctx) {
+  // The model's press against the finite-strain reference on the same mesh (voxel layout: the
+  // reference's bricks are its voxels; docs/model.md section 5, "A finite-strain reference"): the
+  // finite-layer solution (small strain, vertical contact on the flat surface) does not hold for
+  // a 4 mm ball 2 mm deep on 1-2 mm voxels (the reference itself reads 0.77-0.84 of its ratio at
+  // 0.45), so it is shown and bounds locking only (at most 10 % above it)
   const double r = 4.0, d = 2.0, layer = 16.0;
-  const double f0 = quasi_static_press_n(Layout::gradational, 1.0, 0.0);
-  const double ref0 = hertz_bonded_layer_n(10.0, 0.0, r, d, layer);
-  ctx.log(fmt::format("Poisson 0: {:.4g} N, finite layer {:.4g} N ({:+.1f} %)", f0, ref0, 100 * (f0 / ref0 - 1)));
-  std::vector<double> nus, model, reference;
-  // measured today (docs/model.md section 5, "Why soft"): 0.893, 0.803, 0.777 of the reference
-  const std::vector<std::pair<double, double>> today = {{0.3, 0.893}, {0.45, 0.803}, {0.49, 0.777}};
-  double last = 0.0;  // (F(0.3) / F(0) = 0.994: below 1, mu falls by 1 / (1 + nu) at a fixed E)
-  for (const auto& [nu, now] : today) {
-    const double f = quasi_static_press_n(Layout::gradational, 1.0, nu);
-    const double ref = hertz_bonded_layer_n(10.0, nu, r, d, layer) / ref0;
-    ctx.log(fmt::format("Poisson {}: {:.4g} N, F(nu) / F(0) = {:.4f}, finite layer {:.4f} ({:+.1f} %)", nu, f, f / f0,
-                        ref, 100 * (f / f0 / ref - 1)));
-    nus.push_back(nu);
-    model.push_back(f / f0);
-    reference.push_back(ref);
-    ctx.check(fmt::format("ratio_nu{}", nu), f / f0 / ref, 1.0, 0.10, "",
-              fmt::format("F({}) / F(0) over the finite layer's ratio {:.3f}: at most 10 % above it (no volumetric "
-                          "locking; the former volume term on the vertex fit read 2.1 at 0.45)",
-                          nu, ref),
-              CheckRule::at_most);
-    ctx.check(fmt::format("ratio_nu{}_today", nu), f / f0 / ref, now, 0.03, "",
-              fmt::format("the same, against what the model gives today ({}): it reads about 20 % soft at 0.45, the "
-                          "issue's 5 % target is NOT reached (docs/model.md section 5, 'Why soft'); a regression guard",
-                          now));
-    ctx.check(fmt::format("stiffens_nu{}", nu), f / f0, last, 0.0, "",
-              "F(nu) / F(0) grows with nu from 0.3 on (the volume term stiffens)", CheckRule::at_least);
-    last = f / f0;
+  const std::vector<double> nus = {0.0, 0.3, 0.45, 0.49};
+  auto finite_layer_ratio = [&](double nu) {
+    return hertz_bonded_layer_n(10.0, nu, r, d, layer) / hertz_bonded_layer_n(10.0, 0.0, r, d, layer);
+  };
+  struct Mesh {
+    double voxel_mm;
+    std::vector<double> nus;
+  };
+  // 2 mm: every ratio (the reference about 5 s each); 1 mm: 0 and 0.45 (the reference 1-5 min each)
+  const std::vector<Mesh> meshes = {{2.0, nus}, {1.0, {0.0, 0.45}}};
+  std::map<double, double> model_ratio45, reference_ratio45;  // by voxel size
+  std::vector<double> plot_nu, plot_model, plot_reference, plot_layer;
+  for (const Mesh& mesh : meshes) {
+    reference::FinitePress fp;
+    fp.voxel_mm = mesh.voxel_mm;
+    fp.steps = 2;  // the force at the final depth does not depend on the path (elastic, frictionless)
+    fp.material = reference::FiniteMaterial::corotational;  // the model's law (its shape term, its volume term)
+    double f0 = 0, r0 = 0;
+    for (double nu : mesh.nus) {
+      const double f = quasi_static_press_n(Layout::voxel, mesh.voxel_mm, nu);
+      const auto ref = reference::finite_brick_press(fp, nu);
+      const double rf = ref.force_n.back();
+      ctx.log(
+          fmt::format("voxel layout, {} mm voxels, Poisson {}: the model {:.4g} N, the finite-strain reference "
+                      "{:.4g} N ({} unknowns, {:.0f} s)",
+                      mesh.voxel_mm, nu, f, rf, ref.dofs, ref.total_s));
+      if (nu == 0.0) {
+        f0 = f, r0 = rf;
+        ctx.check(fmt::format("force_{}mm_nu0", mesh.voxel_mm), f / rf, 1.0, 0.03, "",
+                  fmt::format(
+                      "the model's F(0) / the finite-strain reference's on the same {} mm voxels (measured "
+                      "0.983 on 2 mm, 0.997 on 1 mm; the reference's law is the model's at Poisson 0, its contact the "
+                      "sphere's normal pushes: what is left is the model's element against the B-bar brick)",
+                      mesh.voxel_mm));
+        continue;
+      }
+      const double model = f / f0, refr = rf / r0, layer_ratio = finite_layer_ratio(nu);
+      ctx.log(
+          fmt::format("  F({}) / F(0): the model {:.4f}, the reference {:.4f} ({:+.1f} %), the finite layer {:.4f} "
+                      "(model / finite layer {:.3f}, reference / finite layer {:.3f})",
+                      nu, model, refr, 100 * (model / refr - 1), layer_ratio, model / layer_ratio, refr / layer_ratio));
+      ctx.check(fmt::format("ratio_{}mm_nu{}", mesh.voxel_mm, nu), model / refr, 1.0, 0.025, "",
+                fmt::format("F({}) / F(0) of the model over the finite-strain reference's on the same {} mm voxels "
+                            "(the issue's 5 %, halved: measured +1.5, +1.0, +1.1 % at 0.3, 0.45, 0.49 on 2 mm, -0.1 % "
+                            "at 0.45 on 1 mm)",
+                            nu, mesh.voxel_mm));
+      ctx.check(fmt::format("no_locking_{}mm_nu{}", mesh.voxel_mm, nu), model / layer_ratio, 1.0, 0.10, "",
+                fmt::format("F({}) / F(0) over the finite layer's {:.3f}: at most 10 % above it (no volumetric "
+                            "locking; the former volume term on the vertex fit read 2.1 times it at 0.45)",
+                            nu, layer_ratio),
+                CheckRule::at_most);
+      if (nu == 0.45) model_ratio45[mesh.voxel_mm] = model, reference_ratio45[mesh.voxel_mm] = refr;
+      if (mesh.voxel_mm == 2.0) {
+        plot_nu.push_back(nu), plot_model.push_back(model), plot_reference.push_back(refr);
+        plot_layer.push_back(layer_ratio);
+      }
+    }
   }
-  ctx.plot("ratio", "Ball pressed into a bonded block: F(nu) / F(0) against Poisson's ratio",
-           {{"R 4 mm, 2 mm into 32 x 32 x 16 mm, gradational 1 mm, quasi-static",
+  // convergence as the voxel halves: the model's ratio moves as the reference's does (towards the
+  // finite layer's: 0.783 -> 0.837 of it, the reference 0.775 -> 0.838)
+  const double model_step = model_ratio45[1.0] / model_ratio45[2.0],
+               reference_step = reference_ratio45[1.0] / reference_ratio45[2.0];
+  ctx.log(fmt::format("2 -> 1 mm at 0.45: the model's ratio x {:.4f}, the reference's x {:.4f}", model_step,
+                      reference_step));
+  ctx.check("halving_nu0.45", model_step / reference_step, 1.0, 0.02, "",
+            "the change of F(0.45) / F(0) from 2 to 1 mm voxels, the model's over the reference's (convergence: the "
+            "model follows the reference as the voxels halve: measured 1.070 against 1.082; 0.5 mm not run: the "
+            "reference's factor alone took 7 min there, the press tens of minutes per ratio)");
+  ctx.check("rises_nu0.45", model_ratio45[1.0], model_ratio45[2.0], 0.0, "",
+            "F(0.45) / F(0) on 1 mm voxels at least that on 2 mm (the ratio rises towards the finite layer's as the "
+            "voxels halve, as the reference's does)",
+            CheckRule::at_least);
+  // the gradational layout on 1 mm voxels (its interior elements up to 8 voxels wide) against the
+  // reference's 1 mm ratio: its large elements keep one volume constraint each (docs/model.md
+  // section 5: 4 % below the voxel layout)
+  {
+    const double g0 = quasi_static_press_n(Layout::gradational, 1.0, 0.0),
+                 g45 = quasi_static_press_n(Layout::gradational, 1.0, 0.45);
+    ctx.log(
+        fmt::format("gradational layout, 1 mm voxels: F(0) {:.4g} N, F(0.45) / F(0) {:.4f} ({:.3f} of the "
+                    "reference's on the same voxels)",
+                    g0, g45 / g0, g45 / g0 / reference_ratio45[1.0]));
+    ctx.check("ratio_gradational_1mm_nu0.45", g45 / g0 / reference_ratio45[1.0], 1.0, 0.05, "",
+              "F(0.45) / F(0) of the gradational layout over the finite-strain reference's on the same 1 mm voxels "
+              "(the issue's 5 %; its large interior elements keep one volume constraint each: measured 0.959)");
+  }
+  ctx.plot("ratio", "Ball pressed into a bonded block: F(nu) / F(0) against Poisson's ratio, 2 mm voxels",
+           {{"R 4 mm, 2 mm into 32 x 32 x 16 mm, voxel layout 2 mm, quasi-static",
              "Poisson ratio",
              "F(nu) / F(0)",
-             {{"model", nus, model, true}, {"finite layer (Dimitriadis 2002)", nus, reference}}}});
+             {{"model", plot_nu, plot_model, true},
+              {"finite-strain reference, same mesh", plot_nu, plot_reference},
+              {"finite layer (Dimitriadis 2002, small strain)", plot_nu, plot_layer}}}});
 }
 
 void run_poisson_bulge(VerifyContext& ctx) {
@@ -363,34 +433,201 @@ void run_poisson_bulge(VerifyContext& ctx) {
     }
 }
 
+namespace {
+
+/// The model's static equilibrium under gravity with `fixed` nodes held, by Newton's method: the
+/// tangent K = -df/dx of the element pass (no damping) by central differences (the nodes of one
+/// colour moved at once, no two of them in one element), at rest and after the first step (then kept); x += K^-1 r(x)
+/// with r the elastic forces plus the weight, until no coordinate moves more than 1e-8 mm. The static solver's
+/// local/global iteration converges on bending at about k_v / (2 mu V + k_v) per iteration as nu nears 0.5 (30000
+/// iterations left the cantilever at 0.61 of beam theory at 0.49); this solves the same equations. Returns the
+/// positions; `residual_n` the largest free node force left.
+Eigen::Matrix3Xd newton_static_positions(const PhysicsModel& p, const std::vector<int>& fixed,
+                                         const Eigen::Vector3d& gravity_mm_s2, double* residual_n) {
+  const Model& m = *p.model;
+  const int nn = m.num_nodes();
+  std::vector<int> dof(std::size_t(3 * nn), -1);
+  std::vector<char> held(std::size_t(nn), 0);
+  for (int i : fixed) held[std::size_t(i)] = 1;
+  int free = 0;
+  for (int i = 0; i < nn; ++i)
+    if (!held[std::size_t(i)])
+      for (int c = 0; c < 3; ++c) dof[std::size_t(3 * i + c)] = free++;
+  ElementPassOptions o;
+  o.damping = false;
+  o.rotation = RotationFitSettings{50, 1e-15};
+  ElementPassScratch scratch;
+  Eigen::Matrix3Xd entry, nf;
+  auto forces = [&](const Eigen::Matrix3Xd& x, std::vector<Eigen::Quaterniond>& rot) {
+    compute_element_forces(p, x, nullptr, rot, entry, nullptr, o, kThreads, scratch);
+    gather_node_forces(p, entry, nf, kThreads);
+    for (int i = 0; i < nn; ++i)
+      nf.col(i) += p.node_mass[std::size_t(i)] * p.node_gravity_ratio[std::size_t(i)] * gravity_mm_s2;
+    return nf;
+  };
+  // nodes coloured so that no two of a colour share an element: one colour's nodes are moved at
+  // once, and each element's entry forces change by its one moved node (27 colours on voxels)
+  std::vector<std::vector<int>> node_elements(static_cast<std::size_t>(nn));
+  for (int e = 0; e < m.num_elements(); ++e)
+    for (int j = m.element_offsets[std::size_t(e)]; j < m.element_offsets[std::size_t(e) + 1]; ++j)
+      node_elements[std::size_t(m.element_vertices[std::size_t(j)])].push_back(e);
+  std::vector<int> colour(std::size_t(nn), -1);
+  int colours = 0;
+  for (int i = 0; i < nn; ++i) {
+    std::vector<char> taken(std::size_t(colours) + 1, 0);
+    for (int e : node_elements[std::size_t(i)])
+      for (int j = m.element_offsets[std::size_t(e)]; j < m.element_offsets[std::size_t(e) + 1]; ++j)
+        if (const int c = colour[std::size_t(m.element_vertices[std::size_t(j)])]; c >= 0) taken[std::size_t(c)] = 1;
+    int c = 0;
+    while (taken[std::size_t(c)]) ++c;
+    colour[std::size_t(i)] = c;
+    colours = std::max(colours, c + 1);
+  }
+  // the tangent -df/dx at x0 by central differences of the entry forces, rotations warm-started from `at`
+  auto tangent = [&](const Eigen::Matrix3Xd& x0, const std::vector<Eigen::Quaterniond>& at) {
+    std::vector<Eigen::Triplet<double>> t;
+    const double step = 1e-6;
+    Eigen::Matrix3Xd plus;
+    for (int c = 0; c < colours; ++c)
+      for (int a = 0; a < 3; ++a) {
+        Eigen::Matrix3Xd x = x0;
+        std::vector<Eigen::Quaterniond> rot = at;
+        for (int i = 0; i < nn; ++i)
+          if (colour[std::size_t(i)] == c) x(a, i) += step;
+        compute_element_forces(p, x, nullptr, rot, entry, nullptr, o, kThreads, scratch);
+        plus = entry;
+        for (int i = 0; i < nn; ++i)
+          if (colour[std::size_t(i)] == c) x(a, i) -= 2 * step;
+        rot = at;
+        compute_element_forces(p, x, nullptr, rot, entry, nullptr, o, kThreads, scratch);
+        for (int e = 0; e < m.num_elements(); ++e) {
+          const int lo = m.element_offsets[std::size_t(e)], hi = m.element_offsets[std::size_t(e) + 1];
+          int moved = -1;
+          for (int j = lo; j < hi; ++j)
+            if (colour[std::size_t(m.element_vertices[std::size_t(j)])] == c)
+              moved = m.element_vertices[std::size_t(j)];
+          const int col = moved < 0 ? -1 : dof[std::size_t(3 * moved + a)];
+          if (col < 0) continue;
+          for (int j = lo; j < hi; ++j) {
+            const int i = m.element_vertices[std::size_t(j)], slot = p.entry_slot[std::size_t(j)];
+            for (int b = 0; b < 3; ++b)
+              if (const int row = dof[std::size_t(3 * i + b)]; row >= 0)
+                t.emplace_back(row, col, -(plus(b, slot) - entry(b, slot)) / (2 * step));
+          }
+        }
+      }
+    Eigen::SparseMatrix<double> k(free, free);
+    k.setFromTriplets(t.begin(), t.end());  // (duplicates summed: an entry from every shared element)
+    return Eigen::SparseMatrix<double>(0.5 * (k + Eigen::SparseMatrix<double>(k.transpose())));
+  };
+  Eigen::Matrix3Xd x = m.rest_positions;
+  std::vector<Eigen::Quaterniond> rot(std::size_t(p.num_elements()), Eigen::Quaterniond::Identity());
+  Eigen::VectorXd r(free);
+  double largest = 0;
+  Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> solver;
+  for (int it = 0;; ++it) {
+    const Eigen::Matrix3Xd f = forces(x, rot);
+    largest = 0;
+    for (int i = 0; i < nn; ++i)
+      for (int a = 0; a < 3; ++a)
+        if (const int row = dof[std::size_t(3 * i + a)]; row >= 0) {
+          r(row) = f(a, i);
+          largest = std::max(largest, std::abs(f(a, i)));
+        }
+    if (it < 2) {  // the tangent at rest, then at the first step's (nearly the solution): quadratic from there
+      solver.compute(tangent(x, rot));
+      if (solver.info() != Eigen::Success) throw Error("the cantilever's tangent could not be factored");
+    }
+    const Eigen::VectorXd dx = solver.solve(r);
+    for (int i = 0; i < nn; ++i)
+      for (int a = 0; a < 3; ++a)
+        if (const int row = dof[std::size_t(3 * i + a)]; row >= 0) x(a, i) += dx(row);
+    if (dx.lpNorm<Eigen::Infinity>() < 1e-8) break;  // (the rotation fit's rounding leaves about 3e-10 mm)
+    if (it == 30) throw Error("the cantilever's Newton solve did not converge");
+  }
+  if (residual_n) *residual_n = largest;
+  return x;
+}
+
+}  // namespace
+
 void run_poisson_cantilever(VerifyContext& ctx) {
-  const double length = 32.0, t = 4.0, e_kpa = 3000.0, h = 1.0;
-  const Eigen::Vector3i dims(int(length / h), int(t / h), int(t / h));
-  // 0.3 and 0.45 only: the static solver's iteration converges for the deviatoric modes at about
-  // k_v / (2 mu V + k_v) per iteration (docs/model.md section 5): 3000 iterations left the tip at
-  // 0.85, 0.40 and 0.12 of beam theory at 0.3, 0.45, 0.49; 30000 reach 0.99 and 0.948 at 0.3 and
-  // 0.45 but still read 0.61 at 0.49 (not converged, not measured further)
-  for (double nu : {0.3, 0.45}) {
-    const auto p = make_physics_model(block_model(Layout::voxel, dims, h), tissue_nu(e_kpa, nu));
-    SimState s = make_state(p);
-    s.fix_nodes(nodes_on_face(*p->model, BoxFace::x_min));
-    s.gravity_mm_s2 = {0, 0, -kStandardGravityMmS2};
-    StaticSolveSettings ss = static_settings();
-    ss.max_iterations = 30000;
-    solve_static(s, ss);
-    if (s.failed()) throw Error("static bending failed: " + s.message);
-    const double tip = -mean_displacement(s, nodes_on_face(*p->model, BoxFace::x_max), 2);
-    // Timoshenko, G = E / (2 (1 + nu)), kappa = 10 (1 + nu) / (12 + 11 nu) (square section)
+  // The 32 x 4 x 4 mm cantilever under its own weight on the voxel layout at 2, 1 and 0.5 mm voxels
+  // (2, 4 and 8 elements through the thickness), Poisson 0.3, 0.45, 0.49, its static equilibrium
+  // found by Newton's method on the model's own forces (newton_static_positions). Measured: -3.3,
+  // -1.9, -1.4 % at 0.3; -7.9, -4.6, -3.3 % at 0.45; -9.7, -5.6, -4.0 % at 0.49 (13 s of CPU in all)
+  const double length = 32.0, t = 4.0, e_kpa = 3000.0;
+  // the tip's deflection over Timoshenko's (G = E / (2 (1 + nu)), kappa = 10 (1 + nu) / (12 + 11 nu):
+  // square section), and the largest force left, on layout r at voxel h
+  auto tip_ratio = [&](Layout r, double h, double nu, double* residual) {
+    const Eigen::Vector3i dims(int(std::lround(length / h)), int(std::lround(t / h)), int(std::lround(t / h)));
+    const auto p = make_physics_model(block_model(r, dims, h), tissue_nu(e_kpa, nu));
+    const Eigen::Matrix3Xd x =
+        newton_static_positions(*p, nodes_on_face(*p->model, BoxFace::x_min), {0, 0, -kStandardGravityMmS2}, residual);
+    const auto tip_nodes = nodes_on_face(*p->model, BoxFace::x_max);
+    double tip = 0;
+    for (int i : tip_nodes) tip -= (x(2, i) - p->model->rest_positions(2, i)) / double(tip_nodes.size());
     const double q = 1000.0 * kKgM3ToKgPerMm3 * kStandardGravityMmS2 * 1e-3 * t * t;
     const double e = e_kpa * kKpaToNPerMm2, g = e / (2 * (1 + nu)), kappa = 10 * (1 + nu) / (12 + 11 * nu);
-    const double theory =
-        q * std::pow(length, 4) / (8 * e * t * t * t * t / 12.0) + q * length * length / (2 * kappa * g * t * t);
-    ctx.log(fmt::format("Poisson {}: tip {:.4g} mm, Timoshenko {:.4g} mm ({:+.1f} %)", nu, tip, theory,
-                        100 * (tip / theory - 1)));
-    ctx.check(fmt::format("tip_ratio_nu{}", nu), tip / theory, 1.0, nu < 0.4 ? 0.05 : 0.08, "",
-              "tip deflection / Timoshenko beam theory, voxel layout, 4 elements through the thickness (at Poisson 0 "
-              "the same model reads -1 %; measured 0.948 at 0.45: NOT within the issue's 5 %)");
+    return tip /
+           (q * std::pow(length, 4) / (8 * e * t * t * t * t / 12.0) + q * length * length / (2 * kappa * g * t * t));
+  };
+  std::map<double, std::vector<double>> errors;  // by nu, at each voxel size
+  const std::vector<double> hs = {2.0, 1.0, 0.5};
+  std::vector<double> lh;
+  std::map<double, std::vector<double>> le;
+  for (double h : hs) {
+    lh.push_back(std::log10(h));
+    for (double nu : {0.3, 0.45, 0.49}) {
+      double residual = 0;
+      const double ratio = tip_ratio(Layout::voxel, h, nu, &residual);
+      ctx.log(
+          fmt::format("voxel layout, {} mm voxels, Poisson {}: tip / Timoshenko {:.4f} ({:+.1f} %), largest force "
+                      "left {:.2g} N",
+                      h, nu, ratio, 100 * (ratio - 1), residual));
+      errors[nu].push_back(ratio - 1);
+      le[nu].push_back(std::log10(std::max(std::abs(ratio - 1), 1e-6)));
+      if (h == hs.back())
+        ctx.check(fmt::format("tip_ratio_nu{}", nu), ratio, 1.0, 0.05, "",
+                  fmt::format("tip deflection / Timoshenko beam theory at {} mm voxels (8 elements through the "
+                              "thickness; at Poisson 0 the same model reads -0.8 %: the beam solution's own accuracy "
+                              "for an 8:1 beam clamped over its whole end face, whose clamp also holds the section's "
+                              "Poisson contraction)",
+                              h));
+    }
   }
+  for (const auto& [nu, e] : errors)
+    for (std::size_t k = 1; k < e.size(); ++k)
+      ctx.check(fmt::format("halving_{}mm_nu{}", hs[k], nu), std::abs(e[k]), std::max(0.8 * std::abs(e[k - 1]), 0.02),
+                0.0, "",
+                fmt::format("|tip / beam theory - 1| at {} mm: at most 0.8 x the error at {} mm, or within the 2 % "
+                            "floor (the beam solution's own accuracy here); convergence as the voxels halve",
+                            hs[k], hs[k - 1]),
+                CheckRule::at_most);
+  // the gradational layout (its interior elements grow inside the 4 mm section): within 5 % at
+  // 0.5 and 0.25 mm (measured -1.5, -3.7, -4.4 % and -2.0, -3.8, -4.5 % at 0.3, 0.45, 0.49; at
+  // 1 mm +2.3, -1.2, -2.3 %). Its error does not shrink from 0.5 to 0.25 mm: the large interior
+  // elements keep one volume constraint each, as in the Hertz case (13 s of CPU)
+  for (double h : {0.5, 0.25})
+    for (double nu : {0.3, 0.45, 0.49}) {
+      double residual = 0;
+      const double ratio = tip_ratio(Layout::gradational, h, nu, &residual);
+      ctx.log(
+          fmt::format("gradational layout, {} mm voxels, Poisson {}: tip / Timoshenko {:.4f} ({:+.1f} %), largest "
+                      "force left {:.2g} N",
+                      h, nu, ratio, 100 * (ratio - 1), residual));
+      ctx.check(fmt::format("tip_ratio_gradational_{}mm_nu{}", h, nu), ratio, 1.0, 0.05, "",
+                fmt::format("tip deflection / Timoshenko beam theory, gradational layout at {} mm voxels (the issue's "
+                            "5 %)",
+                            h));
+    }
+  ctx.plot("convergence", "Cantilever at tissue-like Poisson ratios: tip deflection error against voxel size, log-log",
+           {{fmt::format("Beam {} x {} x {} mm clamped at one end, voxel layout, E = {} kPa", length, t, t, e_kpa),
+             "log10 voxel size, mm",
+             "log10 |tip / beam theory - 1|",
+             {{"Poisson 0.3", lh, le[0.3], true},
+              {"Poisson 0.45", lh, le[0.45], true},
+              {"Poisson 0.49", lh, le[0.49], true}}}});
 }
 
 // --- the three layouts on the same scene -------------------------------------------------------

@@ -243,11 +243,11 @@ std::vector<std::uint8_t> place_palpation_defaults(const PalpationDefaults& defa
 
   const Material& material = out.physics->material;
   out.log.push_back(fmt::format(
-      "default palpation scene: E = {:g} kPa, damping ratio {:g}, {} nodes held (the lowest "
+      "default palpation scene: E = {:g} kPa, Poisson ratio {:g}, damping ratio {:g}, {} nodes held (the lowest "
       "{:g} % of the height), capsule probe r = {:.1f} mm {}, the fast configuration: "
       "implicit dt = {:.3g} ms, {} iteration per step{}",
-      material.youngs_modulus_kpa, material.damping_ratio, sim.fixed_nodes.size(), 100.0 * defaults.held_fraction,
-      probe.geometry.radius_mm,
+      material.youngs_modulus_kpa, material.poisson_ratio, material.damping_ratio, sim.fixed_nodes.size(),
+      100.0 * defaults.held_fraction, probe.geometry.radius_mm,
       start.found ? fmt::format("above tissue {:.0f} mm deep", start.tissue_below_mm) : std::string("above the centre"),
       1e3 * sim.integrator.time_step_s, sim.integrator.max_iterations,
       sim.integrator.region_radius_mm > 0

@@ -22,7 +22,7 @@
 #include "sim/static_solver.h"
 #include "sim/time_step.h"
 #include "support/brick_reference.h"
-#include "support/finite_brick_reference.h"
+#include "verify/finite_brick_reference.h"
 #include "support/physics_helpers.h"
 
 namespace vx {
@@ -203,7 +203,7 @@ TEST(PoissonLocking, ClampedBarBulgesByPoissonsRatio) {
 // press (the voxel layout, its contact pushing each node along the sphere's normal, finite
 // strain) against an independent finite-strain reference on the same mesh (2 mm voxels: 2 per
 // ball radius, so that it runs in seconds): B-bar bricks with the corotational law
-// (support/finite_brick_reference.h), the ball's frictionless contact on its deformed normals,
+// (verify/finite_brick_reference.h), the ball's frictionless contact on its deformed normals,
 // solved by Newton. Measured: the reference F(0) 0.0843 N, F(0.45) / F(0) 1.016, i.e. 0.774 of
 // the finite layer's ratio; the model 0.0828 N and 1.027 (0.783); the linear reference with its
 // vertical contact on the same mesh 0.951. So the model's press agrees with the reference to
@@ -214,12 +214,12 @@ TEST(PoissonLocking, ClampedBarBulgesByPoissonsRatio) {
 TEST(PoissonLocking, ModelPressMatchesTheFiniteStrainReference) {
   const double voxel_mm = 2.0,
                ref_ratio = bonded_layer_n(10, 0.45, kR, kDepth, kH) / bonded_layer_n(10, 0.0, kR, kDepth, kH);
-  testing::FinitePress fp;
+  reference::FinitePress fp;
   fp.voxel_mm = voxel_mm;
   fp.steps = 4;
-  fp.material = testing::FiniteMaterial::corotational;
-  const double r0 = testing::finite_brick_press(fp, 0.0).force_n.back(),
-               r45 = testing::finite_brick_press(fp, 0.45).force_n.back();
+  fp.material = reference::FiniteMaterial::corotational;
+  const double r0 = reference::finite_brick_press(fp, 0.0).force_n.back(),
+               r45 = reference::finite_brick_press(fp, 0.45).force_n.back();
   testing::BrickPress lp;
   lp.voxel_mm = voxel_mm;
   const double linear = testing::brick_press(lp, 0.45).force_n / testing::brick_press(lp, 0.0).force_n / ref_ratio;

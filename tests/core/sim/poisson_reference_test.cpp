@@ -18,7 +18,7 @@
 #include "scene/sim_output.h"
 #include "sim/state.h"
 #include "support/brick_reference.h"
-#include "support/finite_brick_reference.h"
+#include "verify/finite_brick_reference.h"
 #include "support/physics_helpers.h"
 
 namespace vx {
@@ -29,11 +29,11 @@ using testing::brick_stiffness;
 using testing::BrickIntegration;
 using testing::BrickMatrix;
 using testing::BrickPress;
-using testing::finite_brick_energy;
-using testing::finite_brick_press;
-using testing::FiniteBrickMatrix;
-using testing::FiniteBrickVector;
-using testing::FinitePress;
+using reference::finite_brick_energy;
+using reference::finite_brick_press;
+using reference::FiniteBrickMatrix;
+using reference::FiniteBrickVector;
+using reference::FinitePress;
 
 constexpr double kR = 4.0, kDepth = 2.0, kH = 16.0;
 
@@ -212,7 +212,7 @@ TEST(BrickReference, PressOnOneMillimetreVoxels) {
   EXPECT_GT(full49 / r49.force_n, 1.08);  // it locks
 }
 
-// The finite-strain brick (support/finite_brick_reference.h): linearised at rest it is the B-bar
+// The finite-strain brick (verify/finite_brick_reference.h): linearised at rest it is the B-bar
 // brick exactly; its gradient and Hessian are the energy's (central differences at a finite,
 // non-uniform deformation, nu = 0.49); it keeps rigid motion free at finite rotation.
 TEST(FiniteBrickReference, LinearisedAtRestIsTheBBarBrickAndItsDerivativesAreExact) {
@@ -233,7 +233,7 @@ TEST(FiniteBrickReference, LinearisedAtRestIsTheBBarBrickAndItsDerivativesAreExa
   grad << 0.15, 0.05, -0.1, 0.02, -0.2, 0.08, 0.1, 0.0, -0.25;
   FiniteBrickVector u = displacement_of(h, grad, {0, 0, 0});
   u.segment<3>(21) += Eigen::Vector3d(-0.05, 0.03, -0.08);
-  for (const auto energy : {&finite_brick_energy, &testing::corotational_brick_energy}) {
+  for (const auto energy : {&finite_brick_energy, &reference::corotational_brick_energy}) {
     energy(u, h, mu, lambda, &g, &k);
     const double step = 1e-6;
     double worst_g = 0, worst_k = 0;
@@ -253,12 +253,12 @@ TEST(FiniteBrickReference, LinearisedAtRestIsTheBBarBrickAndItsDerivativesAreExa
   // the corotational law at rest: linear elasticity's energy under a uniform strain, no force
   // under a finite rotation
   const FiniteBrickVector strain = displacement_of(h, 1e-3 * (grad + grad.transpose()), {0, 0, 0});
-  testing::corotational_brick_energy(FiniteBrickVector::Zero(), h, mu, lambda, &g, &k);
+  reference::corotational_brick_energy(FiniteBrickVector::Zero(), h, mu, lambda, &g, &k);
   const Eigen::Matrix3d eps = 1e-3 * (grad + grad.transpose());
   EXPECT_NEAR(0.5 * strain.dot(k * strain) /
                   (h * h * h * (mu * (eps.array() * eps.array()).sum() + 0.5 * lambda * eps.trace() * eps.trace())),
               1.0, 1e-9);
-  EXPECT_NEAR(testing::corotational_brick_energy(rigid, h, mu, lambda, &g), 0.0, 1e-15);
+  EXPECT_NEAR(reference::corotational_brick_energy(rigid, h, mu, lambda, &g), 0.0, 1e-15);
   EXPECT_LT(g.cwiseAbs().maxCoeff(), 1e-15);
 }
 
@@ -272,7 +272,7 @@ TEST(FiniteBrickReference, DISABLED_Measure) {
   if (const char* v = std::getenv("VX_DEPTH")) s.depth_mm = std::atof(v);
   if (const char* v = std::getenv("VX_STEPS")) s.steps = std::atoi(v);
   if (const char* v = std::getenv("VX_PENALTY")) s.penalty_n_mm = std::atof(v);
-  if (std::getenv("VX_COROTATIONAL")) s.material = testing::FiniteMaterial::corotational;
+  if (std::getenv("VX_COROTATIONAL")) s.material = reference::FiniteMaterial::corotational;
   if (const char* v = std::getenv("VX_ONLY_NU")) {  // that ratio's forces only (no F(0))
     const auto r = finite_brick_press(s, std::atof(v));
     for (std::size_t k = 0; k < r.depth_mm.size(); ++k)

@@ -1,7 +1,7 @@
 #pragma once
 /// @file finite_brick_reference.h
 /// A finite-strain reference for the Poisson press (issue 27, docs/model.md section 5, "A
-/// finite-strain reference"): the B-bar brick of brick_reference.h made geometrically and
+/// finite-strain reference"): the B-bar brick of tests/support/brick_reference.h made geometrically and
 /// materially non-linear, pressed by a rigid frictionless sphere whose contact pushes each node
 /// along the sphere's normal at its deformed position, as the model's contact does. None of the
 /// model's code but the sparse factor.
@@ -47,7 +47,7 @@
 #include "physics/material.h"
 #include "sim/sparse_factor.h"
 
-namespace vx::testing {
+namespace vx::reference {
 
 using FiniteBrickVector = Eigen::Matrix<double, 24, 1>;
 using FiniteBrickMatrix = Eigen::Matrix<double, 24, 24>;
@@ -450,4 +450,4 @@ inline FinitePressResult finite_brick_press(const FinitePress& s, double nu) {
   return out;
 }
 
-}  // namespace vx::testing
+}  // namespace vx::reference
