@@ -69,6 +69,45 @@ inline std::array<Eigen::Matrix<double, 3, 8>, 8> finite_brick_gradients(double 
   return out;
 }
 
+namespace detail {
+
+using Vec9 = Eigen::Matrix<double, 9, 1>;
+using Mat9 = Eigen::Matrix<double, 9, 9>;
+
+/// finite_brick_gradients(h), kept for the last h of this thread.
+inline const std::array<Eigen::Matrix<double, 3, 8>, 8>& cached_brick_gradients(double h) {
+  static thread_local double cached_h = -1;
+  static thread_local std::array<Eigen::Matrix<double, 3, 8>, 8> dn;
+  if (h != cached_h) dn = finite_brick_gradients(h), cached_h = h;
+  return dn;
+}
+
+/// m as a 9-vector, index 3 i + l of m(i, l).
+inline Vec9 vec9(const Eigen::Matrix3d& m) {
+  Vec9 v;
+  for (int i = 0; i < 3; ++i)
+    for (int l = 0; l < 3; ++l) v(3 * i + l) = m(i, l);
+  return v;
+}
+
+/// The deformation gradient F = 1 + sum_a u_a d_a^T at a point with shape gradients d.
+inline Eigen::Matrix3d deformation_gradient(const FiniteBrickVector& u, const Eigen::Matrix<double, 3, 8>& d) {
+  Eigen::Matrix3d f = Eigen::Matrix3d::Identity();
+  for (int a = 0; a < 8; ++a) f += u.segment<3>(3 * a) * d.col(a).transpose();
+  return f;
+}
+
+/// dF = B du: F(i, l) takes u(3 c + i) d(l, c).
+inline Eigen::Matrix<double, 9, 24> gradient_operator(const Eigen::Matrix<double, 3, 8>& d) {
+  Eigen::Matrix<double, 9, 24> b = Eigen::Matrix<double, 9, 24>::Zero();
+  for (int c = 0; c < 8; ++c)
+    for (int i = 0; i < 3; ++i)
+      for (int l = 0; l < 3; ++l) b(3 * i + l, 3 * c + i) = d(l, c);
+  return b;
+}
+
+}  // namespace detail
+
 /// The material law of the finite-strain brick (see the file comment).
 enum class FiniteMaterial {
   neo_hookean,   ///< mu/2 (J^(-2/3) I1 - 3) at the points, kappa/4 (J^2 - 1 - 2 ln J) on the mean
@@ -82,18 +121,9 @@ enum class FiniteMaterial {
 /// dF^T R). +infinity when a point turns inside out.
 inline double corotational_brick_energy(const FiniteBrickVector& u, double h, double mu, double lambda,
                                         FiniteBrickVector* grad = nullptr, FiniteBrickMatrix* hess = nullptr) {
-  static thread_local double cached_h = -1;
-  static thread_local std::array<Eigen::Matrix<double, 3, 8>, 8> dn;
-  if (h != cached_h) dn = finite_brick_gradients(h), cached_h = h;
-  using Mat9 = Eigen::Matrix<double, 9, 9>;
-  using Vec9 = Eigen::Matrix<double, 9, 1>;
+  using detail::Mat9, detail::vec9;
+  const auto& dn = detail::cached_brick_gradients(h);
   const double w = h * h * h / 8, volume = h * h * h;
-  auto vec = [](const Eigen::Matrix3d& m) {
-    Vec9 v;
-    for (int i = 0; i < 3; ++i)
-      for (int l = 0; l < 3; ++l) v(3 * i + l) = m(i, l);
-    return v;
-  };
   auto cross = [](const Eigen::Vector3d& a) {
     Eigen::Matrix3d m;
     m << 0, -a.z(), a.y(), a.z(), 0, -a.x(), -a.y(), a.x(), 0;
@@ -106,8 +136,7 @@ inline double corotational_brick_energy(const FiniteBrickVector& u, double h, do
   if (hess) hess->setZero();
   for (int p = 0; p < 8; ++p) {
     const auto& d = dn[std::size_t(p)];
-    Eigen::Matrix3d f = Eigen::Matrix3d::Identity();
-    for (int a = 0; a < 8; ++a) f += u.segment<3>(3 * a) * d.col(a).transpose();
+    const Eigen::Matrix3d f = detail::deformation_gradient(u, d);
     const double j = f.determinant();
     if (!(j > 0)) return std::numeric_limits<double>::infinity();
     const Eigen::JacobiSVD<Eigen::Matrix3d> svd(f, Eigen::ComputeFullU | Eigen::ComputeFullV);
@@ -116,13 +145,10 @@ inline double corotational_brick_energy(const FiniteBrickVector& u, double h, do
     energy += w * mu * (f - rot).squaredNorm();
     v += w * j;
     if (!grad && !hess) continue;
-    Eigen::Matrix<double, 9, 24> b = Eigen::Matrix<double, 9, 24>::Zero();
-    for (int c = 0; c < 8; ++c)
-      for (int i = 0; i < 3; ++i)
-        for (int l = 0; l < 3; ++l) b(3 * i + l, 3 * c + i) = d(l, c);
+    const Eigen::Matrix<double, 9, 24> b = detail::gradient_operator(d);
     const Eigen::Matrix3d fit = f.inverse().transpose();
-    if (grad) *grad += w * b.transpose() * vec(2 * mu * (f - rot));
-    gv += w * b.transpose() * vec(j * fit);
+    if (grad) *grad += w * b.transpose() * vec9(2 * mu * (f - rot));
+    gv += w * b.transpose() * vec9(j * fit);
     if (!hess) continue;
     const Eigen::Matrix3d spin = (stretch.trace() * Eigen::Matrix3d::Identity() - stretch).inverse();
     Mat9 c, cj;
@@ -133,9 +159,9 @@ inline double corotational_brick_energy(const FiniteBrickVector& u, double h, do
         const Eigen::Matrix3d skew = rot.transpose() * df - df.transpose() * rot;
         const Eigen::Vector3d ax(skew(2, 1), skew(0, 2), skew(1, 0));
         const Eigen::Matrix3d drot = rot * cross(spin * ax);
-        c.col(3 * jj + l) = vec(2 * mu * (df - drot));
+        c.col(3 * jj + l) = vec9(2 * mu * (df - drot));
         const double tr_fit = (fit.array() * df.array()).sum();
-        cj.col(3 * jj + l) = vec(j * tr_fit * fit - j * fit * df.transpose() * fit);
+        cj.col(3 * jj + l) = vec9(j * tr_fit * fit - j * fit * df.transpose() * fit);
       }
     *hess += w * b.transpose() * c * b;
     hv += w * b.transpose() * cj * b;
@@ -152,18 +178,9 @@ inline double corotational_brick_energy(const FiniteBrickVector& u, double h, do
 /// Gauss point or the element turns inside out (J <= 0).
 inline double finite_brick_energy(const FiniteBrickVector& u, double h, double mu, double lambda,
                                   FiniteBrickVector* grad = nullptr, FiniteBrickMatrix* hess = nullptr) {
-  static thread_local double cached_h = -1;
-  static thread_local std::array<Eigen::Matrix<double, 3, 8>, 8> dn;
-  if (h != cached_h) dn = finite_brick_gradients(h), cached_h = h;
-  using Mat9 = Eigen::Matrix<double, 9, 9>;
-  using Vec9 = Eigen::Matrix<double, 9, 1>;
+  using detail::Mat9, detail::vec9;
+  const auto& dn = detail::cached_brick_gradients(h);
   const double w = h * h * h / 8, volume = h * h * h, kappa = lambda + 2.0 * mu / 3.0;
-  auto vec = [](const Eigen::Matrix3d& m) {  // index 3 i + l of m(i, l)
-    Vec9 v;
-    for (int i = 0; i < 3; ++i)
-      for (int l = 0; l < 3; ++l) v(3 * i + l) = m(i, l);
-    return v;
-  };
   double energy = 0, v = 0;
   FiniteBrickVector gv = FiniteBrickVector::Zero();
   FiniteBrickMatrix hv = FiniteBrickMatrix::Zero();
@@ -171,8 +188,7 @@ inline double finite_brick_energy(const FiniteBrickVector& u, double h, double m
   if (hess) hess->setZero();
   for (int p = 0; p < 8; ++p) {
     const auto& d = dn[std::size_t(p)];
-    Eigen::Matrix3d f = Eigen::Matrix3d::Identity();
-    for (int a = 0; a < 8; ++a) f += u.segment<3>(3 * a) * d.col(a).transpose();
+    const Eigen::Matrix3d f = detail::deformation_gradient(u, d);
     const double j = f.determinant();
     if (!(j > 0)) return std::numeric_limits<double>::infinity();
     const Eigen::Matrix3d fit = f.inverse().transpose();
@@ -180,14 +196,10 @@ inline double finite_brick_energy(const FiniteBrickVector& u, double h, double m
     energy += w * 0.5 * mu * (a13 * i1 - 3);
     v += w * j;
     if (!grad && !hess) continue;
-    // dF = B du: F(i, l) takes u(3 b + i) d(l, b)
-    Eigen::Matrix<double, 9, 24> b = Eigen::Matrix<double, 9, 24>::Zero();
-    for (int c = 0; c < 8; ++c)
-      for (int i = 0; i < 3; ++i)
-        for (int l = 0; l < 3; ++l) b(3 * i + l, 3 * c + i) = d(l, c);
+    const Eigen::Matrix<double, 9, 24> b = detail::gradient_operator(d);
     const Eigen::Matrix3d piso = mu * a13 * (f - i1 / 3 * fit);
-    if (grad) *grad += w * b.transpose() * vec(piso);
-    gv += w * b.transpose() * vec(j * fit);
+    if (grad) *grad += w * b.transpose() * vec9(piso);
+    gv += w * b.transpose() * vec9(j * fit);
     if (!hess) continue;
     Mat9 ciso, cj;  // dP / dF and d(J F^-T) / dF, column 3 j + l for dF = e_j e_l^T
     for (int jj = 0; jj < 3; ++jj)
@@ -197,8 +209,8 @@ inline double finite_brick_energy(const FiniteBrickVector& u, double h, double m
         const double tr_fit = (fit.array() * df.array()).sum(), tr_f = (f.array() * df.array()).sum();
         const Eigen::Matrix3d turn = fit * df.transpose() * fit;
         ciso.col(3 * jj + l) =
-            vec(mu * a13 * (-2.0 / 3.0 * tr_fit * (f - i1 / 3 * fit) + df - 2.0 / 3.0 * tr_f * fit + i1 / 3 * turn));
-        cj.col(3 * jj + l) = vec(j * tr_fit * fit - j * turn);
+            vec9(mu * a13 * (-2.0 / 3.0 * tr_fit * (f - i1 / 3 * fit) + df - 2.0 / 3.0 * tr_f * fit + i1 / 3 * turn));
+        cj.col(3 * jj + l) = vec9(j * tr_fit * fit - j * turn);
       }
     *hess += w * b.transpose() * ciso * b;
     hv += w * b.transpose() * cj * b;
