@@ -570,11 +570,12 @@ void run_poisson_cantilever(VerifyContext& ctx) {
     for (int i : tip_nodes) tip -= (x(2, i) - p->model->rest_positions(2, i)) / double(tip_nodes.size());
     const double q = 1000.0 * kKgM3ToKgPerMm3 * kStandardGravityMmS2 * 1e-3 * t * t;
     const double e = e_kpa * kKpaToNPerMm2, g = e / (2 * (1 + nu)), kappa = 10 * (1 + nu) / (12 + 11 * nu);
-    const double ratio =
-        tip / (q * std::pow(length, 4) / (8 * e * t * t * t * t / 12.0) + q * length * length / (2 * kappa * g * t * t));
-    ctx.log(fmt::format("{} layout, {} mm voxels, Poisson {}: tip / Timoshenko {:.4f} ({:+.1f} %), largest force "
-                        "left {:.2g} N",
-                        to_string(r), h, nu, ratio, 100 * (ratio - 1), residual));
+    const double ratio = tip / (q * std::pow(length, 4) / (8 * e * t * t * t * t / 12.0) +
+                                q * length * length / (2 * kappa * g * t * t));
+    ctx.log(
+        fmt::format("{} layout, {} mm voxels, Poisson {}: tip / Timoshenko {:.4f} ({:+.1f} %), largest force "
+                    "left {:.2g} N",
+                    to_string(r), h, nu, ratio, 100 * (ratio - 1), residual));
     return ratio;
   };
   std::map<double, std::vector<double>> errors;  // by nu, at each voxel size
