@@ -117,10 +117,8 @@ struct PhysicsReport {
   SimulationCounters soak_counters;
   double soak_end_s{0.0};
   /// Whether the tissue's last step found it asleep (at rest, nothing computed; docs/model.md
-  /// section 7, "A tissue at rest sleeps"), and how often it fell asleep: a soak's end waits for
-  /// it (DeviceLoop::check_stop).
+  /// section 7, "A tissue at rest sleeps"): a soak's end waits for it (DeviceLoop::soak_settled).
   std::atomic<bool> asleep{false};
-  std::atomic<std::int64_t> sleeps{0};
 
   [[nodiscard]] std::string last_fault() const {
     std::lock_guard lock(fault_mutex_);

@@ -199,7 +199,6 @@ void PhysicsLoop::step_once() {
   // asleep: this step computed nothing, or the tissue fell asleep in it
   const SimulationCounters& c = sim.counters();
   s_.physics.asleep.store(c.steps_at_rest > rest_steps || c.sleeps > sleeps, std::memory_order_relaxed);
-  s_.physics.sleeps.store(c.sleeps, std::memory_order_relaxed);
   // the probes' outputs (and a frame when the GUI asked) for the other threads
   if (!sim.failed()) s_.exchange.publish(sim);
   double delay = step_delay_s_;
