@@ -79,11 +79,11 @@ struct AppControls {
 
 /// What the physics loop publishes (written by the physics thread only).
 struct PhysicsReport {
-  std::atomic<std::int64_t> steps{0};             ///< steps taken (all)
-  std::atomic<std::int64_t> sim_time_us{0};       ///< the simulation's time
-  std::atomic<std::int64_t> sim_advanced_us{0};   ///< simulated time advanced (resets excluded)
-  std::atomic<std::int64_t> lag_drops{0};         ///< times it could not keep real time
-  std::atomic<std::int64_t> updates{0};           ///< local: local contact models published
+  std::atomic<std::int64_t> steps{0};            ///< steps taken (all)
+  std::atomic<std::int64_t> sim_time_us{0};      ///< the simulation's time
+  std::atomic<std::int64_t> sim_advanced_us{0};  ///< simulated time advanced (resets excluded)
+  std::atomic<std::int64_t> lag_drops{0};        ///< times it could not keep real time
+  std::atomic<std::int64_t> updates{0};          ///< local: local contact models published
   /// Start-up: the wall time (since the open) at which the first step completed, and the
   /// simulated time advanced and steps by then; valid once `started` (release/acquire).
   std::atomic<bool> started{false};
@@ -93,7 +93,7 @@ struct PhysicsReport {
   std::atomic<bool> ended{false};
   RateSample at_end{};
   std::atomic<bool> failed{false};
-  std::string failure;                            ///< written once before `failed` is set
+  std::string failure;  ///< written once before `failed` is set
   /// Faults recovered from (a step gave NaN/Inf, ran away or threw: the tissue went back to its
   /// last good state, the session went on). The device fades its force at each new generation.
   std::atomic<std::int64_t> faults{0};
@@ -180,8 +180,8 @@ struct DeviceReport {
 struct AppShared {
   AppShared(const AppOptions& o, Simulation& s, DeviceSide& d) : options(o), sim(s), device_side(d), exchange(s) {}
   const AppOptions& options;
-  Simulation& sim;          ///< the physics thread's alone; the others go through `exchange`
-  DeviceSide& device_side;  ///< the simulation's device force and local contact models
+  Simulation& sim;              ///< the physics thread's alone; the others go through `exchange`
+  DeviceSide& device_side;      ///< the simulation's device force and local contact models
   SimulationExchange exchange;  ///< live commands in, probe outputs and frames out
   int probes{0};
   bool local{false};  ///< local shaping (else the paper's half sines)

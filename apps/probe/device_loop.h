@@ -124,12 +124,12 @@ class DeviceLoop {
   std::int64_t ticks_{0};
   SteadyClock::time_point last_{};
   bool started_{false};
-  double clock_s_{0.0};  ///< local: wall time while running (pauses excluded), s
+  double clock_s_{0.0};             ///< local: wall time while running (pauses excluded), s
   std::vector<ProbeDriver> hands_;  ///< local: the device (hand) position of each probe
   std::vector<LocalForceRenderer> renderers_;
   std::vector<ModelArrival> arrivals_;
   std::string priority_{"default priority"};  ///< what the thread got (at its first tick)
-  double cost_sum_s_{0.0};  ///< the tick's own cost (its CPU time, not the wait)
+  double cost_sum_s_{0.0};                    ///< the tick's own cost (its CPU time, not the wait)
   double cost_max_s_{0.0};
 };
 

@@ -105,14 +105,16 @@ std::string GuiLoop::physics_rate_text(SteadyClock::time_point now) const {
 void GuiLoop::warn_if_behind(const RateWindow& w) {
   if (warned_behind_ || !w.full || w.factor() >= 0.9 || s_.physics.lag_drops.load() == 0) return;
   if (s_.local)
-    s_.say(fmt::format("note: the tissue cannot keep real time ({:.2f}x over the last {:g} s); the tool and its force "
-                       "stay real time (the local contact model carries the force between the physics' updates)",
-                       w.factor(), kRateWindow_s));
+    s_.say(
+        fmt::format("note: the tissue cannot keep real time ({:.2f}x over the last {:g} s); the tool and its force "
+                    "stay real time (the local contact model carries the force between the physics' updates)",
+                    w.factor(), kRateWindow_s));
   else
-    s_.say(fmt::format("warning: physics cannot keep real time ({:.2f}x over the last {:g} s): the simulation runs in "
-                       "slow motion (a smaller model, fewer --threads competitors, a larger time step or "
-                       "--force-shaping local help)",
-                       w.factor(), kRateWindow_s));
+    s_.say(
+        fmt::format("warning: physics cannot keep real time ({:.2f}x over the last {:g} s): the simulation runs in "
+                    "slow motion (a smaller model, fewer --threads competitors, a larger time step or "
+                    "--force-shaping local help)",
+                    w.factor(), kRateWindow_s));
   warned_behind_ = true;
 }
 

@@ -68,7 +68,7 @@ class GuiLoop {
   std::vector<int> probe_contacts_;
   bool window_closed_{false};
   bool warned_behind_{false};
-  std::string region_status_;  ///< the region check's warning for the HUD (empty: none)
+  std::string region_status_;       ///< the region check's warning for the HUD (empty: none)
   double background_done_s_{-1.0};  ///< when the region check had ended (or none ran), wall s
   double paused_s_{0.0};
   SoakMonitor soak_;

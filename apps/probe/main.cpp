@@ -1,7 +1,7 @@
 // voxelastic-probe: palpate a gradational-resolution elastic model with a joystick (or the
 // keyboard and mouse) and feel the tissue through force feedback. Units: mm, s, N, kPa.
-#include <CLI/CLI.hpp>
 #include <fmt/core.h>
+#include <CLI/CLI.hpp>
 
 #include <exception>
 #include <string>
@@ -27,8 +27,9 @@ int main(int argc, char** argv) {
   app.add_option("INPUT", o.input, "scene .json, volume or model .vtu")->required();
 
   auto* g_auto = app.add_option_group("automation", "scripted runs (CI)");
-  g_auto->add_option("--virtual-joystick", o.joystick_script,
-                     "play a joystick script (t_s stick axes...) through SDL virtual joysticks, in simulated time")
+  g_auto
+      ->add_option("--virtual-joystick", o.joystick_script,
+                   "play a joystick script (t_s stick axes...) through SDL virtual joysticks, in simulated time")
       ->check(CLI::ExistingFile);
   g_auto->add_flag("--exit-after-script", o.exit_after_script, "quit when the joystick script has ended");
   g_auto->add_option("--frames", o.frames, "quit after N rendered frames")->check(CLI::PositiveNumber);
@@ -41,21 +42,23 @@ int main(int argc, char** argv) {
   g_auto->add_option("--seed", o.soak_seed, "the soak script's random seed");
   g_auto->add_option("--screenshot", o.screenshot, "write the last frame to this .png");
   g_auto->add_option("--force-log", o.force_log, "record the device force of every device tick to this .csv");
-  g_auto->add_flag("--headless", o.headless, "no window: physics, input and force output only (needs --duration or "
-                                             "--exit-after-script)");
+  g_auto->add_flag("--headless", o.headless,
+                   "no window: physics, input and force output only (needs --duration or "
+                   "--exit-after-script)");
   g_auto->add_flag("-q,--quiet", o.quiet, "print only warnings and errors (on stderr)");
   bool verbose = false;
   g_auto->add_flag("-v,--verbose", verbose, "also print details (debug level)");
 
   auto* g_in = app.add_option_group("input", "joystick and keyboard");
   auto* opt_control = g_in->add_option("--control", control, "rate (the paper: velocity follows the tilt) or position")
-      ->check(CLI::IsMember({"rate", "position"}));
+                          ->check(CLI::IsMember({"rate", "position"}));
   auto* opt_speed = g_in->add_option("--speed", o.control.mapping.max_speed_mm_s, "probe speed at full tilt, mm/s")
                         ->check(CLI::PositiveNumber);
   auto* opt_range = g_in->add_option("--range", o.control.mapping.range_mm, "position control: offset at full tilt, mm")
-      ->check(CLI::PositiveNumber);
-  auto* opt_deadzone = g_in->add_option("--deadzone", o.control.mapping.dead_zone, "stick dead zone, fraction of full tilt")
-      ->check(CLI::Range(0.0, 0.9));
+                        ->check(CLI::PositiveNumber);
+  auto* opt_deadzone =
+      g_in->add_option("--deadzone", o.control.mapping.dead_zone, "stick dead zone, fraction of full tilt")
+          ->check(CLI::Range(0.0, 0.9));
   g_in->add_option("--z-axis", o.control.z_axis,
                    "stick axis for the depth motion (e.g. 2 twist, 3 throttle); -1: buttons 0/1 and the hat only")
       ->check(CLI::Range(-1, 5));
@@ -68,15 +71,17 @@ int main(int argc, char** argv) {
   g_out->add_option("--max-force", o.max_force_N, "force at the device's full level, N")->check(CLI::PositiveNumber);
   g_out->add_option("--device-update-rate", o.device_update_hz, "haptic/rumble commands per second at most")
       ->check(CLI::Range(1.0, 1000.0));
-  g_out->add_option("--force-shaping", shaping,
-                    "local (the local contact model at every device tick, the physics at its own rate) or paper (the "
-                    "paper's half sines); default: the scene's device block, else paper")
+  g_out
+      ->add_option("--force-shaping", shaping,
+                   "local (the local contact model at every device tick, the physics at its own rate) or paper (the "
+                   "paper's half sines); default: the scene's device block, else paper")
       ->check(CLI::IsMember({"local", "paper"}));
 
   auto* g_run = app.add_option_group("timing", "threads and rates");
-  g_run->add_option("--physics-rate", o.physics_hz,
-                    "physics thread ticks per second (steps per tick follow dt); with --force-shaping local down to "
-                    "10 (each tick a physics update)")
+  g_run
+      ->add_option("--physics-rate", o.physics_hz,
+                   "physics thread ticks per second (steps per tick follow dt); with --force-shaping local down to "
+                   "10 (each tick a physics update)")
       ->check(CLI::Range(10.0, 10000.0));
   g_run->add_option("--device-rate", o.device_hz, "device thread updates per second (1000 for haptics)")
       ->check(CLI::Range(50.0, 10000.0));
@@ -89,8 +94,9 @@ int main(int argc, char** argv) {
       "off (default: $VOXELASTIC_FACTOR_CACHE, else ~/.cache/voxelastic/factors)");
   g_run->add_option("--size", size, "window size WIDTHxHEIGHT");
   g_run->add_flag("--levels", o.show_levels, "start with the element levels view");
-  g_run->add_option("--display-triangles", o.scene.display_triangles,
-                    "decimate the displayed surface to about this many triangles when it has more; 0: show it whole")
+  g_run
+      ->add_option("--display-triangles", o.scene.display_triangles,
+                   "decimate the displayed surface to about this many triangles when it has more; 0: show it whole")
       ->check(CLI::NonNegativeNumber);
   // test hooks (hidden: an empty group): a physics slowed on purpose, a slow start-up
   app.add_option("--test-step-delay", o.test_step_delay_s, "extra wall time per physics step, s")
@@ -122,9 +128,10 @@ int main(int argc, char** argv) {
                    "tissue Poisson ratio in [0, 0.5): 0 (the default) is the paper's model; soft tissue keeps its "
                    "volume, 0.45-0.49")
       ->check(CLI::Range(0.0, 0.4999));
-  g_scene->add_option("--surface-method", surface,
-                       "displayed surface: iso (smoothed iso-surface in the elements) or paper (voxel surface with "
-                       "the concave steps hidden, paper 3.3)")
+  g_scene
+      ->add_option("--surface-method", surface,
+                   "displayed surface: iso (smoothed iso-surface in the elements) or paper (voxel surface with "
+                   "the concave steps hidden, paper 3.3)")
       ->check(CLI::IsMember({"iso", "paper"}));
   g_scene->add_option("--surface", o.scene.surface, "models: the surface .vtp written with the model")
       ->check(CLI::ExistingFile);

@@ -118,10 +118,11 @@ void use_display_surface(ProbeScene& scene, const DefaultSceneOptions& options) 
 }
 
 std::string physics_configuration(const IntegratorSettings& in, const PhysicsModel& p) {
-  std::string s = in.kind == IntegratorKind::implicit         ? "implicit"
+  std::string s = in.kind == IntegratorKind::implicit           ? "implicit"
                   : in.kind == IntegratorKind::symplectic_euler ? "symplectic Euler"
                                                                 : "explicit Euler";
-  s += in.time_step_s >= 1e-3 ? fmt::format(" {:.3g} ms", 1e3 * in.time_step_s) : fmt::format(" {:.3g} us", 1e6 * in.time_step_s);
+  s += in.time_step_s >= 1e-3 ? fmt::format(" {:.3g} ms", 1e3 * in.time_step_s)
+                              : fmt::format(" {:.3g} us", 1e6 * in.time_step_s);
   if (in.kind == IntegratorKind::implicit) {
     s += fmt::format(", {} iteration{}", in.max_iterations, in.max_iterations == 1 ? "" : "s");
     if (in.residual_tolerance_n > 0) s += fmt::format(" (to {:.2g} N)", in.residual_tolerance_n);

@@ -43,7 +43,7 @@ struct DefaultSceneOptions {
   /// fast configuration's one iteration per step relaxes the volumetric modes slowly.
   double poisson_ratio{0.0};
   double damping_ratio{0.2};
-  std::filesystem::path surface;         ///< models: the .vtp surface written with the model (optional)
+  std::filesystem::path surface;  ///< models: the .vtp surface written with the model (optional)
   /// The displayed, deforming surface: `iso` (smoothed iso-surface embedded in the elements)
   /// or `paper` (the voxel surface with its concave steps hidden, paper 3.3).
   SurfaceMethod surface_method{SurfaceMethod::iso};
@@ -76,12 +76,12 @@ struct ProbeScene {
   std::shared_ptr<const Model> model;
   std::shared_ptr<const PhysicsModel> physics;
   std::shared_ptr<const EmbeddedSurface> surface;
-  SimulationSettings simulation;           ///< probes are live; surface set
-  DeviceSideSettings device_side;          ///< the device (the app adds the local contact models)
-  Eigen::Vector3d world_up{0.0, -1.0, 0.0};///< up on screen (LPS); default anterior
-  std::vector<Box> probe_allowed;          ///< per probe: where its reference point may go
-  std::vector<std::string> notes;          ///< what was loaded and decided, for the console
-  ControlSettings control;                 ///< stick mapping defaults (a scene's live probe sets its mapping)
+  SimulationSettings simulation;             ///< probes are live; surface set
+  DeviceSideSettings device_side;            ///< the device (the app adds the local contact models)
+  Eigen::Vector3d world_up{0.0, -1.0, 0.0};  ///< up on screen (LPS); default anterior
+  std::vector<Box> probe_allowed;            ///< per probe: where its reference point may go
+  std::vector<std::string> notes;            ///< what was loaded and decided, for the console
+  ControlSettings control;                   ///< stick mapping defaults (a scene's live probe sets its mapping)
   /// The regional solves' error on this support, estimated while the run starts (a scene file
   /// with regional solves; null otherwise); the GUI loop reports it when it is ready.
   std::shared_ptr<BackgroundRegionCheck> region_check;

@@ -27,8 +27,8 @@ namespace {
 /// axial load and measures the frequency of the top's motion from its zero crossings; Hz.
 /// Undamped, symplectic Euler at `dt_fraction` of the stable step. Fills the time series.
 double bar_frequency_hz(const std::shared_ptr<const PhysicsModel>& p, double periods_expected, double f_expected,
-                        std::vector<double>* ts, std::vector<double>* zs, IntegratorKind kind = IntegratorKind::symplectic_euler,
-                        double dt_s = 0) {
+                        std::vector<double>* ts, std::vector<double>* zs,
+                        IntegratorKind kind = IntegratorKind::symplectic_euler, double dt_s = 0) {
   const Model& m = *p->model;
   SimState s = make_state(p);
   s.fix_nodes(nodes_on_face(m, BoxFace::z_min));
@@ -58,8 +58,8 @@ double bar_frequency_hz(const std::shared_ptr<const PhysicsModel>& p, double per
 
 void run_frequency(VerifyContext& ctx, Layout r, int section_voxels, double h) {
   const double length = 32.0, e_kpa = 10.0, rho = 1000.0;
-  const auto p = make_physics_model(
-      block_model(r, {section_voxels, section_voxels, int(std::lround(length / h))}, h), tissue(e_kpa, 0.0));
+  const auto p = make_physics_model(block_model(r, {section_voxels, section_voxels, int(std::lround(length / h))}, h),
+                                    tissue(e_kpa, 0.0));
   const double c = std::sqrt(e_kpa * kKpaToNPerMm2 / (rho * kKgM3ToKgPerMm3 * kKgToNs2PerMm));  // mm/s
   const double f_theory = c / (4 * length);
   std::vector<double> t, z;
@@ -73,7 +73,9 @@ void run_frequency(VerifyContext& ctx, Layout r, int section_voxels, double h) {
   ctx.plot("vibration", "Free axial vibration of a fixed-free bar: the top's displacement against time",
            {{fmt::format("Bar {} x {} x {} mm, {} layout, E = {} kPa, undamped", section_voxels * h, section_voxels * h,
                          length, layout_name(r), e_kpa),
-             "time, s", "top displacement, mm", {{"simulated", t, z}}}});
+             "time, s",
+             "top displacement, mm",
+             {{"simulated", t, z}}}});
 }
 
 // --- convergence in time step ------------------------------------------------------------------
@@ -83,7 +85,8 @@ void run_convergence_dt(VerifyContext& ctx) {
   // with a step 64 times smaller, for each integrator (all three are first order)
   const double length = 16.0;
   std::vector<PlotSeries> series;
-  for (IntegratorKind kind : {IntegratorKind::symplectic_euler, IntegratorKind::explicit_euler, IntegratorKind::implicit}) {
+  for (IntegratorKind kind :
+       {IntegratorKind::symplectic_euler, IntegratorKind::explicit_euler, IntegratorKind::implicit}) {
     const auto p = make_physics_model(block_model(Layout::voxel, {4, 4, int(length)}, 1.0), tissue(10.0, 0.05));
     const double f = std::sqrt(10.0 * kKpaToNPerMm2 / (1000.0 * kKgM3ToKgPerMm3 * kKgToNs2PerMm)) / (4 * length);
     // the coarsest step: half the stable one (explicit), the stable symplectic one for implicit
@@ -115,7 +118,8 @@ void run_convergence_dt(VerifyContext& ctx) {
       const double dt = dt0 / double(1 << k);
       const std::vector<double> z = trajectory(dt, dt0);
       double err = 0;
-      for (std::size_t i = 0; i < std::min(z.size(), reference.size()); ++i) err = std::max(err, std::abs(z[i] - reference[i]));
+      for (std::size_t i = 0; i < std::min(z.size(), reference.size()); ++i)
+        err = std::max(err, std::abs(z[i] - reference[i]));
       dts.push_back(dt);
       errs.push_back(err / amplitude);
       ldt.push_back(std::log10(dt));
@@ -186,7 +190,8 @@ void run_stability_dt(VerifyContext& ctx, IntegratorKind kind, bool implicit) {
     // Gershgorin bounds overestimate the highest frequency by at most the node's neighbour
     // count effect, about 2x on a lattice; the explicit bound is per element: 3x
     ctx.check(name + ".estimate_is_tight", worst_high, 0.0, kind == IntegratorKind::explicit_euler ? 3.0 : 2.5, "",
-              "largest (largest stable step / estimate): a usable estimate is not overly conservative", CheckRule::at_most);
+              "largest (largest stable step / estimate): a usable estimate is not overly conservative",
+              CheckRule::at_most);
     ctx.check(name + ".scaling_exponent", fitted_slope(le, lm), -0.5, 0.03, "",
               "slope of log(stable step) against log(E): the step scales like 1 / sqrt(E)");
     series.push_back({name + " measured", le, lm, true});
@@ -204,9 +209,10 @@ void run_stability_dt(VerifyContext& ctx, IntegratorKind kind, bool implicit) {
     auto integ = make_integrator(integrator(IntegratorKind::implicit, dt));
     integ->advance(s, 500);
     const double ratio = s.failed() ? std::nan("") : energy(s) / e0;
-    ctx.check("implicit.energy_ratio_at_100x", ratio, 1.0, 0.0, "",
-              "energy after 500 implicit steps at 100x the symplectic limit / initial: backward Euler never gains energy",
-              CheckRule::at_most);
+    ctx.check(
+        "implicit.energy_ratio_at_100x", ratio, 1.0, 0.0, "",
+        "energy after 500 implicit steps at 100x the symplectic limit / initial: backward Euler never gains energy",
+        CheckRule::at_most);
   }
   // full suite, symplectic Euler: the step as the Poisson ratio nears 0.5 (issue 27; docs/model.md
   // section 5, "The stable step"): the volume term stiffens the volumetric modes, the step falls
@@ -285,8 +291,9 @@ void run_energy(VerifyContext& ctx, const std::vector<EnergyRun>& runs) {
                 "largest |energy / initial - 1| over 10 periods, undamped", CheckRule::at_most);
     } else {
       ctx.check(name + ".max_ratio", ok ? emax : std::nan(""), 1.0, run.kind == IntegratorKind::implicit ? 1e-3 : 0.02,
-                "", "largest energy / initial: damping or backward Euler never add energy (2 % for the oscillation of "
-                    "an explicit scheme's discrete energy)",
+                "",
+                "largest energy / initial: damping or backward Euler never add energy (2 % for the oscillation of "
+                "an explicit scheme's discrete energy)",
                 CheckRule::at_most);
       if (run.damping > 0)
         ctx.check(name + ".final_ratio", ok ? e.back() : std::nan(""), 0.0, 0.9, "",

@@ -80,8 +80,8 @@ void run_compression(VerifyContext& ctx, Layout r, double tolerance) {
     nonlinearity = std::max(nonlinearity, std::abs(stress[i] / (e_fit * strain[i]) - 1.0));
     line.push_back(e_kpa * strain[i]);
   }
-  ctx.log(fmt::format("{} cube {}^3 ({} elements): stress {:.4g} kPa at 5 % strain, E measured {:.4g} kPa", layout_name(r),
-                      n, p->num_elements(), stress.back(), e_fit));
+  ctx.log(fmt::format("{} cube {}^3 ({} elements): stress {:.4g} kPa at 5 % strain, E measured {:.4g} kPa",
+                      layout_name(r), n, p->num_elements(), stress.back(), e_fit));
   ctx.check("modulus_ratio", e_fit / e_kpa, 1.0, tolerance, "",
             "E measured (slope of stress against strain) / E set; Poisson 0 makes stress = E strain exact");
   ctx.check("linearity", nonlinearity, 0.0, 0.01, "",
@@ -89,8 +89,10 @@ void run_compression(VerifyContext& ctx, Layout r, double tolerance) {
             CheckRule::at_most);
   ctx.check("lateral_strain", lateral, 0.0, 1e-3, "", "mid-height widening at 5 % strain: none at Poisson 0");
   ctx.plot("stress-strain", "Plate compression: stress against strain, Poisson 0",
-           {{fmt::format("Compression of a {}^3 mm cube, {} layout, E = {} kPa", n, layout_name(r), e_kpa), "strain",
-             "stress, kPa", {{"measured", strain, stress, true}, {"E * strain", strain, line}}}});
+           {{fmt::format("Compression of a {}^3 mm cube, {} layout, E = {} kPa", n, layout_name(r), e_kpa),
+             "strain",
+             "stress, kPa",
+             {{"measured", strain, stress, true}, {"E * strain", strain, line}}}});
 }
 
 // --- mechanics: Hertz indentation --------------------------------------------------------------
@@ -154,15 +156,17 @@ void run_hertz(VerifyContext& ctx, Layout r, const std::vector<double>& voxels_m
   for (double h : voxels_mm) {
     runs.push_back(hertz_run(r, dims, h, radius, depth, e_kpa));
     const HertzRun& run = runs.back();
-    ctx.log(fmt::format("{} layout, voxel {} mm, {} elements: force {:.4g} N at {:.2f} mm against {:.4g} N "
-                        "(finite-layer Hertz); E recovered {:.4g} kPa, exponent {:.3f}",
-                        layout_name(r), h, run.elements, run.final_force_n, run.final_depth_mm, run.final_reference_n,
-                        run.modulus_ratio * e_kpa, run.exponent));
+    ctx.log(
+        fmt::format("{} layout, voxel {} mm, {} elements: force {:.4g} N at {:.2f} mm against {:.4g} N "
+                    "(finite-layer Hertz); E recovered {:.4g} kPa, exponent {:.3f}",
+                    layout_name(r), h, run.elements, run.final_force_n, run.final_depth_mm, run.final_reference_n,
+                    run.modulus_ratio * e_kpa, run.exponent));
     series.push_back({fmt::format("simulated, voxel {} mm", h), run.d15, run.f, true});
   }
   const HertzRun& fine = runs.back();
-  ctx.check("modulus_ratio", fine.modulus_ratio, 1.0, modulus_tolerance, "",
-            fmt::format("E recovered by fitting the force to finite-layer Hertz / E set (voxel {} mm)", voxels_mm.back()));
+  ctx.check(
+      "modulus_ratio", fine.modulus_ratio, 1.0, modulus_tolerance, "",
+      fmt::format("E recovered by fitting the force to finite-layer Hertz / E set (voxel {} mm)", voxels_mm.back()));
   // the coarser models at 0.5 mm voxels or finer (the voxel layout's 1 mm elements at the surface) too
   for (std::size_t k = 0; k + 1 < runs.size(); ++k)
     if (voxels_mm[k] <= 0.5 + 1e-12)
@@ -172,9 +176,10 @@ void run_hertz(VerifyContext& ctx, Layout r, const std::vector<double>& voxels_m
     // the voxel layout at 1 mm (1 mm elements everywhere) on the same scene: the modulus must
     // come closer to it with every halving of the voxel, and end within 3 % of it
     const HertzRun voxel = hertz_run(Layout::voxel, dims, 1.0, radius, depth, e_kpa);
-    ctx.log(fmt::format("voxel layout, voxel 1 mm, {} elements: E recovered {:.4g} kPa (the reference of the "
-                        "convergence)",
-                        voxel.elements, voxel.modulus_ratio * e_kpa));
+    ctx.log(
+        fmt::format("voxel layout, voxel 1 mm, {} elements: E recovered {:.4g} kPa (the reference of the "
+                    "convergence)",
+                    voxel.elements, voxel.modulus_ratio * e_kpa));
     for (std::size_t k = 1; k < runs.size(); ++k)
       ctx.check(fmt::format("gap_to_voxel_{}mm", voxels_mm[k]), std::abs(runs[k].modulus_ratio - voxel.modulus_ratio),
                 std::abs(runs[k - 1].modulus_ratio - voxel.modulus_ratio), 0.0, "",
@@ -240,9 +245,10 @@ void run_cantilever(VerifyContext& ctx, Layout r, const std::vector<double>& vox
     int elements = 0;
     const double tip = cantilever_tip_mm(r, length, t, h, e_kpa, &elements);
     const double err = tip / theory - 1.0;
-    ctx.log(fmt::format("{} layout, voxel {} mm ({} elements, {:.0f} across): tip {:.4g} mm, beam theory {:.4g} mm "
-                        "({:+.1f} %)",
-                        layout_name(r), h, elements, t / h, tip, theory, 100 * err));
+    ctx.log(
+        fmt::format("{} layout, voxel {} mm ({} elements, {:.0f} across): tip {:.4g} mm, beam theory {:.4g} mm "
+                    "({:+.1f} %)",
+                    layout_name(r), h, elements, t / h, tip, theory, 100 * err));
     hs.push_back(h);
     errors.push_back(err);
     lh.push_back(std::log10(h));
@@ -254,8 +260,8 @@ void run_cantilever(VerifyContext& ctx, Layout r, const std::vector<double>& vox
   // already within 2 % (the beam solution's own accuracy for this 8:1 beam clamped over its
   // whole end face: models with exact bending elements read -0.8 % at every voxel size)
   for (std::size_t k = 1; k < errors.size(); ++k)
-    ctx.check(fmt::format("error_{}mm", hs[k]), std::abs(errors[k]), std::max(0.8 * std::abs(errors[k - 1]), 0.02),
-              0.0, "",
+    ctx.check(fmt::format("error_{}mm", hs[k]), std::abs(errors[k]), std::max(0.8 * std::abs(errors[k - 1]), 0.02), 0.0,
+              "",
               fmt::format("|tip / beam theory - 1| at {} mm: at most 0.8 x the error at {} mm, or within the 2 % floor "
                           "(convergence in resolution)",
                           hs[k], hs[k - 1]),
@@ -263,7 +269,9 @@ void run_cantilever(VerifyContext& ctx, Layout r, const std::vector<double>& vox
   ctx.plot("convergence", "Cantilever under its own weight: tip deflection error against voxel size, log-log",
            {{fmt::format("Beam {} x {} x {} mm clamped at one end, {} layout, E = {} kPa", length, t, t, layout_name(r),
                          e_kpa),
-             "log10 voxel size, mm", "log10 |tip / beam theory - 1|", {{"error", lh, le, true}}}});
+             "log10 voxel size, mm",
+             "log10 |tip / beam theory - 1|",
+             {{"error", lh, le, true}}}});
 }
 
 // --- mechanics at tissue-like Poisson ratios (issue 27; docs/model.md section 5, "Locking") -----
@@ -641,10 +649,10 @@ void run_layouts(VerifyContext& ctx) {
   };
   std::vector<Run> runs;
   for (const auto& [r, h] : std::vector<std::pair<Layout, double>>{{Layout::voxel, 1.0},
-                                                                       {Layout::uniform, 1.0},
-                                                                       {Layout::gradational, 1.0},
-                                                                       {Layout::uniform, 0.5},
-                                                                       {Layout::gradational, 0.5}}) {
+                                                                   {Layout::uniform, 1.0},
+                                                                   {Layout::gradational, 1.0},
+                                                                   {Layout::uniform, 0.5},
+                                                                   {Layout::gradational, 0.5}}) {
     const Eigen::Vector3i dims = (Eigen::Vector3d(24, 24, 12) / h).array().round().cast<int>();
     Run run{r, h, make_physics_model(block_model(r, dims, h), tissue(10.0)), {}};
     run.ind = indent(run.phys, 5.0, 1.5, 12, 12);
@@ -695,9 +703,10 @@ void run_layouts(VerifyContext& ctx) {
     for (const auto& [k, v] : ref)
       if (const auto it = uz.find(k); it != uz.end()) sq += (it->second - v) * (it->second - v), ++n;
     const double rms = n ? std::sqrt(sq / n) / ref_max : std::nan("");
-    ctx.log(fmt::format("{}: {} elements, force {:.4g} N at {:.3f} mm against {:.4g} N (voxel layout, 1 mm): ratio "
-                        "{:.3f}; top displacement RMS difference {:.3g} of the largest ({} nodes)",
-                        name, run.phys->num_elements(), f, depth, f_ref, f / f_ref, rms, n));
+    ctx.log(
+        fmt::format("{}: {} elements, force {:.4g} N at {:.3f} mm against {:.4g} N (voxel layout, 1 mm): ratio "
+                    "{:.3f}; top displacement RMS difference {:.3g} of the largest ({} nodes)",
+                    name, run.phys->num_elements(), f, depth, f_ref, f / f_ref, rms, n));
     if (run.voxel_mm != 0.5) continue;
     // the same surface elements, the same material: the force may differ by the contact's
     // discretisation and the coarser interior (gradational), whose elements bend like
@@ -713,8 +722,8 @@ void run_layouts(VerifyContext& ctx) {
   for (int k : {0, 1}) {
     const Run& u = runs[std::size_t(1 + 2 * k)];
     const Run& g = runs[std::size_t(2 + 2 * k)];
-    ctx.check(fmt::format("gradational_over_uniform_{}mm", u.voxel_mm), force_at(g.ind) / force_at(u.ind), 1.0,
-              0.03, "",
+    ctx.check(fmt::format("gradational_over_uniform_{}mm", u.voxel_mm), force_at(g.ind) / force_at(u.ind), 1.0, 0.03,
+              "",
               fmt::format("force of the gradational / the uniform layout on the same {} mm voxels (same surface "
                           "elements, coarser interior)",
                           u.voxel_mm));
@@ -732,9 +741,10 @@ void run_folded(VerifyContext& ctx) {
     const VoxelGrid grid = phantom_grid("folded", 214, &shape);
     const Model m = build_model(grid);
     const double surface = double(m.num_surface_nodes()) / double(m.num_nodes());
-    ctx.log(fmt::format("folded phantom 214^3 at 1 mm: {} tissue voxels, {} elements, {} nodes, {} on the surface "
-                        "({:.1f} %)",
-                        grid.count(), m.num_elements(), m.num_nodes(), m.num_surface_nodes(), 100 * surface));
+    ctx.log(
+        fmt::format("folded phantom 214^3 at 1 mm: {} tissue voxels, {} elements, {} nodes, {} on the surface "
+                    "({:.1f} %)",
+                    grid.count(), m.num_elements(), m.num_nodes(), m.num_surface_nodes(), 100 * surface));
     ctx.check("elements", double(m.num_elements()), 40000, 0, "", "elements of the gradational model (at least 40,000)",
               CheckRule::at_least);
     ctx.check("nodes", double(m.num_nodes()), 200000, 0, "", "nodes (at least 200,000)", CheckRule::at_least);
@@ -776,13 +786,12 @@ void run_folded(VerifyContext& ctx) {
   const Eigen::Vector3d support = -(elastic_force_on(s, stem, kThreads) + held_kg * g_n);
   const double weight = 1000.0 * kKgM3ToKgPerMm3 * model->total_volume_mm3() * kStandardGravityMmS2 * 1e-3;
   double sag = 0;
-  for (int i = 0; i < model->num_nodes(); ++i)
-    sag = std::max(sag, model->rest_positions(2, i) - s.positions(2, i));
-  ctx.log(fmt::format("folded phantom 107^3 at 1 mm, E = {} kPa: {} nodes, {} held at the stem; weight {:.5g} N; "
-                      "support ({:.5g}, {:.5g}, {:.5g}) N ({:+.2e} of the weight); largest sag {:.3g} mm; {} iterations",
-                      e_kpa, model->num_nodes(), stem.size(), weight, support.x(), support.y(), support.z(),
-                      support.z() / weight - 1.0, sag,
-                      rep.iterations));
+  for (int i = 0; i < model->num_nodes(); ++i) sag = std::max(sag, model->rest_positions(2, i) - s.positions(2, i));
+  ctx.log(
+      fmt::format("folded phantom 107^3 at 1 mm, E = {} kPa: {} nodes, {} held at the stem; weight {:.5g} N; "
+                  "support ({:.5g}, {:.5g}, {:.5g}) N ({:+.2e} of the weight); largest sag {:.3g} mm; {} iterations",
+                  e_kpa, model->num_nodes(), stem.size(), weight, support.x(), support.y(), support.z(),
+                  support.z() / weight - 1.0, sag, rep.iterations));
   ctx.check("support_over_weight", support.z() / weight, 1.0, 1e-3, "",
             "upward force of the stem's support / (density x volume x g) at static equilibrium");
   ctx.check("support_sideways", std::hypot(support.x(), support.y()) / weight, 0.0, 1e-3, "",

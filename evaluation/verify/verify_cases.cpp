@@ -21,7 +21,8 @@ void add_geometry_cases(std::vector<VerifyCase>& c) {
                "outward in) and says one step touches about 26 n^2 vertex entries against 8 n^3 for one element per "
                "voxel, so the gain grows like n / 3.25. Shell counts are exact (tolerance 0). The 26 n^2 is the limit "
                "of face elements with 13 vertices each; edges, corners and the finite series of shells make small "
-               "cubes fall short (by about 5/n): 5 % at 128, 10 % at 64, 20 % at 32; at 16 only 'never above' is checked. For the sphere, doubling the size "
+               "cubes fall short (by about 5/n): 5 % at 128, 10 % at 64, 20 % at 32; at 16 only 'never above' is "
+               "checked. For the sphere, doubling the size "
                "must roughly double the reduction (2 +- 0.3).",
                true, run_model_counts});
   c.push_back({"geometry", "Surfaces against the analytic phantom shapes",
@@ -87,27 +88,35 @@ void add_mechanics_cases(std::vector<VerifyCase>& c) {
   c.push_back({"hertz-voxel", "Hertz indentation, voxel layout", hertz_about, true,
                [](VerifyContext& x) { run_hertz(x, Layout::voxel, {1.0}, 0.05, 0.1); }});
   c.push_back({"hertz-uniform", "Hertz indentation, uniform layout; convergence in resolution",
-               hertz_about + hertz_coarse, false,
-               [](VerifyContext& x) { run_hertz(x, Layout::uniform, {1.0, 0.5}, 0.05, 0.1); }});
+               hertz_about + hertz_coarse, false, [](VerifyContext& x) {
+                 run_hertz(x, Layout::uniform, {1.0, 0.5}, 0.05, 0.1);
+               }});
   c.push_back({"hertz-gradational", "Hertz indentation, gradational layout; convergence in resolution",
                hertz_about + hertz_coarse +
                    " The gradational layout also runs at 0.25 mm; its coarse interior elements are where the stress "
                    "of the contact spreads, so its modulus must come closer to the voxel layout's (1 mm voxels, run "
                    "alongside) with every halving of the voxel and end within 3 % of it.",
-               false, [](VerifyContext& x) { run_hertz(x, Layout::gradational, {1.0, 0.5, 0.25}, 0.05, 0.1, true); }});
+               false, [](VerifyContext& x) {
+                 run_hertz(x, Layout::gradational, {1.0, 0.5, 0.25}, 0.05, 0.1, true);
+               }});
   c.push_back({"cantilever-voxel", "Cantilever under its own weight against beam theory; convergence in resolution",
-               cantilever_about + " Voxel layout, finest model within 5 %.", true,
-               [](VerifyContext& x) { run_cantilever(x, Layout::voxel, {2.0, 1.0, 0.5}, 0.05); }});
+               cantilever_about + " Voxel layout, finest model within 5 %.", true, [](VerifyContext& x) {
+                 run_cantilever(x, Layout::voxel, {2.0, 1.0, 0.5}, 0.05);
+               }});
   c.push_back({"cantilever-gradational", "Cantilever, gradational layout; convergence in resolution",
-               cantilever_about + " Gradational layout at 1, 0.5 and 0.25 mm: its inner elements are 2 and 4 voxels "
-                                  "wide, so it needs a voxel half the size of the voxel layout's for the same number of "
-                                  "elements through the thickness; the finest (0.25 mm) must be within 5 %.",
-               false, [](VerifyContext& x) { run_cantilever(x, Layout::gradational, {1.0, 0.5, 0.25}, 0.05); }});
+               cantilever_about +
+                   " Gradational layout at 1, 0.5 and 0.25 mm: its inner elements are 2 and 4 voxels "
+                   "wide, so it needs a voxel half the size of the voxel layout's for the same number of "
+                   "elements through the thickness; the finest (0.25 mm) must be within 5 %.",
+               false, [](VerifyContext& x) {
+                 run_cantilever(x, Layout::gradational, {1.0, 0.5, 0.25}, 0.05);
+               }});
   c.push_back({"frequency-voxel", "Natural frequency of a fixed-free bar, voxel layout", frequency_about, true,
                [](VerifyContext& x) { run_frequency(x, Layout::voxel, 4, 1.0); }});
-  c.push_back({"frequency-gradational", "Natural frequency of a fixed-free bar, gradational layout",
-               frequency_about + " Gradational layout: an 8 x 8 mm section at 1 mm voxels (interior elements 4 voxels wide).",
-               true, [](VerifyContext& x) { run_frequency(x, Layout::gradational, 8, 1.0); }});
+  c.push_back(
+      {"frequency-gradational", "Natural frequency of a fixed-free bar, gradational layout",
+       frequency_about + " Gradational layout: an 8 x 8 mm section at 1 mm voxels (interior elements 4 voxels wide).",
+       true, [](VerifyContext& x) { run_frequency(x, Layout::gradational, 8, 1.0); }});
   c.push_back({"folded", "The folded (brain-like) phantom: its model counts, and hanging from its stem",
                "The folded phantom (two hemispheres on a stem, the cortex folded by sulci 3 mm wide and 10 mm deep; "
                "phantom.h) at 214 voxels of 1 mm, the size scenes and the scale bench use, built into a gradational "
@@ -119,7 +128,8 @@ void add_mechanics_cases(std::vector<VerifyCase>& c) {
                "does not depend on E): the support must carry the whole weight, density x volume x g, within 0.1 % "
                "(the elastic forces of all elements add up to zero for any rotation fit, so the support differs from "
                "the weight only by the free nodes' imbalance, far below that once no node moves more than 1e-4 mm "
-               "per iteration, where the solve stops), and push straight up (sideways force below 0.1 % of the weight); a tissue piece held by no "
+               "per iteration, where the solve stops), and push straight up (sideways force below 0.1 % of the "
+               "weight); a tissue piece held by no "
                "node would stop the solve. The lumped masses must add up to density x volume (1e-9). Full suite "
                "only: 30 s on the development machine.",
                false, run_folded});
@@ -233,7 +243,8 @@ void add_robustness_cases(std::vector<VerifyCase>& c) {
                "Four abuses. A ball probe teleported 3 mm under the surface of a 16 mm cube, held 40 ms and pulled "
                "out: no NaN, and the tissue must return to rest (within 0.1 mm over 1.85-1.95 s after the probe left; "
                "every node collides, so the ball throws the nodes inside it out and the block rings in slow modes "
-               "that the element damping decays over about 0.5 s) or the run be flagged with a message. A 1 GPa cube: stable at half its estimated step, flagged (status and message, no NaN "
+               "that the element damping decays over about 0.5 s) or the run be flagged with a message. A 1 GPa cube: "
+               "stable at half its estimated step, flagged (status and message, no NaN "
                "left in the state) at a soft-tissue step 1e-4 s. A free 12 mm cube crushed flat to 2 % of its height, "
                "and one mirrored (every element inverted): each element's best rotation is proper, so after 0.3 s "
                "(damping 0.5) the shape must be back within 1 % of the diagonal and no element left inverted.",
@@ -265,14 +276,15 @@ void add_plane_cases(std::vector<VerifyCase>& c) {
                "128^3 shells), exact. A disk's work (vertex entries) grows like its outline: the log-log slope against "
                "the diameter must be 1 +- 0.15 (a pixel model's would be 2).",
                true, run_plane_counts});
-  c.push_back({"plane-compression", "2D: plate compression in plane stress",
-               "A 16 x 64 mm rectangle (0.5 mm pixels, 2 mm thick slice, E = 10 kPa, gradational) between two plates "
-               "compressed by 2 %. Plane stress (the slice is free to thin) gives stress = E strain on the area width x "
-               "thickness and a lateral strain of -nu strain. At Poisson 0 the patch test makes the state uniform: "
-               "1e-4. At Poisson 0.3 and 0.45 the clamped ends hold the width near them: 5 % on the modulus, 12 % on "
-               "the lateral strain (plane strain would be off by 10 % and 25 % at 0.3 and 0.45 on the modulus, and "
-               "43 % and 82 % on the lateral strain).",
-               true, run_plane_compression});
+  c.push_back(
+      {"plane-compression", "2D: plate compression in plane stress",
+       "A 16 x 64 mm rectangle (0.5 mm pixels, 2 mm thick slice, E = 10 kPa, gradational) between two plates "
+       "compressed by 2 %. Plane stress (the slice is free to thin) gives stress = E strain on the area width x "
+       "thickness and a lateral strain of -nu strain. At Poisson 0 the patch test makes the state uniform: "
+       "1e-4. At Poisson 0.3 and 0.45 the clamped ends hold the width near them: 5 % on the modulus, 12 % on "
+       "the lateral strain (plane strain would be off by 10 % and 25 % at 0.3 and 0.45 on the modulus, and "
+       "43 % and 82 % on the lateral strain).",
+       true, run_plane_compression});
   c.push_back({"plane-cantilever", "2D: a cantilever bends like Timoshenko's beam",
                "A 64 x 8 mm cantilever (1 mm pixels, 2 mm thick, E = 10 kPa, Poisson 0, gradational: its elements "
                "reach 4 mm) clamped at one end, a small load spread over the other, solved statically. Timoshenko's "
@@ -280,18 +292,19 @@ void add_plane_cases(std::vector<VerifyCase>& c) {
                "the hourglass element (default) within 5 %; the paper's element is shown for comparison (it reads "
                "about 0.84: its penalty holds the bending mode).",
                true, run_plane_cantilever});
-  c.push_back({"plane-contact", "2D: a circle pressed into a block against the 2D contact solution",
-               "A rigid circle of radius 10 mm (a cylinder across the slice) is pressed 1.5 mm at 1 mm/s into a "
-               "60 x 20 mm block held at its base (0.25 mm pixels, 0.2 in the full suite, 1 mm slice, E = 10 kPa, "
-               "damping 0.5, symplectic Euler, whose post-step projection puts the nodes in contact exactly on the "
-               "circle), once at Poisson 0 and once at 0.3. The 2D Hertz solution (Johnson, Contact Mechanics, 4.3) "
-               "relates the contact half-width b to the load per unit thickness P: b^2 = 4 P R / (pi E*), E* = E in "
-               "plane stress. b is measured midway between the last node on the circle and the first off it (half a "
-               "node spacing: 4 to 6 % of b) at four depths. Tolerances: 8 % at Poisson 0 (measured within 5 %, mostly narrow, "
-               "i.e. a little stiff, like the 3D Hertz case); 15 % at Poisson 0.3 (measured 10 to 14 % narrow: the "
-               "area term stiffens the coarse elements under the contact, as the volume term does in 3D; a known "
-               "limit, not hidden).",
-               true, run_plane_contact});
+  c.push_back(
+      {"plane-contact", "2D: a circle pressed into a block against the 2D contact solution",
+       "A rigid circle of radius 10 mm (a cylinder across the slice) is pressed 1.5 mm at 1 mm/s into a "
+       "60 x 20 mm block held at its base (0.25 mm pixels, 0.2 in the full suite, 1 mm slice, E = 10 kPa, "
+       "damping 0.5, symplectic Euler, whose post-step projection puts the nodes in contact exactly on the "
+       "circle), once at Poisson 0 and once at 0.3. The 2D Hertz solution (Johnson, Contact Mechanics, 4.3) "
+       "relates the contact half-width b to the load per unit thickness P: b^2 = 4 P R / (pi E*), E* = E in "
+       "plane stress. b is measured midway between the last node on the circle and the first off it (half a "
+       "node spacing: 4 to 6 % of b) at four depths. Tolerances: 8 % at Poisson 0 (measured within 5 %, mostly narrow, "
+       "i.e. a little stiff, like the 3D Hertz case); 15 % at Poisson 0.3 (measured 10 to 14 % narrow: the "
+       "area term stiffens the coarse elements under the contact, as the volume term does in 3D; a known "
+       "limit, not hidden).",
+       true, run_plane_contact});
 }
 
 /// Every case in the stable order the suites and shards use.

@@ -25,7 +25,9 @@ void build_element_batches(const PhysicsModel& p, std::int64_t window, ElementBa
   const Model& m = *p.model;
   const std::int64_t ne = p.num_elements();
   out = ElementBatches{};
-  const auto count = [&](std::int32_t e) { return m.element_offsets[std::size_t(e) + 1] - m.element_offsets[std::size_t(e)]; };
+  const auto count = [&](std::int32_t e) {
+    return m.element_offsets[std::size_t(e) + 1] - m.element_offsets[std::size_t(e)];
+  };
   // each window's batched elements sorted by their count, and the arrays' sizes first: the arrays
   // are then allocated once (grown by push_back they touched twice the memory, and fresh memory
   // is most of the cost of building them: 2.1 s of the folded organ's start-up on a loaded machine)
@@ -194,7 +196,7 @@ VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const 
                             const double* vs, Eigen::Quaterniond* rot, double* ef, const RotationFitSettings& fit,
                             ElementPassStats& st) {
   const int nr = bt.rows;
-  d4 ys[kBatchMaxRows][3];                      // positions relative to each lane's first node
+  d4 ys[kBatchMaxRows][3];                  // positions relative to each lane's first node
   d4 vel[kDamping ? kBatchMaxRows : 1][3];  // velocities
   const d4 ox = gather(xs, rows[0].vertex, 0), oy = gather(xs, rows[0].vertex, 1), oz = gather(xs, rows[0].vertex, 2);
   // pass 1: weighted centroid and A = sum w y R0^T (sum w R0 = 0)
@@ -213,9 +215,15 @@ VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const 
     sx += w * yx;
     sy += w * yy;
     sz += w * yz;
-    a00 += yx * c0; a01 += yx * c1; a02 += yx * c2;
-    a10 += yy * c0; a11 += yy * c1; a12 += yy * c2;
-    a20 += yz * c0; a21 += yz * c1; a22 += yz * c2;
+    a00 += yx * c0;
+    a01 += yx * c1;
+    a02 += yx * c2;
+    a10 += yy * c0;
+    a11 += yy * c1;
+    a12 += yy * c2;
+    a20 += yz * c0;
+    a21 += yz * c1;
+    a22 += yz * c2;
   }
   // the consistent deformation gradient F = sum y g^T (sum g = 0), and (hourglass element)
   // the bending modes' amplitudes qm = sum y h^T (sum h = 0) in the same loop
@@ -225,9 +233,15 @@ VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const 
     const BatchRow& row = rows[r];
     const d4 yx = ys[r][0], yy = ys[r][1], yz = ys[r][2];
     const d4 g0 = load(row.gradient[0]), g1 = load(row.gradient[1]), g2 = load(row.gradient[2]);
-    f00 += yx * g0; f01 += yx * g1; f02 += yx * g2;
-    f10 += yy * g0; f11 += yy * g1; f12 += yy * g2;
-    f20 += yz * g0; f21 += yz * g1; f22 += yz * g2;
+    f00 += yx * g0;
+    f01 += yx * g1;
+    f02 += yx * g2;
+    f10 += yy * g0;
+    f11 += yy * g1;
+    f12 += yy * g2;
+    f20 += yz * g0;
+    f21 += yz * g1;
+    f22 += yz * g2;
     if constexpr (kModes) {
       const ModeRow& mr = mrows[r];
       for (int p = 0; p < kBendingModes; ++p) {
@@ -254,7 +268,8 @@ VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const 
   const d4 cx = sx * inv_w, cy = sy * inv_w, cz = sz * inv_w;  // relative to the first node
   // NaN/Inf in: that lane writes no force, counted
   const d4 probe = (cx + cy + cz + a00 + a01 + a02 + a10 + a11 + a12 + a20 + a21 + a22 + f00 + f01 + f02 + f10 + f11 +
-                    f12 + f20 + f21 + f22) * 0.0;
+                    f12 + f20 + f21 + f22) *
+                   0.0;
   bool finite[kBatchLanes];
   for (int l = 0; l < kBatchLanes; ++l) {
     finite[l] = probe[l] == 0.0;
@@ -274,7 +289,8 @@ VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const 
     q0z[l] = q.z();
     q0w[l] = q.w();
   }
-  const d4 s2 = f00 * f00 + f01 * f01 + f02 * f02 + f10 * f10 + f11 * f11 + f12 * f12 + f20 * f20 + f21 * f21 + f22 * f22;
+  const d4 s2 =
+      f00 * f00 + f01 * f01 + f02 * f02 + f10 * f10 + f11 * f11 + f12 * f12 + f20 * f20 + f21 * f21 + f22 * f22;
   d4 is{};
   for (int l = 0; l < kBatchLanes; ++l) is[l] = s2[l] > 0.0 ? 1.0 / std::sqrt(s2[l]) : 0.0;
   const Mat3 fn{f00 * is, f01 * is, f02 * is, f10 * is, f11 * is, f12 * is, f20 * is, f21 * is, f22 * is};
@@ -433,19 +449,19 @@ VX_INLINE void batch_range(const PhysicsModel& phys, const double* xs, const dou
 
 // one copy of the kernel per instruction set (the same source; the compiler vectorises the
 // lane arithmetic for each)
-#define VX_BATCH_RANGE(name, attributes)                                                                  \
-  attributes void name(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot, \
-                       double* ef, std::int64_t b0, std::int64_t b1, const RotationFitSettings& fit,          \
-                       bool damping, ElementPassStats& st) {                                                 \
-    const bool modes = !phys.element_batches.mode_rows.empty();                                              \
-    if (damping && modes)                                                                                    \
-      batch_range<true, true>(phys, xs, vs, rot, ef, b0, b1, fit, st);                                       \
-    else if (damping)                                                                                        \
-      batch_range<true, false>(phys, xs, vs, rot, ef, b0, b1, fit, st);                                      \
-    else if (modes)                                                                                          \
-      batch_range<false, true>(phys, xs, vs, rot, ef, b0, b1, fit, st);                                      \
-    else                                                                                                     \
-      batch_range<false, false>(phys, xs, vs, rot, ef, b0, b1, fit, st);                                     \
+#define VX_BATCH_RANGE(name, attributes)                                                                           \
+  attributes void name(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot,      \
+                       double* ef, std::int64_t b0, std::int64_t b1, const RotationFitSettings& fit, bool damping, \
+                       ElementPassStats& st) {                                                                     \
+    const bool modes = !phys.element_batches.mode_rows.empty();                                                    \
+    if (damping && modes)                                                                                          \
+      batch_range<true, true>(phys, xs, vs, rot, ef, b0, b1, fit, st);                                             \
+    else if (damping)                                                                                              \
+      batch_range<true, false>(phys, xs, vs, rot, ef, b0, b1, fit, st);                                            \
+    else if (modes)                                                                                                \
+      batch_range<false, true>(phys, xs, vs, rot, ef, b0, b1, fit, st);                                            \
+    else                                                                                                           \
+      batch_range<false, false>(phys, xs, vs, rot, ef, b0, b1, fit, st);                                           \
   }
 
 namespace {
@@ -494,7 +510,8 @@ SimdLevel pick_simd_level() {
                   to_string(widest) + "); unset it or choose auto, generic, avx2 or avx512");
     return level;
   }
-  throw Error("VOXELASTIC_SIMD=" + want + " is not an instruction set; unset it or choose auto, generic, avx2 or avx512");
+  throw Error("VOXELASTIC_SIMD=" + want +
+              " is not an instruction set; unset it or choose auto, generic, avx2 or avx512");
 }
 
 }  // namespace

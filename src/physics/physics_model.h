@@ -102,7 +102,7 @@ enum class ElementKind {
 /// step of a gradational model and carry little of its mass, so the low modes that a slow
 /// press excites barely change.
 struct MassScaling {
-  double factor{1.0};       ///< every node's mass times this (>= 1)
+  double factor{1.0};  ///< every node's mass times this (>= 1)
   /// > 0: each node's mass is raised, where needed, until its own symplectic Euler step
   /// (Gershgorin bound, time_step.h) is at least twice this: the automatic explicit step
   /// ("auto", half the estimate) is then about this long
@@ -165,8 +165,8 @@ struct PhysicsModel {
   Eigen::Vector3d plane_point_mm{Eigen::Vector3d::Zero()};
 
   // vertex entries (parallel to model->element_vertices)
-  std::vector<double> entry_weight;   ///< entries: vertex weight w_i (mean 1 per element)
-  Eigen::Matrix3Xd entry_rest;        ///< 3 x entries: R0_i about the weighted rest centroid, mm
+  std::vector<double> entry_weight;      ///< entries: vertex weight w_i (mean 1 per element)
+  Eigen::Matrix3Xd entry_rest;           ///< 3 x entries: R0_i about the weighted rest centroid, mm
   Eigen::Matrix3Xd entry_rest_weighted;  ///< 3 x entries: w_i R0_i, mm
 
   // elements
@@ -196,25 +196,25 @@ struct PhysicsModel {
   std::vector<std::int32_t> volume_point_term_offsets;  ///< points + 1: the terms of s
   std::vector<std::int32_t> volume_term_entry;          ///< terms: the vertex entry j_t
   Eigen::Matrix3Xd volume_term_delta;                   ///< 3 x terms: delta_t, 1/mm
-  std::int64_t bending_relief_clamped{0};  ///< hourglass: elements whose calibrated relief was clamped
-  std::int64_t gradient_fallback_elements{0};    ///< elements keeping the least-squares gradient
-  std::int64_t anisotropic_elements{0};  ///< elements whose weighted spread stayed anisotropic (> 1e-6)
-  double max_anisotropy{0.0};            ///< largest (max - min) / mean eigenvalue of C0 over elements
+  std::int64_t bending_relief_clamped{0};               ///< hourglass: elements whose calibrated relief was clamped
+  std::int64_t gradient_fallback_elements{0};           ///< elements keeping the least-squares gradient
+  std::int64_t anisotropic_elements{0};                 ///< elements whose weighted spread stayed anisotropic (> 1e-6)
+  double max_anisotropy{0.0};                           ///< largest (max - min) / mean eigenvalue of C0 over elements
 
   // derived constants of the integrators
-  bool damped{false};             ///< some element has damping (c_e > 0)
-  double rest_diagonal_mm{0.0};   ///< diagonal of the rest positions' bounding box, mm
+  bool damped{false};            ///< some element has damping (c_e > 0)
+  double rest_diagonal_mm{0.0};  ///< diagonal of the rest positions' bounding box, mm
 
   // nodes
-  std::vector<double> node_mass_kg;  ///< nodes: lumped (physical) mass, kg
-  std::vector<double> node_mass;     ///< nodes: inertial mass, N*s^2/mm (the lumped mass, scaled by mass_scaling)
-  std::vector<double> node_inv_mass; ///< nodes: 1 / node_mass, mm/(N*s^2)
+  std::vector<double> node_mass_kg;   ///< nodes: lumped (physical) mass, kg
+  std::vector<double> node_mass;      ///< nodes: inertial mass, N*s^2/mm (the lumped mass, scaled by mass_scaling)
+  std::vector<double> node_inv_mass;  ///< nodes: 1 / node_mass, mm/(N*s^2)
   /// nodes: physical / inertial mass (1 without mass scaling): gravity accelerates a node by
   /// node_gravity_ratio * g, so its weight stays the physical one
   std::vector<double> node_gravity_ratio;
-  MassScaling mass_scaling;          ///< what was applied
-  double added_mass_kg{0.0};         ///< mass added by the scaling, kg (0 without)
-  std::int64_t scaled_nodes{0};      ///< nodes whose mass the scaling raised
+  MassScaling mass_scaling;      ///< what was applied
+  double added_mass_kg{0.0};     ///< mass added by the scaling, kg (0 without)
+  std::int64_t scaled_nodes{0};  ///< nodes whose mass the scaling raised
 
   // node -> vertex entries (CSR), entries in increasing order: the deterministic gather.
   // Per-entry buffers of the step (entry forces, projection targets) are stored in this

@@ -30,8 +30,8 @@ TEST(SceneFile, UpPointsAwayFromABoxSupport) {
   };
   // a 16-voxel sphere of 1 mm: its nodes span about -6.4 .. 6.4 mm
   const std::vector<Case> cases = {
-      {R"({"min": [-3, -3, -9], "max": [3, 3, -4]})", Eigen::Vector3d(0, 0, 1)},   // held below
-      {R"({"min": [4, -3, -3], "max": [9, 3, 3]})", Eigen::Vector3d(-1, 0, 0)},    // held on its +x side
+      {R"({"min": [-3, -3, -9], "max": [3, 3, -4]})", Eigen::Vector3d(0, 0, 1)},  // held below
+      {R"({"min": [4, -3, -3], "max": [9, 3, 3]})", Eigen::Vector3d(-1, 0, 0)},   // held on its +x side
   };
   for (const auto& c : cases) {
     const std::filesystem::path path = dir / "scene.json";

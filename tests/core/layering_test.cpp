@@ -68,8 +68,7 @@ std::string first_folder(const std::string& header) {
 
 /// The forbidden includes of `file`, which lives in `layer` ("core", "pipeline", "evaluation")
 /// and in the stage folder `stage` of that layer.
-std::vector<std::string> forbidden_includes(const fs::path& file, const std::string& layer,
-                                            const std::string& stage) {
+std::vector<std::string> forbidden_includes(const fs::path& file, const std::string& layer, const std::string& stage) {
   std::vector<std::string> bad;
   for (const auto& [line, header] : includes_of(file)) {
     const std::string folder = first_folder(header);
@@ -77,8 +76,7 @@ std::vector<std::string> forbidden_includes(const fs::path& file, const std::str
     if (layer == "core") {
       forbidden = std::regex_search(header, kThirdPartyOutsideCore) || kPipelineStages.count(folder) ||
                   kEvaluationStages.count(folder) || folder == "pipeline" || folder == "apps" ||
-                  (kCoreStages.count(folder) && kCoreAllowed.count(stage) &&
-                   !kCoreAllowed.at(stage).count(folder));
+                  (kCoreStages.count(folder) && kCoreAllowed.count(stage) && !kCoreAllowed.at(stage).count(folder));
     } else if (layer == "pipeline") {
       forbidden = kEvaluationStages.count(folder) || folder == "apps" || folder == "evaluation";
     } else if (layer == "evaluation") {

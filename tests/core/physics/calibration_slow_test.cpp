@@ -27,8 +27,8 @@ Model block(Layout r, int w, int height, double h = 1.0) {
 }
 
 struct Compression {
-  double modulus_kpa;    ///< (reaction / area) / strain
-  double lateral_strain; ///< mid-height width change / width
+  double modulus_kpa;     ///< (reaction / area) / strain
+  double lateral_strain;  ///< mid-height width change / width
   int iterations;
 };
 
@@ -73,8 +73,8 @@ TEST(Calibration, StaticCompressionGivesTheSameModulusInEveryLayoutAndMatchesE) 
     const Compression c = compress(m, mat, 0.01);
     moduli[n++] = c.modulus_kpa;
     std::cout << to_string(r) << ": " << m.num_elements() << " elements, " << m.num_vertex_entries()
-              << " vertex entries: E_measured / E = " << c.modulus_kpa / mat.youngs_modulus_kpa
-              << " (lateral strain " << c.lateral_strain << ", " << c.iterations << " iterations)\n";
+              << " vertex entries: E_measured / E = " << c.modulus_kpa / mat.youngs_modulus_kpa << " (lateral strain "
+              << c.lateral_strain << ", " << c.iterations << " iterations)\n";
     // stress = E * strain (Poisson 0): every layout passes the patch test on a box (the
     // consistent gradient, element_gradient.h), so the static state is exactly uniform
     EXPECT_NEAR(c.modulus_kpa / mat.youngs_modulus_kpa, 1.0, 1e-6) << to_string(r);
@@ -126,7 +126,8 @@ TEST(Calibration, SagUnderOwnWeightMatchesTheBarSolution) {
     const auto top = nodes_on_face(m, BoxFace::z_max);
     for (int i : top) sag += (m.rest_positions(2, i) - s.positions(2, i)) / double(top.size());
     sags[n++] = sag;
-    std::cout << to_string(r) << ": sag " << sag << " mm, bar solution " << expected << " mm, ratio " << sag / expected << "\n";
+    std::cout << to_string(r) << ": sag " << sag << " mm, bar solution " << expected << " mm, ratio " << sag / expected
+              << "\n";
     // within 3 % (measured: voxel 1.000, uniform 1.003, gradational 1.002)
     EXPECT_NEAR(sag / expected, 1.0, 0.03) << to_string(r);
   }
@@ -144,7 +145,8 @@ TEST(Calibration, VolumeTermBulgesACompressedBlockByPoissonsRatio) {
       mat.poisson_ratio = nu;
       const Model m = block(r, 8, 32);
       const Compression c = compress(m, mat, 0.01);
-      std::cout << to_string(r) << " nu " << nu << ": lateral strain / (nu * axial) = " << c.lateral_strain / (nu * 0.01)
+      std::cout << to_string(r) << " nu " << nu
+                << ": lateral strain / (nu * axial) = " << c.lateral_strain / (nu * 0.01)
                 << ", E_measured / E = " << c.modulus_kpa / mat.youngs_modulus_kpa << " (" << c.iterations
                 << " iterations)\n";
       EXPECT_NEAR(c.lateral_strain / (nu * 0.01), 1.0, 0.15) << to_string(r) << " nu " << nu;

@@ -22,8 +22,8 @@
 #include "sim/static_solver.h"
 #include "sim/time_step.h"
 #include "support/brick_reference.h"
-#include "verify/finite_brick_reference.h"
 #include "support/physics_helpers.h"
+#include "verify/finite_brick_reference.h"
 
 namespace vx {
 namespace {
@@ -134,7 +134,6 @@ Bulge bulge(Layout r, double nu, double w, double h) {
   const double modulus = reaction / (w * w) / strain / kKpaToNPerMm2;
   return {nu > 0 ? lateral / (nu * strain) : lateral, modulus / 10.0};
 }
-
 
 /// Node forces of the elastic pass (no damping) at positions x.
 Eigen::Matrix3Xd node_forces(const PhysicsModel& p, const Eigen::Matrix3Xd& x) {

@@ -18,22 +18,22 @@
 #include "scene/sim_output.h"
 #include "sim/state.h"
 #include "support/brick_reference.h"
-#include "verify/finite_brick_reference.h"
 #include "support/physics_helpers.h"
+#include "verify/finite_brick_reference.h"
 
 namespace vx {
 namespace {
 
-using testing::brick_press;
-using testing::brick_stiffness;
-using testing::BrickIntegration;
-using testing::BrickMatrix;
-using testing::BrickPress;
 using reference::finite_brick_energy;
 using reference::finite_brick_press;
 using reference::FiniteBrickMatrix;
 using reference::FiniteBrickVector;
 using reference::FinitePress;
+using testing::brick_press;
+using testing::brick_stiffness;
+using testing::BrickIntegration;
+using testing::BrickMatrix;
+using testing::BrickPress;
 
 constexpr double kR = 4.0, kDepth = 2.0, kH = 16.0;
 
