@@ -26,6 +26,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     start = stop + sep;
   }
   vx::ReadOptions options;
+  options.max_volume_bytes = vx::fuzz::kMaxVolumeBytes;
   options.any_modality = true;
   return vx::fuzz::run([&] { (void)vx::read_dicom_series({dir}, options); });
 }

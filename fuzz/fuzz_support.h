@@ -29,6 +29,11 @@ inline const std::filesystem::path& scratch() {
   return dir;
 }
 
+/// The largest volume a reader may allocate under fuzzing: a quarter of the 1 GiB malloc limit
+/// scripts/fuzz.sh gives libFuzzer, so a declared size that the reader accepts (compressed DICOM
+/// pixel data can declare any image size in a few bytes) is never reported as out-of-memory.
+inline constexpr std::uint64_t kMaxVolumeBytes = std::uint64_t(256) << 20;
+
 /// Writes `size` bytes to `path`.
 inline void write_file(const std::filesystem::path& path, const std::uint8_t* data, std::size_t size) {
   std::ofstream out(path, std::ios::binary | std::ios::trunc);

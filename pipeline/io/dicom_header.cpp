@@ -10,6 +10,7 @@
 #include <dcmtk/dcmdata/dcmetinf.h>
 #include <dcmtk/dcmdata/dcpixel.h>
 #include <dcmtk/dcmdata/dcpixseq.h>
+#include <dcmtk/dcmdata/dcpxitem.h>
 #include <dcmtk/dcmdata/dcspchrs.h>
 #include <dcmtk/dcmdata/dcstack.h>
 #include <dcmtk/dcmdata/dcuid.h>
@@ -150,6 +151,11 @@ bool is_ct_sop_class(const std::string& uid) {
          uid == UID_LegacyConvertedEnhancedCTImageStorage;
 }
 
+/// Bytes of one uncompressed frame of `f`.
+double frame_bytes(const FileInfo& f) {
+  return double(f.rows) * double(f.cols) * double(std::max(f.samples, 1)) * double(std::max(f.bits_allocated, 1)) / 8.0;
+}
+
 /// "" when the pixel data holds `frames` frames of the file's size (and the per-frame
 /// functional groups describe them all), else what is wrong.
 std::string check_frame_count(DcmDataset* ds, const FileInfo& f, long frames, DcmSequenceOfItems* per_frame_seq) {
@@ -169,15 +175,27 @@ std::string check_frame_count(DcmDataset* ds, const FileInfo& f, long frames, Dc
     if (fragments < frames)
       return fmt::format("it declares {} frames but its compressed pixel data holds {} fragment{}", frames,
                          std::max(0L, fragments), fragments == 1 ? "" : "s");
+    if (xfer.getXfer() == EXS_RLELossless) {
+      // an RLE run turns 2 bytes into at most 128, after a 64-byte header per frame: a header
+      // promising more than 64 times the data is damaged (found by fuzzing: a few bytes declared
+      // a 1.7 GB image)
+      double most = 0.0;
+      for (unsigned long i = 1; i < sequence->card(); ++i) {
+        DcmPixelItem* item = nullptr;
+        if (sequence->getItem(item, i).good() && item) most += 64.0 * std::max(0.0, double(item->getLength()) - 64.0);
+      }
+      if (double(frames) * frame_bytes(f) > most)
+        return fmt::format("it declares {} frame{} of {} x {} pixels ({:.0f} bytes) but its RLE data can hold at most "
+                           "{:.0f} bytes (Rows / Columns or the data are damaged)",
+                           frames, frames == 1 ? "" : "s", f.cols, f.rows, double(frames) * frame_bytes(f), most);
+    }
     return "";
   }
-  const double frame_bytes = double(f.rows) * double(f.cols) * double(std::max(f.samples, 1)) *
-                             double(std::max(f.bits_allocated, 1)) / 8.0;
   const double held = double(element->getLengthField());
-  if (double(frames) * frame_bytes > held)
+  if (double(frames) * frame_bytes(f) > held)
     return fmt::format("it declares {} frame{} of {} x {} pixels ({:.0f} bytes) but its pixel data holds {:.0f} bytes "
                        "(the file is damaged or cut short)",
-                       frames, frames == 1 ? "" : "s", f.cols, f.rows, double(frames) * frame_bytes, held);
+                       frames, frames == 1 ? "" : "s", f.cols, f.rows, double(frames) * frame_bytes(f), held);
   return "";
 }
 

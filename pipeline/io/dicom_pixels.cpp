@@ -19,6 +19,7 @@
 #include "io/dicom_common.h"
 #include "io/dicom_series_parts.h"
 #include "util/progress.h"
+#include "util/system_memory.h"
 #include "util/text.h"
 
 namespace vx::dicom {
@@ -128,16 +129,27 @@ void check_rle_fragments(const FileInfo& f, DcmDataset* ds, DcmPixelData* pixels
 
 }  // namespace
 
-Volume allocate_volume(const SliceLayout& layout, const SeriesInfo& series) {
+Volume allocate_volume(const SliceLayout& layout, const SeriesInfo& series, std::uint64_t max_bytes) {
   Volume volume;
   volume.geometry = layout.geometry;
+  const Eigen::Vector3i& dims = volume.geometry.dims;
   const std::int64_t voxels = volume.geometry.voxel_count();
+  // Linux hands out more than it has and kills the process when the pages are touched: ask
+  // first. A compressed frame can declare any image size in a few bytes, and a tilted
+  // series' grid grows with the slices' drift, so a damaged header lands here.
+  const std::uint64_t limit = max_bytes > 0 ? max_bytes : physical_memory_bytes() / 2;
+  const double bytes = double(voxels) * double(sizeof(float));
+  if (limit > 0 && bytes > double(limit))
+    throw Error(fmt::format("DICOM: series {} would become a {} x {} x {} volume ({:.0f} MB as float HU), more than {} "
+                            "({:.0f} MB); its Rows / Columns, NumberOfFrames or slice positions are likely damaged. "
+                            "A scan that really is this large must be cropped or downsampled before converting",
+                            series.uid, dims.x(), dims.y(), dims.z(), bytes * 1e-6,
+                            max_bytes > 0 ? "the limit set" : "half this machine's memory", double(limit) * 1e-6));
   try {
     volume.hu.assign(std::size_t(voxels), kAirHu);
   } catch (const std::bad_alloc&) {
-    throw Error(fmt::format("DICOM: not enough memory for the {} x {} x {} volume of series {} ({:.0f} MB)",
-                            volume.geometry.dims.x(), volume.geometry.dims.y(), volume.geometry.dims.z(), series.uid,
-                            double(voxels) * 4e-6));
+    throw Error(fmt::format("DICOM: not enough memory for the {} x {} x {} volume of series {} ({:.0f} MB)", dims.x(),
+                            dims.y(), dims.z(), series.uid, bytes * 1e-6));
   }
   return volume;
 }

@@ -271,7 +271,7 @@ Volume read_dicom_series(const std::vector<std::filesystem::path>& inputs, const
     log::warn("DICOM: some slices of series {} have no RescaleSlope/Intercept nor Modality LUT; taking stored values "
               "as HU (slope 1, intercept 0)",
               series.uid);
-  Volume volume = allocate_volume(layout, series);
+  Volume volume = allocate_volume(layout, series, opts.max_volume_bytes);
   read_pixels(files, frames, layout, volume);
   return volume;
 }

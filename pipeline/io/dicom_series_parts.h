@@ -111,8 +111,9 @@ struct SliceLayout {
 
 // the pixel pass (dicom_pixels.cpp)
 
-/// The volume of the slice layout, filled with air.
-[[nodiscard]] Volume allocate_volume(const SliceLayout& layout, const SeriesInfo& series);
+/// The volume of the slice layout, filled with air. Throws vx::Error, before allocating, when
+/// it would take more than `max_bytes` (0: half the machine's physical memory).
+[[nodiscard]] Volume allocate_volume(const SliceLayout& layout, const SeriesInfo& series, std::uint64_t max_bytes);
 
 /// File by file (frames of a file in frame order), each frame of `frames` (slice k = index k)
 /// straight into its slice of `volume`.

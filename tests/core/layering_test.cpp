@@ -122,7 +122,7 @@ const std::map<std::string, std::vector<std::string>> kRoomOrder{
       "sparse_factor sparse_factor_solve sparse_factor_file", "contact_active_set", "projective_solver",
       "region_stiffening", "static_solver", "integrators", "probe", "contact", "simulation"}},
     {"src/haptics", {"device_force", "local_compliance", "local_contact", "device_side"}},
-    {"pipeline/util", {"thread_priority", "exit_codes", "text", "log", "progress", "atomic_file", "vtk_messages"}},
+    {"pipeline/util", {"system_memory", "thread_priority", "exit_codes", "text", "log", "progress", "atomic_file", "vtk_messages"}},
     {"pipeline/io",
      {"read_options", "volume", "compression", "jpeg2000", "dicom_common", "dicom_series_parts", "dicom_header",
       "dicom_slice_layout", "dicom_pixels", "dicom_series", "dicom_writer", "volume_formats", "vti_check",

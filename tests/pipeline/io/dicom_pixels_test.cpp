@@ -1,10 +1,15 @@
 // The pixels of a DICOM series to HU (pipeline/io/dicom_pixels.cpp): enhanced multi-frame CT with
 // per-frame rescale, signed and padded pixels, rescale in floating point, a modality LUT, and
-// pixel data that is missing, inconsistent, corrupt (RLE) or lossy and damaged (JPEG 2000).
+// pixel data that is missing, inconsistent, corrupt (RLE), lossy and damaged (JPEG 2000) or of a
+// declared size over the memory limit.
 #include <gtest/gtest.h>
+
+#include <cstdint>
+#include <fstream>
 
 #include "io/dicom_series.h"
 #include "support/dicom_files.h"
+#include "util/system_memory.h"
 
 using namespace dicom_files;
 
@@ -170,6 +175,39 @@ TEST_F(DicomSeries, CorruptRleSegmentOffsetsAreAClearErrorNotACrash) {
   bytes.replace(header + 8, 4, std::string("\xb0\xff\xff\xff", 4));
   std::ofstream(files.front(), std::ios::binary | std::ios::trunc) << bytes;
   EXPECT_ERROR_HAS(vx::read_dicom_series({dir_ / "rle"}), "RLE fragment 1 is corrupt", "segment 1");
+}
+
+TEST_F(DicomSeries, ADeclaredSizeTheDataCannotHoldOrOverTheMemoryLimitIsRefusedBeforeAllocating) {
+  // the fuzz finding of stop 37 (fuzz_dicom_file): compressed pixel data holds any declared image
+  // size in a few bytes, so a damaged Rows / Columns asked for a 1.68 GB volume, which Linux
+  // grants and may kill the process for when the pages are touched
+  const Volume v = pattern_volume({6, 5, 1}, {1, 1, 1}, {0, 0, 0});
+  vx::write_dicom_series(v, dir_ / "rle", {.transfer_syntax = "rle"});
+  const std::vector<fs::path> files = files_in(dir_ / "rle");
+  ASSERT_EQ(files.size(), 1u);
+  // the volume's bytes against the limit, before anything is allocated
+  vx::ReadOptions limited;
+  limited.max_volume_bytes = 6 * 5 * sizeof(float);  // exactly the volume: it reads
+  EXPECT_EQ(vx::read_dicom_series({dir_ / "rle"}, limited).hu, v.hu);
+  limited.max_volume_bytes -= 1;
+  EXPECT_ERROR_HAS(vx::read_dicom_series({dir_ / "rle"}, limited), "6 x 5 x 1 volume", "more than the limit set",
+                   "Rows / Columns");
+  // an RLE run holds at most 128 bytes in 2: this fragment cannot hold a 16384 x 25622 image
+  edit_file(files.front(), [](DcmDataset* ds) {
+    ASSERT_TRUE(ds->putAndInsertUint16(DCM_Rows, 25622).good());
+    ASSERT_TRUE(ds->putAndInsertUint16(DCM_Columns, 16384).good());
+  });
+  EXPECT_ERROR_HAS(vx::read_dicom_series({dir_ / "rle"}), "16384 x 25622 pixels (839581696 bytes)",
+                   "its RLE data can hold at most", "damaged");
+}
+
+TEST(SystemMemory, PhysicalMemoryIsWhatTheKernelReports) {
+  std::ifstream meminfo("/proc/meminfo");
+  std::string key;
+  std::uint64_t kib = 0;
+  while (meminfo >> key && key != "MemTotal:") meminfo.ignore(256, '\n');
+  ASSERT_TRUE(meminfo >> kib) << "no MemTotal in /proc/meminfo";
+  EXPECT_EQ(vx::physical_memory_bytes(), kib * 1024);
 }
 
 TEST_F(DicomSeries, LossyJpeg2000DecodesCloseToTheOriginal) {
