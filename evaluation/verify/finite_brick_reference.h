@@ -106,6 +106,58 @@ inline Eigen::Matrix<double, 9, 24> gradient_operator(const Eigen::Matrix<double
   return b;
 }
 
+/// The energy (N mm) of a B-bar brick at the corner displacements u (mm, 3 per corner), with
+/// `grad` / `hess` its gradient (N) and Hessian (N/mm): the 8 Gauss points' law on their own F
+/// plus a law U of the mean dilatation v / V on the element's volume (the one structure both
+/// FiniteMaterial laws share). `point(f, j, fit, p, c)` returns a point's energy density (N/mm^2)
+/// at F = f (J = j > 0, F^-T = fit) and, where asked (p, c not null), its stress P = dW/dF and
+/// dP/dF (column 3 j + l for dF = e_j e_l^T); `mean(jbar)` returns {U, U', U''}. +infinity when a
+/// point or the element turns inside out.
+template <class PointLaw, class MeanLaw>
+double bbar_brick_energy(const FiniteBrickVector& u, double h, const PointLaw& point, const MeanLaw& mean,
+                         FiniteBrickVector* grad, FiniteBrickMatrix* hess) {
+  const auto& dn = cached_brick_gradients(h);
+  const double w = h * h * h / 8, volume = h * h * h;
+  double energy = 0, v = 0;
+  FiniteBrickVector gv = FiniteBrickVector::Zero();
+  FiniteBrickMatrix hv = FiniteBrickMatrix::Zero();
+  if (grad) grad->setZero();
+  if (hess) hess->setZero();
+  for (int p = 0; p < 8; ++p) {
+    const auto& d = dn[std::size_t(p)];
+    const Eigen::Matrix3d f = deformation_gradient(u, d);
+    const double j = f.determinant();
+    if (!(j > 0)) return std::numeric_limits<double>::infinity();
+    const Eigen::Matrix3d fit = f.inverse().transpose();
+    Eigen::Matrix3d stress;
+    Mat9 dstress;
+    energy += w * point(f, j, fit, grad || hess ? &stress : nullptr, hess ? &dstress : nullptr);
+    v += w * j;
+    if (!grad && !hess) continue;
+    const Eigen::Matrix<double, 9, 24> b = gradient_operator(d);
+    if (grad) *grad += w * b.transpose() * vec9(stress);
+    gv += w * b.transpose() * vec9(j * fit);
+    if (!hess) continue;
+    Mat9 cj;  // d(J F^-T) / dF, column 3 j + l for dF = e_j e_l^T
+    for (int jj = 0; jj < 3; ++jj)
+      for (int l = 0; l < 3; ++l) {
+        Eigen::Matrix3d df = Eigen::Matrix3d::Zero();
+        df(jj, l) = 1;
+        const double tr_fit = (fit.array() * df.array()).sum();
+        cj.col(3 * jj + l) = vec9(j * tr_fit * fit - j * (fit * df.transpose() * fit));
+      }
+    *hess += w * b.transpose() * dstress * b;
+    hv += w * b.transpose() * cj * b;
+  }
+  const double jbar = v / volume;
+  if (!(jbar > 0)) return std::numeric_limits<double>::infinity();
+  const std::array<double, 3> um = mean(jbar);  // U, U', U''
+  energy += volume * um[0];
+  if (grad) *grad += um[1] * gv;
+  if (hess) *hess += um[2] / volume * gv * gv.transpose() + um[1] * hv;
+  return energy;
+}
+
 }  // namespace detail
 
 /// The material law of the finite-strain brick (see the file comment).
@@ -122,55 +174,33 @@ enum class FiniteMaterial {
 inline double corotational_brick_energy(const FiniteBrickVector& u, double h, double mu, double lambda,
                                         FiniteBrickVector* grad = nullptr, FiniteBrickMatrix* hess = nullptr) {
   using detail::Mat9, detail::vec9;
-  const auto& dn = detail::cached_brick_gradients(h);
-  const double w = h * h * h / 8, volume = h * h * h;
   auto cross = [](const Eigen::Vector3d& a) {
     Eigen::Matrix3d m;
     m << 0, -a.z(), a.y(), a.z(), 0, -a.x(), -a.y(), a.x(), 0;
     return m;
   };
-  double energy = 0, v = 0;
-  FiniteBrickVector gv = FiniteBrickVector::Zero();
-  FiniteBrickMatrix hv = FiniteBrickMatrix::Zero();
-  if (grad) grad->setZero();
-  if (hess) hess->setZero();
-  for (int p = 0; p < 8; ++p) {
-    const auto& d = dn[std::size_t(p)];
-    const Eigen::Matrix3d f = detail::deformation_gradient(u, d);
-    const double j = f.determinant();
-    if (!(j > 0)) return std::numeric_limits<double>::infinity();
+  const auto point = [&](const Eigen::Matrix3d& f, double, const Eigen::Matrix3d&, Eigen::Matrix3d* p, Mat9* c) {
     const Eigen::JacobiSVD<Eigen::Matrix3d> svd(f, Eigen::ComputeFullU | Eigen::ComputeFullV);
     const Eigen::Matrix3d rot = svd.matrixU() * svd.matrixV().transpose();  // det F > 0: proper
-    const Eigen::Matrix3d stretch = rot.transpose() * f;
-    energy += w * mu * (f - rot).squaredNorm();
-    v += w * j;
-    if (!grad && !hess) continue;
-    const Eigen::Matrix<double, 9, 24> b = detail::gradient_operator(d);
-    const Eigen::Matrix3d fit = f.inverse().transpose();
-    if (grad) *grad += w * b.transpose() * vec9(2 * mu * (f - rot));
-    gv += w * b.transpose() * vec9(j * fit);
-    if (!hess) continue;
-    const Eigen::Matrix3d spin = (stretch.trace() * Eigen::Matrix3d::Identity() - stretch).inverse();
-    Mat9 c, cj;
-    for (int jj = 0; jj < 3; ++jj)
-      for (int l = 0; l < 3; ++l) {
-        Eigen::Matrix3d df = Eigen::Matrix3d::Zero();
-        df(jj, l) = 1;
-        const Eigen::Matrix3d skew = rot.transpose() * df - df.transpose() * rot;
-        const Eigen::Vector3d ax(skew(2, 1), skew(0, 2), skew(1, 0));
-        const Eigen::Matrix3d drot = rot * cross(spin * ax);
-        c.col(3 * jj + l) = vec9(2 * mu * (df - drot));
-        const double tr_fit = (fit.array() * df.array()).sum();
-        cj.col(3 * jj + l) = vec9(j * tr_fit * fit - j * fit * df.transpose() * fit);
-      }
-    *hess += w * b.transpose() * c * b;
-    hv += w * b.transpose() * cj * b;
-  }
-  const double jbar = v / volume;
-  energy += volume * lambda / 2 * (jbar - 1) * (jbar - 1);
-  if (grad) *grad += lambda * (jbar - 1) * gv;
-  if (hess) *hess += lambda / volume * gv * gv.transpose() + lambda * (jbar - 1) * hv;
-  return energy;
+    if (p) *p = 2 * mu * (f - rot);
+    if (c) {
+      const Eigen::Matrix3d stretch = rot.transpose() * f;
+      const Eigen::Matrix3d spin = (stretch.trace() * Eigen::Matrix3d::Identity() - stretch).inverse();
+      for (int jj = 0; jj < 3; ++jj)
+        for (int l = 0; l < 3; ++l) {
+          Eigen::Matrix3d df = Eigen::Matrix3d::Zero();
+          df(jj, l) = 1;
+          const Eigen::Matrix3d skew = rot.transpose() * df - df.transpose() * rot;
+          const Eigen::Vector3d ax(skew(2, 1), skew(0, 2), skew(1, 0));
+          c->col(3 * jj + l) = vec9(2 * mu * (df - rot * cross(spin * ax)));
+        }
+    }
+    return mu * (f - rot).squaredNorm();
+  };
+  const auto mean = [&](double jbar) {
+    return std::array<double, 3>{lambda / 2 * (jbar - 1) * (jbar - 1), lambda * (jbar - 1), lambda};
+  };
+  return detail::bbar_brick_energy(u, h, point, mean, grad, hess);
 }
 
 /// The element's energy (N mm) at the corner displacements u (mm, 3 per corner), and with
@@ -179,49 +209,27 @@ inline double corotational_brick_energy(const FiniteBrickVector& u, double h, do
 inline double finite_brick_energy(const FiniteBrickVector& u, double h, double mu, double lambda,
                                   FiniteBrickVector* grad = nullptr, FiniteBrickMatrix* hess = nullptr) {
   using detail::Mat9, detail::vec9;
-  const auto& dn = detail::cached_brick_gradients(h);
-  const double w = h * h * h / 8, volume = h * h * h, kappa = lambda + 2.0 * mu / 3.0;
-  double energy = 0, v = 0;
-  FiniteBrickVector gv = FiniteBrickVector::Zero();
-  FiniteBrickMatrix hv = FiniteBrickMatrix::Zero();
-  if (grad) grad->setZero();
-  if (hess) hess->setZero();
-  for (int p = 0; p < 8; ++p) {
-    const auto& d = dn[std::size_t(p)];
-    const Eigen::Matrix3d f = detail::deformation_gradient(u, d);
-    const double j = f.determinant();
-    if (!(j > 0)) return std::numeric_limits<double>::infinity();
-    const Eigen::Matrix3d fit = f.inverse().transpose();
+  const double kappa = lambda + 2.0 * mu / 3.0;
+  const auto point = [&](const Eigen::Matrix3d& f, double j, const Eigen::Matrix3d& fit, Eigen::Matrix3d* p, Mat9* c) {
     const double i1 = (f.array() * f.array()).sum(), a13 = std::pow(j, -2.0 / 3.0);
-    energy += w * 0.5 * mu * (a13 * i1 - 3);
-    v += w * j;
-    if (!grad && !hess) continue;
-    const Eigen::Matrix<double, 9, 24> b = detail::gradient_operator(d);
-    const Eigen::Matrix3d piso = mu * a13 * (f - i1 / 3 * fit);
-    if (grad) *grad += w * b.transpose() * vec9(piso);
-    gv += w * b.transpose() * vec9(j * fit);
-    if (!hess) continue;
-    Mat9 ciso, cj;  // dP / dF and d(J F^-T) / dF, column 3 j + l for dF = e_j e_l^T
-    for (int jj = 0; jj < 3; ++jj)
-      for (int l = 0; l < 3; ++l) {
-        Eigen::Matrix3d df = Eigen::Matrix3d::Zero();
-        df(jj, l) = 1;
-        const double tr_fit = (fit.array() * df.array()).sum(), tr_f = (f.array() * df.array()).sum();
-        const Eigen::Matrix3d turn = fit * df.transpose() * fit;
-        ciso.col(3 * jj + l) =
-            vec9(mu * a13 * (-2.0 / 3.0 * tr_fit * (f - i1 / 3 * fit) + df - 2.0 / 3.0 * tr_f * fit + i1 / 3 * turn));
-        cj.col(3 * jj + l) = vec9(j * tr_fit * fit - j * turn);
-      }
-    *hess += w * b.transpose() * ciso * b;
-    hv += w * b.transpose() * cj * b;
-  }
-  const double jbar = v / volume;
-  if (!(jbar > 0)) return std::numeric_limits<double>::infinity();
-  energy += volume * kappa / 4 * (jbar * jbar - 1 - 2 * std::log(jbar));
-  const double du = kappa / 2 * (jbar - 1 / jbar), ddu = kappa / 2 * (1 + 1 / (jbar * jbar));
-  if (grad) *grad += du * gv;
-  if (hess) *hess += ddu / volume * gv * gv.transpose() + du * hv;
-  return energy;
+    if (p) *p = mu * a13 * (f - i1 / 3 * fit);
+    if (c)
+      for (int jj = 0; jj < 3; ++jj)
+        for (int l = 0; l < 3; ++l) {
+          Eigen::Matrix3d df = Eigen::Matrix3d::Zero();
+          df(jj, l) = 1;
+          const double tr_fit = (fit.array() * df.array()).sum(), tr_f = (f.array() * df.array()).sum();
+          const Eigen::Matrix3d turn = fit * df.transpose() * fit;
+          c->col(3 * jj + l) =
+              vec9(mu * a13 * (-2.0 / 3.0 * tr_fit * (f - i1 / 3 * fit) + df - 2.0 / 3.0 * tr_f * fit + i1 / 3 * turn));
+        }
+    return 0.5 * mu * (a13 * i1 - 3);
+  };
+  const auto mean = [&](double jbar) {
+    return std::array<double, 3>{kappa / 4 * (jbar * jbar - 1 - 2 * std::log(jbar)), kappa / 2 * (jbar - 1 / jbar),
+                                 kappa / 2 * (1 + 1 / (jbar * jbar))};
+  };
+  return detail::bbar_brick_energy(u, h, point, mean, grad, hess);
 }
 
 struct FinitePress {

@@ -200,7 +200,7 @@ VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const 
   d4 vel[kDamping ? kBatchMaxRows : 1][3];  // velocities
   const d4 ox = gather(xs, rows[0].vertex, 0), oy = gather(xs, rows[0].vertex, 1), oz = gather(xs, rows[0].vertex, 2);
   // pass 1: weighted centroid and A = sum w y R0^T (sum w R0 = 0)
-  d4 sw{}, sx{}, sy{}, sz{};
+  CentroidSums<d4> cs;
   d4 a00{}, a01{}, a02{}, a10{}, a11{}, a12{}, a20{}, a21{}, a22{};
   for (int r = 0; r < nr; ++r) {
     const BatchRow& row = rows[r];
@@ -211,10 +211,7 @@ VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const 
     ys[r][2] = yz;
     const d4 w = load(row.weight);
     const d4 c0 = load(row.rest_weighted[0]), c1 = load(row.rest_weighted[1]), c2 = load(row.rest_weighted[2]);
-    sw += w;
-    sx += w * yx;
-    sy += w * yy;
-    sz += w * yz;
+    cs.add(w, yx, yy, yz);
     a00 += yx * c0;
     a01 += yx * c1;
     a02 += yx * c2;
@@ -264,8 +261,8 @@ VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const 
       rs.add(load(row.weight), ys[r][0], ys[r][1], ys[r][2], vx, vy, vz);
     }
   }
-  const d4 inv_w = splat(1.0) / sw;
-  const d4 cx = sx * inv_w, cy = sy * inv_w, cz = sz * inv_w;  // relative to the first node
+  const d4 inv_w = splat(1.0) / cs.sw;
+  const d4 cx = cs.sx * inv_w, cy = cs.sy * inv_w, cz = cs.sz * inv_w;  // relative to the first node
   // NaN/Inf in: that lane writes no force, counted
   const d4 probe = (cx + cy + cz + a00 + a01 + a02 + a10 + a11 + a12 + a20 + a21 + a22 + f00 + f01 + f02 + f10 + f11 +
                     f12 + f20 + f21 + f22) *
@@ -335,76 +332,47 @@ VX_INLINE void batch_forces(const ElementBatch& bt, const BatchRow* rows, const 
     }
   }
   // the rotation of each lane
-  d4 q00, q01, q02, q10, q11, q12, q20, q21, q22;
-  {
-    Mat3 q = t0.r;
-    for (int l = 0; l < kBatchLanes; ++l)
-      for (int i = 0; i < 9; ++i) {
-        if (how[l] == Fit::stepped) q.m[i][l] = t1.r.m[i][l];
-        if (how[l] == Fit::scalar) q.m[i][l] = fitted[l](i / 3, i % 3);
-      }
-    q00 = q.m[0], q01 = q.m[1], q02 = q.m[2], q10 = q.m[3], q11 = q.m[4], q12 = q.m[5];
-    q20 = q.m[6], q21 = q.m[7], q22 = q.m[8];
-  }
-  // G = 2 mu V (Q - F) + k (A - F C0), M = k F
-  const d4 k = load(bt.stiffness), kaff = load(bt.affine_stiffness);
-  d4 gm[9];
+  Mat3 q = t0.r;
+  for (int l = 0; l < kBatchLanes; ++l)
+    for (int i = 0; i < 9; ++i) {
+      if (how[l] == Fit::stepped) q.m[i][l] = t1.r.m[i][l];
+      if (how[l] == Fit::scalar) q.m[i][l] = fitted[l](i / 3, i % 3);
+    }
+  // the element's law on the lanes (element_law.h, the scalar kernels' arithmetic: the same bits
+  // lane by lane): G = 2 mu V (Q - F) + k (A - F C0), M = k F, and the rigid velocity about the
+  // centroid (damping)
+  law::ElementForce<d4> force;
   {
     const d4 f[9] = {f00, f01, f02, f10, f11, f12, f20, f21, f22};
     const d4 a[9] = {a00, a01, a02, a10, a11, a12, a20, a21, a22};
-    const d4 q[9] = {q00, q01, q02, q10, q11, q12, q20, q21, q22};
-    for (int i = 0; i < 3; ++i)
-      for (int j = 0; j < 3; ++j) {
-        const d4 fc = f[3 * i] * load(bt.spread[j]) + f[3 * i + 1] * load(bt.spread[3 + j]) +
-                      f[3 * i + 2] * load(bt.spread[6 + j]);
-        gm[3 * i + j] = kaff * (q[3 * i + j] - f[3 * i + j]) + k * (a[3 * i + j] - fc);
-      }
+    d4 c0[9];
+    for (int i = 0; i < 9; ++i) c0[i] = load(bt.spread[i]);
+    law::element_stress(a, f, q.m, c0, load(bt.stiffness), load(bt.affine_stiffness), force);
   }
-  const d4 m00 = k * f00, m01 = k * f01, m02 = k * f02, m10 = k * f10, m11 = k * f11, m12 = k * f12, m20 = k * f20,
-           m21 = k * f21, m22 = k * f22;
-  // the rigid velocity about the centroid (element_law.h, rigid_velocity, on the lanes: the scalar
-  // kernels' arithmetic, the same bits lane by lane)
-  d4 cd{}, ux{}, uy{}, uz{}, wx{}, wy{}, wz{};
   if constexpr (kDamping) {
-    cd = load(bt.damping);
-    law::ElementForce<d4> rv;
-    law::rigid_velocity(rs, sw, inv_w, cx, cy, cz, rv);
-    ux = rv.vc[0], uy = rv.vc[1], uz = rv.vc[2];
-    wx = rv.omega[0], wy = rv.omega[1], wz = rv.omega[2];
+    force.damping = load(bt.damping);
+    law::rigid_velocity(rs, cs.sw, inv_w, cx, cy, cz, force);
   }
-  // pass 2: f = M R0' - w k (x - c) + G g [+ c w (v_c + omega x r - v)], each force written once
+  // pass 2: each entry's force (element_law.h, entry_force: f = M R0' - w k (x - c) + G g
+  // [+ modes] [+ c w (v_c + omega x r - v)]), written once
   for (int r = 0; r < nr; ++r) {
     const BatchRow& row = rows[r];
-    const d4 rx = ys[r][0] - cx, ry = ys[r][1] - cy, rz = ys[r][2] - cz;
-    const d4 w = load(row.weight);
-    const d4 kw = k * w;
-    const d4 c0 = load(row.rest_weighted[0]), c1 = load(row.rest_weighted[1]), c2 = load(row.rest_weighted[2]);
-    const d4 g0 = load(row.gradient[0]), g1 = load(row.gradient[1]), g2 = load(row.gradient[2]);
-    d4 o0 = m00 * c0 + m01 * c1 + m02 * c2 - kw * rx;
-    d4 o1 = m10 * c0 + m11 * c1 + m12 * c2 - kw * ry;
-    d4 o2 = m20 * c0 + m21 * c1 + m22 * c2 - kw * rz;
-    o0 += gm[0] * g0 + gm[1] * g1 + gm[2] * g2;
-    o1 += gm[3] * g0 + gm[4] * g1 + gm[5] * g2;
-    o2 += gm[6] * g0 + gm[7] * g1 + gm[8] * g2;
+    const d4 rr[3] = {ys[r][0] - cx, ys[r][1] - cy, ys[r][2] - cz};
+    const d4 rw[3] = {load(row.rest_weighted[0]), load(row.rest_weighted[1]), load(row.rest_weighted[2])};
+    const d4 g[3] = {load(row.gradient[0]), load(row.gradient[1]), load(row.gradient[2])};
+    d4 fm[3] = {};
     if constexpr (kModes) {
       const ModeRow& mr = mrows[r];
-      d4 m0{}, m1{}, m2{};
       for (int p = 0; p < kBendingModes; ++p) {
         const d4 h = load(mr.mode[p]);
-        m0 += qm[0][p] * h;
-        m1 += qm[1][p] * h;
-        m2 += qm[2][p] * h;
+        fm[0] += qm[0][p] * h;
+        fm[1] += qm[1][p] * h;
+        fm[2] += qm[2][p] * h;
       }
-      o0 += m0;
-      o1 += m1;
-      o2 += m2;
     }
-    if constexpr (kDamping) {
-      const d4 cw = cd * w;
-      o0 += cw * (ux + wy * rz - wz * ry - vel[r][0]);
-      o1 += cw * (uy + wz * rx - wx * rz - vel[r][1]);
-      o2 += cw * (uz + wx * ry - wy * rx - vel[r][2]);
-    }
+    d4 o[3];
+    law::entry_force<kModes, kDamping>(force, rw, g, load(row.weight), rr, fm, vel[kDamping ? r : 0], o);
+    const d4 o0 = o[0], o1 = o[1], o2 = o[2];
     for (int l = 0; l < kBatchLanes; ++l) {
       if (r >= bt.count[l]) continue;
       double* out = ef + 3 * std::int64_t(row.slot[l]);

@@ -2,15 +2,25 @@
 /// @file element_law.h
 /// The element's law written once (elements.h states it; docs/model.md sections 2 to 5): the
 /// arithmetic that turns one element's sums into its forces, as templates on the number type T
-/// (double for one element; a vector of kBatchLanes doubles, Lanes, is meant for the batched
-/// kernel), as Box2D v3 keeps the scalar and the wide form of its contact solver in one source.
-/// Values in, values out: where the numbers come from (separate arrays, packed records) and where
-/// the forces go stays in the kernels, and so does the rotation fit (rotation_fit.h). Used by
-/// the reference and packed kernels (elements.cpp); the batched kernel (element_batches.cpp)
-/// takes the rigid velocity from here on its lanes (the same instructions per element as its
-/// own copy had, under callgrind) but still writes G, M and the entry force in its lanes: with
-/// all of these templates it measured 10 to 15 % more CPU time per pass on the 128^3 sphere
-/// (none on 32^3 and 64^3; issue 26, not understood yet).
+/// (double for one element in the scalar kernels, a vector of kBatchLanes doubles, Lanes, one
+/// element per lane in the batched kernel), as Box2D v3 keeps the scalar and the wide form of
+/// its contact solver in one source. Values in, values out: where the numbers come from
+/// (separate arrays, packed records, batch rows) and where the forces go stays in the kernels,
+/// and so does the rotation fit (rotation_fit.h). Used by all three kernels: the reference and
+/// packed ones (elements.cpp) and the batched one (element_batches.cpp: element_stress,
+/// rigid_velocity and entry_force on its lanes, the same bits lane by lane as before).
+///
+/// Why a first attempt on the lanes cost 10 to 15 % at 128^3 (issue 26): entry_force summed its
+/// components in loops over d, and GCC's early scalar replacement, which turns small local
+/// arrays into registers, runs before loops are unrolled; so the lane kernel's r, fm and o
+/// stayed arrays on the stack, and after unrolling their loads were forwarded but the stores
+/// were not removed: 9 dead 32-byte stores per row of the hot loop (objdump, every instruction
+/// set), beside its scattered force writes, which is where the 128^3 pass (bound by memory)
+/// waits. Written out component by component (below) the row loop has no stack store, as the
+/// lane kernel's own copy had none. Measured after (docs/bench.md, "The element pass": 7
+/// alternated pairs, one thread, CPU time against the lane copy): AVX-512 0.97 at 128^3, 1.03
+/// at 64^3 (noise); AVX2 1.05 at 128^3 and 1.16 at 64^3, a cost not yet found (element_stress's
+/// loops keep its arrays on the stack the same way, once per batch).
 ///
 ///   G = 2 mu V (Q - F) + k (A - F C0),   M = k F                      element_stress
 ///   v_c = sum_i w_i v_i / W,   omega = I^{-1} (L - W c x v_c),
@@ -103,12 +113,21 @@ template <class T>
 template <bool kModes, bool kDamping, class T>
 [[gnu::always_inline]] inline void entry_force(const ElementForce<T>& el, const T (&rw)[3], const T (&g)[3], T w,
                                                const T (&r)[3], const T (&fm)[3], const T (&v)[3], T (&o)[3]) {
+  // written out component by component, not as loops over d: GCC's early scalar replacement
+  // (before it unrolls loops) then turns the lane kernel's r, fm and o into registers; with
+  // loops they stayed arrays on the stack, 9 dead 32-byte stores per row (issue 26)
   const T kw = el.k * w;
-  for (int d = 0; d < 3; ++d)
-    o[d] = el.m[3 * d] * rw[0] + el.m[3 * d + 1] * rw[1] + el.m[3 * d + 2] * rw[2] - kw * r[d];
-  for (int d = 0; d < 3; ++d) o[d] += el.g[3 * d] * g[0] + el.g[3 * d + 1] * g[1] + el.g[3 * d + 2] * g[2];
-  if constexpr (kModes)
-    for (int d = 0; d < 3; ++d) o[d] += fm[d];
+  o[0] = el.m[0] * rw[0] + el.m[1] * rw[1] + el.m[2] * rw[2] - kw * r[0];
+  o[1] = el.m[3] * rw[0] + el.m[4] * rw[1] + el.m[5] * rw[2] - kw * r[1];
+  o[2] = el.m[6] * rw[0] + el.m[7] * rw[1] + el.m[8] * rw[2] - kw * r[2];
+  o[0] += el.g[0] * g[0] + el.g[1] * g[1] + el.g[2] * g[2];
+  o[1] += el.g[3] * g[0] + el.g[4] * g[1] + el.g[5] * g[2];
+  o[2] += el.g[6] * g[0] + el.g[7] * g[1] + el.g[8] * g[2];
+  if constexpr (kModes) {
+    o[0] += fm[0];
+    o[1] += fm[1];
+    o[2] += fm[2];
+  }
   if constexpr (kDamping) {
     const T cw = el.damping * w;
     const T(&u)[3] = el.vc;

@@ -107,17 +107,14 @@ void element_range_reference(const PhysicsModel& phys, const double* xs, const d
     const double* x0 = xs + 3 * std::int64_t(vert[b]);
     const double ox = x0[0], oy = x0[1], oz = x0[2];
     // pass 1a: weighted centroid and A = sum w y R0^T (sum w R0 = 0: no centring needed)
-    double sw = 0, sx = 0, sy = 0, sz = 0;
+    CentroidSums<double> cs;
     double a00 = 0, a01 = 0, a02 = 0, a10 = 0, a11 = 0, a12 = 0, a20 = 0, a21 = 0, a22 = 0;
     for (int j = b; j < b + n; ++j) {
       const double* xp = xs + 3 * std::int64_t(vert[j]);
       const double* r0 = r0s + 3 * std::int64_t(j);
       const double w = wts[j];
       const double yx = xp[0] - ox, yy = xp[1] - oy, yz = xp[2] - oz;
-      sw += w;
-      sx += w * yx;
-      sy += w * yy;
-      sz += w * yz;
+      cs.add(w, yx, yy, yz);
       a00 += yx * r0[0]; a01 += yx * r0[1]; a02 += yx * r0[2];
       a10 += yy * r0[0]; a11 += yy * r0[1]; a12 += yy * r0[2];
       a20 += yz * r0[0]; a21 += yz * r0[1]; a22 += yz * r0[2];
@@ -132,8 +129,8 @@ void element_range_reference(const PhysicsModel& phys, const double* xs, const d
       f10 += yy * g[0]; f11 += yy * g[1]; f12 += yy * g[2];
       f20 += yz * g[0]; f21 += yz * g[1]; f22 += yz * g[2];
     }
-    const double inv_w = 1.0 / sw;
-    const Eigen::Vector3d c(sx * inv_w, sy * inv_w, sz * inv_w);  // relative to x0
+    const double inv_w = 1.0 / cs.sw;
+    const Eigen::Vector3d c(cs.sx * inv_w, cs.sy * inv_w, cs.sz * inv_w);  // relative to x0
     Eigen::Matrix3d a, fg;
     a << a00, a01, a02, a10, a11, a12, a20, a21, a22;
     fg << f00, f01, f02, f10, f11, f12, f20, f21, f22;
@@ -196,7 +193,7 @@ void element_range_reference(const PhysicsModel& phys, const double* xs, const d
         rs.add(wts[j], xp[0] - ox, xp[1] - oy, xp[2] - oz, vp[0], vp[1], vp[2]);
       }
       const double cd = phys.element_damping[std::size_t(e)];
-      law::rigid_velocity(rs, sw, inv_w, c.x(), c.y(), c.z(), em.force);
+      law::rigid_velocity(rs, cs.sw, inv_w, c.x(), c.y(), c.z(), em.force);
       // pass 4: f += c w (v_c + omega x r - v)
       const double wx = em.force.omega[0], wy = em.force.omega[1], wz = em.force.omega[2];
       const double cx = ox + c.x(), cy = oy + c.y(), cz = oz + c.z();
@@ -272,7 +269,7 @@ void element_range_packed(const PhysicsModel& phys, const double* xs, const doub
     const double ox = x0[0], oy = x0[1], oz = x0[2];
     // pass 1: weighted centroid, A = sum w y R0^T (sum w R0 = 0) and F = sum y g^T (sum g = 0)
     // as the rows of y [w R0^T, g^T] (packets of the record's first 6 doubles)
-    double sw = 0, sx = 0, sy = 0, sz = 0;
+    CentroidSums<double> cs;
     Row6 ax = Row6::Zero(), ay = Row6::Zero(), az = Row6::Zero();  // rows of [A, F]
     for (int j = 0; j < n; ++j) {
       const PackedEntry& en = pe[j];
@@ -280,10 +277,7 @@ void element_range_packed(const PhysicsModel& phys, const double* xs, const doub
       const Eigen::Map<const Row6, Eigen::Aligned16> cst(en.rest_weighted);
       const double w = en.weight;
       const double yx = xp[0] - ox, yy = xp[1] - oy, yz = xp[2] - oz;
-      sw += w;
-      sx += w * yx;
-      sy += w * yy;
-      sz += w * yz;
+      cs.add(w, yx, yy, yz);
       ax += yx * cst;
       ay += yy * cst;
       az += yz * cst;
@@ -298,8 +292,8 @@ void element_range_packed(const PhysicsModel& phys, const double* xs, const doub
         rs.add(pe[j].weight, xp[0] - ox, xp[1] - oy, xp[2] - oz, vp[0], vp[1], vp[2]);
       }
     }
-    const double inv_w = 1.0 / sw;
-    const Eigen::Vector3d c(sx * inv_w, sy * inv_w, sz * inv_w);  // relative to x0
+    const double inv_w = 1.0 / cs.sw;
+    const Eigen::Vector3d c(cs.sx * inv_w, cs.sy * inv_w, cs.sz * inv_w);  // relative to x0
     Eigen::Matrix3d a, fg;
     a << ax(0), ax(1), ax(2), ay(0), ay(1), ay(2), az(0), az(1), az(2);
     fg << ax(3), ax(4), ax(5), ay(3), ay(4), ay(5), az(3), az(4), az(5);
@@ -321,7 +315,7 @@ void element_range_packed(const PhysicsModel& phys, const double* xs, const doub
     // the rigid velocity fit about the centroid (damping)
     if constexpr (kDamping) {
       em.force.damping = phys.element_damping[std::size_t(e)];
-      law::rigid_velocity(rs, sw, inv_w, c.x(), c.y(), c.z(), em.force);
+      law::rigid_velocity(rs, cs.sw, inv_w, c.x(), c.y(), c.z(), em.force);
     }
     // pass 2: each entry's force (element_law.h, entry_force: f = M R0' - w k (x - c) + G g
     // [+ modes] [+ c w (v_c + omega x r - v)]), written once

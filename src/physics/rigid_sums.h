@@ -1,10 +1,26 @@
 #pragma once
 /// @file rigid_sums.h
-/// The weighted sums of an element's rigid velocity fit (elements.h, damping), shared by the
-/// element kernels: T is double for the scalar kernels and a vector of lanes (one element each)
-/// for the batched one (element_batches.h). Internal to the core.
+/// The weighted sums an element's pass collects over its vertices, its centroid's and its rigid
+/// velocity fit's (elements.h, damping), shared by the element kernels: T is double for the
+/// scalar kernels and a vector of lanes (one element each) for the batched one
+/// (element_batches.h). Internal to the core.
 
 namespace vx {
+
+/// Over the vertices of an element, with weights w and offsets y = x - x0 from its first vertex:
+/// sw = sum w and s = sum w y (the weighted centroid c = s / sw, relative to x0).
+template <class T>
+struct CentroidSums {
+  T sw{}, sx{}, sy{}, sz{};
+
+  /// Adds one vertex (always inlined, as RigidSums::add).
+  [[gnu::always_inline]] inline void add(T w, T yx, T yy, T yz) {
+    sw += w;
+    sx += w * yx;
+    sy += w * yy;
+    sz += w * yz;
+  }
+};
 
 /// Over the vertices of an element, with weights w, offsets y = x - x0 from its first vertex and
 /// velocities v: sv = sum w v, l = sum w y x v, i = sum w y y^T (upper triangle).

@@ -128,6 +128,21 @@ std::optional<StepReport> refused_step(const SimState& s, const IntegratorSettin
   return rep;
 }
 
+/// What every integrator's step does first, written once: a stopped state refused with its
+/// status (refused_step), else the integrator's own step (step_state) on an empty report.
+class SteppingIntegrator : public Integrator {
+ public:
+  using Integrator::Integrator;
+  StepReport step(SimState& s) final {
+    if (const std::optional<StepReport> refused = refused_step(s, settings_)) return *refused;
+    return step_state(s, StepReport{});
+  }
+
+ protected:
+  /// One step of a state that may be stepped, filling `rep`.
+  virtual StepReport step_state(SimState& s, StepReport rep) = 0;
+};
+
 // ---------------------------------------------------------------------------------------------
 // explicit and symplectic Euler
 
@@ -195,13 +210,11 @@ void explicit_nodes(const NodePass& n, std::int64_t c, std::int64_t b, std::int6
   n.chunk_sums[3 * c + 1] = grav;
 }
 
-class ExplicitIntegrator final : public Integrator {
+class ExplicitIntegrator final : public SteppingIntegrator {
  public:
-  using Integrator::Integrator;
+  using SteppingIntegrator::SteppingIntegrator;
 
-  StepReport step(SimState& s) override {
-    if (const std::optional<StepReport> refused = refused_step(s, settings_)) return *refused;
-    StepReport rep;
+  StepReport step_state(SimState& s, StepReport rep) override {
     const PhysicsModel& p = *s.physics;
     const int threads = settings_.threads;
     const double dt = settings_.time_step_s;
@@ -246,15 +259,14 @@ class ExplicitIntegrator final : public Integrator {
     finish_node_pass(s, p, settings_, track, s.element_stats.elastic_energy, rep);
     return rep;
   }
-
 };
 
 // ---------------------------------------------------------------------------------------------
 // implicit (backward Euler by projective dynamics)
 
-class ImplicitIntegrator final : public Integrator {
+class ImplicitIntegrator final : public SteppingIntegrator {
  public:
-  explicit ImplicitIntegrator(const IntegratorSettings& settings) : Integrator(settings) {}
+  explicit ImplicitIntegrator(const IntegratorSettings& settings) : SteppingIntegrator(settings) {}
 
   [[nodiscard]] bool solves_contact() const override { return true; }
   void set_contact_provider(ContactProvider* provider) override {
@@ -268,9 +280,7 @@ class ImplicitIntegrator final : public Integrator {
     return s.integrator_cache.solver->contact_compliance(nodes, g);
   }
 
-  StepReport step(SimState& s) override {
-    if (const std::optional<StepReport> refused = refused_step(s, settings_)) return *refused;
-    StepReport rep;
+  StepReport step_state(SimState& s, StepReport rep) override {
     const PhysicsModel& p = *s.physics;
     const int threads = settings_.threads;
     const double dt = settings_.time_step_s;
