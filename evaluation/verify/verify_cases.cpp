@@ -152,11 +152,14 @@ void add_mechanics_cases(std::vector<VerifyCase>& c) {
        false, run_poisson_hertz});
   c.push_back(
       {"poisson-bulge", "Compression with lateral bulge at Poisson 0.3, 0.45, 0.49",
-       "A bar 8 x 8 x 32 mm (E = 10 kPa, 1 mm voxels) clamped at both ends, its top moved down by 1 %, solved "
-       "statically at Poisson 0.3, 0.45 and 0.49, on the gradational and the voxel layout. The mid-height "
-       "widening must be nu x the axial strain and the stress / strain E, each within 7 %: the clamped ends "
-       "cannot contract and add 2 to 6 % to both (the former volume term on the vertex fit read a bulge of 1.12 "
-       "and 1.30 at 0.45 and 0.49). Full suite only.",
+       "A bar 8 x 8 x 32 mm (E = 10 kPa, 1 mm voxels) between frictionless ends: both end faces held along z "
+       "only, the top moved down by 0.1 %, rigid motion taken out by the bottom face's centre (held in x and y) and "
+       "the middle of its x_max edge (held in y); solved by Newton's method on the model's own forces (the static "
+       "solver holds whole nodes only), at Poisson 0.3, 0.45 and 0.49, on the gradational and the voxel layout, "
+       "with the hourglass and the paper's element. Uniaxial stress is the exact answer (a uniform strain, which "
+       "the model reproduces: the patch test), so the width change must be nu x the axial strain and the stress / "
+       "strain E, each within 0.5 % (the issue's 5 %, tightened: measured 1.0004-1.0007, the finite strain's "
+       "share). The clamped ends before could not contract and added 2 to 6 %. Full suite only.",
        false, run_poisson_bulge});
   c.push_back(
       {"poisson-cantilever", "Cantilever at Poisson 0.3, 0.45 and 0.49 against beam theory",

@@ -132,7 +132,7 @@ const std::map<std::string, std::vector<std::string>> kRoomOrder{
     {"pipeline/scene", {"strict_json", "fast_configuration", "sim_output", "scene", "run_outputs", "material_field", "palpation_defaults", "prepare_scene", "palpation_map", "palpation_map_output"}},
     {"pipeline/render", {"palette", "plot", "plot_spec", "render"}},
     {"evaluation/verify",
-     {"finite_brick_reference", "case_helpers", "surface_accuracy", "verify", "cases", "statics_cases", "dynamics_cases", "geometry_cases",
+     {"finite_brick_reference", "case_helpers", "static_newton", "surface_accuracy", "verify", "cases", "statics_cases", "dynamics_cases", "geometry_cases",
       "plane_cases", "robustness_cases", "verify_cases"}},
     {"evaluation/bench",
      {"step_benchmark", "haptic_accuracy", "scale_bench", "bench bench_parts", "bench_metrics", "bench_palpation",
