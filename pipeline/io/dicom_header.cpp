@@ -185,17 +185,19 @@ std::string check_frame_count(DcmDataset* ds, const FileInfo& f, long frames, Dc
         if (sequence->getItem(item, i).good() && item) most += 64.0 * std::max(0.0, double(item->getLength()) - 64.0);
       }
       if (double(frames) * frame_bytes(f) > most)
-        return fmt::format("it declares {} frame{} of {} x {} pixels ({:.0f} bytes) but its RLE data can hold at most "
-                           "{:.0f} bytes (Rows / Columns or the data are damaged)",
-                           frames, frames == 1 ? "" : "s", f.cols, f.rows, double(frames) * frame_bytes(f), most);
+        return fmt::format(
+            "it declares {} frame{} of {} x {} pixels ({:.0f} bytes) but its RLE data can hold at most "
+            "{:.0f} bytes (Rows / Columns or the data are damaged)",
+            frames, frames == 1 ? "" : "s", f.cols, f.rows, double(frames) * frame_bytes(f), most);
     }
     return "";
   }
   const double held = double(element->getLengthField());
   if (double(frames) * frame_bytes(f) > held)
-    return fmt::format("it declares {} frame{} of {} x {} pixels ({:.0f} bytes) but its pixel data holds {:.0f} bytes "
-                       "(the file is damaged or cut short)",
-                       frames, frames == 1 ? "" : "s", f.cols, f.rows, double(frames) * frame_bytes(f), held);
+    return fmt::format(
+        "it declares {} frame{} of {} x {} pixels ({:.0f} bytes) but its pixel data holds {:.0f} bytes "
+        "(the file is damaged or cut short)",
+        frames, frames == 1 ? "" : "s", f.cols, f.rows, double(frames) * frame_bytes(f), held);
   return "";
 }
 

@@ -140,11 +140,12 @@ Volume allocate_volume(const SliceLayout& layout, const SeriesInfo& series, std:
   const std::uint64_t limit = max_bytes > 0 ? max_bytes : physical_memory_bytes() / 2;
   const double bytes = double(voxels) * double(sizeof(float));
   if (limit > 0 && bytes > double(limit))
-    throw Error(fmt::format("DICOM: series {} would become a {} x {} x {} volume ({:.0f} MB as float HU), more than {} "
-                            "({:.0f} MB); its Rows / Columns, NumberOfFrames or slice positions are likely damaged. "
-                            "A scan that really is this large must be cropped or downsampled before converting",
-                            series.uid, dims.x(), dims.y(), dims.z(), bytes * 1e-6,
-                            max_bytes > 0 ? "the limit set" : "half this machine's memory", double(limit) * 1e-6));
+    throw Error(
+        fmt::format("DICOM: series {} would become a {} x {} x {} volume ({:.0f} MB as float HU), more than {} "
+                    "({:.0f} MB); its Rows / Columns, NumberOfFrames or slice positions are likely damaged. "
+                    "A scan that really is this large must be cropped or downsampled before converting",
+                    series.uid, dims.x(), dims.y(), dims.z(), bytes * 1e-6,
+                    max_bytes > 0 ? "the limit set" : "half this machine's memory", double(limit) * 1e-6));
   try {
     volume.hu.assign(std::size_t(voxels), kAirHu);
   } catch (const std::bad_alloc&) {
