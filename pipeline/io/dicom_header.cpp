@@ -156,6 +156,16 @@ double frame_bytes(const FileInfo& f) {
   return double(f.rows) * double(f.cols) * double(std::max(f.samples, 1)) * double(std::max(f.bits_allocated, 1)) / 8.0;
 }
 
+/// "" when `held` bytes (what the pixel data holds, or at most decodes to) take `frames` frames
+/// of `f`'s size, else what is wrong (`holds`: how the data is said to hold them; `why`: the
+/// likely cause).
+std::string check_frames_fit(const FileInfo& f, long frames, double held, const char* holds, const char* why) {
+  const double needed = double(frames) * frame_bytes(f);
+  if (needed <= held) return "";
+  return fmt::format("it declares {} frame{} of {} x {} pixels ({:.0f} bytes) but its {} {:.0f} bytes ({})", frames,
+                     frames == 1 ? "" : "s", f.cols, f.rows, needed, holds, held, why);
+}
+
 /// "" when the pixel data holds `frames` frames of the file's size (and the per-frame
 /// functional groups describe them all), else what is wrong.
 std::string check_frame_count(DcmDataset* ds, const FileInfo& f, long frames, DcmSequenceOfItems* per_frame_seq) {
@@ -184,21 +194,13 @@ std::string check_frame_count(DcmDataset* ds, const FileInfo& f, long frames, Dc
         DcmPixelItem* item = nullptr;
         if (sequence->getItem(item, i).good() && item) most += 64.0 * std::max(0.0, double(item->getLength()) - 64.0);
       }
-      if (double(frames) * frame_bytes(f) > most)
-        return fmt::format(
-            "it declares {} frame{} of {} x {} pixels ({:.0f} bytes) but its RLE data can hold at most "
-            "{:.0f} bytes (Rows / Columns or the data are damaged)",
-            frames, frames == 1 ? "" : "s", f.cols, f.rows, double(frames) * frame_bytes(f), most);
+      return check_frames_fit(f, frames, most, "RLE data can hold at most",
+                              "Rows / Columns or the data are damaged");
     }
     return "";
   }
-  const double held = double(element->getLengthField());
-  if (double(frames) * frame_bytes(f) > held)
-    return fmt::format(
-        "it declares {} frame{} of {} x {} pixels ({:.0f} bytes) but its pixel data holds {:.0f} bytes "
-        "(the file is damaged or cut short)",
-        frames, frames == 1 ? "" : "s", f.cols, f.rows, double(frames) * frame_bytes(f), held);
-  return "";
+  return check_frames_fit(f, frames, double(element->getLengthField()), "pixel data holds",
+                          "the file is damaged or cut short");
 }
 
 /// Marks `f` as `kind` for `problem`; returns false, so a stage can `return fail(...)`.
