@@ -194,8 +194,7 @@ std::string check_frame_count(DcmDataset* ds, const FileInfo& f, long frames, Dc
         DcmPixelItem* item = nullptr;
         if (sequence->getItem(item, i).good() && item) most += 64.0 * std::max(0.0, double(item->getLength()) - 64.0);
       }
-      return check_frames_fit(f, frames, most, "RLE data can hold at most",
-                              "Rows / Columns or the data are damaged");
+      return check_frames_fit(f, frames, most, "RLE data can hold at most", "Rows / Columns or the data are damaged");
     }
     return "";
   }
