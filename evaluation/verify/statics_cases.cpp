@@ -341,7 +341,7 @@ void run_poisson_hertz(VerifyContext& ctx) {
   };
   // 2 mm: every ratio (the reference about 5 s each); 1 mm: 0 and 0.45 (the reference 1-5 min each)
   const std::vector<Mesh> meshes = {{2.0, nus}, {1.0, {0.0, 0.45}}};
-  std::map<double, double> model_ratio45, reference_ratio45;  // by voxel size
+  std::map<double, double> model_ratio45, reference_ratio45;                  // by voxel size
   std::map<std::pair<double, double>, double> reference_ratio, reference_f0;  // by voxel size and nu
   std::vector<double> plot_nu, plot_model, plot_reference, plot_layer;
   for (const Mesh& mesh : meshes) {

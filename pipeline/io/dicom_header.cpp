@@ -104,8 +104,7 @@ std::string read_modality_lut(DcmItem* ds, FileInfo& f) {
   if (entries <= 0) entries += 65536;  // 0 means 2^16 entries (also when read as SS)
   if (f.pixel_rep == 1 && first >= 0x8000) first -= 0x10000;
   if (f.pixel_rep == 0 && first < 0) first += 0x10000;
-  if (bits != 8 && bits != 16)
-    return fmt::format("its Modality LUT has {} bits per entry (8 or 16 are defined)", bits);
+  if (bits != 8 && bits != 16) return fmt::format("its Modality LUT has {} bits per entry (8 or 16 are defined)", bits);
   const Uint16* words = nullptr;
   unsigned long count = 0;
   if (item->findAndGetUint16Array(DCM_LUTData, words, &count).bad() || !words)
@@ -235,9 +234,10 @@ bool check_declared_lengths(DcmDataset* ds, const fs::path& path, bool magic, Fi
             e->getLengthField() != DCM_UndefinedLength && std::uintmax_t(e->getLengthField()) <= file_bytes)
           uid_elements = true;
       }
-    const std::string what = fmt::format("element ({:04x},{:04x}) declares {} bytes, more than the whole file "
-                                         "({} bytes)",
-                                         o->getGTag(), o->getETag(), declared, file_bytes);
+    const std::string what = fmt::format(
+        "element ({:04x},{:04x}) declares {} bytes, more than the whole file "
+        "({} bytes)",
+        o->getGTag(), o->getETag(), declared, file_bytes);
     if (magic || uid_elements) return fail(f, FileKind::broken, "it is truncated or damaged: " + what);
     return fail(f, FileKind::not_dicom,
                 "it is not a DICOM file (no 'DICM' marker, and read as a DICOM data set its " + what + ")");
@@ -252,8 +252,9 @@ bool read_identity(DcmDataset* ds, const OFCondition& status, bool magic, FileIn
   f.series_uid = printable(trim(get_string(ds, DCM_SeriesInstanceUID)));
   const bool looks_dicom = magic || !f.sop_class.empty() || !f.series_uid.empty();
   if (status.bad())
-    return looks_dicom ? fail(f, FileKind::broken, fmt::format("it is truncated or corrupt (DCMTK: {})", status.text()))
-                       : fail(f, FileKind::not_dicom, "it is not a DICOM file (no 'DICM' marker and no DICOM data set)");
+    return looks_dicom
+               ? fail(f, FileKind::broken, fmt::format("it is truncated or corrupt (DCMTK: {})", status.text()))
+               : fail(f, FileKind::not_dicom, "it is not a DICOM file (no 'DICM' marker and no DICOM data set)");
   if (!looks_dicom)
     return fail(f, FileKind::not_dicom, "it is not a DICOM file (no 'DICM' marker and no SOP Class UID)");
   f.sop_instance = trim(get_string(ds, DCM_SOPInstanceUID));
@@ -359,18 +360,22 @@ FrameInfo read_frame(DcmDataset* ds, DcmItem* per_frame, DcmItem* shared, long f
       info.col = c.normalized();
     }
   }
-  if (get_doubles(find_functional(ds, per_frame, shared, DCM_PixelMeasuresSequence, DCM_PixelSpacing),
-                  DCM_PixelSpacing, v, 2) && v[0] > 0 && v[1] > 0) {
+  if (get_doubles(find_functional(ds, per_frame, shared, DCM_PixelMeasuresSequence, DCM_PixelSpacing), DCM_PixelSpacing,
+                  v, 2) &&
+      v[0] > 0 && v[1] > 0) {
     info.has_spacing = true;
     info.row_spacing = v[0];
     info.col_spacing = v[1];
   }
   if (get_doubles(find_functional(ds, per_frame, shared, DCM_PixelMeasuresSequence, DCM_SliceThickness),
-                  DCM_SliceThickness, v, 1) && v[0] > 0 && std::isfinite(v[0]))
+                  DCM_SliceThickness, v, 1) &&
+      v[0] > 0 && std::isfinite(v[0]))
     info.slice_thickness = v[0];
-  if (get_doubles(ds, DCM_SpacingBetweenSlices, v, 1) && v[0] > 0) info.thickness = v[0];
+  if (get_doubles(ds, DCM_SpacingBetweenSlices, v, 1) && v[0] > 0)
+    info.thickness = v[0];
   else if (get_doubles(find_functional(ds, per_frame, shared, DCM_PixelMeasuresSequence, DCM_SliceThickness),
-                       DCM_SliceThickness, v, 1) && v[0] > 0)
+                       DCM_SliceThickness, v, 1) &&
+           v[0] > 0)
     info.thickness = v[0];
   DcmItem* rescale = find_functional(ds, per_frame, shared, DCM_PixelValueTransformationSequence, DCM_RescaleSlope);
   if (get_doubles(rescale, DCM_RescaleSlope, v, 1) && get_doubles(rescale, DCM_RescaleIntercept, v + 1, 1)) {
@@ -403,7 +408,8 @@ FileInfo read_header(const fs::path& path, bool explicit_input, std::size_t file
   long value = 0;
   const long base_instance = get_int(ds, DCM_InstanceNumber, value) ? value : 0;
   for (long fr = 0; fr < frames; ++fr) {
-    DcmItem* per_frame = per_frame_seq && fr < long(per_frame_seq->card()) ? per_frame_seq->getItem(unsigned(fr)) : nullptr;
+    DcmItem* per_frame =
+        per_frame_seq && fr < long(per_frame_seq->card()) ? per_frame_seq->getItem(unsigned(fr)) : nullptr;
     f.frames.push_back(read_frame(ds, per_frame, shared, fr, base_instance, file_index));
   }
   return f;

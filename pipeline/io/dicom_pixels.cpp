@@ -95,9 +95,10 @@ void check_rle_fragments(const FileInfo& f, DcmDataset* ds, DcmPixelData* pixels
                             quoted(f.path)));
   const unsigned long items = seq->card();
   if (items < 1 + f.frames.size())
-    throw Error(fmt::format("DICOM: {} is RLE compressed with {} fragment(s) for {} frame(s) (one per frame after the "
-                            "offset table); the file is truncated or corrupt",
-                            quoted(f.path), items == 0 ? 0 : items - 1, f.frames.size()));
+    throw Error(
+        fmt::format("DICOM: {} is RLE compressed with {} fragment(s) for {} frame(s) (one per frame after the "
+                    "offset table); the file is truncated or corrupt",
+                    quoted(f.path), items == 0 ? 0 : items - 1, f.frames.size()));
   const std::uint32_t expected = std::uint32_t(std::max(f.samples, 1) * std::max(f.bits_allocated / 8, 1));
   for (unsigned long i = 1; i < items; ++i) {
     DcmPixelItem* item = nullptr;
@@ -178,7 +179,8 @@ void read_pixels(const std::vector<FileInfo>& files, const std::vector<FrameInfo
     DcmFileFormat ff;
     OFCondition status = ff.loadFile(f.path.c_str(), EXS_Unknown, EGL_noChange, kHeaderReadLimit, ERM_autoDetect);
     if (status.bad())
-      throw Error(fmt::format("DICOM: cannot read {} (it changed since its header was read?): {}", quoted(f.path), status.text()));
+      throw Error(fmt::format("DICOM: cannot read {} (it changed since its header was read?): {}", quoted(f.path),
+                              status.text()));
     DcmDataset* ds = ff.getDataset();
     DcmElement* element = nullptr;
     if (ds->findAndGetElement(DCM_PixelData, element).bad() || !element)
@@ -200,10 +202,11 @@ void read_pixels(const std::vector<FileInfo>& files, const std::vector<FrameInfo
       if (frame > 0 && !DcmXfer(ds->getOriginalXfer()).isEncapsulated()) start_fragment = 0;
       status = pixels->getUncompressedFrame(ds, Uint32(frame), start_fragment, buffer.data(), frame_size, color_model);
       if (status.bad())
-        throw Error(fmt::format("DICOM: cannot decode {}{}: {} (the file may be truncated or its compressed data "
-                                "corrupt; transfer syntax {})",
-                                quoted(f.path), f.frames.size() > 1 ? fmt::format(" frame {}", frame + 1) : "",
-                                status.text(), f.xfer_name));
+        throw Error(
+            fmt::format("DICOM: cannot decode {}{}: {} (the file may be truncated or its compressed data "
+                        "corrupt; transfer syntax {})",
+                        quoted(f.path), f.frames.size() > 1 ? fmt::format(" frame {}", frame + 1) : "", status.text(),
+                        f.xfer_name));
       frame_to_hu(f, *frame_of_slice[std::size_t(k)], buffer, slice_hu.data());
       place_slice(layout, k, f.rows, f.cols, slice_hu.data(), volume);
       progress.update(double(++done) / double(frames.size()));

@@ -48,8 +48,8 @@ std::vector<std::pair<fs::path, bool>> collect_files(const std::vector<fs::path>
         if (it->is_regular_file(ec2)) found.push_back(it->path());
       }
       if (found.empty())
-        throw Error(fmt::format("DICOM: folder {} holds no files (point to the folder that holds the series' .dcm files)",
-                                quoted(input)));
+        throw Error(fmt::format(
+            "DICOM: folder {} holds no files (point to the folder that holds the series' .dcm files)", quoted(input)));
       std::sort(found.begin(), found.end());
       for (auto& p : found) files.emplace_back(std::move(p), false);
     } else if (fs::is_regular_file(input, ec)) {
@@ -82,7 +82,8 @@ const SeriesInfo& choose_series(const std::map<std::string, SeriesInfo>& all, co
     std::size_t localizers = 0;
     for (const auto& [uid, s] : all) localizers += s.localizers;
     if (localizers > 0)
-      throw Error(fmt::format("DICOM: {} holds only localizer (scout) images ({}), no volume to read", where, localizers));
+      throw Error(
+          fmt::format("DICOM: {} holds only localizer (scout) images ({}), no volume to read", where, localizers));
     throw Error(fmt::format("DICOM: {} holds no DICOM images", where));
   }
   const SeriesInfo* chosen = nullptr;
@@ -90,12 +91,14 @@ const SeriesInfo& choose_series(const std::map<std::string, SeriesInfo>& all, co
     for (const SeriesInfo* s : series)
       if (s->uid == options.series_uid) chosen = s;
     if (!chosen)
-      throw Error(fmt::format("DICOM: series {} is not in {}; the series found are:{}\n(pass one of these UIDs to --series)",
-                              options.series_uid, where, list_series(series)));
+      throw Error(
+          fmt::format("DICOM: series {} is not in {}; the series found are:{}\n(pass one of these UIDs to --series)",
+                      options.series_uid, where, list_series(series)));
     if (!chosen->is_ct && !options.any_modality)
-      throw Error(fmt::format("DICOM: series {} is not CT ({}), so its values are not Hounsfield units; "
-                              "pass --modality any (in a scene: \"any_modality\": true) to read it anyway",
-                              chosen->uid, chosen->modality.empty() ? "unknown modality" : chosen->modality));
+      throw Error(
+          fmt::format("DICOM: series {} is not CT ({}), so its values are not Hounsfield units; "
+                      "pass --modality any (in a scene: \"any_modality\": true) to read it anyway",
+                      chosen->uid, chosen->modality.empty() ? "unknown modality" : chosen->modality));
   } else {
     for (const SeriesInfo* s : series)
       if (s->is_ct || options.any_modality) {
@@ -103,10 +106,11 @@ const SeriesInfo& choose_series(const std::map<std::string, SeriesInfo>& all, co
         break;
       }
     if (!chosen)
-      throw Error(fmt::format("DICOM: {} holds no CT series, only:{}\nThese values are not Hounsfield units; pass "
-                              "--modality any (in a scene: \"any_modality\": true) to read one anyway (the largest is taken, "
-                              "or the one given with --series)",
-                              where, list_series(series)));
+      throw Error(
+          fmt::format("DICOM: {} holds no CT series, only:{}\nThese values are not Hounsfield units; pass "
+                      "--modality any (in a scene: \"any_modality\": true) to read one anyway (the largest is taken, "
+                      "or the one given with --series)",
+                      where, list_series(series)));
   }
   std::vector<const SeriesInfo*> others;
   for (const SeriesInfo* s : series)
@@ -131,7 +135,8 @@ std::vector<fs::path> resolve_single_file(const std::vector<fs::path>& inputs_in
     if (fs::is_regular_file(inputs.front(), ec)) {
       FileInfo one = read_header(inputs.front(), true, 0);
       if (one.kind != FileKind::image) {
-        throw Error(fmt::format("DICOM: cannot read {}: {}", quoted(one.path), one.problem.empty() ? "it holds no image" : one.problem));
+        throw Error(fmt::format("DICOM: cannot read {}: {}", quoted(one.path),
+                                one.problem.empty() ? "it holds no image" : one.problem));
       }
       if (one.frames.size() == 1 && !one.series_uid.empty()) {
         const fs::path folder = inputs.front().has_parent_path() ? inputs.front().parent_path() : fs::path(".");
@@ -171,17 +176,19 @@ std::vector<const FileInfo*> check_files(const std::vector<FileInfo>& files, con
     if (f.kind == FileKind::broken && f.series_uid.empty()) unknown_broken.push_back(&f);
   }
   if (not_dicom.size() == files.size())
-    throw Error(fmt::format("DICOM: {} holds {} file{}, none of them DICOM (e.g. {}: {}); point to the folder "
-                            "that holds the series' .dcm files",
-                            where, files.size(), files.size() == 1 ? "" : "s", quoted(not_dicom.front()->path),
-                            not_dicom.front()->problem));
+    throw Error(
+        fmt::format("DICOM: {} holds {} file{}, none of them DICOM (e.g. {}: {}); point to the folder "
+                    "that holds the series' .dcm files",
+                    where, files.size(), files.size() == 1 ? "" : "s", quoted(not_dicom.front()->path),
+                    not_dicom.front()->problem));
   if (!not_dicom.empty())
     log::info("DICOM: skipped {} file{} that {} not DICOM:{}", not_dicom.size(), not_dicom.size() == 1 ? "" : "s",
               not_dicom.size() == 1 ? "is" : "are", name_files(not_dicom));
   if (!unknown_broken.empty())
-    log::warn("DICOM: skipped {} unreadable DICOM file{} whose series cannot be told (if one belongs to the series "
-              "read, the slice spacing check reports the gap it leaves):{}",
-              unknown_broken.size(), unknown_broken.size() == 1 ? "" : "s", name_files(unknown_broken));
+    log::warn(
+        "DICOM: skipped {} unreadable DICOM file{} whose series cannot be told (if one belongs to the series "
+        "read, the slice spacing check reports the gap it leaves):{}",
+        unknown_broken.size(), unknown_broken.size() == 1 ? "" : "s", name_files(unknown_broken));
   if (non_image)
     log::info("DICOM: skipped {} DICOM file{} without images (reports, DICOMDIR, ...)", non_image,
               non_image == 1 ? "" : "s");
@@ -215,15 +222,17 @@ std::vector<FrameInfo> series_frames(const std::vector<FileInfo>& files, const S
   for (std::size_t i : series.files) {
     const FileInfo& f = files[i];
     if (f.kind == FileKind::broken)
-      throw Error(fmt::format("DICOM: cannot read {} of series {}: {}; replace the file (re-export the series) or "
-                              "remove it",
-                              quoted(f.path), series.uid, f.problem));
+      throw Error(
+          fmt::format("DICOM: cannot read {} of series {}: {}; replace the file (re-export the series) or "
+                      "remove it",
+                      quoted(f.path), series.uid, f.problem));
     if (!f.xfer_decodable)
-      throw Error(fmt::format("DICOM: {} uses transfer syntax '{}' ({}), which voxelastic cannot decode (RLE, JPEG "
-                              "incl. lossless, JPEG-LS and JPEG 2000 are supported). Convert the series to an "
-                              "uncompressed syntax first, e.g. 'gdcmconv --raw in.dcm out.dcm' (GDCM) or re-export it "
-                              "uncompressed from the PACS",
-                              quoted(f.path), f.xfer_name, f.xfer_uid));
+      throw Error(
+          fmt::format("DICOM: {} uses transfer syntax '{}' ({}), which voxelastic cannot decode (RLE, JPEG "
+                      "incl. lossless, JPEG-LS and JPEG 2000 are supported). Convert the series to an "
+                      "uncompressed syntax first, e.g. 'gdcmconv --raw in.dcm out.dcm' (GDCM) or re-export it "
+                      "uncompressed from the PACS",
+                      quoted(f.path), f.xfer_name, f.xfer_uid));
     if (!f.is_ct && series.is_ct)
       log::warn("DICOM: {} in CT series {} is not a CT image (SOP class {})", f.path.string(), series.uid,
                 printable(f.sop_class));
@@ -248,7 +257,8 @@ Volume read_dicom_series(const std::vector<std::filesystem::path>& inputs, const
   const SeriesInfo& series = choose_series(all, opts, where);
   std::vector<const FileInfo*> broken_elsewhere;
   for (const FileInfo& f : files)
-    if (f.kind == FileKind::broken && !f.series_uid.empty() && f.series_uid != series.uid) broken_elsewhere.push_back(&f);
+    if (f.kind == FileKind::broken && !f.series_uid.empty() && f.series_uid != series.uid)
+      broken_elsewhere.push_back(&f);
   if (!broken_elsewhere.empty())
     log::warn("DICOM: skipped {} unreadable file{} of other series:{}", broken_elsewhere.size(),
               broken_elsewhere.size() == 1 ? "" : "s", name_files(broken_elsewhere));
@@ -259,18 +269,18 @@ Volume read_dicom_series(const std::vector<std::filesystem::path>& inputs, const
     } catch (const Error& e) {
       // a gap or an uneven spacing may be a slice among the unreadable files skipped: say which
       if (unreadable.empty()) throw;
-      throw Error(fmt::format("{}\nDICOM: {} unreadable file{} {} skipped; the missing slice may be among them:{}", e.what(),
-                              unreadable.size(), unreadable.size() == 1 ? "" : "s",
+      throw Error(fmt::format("{}\nDICOM: {} unreadable file{} {} skipped; the missing slice may be among them:{}",
+                              e.what(), unreadable.size(), unreadable.size() == 1 ? "" : "s",
                               unreadable.size() == 1 ? "was" : "were", name_files(unreadable)));
     }
   }();
-  const bool missing_rescale = std::any_of(frames.begin(), frames.end(), [&](const FrameInfo& fr) {
-    return !fr.has_rescale && files[fr.file].lut.empty();
-  });
+  const bool missing_rescale = std::any_of(
+      frames.begin(), frames.end(), [&](const FrameInfo& fr) { return !fr.has_rescale && files[fr.file].lut.empty(); });
   if (missing_rescale && series.is_ct)
-    log::warn("DICOM: some slices of series {} have no RescaleSlope/Intercept nor Modality LUT; taking stored values "
-              "as HU (slope 1, intercept 0)",
-              series.uid);
+    log::warn(
+        "DICOM: some slices of series {} have no RescaleSlope/Intercept nor Modality LUT; taking stored values "
+        "as HU (slope 1, intercept 0)",
+        series.uid);
   Volume volume = allocate_volume(layout, series, opts.max_volume_bytes);
   read_pixels(files, frames, layout, volume);
   return volume;

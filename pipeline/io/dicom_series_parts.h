@@ -43,7 +43,7 @@ struct FrameInfo {
   double slice_thickness{0.0};        ///< SliceThickness, mm (0: absent): a single slice's depth
   double slope{1.0}, intercept{0.0};  ///< rescale to HU
   bool has_rescale{false};
-  long instance{0};  ///< InstanceNumber / frame number, for ordering without geometry
+  long instance{0};             ///< InstanceNumber / frame number, for ordering without geometry
   double normal_position{0.0};  ///< position projected on the slice normal, mm
 };
 
@@ -83,7 +83,7 @@ struct SeriesInfo {
 
 /// Where the sorted frames sit: the grid and, per slice, the in-plane shift a gantry tilt causes.
 struct SliceLayout {
-  GridGeometry geometry;           ///< output grid (orthogonal)
+  GridGeometry geometry;               ///< output grid (orthogonal)
   std::vector<Eigen::Vector2d> shift;  ///< per slice: input pixel (i',j') = output (i,j) + offset - shift
   Eigen::Vector2i offset{0, 0};
   bool tilted{false};

@@ -10,8 +10,8 @@ namespace vx {
 
 /// Options for reading volumes (DICOM-specific ones are used for DICOM input only).
 struct ReadOptions {
-  std::string series_uid;      ///< DICOM: series to read; empty = the largest CT series
-  bool any_modality{false};    ///< DICOM: accept non-CT images (MR, secondary capture) with a warning
+  std::string series_uid;    ///< DICOM: series to read; empty = the largest CT series
+  bool any_modality{false};  ///< DICOM: accept non-CT images (MR, secondary capture) with a warning
   /// DICOM: the largest volume to allocate, bytes (0: half the machine's physical memory, as
   /// reading and converting need more than the volume). A series whose image size, frame count
   /// or slice positions ask for more is refused before anything is allocated (compressed pixel

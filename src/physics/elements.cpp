@@ -54,8 +54,8 @@ inline Eigen::Matrix<double, 3, kBendingModes> mode_amplitudes(const PhysicsMode
                                                                const Eigen::Vector3d& x0) {
   Eigen::Matrix<double, 3, kBendingModes> qm = Eigen::Matrix<double, 3, kBendingModes>::Zero();
   for (int j = b; j < b + n; ++j)
-    qm.noalias() += (Eigen::Map<const Eigen::Vector3d>(xs + 3 * std::int64_t(vert[j])) - x0) *
-                    phys.entry_modes.col(j).transpose();
+    qm.noalias() +=
+        (Eigen::Map<const Eigen::Vector3d>(xs + 3 * std::int64_t(vert[j])) - x0) * phys.entry_modes.col(j).transpose();
   return qm;
 }
 
@@ -92,8 +92,8 @@ double add_volume_point_forces(const PhysicsModel& phys, const double* xs, std::
 /// the per-entry terms are written out here loop by loop (entry_force sums them in one).
 template <bool kDamping, bool kEnergy, bool kVolume, bool kModes>
 void element_range_reference(const PhysicsModel& phys, const double* xs, const double* vs, Eigen::Quaterniond* rot,
-                   double* ef, double* energy_out, std::int64_t e0, std::int64_t e1,
-                   const RotationFitSettings& fit, ElementPassStats& st) {
+                             double* ef, double* energy_out, std::int64_t e0, std::int64_t e1,
+                             const RotationFitSettings& fit, ElementPassStats& st) {
   const Model& m = *phys.model;
   const std::int32_t* off = m.element_offsets.data();
   const std::int32_t* vert = m.element_vertices.data();
@@ -115,9 +115,15 @@ void element_range_reference(const PhysicsModel& phys, const double* xs, const d
       const double w = wts[j];
       const double yx = xp[0] - ox, yy = xp[1] - oy, yz = xp[2] - oz;
       cs.add(w, yx, yy, yz);
-      a00 += yx * r0[0]; a01 += yx * r0[1]; a02 += yx * r0[2];
-      a10 += yy * r0[0]; a11 += yy * r0[1]; a12 += yy * r0[2];
-      a20 += yz * r0[0]; a21 += yz * r0[1]; a22 += yz * r0[2];
+      a00 += yx * r0[0];
+      a01 += yx * r0[1];
+      a02 += yx * r0[2];
+      a10 += yy * r0[0];
+      a11 += yy * r0[1];
+      a12 += yy * r0[2];
+      a20 += yz * r0[0];
+      a21 += yz * r0[1];
+      a22 += yz * r0[2];
     }
     // pass 1b: the consistent deformation gradient F = sum y g^T (sum g = 0: no centring)
     double f00 = 0, f01 = 0, f02 = 0, f10 = 0, f11 = 0, f12 = 0, f20 = 0, f21 = 0, f22 = 0;
@@ -125,9 +131,15 @@ void element_range_reference(const PhysicsModel& phys, const double* xs, const d
       const double* xp = xs + 3 * std::int64_t(vert[j]);
       const double* g = gs + 3 * std::int64_t(j);
       const double yx = xp[0] - ox, yy = xp[1] - oy, yz = xp[2] - oz;
-      f00 += yx * g[0]; f01 += yx * g[1]; f02 += yx * g[2];
-      f10 += yy * g[0]; f11 += yy * g[1]; f12 += yy * g[2];
-      f20 += yz * g[0]; f21 += yz * g[1]; f22 += yz * g[2];
+      f00 += yx * g[0];
+      f01 += yx * g[1];
+      f02 += yx * g[2];
+      f10 += yy * g[0];
+      f11 += yy * g[1];
+      f12 += yy * g[2];
+      f20 += yz * g[0];
+      f21 += yz * g[1];
+      f22 += yz * g[2];
     }
     const double inv_w = 1.0 / cs.sw;
     const Eigen::Vector3d c(cs.sx * inv_w, cs.sy * inv_w, cs.sz * inv_w);  // relative to x0
@@ -392,11 +404,9 @@ struct PackedKernel {
 }  // namespace
 
 ElementPassStats compute_element_forces(const PhysicsModel& phys, const Eigen::Matrix3Xd& positions,
-                                        const Eigen::Matrix3Xd* velocities,
-                                        std::vector<Eigen::Quaterniond>& rotations,
+                                        const Eigen::Matrix3Xd* velocities, std::vector<Eigen::Quaterniond>& rotations,
                                         Eigen::Matrix3Xd& entry_forces, std::vector<double>* element_energy,
-                                        const ElementPassOptions& options, int threads,
-                                        ElementPassScratch& scratch) {
+                                        const ElementPassOptions& options, int threads, ElementPassScratch& scratch) {
   const std::int64_t ne = phys.num_elements();
   const bool damping = options.damping && velocities != nullptr;
   const bool energy = options.energy && element_energy != nullptr;
@@ -407,8 +417,8 @@ ElementPassStats compute_element_forces(const PhysicsModel& phys, const Eigen::M
   if (std::int64_t(scratch.chunks.size()) != element_pass_slots(ne))
     scratch.chunks.resize(std::size_t(element_pass_slots(ne)));
   // the packed kernels need the packed entries (always there in a model from make_physics_model)
-  const bool packed = options.kernel != ElementKernel::reference &&
-                      std::int64_t(phys.entry_packed.size()) == phys.num_vertex_entries();
+  const bool packed =
+      options.kernel != ElementKernel::reference && std::int64_t(phys.entry_packed.size()) == phys.num_vertex_entries();
   const ElementBatches& eb = phys.element_batches;
   const bool modes = phys.has_bending_modes();
   // automatic on a CPU without AVX2: the packed kernel (the batched one on two-lane SSE2 is
@@ -416,8 +426,7 @@ ElementPassStats compute_element_forces(const PhysicsModel& phys, const Eigen::M
   const bool vector_unit = options.simd != SimdLevel::automatic || best_simd_level() != SimdLevel::generic;
   // (a 2D model runs the packed kernel: its rotation fit is the closed form of the plane)
   const bool batched = packed && options.kernel == ElementKernel::batched && vector_unit && !energy &&
-                       !phys.has_volume_term() && !phys.is_2d() &&
-                       std::int64_t(eb.window_offsets.size()) == chunks + 1;
+                       !phys.has_volume_term() && !phys.is_2d() && std::int64_t(eb.window_offsets.size()) == chunks + 1;
   const RangeFn fn = packed ? pick_range<PackedKernel>(damping, energy, phys.has_volume_term(), modes)
                             : pick_range<ReferenceKernel>(damping, energy, phys.has_volume_term(), modes);
   const double* xs = positions.data();

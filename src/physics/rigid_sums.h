@@ -37,8 +37,12 @@ struct RigidSums {
     lx += wy * vz - wz * vy;
     ly += wz * vx - wx * vz;
     lz += wx * vy - wy * vx;
-    ixx += wx * yx; ixy += wx * yy; ixz += wx * yz;
-    iyy += wy * yy; iyz += wy * yz; izz += wz * yz;
+    ixx += wx * yx;
+    ixy += wx * yy;
+    ixz += wx * yz;
+    iyy += wy * yy;
+    iyz += wy * yz;
+    izz += wz * yz;
   }
 };
 

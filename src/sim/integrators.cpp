@@ -3,10 +3,10 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
-#include <sstream>
 #include <cstdio>
 #include <cstdlib>
 #include <optional>
+#include <sstream>
 
 #include "base/error.h"
 #include "base/parallel.h"
@@ -71,10 +71,11 @@ void finish_step(SimState& s, const IntegratorSettings& set, std::uint8_t flags,
     if (flags & kFlagNonFinite) {
       msg << "NaN/Inf";
       if (node >= 0) msg << " at node " << node;
-      if (s.element_stats.non_finite > 0) msg << " (" << s.element_stats.non_finite << " elements with non-finite input)";
+      if (s.element_stats.non_finite > 0)
+        msg << " (" << s.element_stats.non_finite << " elements with non-finite input)";
     } else if (node >= 0) {
-      msg << "runaway at node " << node << ": speed " << s.scratch.next_velocities.col(node).norm()
-          << " mm/s (limit " << max_v << "), displacement " << (s.scratch.next_positions.col(node) - rest.col(node)).norm()
+      msg << "runaway at node " << node << ": speed " << s.scratch.next_velocities.col(node).norm() << " mm/s (limit "
+          << max_v << "), displacement " << (s.scratch.next_positions.col(node) - rest.col(node)).norm()
           << " mm (limit " << max_d << ")";
     } else {
       msg << "runaway";
@@ -568,12 +569,12 @@ class ImplicitIntegrator final : public SteppingIntegrator {
   std::vector<int> awake_;
   /// a displacement from the rest shape this small is at rest whatever the release, mm
   static constexpr double kRestFloorMm = 1e-3;
-  bool settling_{true};         ///< the tissue may be moving (from the start, and after a contact)
-  std::int64_t idle_steps_{0};  ///< steps since the last contact
-  bool touching_{false};        ///< a tool touched in the last step
-  double release_time_s_{0.0};  ///< when the last contact ended (0: the start), s
+  bool settling_{true};            ///< the tissue may be moving (from the start, and after a contact)
+  std::int64_t idle_steps_{0};     ///< steps since the last contact
+  bool touching_{false};           ///< a tool touched in the last step
+  double release_time_s_{0.0};     ///< when the last contact ended (0: the start), s
   double release_offset_mm_{0.0};  ///< the largest displacement from the rest shape then (0: unknown or none), mm
-  bool asleep_{false};          ///< at rest: steps only advance the time (fall_asleep)
+  bool asleep_{false};             ///< at rest: steps only advance the time (fall_asleep)
   Eigen::Vector3d asleep_gravity_{Eigen::Vector3d::Zero()};
   std::uint64_t asleep_fixed_version_{0};
   std::int64_t asleep_step_{0};
