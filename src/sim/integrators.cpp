@@ -130,18 +130,18 @@ std::optional<StepReport> refused_step(const SimState& s, const IntegratorSettin
 }
 
 /// What every integrator's step does first, written once: a stopped state refused with its
-/// status (refused_step), else the integrator's own step (step_state) on an empty report.
+/// status (refused_step), else the integrator's own step (step_state).
 class SteppingIntegrator : public Integrator {
  public:
   using Integrator::Integrator;
   StepReport step(SimState& s) final {
     if (const std::optional<StepReport> refused = refused_step(s, settings_)) return *refused;
-    return step_state(s, StepReport{});
+    return step_state(s);
   }
 
  protected:
-  /// One step of a state that may be stepped, filling `rep`.
-  virtual StepReport step_state(SimState& s, StepReport rep) = 0;
+  /// One step of a state that may be stepped.
+  virtual StepReport step_state(SimState& s) = 0;
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -215,7 +215,8 @@ class ExplicitIntegrator final : public SteppingIntegrator {
  public:
   using SteppingIntegrator::SteppingIntegrator;
 
-  StepReport step_state(SimState& s, StepReport rep) override {
+  StepReport step_state(SimState& s) override {
+    StepReport rep;
     const PhysicsModel& p = *s.physics;
     const int threads = settings_.threads;
     const double dt = settings_.time_step_s;
@@ -281,7 +282,8 @@ class ImplicitIntegrator final : public SteppingIntegrator {
     return s.integrator_cache.solver->contact_compliance(nodes, g);
   }
 
-  StepReport step_state(SimState& s, StepReport rep) override {
+  StepReport step_state(SimState& s) override {
+    StepReport rep;
     const PhysicsModel& p = *s.physics;
     const int threads = settings_.threads;
     const double dt = settings_.time_step_s;
