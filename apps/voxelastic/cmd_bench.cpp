@@ -3,6 +3,8 @@
 // bench.md and plots), with the configuration that is best for real time. See docs/bench.md.
 #include <fmt/format.h>
 
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <memory>
@@ -69,6 +71,27 @@ void run_scale_command(const BenchOptions& o) {
   if (!o.scale_models.empty()) {
     std::vector<ScaleModelSpec> keep;
     for (const auto& name : o.scale_models) {
+      // "MODEL at S mm": MODEL's shape on a grid of S mm voxels (the physics on fewer nodes),
+      // judged against MODEL's reference on MODEL's path; MODEL must be listed before it
+      const std::size_t at = name.rfind(" at ");
+      double spacing = 0;
+      char unit[3] = {0, 0, 0}, tail = 0;
+      if (at != std::string::npos &&
+          std::sscanf(name.c_str() + at, " at %lf %2s%c", &spacing, unit, &tail) == 2 && std::string(unit) == "mm") {
+        const std::string base = name.substr(0, at);
+        const auto it = std::find_if(keep.begin(), keep.end(), [&](const ScaleModelSpec& m) { return m.name == base; });
+        if (it == keep.end())
+          throw Error(fmt::format("--scale-models: '{}' is judged against '{}': list '{}' before it", name, base, base));
+        if (!(spacing >= 0.25 && spacing <= 8.0))
+          throw Error(fmt::format("--scale-models: '{}': the voxel size must be 0.25 to 8 mm", name));
+        ScaleModelSpec v = *it;
+        v.name = name;
+        v.size = std::max(16, int(std::lround(it->size * it->spacing_mm / spacing)));
+        v.spacing_mm = spacing;
+        v.judged_against = base;
+        keep.push_back(v);
+        continue;
+      }
       bool found = false;
       for (const auto& m : set.models)
         if (m.name == name || m.name == "sphere " + name) keep.push_back(m), found = true;
@@ -82,7 +105,8 @@ void run_scale_command(const BenchOptions& o) {
       if (!found)
         throw Error(
             fmt::format("--scale-models: unknown model '{}' (32, 64, 128, 256, organ, \"organ N\" (N voxels "
-                        "across, 16 to 512), \"folded (stem)\", \"folded (lower third)\")",
+                        "across, 16 to 512), \"folded (stem)\", \"folded (lower third)\"; \"MODEL at S mm\" after MODEL: "
+                        "its shape on S mm voxels, judged against MODEL's reference)",
                         name));
     }
     set.models = keep;
@@ -240,8 +264,9 @@ void add_bench_command(CLI::App& app) {
                   "--scale: the material's Poisson ratio (default 0, the paper's model; docs/bench.md)")
       ->check(CLI::Range(0.0, 0.499));
   sub->add_option("--scale-models", opts->scale_models,
-                  "with --scale: the models (32, 64, 128, 256, organ, \"folded (stem)\", \"folded (lower third)\"; "
-                  "default: all)")
+                  "with --scale: the models (32, 64, 128, 256, organ, \"organ N\", \"folded (stem)\", \"folded (lower "
+                  "third)\"; \"MODEL at S mm\" after MODEL: MODEL's shape on S mm voxels, judged against MODEL's "
+                  "reference on its path; default: all)")
       ->delimiter(',');
   sub->add_option("--scale-max-wall-s", opts->scale_max_wall_s,
                   "with --scale: time a run over at most this much wall time (the reference runs to the end)")

@@ -127,6 +127,14 @@ void ScaleBenchSettings::validate() const {
     if (m.support != "bottom 3 mm" && m.support != "stem" && m.support != "lower third")
       throw Error("bench --scale: " + m.name + ": unknown support '" + m.support +
                   "' (bottom 3 mm, stem or lower third)");
+    if (!(m.spacing_mm > 0 && std::isfinite(m.spacing_mm)))
+      throw Error("bench --scale: " + m.name + ": the voxel size must be a positive number of mm");
+    if (!m.judged_against.empty() &&
+        std::find_if(models.begin(), models.end(), [&](const ScaleModelSpec& o) { return &o == &m; }) <=
+            std::find_if(models.begin(), models.end(),
+                         [&](const ScaleModelSpec& o) { return o.name == m.judged_against; }))
+      throw Error("bench --scale: " + m.name + " is judged against '" + m.judged_against +
+                  "', which must be in the same run before it (list it first)");
   }
   for (int t : threads)
     if (t < 1) throw Error("bench --scale: threads must be >= 1");
@@ -146,7 +154,7 @@ PreparedScene prepare_scale_model(const ScaleModelSpec& m, const ScaleBenchSetti
   json j;
   j["object"] = {{"phantom", m.phantom},
                  {"size", m.size},
-                 {"spacing_mm", 1.0},
+                 {"spacing_mm", m.spacing_mm},
                  {"resolution", "gradational"},
                  {"lattice_origin", m.lattice_origin}};
   j["material"] = {{"youngs_modulus_kpa", s.youngs_modulus_kpa},
@@ -158,7 +166,7 @@ PreparedScene prepare_scale_model(const ScaleModelSpec& m, const ScaleBenchSetti
   PhantomSettings ps;
   ps.name = m.phantom;
   ps.size = m.size;
-  ps.spacing_mm = 1.0;
+  ps.spacing_mm = m.spacing_mm;
   const PhantomShape shape = phantom_shape(ps);
   if (m.support == "stem") {
     if (!(shape.stem_radius_mm > 0))
@@ -166,8 +174,9 @@ PreparedScene prepare_scale_model(const ScaleModelSpec& m, const ScaleBenchSetti
                   m.phantom);
     // the stem's bottom 3 mm: a box round its bottom face, half a voxel wider than the stem and
     // half a voxel beyond 3 mm (the lowest nodes may lie up to half a voxel below the face)
-    const Eigen::Vector3d c = shape.stem_center_mm, r(shape.stem_radius_mm + 0.5, shape.stem_radius_mm + 0.5, 0.5);
-    const Eigen::Vector3d lo = c - r, hi = c + Eigen::Vector3d(r.x(), r.y(), 3.5);
+    const double half = 0.5 * m.spacing_mm;
+    const Eigen::Vector3d c = shape.stem_center_mm, r(shape.stem_radius_mm + half, shape.stem_radius_mm + half, half);
+    const Eigen::Vector3d lo = c - r, hi = c + Eigen::Vector3d(r.x(), r.y(), 3.0 + half);
     j["fixed"] = json::array({{{"box_mm", {{"min", {lo.x(), lo.y(), lo.z()}}, {"max", {hi.x(), hi.y(), hi.z()}}}}}});
   } else if (m.support == "lower third") {
     const double bottom =
@@ -210,8 +219,8 @@ struct RunOutput {
 };
 
 RunOutput run_one(const ScaleModelSpec& spec, const PreparedScene& prepared,
-                  const std::shared_ptr<const PhysicsModel>& physics, const ScaleConfig& cfg, int threads,
-                  double max_wall_s, const ScaleBenchSettings& s) {
+                  const std::shared_ptr<const PhysicsModel>& physics, const ScaleConfig& cfg,
+                  const std::vector<PathKey>& path, int threads, double max_wall_s, const ScaleBenchSettings& s) {
   RunOutput out;
   ScaleRow& row = out.row;
   row.model = spec.name;
@@ -238,7 +247,7 @@ RunOutput run_one(const ScaleModelSpec& spec, const PreparedScene& prepared,
   probe.name = "ball";
   probe.geometry.shape = ProbeShape::sphere;
   probe.geometry.radius_mm = s.probe_radius_mm;
-  probe.path = scale_palpation_path(prepared, spec, s);
+  probe.path = path;
   ss.probes = {probe};
   row.time_step_s = ss.integrator.time_step_s;
 
@@ -333,14 +342,29 @@ ScaleBenchResult run_scale_bench(const ScaleBenchSettings& s) {
     if (s.log) s.log(line);
   };
   const int most_threads = *std::max_element(s.threads.begin(), s.threads.end());
+  struct Judge {
+    std::vector<double> t, f;  ///< the reference's curve (empty: none ran to the end)
+    std::vector<PathKey> path;
+  };
+  std::map<std::string, Judge> judges;  // by model name, for the models judged against another
   for (const ScaleModelSpec& spec : s.models) {
     const auto t_build = std::chrono::steady_clock::now();
     const PreparedScene prepared = prepare_scale_model(spec, s);
     say(fmt::format("[scale] {}: {} elements, {} nodes, {} vertex entries (built in {:.1f} s)", spec.name,
                     prepared.model->num_elements(), prepared.model->num_nodes(), prepared.model->num_vertex_entries(),
                     seconds_since(t_build)));
-    std::vector<double> ref_t, ref_f;
-    // the reference first (its curve judges the others), then the others
+    const bool judged = !spec.judged_against.empty();
+    Judge& own = judges[spec.name];
+    own.path = judged ? judges.at(spec.judged_against).path : scale_palpation_path(prepared, spec, s);
+    if (judged) {
+      own.t = judges.at(spec.judged_against).t;
+      own.f = judges.at(spec.judged_against).f;
+      say(fmt::format("[scale] {}: judged against {}'s reference{}, its ball on the same path", spec.name,
+                      spec.judged_against, own.t.empty() ? " (none ran to the end: no error column)" : ""));
+    }
+    // the reference first (its curve judges the others), then the others; on a model judged
+    // against another's, the reference configuration is a row like the others (what the grid
+    // alone costs)
     std::vector<const ScaleConfig*> order;
     for (const auto& c : s.configs)
       if (c.reference) order.push_back(&c);
@@ -360,17 +384,18 @@ ScaleBenchResult run_scale_bench(const ScaleBenchSettings& s) {
       double window = cfg->reference ? s.reference_max_wall_s : s.max_wall_s;
       double error = -1.0;
       for (int th : threads) {
-        RunOutput r = run_one(spec, prepared, physics, *cfg, th, window, s);
+        RunOutput r = run_one(spec, prepared, physics, *cfg, own.path, th, window, s);
         if (th == most_threads) {
           if (!s.curves_dir.empty() && r.row.complete) write_curve(s.curves_dir, spec, *cfg, r);
-          if (cfg->reference && r.row.complete) {
-            ref_t = r.t;
-            ref_f = r.f;
+          if (cfg->reference && !judged && r.row.complete) {
+            own.t = r.t;
+            own.f = r.f;
           }
-          if (r.row.complete && !ref_t.empty()) error = rms_error(r.t, r.f, ref_t, ref_f);
+          if (r.row.complete && !own.t.empty()) error = rms_error(r.t, r.f, own.t, own.f);
           window = std::min(window, std::max(10.0, r.row.wall_s));
         }
         r.row.rms_error_rel = error;
+        if (judged && error >= 0) r.row.note = "error against " + spec.judged_against + "'s reference";
         say(fmt::format("[scale] {} | {} | {} thread(s): dt {:.3g} s, {:.3g} ms per step, real-time factor {:.3g}{}{}",
                         spec.name, cfg->name, th, r.row.time_step_s, r.row.step_ms, r.row.real_time_factor,
                         error >= 0 ? fmt::format(", force error {:.2f} %", 100 * error) : std::string(),

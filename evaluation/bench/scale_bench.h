@@ -61,6 +61,15 @@ struct ScaleModelSpec {
   /// The ball presses along the vertical through the centre of the model's bounding box moved
   /// by this much (x, y mm): the folded phantom's is on a gyrus of a hemisphere, off the fissure
   Eigen::Vector2d press_offset_mm{0, 0};
+  /// The phantom's voxel size, mm (size x spacing is its grid's edge, so a model at 2 mm with
+  /// half the size is the same shape on a coarser grid: fewer nodes for the physics)
+  double spacing_mm{1.0};
+  /// Not empty: the name of a model run before this one in the same suite (the same shape at its
+  /// own resolution) whose reference judges this one, and whose path this one's ball follows (the
+  /// same tool positions in mm); its own reference configuration is a row like the others (the
+  /// error of the grid alone). So a coarser model's error is what it costs against the finer
+  /// model a user has.
+  std::string judged_against{};
 };
 
 struct ScaleBenchSettings {
@@ -126,7 +135,7 @@ struct ScaleBenchResult {
 
 [[nodiscard]] ScaleBenchResult run_scale_bench(const ScaleBenchSettings& settings);
 
-/// The model's prepared scene (no probe yet): the phantom at 1 mm, gradational, its support
+/// The model's prepared scene (no probe yet): the phantom at its voxel size, gradational, its support
 /// held (ScaleModelSpec::support). Throws vx::Error for an unknown support, or "stem" on a
 /// phantom without one.
 [[nodiscard]] PreparedScene prepare_scale_model(const ScaleModelSpec& model, const ScaleBenchSettings& settings);
