@@ -76,12 +76,13 @@ void run_scale_command(const BenchOptions& o) {
       const std::size_t at = name.rfind(" at ");
       double spacing = 0;
       char unit[3] = {0, 0, 0}, tail = 0;
-      if (at != std::string::npos &&
-          std::sscanf(name.c_str() + at, " at %lf %2s%c", &spacing, unit, &tail) == 2 && std::string(unit) == "mm") {
+      if (at != std::string::npos && std::sscanf(name.c_str() + at, " at %lf %2s%c", &spacing, unit, &tail) == 2 &&
+          std::string(unit) == "mm") {
         const std::string base = name.substr(0, at);
         const auto it = std::find_if(keep.begin(), keep.end(), [&](const ScaleModelSpec& m) { return m.name == base; });
         if (it == keep.end())
-          throw Error(fmt::format("--scale-models: '{}' is judged against '{}': list '{}' before it", name, base, base));
+          throw Error(
+              fmt::format("--scale-models: '{}' is judged against '{}': list '{}' before it", name, base, base));
         if (!(spacing >= 0.25 && spacing <= 8.0))
           throw Error(fmt::format("--scale-models: '{}': the voxel size must be 0.25 to 8 mm", name));
         ScaleModelSpec v = *it;
@@ -103,11 +104,11 @@ void run_scale_command(const BenchOptions& o) {
         found = true;
       }
       if (!found)
-        throw Error(
-            fmt::format("--scale-models: unknown model '{}' (32, 64, 128, 256, organ, \"organ N\" (N voxels "
-                        "across, 16 to 512), \"folded (stem)\", \"folded (lower third)\"; \"MODEL at S mm\" after MODEL: "
-                        "its shape on S mm voxels, judged against MODEL's reference)",
-                        name));
+        throw Error(fmt::format(
+            "--scale-models: unknown model '{}' (32, 64, 128, 256, organ, \"organ N\" (N voxels "
+            "across, 16 to 512), \"folded (stem)\", \"folded (lower third)\"; \"MODEL at S mm\" after MODEL: "
+            "its shape on S mm voxels, judged against MODEL's reference)",
+            name));
     }
     set.models = keep;
   }

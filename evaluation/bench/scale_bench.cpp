@@ -129,10 +129,11 @@ void ScaleBenchSettings::validate() const {
                   "' (bottom 3 mm, stem or lower third)");
     if (!(m.spacing_mm > 0 && std::isfinite(m.spacing_mm)))
       throw Error("bench --scale: " + m.name + ": the voxel size must be a positive number of mm");
-    if (!m.judged_against.empty() &&
-        std::find_if(models.begin(), models.end(), [&](const ScaleModelSpec& o) { return &o == &m; }) <=
-            std::find_if(models.begin(), models.end(),
-                         [&](const ScaleModelSpec& o) { return o.name == m.judged_against; }))
+    const auto index_of = [&](const std::string& name) {
+      return std::find_if(models.begin(), models.end(), [&](const ScaleModelSpec& o) { return o.name == name; }) -
+             models.begin();
+    };
+    if (!m.judged_against.empty() && index_of(m.judged_against) >= index_of(m.name))
       throw Error("bench --scale: " + m.name + " is judged against '" + m.judged_against +
                   "', which must be in the same run before it (list it first)");
   }

@@ -453,9 +453,9 @@ TEST(ScaleBench, ImplicitReferenceAndTheLargeModelConfiguration) {
 }
 
 // A coarser grid of the same shape ("sphere 32 at 2 mm") is judged against the finer model's
-// reference on the finer model's path: its own reference configuration a row like the others, errors that are finite and
-// larger than the same configuration's on the fine model (the grid costs something), and the
-// order checked (the finer model first)
+// reference on the finer model's path: its own reference configuration a row like the others, errors that are finite
+// and larger than the same configuration's on the fine model (the grid costs something), and the order checked (the
+// finer model first)
 TEST(ScaleBench, ACoarserGridIsJudgedAgainstTheFinerModelsReference) {
   ScaleBenchSettings s = ScaleBenchSettings::standard();
   s.use_implicit_reference();
