@@ -65,9 +65,9 @@ ScaleBenchSettings ScaleBenchSettings::standard() {
   const ScaleConfig implicit30 = implicit(30, 1, 0, "");
   const ScaleConfig region15 = implicit(20, 1, 15, "");
   const ScaleConfig region30 = implicit(20, 1, 30, "");
-  const ScaleConfig region30_30 = implicit(30, 1, 30, "the fast configuration of larger models");
+  const ScaleConfig region30_30 = implicit(30, 1, 30, "");
   const ScaleConfig region45_30 = implicit(30, 1, 45, "");
-  const ScaleConfig region60_30 = implicit(30, 1, 60, "");
+  const ScaleConfig region60_30 = implicit(30, 1, 60, "the fast configuration of larger models");
   s.configs = {ref, floor, floor_scale, implicit10, implicit20, implicit30, region15, region30, region30_30, region45_30, region60_30};
   return s;
 }

@@ -10,7 +10,7 @@ FastConfiguration default_fast_configuration() {
           .iterations = 1,
           .large_model_nodes = 20000,
           .large_model_time_step_s = 0.03,
-          .large_model_region_radius_mm = 30.0,
+          .large_model_region_radius_mm = 60.0,
           .device_update_steps = 2.0};
 }
 

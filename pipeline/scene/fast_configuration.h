@@ -26,9 +26,10 @@ struct FastConfiguration {
   double time_step_s{0.0};  ///< the step of a model below large_model_nodes, s
   int iterations{0};        ///< local/global iterations per step
   /// Large models (large_model_nodes nodes or more): 30 ms steps with regional solves within
-  /// 30 mm of a tool. Measured (docs/bench.md): the 128 sphere (60,580 nodes) 1.05x real time on
-  /// one thread, 1.22x on two, at 3.8 % RMS force error, against 0.27-0.32x at 1.8 % for 20 ms
-  /// steps without a region.
+  /// 60 mm of a tool. Measured side by side against converged references in one `bench --scale`
+  /// run (docs/bench.md, "The 5 % table"), RMS force error at 60 / 30 mm: the 128 sphere 3.46 /
+  /// 3.98 %, the 256 sphere 4.76 / 5.69 %, the organ 5.19 / 5.53 %, the folded organ over its lower
+  /// third 4.11 / 8.53 % (the sleeping elements' held rotations), at 1.07 to 1.5x the time per step.
   int large_model_nodes{0};
   double large_model_time_step_s{0.0};
   double large_model_region_radius_mm{0.0};
@@ -52,7 +53,7 @@ struct FastConfiguration {
 
 /// The fast configuration's values: implicit, 20 ms steps (kImplicitAutomaticTimeStepS,
 /// sim/time_step.h), one iteration; from 20,000 nodes 30 ms steps with regional solves within
-/// 30 mm of a tool; the device updated every two steps.
+/// 60 mm of a tool; the device updated every two steps.
 [[nodiscard]] FastConfiguration default_fast_configuration();
 
 }  // namespace vx

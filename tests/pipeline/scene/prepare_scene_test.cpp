@@ -184,7 +184,7 @@ TEST(Scene, WithoutAnIntegratorKeyTheFastConfigurationRuns) {
 
 TEST(Scene, LargeModelsGetRegionalSolvesAtLongerSteps) {
   // the fast configuration (scene/fast_configuration.h): 20,000 nodes or more and no integrator key: 30 ms steps
-  // (capped by the probe's speed as any automatic step) with regional solves within 30 mm
+  // (capped by the probe's speed as any automatic step) with regional solves within 60 mm
   json j = base_scene();
   j.erase("integrator");
   j["object"] = {{"phantom", "sphere"}, {"size", 80}, {"spacing_mm", 1.0}};
@@ -200,7 +200,7 @@ TEST(Scene, LargeModelsGetRegionalSolvesAtLongerSteps) {
   EXPECT_DOUBLE_EQ(p.settings.integrator.time_step_s, fast.large_model_time_step_s);
   EXPECT_DOUBLE_EQ(p.settings.integrator.time_step_s, 0.03);
   EXPECT_DOUBLE_EQ(p.settings.integrator.region_radius_mm, fast.large_model_region_radius_mm);
-  EXPECT_DOUBLE_EQ(p.settings.integrator.region_radius_mm, 30.0);
+  EXPECT_DOUBLE_EQ(p.settings.integrator.region_radius_mm, 60.0);
   // an explicit integrator block keeps its own choices
   j["integrator"] = {{"type", "implicit"}};
   const PreparedScene q = prepare_scene(parse_scene(j, ".", "t"));
