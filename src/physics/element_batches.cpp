@@ -406,7 +406,14 @@ VX_INLINE void batch_range(const PhysicsModel& phys, const double* xs, const dou
         const char* m1 = reinterpret_cast<const char*>(mrows + far.first_row + far.rows);
         for (; m0 < m1; m0 += 64) __builtin_prefetch(m0, 0);
       }
-      __builtin_prefetch(&batches[b + kPrefetchRows + 1], 0);
+    }
+    if (b + kPrefetchRows + 1 < b1) {
+      // the whole record of the batch whose rows the next iteration prefetches: its first_row and
+      // rows, read then, are in the last of its 7 lines, and a demand miss there stalled the loop
+      // whenever the hardware prefetchers left that line out, which changed with the code around
+      // it (the AVX2 copy lost 5 to 8 % at 128^3 to it after issue 26's change; docs/bench.md)
+      const char* next = reinterpret_cast<const char*>(&batches[b + kPrefetchRows + 1]);
+      for (std::size_t i = 0; i < sizeof(ElementBatch); i += 64) __builtin_prefetch(next + i, 0);
     }
     batch_forces<kDamping, kModes>(batches[b], rows + batches[b].first_row,
                                    kModes ? mrows + batches[b].first_row : nullptr, xs, vs, rot, ef, fit, st);

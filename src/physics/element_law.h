@@ -19,8 +19,12 @@
 /// waits. Written out component by component (below) the row loop has no stack store, as the
 /// lane kernel's own copy had none. Measured after (docs/bench.md, "The element pass": 7
 /// alternated pairs, one thread, CPU time against the lane copy): AVX-512 0.97 at 128^3, 1.03
-/// at 64^3 (noise); AVX2 1.05 at 128^3 and 1.16 at 64^3, a cost not yet found (element_stress's
-/// loops keep its arrays on the stack the same way, once per batch).
+/// at 64^3 (noise); AVX2 1.05 at 128^3 and 1.16 at 64^3. That AVX2 cost was not the law's: the
+/// generated code of both is the same up to register allocation (element_stress's arrays do not
+/// stay on the stack), and the time went to a cache miss on the batch record the loop reads
+/// ahead, which the hardware prefetchers covered or not depending on the code around it; the
+/// record is now prefetched whole (element_batches.cpp, batch_range), and then the law costs
+/// nothing on either instruction set (docs/bench.md).
 ///
 ///   G = 2 mu V (Q - F) + k (A - F C0),   M = k F                      element_stress
 ///   v_c = sum_i w_i v_i / W,   omega = I^{-1} (L - W c x v_c),
