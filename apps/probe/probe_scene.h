@@ -38,9 +38,9 @@ struct DefaultSceneOptions {
   /// Poisson ratio; soft tissue is 0.45-0.49 and the model reads right at 0.45 (issue 27,
   /// docs/model.md section 5: its press within 1 % of a finite-strain reference on the same mesh,
   /// the cantilever within 5 % of beam theory). Still the paper's 0 by default: at 0.45 the CI soak
-  /// (tests/apps/probe_soak_slow_test.cpp) left the tissue 1.02 % of its largest displacement from
-  /// rest at the end (0.00 % at 0) and the memory +1.93 % after the warm-up (+0.25 % at 0): the
-  /// fast configuration's one iteration per step relaxes the volumetric modes slowly.
+  /// (tests/apps/probe_soak_slow_test.cpp) leaves the tissue at rest at the end (0.00 %, since the
+  /// fast configuration iterates while no tool touches) but the memory +1.13 % after the warm-up
+  /// (+0.38 % at 0; docs/scenes.md, "Which Poisson ratio").
   double poisson_ratio{0.0};
   double damping_ratio{0.2};
   std::filesystem::path surface;  ///< models: the .vtp surface written with the model (optional)

@@ -14,6 +14,7 @@
 #include "convert/phantom.h"
 #include "physics/calibration.h"
 #include "render/plot.h"
+#include "scene/fast_configuration.h"
 #include "scene/scene.h"
 #include "sim/simulation.h"
 #include "sim/time_step.h"
@@ -61,24 +62,34 @@ ScaleBenchSettings ScaleBenchSettings::standard() {
     return c;
   };
   const ScaleConfig implicit10 = implicit(10, 2, 0, "");
-  const ScaleConfig implicit20 = implicit(20, 1, 0, "the fast configuration below 20,000 nodes");
+  ScaleConfig implicit20 = implicit(20, 1, 0, "the fast configuration below 20,000 nodes");
   const ScaleConfig implicit30 = implicit(30, 1, 0, "");
   const ScaleConfig region15 = implicit(20, 1, 15, "");
   const ScaleConfig region30 = implicit(20, 1, 30, "");
   const ScaleConfig region30_30 = implicit(30, 1, 30, "");
   const ScaleConfig region45_30 = implicit(30, 1, 45, "");
   const ScaleConfig region60_30 = implicit(30, 1, 60, "the fast configuration of larger models");
+  // the fast configuration's iterations while no tool touches (fast_configuration.h)
+  const FastConfiguration fast = default_fast_configuration();
+  implicit20.free_iterations = fast.free_iterations;  // small models only (fast_configuration.h)
+  implicit20.free_tolerance_mm = fast.free_tolerance_mm;
   s.configs = {ref, floor, floor_scale, implicit10, implicit20, implicit30, region15, region30, region30_30, region45_30, region60_30};
   return s;
 }
 
 std::vector<ScaleConfig> ScaleBenchSettings::diagnostic_configs() {
+  std::vector<ScaleConfig> out;
+  ScaleConfig one;  // the fast configuration below 20,000 nodes without its iterations after a release
+  one.name = "implicit 20 ms, 1 iteration, one after a release too";
+  one.kind = IntegratorKind::implicit;
+  one.time_step_s = 0.02;
+  one.max_iterations = 1;
+  out.push_back(one);
   ScaleConfig c;
   c.kind = IntegratorKind::implicit;
   c.time_step_s = 0.03;
   c.max_iterations = 1;
   c.region_radius_mm = 30;
-  std::vector<ScaleConfig> out;
   c.name = "implicit 30 ms, 1 iteration, region 30 mm, far field held";  // the default
   c.region_far_field_degree = 0;
   out.push_back(c);
@@ -240,6 +251,8 @@ RunOutput run_one(const ScaleModelSpec& spec, const PreparedScene& prepared,
   ss.integrator.threads = threads;
   ss.integrator.max_iterations = cfg.max_iterations;
   ss.integrator.residual_tolerance_n = cfg.residual_tolerance_n;
+  ss.integrator.free_iterations = cfg.free_iterations;
+  ss.integrator.free_tolerance_mm = cfg.free_tolerance_mm;
   ss.integrator.region_radius_mm = cfg.region_radius_mm;
   ss.integrator.region_solve_far_field = cfg.region_solve_far_field;
   ss.integrator.region_refresh_on_move = cfg.region_refresh_on_move;

@@ -38,6 +38,8 @@ struct ScaleConfig {
   MassScaling mass;               ///< mass scaling (none: physical masses)
   int max_iterations{10};         ///< implicit
   double residual_tolerance_n{0}; ///< implicit
+  int free_iterations{0};         ///< implicit: IntegratorSettings::free_iterations (the fast configuration's: 8)
+  double free_tolerance_mm{0};    ///< implicit: IntegratorSettings::free_tolerance_mm
   double region_radius_mm{0};     ///< implicit: regional solves within this distance of the ball (0: everywhere)
   bool reference{false};          ///< the model's reference (the error of the others is against it)
   bool region_solve_far_field{false};  ///< diagnostic: IntegratorSettings::region_solve_far_field

@@ -8,6 +8,8 @@ FastConfiguration default_fast_configuration() {
   return {.kind = IntegratorKind::implicit,
           .time_step_s = kImplicitAutomaticTimeStepS,
           .iterations = 1,
+          .free_iterations = 8,
+          .free_tolerance_mm = 1e-6,
           .large_model_nodes = 20000,
           .large_model_time_step_s = 0.03,
           .large_model_region_radius_mm = 60.0,
@@ -20,6 +22,8 @@ IntegratorSettings FastConfiguration::integrator_for(int nodes) const {
   s.time_step_s = time_step_for(nodes);
   s.region_radius_mm = region_radius_for(nodes);
   s.max_iterations = iterations;
+  s.free_iterations = large(nodes) ? 0 : free_iterations;
+  s.free_tolerance_mm = large(nodes) ? 0.0 : free_tolerance_mm;
   s.threads = 1;
   return s;
 }

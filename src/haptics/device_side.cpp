@@ -109,6 +109,9 @@ DeviceOutput DeviceSide::output_snapshot(int i) const {
   return published_.at(std::size_t(i));
 }
 
+static_assert(PatchCompliance::kCacheColumns >= LocalContactSolver::kMaxNodes,
+              "the patch compliance's cache holds the columns of one local model");
+
 bool DeviceSide::use_integrator_compliance() const {
   // not with a volume term (Poisson > 0): the factor's projective volume matrix is far stiffer than
   // the converged step (docs/model.md 9.1); the patch compliance follows nu

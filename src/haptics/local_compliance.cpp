@@ -2,6 +2,9 @@
 
 #include <algorithm>
 #include <cmath>
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
 
 #include "base/error.h"
 #include "physics/elements.h"
@@ -64,24 +67,46 @@ bool PatchCompliance::build_patch(const Eigen::Vector3d& centre, double radius_m
     }
   const int np = int(patch_nodes_.size());
   // the patch's block of A_T: the nodes beyond it are held
-  std::vector<Eigen::Triplet<double>> trip;
+  trip_.clear();
   for (int k = 0; k < np; ++k) {
     const int i = patch_nodes_[std::size_t(k)];
     for (Eigen::SparseMatrix<double>::InnerIterator it(a_, i); it; ++it) {
       const int j = patch_index_[std::size_t(it.row())];
-      if (j >= 0) trip.emplace_back(j, k, it.value());
+      if (j >= 0) trip_.emplace_back(j, k, it.value());
     }
   }
-  SparseFactor::Matrix a(np, np);
-  a.setFromTriplets(trip.begin(), trip.end());
-  has_patch_ = np > 0 && factor_.compute(a);
+  patch_matrix_.resize(np, np);
+  patch_matrix_.setFromTriplets(trip_.begin(), trip_.end());
+  has_patch_ = np > 0 && factor_.compute(patch_matrix_);
+#if defined(__GLIBC__)
+  // the old factor and the factorisation's work space (megabytes, another size each patch) were
+  // freed into the heap, which glibc keeps: without this the resident memory climbs with the
+  // patches visited though the live heap stays the same (issue 27: +2.5 MB over 200 patches of
+  // the soak's organ, probe_release_slow_test's PatchMemory; with it, the live patch's size)
+  malloc_trim(0);
+#endif
   centre_ = centre;
   radius_ = radius_mm;
   column_slot_.assign(std::size_t(np), -1);
-  columns_.resize(np, 0);
+  // the columns' buffer grows only for a patch larger than any before (bounded by the model)
+  const std::size_t need = std::size_t(np) * std::size_t(kCacheColumns);
+  if (columns_.size() < need) {
+    columns_.clear();
+    columns_.shrink_to_fit();
+    columns_.resize(need);
+  }
+  slot_column_.reserve(std::size_t(kCacheColumns));
+  slot_column_.clear();
   used_ = 0;
   ++refactors_;
   return has_patch_;
+}
+
+std::size_t PatchCompliance::cache_bytes() const {
+  return columns_.capacity() * sizeof(double) + (column_slot_.capacity() + slot_column_.capacity()) * sizeof(int) +
+         trip_.capacity() * sizeof(Eigen::Triplet<double>) +
+         std::size_t(patch_matrix_.data().allocatedSize()) * (sizeof(double) + sizeof(int)) +
+         std::size_t(patch_matrix_.outerSize() + 1) * sizeof(int);
 }
 
 bool PatchCompliance::compute(const std::vector<std::int32_t>& nodes, double radius_mm, Eigen::MatrixXd& g) {
@@ -102,20 +127,35 @@ bool PatchCompliance::compute(const std::vector<std::int32_t>& nodes, double rad
     keep = patch_index_[std::size_t(nodes[std::size_t(a)])] >= 0 &&
            (rest.col(nodes[std::size_t(a)]) - centre_).norm() <= 0.75 * radius_mm;
   if (!keep && !build_patch(centre, radius_mm)) return false;
-  // columns of the nodes (cached per patch)
+  // columns of the nodes (cached per patch, at most kCacheColumns: when this contact's new ones
+  // do not fit, the cache starts over with this contact's)
+  if (m > kCacheColumns) return false;
+  int missing = 0;
   for (int a = 0; a < m; ++a) {
     const int k = patch_index_[std::size_t(nodes[std::size_t(a)])];
     if (k < 0) return false;  // outside even a fresh patch (a contact wider than the radius)
+    missing += column_slot_[std::size_t(k)] < 0 ? 1 : 0;
+  }
+  if (used_ + missing > kCacheColumns) {
+    for (const int k : slot_column_) column_slot_[std::size_t(k)] = -1;
+    slot_column_.clear();
+    used_ = 0;
+    ++cache_restarts_;
+  }
+  const std::size_t np = patch_nodes_.size();
+  for (int a = 0; a < m; ++a) {
+    const int k = patch_index_[std::size_t(nodes[std::size_t(a)])];
     if (column_slot_[std::size_t(k)] < 0) {
-      if (used_ == columns_.cols()) columns_.conservativeResize(Eigen::NoChange, std::max<Eigen::Index>(16, 2 * used_));
-      factor_.solve_unit(k, columns_.col(used_).data());
+      factor_.solve_unit(k, columns_.data() + std::size_t(used_) * np);
       column_slot_[std::size_t(k)] = used_++;
+      slot_column_.push_back(k);
       ++columns_solved_;
     }
   }
   for (int a = 0; a < m; ++a) {
-    const int slot_a = column_slot_[std::size_t(patch_index_[std::size_t(nodes[std::size_t(a)])])];
-    for (int b = 0; b < m; ++b) g(b, a) = columns_(patch_index_[std::size_t(nodes[std::size_t(b)])], slot_a);
+    const double* col =
+        columns_.data() + std::size_t(column_slot_[std::size_t(patch_index_[std::size_t(nodes[std::size_t(a)])])]) * np;
+    for (int b = 0; b < m; ++b) g(b, a) = col[patch_index_[std::size_t(nodes[std::size_t(b)])]];
   }
   g = 0.5 * (g + g.transpose()).eval();  // symmetric to the last bit
   return true;

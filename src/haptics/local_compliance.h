@@ -15,6 +15,12 @@
 /// radius beyond the model gives the whole model. The factor and its columns are kept while the
 /// contact stays within a quarter of the radius of the patch's centre.
 ///
+/// Memory (issue 27): the solved columns live in one buffer of kCacheColumns columns of the
+/// largest patch seen, reused by every patch (a patch that needs more columns than are free
+/// starts the cache over), and the patch's assembly reuses its triplets and matrix; so the
+/// cache's bytes stop growing once the largest patch has been seen, and a session that moves
+/// the tool over the organ for minutes does not leave the heap larger with each new patch.
+///
 /// The Poisson ratio (docs/model.md 9.1): A_T is one scalar matrix for x, y and z, so it cannot
 /// hold the volume term as the model does (its projective matrix k_v g g^T penalises every
 /// component of the gradient with k_v = 3 lambda V, not only the trace: 8.0x the converged
@@ -43,6 +49,10 @@ namespace vx {
 
 class PatchCompliance {
  public:
+  /// Solved columns kept per patch: at least the candidates one local model holds
+  /// (LocalContactSolver::kMaxNodes, checked where both are used: device_side.cpp).
+  static constexpr int kCacheColumns = 256;
+
   /// Assembles A_T over the whole model (not factored). `node_fixed`: nodes held (never in a patch).
   void init(std::shared_ptr<const PhysicsModel> physics, const std::vector<std::uint8_t>& node_fixed, double horizon_s);
   [[nodiscard]] bool ready() const { return bool(physics_); }
@@ -55,6 +65,15 @@ class PatchCompliance {
   [[nodiscard]] int patch_nodes() const { return int(patch_nodes_.size()); }
   [[nodiscard]] std::int64_t refactors() const { return refactors_; }
   [[nodiscard]] std::int64_t columns_solved() const { return columns_solved_; }
+  /// Columns in the cache now (<= kCacheColumns), and the times it was started over in a patch.
+  [[nodiscard]] int cached_columns() const { return used_; }
+  [[nodiscard]] std::int64_t cache_restarts() const { return cache_restarts_; }
+  /// Bytes the cache's buffers hold (columns, slots, the patch's numbering and assembly; not the
+  /// factor, which SparseFactor::stored_bytes() measures): kCacheColumns x 8 bytes per node of
+  /// the largest patch seen, plus its assembly.
+  [[nodiscard]] std::size_t cache_bytes() const;
+  /// The patch's factor (its size and bytes).
+  [[nodiscard]] const SparseFactor& factor() const { return factor_; }
   [[nodiscard]] double horizon_s() const { return horizon_; }
 
  private:
@@ -72,8 +91,15 @@ class PatchCompliance {
   std::vector<int> patch_nodes_;  ///< patch index -> node
   SparseFactor factor_;
   std::vector<int> column_slot_;  ///< patch index -> column slot or -1
-  Eigen::MatrixXd columns_;       ///< patch nodes x slots
+  std::vector<int> slot_column_;  ///< column slot -> patch index (to start the cache over)
+  /// kCacheColumns columns of patch_nodes() values each (column-major), sized for the largest
+  /// patch seen and never shrunk: patches reuse it
+  std::vector<double> columns_;
   int used_{0};
+  std::int64_t cache_restarts_{0};
+  // the patch's assembly, reused
+  std::vector<Eigen::Triplet<double>> trip_;
+  SparseFactor::Matrix patch_matrix_;
   std::int64_t refactors_{0};
   std::int64_t columns_solved_{0};
 };

@@ -6,6 +6,7 @@
 
 #include <Eigen/Core>
 #include <cstdint>
+#include <limits>
 #include <vector>
 
 namespace vx {
@@ -37,6 +38,9 @@ class ContactProvider {
   /// Where the tools are (mm): the centres of the implicit integrator's regional solves
   /// (IntegratorSettings::region_radius_mm). None by default.
   virtual void focus_points(std::vector<Eigen::Vector3d>& out) { out.clear(); }
+  /// The owners below this are tools (probes), the others walls: a solve goes on iterating
+  /// only while no tool touches (ProjectiveIterations::free_max_iterations). Every owner by default.
+  [[nodiscard]] virtual int tool_owners() const { return std::numeric_limits<int>::max(); }
 };
 
 }  // namespace vx

@@ -343,6 +343,8 @@ class ImplicitIntegrator final : public SteppingIntegrator {
     its.max_iterations = settings_.max_iterations;
     its.tolerance_mm = settings_.tolerance_mm;
     its.residual_tolerance_n = settings_.residual_tolerance_n;
+    its.free_max_iterations = settings_.free_iterations;
+    its.free_tolerance_mm = settings_.free_tolerance_mm;
     its.rotation = settings_.rotation;
     its.threads = threads;
     solver.solve(s, x, its, contact_, rep);
@@ -593,6 +595,8 @@ void check_settings(const IntegratorSettings& s) {
   if (s.max_iterations < 1) err << "max_iterations " << s.max_iterations << " must be >= 1; ";
   if (!(s.tolerance_mm >= 0)) err << "tolerance " << s.tolerance_mm << " mm must be >= 0; ";
   if (!(s.region_radius_mm >= 0)) err << "region radius " << s.region_radius_mm << " mm must be >= 0; ";
+  if (s.free_iterations < 0) err << "free_iterations " << s.free_iterations << " must be >= 0; ";
+  if (!(s.free_tolerance_mm >= 0)) err << "free tolerance " << s.free_tolerance_mm << " mm must be >= 0; ";
   if (!(s.residual_tolerance_n >= 0)) err << "residual tolerance " << s.residual_tolerance_n << " N must be >= 0; ";
   if (!(s.region_rest_fraction >= 0) || !std::isfinite(s.region_rest_fraction))
     err << "region rest fraction " << s.region_rest_fraction << " must be >= 0; ";

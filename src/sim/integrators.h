@@ -59,6 +59,12 @@ struct IntegratorSettings {
   /// > 0: stop early once the largest force imbalance on a free node is below this, N
   /// (ProjectiveIterations::residual_tolerance_n)
   double residual_tolerance_n{0.0};
+  /// > max_iterations: a step that leaves no tool touching the tissue goes on iterating, up to
+  /// this many iterations, while a node moved more than free_tolerance_mm in the last one
+  /// (ProjectiveIterations::free_max_iterations): the fast configuration's tissue let go comes
+  /// back to rest at Poisson 0.45 (docs/model.md section 5, "The return to rest"). 0: off.
+  int free_iterations{0};
+  double free_tolerance_mm{0.0};
   /// > 0 (implicit, with a contact provider that names its tools): regional solves, the
   /// rotation fits and the global solve only within this distance of a tool, mm
   /// (ProjectiveSolver::set_region; the rest sleeps). The region follows a tool once it has

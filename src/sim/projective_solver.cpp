@@ -254,7 +254,17 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
   ElementPassStats last;
   ContactSolveCounters counters;
   int it = 0;
-  for (; it < its.max_iterations; ++it) {
+  // past max_iterations only while no tool touches and the tissue still moves (free_max_iterations)
+  const auto tool_touches = [&] {
+    if (!contact) return false;
+    const int tools = contact->tool_owners();
+    for (const ContactConstraint& c : contact_set_.active())
+      if (c.owner < tools) return true;
+    return false;
+  };
+  const int cap = std::max(its.max_iterations, its.free_max_iterations);
+  for (; it < cap; ++it) {
+    if (it >= its.max_iterations && (max_update <= its.free_tolerance_mm || tool_touches())) break;
     // local: rotation fits and targets; global: right-hand side, solve, contact
     last = local_step(s, x, its.rotation, threads);
     gather_rhs(threads);

@@ -62,6 +62,14 @@ struct ProjectiveIterations {
   /// rhs(x_{k-1}) after the global solve). Checked before each global solve after the first, so
   /// a step costs at least two local steps and one solve.
   double residual_tolerance_n{0.0};
+  /// > max_iterations: a solve whose last iteration left no tool in contact (no active
+  /// constraint of a tool: ContactProvider::tool_owners; walls do not count) goes on iterating,
+  /// up to this many iterations in all, while a node moved more than `free_tolerance_mm` in the
+  /// last one. A tissue let go then relaxes at about the converged step's rate, and the steps in
+  /// contact cost what max_iterations makes them cost (docs/model.md section 5, "The return to
+  /// rest"). Checked after the global step: a step that stops costs no extra local step.
+  int free_max_iterations{0};
+  double free_tolerance_mm{0.0};
   RotationFitSettings rotation;
   int threads{0};              ///< 0: OpenMP default
 };

@@ -167,6 +167,7 @@ StepStatus Simulation::step() {
     counters_.factor_s += report.factor_s;
   }
   counters_.steps_at_rest += report.asleep ? 1 : 0;
+  counters_.iterations += report.iterations;
   if (report.fell_asleep != SleepCause::none) {
     ++counters_.sleeps;
     counters_.last_sleep_s = state_.time_s;

@@ -93,6 +93,8 @@ struct SimulationCounters {
   std::int64_t factorisations{0};
   std::int64_t factors_from_cache{0};
   double factor_s{0.0};
+  /// implicit: local/global iterations (global solves) summed over the steps
+  std::int64_t iterations{0};
 };
 
 /// The state at one step as a display draws it (Simulation::copy_frame).
@@ -206,6 +208,7 @@ class Simulation {
     explicit ImplicitContact(Simulation& sim) : sim_(sim) {}
     void collect(const Eigen::Matrix3Xd& x, bool near, std::vector<ContactConstraint>& out) override;
     void focus_points(std::vector<Eigen::Vector3d>& out) override;
+    [[nodiscard]] int tool_owners() const override { return sim_.num_probes(); }  // then the walls
 
    private:
     Simulation& sim_;

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Eigenvalues>
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <optional>
@@ -474,6 +475,87 @@ TEST(LocalContactModel, PatchComplianceFollowsThePoissonRatio) {
   EXPECT_GT(ratio[1], 0.9);  // never softer than the tissue (docs/model.md 9.1: a stiffer model stays passive)
   EXPECT_LT(ratio[1], 1.7);
   EXPECT_NEAR(ratio[1] / ratio[0], 1.0, 0.2);
+}
+
+// The patch compliance's memory is bounded (issue 27: the CI soak's resident memory grew +1.9 %
+// at Poisson 0.45, where the local models use the patch): 300 contacts of 1 to 256 nodes at random
+// places of a 0.45 block, a new patch for most. The cache never holds more than kCacheColumns
+// columns, its bytes are kCacheColumns x 8 per node of the largest patch seen plus the patch's
+// assembly, and every compliance equals a fresh patch's (the columns reused and the cache started
+// over correctly).
+TEST(LocalContactModel, PatchComplianceCacheIsBoundedAndReusedAcrossPatches) {
+  const auto phys = block(0.0, 5.0, 0.45);
+  const int nn = phys->num_nodes();
+  std::vector<std::uint8_t> fixed(std::size_t(nn), 0);
+  const Eigen::Matrix3Xd& rest = phys->model->rest_positions;
+  for (int i = 0; i < nn; ++i) fixed[std::size_t(i)] = rest(2, i) < 0.5 ? 1 : 0;
+  PatchCompliance pc;
+  pc.init(phys, fixed, 0.1);
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> where(2.0, 14.0);
+  Eigen::MatrixXd g, fresh_g;
+  int largest_patch = 0, checked = 0;
+  std::size_t bytes_at_largest = 0;
+  std::int64_t assembly_limit = 0;
+  for (int move = 0; move < 300; ++move) {
+    // the m free nodes nearest a random point on or in the block (m up to a local model's 256)
+    const Eigen::Vector3d c(where(rng), where(rng), 8.0 * where(rng) / 14.0);
+    const int m = move % 10 == 9 ? 256 : std::uniform_int_distribution<int>(1, 60)(rng);
+    std::vector<std::pair<double, std::int32_t>> near;
+    for (int i = 0; i < nn; ++i)
+      if (!fixed[std::size_t(i)]) near.push_back({(rest.col(i) - c).norm(), i});
+    std::partial_sort(near.begin(), near.begin() + m, near.end());
+    std::vector<std::int32_t> nodes;
+    for (int i = 0; i < m; ++i) nodes.push_back(near[std::size_t(i)].second);
+    const double radius = m > 60 ? 12.0 : move % 3 == 0 ? 6.0 : 9.0;
+    const std::int64_t refactors = pc.refactors();
+    ASSERT_TRUE(pc.compute(nodes, radius, g));
+    ASSERT_LE(pc.cached_columns(), PatchCompliance::kCacheColumns);
+    if (pc.patch_nodes() > largest_patch) {
+      largest_patch = pc.patch_nodes();
+      bytes_at_largest = pc.cache_bytes();
+    }
+    // columns, slots, and the patch's assembly: at most 64 neighbours per node (a node of a large
+    // element couples to more than the 27 of a voxel lattice), 16-byte triplets
+    // and 12-byte entries of the matrix (both its triangles)
+    assembly_limit = std::int64_t(largest_patch) * (PatchCompliance::kCacheColumns * 8 + 2 * 4 + 64 * (16 + 12) + 4);
+    EXPECT_LE(std::int64_t(pc.cache_bytes()), assembly_limit) << "move " << move;
+    if (move % 3 == 0 && pc.refactors() > refactors) {  // a new patch: the same as a fresh one's
+      PatchCompliance fresh;
+      fresh.init(phys, fixed, 0.1);
+      ASSERT_TRUE(fresh.compute(nodes, radius, fresh_g));
+      EXPECT_LT((g - fresh_g).norm(), 1e-12 * fresh_g.norm()) << "move " << move;
+      ++checked;
+    }
+  }
+  {  // two contacts of 200 nodes in one patch: the second's columns do not fit beside the first's
+    std::vector<std::pair<double, std::int32_t>> near;
+    for (int i = 0; i < nn; ++i)
+      if (!fixed[std::size_t(i)]) near.push_back({(rest.col(i) - Eigen::Vector3d(8, 8, 8)).norm(), i});
+    std::sort(near.begin(), near.end());
+    std::vector<std::int32_t> inner, ring;
+    for (int i = 0; i < 400; ++i) (i < 200 ? inner : ring).push_back(near[std::size_t(i)].second);
+    ASSERT_TRUE(pc.compute(inner, 12.0, g));
+    const std::int64_t refactors = pc.refactors(), restarts = pc.cache_restarts();
+    ASSERT_TRUE(pc.compute(ring, 12.0, g));
+    EXPECT_EQ(pc.refactors(), refactors) << "the patch kept";
+    EXPECT_EQ(pc.cache_restarts(), restarts + 1);
+    EXPECT_EQ(pc.cached_columns(), 200);
+    PatchCompliance fresh;  // the same patch: the inner contact's centre
+    fresh.init(phys, fixed, 0.1);
+    ASSERT_TRUE(fresh.compute(inner, 12.0, fresh_g));
+    ASSERT_TRUE(fresh.compute(ring, 12.0, fresh_g));
+    EXPECT_LT((g - fresh_g).norm(), 1e-12 * fresh_g.norm());
+  }
+  std::printf(
+      "largest patch %d nodes, cache %.2f MB (limit %.2f MB), %lld refactors, %lld columns solved, "
+      "%lld restarts, %d compliances checked against a fresh patch\n",
+      largest_patch, 1e-6 * double(pc.cache_bytes()), 1e-6 * double(assembly_limit), (long long)pc.refactors(),
+      (long long)pc.columns_solved(), (long long)pc.cache_restarts(), checked);
+  EXPECT_GT(pc.refactors(), 100);
+  EXPECT_GT(checked, 10);
+  // the buffers stop growing once the largest patch was seen
+  EXPECT_LE(pc.cache_bytes(), std::max(bytes_at_largest, std::size_t(assembly_limit)));
 }
 
 // With symplectic Euler the node impulses jitter from step to step: the anchor is their
