@@ -201,6 +201,10 @@ TEST(Scene, LargeModelsGetRegionalSolvesAtLongerSteps) {
   EXPECT_DOUBLE_EQ(p.settings.integrator.time_step_s, 0.03);
   EXPECT_DOUBLE_EQ(p.settings.integrator.region_radius_mm, fast.large_model_region_radius_mm);
   EXPECT_DOUBLE_EQ(p.settings.integrator.region_radius_mm, 60.0);
+  // no iterations past the first after a release on a large model (each would be a regional or
+  // full solve): its let-go tissue is brought to rest by the idle refresh
+  EXPECT_EQ(p.settings.integrator.free_iterations, 0);
+  EXPECT_EQ(fast.integrator_for(p.model->num_nodes()).free_iterations, 0);
   // an explicit integrator block keeps its own choices
   j["integrator"] = {{"type", "implicit"}};
   const PreparedScene q = prepare_scene(parse_scene(j, ".", "t"));
@@ -212,6 +216,11 @@ TEST(Scene, LargeModelsGetRegionalSolvesAtLongerSteps) {
   const PreparedScene small = prepare_scene(parse_scene(j, ".", "t"));
   EXPECT_LT(small.model->num_nodes(), fast.large_model_nodes);
   EXPECT_DOUBLE_EQ(small.settings.integrator.region_radius_mm, 0.0);
+  // and iterates up to 8 times in a step that leaves no tool touching (the return to rest)
+  EXPECT_EQ(small.settings.integrator.free_iterations, 8);
+  EXPECT_EQ(small.settings.integrator.free_iterations, fast.free_iterations);
+  EXPECT_DOUBLE_EQ(small.settings.integrator.free_tolerance_mm, 1e-6);
+  EXPECT_EQ(fast.integrator_for(small.model->num_nodes()).free_iterations, 8);
 }
 
 /// docs/model.md section 7: a 64 x 64 x 128 mm column (4 mm voxels) pressed at its top with regional
