@@ -84,7 +84,7 @@ TEST(CliDeterminismSlow, FoldedOrganIsBitIdenticalOnOneAndTwoThreads) {
     EXPECT_GE(s.at("nodes").get<int>(), 20000);
     EXPECT_TRUE(s.at("configuration").at("default").get<bool>());
     EXPECT_EQ(s.at("configuration").at("integrator").get<std::string>(), "implicit");
-    EXPECT_DOUBLE_EQ(s.at("configuration").at("region_radius_mm").get<double>(), 30.0);
+    EXPECT_DOUBLE_EQ(s.at("configuration").at("region_radius_mm").get<double>(), 60.0);
     EXPECT_GT(s.at("skipped").at("sleeping_node_solves").get<std::int64_t>(), 0);  // the region was used
     EXPECT_GT(s.at("max_force_n").get<double>(), 0.01);                            // the ball pressed
   }
