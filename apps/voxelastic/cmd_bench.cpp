@@ -16,9 +16,9 @@
 #include "bench/haptic_accuracy.h"
 #include "bench/scale_bench.h"
 #include "commands.h"
-#include "util/log.h"
 #include "render/plot.h"
 #include "util/atomic_file.h"
+#include "util/log.h"
 
 namespace vx::cli {
 namespace {
@@ -60,8 +60,8 @@ void run_haptic_command(const BenchOptions& o) {
   const std::string table = haptic_accuracy_table(res);
   write_text_atomically(dir / "haptic_accuracy.md", table);
   plot_haptic_accuracy(res, dir / "haptic_accuracy.png");
-  fmt::print("{}\nhaptic accuracy took {:.0f} s; wrote haptic_accuracy.md, haptic_accuracy.png to {}\n", table, res.wall_s,
-             dir.string());
+  fmt::print("{}\nhaptic accuracy took {:.0f} s; wrote haptic_accuracy.md, haptic_accuracy.png to {}\n", table,
+             res.wall_s, dir.string());
 }
 
 /// `bench --scale`: the real-time factor of each configuration on models of growing size
@@ -184,8 +184,10 @@ void run_bench_command(const BenchOptions& o) {
   if (o.quiet) log::set_level(std::max(log::level(), log::Level::warn));
   if (!o.quiet) {
     set.log = [](const std::string& line) { fmt::print(stderr, "{}\n", line); };
-    fmt::print(stderr, "voxelastic bench{}: {} physics thread(s); step sizes {}; palpation sizes {}, reference n = {}\n",
-               set.quick ? " --quick" : "", set.threads, set.run_step ? fmt::format("{}", fmt::join(set.step_sizes, ", ")) : "-",
+    fmt::print(stderr,
+               "voxelastic bench{}: {} physics thread(s); step sizes {}; palpation sizes {}, reference n = {}\n",
+               set.quick ? " --quick" : "", set.threads,
+               set.run_step ? fmt::format("{}", fmt::join(set.step_sizes, ", ")) : "-",
                set.run_palpation ? fmt::format("{}", fmt::join(set.sizes, ", ")) : "-", set.reference_size);
   }
   const BenchResult res = run_bench(set);
@@ -199,9 +201,10 @@ void run_bench_command(const BenchOptions& o) {
       fmt::print("One step on sphere phantoms, {} models ({} thread(s)):\n{}", to_string(r), set.threads,
                  format_step_benchmark(rows));
     }
-    fmt::print("Explicit step time against n, log-log slope: gradational {:.2f}, uniform {:.2f}, voxel-level {:.2f} "
-               "(paper: ~2 against ~3)\n",
-               res.step_slope_gradational, res.step_slope_uniform, res.step_slope_voxel);
+    fmt::print(
+        "Explicit step time against n, log-log slope: gradational {:.2f}, uniform {:.2f}, voxel-level {:.2f} "
+        "(paper: ~2 against ~3)\n",
+        res.step_slope_gradational, res.step_slope_uniform, res.step_slope_voxel);
   }
   if (set.run_palpation) {
     int unstable = 0, skipped = 0;
@@ -209,9 +212,10 @@ void run_bench_command(const BenchOptions& o) {
       unstable += r.status == BenchStatus::unstable;
       skipped += r.status == BenchStatus::skipped;
     }
-    fmt::print("Palpation: {} runs ({} unstable, {} skipped), reference voxel-level n = {}: peak force {:.4g} N; Pareto "
-               "front of {} runs\n",
-               res.rows.size(), unstable, skipped, res.reference.size, res.reference.peak_force_n, res.pareto.size());
+    fmt::print(
+        "Palpation: {} runs ({} unstable, {} skipped), reference voxel-level n = {}: peak force {:.4g} N; Pareto "
+        "front of {} runs\n",
+        res.rows.size(), unstable, skipped, res.reference.size, res.reference.peak_force_n, res.pareto.size());
     fmt::print("{}\n", best_statement(res));
   }
   for (const auto& n : res.notes) fmt::print("note: {}\n", n);
@@ -225,7 +229,8 @@ void add_bench_command(CLI::App& app) {
   CLI::App* sub = app.add_subcommand(
       "bench",
       "Benchmarks (docs/bench.md): the cost of one step on sphere phantoms of growing size for each resolution and "
-      "integrator (DIR/step.csv, step.png), and run time against error on a palpation scene (DIR/bench.csv, bench.json, "
+      "integrator (DIR/step.csv, step.png), and run time against error on a palpation scene (DIR/bench.csv, "
+      "bench.json, "
       "bench.md, bench_error.png, bench_cost.png, bench_curves.png) with the best configuration for real time.");
   sub->add_flag("--quick", opts->quick, "the small suite (about 2 minutes on 2 cores; the full one 13 to 17)");
   sub->add_option("-o,--out", opts->out, "output folder (created if missing)")->capture_default_str();
@@ -258,9 +263,10 @@ void add_bench_command(CLI::App& app) {
                   "local contact model's force at 1 kHz with the physics at 1000, 200, 60 and 30 Hz against the "
                   "full-rate physics (DIR/haptic_accuracy.md, haptic_accuracy.png)")
       ->check(CLI::ExistingFile);
-  sub->add_flag("--scale", opts->scale,
-                "instead: the real-time factor and force error of each configuration on sphere phantoms 32 to 256 and the "
-                "organ and folded phantoms, 1 and 2 threads (DIR/scale.csv, scale.md, scale.png; docs/bench.md)");
+  sub->add_flag(
+      "--scale", opts->scale,
+      "instead: the real-time factor and force error of each configuration on sphere phantoms 32 to 256 and the "
+      "organ and folded phantoms, 1 and 2 threads (DIR/scale.csv, scale.md, scale.png; docs/bench.md)");
   sub->add_option("--poisson", opts->poisson,
                   "--scale: the material's Poisson ratio (default 0, the paper's model; docs/bench.md)")
       ->check(CLI::Range(0.0, 0.499));

@@ -73,7 +73,8 @@ ScaleBenchSettings ScaleBenchSettings::standard() {
   const FastConfiguration fast = default_fast_configuration();
   implicit20.free_iterations = fast.free_iterations;  // small models only (fast_configuration.h)
   implicit20.free_tolerance_mm = fast.free_tolerance_mm;
-  s.configs = {ref, floor, floor_scale, implicit10, implicit20, implicit30, region15, region30, region30_30, region45_30, region60_30};
+  s.configs = {ref,      floor,    floor_scale, implicit10,  implicit20, implicit30,
+               region15, region30, region30_30, region45_30, region60_30};
   return s;
 }
 
@@ -302,7 +303,8 @@ RunOutput run_one(const ScaleModelSpec& spec, const PreparedScene& prepared,
   row.real_time_factor = row.wall_s > 0 ? timed_sim / row.wall_s : 0.0;
   for (double f : out.f) row.peak_force_n = std::max(row.peak_force_n, f);
   if (!row.complete && row.stable)
-    row.note = fmt::format("timed over the first {:.3g} s of simulated time ({:.0f} s of wall time)", row.sim_s, row.wall_s);
+    row.note =
+        fmt::format("timed over the first {:.3g} s of simulated time ({:.0f} s of wall time)", row.sim_s, row.wall_s);
   return out;
 }
 
@@ -441,11 +443,13 @@ std::vector<std::string> write_scale_report(const ScaleBenchResult& r, const fs:
     csv << "model,config,threads,elements,nodes,vertex_entries,time_step_s,steps,sim_s,wall_s,setup_s,step_ms,"
            "steps_per_sim_s,real_time_factor,rms_error_rel,peak_force_n,added_mass_rel,complete,stable,note\n";
     for (const auto& x : r.rows)
-      csv << fmt::format("\"{}\",\"{}\",{},{},{},{},{:.6g},{},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{},{:.6g},{:.6g},{},{},\"{}\"\n",
-                         x.model, x.config, x.threads, x.elements, x.nodes, x.vertex_entries, x.time_step_s, x.steps,
-                         x.sim_s, x.wall_s, x.setup_s, x.step_ms, x.steps_per_sim_s, x.real_time_factor,
-                         x.rms_error_rel >= 0 ? fmt::format("{:.6g}", x.rms_error_rel) : "", x.peak_force_n,
-                         x.added_mass_rel, x.complete ? 1 : 0, x.stable ? 1 : 0, x.note);
+      csv << fmt::format(
+          "\"{}\",\"{}\",{},{},{},{},{:.6g},{},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{},{:.6g},{:.6g},{},{},\"{}"
+          "\"\n",
+          x.model, x.config, x.threads, x.elements, x.nodes, x.vertex_entries, x.time_step_s, x.steps, x.sim_s,
+          x.wall_s, x.setup_s, x.step_ms, x.steps_per_sim_s, x.real_time_factor,
+          x.rms_error_rel >= 0 ? fmt::format("{:.6g}", x.rms_error_rel) : "", x.peak_force_n, x.added_mass_rel,
+          x.complete ? 1 : 0, x.stable ? 1 : 0, x.note);
     write_text_atomically(dir / "scale.csv", csv.str());
     written.push_back("scale.csv");
   }

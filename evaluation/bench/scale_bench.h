@@ -34,14 +34,14 @@ namespace vx {
 struct ScaleConfig {
   std::string name;
   IntegratorKind kind{IntegratorKind::symplectic_euler};
-  double time_step_s{0.0};        ///< 0: automatic (time_step.h) for the (scaled) model
-  MassScaling mass;               ///< mass scaling (none: physical masses)
-  int max_iterations{10};         ///< implicit
-  double residual_tolerance_n{0}; ///< implicit
-  int free_iterations{0};         ///< implicit: IntegratorSettings::free_iterations (the fast configuration's: 8)
-  double free_tolerance_mm{0};    ///< implicit: IntegratorSettings::free_tolerance_mm
-  double region_radius_mm{0};     ///< implicit: regional solves within this distance of the ball (0: everywhere)
-  bool reference{false};          ///< the model's reference (the error of the others is against it)
+  double time_step_s{0.0};             ///< 0: automatic (time_step.h) for the (scaled) model
+  MassScaling mass;                    ///< mass scaling (none: physical masses)
+  int max_iterations{10};              ///< implicit
+  double residual_tolerance_n{0};      ///< implicit
+  int free_iterations{0};              ///< implicit: IntegratorSettings::free_iterations (the fast configuration's: 8)
+  double free_tolerance_mm{0};         ///< implicit: IntegratorSettings::free_tolerance_mm
+  double region_radius_mm{0};          ///< implicit: regional solves within this distance of the ball (0: everywhere)
+  bool reference{false};               ///< the model's reference (the error of the others is against it)
   bool region_solve_far_field{false};  ///< diagnostic: IntegratorSettings::region_solve_far_field
   bool region_refresh_on_move{true};   ///< diagnostic: IntegratorSettings::region_refresh_on_move
   int region_far_field_degree{0};      ///< IntegratorSettings::region_far_field_degree (0: held)
@@ -86,10 +86,10 @@ struct ScaleBenchSettings {
   double slide_mm{10.0};
   double press_s{1.0};
   double slide_s{1.0};
-  double max_wall_s{120.0};        ///< per run (the reference runs to the end regardless)
+  double max_wall_s{120.0};  ///< per run (the reference runs to the end regardless)
   double reference_max_wall_s{1800.0};
   double force_interval_s{0.01};
-  std::string element;             ///< "paper" or "hourglass" (docs/model.md section 5); empty: the default
+  std::string element;  ///< "paper" or "hourglass" (docs/model.md section 5); empty: the default
   /// Not empty: every complete run on the most threads writes its force curve there as it ends
   /// (`<model>__<configuration>.csv`: t_s, force_n, the ball's +z force, mean per interval), so
   /// a curve outlives a suite that is stopped and another binary's run can be judged against it.
@@ -119,13 +119,13 @@ struct ScaleRow {
   double time_step_s{0.0};
   std::int64_t steps{0};
   double sim_s{0.0}, wall_s{0.0}, setup_s{0.0};
-  double step_ms{0.0};            ///< wall time per step (after the first)
+  double step_ms{0.0};  ///< wall time per step (after the first)
   double steps_per_sim_s{0.0};
-  double real_time_factor{0.0};   ///< simulated / wall time (>= 1: real time)
-  double rms_error_rel{-1.0};     ///< against the reference, fraction of its peak (-1: not measured)
+  double real_time_factor{0.0};  ///< simulated / wall time (>= 1: real time)
+  double rms_error_rel{-1.0};    ///< against the reference, fraction of its peak (-1: not measured)
   double peak_force_n{0.0};
-  double added_mass_rel{0.0};     ///< mass scaling: added / physical mass
-  bool complete{false};           ///< ran the whole press-and-slide
+  double added_mass_rel{0.0};  ///< mass scaling: added / physical mass
+  bool complete{false};        ///< ran the whole press-and-slide
   bool stable{true};
   std::string note;
 };

@@ -62,7 +62,8 @@ std::optional<Volume> build_object(const Scene& scene, PreparedScene& out) {
       g.origin_mm = obj.box_min_mm + Eigen::Vector3d::Constant(0.5 * obj.box_voxel_mm);
       out.grid = VoxelGrid(g);
       std::fill(out.grid.data().begin(), out.grid.data().end(), std::uint8_t(1));
-      out.log.push_back(fmt::format("box {}x{}x{} voxels of {:g} mm", g.dims.x(), g.dims.y(), g.dims.z(), obj.box_voxel_mm));
+      out.log.push_back(
+          fmt::format("box {}x{}x{} voxels of {:g} mm", g.dims.x(), g.dims.y(), g.dims.z(), obj.box_voxel_mm));
       break;
     }
   }
@@ -83,11 +84,12 @@ std::optional<Volume> build_object(const Scene& scene, PreparedScene& out) {
   const Model& m = *out.model;
   out.bounds_min_mm = m.rest_positions.rowwise().minCoeff();
   out.bounds_max_mm = m.rest_positions.rowwise().maxCoeff();
-  out.log.push_back(fmt::format("{} model: {} elements, {} nodes, {} vertex entries; bounds [{:.4g}, {:.4g}, {:.4g}] .. "
-                                "[{:.4g}, {:.4g}, {:.4g}] mm",
-                                to_string(m.layout), m.num_elements(), m.num_nodes(), m.num_vertex_entries(),
-                                out.bounds_min_mm.x(), out.bounds_min_mm.y(), out.bounds_min_mm.z(),
-                                out.bounds_max_mm.x(), out.bounds_max_mm.y(), out.bounds_max_mm.z()));
+  out.log.push_back(
+      fmt::format("{} model: {} elements, {} nodes, {} vertex entries; bounds [{:.4g}, {:.4g}, {:.4g}] .. "
+                  "[{:.4g}, {:.4g}, {:.4g}] mm",
+                  to_string(m.layout), m.num_elements(), m.num_nodes(), m.num_vertex_entries(), out.bounds_min_mm.x(),
+                  out.bounds_min_mm.y(), out.bounds_min_mm.z(), out.bounds_max_mm.x(), out.bounds_max_mm.y(),
+                  out.bounds_max_mm.z()));
   return volume;
 }
 
@@ -100,10 +102,10 @@ void calibrate_material(const Scene& scene, const Volume* volume, const PrepareS
   calibration.mass_scaling = scene.material.mass_scaling;
   out.physics = make_physics_model(out.model, scene.material.base, field, calibration, options.calibration_cache.get());
   if (scene.material.mass_scaling.active())
-    out.log.push_back(fmt::format("mass scaling: factor {:g}, floor for a {:.3g} ms step: {} nodes heavier, +{:.3g} % mass",
-                                  scene.material.mass_scaling.factor, 1e3 * scene.material.mass_scaling.time_step_s,
-                                  out.physics->scaled_nodes,
-                                  100.0 * out.physics->added_mass_kg / out.physics->total_mass_kg()));
+    out.log.push_back(
+        fmt::format("mass scaling: factor {:g}, floor for a {:.3g} ms step: {} nodes heavier, +{:.3g} % mass",
+                    scene.material.mass_scaling.factor, 1e3 * scene.material.mass_scaling.time_step_s,
+                    out.physics->scaled_nodes, 100.0 * out.physics->added_mass_kg / out.physics->total_mass_kg()));
   out.min_modulus_kpa = out.max_modulus_kpa = scene.material.base.youngs_modulus_kpa;
   if (!field.youngs_modulus_kpa.empty()) {
     const auto [lo, hi] = std::minmax_element(field.youngs_modulus_kpa.begin(), field.youngs_modulus_kpa.end());
@@ -112,14 +114,15 @@ void calibrate_material(const Scene& scene, const Volume* volume, const PrepareS
     for (double e : field.youngs_modulus_kpa)
       if (std::abs(e - scene.material.base.youngs_modulus_kpa) > 1e-12 * scene.material.base.youngs_modulus_kpa)
         ++out.heterogeneous_elements;
-    out.log.push_back(fmt::format("material: modulus {:.4g} to {:.4g} kPa per element ({} elements differ from {:g} kPa)",
-                                  out.min_modulus_kpa, out.max_modulus_kpa, out.heterogeneous_elements,
-                                  scene.material.base.youngs_modulus_kpa));
+    out.log.push_back(fmt::format(
+        "material: modulus {:.4g} to {:.4g} kPa per element ({} elements differ from {:g} kPa)", out.min_modulus_kpa,
+        out.max_modulus_kpa, out.heterogeneous_elements, scene.material.base.youngs_modulus_kpa));
     for (std::size_t i = 0; i < scene.material.inclusions.size(); ++i) {
       const Inclusion& inc = scene.material.inclusions[i];
       if ((inc.center_mm.array() + inc.radius_mm < out.bounds_min_mm.array()).any() ||
           (inc.center_mm.array() - inc.radius_mm > out.bounds_max_mm.array()).any())
-        out.warnings.push_back(fmt::format("material.inclusions[{}] lies outside the object's bounds: it changes nothing", i));
+        out.warnings.push_back(
+            fmt::format("material.inclusions[{}] lies outside the object's bounds: it changes nothing", i));
     }
   }
 }
@@ -173,37 +176,45 @@ void choose_integrator(const Scene& scene, const PrepareSceneOptions& options, c
   } else if (automatic_dt_s > 0) {
     s.integrator.time_step_s = automatic_dt_s;
   } else {
-    errors.fail("$.integrator", "explicit_euler without damping is unstable at any time step (docs/model.md section 7); set material.damping > 0 "
-                                "or use symplectic_euler or implicit");
+    errors.fail("$.integrator",
+                "explicit_euler without damping is unstable at any time step (docs/model.md section 7); set "
+                "material.damping > 0 "
+                "or use symplectic_euler or implicit");
   }
   if (scene.integrator != IntegratorKind::implicit) {
     if (out.dt_stable_estimate_s == 0.0)
-      out.warnings.push_back("explicit_euler without damping gains energy every step at any dt_s: the run will blow up");
+      out.warnings.push_back(
+          "explicit_euler without damping gains energy every step at any dt_s: the run will blow up");
     else if (s.integrator.time_step_s > 1.25 * out.dt_stable_estimate_s)
       // the estimate is close to the real limit (a block blew up at 1.3x within 40 steps)
-      errors.fail("$.integrator.dt_s",
-                  fmt::format("{:.3g} s is {:.2g} times the estimated stable step {:.3g} s of {} for this model and material: the "
-                              "run would blow up within a few steps; use \"auto\" (half the estimate) or at most {:.3g} s, or the "
-                              "implicit integrator",
-                              s.integrator.time_step_s, s.integrator.time_step_s / out.dt_stable_estimate_s,
-                              out.dt_stable_estimate_s, to_string(scene.integrator), out.dt_stable_estimate_s));
+      errors.fail(
+          "$.integrator.dt_s",
+          fmt::format(
+              "{:.3g} s is {:.2g} times the estimated stable step {:.3g} s of {} for this model and material: the "
+              "run would blow up within a few steps; use \"auto\" (half the estimate) or at most {:.3g} s, or the "
+              "implicit integrator",
+              s.integrator.time_step_s, s.integrator.time_step_s / out.dt_stable_estimate_s, out.dt_stable_estimate_s,
+              to_string(scene.integrator), out.dt_stable_estimate_s));
     else if (s.integrator.time_step_s > out.dt_stable_estimate_s)
-      out.warnings.push_back(fmt::format("integrator.dt_s {:.3g} s exceeds the estimated stable step {:.3g} s of {}: the run "
-                                         "may blow up (the summary's \"stable\" will say)",
-                                         s.integrator.time_step_s, out.dt_stable_estimate_s, to_string(scene.integrator)));
+      out.warnings.push_back(
+          fmt::format("integrator.dt_s {:.3g} s exceeds the estimated stable step {:.3g} s of {}: the run "
+                      "may blow up (the summary's \"stable\" will say)",
+                      s.integrator.time_step_s, out.dt_stable_estimate_s, to_string(scene.integrator)));
   }
   if (scene.integrator == IntegratorKind::implicit && scene.contact.friction > 0)
-    out.warnings.push_back(fmt::format("contact.friction {:g} is ignored by the implicit integrator (its contact is "
-                                       "frictionless and inelastic, solved inside the step); use symplectic_euler to "
-                                       "grasp and lift",
-                                       scene.contact.friction));
+    out.warnings.push_back(
+        fmt::format("contact.friction {:g} is ignored by the implicit integrator (its contact is "
+                    "frictionless and inelastic, solved inside the step); use symplectic_euler to "
+                    "grasp and lift",
+                    scene.contact.friction));
   // a run must be able to finish: a step of 1e-9 s over a second is 1e9 steps
   if (const double steps = scene.duration_s / s.integrator.time_step_s; !(steps <= kMaxSceneSteps))
-    errors.fail(scene.dt_s > 0 ? "$.integrator.dt_s" : "$.duration_s",
-                fmt::format("{:g} s in steps of {:.3g} s is {:.3g} steps, more than one run takes ({:.0e}, already many "
-                            "hours for a small model); use a longer dt_s (\"auto\" picks {:.3g} s for this model) or a "
-                            "shorter duration_s",
-                            scene.duration_s, s.integrator.time_step_s, steps, kMaxSceneSteps, automatic_dt_s));
+    errors.fail(
+        scene.dt_s > 0 ? "$.integrator.dt_s" : "$.duration_s",
+        fmt::format("{:g} s in steps of {:.3g} s is {:.3g} steps, more than one run takes ({:.0e}, already many "
+                    "hours for a small model); use a longer dt_s (\"auto\" picks {:.3g} s for this model) or a "
+                    "shorter duration_s",
+                    scene.duration_s, s.integrator.time_step_s, steps, kMaxSceneSteps, automatic_dt_s));
   s.integrator.threads = options.threads_override >= 0 ? options.threads_override : scene.threads;
   s.gravity_mm_s2 = scene.gravity_m_s2 * 1000.0;
 }
@@ -223,20 +234,26 @@ std::vector<std::uint8_t> fix_nodes(const Scene& scene, const SceneErrors& error
         errors.fail(fmt::format("$.fixed[{}]", r),
                     fmt::format("\"{}\" lies across the slice of a 2D model and would hold all of it; hold an edge of "
                                 "the slice instead (a face along the slice: {})",
-                                f.label, axis == 0 ? "y_min, y_max, z_min, z_max" : axis == 1 ? "x_min, x_max, z_min, z_max"
-                                                                                              : "x_min, x_max, y_min, y_max"));
+                                f.label,
+                                axis == 0   ? "y_min, y_max, z_min, z_max"
+                                : axis == 1 ? "x_min, x_max, z_min, z_max"
+                                            : "x_min, x_max, y_min, y_max"));
     }
-    const std::vector<int> nodes = f.is_face ? nodes_on_face(m, f.face, std::max(f.within_mm, 1e-6 * m.grid.spacing_mm.minCoeff()))
-                                             : nodes_in_box(m, f.box_min_mm, f.box_max_mm);
+    const std::vector<int> nodes =
+        f.is_face ? nodes_on_face(m, f.face, std::max(f.within_mm, 1e-6 * m.grid.spacing_mm.minCoeff()))
+                  : nodes_in_box(m, f.box_min_mm, f.box_max_mm);
     if (nodes.empty())
-      errors.fail(fmt::format("$.fixed[{}]", r),
-                  fmt::format("\"{}\" holds no node of the object (bounds [{:.4g}, {:.4g}, {:.4g}] .. [{:.4g}, {:.4g}, {:.4g}] mm)",
-                              f.label, out.bounds_min_mm.x(), out.bounds_min_mm.y(), out.bounds_min_mm.z(), out.bounds_max_mm.x(),
-                              out.bounds_max_mm.y(), out.bounds_max_mm.z()));
+      errors.fail(
+          fmt::format("$.fixed[{}]", r),
+          fmt::format(
+              "\"{}\" holds no node of the object (bounds [{:.4g}, {:.4g}, {:.4g}] .. [{:.4g}, {:.4g}, {:.4g}] mm)",
+              f.label, out.bounds_min_mm.x(), out.bounds_min_mm.y(), out.bounds_min_mm.z(), out.bounds_max_mm.x(),
+              out.bounds_max_mm.y(), out.bounds_max_mm.z()));
     if (f.is_face && nodes.size() < 3)
-      out.warnings.push_back(fmt::format("fixed[{}] \"{}\" holds only {} node(s) (a rounded object touches its bounding box in "
-                                         "a point); use {{\"face\": \"{}\", \"within_mm\": 2}}",
-                                         r, f.label, nodes.size(), f.label));
+      out.warnings.push_back(
+          fmt::format("fixed[{}] \"{}\" holds only {} node(s) (a rounded object touches its bounding box in "
+                      "a point); use {{\"face\": \"{}\", \"within_mm\": 2}}",
+                      r, f.label, nodes.size(), f.label));
     for (int i : nodes) fixed[std::size_t(i)] = 1;
   }
   for (int i = 0; i < m.num_nodes(); ++i)
@@ -285,25 +302,29 @@ void place_walls_and_probes(const Scene& scene, const std::vector<std::uint8_t>&
       // nodes are pushed to the nearest surface point: a probe moving more than about half its
       // radius per step would push them out of its far side (tunnelling)
       if (speed * dt > 0.5 * p.geometry.radius_mm)
-        errors.fail(at, fmt::format("the probe moves up to {:.4g} mm/s, {:.3g} mm per step of {:.3g} s: more than half its radius "
-                                    "({:g} mm), so it would pass through the surface; slow it down or lower integrator.dt_s",
-                                    speed, speed * dt, dt, p.geometry.radius_mm));
+        errors.fail(
+            at,
+            fmt::format("the probe moves up to {:.4g} mm/s, {:.3g} mm per step of {:.3g} s: more than half its radius "
+                        "({:g} mm), so it would pass through the surface; slow it down or lower integrator.dt_s",
+                        speed, speed * dt, dt, p.geometry.radius_mm));
       if (p.geometry.radius_mm < spacing)
-        out.warnings.push_back(fmt::format("probes[{}] \"{}\": radius {:g} mm is below the node spacing {:g} mm; it can pass "
-                                           "between surface nodes",
-                                           i, p.name, p.geometry.radius_mm, spacing));
+        out.warnings.push_back(
+            fmt::format("probes[{}] \"{}\": radius {:g} mm is below the node spacing {:g} mm; it can pass "
+                        "between surface nodes",
+                        i, p.name, p.geometry.radius_mm, spacing));
     } else if (speed * dt > spacing) {
-      out.warnings.push_back(fmt::format("probes[{}] \"{}\": the plate moves {:.3g} mm per step, more than a voxel", i, p.name,
-                                         speed * dt));
+      out.warnings.push_back(fmt::format("probes[{}] \"{}\": the plate moves {:.3g} mm per step, more than a voxel", i,
+                                         p.name, speed * dt));
     }
     const Eigen::Vector3d start = p.initial_position();
     int inside = 0;
     for (const std::int32_t n : surface_nodes)
       if (probe_signed_distance(p.geometry, start, m.rest_positions.col(n)) < 0) ++inside;
     if (inside > 0)
-      out.warnings.push_back(fmt::format("probes[{}] \"{}\" starts with {} surface nodes inside it: they are pushed out at "
-                                         "the first step",
-                                         i, p.name, inside));
+      out.warnings.push_back(
+          fmt::format("probes[{}] \"{}\" starts with {} surface nodes inside it: they are pushed out at "
+                      "the first step",
+                      i, p.name, inside));
   }
 }
 
@@ -324,7 +345,8 @@ RegionCheck check_region_support(const PhysicsModel& physics, const std::vector<
     rs.cancel = cancel;
     const RegionStiffeningEstimate e = estimate_region_stiffening(physics, fixed, rs);
     if (!e.valid) {
-      out.log.push_back(fmt::format("regional solves: no estimate of their error under probe \"{}\" ({})", p.name, e.reason));
+      out.log.push_back(
+          fmt::format("regional solves: no estimate of their error under probe \"{}\" ({})", p.name, e.reason));
       continue;
     }
     if (!out.estimate || e.force_ratio > out.estimate->force_ratio) {
@@ -334,15 +356,18 @@ RegionCheck check_region_support(const PhysicsModel& physics, const std::vector<
   }
   if (!out.estimate) return out;
   const RegionStiffeningEstimate& e = *out.estimate;
-  out.log.push_back(fmt::format("regional solves within {:g} mm: under probe \"{}\" the press is estimated {:.1f} % too hard "
-                                "(compliance {:.4g} mm/N of the whole model against {:.4g} with the far field held; "
-                                "{} of {} free nodes awake; {:.2f} s)",
-                                s.integrator.region_radius_mm, out.probe, 100.0 * e.error_rel(), e.compliance_full_mm_n,
-                                e.compliance_region_mm_n, e.region_nodes, e.region_nodes + e.far_nodes, e.seconds));
+  out.log.push_back(
+      fmt::format("regional solves within {:g} mm: under probe \"{}\" the press is estimated {:.1f} % too hard "
+                  "(compliance {:.4g} mm/N of the whole model against {:.4g} with the far field held; "
+                  "{} of {} free nodes awake; {:.2f} s)",
+                  s.integrator.region_radius_mm, out.probe, 100.0 * e.error_rel(), e.compliance_full_mm_n,
+                  e.compliance_region_mm_n, e.region_nodes, e.region_nodes + e.far_nodes, e.seconds));
   if (e.error_rel() > kRegionStiffeningWarnRel)
     out.warnings.push_back(fmt::format(
-        "the regional solve (region_radius_mm {:g}) holds the far field still; on this support it presses about {:.2g}x too "
-        "hard under probe \"{}\" (estimated: {:.0f} % force error: the object is held weakly and gives as a whole); for "
+        "the regional solve (region_radius_mm {:g}) holds the far field still; on this support it presses about "
+        "{:.2g}x too "
+        "hard under probe \"{}\" (estimated: {:.0f} % force error: the object is held weakly and gives as a whole); "
+        "for "
         "accuracy use \"integrator\": {{\"type\": \"implicit\", \"dt_s\": 0.01, \"iterations\": 5}} (no region; "
         "slower), or hold the object over a larger part (docs/model.md section 7)",
         s.integrator.region_radius_mm, e.force_ratio, out.probe, 100.0 * e.error_rel()));
@@ -389,13 +414,15 @@ PreparedScene prepare_scene(const Scene& scene, const PrepareSceneOptions& optio
       options.region_check != RegionCheckTiming::none) {
     if (options.region_check == RegionCheckTiming::background) {
       // the estimate reads only what it is given (the physics is immutable and shared)
-      out.pending_region_check = std::make_shared<BackgroundRegionCheck>(
-          [physics = out.physics, fixed, settings = out.settings, nice = options.region_check_nice](const std::atomic<bool>& cancel) {
+      out.pending_region_check =
+          std::make_shared<BackgroundRegionCheck>([physics = out.physics, fixed, settings = out.settings,
+                                                   nice = options.region_check_nice](const std::atomic<bool>& cancel) {
             if (nice != 0) (void)set_this_thread_nice(nice);  // a real-time run goes first
             return check_region_support(*physics, fixed, settings, &cancel);
           });
     } else {
-      timed(out, "region check", [&] { apply_region_check(check_region_support(*out.physics, fixed, out.settings, nullptr), out); });
+      timed(out, "region check",
+            [&] { apply_region_check(check_region_support(*out.physics, fixed, out.settings, nullptr), out); });
     }
   }
 

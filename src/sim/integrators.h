@@ -50,12 +50,12 @@ struct StabilityLimits {
 struct IntegratorSettings {
   IntegratorKind kind{IntegratorKind::symplectic_euler};
   double time_step_s{1.0e-4};
-  int threads{0};              ///< 0: OpenMP default (OMP_NUM_THREADS or all cores)
-  bool track_energy{false};    ///< fill SimState::energies every step (small extra cost)
+  int threads{0};            ///< 0: OpenMP default (OMP_NUM_THREADS or all cores)
+  bool track_energy{false};  ///< fill SimState::energies every step (small extra cost)
   RotationFitSettings rotation;
   // implicit only
-  int max_iterations{10};      ///< local/global iterations per step
-  double tolerance_mm{0.0};    ///< > 0: stop early once no node moved more than this in an iteration
+  int max_iterations{10};    ///< local/global iterations per step
+  double tolerance_mm{0.0};  ///< > 0: stop early once no node moved more than this in an iteration
   /// > 0: stop early once the largest force imbalance on a free node is below this, N
   /// (ProjectiveIterations::residual_tolerance_n)
   double residual_tolerance_n{0.0};

@@ -430,7 +430,8 @@ bool ProjectiveSolver::contact_compliance(const std::vector<std::int32_t>& nodes
   std::vector<int> free(nodes.size());
   for (std::size_t a = 0; a < nodes.size(); ++a) {
     const int i = nodes[a];
-    if (i < 0 || std::size_t(i) >= numbering_.free_index.size() || numbering_.free_index[std::size_t(i)] < 0) return false;
+    if (i < 0 || std::size_t(i) >= numbering_.free_index.size() || numbering_.free_index[std::size_t(i)] < 0)
+      return false;
     free[a] = numbering_.free_index[std::size_t(i)];
   }
   contact_set_.compliance(free, factor_, g);
@@ -447,10 +448,12 @@ void ProjectiveSolver::set_region(const std::vector<int>& awake_nodes) {
   std::vector<std::uint8_t> wanted(std::size_t(p.num_nodes()), 0);
   for (int e = 0; e < p.num_elements(); ++e) {
     bool any = false;
-    for (int j = m.element_offsets[e]; j < m.element_offsets[e + 1] && !any; ++j) any = awake[std::size_t(m.element_vertices[j])];
+    for (int j = m.element_offsets[e]; j < m.element_offsets[e + 1] && !any; ++j)
+      any = awake[std::size_t(m.element_vertices[j])];
     if (!any) continue;
     region_elements_.push_back(e);
-    for (int j = m.element_offsets[e]; j < m.element_offsets[e + 1]; ++j) wanted[std::size_t(m.element_vertices[j])] = 1;
+    for (int j = m.element_offsets[e]; j < m.element_offsets[e + 1]; ++j)
+      wanted[std::size_t(m.element_vertices[j])] = 1;
   }
   std::vector<int> rows;
   for (int f = 0; f < num_free(); ++f)
@@ -535,10 +538,10 @@ ElementPassStats ProjectiveSolver::local_step(SimState& s, const Eigen::Matrix3X
         fit_element_rotation(p, ad, damping_rotations_[std::size_t(el)], fit, nullptr, &rd);
         const Eigen::Matrix3d md = p.element_damping[std::size_t(el)] * inv_dt * rd;
         for (int j = o; j < o + n; ++j)
-          targets_.col(slot[j]).noalias() = mg * p.entry_gradient.col(j) + p.entry_weight[std::size_t(j)] * (md * start_offsets_.col(j));
+          targets_.col(slot[j]).noalias() =
+              mg * p.entry_gradient.col(j) + p.entry_weight[std::size_t(j)] * (md * start_offsets_.col(j));
       } else {
-        for (int j = o; j < o + n; ++j)
-          targets_.col(slot[j]).noalias() = mg * p.entry_gradient.col(j);
+        for (int j = o; j < o + n; ++j) targets_.col(slot[j]).noalias() = mg * p.entry_gradient.col(j);
       }
       if (volume && p.has_volume_points()) {  // + sum_s k_s T_s (g_j + delta_sj)
         Eigen::Matrix3d tsum = Eigen::Matrix3d::Zero();

@@ -55,8 +55,8 @@ struct ProjectiveSetup {
 
 /// How far a solve iterates.
 struct ProjectiveIterations {
-  int max_iterations{10};      ///< local/global iterations
-  double tolerance_mm{0.0};    ///< > 0: stop once no node moved more than this in an iteration
+  int max_iterations{10};    ///< local/global iterations
+  double tolerance_mm{0.0};  ///< > 0: stop once no node moved more than this in an iteration
   /// > 0: stop once the largest force imbalance on a free node is below this (N): the residual
   /// of the step's minimisation at the current iterate, rhs(x_k) - rhs(x_{k-1}) (A x_k =
   /// rhs(x_{k-1}) after the global solve). Checked before each global solve after the first, so
@@ -71,7 +71,7 @@ struct ProjectiveIterations {
   int free_max_iterations{0};
   double free_tolerance_mm{0.0};
   RotationFitSettings rotation;
-  int threads{0};              ///< 0: OpenMP default
+  int threads{0};  ///< 0: OpenMP default
 };
 
 /// The free and fixed numbering of a model's nodes.
@@ -88,8 +88,9 @@ struct NodeNumbering {
 /// solver factors it: A = [M/dt^2] + sum_e (K_e + kappa_e (diag(w) - w w^T / W)) with
 /// kappa_e = projective_centring_weight(). `a_free_fixed` (may be null): the free x fixed
 /// coupling. Allocates.
-void assemble_projective_matrix(const PhysicsModel& physics, const NodeNumbering& numbering, const ProjectiveSetup& setup,
-                                Eigen::SparseMatrix<double>& a_free, Eigen::SparseMatrix<double>* a_free_fixed);
+void assemble_projective_matrix(const PhysicsModel& physics, const NodeNumbering& numbering,
+                                const ProjectiveSetup& setup, Eigen::SparseMatrix<double>& a_free,
+                                Eigen::SparseMatrix<double>* a_free_fixed);
 /// The factor cache's key of that matrix (sim/sparse_factor.h): a hash of every entry the
 /// assembly would sum (from the same generator, in the same order, so no input of the matrix
 /// can be missed), the mass diagonal, the sizes and the backend; bit-identical on any number
@@ -139,8 +140,9 @@ class ProjectiveSolver {
   /// fits and targets) and to the free nodes of those elements and their ancestors in the
   /// factor's elimination tree (the global solve, exact there); the other nodes sleep at their
   /// positions, the other elements keep their targets. The first solve after the factorisation
-  /// and the first after each set_region() are full: every node and element brought up to date. Without a supernodal factor it does nothing (full solves).
-  /// Allocates. The contact set's cached forward vectors stay (they do not depend on a region).
+  /// and the first after each set_region() are full: every node and element brought up to date. Without a supernodal
+  /// factor it does nothing (full solves). Allocates. The contact set's cached forward vectors stay (they do not depend
+  /// on a region).
   void set_region(const std::vector<int>& awake_nodes);
   /// Back to full solves.
   void clear_region();
@@ -218,24 +220,24 @@ class ProjectiveSolver {
   NodeNumbering numbering_;
 
   // the global matrix
-  std::vector<double> centring_weight_;   ///< elements: k_v,e (+ c_e/dt) of diag(w) - w w^T / W, N/mm
+  std::vector<double> centring_weight_;       ///< elements: k_v,e (+ c_e/dt) of diag(w) - w w^T / W, N/mm
   Eigen::SparseMatrix<double> a_free_fixed_;  ///< A_fc: free x fixed coupling
-  SparseFactor factor_;                   ///< A_ff = L D L^T
+  SparseFactor factor_;                       ///< A_ff = L D L^T
 
   // one solve
-  Eigen::Matrix3Xd targets_;              ///< 3 x entries (node-major slots): local-step targets, N
-  Eigen::Matrix3Xd start_offsets_;        ///< 3 x entries: r_i^n, vertex offsets at the step's start (damping)
+  Eigen::Matrix3Xd targets_;        ///< 3 x entries (node-major slots): local-step targets, N
+  Eigen::Matrix3Xd start_offsets_;  ///< 3 x entries: r_i^n, vertex offsets at the step's start (damping)
   std::vector<Eigen::Quaterniond> damping_rotations_;  ///< elements: R of the damping term (warm start)
-  Eigen::MatrixX3d rhs_const_;            ///< free x 3: constant part of the right-hand side, N
-  Eigen::MatrixX3d rhs_;                  ///< free x 3: this iteration's right-hand side
-  Eigen::MatrixX3d rhs_previous_;         ///< free x 3: the last iteration's (for the residual)
-  Eigen::MatrixX3d solution_;             ///< free x 3: the global step's solution, mm
-  Eigen::MatrixX3d fixed_positions_;      ///< fixed x 3: x_c
+  Eigen::MatrixX3d rhs_const_;                         ///< free x 3: constant part of the right-hand side, N
+  Eigen::MatrixX3d rhs_;                               ///< free x 3: this iteration's right-hand side
+  Eigen::MatrixX3d rhs_previous_;                      ///< free x 3: the last iteration's (for the residual)
+  Eigen::MatrixX3d solution_;                          ///< free x 3: the global step's solution, mm
+  Eigen::MatrixX3d fixed_positions_;                   ///< fixed x 3: x_c
   std::vector<ElementPassStats> element_chunk_stats_;
   // regional solves
   bool region_{false};
-  bool targets_valid_{false};  ///< every element's targets computed once (by a full solve)
-  bool last_full_{false};      ///< the last solve() was a full one
+  bool targets_valid_{false};    ///< every element's targets computed once (by a full solve)
+  bool last_full_{false};        ///< the last solve() was a full one
   bool solve_far_field_{false};  ///< set_region_diagnostics()
   bool refresh_on_move_{true};
   int far_degree_{1};  ///< set_carry_far_field()
@@ -261,7 +263,7 @@ class ProjectiveSolver {
   bool anchor_far_field(const SimState& s, const Eigen::Matrix3Xd& x);
   void carry_far_field_in(double dt);
   void carry_far_field_out(Eigen::Matrix3Xd& x);
-  std::vector<int> region_elements_;  ///< ascending
+  std::vector<int> region_elements_;     ///< ascending
   std::vector<double> free_chunk_sums_;  ///< per node chunk: 2 partial sums
   ContactActiveSet contact_set_;
 };

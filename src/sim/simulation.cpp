@@ -11,8 +11,7 @@ namespace vx {
 std::vector<std::int32_t> collidable_nodes(const Model& model, const std::vector<std::uint8_t>& fixed) {
   std::vector<std::int32_t> nodes;
   for (int i = 0; i < model.num_nodes(); ++i)
-    if (!(std::size_t(i) < fixed.size() && fixed[std::size_t(i)]))
-      nodes.push_back(i);
+    if (!(std::size_t(i) < fixed.size() && fixed[std::size_t(i)])) nodes.push_back(i);
   return nodes;
 }
 

@@ -47,22 +47,22 @@ namespace vx {
 /// Everything a simulation needs besides the physics model (plain settings; the scene file
 /// fills them, see pipeline/scene/scene.h).
 struct SimulationSettings {
-  IntegratorSettings integrator;                      ///< kind, time step, threads
+  IntegratorSettings integrator;  ///< kind, time step, threads
   Eigen::Vector3d gravity_mm_s2{Eigen::Vector3d::Zero()};
-  std::vector<int> fixed_nodes;                       ///< nodes held at their rest position
-  Workspace workspace;                                ///< walls (disabled: none)
+  std::vector<int> fixed_nodes;  ///< nodes held at their rest position
+  Workspace workspace;           ///< walls (disabled: none)
   ContactSettings contact;
   std::vector<ProbeSettings> probes;
-  std::shared_ptr<const EmbeddedSurface> surface;     ///< optional surface that follows the nodes
-  bool skip_unneeded{true};                           ///< false: do all optional work every step
+  std::shared_ptr<const EmbeddedSurface> surface;  ///< optional surface that follows the nodes
+  bool skip_unneeded{true};                        ///< false: do all optional work every step
 };
 
 /// A probe after a step.
 struct ProbeOutput {
-  ProbeState pose;                                     ///< position mm, velocity mm/s
+  ProbeState pose;                                       ///< position mm, velocity mm/s
   Eigen::Vector3d raw_force_n{Eigen::Vector3d::Zero()};  ///< force of the tissue on the probe this step
-  int contacts{0};                                     ///< nodes in contact this step
-  double time_s{0.0};                                  ///< time of this output
+  int contacts{0};                                       ///< nodes in contact this step
+  double time_s{0.0};                                    ///< time of this output
 };
 
 /// Work done and skipped, cumulative.
@@ -101,9 +101,9 @@ struct SimulationCounters {
 struct SimulationFrame {
   double time_s{0.0};
   std::int64_t step{0};
-  Eigen::Matrix3Xd positions;        ///< 3 x nodes, mm
-  Eigen::Matrix3Xd surface_vertices; ///< 3 x V (empty without a surface), mm
-  Eigen::Matrix3Xd surface_normals;  ///< 3 x V
+  Eigen::Matrix3Xd positions;         ///< 3 x nodes, mm
+  Eigen::Matrix3Xd surface_vertices;  ///< 3 x V (empty without a surface), mm
+  Eigen::Matrix3Xd surface_normals;   ///< 3 x V
   std::vector<ProbeOutput> probes;
 };
 
@@ -245,7 +245,7 @@ class Simulation {
   std::vector<ContactConstraint> contact_records_;  ///< explicit: this step's probe contacts
 
   // surface
-  SurfaceFrame surface_frame_;  ///< the deformed surface and its normals (each triangle's normal once)
+  SurfaceFrame surface_frame_;     ///< the deformed surface and its normals (each triangle's normal once)
   std::int64_t surface_step_{-1};  ///< step the surface was deformed at (-1: never)
 };
 

@@ -80,10 +80,14 @@ std::string slurp(const fs::path& p) {
 }  // namespace
 
 TEST(BenchPareto, KnownPointsGiveTheFrontByWallTime) {
-  std::vector<BenchRow> rows{point(1.0, 0.5),  point(2.0, 0.3),  point(3.0, 0.4),   // dominated by (2, 0.3)
-                             point(0.5, 0.9),  point(4.0, 0.1),  point(4.0, 0.2),   // dominated by (4, 0.1)
-                             point(2.5, 0.3),                                        // dominated: same error, slower
-                             point(0.1, 0.01, BenchStatus::unstable),                // would dominate all: excluded
+  std::vector<BenchRow> rows{point(1.0, 0.5),
+                             point(2.0, 0.3),
+                             point(3.0, 0.4),  // dominated by (2, 0.3)
+                             point(0.5, 0.9),
+                             point(4.0, 0.1),
+                             point(4.0, 0.2),                          // dominated by (4, 0.1)
+                             point(2.5, 0.3),                          // dominated: same error, slower
+                             point(0.1, 0.01, BenchStatus::unstable),  // would dominate all: excluded
                              point(0.2, 0.02, BenchStatus::skipped)};
   const std::vector<std::size_t> front = mark_pareto_front(rows);
   EXPECT_EQ(front, (std::vector<std::size_t>{3, 0, 1, 4}));
@@ -256,7 +260,9 @@ TEST(BenchCsv, StepRowsIncludingSkipped) {
   const auto header = split_csv(l[0]);
   ASSERT_EQ(split_csv(l[1]).size(), header.size());
   ASSERT_EQ(split_csv(l[2]).size(), header.size());
-  const auto idx = [&](const std::string& n) { return std::size_t(std::find(header.begin(), header.end(), n) - header.begin()); };
+  const auto idx = [&](const std::string& n) {
+    return std::size_t(std::find(header.begin(), header.end(), n) - header.begin());
+  };
   EXPECT_EQ(split_csv(l[1])[idx("resolution")], "voxel");
   EXPECT_DOUBLE_EQ(std::stod(split_csv(l[1])[idx("step_ms")]), 2.5);
   EXPECT_DOUBLE_EQ(std::stod(split_csv(l[1])[idx("ns_per_entry")]), 312.5);
@@ -315,7 +321,8 @@ BenchSettings tiny_bench() {
   s.run_step = false;
   s.sizes = {8};
   s.resolutions = {Layout::gradational, Layout::voxel};
-  s.explicit_fractions = {0.5, 8.0};  // 8x the stable estimate blows up (the estimates are 1.1-3.1x below the limits): an unstable row
+  s.explicit_fractions = {
+      0.5, 8.0};  // 8x the stable estimate blows up (the estimates are 1.1-3.1x below the limits): an unstable row
   s.implicit_steps_s = {2e-3};
   s.reference_size = 12;
   s.scene.duration_s = 0.12;
@@ -381,8 +388,9 @@ TEST(BenchRun, ReportIsWrittenAllOrNothing) {
   const fs::path dir = fs::temp_directory_path() / ("vx_bench_test_" + std::to_string(::getpid()));
   fs::remove_all(dir);
   const std::vector<std::string> names = write_bench_report(res, dir);
-  const std::set<std::string> want{"bench.csv", "bench.json", "bench.md", "bench_error.png", "bench_cost.png",
-                                   "bench_curves.png", "reference_scene.json", "best_scene.json"};
+  const std::set<std::string> want{
+      "bench.csv",        "bench.json",           "bench.md",       "bench_error.png", "bench_cost.png",
+      "bench_curves.png", "reference_scene.json", "best_scene.json"};
   std::set<std::string> found;
   for (const auto& f : fs::directory_iterator(dir)) found.insert(f.path().filename().string());
   EXPECT_EQ(found, want);  // no staging folder left behind
@@ -416,8 +424,9 @@ TEST(ScaleBench, ImplicitReferenceAndTheLargeModelConfiguration) {
   // the standard suite holds the fast configuration of large models (scene/fast_configuration.h); the implicit
   // reference replaces symplectic Euler where that would take an hour
   ScaleBenchSettings s = ScaleBenchSettings::standard();
-  const auto large = std::find_if(s.configs.begin(), s.configs.end(),
-                                  [](const ScaleConfig& c) { return c.name.find("larger models") != std::string::npos; });
+  const auto large = std::find_if(s.configs.begin(), s.configs.end(), [](const ScaleConfig& c) {
+    return c.name.find("larger models") != std::string::npos;
+  });
   ASSERT_NE(large, s.configs.end());
   EXPECT_DOUBLE_EQ(large->time_step_s, default_fast_configuration().large_model_time_step_s);
   EXPECT_DOUBLE_EQ(large->region_radius_mm, default_fast_configuration().large_model_region_radius_mm);
