@@ -22,8 +22,8 @@ IntegratorSettings FastConfiguration::integrator_for(int nodes) const {
   s.time_step_s = time_step_for(nodes);
   s.region_radius_mm = region_radius_for(nodes);
   s.max_iterations = iterations;
-  s.free_iterations = large(nodes) ? 0 : free_iterations;
-  s.free_tolerance_mm = large(nodes) ? 0.0 : free_tolerance_mm;
+  s.free_iterations = free_iterations_for(nodes);
+  s.free_tolerance_mm = free_tolerance_mm;
   s.threads = 1;
   return s;
 }

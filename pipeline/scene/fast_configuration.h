@@ -50,6 +50,10 @@ struct FastConfiguration {
   [[nodiscard]] double time_step_for(int nodes) const { return large(nodes) ? large_model_time_step_s : time_step_s; }
   /// Regional solves within this radius of a tool (mm) for a large model; 0 (none) otherwise.
   [[nodiscard]] double region_radius_for(int nodes) const { return large(nodes) ? large_model_region_radius_mm : 0.0; }
+  /// The iterations a step that leaves no tool touching may take (free_iterations): 0 for a large
+  /// model, whose extra iterations would be regional or full solves (its tissue let go is brought
+  /// to rest by the regional solves' idle refresh).
+  [[nodiscard]] int free_iterations_for(int nodes) const { return large(nodes) ? 0 : free_iterations; }
   /// The device's force update interval that goes with the step, s.
   [[nodiscard]] double device_update_interval_for(int nodes) const {
     return device_update_steps * time_step_for(nodes);

@@ -154,10 +154,8 @@ void choose_integrator(const Scene& scene, const PrepareSceneOptions& options, c
                                   : scene.integrator_given ? IntegratorSettings{}.max_iterations
                                                            : fast.iterations;
     s.integrator.residual_tolerance_n = scene.residual_tolerance_n;
-    // the fast configuration's return to rest; not on a large model, whose extra iterations would
-    // be regional or full solves (its tissue let go is brought to rest by the idle refresh)
-    if (scene.iterations == 0 && !scene.integrator_given && !large) {
-      s.integrator.free_iterations = fast.free_iterations;
+    if (scene.iterations == 0 && !scene.integrator_given) {  // the fast configuration's return to rest
+      s.integrator.free_iterations = fast.free_iterations_for(out.model->num_nodes());
       s.integrator.free_tolerance_mm = fast.free_tolerance_mm;
     }
     s.integrator.factor_cache = options.factor_cache;

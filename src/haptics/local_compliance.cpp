@@ -97,7 +97,6 @@ bool PatchCompliance::build_patch(const Eigen::Vector3d& centre, double radius_m
   }
   slot_column_.reserve(std::size_t(kCacheColumns));
   slot_column_.clear();
-  used_ = 0;
   ++refactors_;
   return has_patch_;
 }
@@ -136,18 +135,18 @@ bool PatchCompliance::compute(const std::vector<std::int32_t>& nodes, double rad
     if (k < 0) return false;  // outside even a fresh patch (a contact wider than the radius)
     missing += column_slot_[std::size_t(k)] < 0 ? 1 : 0;
   }
-  if (used_ + missing > kCacheColumns) {
+  if (cached_columns() + missing > kCacheColumns) {
     for (const int k : slot_column_) column_slot_[std::size_t(k)] = -1;
     slot_column_.clear();
-    used_ = 0;
     ++cache_restarts_;
   }
   const std::size_t np = patch_nodes_.size();
   for (int a = 0; a < m; ++a) {
     const int k = patch_index_[std::size_t(nodes[std::size_t(a)])];
     if (column_slot_[std::size_t(k)] < 0) {
-      factor_.solve_unit(k, columns_.data() + std::size_t(used_) * np);
-      column_slot_[std::size_t(k)] = used_++;
+      const int slot = cached_columns();
+      factor_.solve_unit(k, columns_.data() + std::size_t(slot) * np);
+      column_slot_[std::size_t(k)] = slot;
       slot_column_.push_back(k);
       ++columns_solved_;
     }

@@ -66,7 +66,7 @@ class PatchCompliance {
   [[nodiscard]] std::int64_t refactors() const { return refactors_; }
   [[nodiscard]] std::int64_t columns_solved() const { return columns_solved_; }
   /// Columns in the cache now (<= kCacheColumns), and the times it was started over in a patch.
-  [[nodiscard]] int cached_columns() const { return used_; }
+  [[nodiscard]] int cached_columns() const { return int(slot_column_.size()); }
   [[nodiscard]] std::int64_t cache_restarts() const { return cache_restarts_; }
   /// Bytes the cache's buffers hold (columns, slots, the patch's numbering and assembly; not the
   /// factor, which SparseFactor::stored_bytes() measures): kCacheColumns x 8 bytes per node of
@@ -95,7 +95,6 @@ class PatchCompliance {
   /// kCacheColumns columns of patch_nodes() values each (column-major), sized for the largest
   /// patch seen and never shrunk: patches reuse it
   std::vector<double> columns_;
-  int used_{0};
   std::int64_t cache_restarts_{0};
   // the patch's assembly, reused
   std::vector<Eigen::Triplet<double>> trip_;
