@@ -15,8 +15,8 @@
 /// radius beyond the model gives the whole model. The factor and its columns are kept while the
 /// contact stays within a quarter of the radius of the patch's centre.
 ///
-/// Memory (issue 27): the solved columns live in one buffer of kCacheColumns columns of the
-/// largest patch seen, reused by every patch (a patch that needs more columns than are free
+/// Memory (issue 27): the solved columns live in one buffer of kCacheColumns columns of 1.5x the
+/// largest patch seen (at most the model's free nodes), reused by every patch (a patch that needs more columns than are free
 /// starts the cache over), and the patch's assembly reuses its triplets and matrix; so the
 /// cache's bytes stop growing once the largest patch has been seen, and a session that moves
 /// the tool over the organ for minutes does not leave the heap larger with each new patch.
@@ -81,6 +81,7 @@ class PatchCompliance {
 
   std::shared_ptr<const PhysicsModel> physics_;
   std::vector<std::uint8_t> fixed_;
+  std::size_t free_nodes_{0};  ///< nodes not held: the largest patch possible
   double horizon_{0.02};
   Eigen::SparseMatrix<double> a_;  ///< all nodes x all nodes, A_T (both triangles)
   // the patch
@@ -92,8 +93,8 @@ class PatchCompliance {
   SparseFactor factor_;
   std::vector<int> column_slot_;  ///< patch index -> column slot or -1
   std::vector<int> slot_column_;  ///< column slot -> patch index (to start the cache over)
-  /// kCacheColumns columns of patch_nodes() values each (column-major), sized for the largest
-  /// patch seen and never shrunk: patches reuse it
+  /// kCacheColumns columns of patch_nodes() values each (column-major), sized for 1.5x the
+  /// largest patch seen (at most free_nodes_) and never shrunk: patches reuse it
   std::vector<double> columns_;
   std::int64_t cache_restarts_{0};
   // the patch's assembly, reused
