@@ -125,8 +125,8 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber);
   g_scene
       ->add_option("--poisson-ratio", o.scene.poisson_ratio,
-                   "tissue Poisson ratio in [0, 0.5): 0 (the default) is the paper's model; soft tissue keeps its "
-                   "volume, 0.45-0.49")
+                   "tissue Poisson ratio in [0, 0.5): soft tissue keeps its volume, 0.45-0.49 (default 0.45); 0 "
+                   "is the paper's model")
       ->check(CLI::Range(0.0, 0.4999));
   g_scene
       ->add_option("--surface-method", surface,

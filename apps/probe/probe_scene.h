@@ -35,13 +35,13 @@ struct DefaultSceneOptions {
   std::string threshold{"soft-tissue"};  ///< HU window or preset (volumes)
   double voxel_mm{0.0};                  ///< resample volumes to this voxel size first; 0 = keep
   double youngs_modulus_kpa{10.0};       ///< tissue stiffness
-  /// Poisson ratio; soft tissue is 0.45-0.49 and the model reads right at 0.45 (issue 27,
-  /// docs/model.md section 5: its press within 1 % of a finite-strain reference on the same mesh,
-  /// the cantilever within 5 % of beam theory). Still the paper's 0 by default: at 0.45 the CI soak
-  /// (tests/apps/probe_soak_slow_test.cpp) leaves the tissue at rest at the end (0.00 %, since the
-  /// fast configuration iterates while no tool touches) but the memory +1.13 % after the warm-up
-  /// (+0.38 % at 0; docs/scenes.md, "Which Poisson ratio").
-  double poisson_ratio{0.0};
+  /// Poisson ratio: 0.45, tissue-like (soft tissue is 0.45-0.49 and keeps its volume; issue 27).
+  /// The model reads right there (docs/model.md section 5: its press within 1 % of a finite-strain
+  /// reference on the same mesh, the cantilever within 5 % of beam theory), the implicit
+  /// configurations cost the same as at 0 (the volume term is in the same constant matrix), the
+  /// CI soak at 0.45 leaves the tissue at rest and its memory flat (tests/apps/
+  /// probe_soak_slow_test.cpp, docs/scenes.md "Which Poisson ratio"). 0 is the paper's model.
+  double poisson_ratio{0.45};
   double damping_ratio{0.2};
   std::filesystem::path surface;  ///< models: the .vtp surface written with the model (optional)
   /// The displayed, deforming surface: `iso` (smoothed iso-surface embedded in the elements)

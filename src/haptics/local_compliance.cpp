@@ -78,7 +78,11 @@ bool PatchCompliance::build_patch(const Eigen::Vector3d& centre, double radius_m
   }
   patch_matrix_.resize(np, np);
   patch_matrix_.setFromTriplets(trip_.begin(), trip_.end());
-  has_patch_ = np > 0 && factor_.compute(patch_matrix_);
+  // Eigen's simplicial LDL^T on an AMD ordering, not the whole model's CHOLMOD with METIS: on the
+  // 1 mm folded organ's patches (1,000-9,000 nodes at 12-24 mm) it factors 2.5-3.3x faster (8.9
+  // against 29.4 ms at 12 mm, 86 against 219 ms at 24 mm; METIS's ordering is the difference)
+  // and a new patch with its columns costs half (probe_release_slow_test's DISABLED_PatchMemory)
+  has_patch_ = np > 0 && factor_.compute(patch_matrix_, SparseFactor::Backend::eigen_amd);
   centre_ = centre;
   radius_ = radius_mm;
   column_slot_.assign(std::size_t(np), -1);

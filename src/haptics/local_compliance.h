@@ -15,11 +15,12 @@
 /// radius beyond the model gives the whole model. The factor and its columns are kept while the
 /// contact stays within a quarter of the radius of the patch's centre.
 ///
-/// Memory (issue 27): the solved columns live in one buffer of kCacheColumns columns of 1.5x the
-/// largest patch seen (at most the model's free nodes), reused by every patch (a patch that needs more columns than are free
-/// starts the cache over), and the patch's assembly reuses its triplets and matrix; so the
-/// cache's bytes stop growing once the largest patch has been seen, and a session that moves
-/// the tool over the organ for minutes does not leave the heap larger with each new patch.
+/// Memory (issue 27): the solved columns live in one buffer of kCacheColumns columns of 1.5x
+/// the largest patch seen (at most the model's free nodes), reused by every patch (a patch that
+/// needs more columns than are free starts the cache over), and the patch's assembly reuses its
+/// triplets and matrix; so the cache's bytes stop growing once the largest patch has been seen,
+/// and a session that moves the tool over the organ for minutes does not leave the heap larger
+/// with each new patch.
 ///
 /// The Poisson ratio (docs/model.md 9.1): A_T is one scalar matrix for x, y and z, so it cannot
 /// hold the volume term as the model does (its projective matrix k_v g g^T penalises every

@@ -5,7 +5,8 @@
 // Measurements (--gtest_also_run_disabled_tests): DISABLED_Measure with VX_RELEASE_NU,
 // VX_RELEASE_ITERATIONS, VX_RELEASE_TOL_MM, VX_RELEASE_RES_N, VX_RELEASE_FREE_ITERATIONS,
 // VX_RELEASE_FREE_TOL_MM (the implicit integrator's settings); DISABLED_PatchMemory with
-// VX_RELEASE_MOVES, VX_RELEASE_TRIM (malloc_trim after each), VX_RELEASE_MMAP_THRESHOLD (mallopt).
+// VX_RELEASE_MOVES, VX_RELEASE_TRIM (malloc_trim after each), VX_RELEASE_MMAP_THRESHOLD (mallopt),
+// VX_RELEASE_MODEL (another organ: a .vtu or a volume), VX_RELEASE_RADIUS (the patch radius, mm).
 #include <gtest/gtest.h>
 #include <malloc.h>
 #include <unistd.h>
@@ -36,6 +37,12 @@ double env(const char* name, double fallback) {
 
 /// The soak's organ as the probe app loads it (headless) at Poisson `nu`.
 ProbeScene soak_organ(double nu) {
+  if (const char* model = std::getenv("VX_RELEASE_MODEL")) {  // another organ (a .vtu or a volume)
+    DefaultSceneOptions o;
+    o.poisson_ratio = nu;
+    o.display = false;
+    return load_probe_scene(model, o);
+  }
   const std::filesystem::path dir =
       std::filesystem::temp_directory_path() / ("vx_probe_release_" + std::to_string(::getpid()));
   std::filesystem::create_directories(dir);
@@ -193,12 +200,13 @@ TEST(ProbeRelease, DISABLED_PatchMemory) {
   Simulation sim(scene.physics, scene.simulation);
   PatchCompliance pc;
   pc.init(scene.physics, sim.state().node_fixed, 0.1);
-  const double radius = std::max(24.0, 12.0 * surface_node_spacing_mm(*p.model));
+  const double radius = env("VX_RELEASE_RADIUS", std::max(24.0, 12.0 * surface_node_spacing_mm(*p.model)));
   const std::vector<std::int32_t>& surface = sim.contact_solver().nodes();
   std::mt19937 rng(1);
   Eigen::MatrixXd g;
   const int moves = int(env("VX_RELEASE_MOVES", 200));
   const long start_kb = resident_kb();
+  double worst_ms = 0, total_ms = 0;
   for (int k = 0; k <= moves; ++k) {
     // a contact of up to 40 surface nodes around a random one
     const int c = surface[std::uniform_int_distribution<std::size_t>(0, surface.size() - 1)(rng)];
@@ -210,9 +218,15 @@ TEST(ProbeRelease, DISABLED_PatchMemory) {
     std::partial_sort(near.begin(), near.begin() + m, near.end());
     std::vector<std::int32_t> nodes;
     for (int i = 0; i < m; ++i) nodes.push_back(near[std::size_t(i)].second);
+    const auto t0 = std::chrono::steady_clock::now();
     ASSERT_TRUE(pc.compute(nodes, radius, g));
+    const double ms = 1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    worst_ms = std::max(worst_ms, ms);
+    total_ms += ms;
     if (env("VX_RELEASE_TRIM", 0) > 0) malloc_trim(0);
     if (k % 20 == 0) {
+      std::printf("move %d: %d contact nodes, %.1f ms (worst so far %.1f ms, mean %.1f ms)\n", k, m, ms, worst_ms,
+                  total_ms / (k + 1));
       const struct mallinfo2 mi = mallinfo2();
       std::printf(
           "move %d: patch %d nodes, refactors %lld, columns %lld (cached %d, restarts %lld), cache %.2f MB, "
@@ -222,5 +236,45 @@ TEST(ProbeRelease, DISABLED_PatchMemory) {
           resident_kb() - start_kb, 1e-6 * double(mi.uordblks + mi.hblkhd), 1e-6 * double(mi.arena),
           1e-6 * double(mi.hblkhd));
     }
+  }
+}
+
+// How much holding the patch's border stiffens the local contact model, on an organ
+// (VX_RELEASE_MODEL) at Poisson 0.45: contacts of 40 surface nodes around random surface nodes,
+// the stiffness of pressing them all 1 mm (1^T G^-1 1, N/mm) with patches of radius 12 to 48 mm,
+// against the largest, and the time each patch took.
+TEST(ProbeRelease, DISABLED_PatchRadius) {
+  const ProbeScene scene = soak_organ(0.45);
+  const PhysicsModel& p = *scene.physics;
+  Simulation sim(scene.physics, scene.simulation);
+  const std::vector<std::int32_t>& surface = sim.contact_solver().nodes();
+  std::mt19937 rng(3);
+  const std::vector<double> radii{12, 16, 24, 36, 48};
+  for (int k = 0; k < int(env("VX_RELEASE_MOVES", 5)); ++k) {
+    const int c = surface[std::uniform_int_distribution<std::size_t>(0, surface.size() - 1)(rng)];
+    std::vector<std::pair<double, std::int32_t>> near;
+    for (const std::int32_t n : surface)
+      if (!sim.state().node_fixed[std::size_t(n)])
+        near.push_back({(p.model->rest_positions.col(n) - p.model->rest_positions.col(c)).norm(), n});
+    std::partial_sort(near.begin(), near.begin() + 40, near.end());
+    std::vector<std::int32_t> nodes;
+    for (int i = 0; i < 40; ++i) nodes.push_back(near[std::size_t(i)].second);
+    std::vector<double> k_n_mm;
+    std::string line;
+    for (const double r : radii) {
+      PatchCompliance pc;
+      pc.init(scene.physics, sim.state().node_fixed, 0.1);
+      Eigen::MatrixXd g;
+      const auto t0 = std::chrono::steady_clock::now();
+      ASSERT_TRUE(pc.compute(nodes, r, g));
+      const double ms = 1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      const Eigen::VectorXd ones = Eigen::VectorXd::Ones(g.rows());
+      k_n_mm.push_back(ones.dot(g.ldlt().solve(ones)));
+      line += " | " + std::to_string(int(r)) + " mm: " + std::to_string(pc.patch_nodes()) + " nodes, " +
+              std::to_string(ms) + " ms, k " + std::to_string(k_n_mm.back());
+    }
+    std::printf("contact %d%s | stiffness over the 48 mm patch's:", k, line.c_str());
+    for (const double kk : k_n_mm) std::printf(" %.3f", kk / k_n_mm.back());
+    std::printf("\n");
   }
 }

@@ -69,12 +69,12 @@ TEST(ModelFile, OpensWithThePalpationDefaults) {
   DefaultSceneOptions options;
   options.surface_method = SurfaceMethod::paper;
   const ProbeScene scene = load_probe_scene(dir / "sphere.vtu", options);
-  DefaultSceneOptions tissue_like = options;  // --poisson-ratio 0.45: the volume term
-  tissue_like.poisson_ratio = 0.45;
-  const ProbeScene volume_kept = load_probe_scene(dir / "sphere.vtu", tissue_like);
+  DefaultSceneOptions paper = options;  // --poisson-ratio 0: the paper's model, no volume term
+  paper.poisson_ratio = 0.0;
+  const ProbeScene paper_scene = load_probe_scene(dir / "sphere.vtu", paper);
   std::filesystem::remove_all(dir);
-  EXPECT_EQ(volume_kept.physics->material.poisson_ratio, 0.45);
-  EXPECT_TRUE(volume_kept.physics->has_volume_term());
+  EXPECT_EQ(paper_scene.physics->material.poisson_ratio, 0.0);
+  EXPECT_FALSE(paper_scene.physics->has_volume_term());
   EXPECT_EQ(scene.name, "sphere.vtu");
   EXPECT_NEAR((scene.world_up - Eigen::Vector3d(0, -1, 0)).norm(), 0.0, 1e-15);
   ASSERT_EQ(scene.simulation.probes.size(), 1u);
@@ -88,9 +88,10 @@ TEST(ModelFile, OpensWithThePalpationDefaults) {
   EXPECT_EQ(int(scene.simulation.fixed_nodes.size()), expected);
   EXPECT_EQ(scene.simulation.integrator.kind, IntegratorKind::implicit);
   EXPECT_NEAR(scene.simulation.integrator.time_step_s, 0.02, 1e-15);
-  // the paper's Poisson 0 by default (DefaultSceneOptions::poisson_ratio says why)
-  EXPECT_EQ(scene.physics->material.poisson_ratio, 0.0);
-  EXPECT_FALSE(scene.physics->has_volume_term());
+  // tissue-like Poisson 0.45 by default, with the volume term (DefaultSceneOptions::poisson_ratio
+  // says why)
+  EXPECT_EQ(scene.physics->material.poisson_ratio, 0.45);
+  EXPECT_TRUE(scene.physics->has_volume_term());
   ASSERT_TRUE(scene.device_side.device.has_value());
   EXPECT_FALSE(scene.region_check);
   ASSERT_TRUE(scene.surface);
@@ -98,7 +99,7 @@ TEST(ModelFile, OpensWithThePalpationDefaults) {
   EXPECT_EQ(scene.simulation.surface, scene.surface);
   bool noted = false;
   for (const auto& n : scene.notes)
-    noted = noted || n.find("default palpation scene: E = 10 kPa, Poisson ratio 0,") != std::string::npos;
+    noted = noted || n.find("default palpation scene: E = 10 kPa, Poisson ratio 0.45,") != std::string::npos;
   EXPECT_TRUE(noted);
   // the tool may go where the walls allow, its start included
   ASSERT_EQ(scene.probe_allowed.size(), 1u);

@@ -1,9 +1,11 @@
 // `voxelastic-probe --soak-s 60` on a small folded organ (the folded phantom at 4.3 mm voxels:
 // 1,964 elements, 12,079 nodes, full solves: under 20,000 nodes the app runs no regional
-// solves): random presses and slides for a minute, then a release. What the issue asks of a long
-// session, in its CI size (docs/robustness.md, "Soak"; the 10-minute run on the 1 mm folded
-// organ is a documented command). With regional solves (a larger organ) the tissue does not come
-// back within 1 % (nodes left outside the region sleep where the tool left them): the doc says so.
+// solves; the app's default material, Poisson 0.45 since issue 27, so the local contact models
+// use the patch compliance and its memory is judged with the rest): random presses and slides
+// for a minute, then a release. What the issue asks of a long session, in its CI size
+// (docs/robustness.md, "Soak"; the 10-minute run on the 1 mm folded organ is a documented
+// command). With regional solves (a larger organ) the tissue does not come back within 1 %
+// (nodes left outside the region sleep where the tool left them): the doc says so.
 #include <gtest/gtest.h>
 #include <unistd.h>
 

@@ -528,7 +528,8 @@ TEST(LocalContactModel, PatchComplianceCacheIsBoundedAndReusedAcrossPatches) {
     // element couples to more than the 27 of a voxel lattice), 16-byte triplets
     // and 12-byte entries of the matrix (both its triangles)
     // (the columns for 1.5x the largest patch: the buffer's room to spare)
-    assembly_limit = std::int64_t(largest_patch) * (PatchCompliance::kCacheColumns * 8 * 3 / 2 + 2 * 4 + 64 * (16 + 12) + 4);
+    assembly_limit =
+        std::int64_t(largest_patch) * (PatchCompliance::kCacheColumns * 8 * 3 / 2 + 2 * 4 + 64 * (16 + 12) + 4);
     EXPECT_LE(std::int64_t(pc.cache_bytes()), assembly_limit) << "move " << move;
     if (move % 3 == 0 && pc.refactors() > refactors) {  // a new patch: the same as a fresh one's
       PatchCompliance fresh;

@@ -5,13 +5,13 @@
 
 #include <gtest/gtest.h>
 #include <vtkDataArray.h>
+#include <vtkFieldData.h>
 #include <vtkNew.h>
 #include <vtkPointData.h>
 #include <vtkPolyData.h>
+#include <vtkStringArray.h>
 #include <vtkUnstructuredGrid.h>
 #include <vtkXMLPolyDataReader.h>
-#include <vtkFieldData.h>
-#include <vtkStringArray.h>
 #include <vtkXMLUnstructuredGridReader.h>
 
 #include <fmt/format.h>
@@ -81,6 +81,27 @@ TEST(Scene, EverySampleSceneLoadsAndPrepares) {
     for (int k = 0; k < 5; ++k) EXPECT_EQ(sim.step(), StepStatus::ok);
   }
   EXPECT_GE(n, 5);
+}
+
+// Issue 27: every sample scene says which Poisson ratio it uses and why. Its material names the
+// ratio, its description gives it ("Poisson 0.45: ...") with the reason, and the organ samples,
+// palpation of an organ, use tissue's 0.45 (the probe app's default for volumes and models).
+TEST(Scene, EverySampleSaysWhichPoissonRatioItUsesAndWhy) {
+  int n = 0;
+  for (const char* folder : {"scenes", "organ"})
+    for (const auto& e : fs::directory_iterator(fs::path(VX_SAMPLES_DIR) / folder)) {
+      if (e.path().extension() != ".json") continue;
+      ++n;
+      SCOPED_TRACE(e.path().string());
+      std::ifstream in(e.path());
+      const nlohmann::json j = nlohmann::json::parse(in);
+      ASSERT_TRUE(j.at("material").contains("poisson_ratio")) << "the ratio named, not the core's default";
+      const double nu = j.at("material").at("poisson_ratio").get<double>();
+      const std::string said = fmt::format("Poisson {:g}: ", nu);
+      EXPECT_NE(j.at("description").get<std::string>().find(said), std::string::npos) << "no \"" << said << "\"";
+      if (std::string(folder) == "organ") EXPECT_EQ(nu, 0.45);
+    }
+  EXPECT_GE(n, 13);
 }
 
 // The palpation demo's block and lesion, its tool pressed 5 mm (more than a 4 mm surface
@@ -275,7 +296,8 @@ TEST(Scene, ObjectSourcesAreExclusiveAndPathsChecked) {
   j["object"] = {{"phantom", "dodecahedron"}};
   EXPECT_CONTAINS(error_of(j), "unknown phantom \"dodecahedron\"");
   j = base_scene();
-  j["material"]["hounsfield_table"] = {{{"hu", 0}, {"youngs_modulus_kpa", 5}}, {{"hu", 100}, {"youngs_modulus_kpa", 50}}};
+  j["material"]["hounsfield_table"] = {{{"hu", 0}, {"youngs_modulus_kpa", 5}},
+                                       {{"hu", 100}, {"youngs_modulus_kpa", 50}}};
   EXPECT_CONTAINS(error_of(j), "$.material.hounsfield_table: needs the object's HU values");
 }
 
