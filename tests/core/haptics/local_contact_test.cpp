@@ -477,6 +477,39 @@ TEST(LocalContactModel, PatchComplianceFollowsThePoissonRatio) {
   EXPECT_NEAR(ratio[1] / ratio[0], 1.0, 0.2);
 }
 
+// A contact wider than the patch its tool's radius asks for (a rod lying along the tissue, a
+// plate) gets a patch wide enough for it: at Poisson 0.45 the local model takes the patch, and a
+// patch radius smaller than the contact (here 1 mm against a ball pressed 1.5 mm) used to make
+// PatchCompliance refuse the contact and the physics step throw. Its compliance is the one of a
+// patch with the contact in its inner three quarters.
+TEST(LocalContactModel, AContactWiderThanItsPatchGetsAWiderPatch) {
+  const auto phys = block(0.0, 5.0, 0.45);
+  RigSettings s = scene(*phys, IntegratorKind::implicit, 0.01);
+  s.local_contact->patch_radius_mm = 1.0;
+  Rig sim(phys, s);
+  move_tool(sim, tool_at(1.5), 0.2);
+  LocalContactModel model;
+  ASSERT_NO_THROW(sim.build_local_contact(0, model));
+  ASSERT_EQ(model.source, ComplianceSource::patch);
+  ASSERT_GT(model.size(), 10);
+  const Eigen::Matrix3Xd& rest = phys->model->rest_positions;
+  Eigen::Vector3d mid = Eigen::Vector3d::Zero();
+  for (const std::int32_t i : model.node) mid += rest.col(i) / double(model.size());
+  double extent = 0;
+  for (const std::int32_t i : model.node) extent = std::max(extent, (rest.col(i) - mid).norm());
+  EXPECT_GT(extent, 1.0) << "the contact is wider than the patch asked for";
+  // the same contact's compliance from a patch set to that width
+  RigSettings wide = s;
+  wide.local_contact->patch_radius_mm = extent / 0.75 + 1e-6;
+  Rig sim_wide(phys, wide);
+  move_tool(sim_wide, tool_at(1.5), 0.2);
+  LocalContactModel reference;
+  sim_wide.build_local_contact(0, reference);
+  ASSERT_EQ(reference.node, model.node);
+  EXPECT_LT((model.compliance - reference.compliance).norm(), 1e-12 * reference.compliance.norm());
+  EXPECT_GT(model.compliance.diagonal().minCoeff(), 0.0);
+}
+
 // The patch compliance's memory is bounded (issue 27: the CI soak's resident memory grew +1.9 %
 // at Poisson 0.45, where the local models use the patch): 300 contacts of 1 to 256 nodes at random
 // places of a 0.45 block, a new patch for most. The cache never holds more than kCacheColumns
