@@ -84,7 +84,7 @@ class PatchCompliance {
   std::vector<std::uint8_t> fixed_;
   std::size_t free_nodes_{0};  ///< nodes not held: the largest patch possible
   double horizon_{0.02};
-  Eigen::SparseMatrix<double> a_;  ///< all nodes x all nodes, A_T (both triangles)
+  Eigen::SparseMatrix<double> a_;  ///< all nodes x all nodes, A_T's lower triangle (rows >= columns)
   // the patch
   bool has_patch_{false};
   Eigen::Vector3d centre_{Eigen::Vector3d::Zero()};
