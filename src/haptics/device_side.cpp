@@ -206,13 +206,10 @@ void DeviceSide::build_local_contact(int q, LocalContactModel& m) {
       m.source = ComplianceSource::integrator;
     } else {
       if (!patch_.ready()) patch_.init(sim_.shared_physics(), sim_.state().node_fixed, lc.horizon_s);
-      double radius = lc.patch_radius_mm > 0 ? lc.patch_radius_mm
-                                             : std::max(g.shape == ProbeShape::plane ? 0.0 : 6.0 * g.radius_mm,
-                                                        12.0 * surface_node_spacing_mm(*sim_.physics().model));
-      // and wide enough for the contact itself (a rod lying along the tissue, a plate: their
-      // nodes can lie farther from their centre than the tool's radius says), its nodes in the
-      // patch's inner three quarters, where the patch is kept
-      radius = std::max(radius, contact_extent_mm(m.node) / 0.75 + 1e-6);
+      // (PatchCompliance widens it for a contact wider than this: a rod along the tissue, a plate)
+      const double radius = lc.patch_radius_mm > 0 ? lc.patch_radius_mm
+                                                   : std::max(g.shape == ProbeShape::plane ? 0.0 : 6.0 * g.radius_mm,
+                                                              12.0 * surface_node_spacing_mm(*sim_.physics().model));
       if (!patch_.compute(m.node, radius, local_g_))
         throw Error("simulation: the local contact compliance could not be computed (a patch of " +
                     std::to_string(radius) + " mm around the contact)");
@@ -228,16 +225,6 @@ void DeviceSide::build_local_contact(int q, LocalContactModel& m) {
   m.anchor_mm = anchor;
   m.anchor_force_n = force;
   m.tool = g;
-}
-
-double DeviceSide::contact_extent_mm(const std::vector<std::int32_t>& nodes) const {
-  const Eigen::Matrix3Xd& rest = sim_.physics().model->rest_positions;
-  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
-  for (const std::int32_t i : nodes) centre += rest.col(i);
-  centre /= double(std::max<std::size_t>(nodes.size(), 1));
-  double extent = 0.0;
-  for (const std::int32_t i : nodes) extent = std::max(extent, (rest.col(i) - centre).norm());
-  return extent;
 }
 
 void DeviceSide::publish_local_contact() {

@@ -141,8 +141,6 @@ class DeviceSide final : public StepListener {
   [[nodiscard]] bool use_integrator_compliance() const;
   /// The scale of the local contact models' compliance (LocalContactSettings::compliance_scale).
   [[nodiscard]] double local_compliance_scale() const;
-  /// The largest distance of `nodes` (rest positions) from their mean, mm.
-  [[nodiscard]] double contact_extent_mm(const std::vector<std::int32_t>& nodes) const;
   [[nodiscard]] int num_probes() const { return sim_.num_probes(); }
 
   /// The anchor of one probe's local contact model: exponential means over average_s.

@@ -136,19 +136,27 @@ bool PatchCompliance::compute(const std::vector<std::int32_t>& nodes, double rad
     centre += rest.col(i);
   }
   centre /= m;
+  // a contact wider than the patch asked for (a rod lying along the tissue, a plate) gets one
+  // wide enough for it, its nodes in the inner three quarters; the radius doubles, so that the
+  // steps of one wide contact keep their patch while its extent drifts
+  if (!(radius_mm > 0) || !std::isfinite(radius_mm)) return false;
+  double extent = 0.0;
+  for (const int i : nodes) extent = std::max(extent, (rest.col(i) - centre).norm());
+  double radius = radius_mm;
+  while (extent > 0.75 * radius) radius *= 2.0;
   // keep the patch while the contact stays near its centre and inside its inner part
-  bool keep = has_patch_ && radius_ == radius_mm && (centre - centre_).norm() <= 0.25 * radius_mm;
+  bool keep = has_patch_ && radius_ == radius && (centre - centre_).norm() <= 0.25 * radius;
   for (int a = 0; a < m && keep; ++a)
     keep = patch_index_[std::size_t(nodes[std::size_t(a)])] >= 0 &&
-           (rest.col(nodes[std::size_t(a)]) - centre_).norm() <= 0.75 * radius_mm;
-  if (!keep && !build_patch(centre, radius_mm)) return false;
+           (rest.col(nodes[std::size_t(a)]) - centre_).norm() <= 0.75 * radius;
+  if (!keep && !build_patch(centre, radius)) return false;
   // columns of the nodes (cached per patch, at most kCacheColumns: when this contact's new ones
   // do not fit, the cache starts over with this contact's)
   if (m > kCacheColumns) return false;
   int missing = 0;
   for (int a = 0; a < m; ++a) {
     const int k = patch_index_[std::size_t(nodes[std::size_t(a)])];
-    if (k < 0) return false;  // outside even a fresh patch (a contact wider than the radius)
+    if (k < 0) return false;  // not in the patch (cannot happen: the radius holds the contact)
     missing += column_slot_[std::size_t(k)] < 0 ? 1 : 0;
   }
   if (cached_columns() + missing > kCacheColumns) {

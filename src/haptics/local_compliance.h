@@ -59,8 +59,10 @@ class PatchCompliance {
   [[nodiscard]] bool ready() const { return bool(physics_); }
 
   /// g (m x m) = the scalar compliance between `nodes` (free nodes), mm/N, from the patch of
-  /// radius `radius_mm` around their mean rest position. Allocates when it refactors or caches a
-  /// new column. Returns false when a node is held or the patch cannot be factored.
+  /// radius `radius_mm` around their mean rest position, doubled until the nodes lie within 3/4
+  /// of it (a contact wider than the radius asked for). Allocates when it refactors or caches a
+  /// new column. Returns false when a node is held, there are more than kCacheColumns nodes,
+  /// the radius is not > 0, or the patch cannot be factored.
   bool compute(const std::vector<std::int32_t>& nodes, double radius_mm, Eigen::MatrixXd& g);
 
   [[nodiscard]] int patch_nodes() const { return int(patch_nodes_.size()); }

@@ -37,12 +37,11 @@ double env(const char* name, double fallback) {
 
 /// The soak's organ as the probe app loads it (headless) at Poisson `nu`.
 ProbeScene soak_organ(double nu) {
-  if (const char* model = std::getenv("VX_RELEASE_MODEL")) {  // another organ (a .vtu or a volume)
-    DefaultSceneOptions o;
-    o.poisson_ratio = nu;
-    o.display = false;
-    return load_probe_scene(model, o);
-  }
+  DefaultSceneOptions o;
+  o.poisson_ratio = nu;
+  o.display = false;
+  // another organ (a .vtu or a volume)
+  if (const char* model = std::getenv("VX_RELEASE_MODEL")) return load_probe_scene(model, o);
   const std::filesystem::path dir =
       std::filesystem::temp_directory_path() / ("vx_probe_release_" + std::to_string(::getpid()));
   std::filesystem::create_directories(dir);
@@ -51,12 +50,21 @@ ProbeScene soak_organ(double nu) {
   ph.size = 50;
   ph.spacing_mm = 4.3;
   write_volume(make_phantom(ph), dir / "folded.nrrd");
-  DefaultSceneOptions o;
-  o.poisson_ratio = nu;
-  o.display = false;
   ProbeScene scene = load_probe_scene(dir / "folded.nrrd", o);
   std::filesystem::remove_all(dir);
   return scene;
+}
+
+/// A contact of `m` free surface nodes: the nearest to surface node `c` (rest positions).
+std::vector<std::int32_t> contact_around(const Simulation& sim, std::int32_t c, int m) {
+  const Eigen::Matrix3Xd& rest = sim.physics().model->rest_positions;
+  std::vector<std::pair<double, std::int32_t>> near;
+  for (const std::int32_t n : sim.contact_solver().nodes())
+    if (!sim.state().node_fixed[std::size_t(n)]) near.push_back({(rest.col(n) - rest.col(c)).norm(), n});
+  std::partial_sort(near.begin(), near.begin() + m, near.end());
+  std::vector<std::int32_t> nodes;
+  for (int i = 0; i < m; ++i) nodes.push_back(near[std::size_t(i)].second);
+  return nodes;
 }
 
 double largest_distance_mm(const Eigen::Matrix3Xd& a, const Eigen::Matrix3Xd& b) {
@@ -210,14 +218,8 @@ TEST(ProbeRelease, DISABLED_PatchMemory) {
   for (int k = 0; k <= moves; ++k) {
     // a contact of up to 40 surface nodes around a random one
     const int c = surface[std::uniform_int_distribution<std::size_t>(0, surface.size() - 1)(rng)];
-    std::vector<std::pair<double, std::int32_t>> near;
-    for (const std::int32_t n : surface)
-      if (!sim.state().node_fixed[std::size_t(n)])
-        near.push_back({(p.model->rest_positions.col(n) - p.model->rest_positions.col(c)).norm(), n});
     const int m = std::uniform_int_distribution<int>(4, 40)(rng);
-    std::partial_sort(near.begin(), near.begin() + m, near.end());
-    std::vector<std::int32_t> nodes;
-    for (int i = 0; i < m; ++i) nodes.push_back(near[std::size_t(i)].second);
+    const std::vector<std::int32_t> nodes = contact_around(sim, c, m);
     const auto t0 = std::chrono::steady_clock::now();
     ASSERT_TRUE(pc.compute(nodes, radius, g));
     const double ms = 1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -245,25 +247,18 @@ TEST(ProbeRelease, DISABLED_PatchMemory) {
 // against the largest, and the time each patch took.
 TEST(ProbeRelease, DISABLED_PatchRadius) {
   const ProbeScene scene = soak_organ(0.45);
-  const PhysicsModel& p = *scene.physics;
   Simulation sim(scene.physics, scene.simulation);
+  PatchCompliance pc;  // A_T assembled once over the organ
+  pc.init(scene.physics, sim.state().node_fixed, 0.1);
   const std::vector<std::int32_t>& surface = sim.contact_solver().nodes();
   std::mt19937 rng(3);
   const std::vector<double> radii{12, 16, 24, 36, 48};
   for (int k = 0; k < int(env("VX_RELEASE_MOVES", 5)); ++k) {
     const int c = surface[std::uniform_int_distribution<std::size_t>(0, surface.size() - 1)(rng)];
-    std::vector<std::pair<double, std::int32_t>> near;
-    for (const std::int32_t n : surface)
-      if (!sim.state().node_fixed[std::size_t(n)])
-        near.push_back({(p.model->rest_positions.col(n) - p.model->rest_positions.col(c)).norm(), n});
-    std::partial_sort(near.begin(), near.begin() + 40, near.end());
-    std::vector<std::int32_t> nodes;
-    for (int i = 0; i < 40; ++i) nodes.push_back(near[std::size_t(i)].second);
+    const std::vector<std::int32_t> nodes = contact_around(sim, c, 40);
     std::vector<double> k_n_mm;
     std::string line;
-    for (const double r : radii) {
-      PatchCompliance pc;
-      pc.init(scene.physics, sim.state().node_fixed, 0.1);
+    for (const double r : radii) {  // each radius a new patch of the one PatchCompliance
       Eigen::MatrixXd g;
       const auto t0 = std::chrono::steady_clock::now();
       ASSERT_TRUE(pc.compute(nodes, r, g));

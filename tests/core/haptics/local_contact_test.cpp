@@ -481,7 +481,7 @@ TEST(LocalContactModel, PatchComplianceFollowsThePoissonRatio) {
 // plate) gets a patch wide enough for it: at Poisson 0.45 the local model takes the patch, and a
 // patch radius smaller than the contact (here 1 mm against a ball pressed 1.5 mm) used to make
 // PatchCompliance refuse the contact and the physics step throw. Its compliance is the one of a
-// patch with the contact in its inner three quarters.
+// patch with the contact in its inner three quarters: the radius asked for, doubled until it is.
 TEST(LocalContactModel, AContactWiderThanItsPatchGetsAWiderPatch) {
   const auto phys = block(0.0, 5.0, 0.45);
   RigSettings s = scene(*phys, IntegratorKind::implicit, 0.01);
@@ -498,9 +498,11 @@ TEST(LocalContactModel, AContactWiderThanItsPatchGetsAWiderPatch) {
   double extent = 0;
   for (const std::int32_t i : model.node) extent = std::max(extent, (rest.col(i) - mid).norm());
   EXPECT_GT(extent, 1.0) << "the contact is wider than the patch asked for";
-  // the same contact's compliance from a patch set to that width
+  // the same contact's compliance from a patch asked for at that width
+  double radius = 1.0;
+  while (extent > 0.75 * radius) radius *= 2.0;
   RigSettings wide = s;
-  wide.local_contact->patch_radius_mm = extent / 0.75 + 1e-6;
+  wide.local_contact->patch_radius_mm = radius;
   Rig sim_wide(phys, wide);
   move_tool(sim_wide, tool_at(1.5), 0.2);
   LocalContactModel reference;
