@@ -20,37 +20,9 @@ void PatchCompliance::init(std::shared_ptr<const PhysicsModel> physics, const st
   physics_ = std::move(physics);
   fixed_ = node_fixed;
   horizon_ = horizon_s;
-  const PhysicsModel& p = *physics_;
-  const Model& m = *p.model;
-  const int nn = p.num_nodes(), ne = p.num_elements();
+  const int nn = physics_->num_nodes();
   fixed_.resize(std::size_t(nn), 0);
   free_nodes_ = std::size_t(std::count(fixed_.begin(), fixed_.end(), std::uint8_t(0)));
-  const double t = horizon_s;
-  std::vector<Eigen::Triplet<double>> trip;
-  // the lower triangle only (A_T is symmetric): half the matrix and half the triplets (on the
-  // 1 mm folded organ the triplets alone were about 300 MB at the start, beside the rest)
-  std::size_t guess = std::size_t(nn);
-  for (int e = 0; e < ne; ++e) guess += std::size_t(m.num_vertices(e)) * (std::size_t(m.num_vertices(e)) + 1) / 2;
-  trip.reserve(guess);
-  Eigen::MatrixXd ke;
-  const double nu_scale = poisson_compliance_stiffening(p.material.poisson_ratio);
-  for (int e = 0; e < ne; ++e) {
-    const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
-    const double kap = p.damped ? p.element_damping[std::size_t(e)] / t : 0.0;
-    const double* w = p.entry_weight.data() + b;
-    double wsum = 0;
-    for (int i = 0; i < n; ++i) wsum += w[i];
-    // the volume term left out, its effect on the contact a factor in nu (the header)
-    element_elastic_matrix(p, e, ke, true, false);
-    for (int i = 0; i < n; ++i)
-      for (int j = 0; j < n; ++j)
-        if (m.element_vertices[b + i] >= m.element_vertices[b + j])
-          trip.emplace_back(m.element_vertices[b + i], m.element_vertices[b + j],
-                            nu_scale * ke(i, j) + kap * ((i == j ? w[i] : 0.0) - w[i] * w[j] / wsum));
-  }
-  for (int i = 0; i < nn; ++i) trip.emplace_back(i, i, p.node_mass[std::size_t(i)] / (t * t));
-  a_.resize(nn, nn);
-  a_.setFromTriplets(trip.begin(), trip.end());
   patch_index_.assign(std::size_t(nn), -1);
   has_patch_ = false;
   refactors_ = 0;
@@ -70,17 +42,38 @@ bool PatchCompliance::build_patch(const Eigen::Vector3d& centre, double radius_m
       patch_nodes_.push_back(i);
     }
   const int np = int(patch_nodes_.size());
-  // the patch's block of A_T: the nodes beyond it are held
+  // the patch's block of A_T (the nodes beyond it held), assembled from the elements that touch
+  // the patch: A_T over the whole model was kept once (issue 25: about 60 MB for its lower
+  // triangle on the 1 mm folded organ, and twice that in triplets at the start-up)
+  const Model& m = *p.model;
+  const int ne = p.num_elements();
+  const double t = horizon_;
+  const double nu_scale = poisson_compliance_stiffening(p.material.poisson_ratio);
   trip_.clear();
-  for (int k = 0; k < np; ++k) {
-    const int i = patch_nodes_[std::size_t(k)];
-    for (Eigen::SparseMatrix<double>::InnerIterator it(a_, i); it; ++it) {  // rows >= i: both triangles
-      const int j = patch_index_[std::size_t(it.row())];
-      if (j < 0) continue;
-      trip_.emplace_back(j, k, it.value());
-      if (int(it.row()) != i) trip_.emplace_back(k, j, it.value());
+  for (int e = 0; e < ne; ++e) {
+    const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+    const int* v = m.element_vertices.data() + b;
+    bool touches = false;
+    for (int i = 0; i < n && !touches; ++i) touches = patch_index_[std::size_t(v[i])] >= 0;
+    if (!touches) continue;
+    const double kap = p.damped ? p.element_damping[std::size_t(e)] / t : 0.0;
+    const double* w = p.entry_weight.data() + b;
+    double wsum = 0;
+    for (int i = 0; i < n; ++i) wsum += w[i];
+    // the volume term left out, its effect on the contact a factor in nu (the header)
+    element_elastic_matrix(p, e, ke_, true, false);
+    for (int j = 0; j < n; ++j) {
+      const int pj = patch_index_[std::size_t(v[j])];
+      if (pj < 0) continue;
+      for (int i = 0; i < n; ++i) {
+        const int pi = patch_index_[std::size_t(v[i])];
+        if (pi >= 0)
+          trip_.emplace_back(pi, pj, nu_scale * ke_(i, j) + kap * ((i == j ? w[i] : 0.0) - w[i] * w[j] / wsum));
+      }
     }
   }
+  for (int k = 0; k < np; ++k)
+    trip_.emplace_back(k, k, p.node_mass[std::size_t(patch_nodes_[std::size_t(k)])] / (t * t));
   patch_matrix_.resize(np, np);
   patch_matrix_.setFromTriplets(trip_.begin(), trip_.end());
   // Eigen's simplicial LDL^T on an AMD ordering, not the whole model's CHOLMOD with METIS: on the

@@ -15,7 +15,9 @@
 /// radius beyond the model gives the whole model. The factor and its columns are kept while the
 /// contact stays within a quarter of the radius of the patch's centre.
 ///
-/// Memory (issue 27): the solved columns live in one buffer of kCacheColumns columns of 1.5x
+/// Memory (issue 27, issue 25): nothing is kept over the whole model; each patch assembles its
+/// block of A_T from the elements that touch it (a few milliseconds beside its factorisation).
+/// The solved columns live in one buffer of kCacheColumns columns of 1.5x
 /// the largest patch seen (at most the model's free nodes), reused by every patch (a patch that
 /// needs more columns than are free starts the cache over), and the patch's assembly reuses its
 /// triplets and matrix; so the cache's bytes stop growing once the largest patch has been seen,
@@ -54,7 +56,8 @@ class PatchCompliance {
   /// (LocalContactSolver::kMaxNodes, checked where both are used: device_side.cpp).
   static constexpr int kCacheColumns = 256;
 
-  /// Assembles A_T over the whole model (not factored). `node_fixed`: nodes held (never in a patch).
+  /// Keeps the model and the nodes held (`node_fixed`, never in a patch); assembles nothing (each
+  /// patch assembles its block of A_T from the elements that touch it).
   void init(std::shared_ptr<const PhysicsModel> physics, const std::vector<std::uint8_t>& node_fixed, double horizon_s);
   [[nodiscard]] bool ready() const { return bool(physics_); }
 
@@ -86,7 +89,6 @@ class PatchCompliance {
   std::vector<std::uint8_t> fixed_;
   std::size_t free_nodes_{0};  ///< nodes not held: the largest patch possible
   double horizon_{0.02};
-  Eigen::SparseMatrix<double> a_;  ///< all nodes x all nodes, A_T's lower triangle (rows >= columns)
   // the patch
   bool has_patch_{false};
   Eigen::Vector3d centre_{Eigen::Vector3d::Zero()};
@@ -102,6 +104,7 @@ class PatchCompliance {
   std::int64_t cache_restarts_{0};
   // the patch's assembly, reused
   std::vector<Eigen::Triplet<double>> trip_;
+  Eigen::MatrixXd ke_;  ///< one element's elastic matrix
   SparseFactor::Matrix patch_matrix_;
   std::int64_t refactors_{0};
   std::int64_t columns_solved_{0};

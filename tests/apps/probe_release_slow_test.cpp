@@ -248,7 +248,7 @@ TEST(ProbeRelease, DISABLED_PatchMemory) {
 TEST(ProbeRelease, DISABLED_PatchRadius) {
   const ProbeScene scene = soak_organ(0.45);
   Simulation sim(scene.physics, scene.simulation);
-  PatchCompliance pc;  // A_T assembled once over the organ
+  PatchCompliance pc;  // one per organ: each patch assembles its own block
   pc.init(scene.physics, sim.state().node_fixed, 0.1);
   const std::vector<std::int32_t>& surface = sim.contact_solver().nodes();
   std::mt19937 rng(3);
