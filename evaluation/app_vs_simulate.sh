@@ -1,0 +1,63 @@
+#!/usr/bin/env bash
+# The probe app's physics against `voxelastic simulate` on the same scene and press (issue 25's
+# "80 %"): simulate runs SCENE (its joystick plays the press from t = 0); the app runs SCENE with
+# JOY (the same tilts after a wait) under a display and headless, --force-shaping local. The
+# physics' pace is simulated seconds over wall seconds: simulate's after its start-up (its own
+# summary line), the app's over the wall window [FROM, TO] s of its --force-log (`physics_s`
+# against `wall_s`: the press). Same dt, so the ratio is the ratio of steps per second.
+#
+#   evaluation/app_vs_simulate.sh SCENE JOY FROM TO [OUT_DIR] [-- extra app and simulate options]
+#   e.g. evaluation/app_vs_simulate.sh folded-press-model.json samples/organ/folded-press.joy 60 70.5
+#
+# Run on a quiet machine, several times: on two cores the display's share scatters the figure
+# (docs/probe.md "The app against simulate").
+set -euo pipefail
+usage() { echo "usage: $0 SCENE JOY FROM_S TO_S [OUT_DIR] [-- extra options]" >&2; exit 2; }
+[ $# -ge 4 ] || usage
+scene=$1 joy=$2 from=$3 to=$4
+shift 4
+out=$(mktemp -d /tmp/app-vs-simulate.XXXXXX)
+if [ $# -gt 0 ] && [ "$1" != "--" ]; then out=$1; shift; fi
+[ $# -gt 0 ] && [ "$1" = "--" ] && shift
+extra=("$@")
+here=$(cd "$(dirname "$0")/.." && pwd)
+bin=${VX_BUILD:-$here/build}/apps
+for f in "$scene" "$joy"; do [ -f "$f" ] || { echo "$0: no such file: $f" >&2; exit 2; }; done
+for b in "$bin/voxelastic/voxelastic" "$bin/probe/voxelastic-probe"; do
+  [ -x "$b" ] || { echo "$0: $b is not built (scripts/build.sh, or set VX_BUILD)" >&2; exit 2; }
+done
+mkdir -p "$out"
+
+# simulate: "start-up S s, ..." and "N steps, T s simulated in W s (...)"
+"$bin/voxelastic/voxelastic" simulate "$scene" --out "$out/simulate" "${extra[@]}" > "$out/simulate.log"
+sim=$(awk '/^start-up / {s = $2} / steps, .* s simulated in / {
+  for (i = 1; i <= NF; ++i) { if ($i == "simulated") t = $(i - 2); if ($i == "in") w = $(i + 1) }
+} END { if (w - s > 0) printf "%.4f", t / (w - s) }' "$out/simulate.log")
+[ -n "$sim" ] || { echo "$0: no summary line in $out/simulate.log" >&2; exit 1; }
+
+# the app's pace over [from, to] from its force log (columns by name)
+app_pace() {
+  awk -F, -v a="$from" -v b="$to" 'NR == 1 { for (i = 1; i <= NF; ++i) c[$i] = i; next }
+    { w = $c["wall_s"]; s = $c["physics_s"] }
+    w >= a && !have { w0 = w; s0 = s; have = 1 }
+    w <= b { w1 = w; s1 = s }
+    END { if (have && w1 > w0) printf "%.4f", (s1 - s0) / (w1 - w0) }' "$1"
+}
+run_app() {  # name, then the launcher (may be empty)
+  local name=$1
+  shift
+  "$@" "$bin/probe/voxelastic-probe" "$scene" --virtual-joystick "$joy" --exit-after-script --force-shaping local \
+    --force-log "$out/$name.csv" "${extra[@]}" "${app_extra[@]}" > "$out/$name.log" 2>&1
+  app_pace "$out/$name.csv"
+}
+app_extra=(--screenshot "$out/display.png")
+display=$(run_app display "$here/scripts/with-display.sh")
+app_extra=(--headless)
+headless=$(run_app headless)
+
+awk -v s="$sim" -v d="$display" -v h="$headless" -v a="$from" -v b="$to" 'BEGIN {
+  printf "simulate after its start-up:      %.3fx real time\n", s
+  printf "app with a display, %g-%g s wall: %.3fx real time: %.0f %% of simulate\n", a, b, d, 100 * d / s
+  printf "app headless, the same window:    %.3fx real time: %.0f %% of simulate\n", h, 100 * h / s
+}'
+echo "logs, force logs and the screenshot: $out"
