@@ -16,7 +16,7 @@ usage() { echo "usage: $0 SCENE JOY FROM_S TO_S [OUT_DIR] [-- extra options]" >&
 [ $# -ge 4 ] || usage
 scene=$1 joy=$2 from=$3 to=$4
 shift 4
-out=$(mktemp -d /tmp/app-vs-simulate.XXXXXX)
+out=""
 if [ $# -gt 0 ] && [ "$1" != "--" ]; then out=$1; shift; fi
 [ $# -gt 0 ] && [ "$1" = "--" ] && shift
 extra=("$@")
@@ -26,7 +26,7 @@ for f in "$scene" "$joy"; do [ -f "$f" ] || { echo "$0: no such file: $f" >&2; e
 for b in "$bin/voxelastic/voxelastic" "$bin/probe/voxelastic-probe"; do
   [ -x "$b" ] || { echo "$0: $b is not built (scripts/build.sh, or set VX_BUILD)" >&2; exit 2; }
 done
-mkdir -p "$out"
+if [ -z "$out" ]; then out=$(mktemp -d /tmp/app-vs-simulate.XXXXXX); else mkdir -p "$out"; fi
 
 # simulate: "start-up S s, ..." and "N steps, T s simulated in W s (...)"
 "$bin/voxelastic/voxelastic" simulate "$scene" --out "$out/simulate" "${extra[@]}" > "$out/simulate.log"
