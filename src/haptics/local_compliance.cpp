@@ -7,7 +7,7 @@
 #endif
 
 #include "base/error.h"
-#include "physics/elements.h"
+#include "sim/projective_solver.h"
 
 namespace vx {
 
@@ -48,7 +48,9 @@ bool PatchCompliance::build_patch(const Eigen::Vector3d& centre, double radius_m
   const Model& m = *p.model;
   const int ne = p.num_elements();
   const double t = horizon_;
-  const double nu_scale = poisson_compliance_stiffening(p.material.poisson_ratio);
+  ProjectiveSetup setup;  // the implicit integrator's matrix at the horizon T
+  setup.time_step_s = t;
+  setup.damping = p.damped;
   trip_.clear();
   for (int e = 0; e < ne; ++e) {
     const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
@@ -56,21 +58,14 @@ bool PatchCompliance::build_patch(const Eigen::Vector3d& centre, double radius_m
     bool touches = false;
     for (int i = 0; i < n && !touches; ++i) touches = patch_index_[std::size_t(v[i])] >= 0;
     if (!touches) continue;
-    const double kap = p.damped ? p.element_damping[std::size_t(e)] / t : 0.0;
-    const double* w = p.entry_weight.data() + b;
-    double wsum = 0;
-    for (int i = 0; i < n; ++i) wsum += w[i];
     // the volume term left out, its effect on the contact a factor in nu (the header)
-    element_elastic_matrix(p, e, ke_, true, false);
-    for (int j = 0; j < n; ++j) {
-      const int pj = patch_index_[std::size_t(v[j])];
-      if (pj < 0) continue;
-      for (int i = 0; i < n; ++i) {
-        const int pi = patch_index_[std::size_t(v[i])];
-        if (pi >= 0)
-          trip_.emplace_back(pi, pj, nu_scale * ke_(i, j) + kap * ((i == j ? w[i] : 0.0) - w[i] * w[j] / wsum));
-      }
-    }
+    for_each_projective_entry(
+        p, e, setup, ke_,
+        [&](int a, int c, double value) {
+          const int pa = patch_index_[std::size_t(v[a])], pc = patch_index_[std::size_t(v[c])];
+          if (pa >= 0 && pc >= 0) trip_.emplace_back(pa, pc, value);
+        },
+        false, poisson_compliance_stiffening(p.material.poisson_ratio));
   }
   for (int k = 0; k < np; ++k)
     trip_.emplace_back(k, k, p.node_mass[std::size_t(patch_nodes_[std::size_t(k)])] / (t * t));

@@ -81,25 +81,16 @@ namespace {
 
 /// Calls emit(free_row, node, value) for every entry of sum_e (K_e + kappa_e (diag(w) - w w^T / W))
 /// on a free row, elements [e_begin, e_end) in order (node: the column's node, free or fixed).
-/// The one source of the matrix's element entries: its assembly and its factor key read it.
 template <typename Emit>
 void for_each_element_entry(const PhysicsModel& p, const NodeNumbering& numbering, const ProjectiveSetup& setup,
                             int e_begin, int e_end, Eigen::MatrixXd& ke, Emit&& emit) {
   const Model& m = *p.model;
   const std::vector<int>& free_index = numbering.free_index;
   for (int e = e_begin; e < e_end; ++e) {
-    const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
-    const double kap = projective_centring_weight(p, e, setup);
-    const double* w = p.entry_weight.data() + b;
-    double wsum = 0;
-    for (int i = 0; i < n; ++i) wsum += w[i];
-    element_elastic_matrix(p, e, ke);
-    for (int i = 0; i < n; ++i) {
-      const int fi = free_index[std::size_t(m.element_vertices[b + i])];
-      if (fi < 0) continue;
-      for (int j = 0; j < n; ++j)
-        emit(fi, m.element_vertices[b + j], ke(i, j) + kap * ((i == j ? w[i] : 0.0) - w[i] * w[j] / wsum));
-    }
+    const int* v = m.element_vertices.data() + m.element_offsets[e];
+    for_each_projective_entry(p, e, setup, ke, [&](int a, int b, double value) {
+      if (const int fi = free_index[std::size_t(v[a])]; fi >= 0) emit(fi, v[b], value);
+    });
   }
 }
 

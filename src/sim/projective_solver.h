@@ -101,6 +101,25 @@ void assemble_projective_matrix(const PhysicsModel& physics, const NodeNumbering
                                               Eigen::SparseMatrix<double>* a_free_fixed);
 /// kappa_e of element `e`: k_v,e (the volume term) + c_e / dt (the damping term, with setup.damping), N/mm.
 [[nodiscard]] double projective_centring_weight(const PhysicsModel& physics, int e, const ProjectiveSetup& setup);
+/// The projective matrix's entries of element `e`, K_e + kappa_e (diag(w) - w w^T / W): calls
+/// emit(a, b, value) for every pair of its vertices (a, b: places in the element's vertex list),
+/// row by row. The one source of these entries: the implicit integrator's assembly and factor key
+/// read it, and so do the local contact model's patches (local_compliance.h: `volume` false, the
+/// elastic part scaled by `elastic_scale`). `ke`: work space.
+template <typename Emit>
+void for_each_projective_entry(const PhysicsModel& physics, int e, const ProjectiveSetup& setup, Eigen::MatrixXd& ke,
+                               Emit&& emit, bool volume = true, double elastic_scale = 1.0) {
+  const Model& m = *physics.model;
+  const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
+  const double kap = projective_centring_weight(physics, e, setup);
+  const double* w = physics.entry_weight.data() + b;
+  double wsum = 0;
+  for (int i = 0; i < n; ++i) wsum += w[i];
+  element_elastic_matrix(physics, e, ke, true, volume);
+  for (int i = 0; i < n; ++i)
+    for (int j = 0; j < n; ++j)
+      emit(i, j, elastic_scale * ke(i, j) + kap * ((i == j ? w[i] : 0.0) - w[i] * w[j] / wsum));
+}
 
 class ProjectiveSolver {
  public:
