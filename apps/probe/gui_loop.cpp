@@ -147,16 +147,16 @@ HudInfo GuiLoop::hud(SteadyClock::time_point now) {
   return h;
 }
 
-void GuiLoop::take_frame(ProbeView& view) {
-  // the newest frame, if the physics made one since; never waited for (no new frame: the
-  // surface is not touched)
-  s_.exchange.request_frame();
-  if (!s_.exchange.take_frame(frame_)) return;
+bool GuiLoop::take_frame(ProbeView& view) {
+  // the newest frame, if the physics made one since it was asked for; never waited for (no new
+  // frame: the surface is not touched)
+  if (!s_.exchange.take_frame(frame_)) return false;
   for (int p = 0; p < s_.probes && p < int(frame_.probes.size()); ++p) {
     probe_pos_[std::size_t(p)] = frame_.probes[std::size_t(p)].pose.position_mm;
     probe_contacts_[std::size_t(p)] = frame_.probes[std::size_t(p)].contacts;
   }
   view.update_geometry(frame_.surface_vertices, frame_.surface_normals, frame_.positions, probe_pos_, probe_contacts_);
+  return true;
 }
 
 bool GuiLoop::show_frame(ProbeView& view, SteadyClock::time_point now) {
@@ -166,16 +166,32 @@ bool GuiLoop::show_frame(ProbeView& view, SteadyClock::time_point now) {
     return false;
   }
   s_.set_basis(view.view_basis());
-  take_frame(view);
+  // the physics makes a frame (the display surface deformed, 4-6 ms on the folded organ) only
+  // when asked, and it is asked only when a frame may be drawn
+  const bool open = frame_allowed(now);
+  if (open) s_.exchange.request_frame();
+  const bool new_frame = take_frame(view);
   std::vector<PlotSample> samples;
   {
     std::lock_guard lock(s_.device.mutex);
     samples.swap(s_.device.plot_pending);
   }
   view.add_plot_samples(samples);
-  view.set_hud(hud(now));
-  view.render();  // no lock held: the physics and the device go on meanwhile
-  if (s_.controls.screenshot_requested.exchange(false)) {
+  const bool screenshot = s_.controls.screenshot_requested.exchange(false);
+  // a frame draws what changed: what the user did (a key, the mouse, a resize), a screenshot, the
+  // tissue and the tools (a new physics frame); with nothing new only the HUD's numbers and the
+  // force plot move, and they are redrawn a refresh period apart
+  const bool input = view.input_events() != rendered_input_;
+  const double since_s = seconds(now - last_render_);
+  const double refresh_s = behind_ ? kHudRefreshBehind_s : kHudRefresh_s;
+  if (screenshot || input || view.frames() == 0 || (open && (new_frame || since_s >= refresh_s))) {
+    view.set_hud(hud(now));
+    view.render();  // no lock held: the physics and the device go on meanwhile
+    last_render_ = now;
+    last_render_s_ = seconds(SteadyClock::now() - now);
+    rendered_input_ = view.input_events();
+  }
+  if (screenshot) {
     const std::string name = fmt::format("voxelastic-probe-{:06d}.png", view.frames());
     view.save_screenshot(name);
     s_.say("screenshot: " + name);
@@ -183,13 +199,18 @@ bool GuiLoop::show_frame(ProbeView& view, SteadyClock::time_point now) {
   if (s_.options.frames > 0 && view.frames() >= s_.options.frames)
     s_.controls.request_quit(fmt::format("{} frames (--frames)", s_.options.frames));
   // sleep to the next frame deadline (a late frame starts the next period now, never a burst).
-  // Sleeping longer after a slow pass (twice the pass) was tried and dropped: a pass is slow
-  // because the display thread is at nice 10 behind the physics, and the frame rate fell fivefold
-  // (15 to 3 frames/s on the demo) without the physics gaining
   const auto after = SteadyClock::now();
   next_frame_ = std::max(next_frame_ + frame_period_, after);
   std::this_thread::sleep_until(next_frame_);
   return true;
+}
+
+bool GuiLoop::frame_allowed(SteadyClock::time_point now) {
+  // the tissue behind real time: the physics is short of CPU, and the display keeps its frames
+  // to a share of the wall time (on two cores they take the physics' CPU: docs/probe.md)
+  const RateWindow w = meter_.over_last(kRateWindow_s);
+  behind_ = w.full && w.factor() < 0.95 && !s_.controls.paused.load();
+  return !behind_ || seconds(now - last_render_) >= last_render_s_ / kBehindDuty;
 }
 
 void GuiLoop::report_headless(SteadyClock::time_point now) {

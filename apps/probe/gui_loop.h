@@ -24,6 +24,13 @@ class GuiLoop {
  public:
   /// The window over which the HUD and the status lines measure the physics, s.
   static constexpr double kRateWindow_s = 1.0;
+  /// With nothing new to draw (no physics frame, no input), the HUD and the force plot are
+  /// redrawn this far apart, s; while the tissue runs behind real time, kHudRefreshBehind_s.
+  static constexpr double kHudRefresh_s = 0.25;
+  static constexpr double kHudRefreshBehind_s = 1.0;
+  /// While the tissue runs behind real time, the display's frames take at most this share of
+  /// the wall time (after a frame that took 0.1 s the next starts 0.1 / kBehindDuty s after it).
+  static constexpr double kBehindDuty = 0.5;
 
   GuiLoop(AppShared& shared, ProbeView* view, KeyboardStick& keyboard);
   /// Runs until a quit; returns the error that ended it ("" for none). `interrupted` is polled
@@ -52,8 +59,11 @@ class GuiLoop {
   void warn_if_behind(const RateWindow& w);
   /// One frame of the window; false once the window closed.
   bool show_frame(ProbeView& view, SteadyClock::time_point now);
-  /// The newest deformed surface, if the physics made one since the last pass.
-  void take_frame(ProbeView& view);
+  /// The newest deformed surface, if the physics made one since the last pass (true: taken).
+  bool take_frame(ProbeView& view);
+  /// Whether a frame of the tissue may be asked for and drawn now (the frame budget while the
+  /// tissue runs behind real time); sets behind_.
+  bool frame_allowed(SteadyClock::time_point now);
   [[nodiscard]] HudInfo hud(SteadyClock::time_point now);
   /// Headless: a status line every 2 s.
   void report_headless(SteadyClock::time_point now);
@@ -73,6 +83,10 @@ class GuiLoop {
   double paused_s_{0.0};
   SoakMonitor soak_;
   SteadyClock::time_point last_pass_{};
+  SteadyClock::time_point last_render_{};
+  double last_render_s_{0.0};       ///< the last frame's wall time, s
+  bool behind_{false};              ///< the tissue behind real time over the last kRateWindow_s
+  std::int64_t rendered_input_{0};  ///< the view's input events at the last render
   SteadyClock::duration frame_period_;
   SteadyClock::time_point next_frame_{SteadyClock::now()};
   SteadyClock::time_point next_report_{SteadyClock::now() + std::chrono::seconds(2)};

@@ -2,7 +2,6 @@
 
 #include <fmt/core.h>
 
-
 #include <algorithm>
 #include <atomic>
 #include <csignal>
@@ -242,7 +241,8 @@ void App::make_device_loop() {
   for (int p = 0; p < std::min(probes_, kMaxSticks); ++p)
     start[std::size_t(p)] = device_loop_->add_local_probe(scene_.simulation.probes[std::size_t(p)], hs);
   shared_->tool_targets.fill(start);
-  say(fmt::format("force: local contact model at every device tick ({:.0f}/s): virtual coupling {:.2f} N/mm (Colgate, "
+  say(
+      fmt::format("force: local contact model at every device tick ({:.0f}/s): virtual coupling {:.2f} N/mm (Colgate, "
                   "device damping {:.2g} N s/m), damping {:.1f} T K, energy guard; physics updates at up to {:.0f}/s",
                   options_.device_hz, device_loop_->renderer(0).coupling_stiffness_n_mm(),
                   1e3 * hs.device_damping_n_s_mm, hs.damping_margin, options_.physics_hz));
@@ -252,8 +252,8 @@ App::IoLines App::describe_io() {
   const std::string control = control_.mapping.mode == JoystickMode::rate ? "rate control" : "position control";
   IoLines lines;
   if (script_)
-    lines.input = fmt::format("{}: {} virtual joystick{} ({})", control, input_->count(), input_->count() > 1 ? "s" : "",
-                              options_.joystick_script.filename().string());
+    lines.input = fmt::format("{}: {} virtual joystick{} ({})", control, input_->count(),
+                              input_->count() > 1 ? "s" : "", options_.joystick_script.filename().string());
   else if (input_->count() > 0)
     lines.input = fmt::format("{}: {} + keyboard/mouse", control,
                               input_->count() > 1 ? "2 joysticks" : "joystick '" + input_->name(0) + "'");
@@ -284,7 +284,8 @@ std::unique_ptr<ProbeView> App::open_view(const IoLines& lines) {
   setup.workspace = Box{scene_.simulation.workspace.min_mm, scene_.simulation.workspace.max_mm};
   setup.world_up = scene_.world_up;
   setup.flat = scene_.model->is_2d();
-  if (setup.flat) setup.slice_normal = scene_.model->grid.direction.col(0).cross(scene_.model->grid.direction.col(1)).normalized();
+  if (setup.flat)
+    setup.slice_normal = scene_.model->grid.direction.col(0).cross(scene_.model->grid.direction.col(1)).normalized();
   setup.width = options_.width;
   setup.height = options_.height;
   setup.input_line = lines.input;
@@ -306,8 +307,13 @@ std::string App::run_loops(const IoLines& lines) {
   physics_loop.set_faults(options_.test_faults);
   shared_->start = SteadyClock::now();
   shared_->physics.set_clock(SimClock{0.0, shared_->start, false});
-  FixedRateThread physics("physics", options_.physics_hz, [&](std::int64_t) { physics_loop.tick(); });
-  FixedRateThread device("device", options_.device_hz, [this](std::int64_t n) { device_loop_->tick(n); });
+  // named for top -H, perf and gdb (the physics' OpenMP workers inherit its name)
+  FixedRateThread physics(
+      "physics", options_.physics_hz, [&](std::int64_t) { physics_loop.tick(); },
+      [] { (void)set_this_thread_name("vx-physics"); });
+  FixedRateThread device(
+      "device", options_.device_hz, [this](std::int64_t n) { device_loop_->tick(n); },
+      [] { (void)set_this_thread_name("vx-device"); });
   const auto old_int = std::signal(SIGINT, on_interrupt);
   const auto old_term = std::signal(SIGTERM, on_interrupt);
   physics.start();
@@ -348,20 +354,19 @@ void App::summary(double wall_s) {
     // the real-time factor over the whole run after the start-up, pauses excluded
     RateWindow w = rate_between(r.at_startup, end_);
     w.wall_s = std::max(0.0, w.wall_s - gui_loop_->paused_s());
-    say(fmt::format("voxelastic-probe: {:.2f} s wall; start-up {:.2f} s (loading the scene {:.2f} s, then open to the "
-                    "first physics step {:.2f} s); after it {:.3f} s simulated in {:.3f} s wall ({:.2f}x real time{}); "
-                    "physics {} steps ({:.0f} steps/s after the start-up, {})",
-                    scene_.load_s + wall_s, scene_.load_s + r.startup_s, scene_.load_s, r.startup_s, w.sim_s, w.wall_s,
-                    w.factor(),
-                    r.lag_drops.load() == 0 ? ""
-                    : local_                ? ", the tissue could not keep real time"
-                                            : ", could not keep real time",
-                    steps, w.steps_per_s(), dt));
+    say(fmt::format(
+        "voxelastic-probe: {:.2f} s wall; start-up {:.2f} s (loading the scene {:.2f} s, then open to the "
+        "first physics step {:.2f} s); after it {:.3f} s simulated in {:.3f} s wall ({:.2f}x real time{}); "
+        "physics {} steps ({:.0f} steps/s after the start-up, {})",
+        scene_.load_s + wall_s, scene_.load_s + r.startup_s, scene_.load_s, r.startup_s, w.sim_s, w.wall_s, w.factor(),
+        r.lag_drops.load() == 0 ? ""
+        : local_                ? ", the tissue could not keep real time"
+                                : ", could not keep real time",
+        steps, w.steps_per_s(), dt));
   }
   if (local_)
     say(fmt::format("local force shaping: {} physics updates ({:.1f} per second), device clock {:.2f} s",
-                    r.updates.load(),
-                    wall_s > 0 ? double(r.updates.load()) / wall_s : 0.0, device_loop_->clock_s()));
+                    r.updates.load(), wall_s > 0 ? double(r.updates.load()) / wall_s : 0.0, device_loop_->clock_s()));
   say(fmt::format(
       "faults: {} physics fault(s) recovered from{}; the last good state kept {} times (at least "
       "{:g} s and {:g} copies' time apart, a copy took {:.1f} ms at most)",
@@ -378,7 +383,8 @@ void App::summary(double wall_s) {
   std::lock_guard lock(shared_->device.mutex);
   for (int p = 0; p < std::min(probes_, 2); ++p) {
     const ForceStats& s = shared_->device.stats[std::size_t(p)];
-    say(fmt::format("probe {}: device force max {:.3f} N, mean {:.3f} N, largest tick-to-tick change {:.4f} N; raw "
+    say(
+        fmt::format("probe {}: device force max {:.3f} N, mean {:.3f} N, largest tick-to-tick change {:.4f} N; raw "
                     "reaction max {:.3f} N{}",
                     p, s.max_device_N, s.samples ? s.sum_device_N / double(s.samples) : 0.0, s.max_step_N, s.max_raw_N,
                     local_ && std::size_t(p) < device_loop_->local_probes()
@@ -456,10 +462,11 @@ int App::finish(ProbeView* view, std::string error) {
     say(fmt::format("display: {} frames, {:.1f} frames/s ({})", view->frames(), view->frames_per_s(),
                     gui_nice_ ? fmt::format("nice {}, below the physics", kGuiNice) : "default priority"));
   const DeviceLoop& d = *device_loop_;
-  say(fmt::format("device: {} ticks ({:.0f} updates/s, {} late ticks skipped; a tick takes {:.0f} us on average, {:.0f} "
-                  "us at most; {})",
-                  d.ticks(), wall_s > 0 ? double(d.ticks()) / wall_s : 0.0, device_missed_, 1e6 * d.mean_tick_cost_s(),
-                  1e6 * d.max_tick_cost_s(), d.priority()));
+  say(fmt::format(
+      "device: {} ticks ({:.0f} updates/s, {} late ticks skipped; a tick takes {:.0f} us on average, {:.0f} "
+      "us at most; {})",
+      d.ticks(), wall_s > 0 ? double(d.ticks()) / wall_s : 0.0, device_missed_, 1e6 * d.mean_tick_cost_s(),
+      1e6 * d.max_tick_cost_s(), d.priority()));
   for (const auto& o : outputs_.all()) say(fmt::format("  {}: {} device commands", o->describe(), o->device_updates()));
   if (!options_.force_log.empty() && error.empty()) say("force log: " + options_.force_log.string());
   if (!error.empty()) {

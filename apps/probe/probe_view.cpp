@@ -58,9 +58,9 @@ void ProbeInteractorStyle::OnMouseMove() {
 
 namespace {
 
-void on_exit(vtkObject*, unsigned long, void* client, void*) {
-  static_cast<ProbeView::Impl*>(client)->closed = true;
-}
+void on_exit(vtkObject*, unsigned long, void* client, void*) { static_cast<ProbeView::Impl*>(client)->closed = true; }
+
+void on_input(vtkObject*, unsigned long, void* client, void*) { ++static_cast<ProbeView::Impl*>(client)->input_events; }
 
 // a unit-ish world "toward the viewer" direction perpendicular to up
 Eigen::Vector3d toward_viewer(const Eigen::Vector3d& up) {
@@ -73,8 +73,7 @@ Eigen::Vector3d toward_viewer(const Eigen::Vector3d& up) {
 }  // namespace
 
 Eigen::Matrix3d view_basis_of(vtkCamera* cam, const Eigen::Vector3d& world_up) {
-  const Eigen::Vector3d up =
-      world_up.norm() > 0 ? Eigen::Vector3d(world_up.normalized()) : Eigen::Vector3d(0, -1, 0);
+  const Eigen::Vector3d up = world_up.norm() > 0 ? Eigen::Vector3d(world_up.normalized()) : Eigen::Vector3d(0, -1, 0);
   double dop[3];
   cam->GetDirectionOfProjection(dop);
   const Eigen::Vector3d d(dop[0], dop[1], dop[2]);
@@ -138,6 +137,11 @@ void ProbeView::Impl::build_scene() {
   exit_cb->SetCallback(&on_exit);
   exit_cb->SetClientData(this);
   interactor->AddObserver(vtkCommand::ExitEvent, exit_cb);
+  // every event the window delivers (keys, mouse, resize, expose): the GUI loop redraws after one
+  auto input_cb = make<vtkCallbackCommand>();
+  input_cb->SetCallback(&on_input);
+  input_cb->SetClientData(this);
+  interactor->AddObserver(vtkCommand::AnyEvent, input_cb);
 
   // lights: a key/fill/back kit like a surgical lamp, plus the camera's headlight off
   auto lights = make<vtkLightKit>();
@@ -267,8 +271,8 @@ void ProbeView::Impl::drag(int dx, int dy, bool depth) {
   // pixels to mm at the focal distance
   vtkCamera* cam = renderer->GetActiveCamera();
   const int* size = window->GetSize();
-  const double mm_per_px = 2.0 * cam->GetDistance() * std::tan(0.5 * cam->GetViewAngle() * M_PI / 180.0) /
-                           double(std::max(1, size[1]));
+  const double mm_per_px =
+      2.0 * cam->GetDistance() * std::tan(0.5 * cam->GetViewAngle() * M_PI / 180.0) / double(std::max(1, size[1]));
   Eigen::Vector3d offset(dx * mm_per_px, dy * mm_per_px, 0.0);
   if (depth) offset = Eigen::Vector3d(0.0, 0.0, dy * mm_per_px);
   keyboard->add_drag(offset);
@@ -341,8 +345,7 @@ void ProbeView::save_screenshot(const std::filesystem::path& png) {
 void ProbeView::reset_camera() { impl_->camera_to_start(); }
 
 Eigen::Matrix3d start_view_basis(const Eigen::Vector3d& world_up) {
-  const Eigen::Vector3d up =
-      world_up.norm() > 0 ? Eigen::Vector3d(world_up.normalized()) : Eigen::Vector3d(0, -1, 0);
+  const Eigen::Vector3d up = world_up.norm() > 0 ? Eigen::Vector3d(world_up.normalized()) : Eigen::Vector3d(0, -1, 0);
   const Eigen::Vector3d away = -toward_viewer(up);
   Eigen::Matrix3d basis;
   basis.col(0) = away.cross(up).normalized();
@@ -356,6 +359,7 @@ Eigen::Matrix3d ProbeView::view_basis() const {
 }
 
 std::int64_t ProbeView::frames() const { return impl_->frames; }
+std::int64_t ProbeView::input_events() const { return impl_->input_events; }
 double ProbeView::frames_per_s() const { return impl_->fps.rate(); }
 
 }  // namespace vx::probe

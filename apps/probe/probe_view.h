@@ -48,48 +48,48 @@ struct LevelCells {
 
 /// What the view shows that does not change during a run.
 struct ViewSetup {
-  std::string title;                          ///< shown in the HUD and the window title
-  Eigen::Matrix3Xd surface_vertices;          ///< 3 x V at rest, LPS mm
-  Eigen::Matrix3Xi surface_triangles;         ///< 3 x T, counter-clockwise seen from outside
-  std::shared_ptr<const LevelCells> levels;   ///< optional: the elements view
-  std::vector<ProbeGeometry> probes;          ///< one per probe
-  std::vector<std::string> probe_names;       ///< one per probe (HUD)
-  std::vector<Eigen::Vector3d> probe_start_mm;///< where each probe starts
+  std::string title;                            ///< shown in the HUD and the window title
+  Eigen::Matrix3Xd surface_vertices;            ///< 3 x V at rest, LPS mm
+  Eigen::Matrix3Xi surface_triangles;           ///< 3 x T, counter-clockwise seen from outside
+  std::shared_ptr<const LevelCells> levels;     ///< optional: the elements view
+  std::vector<ProbeGeometry> probes;            ///< one per probe
+  std::vector<std::string> probe_names;         ///< one per probe (HUD)
+  std::vector<Eigen::Vector3d> probe_start_mm;  ///< where each probe starts
   bool walls{false};
-  Box workspace;                              ///< the walls (when `walls`)
-  Eigen::Vector3d world_up{0, -1, 0};         ///< "up" on screen (LPS; default anterior)
+  Box workspace;                       ///< the walls (when `walls`)
+  Eigen::Vector3d world_up{0, -1, 0};  ///< "up" on screen (LPS; default anterior)
   /// a 2D (slice) model: the flat view, the camera on the side of `slice_normal` looking at the
   /// slice face on, `world_up` (in the slice plane) up on screen
   bool flat{false};
   Eigen::Vector3d slice_normal{0, 0, 1};
   int width{1280};
   int height{800};
-  double plot_window_s{5.0};                  ///< time shown by the force plot
-  std::string input_line;                     ///< HUD: e.g. "rate control: joystick 'X'"
-  std::string output_line;                    ///< HUD: e.g. "force out: haptic 'X' + log f.csv"
-  bool local_shaping{false};                  ///< the device force is the local contact model's (HUD, plot)
-  std::string physics_line;                   ///< HUD: the configuration the physics runs, e.g. "implicit 20 ms, 1 iteration"
+  double plot_window_s{5.0};  ///< time shown by the force plot
+  std::string input_line;     ///< HUD: e.g. "rate control: joystick 'X'"
+  std::string output_line;    ///< HUD: e.g. "force out: haptic 'X' + log f.csv"
+  bool local_shaping{false};  ///< the device force is the local contact model's (HUD, plot)
+  std::string physics_line;   ///< HUD: the configuration the physics runs, e.g. "implicit 20 ms, 1 iteration"
 };
 
 /// Numbers for the heads-up display.
 struct HudInfo {
-  double sim_s{0.0};                ///< paper: simulated time; local: the device's clock
+  double sim_s{0.0};  ///< paper: simulated time; local: the device's clock
   double physics_steps_per_s{0.0};
-  double physics_updates_per_s{0.0};///< local: local contact models published per second (measured)
-  double real_time_factor{1.0};     ///< simulated seconds per wall second
+  double physics_updates_per_s{0.0};  ///< local: local contact models published per second (measured)
+  double real_time_factor{1.0};       ///< simulated seconds per wall second
   /// The physics' rate as the app words it (real_time_meter.h): "34 steps/s (0.52x real time,
   /// last 1 s)", or during the start-up "preparing the solver (3.2 s)"; empty: from the numbers
   std::string physics_rate;
-  bool behind_real_time{false};     ///< physics cannot keep up
+  bool behind_real_time{false};  ///< physics cannot keep up
   double device_hz{0.0};
   double device_target_hz{1000.0};  ///< the device thread's rate; below 90% of it the HUD warns
   int probes{0};
   std::array<double, 2> force_N{};  ///< per probe: paper, |the current update's mean|; local, |the force played|
   std::array<int, 2> contacts{};
-  std::array<int, 2> model_nodes{}; ///< local: nodes of the probe's local contact model
-  int active_probe{0};              ///< the keyboard's probe
+  std::array<int, 2> model_nodes{};  ///< local: nodes of the probe's local contact model
+  int active_probe{0};               ///< the keyboard's probe
   bool paused{false};
-  std::string status;               ///< an extra line (errors, disconnects), shown in red
+  std::string status;  ///< an extra line (errors, disconnects), shown in red
 };
 
 /// One point of the force plot (the paper's fig. 10: the raw reaction sum jitters from step to
@@ -144,6 +144,8 @@ class ProbeView {
   [[nodiscard]] Eigen::Matrix3d view_basis() const;
   /// Frames rendered so far and the measured rate.
   [[nodiscard]] std::int64_t frames() const;
+  /// Window events handled so far (keys, mouse, resize, expose): what the user did to the view.
+  [[nodiscard]] std::int64_t input_events() const;
   [[nodiscard]] double frames_per_s() const;
 
   struct Impl;

@@ -74,8 +74,8 @@ void set_text_style(vtkTextProperty* p, int size, const Rgb& c);
 class ProbeInteractorStyle : public vtkInteractorStyleTrackballCamera {
  public:
   static ProbeInteractorStyle* New();
-  vtkTypeMacro(ProbeInteractorStyle, vtkInteractorStyleTrackballCamera)
-  void OnChar() override {}  // no built-in VTK keys (e/q quit, w wireframe, 3 stereo, ...)
+  vtkTypeMacro(ProbeInteractorStyle, vtkInteractorStyleTrackballCamera) void OnChar() override {
+  }  // no built-in VTK keys (e/q quit, w wireframe, 3 stereo, ...)
   void OnKeyPress() override;
   void OnKeyRelease() override;
   void OnRightButtonDown() override;
@@ -115,9 +115,9 @@ struct ProbeView::Impl {
   // elements by level
   Ptr<vtkPolyData> level_poly;
   Ptr<vtkActor> level_actor;
-  Ptr<vtkPlane> level_cut;               // the cut-away plane (surface clipped, elements culled)
-  Eigen::Vector3d cut_away{0, 0, 0};      // "away" direction the current cut was made for
-  Eigen::Matrix3Xd last_nodes;            // node positions of the last frame
+  Ptr<vtkPlane> level_cut;                      // the cut-away plane (surface clipped, elements culled)
+  Eigen::Vector3d cut_away{0, 0, 0};            // "away" direction the current cut was made for
+  Eigen::Matrix3Xd last_nodes;                  // node positions of the last frame
   std::vector<Ptr<vtkTextActor>> level_legend;  // one line per level, in its colour
   bool levels_on{false};
 
@@ -151,6 +151,7 @@ struct ProbeView::Impl {
 
   // rates
   std::int64_t frames{0};
+  std::int64_t input_events{0};  // window events (keys, mouse, resize, expose) so far
   RateMeter fps{0.5};
 
   // camera

@@ -4,8 +4,11 @@
 
 namespace vx::probe {
 
-FixedRateThread::FixedRateThread(std::string name, double rate_hz, Body body)
-    : name_(std::move(name)), rate_hz_(rate_hz > 0 ? rate_hz : 1.0), body_(std::move(body)) {}
+FixedRateThread::FixedRateThread(std::string name, double rate_hz, Body body, std::function<void()> on_start)
+    : name_(std::move(name)),
+      rate_hz_(rate_hz > 0 ? rate_hz : 1.0),
+      body_(std::move(body)),
+      on_start_(std::move(on_start)) {}
 
 FixedRateThread::~FixedRateThread() { stop(); }
 
@@ -26,6 +29,7 @@ std::string FixedRateThread::error() const {
 }
 
 void FixedRateThread::run() {
+  if (on_start_) on_start_();
   const auto period = std::chrono::duration_cast<SteadyClock::duration>(std::chrono::duration<double>(1.0 / rate_hz_));
   auto next = SteadyClock::now();
   std::int64_t tick = 0;

@@ -21,11 +21,12 @@ using SteadyClock = std::chrono::steady_clock;
 /// Calls `body(tick)` every 1/rate_hz seconds on its own thread, against absolute deadlines
 /// (no drift). When a tick is late by a whole period or more, the missed ticks are skipped
 /// (counted, never replayed in a burst). An exception in the body stops the thread and is
-/// kept as error().
+/// kept as error(). `on_start` runs on the thread before its first tick (the app names its
+/// threads there: util/thread_priority.h).
 class FixedRateThread {
  public:
   using Body = std::function<void(std::int64_t tick)>;
-  FixedRateThread(std::string name, double rate_hz, Body body);
+  FixedRateThread(std::string name, double rate_hz, Body body, std::function<void()> on_start = {});
   ~FixedRateThread();
   FixedRateThread(const FixedRateThread&) = delete;
   FixedRateThread& operator=(const FixedRateThread&) = delete;
@@ -49,6 +50,7 @@ class FixedRateThread {
   std::string name_;
   double rate_hz_;
   Body body_;
+  std::function<void()> on_start_;
   std::thread thread_;
   std::atomic<bool> stop_{false};
   std::atomic<std::int64_t> ticks_{0};

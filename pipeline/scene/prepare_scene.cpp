@@ -415,6 +415,7 @@ PreparedScene prepare_scene(const Scene& scene, const PrepareSceneOptions& optio
       out.pending_region_check =
           std::make_shared<BackgroundRegionCheck>([physics = out.physics, fixed, settings = out.settings,
                                                    nice = options.region_check_nice](const std::atomic<bool>& cancel) {
+            (void)set_this_thread_name("vx-region-check");
             if (nice != 0) (void)set_this_thread_nice(nice);  // a real-time run goes first
             return check_region_support(*physics, fixed, settings, &cancel);
           });

@@ -12,4 +12,11 @@ namespace vx {
 /// Returns false when the system refused (or on a system without per-thread priorities).
 bool set_this_thread_nice(int nice);
 
+/// Names the calling thread as `top -H`, `perf` and debuggers show it (Linux keeps 15
+/// characters; a longer name is cut). Returns false where threads cannot be named.
+bool set_this_thread_name(const std::string& name);
+
+/// The calling thread's name ("" where threads have none).
+std::string this_thread_name();
+
 }  // namespace vx

@@ -70,9 +70,8 @@ std::vector<Row> read_log(const fs::path& csv, std::string* header) {
 class ProbeApp : public ::testing::Test {
  protected:
   void SetUp() override {
-    dir_ = fs::temp_directory_path() /
-           ("vx_probe_app_" + std::to_string(::getpid()) + "_" +
-            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    dir_ = fs::temp_directory_path() / ("vx_probe_app_" + std::to_string(::getpid()) + "_" +
+                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
     fs::remove_all(dir_);
     fs::create_directories(dir_);
   }
@@ -157,8 +156,8 @@ TEST_F(ProbeApp, ScriptedPalpationFeelsTheLesion) {
   // the sample: press 3 mm into the block at x = -15 mm, slide to x = +14 mm across the lesion
   // (centre x = +5.4 mm, 0.6 mm under the top), lift; forces recorded every device tick
   const fs::path csv = dir_ / "forces.csv";
-  const RunResult r = run(q(kScene) + " --headless --virtual-joystick " + q(kScript) +
-                          " --exit-after-script --force-log " + q(csv));
+  const RunResult r =
+      run(q(kScene) + " --headless --virtual-joystick " + q(kScript) + " --exit-after-script --force-log " + q(csv));
   ASSERT_EQ(r.code, 0) << r.out << r.err;
   EXPECT_NE(r.out.find("the joystick script ended"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("rumble"), std::string::npos) << r.out;  // the virtual joystick's rumble sink
@@ -457,3 +456,22 @@ TEST_F(ProbeApp, WindowScreenshotUnderADisplay) {
   EXPECT_NE(r.out.find("display: 15 frames"), std::string::npos) << r.out;
 }
 #include "support/run_binary.h"
+
+// The display draws what changed: with the physics slowed to a step each 0.25 s (20 steps of
+// 0.18 ms, about 3 s of wall time after the start-up's) it draws each new physics frame and the HUD about once a
+// second, not the 60 frames/s it is allowed (about 150 frames over the run, as it drew before it yielded).
+TEST_F(ProbeApp, ADisplayDrawsOnlyWhatChanged) {
+  if (!std::getenv("DISPLAY")) GTEST_SKIP() << "no DISPLAY (run under xvfb-run, as scripts/test.sh does)";
+  const RunResult r = run(q(kScene) + " --duration 0.0036 --test-step-delay 0.25 --fps 60 --size 640x400");
+  ASSERT_EQ(r.code, 0) << r.out << r.err;
+  const Figures f = read_figures(r.out);
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(r.out, m, std::regex(R"(display: (\d+) frames)"))) << r.out;
+  const int frames = std::stoi(m[1]);
+  EXPECT_GE(f.wall_s, 2.0) << r.out;  // the steps took their 0.25 s each
+  // at most one per physics step, the HUD once a second while the tissue is behind real time
+  // (gui_loop.h), four a second during the start-up and the meter's first second, and the first
+  const double bound = double(f.steps) + f.wall_s + 4.0 * (f.total_startup_s + 1.0) + 1.0;
+  EXPECT_LE(frames, bound) << r.out;
+  EXPECT_GE(frames, 3) << r.out;  // and it did draw
+}

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <mutex>
 #include <sstream>
 #include <thread>
 
@@ -157,6 +158,31 @@ TEST(FixedRateThread, RunsAtItsRateAndStops) {
   EXPECT_LT(n.load(), 260);
   EXPECT_EQ(t.ticks(), n.load());
   EXPECT_FALSE(t.failed());
+}
+
+TEST(FixedRateThread, RunsItsStartHookOnItsOwnThreadBeforeTheFirstTick) {
+  std::atomic<int> order{0};
+  std::thread::id hook_thread, body_thread;
+  int hook_at = -1, first_tick_at = -1;
+  FixedRateThread t(
+      "test", 1000.0,
+      [&](std::int64_t i) {
+        if (i == 0) {
+          body_thread = std::this_thread::get_id();
+          first_tick_at = order++;
+        }
+      },
+      [&] {
+        hook_thread = std::this_thread::get_id();
+        hook_at = order++;
+      });
+  t.start();
+  for (int i = 0; i < 200 && t.ticks() == 0; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  t.stop();
+  EXPECT_EQ(hook_at, 0);
+  EXPECT_EQ(first_tick_at, 1);
+  EXPECT_EQ(hook_thread, body_thread);
+  EXPECT_NE(hook_thread, std::this_thread::get_id());
 }
 
 TEST(FixedRateThread, AnExceptionStopsTheThreadWithTheMessage) {
