@@ -354,12 +354,12 @@ RegionCheck check_region_support(const PhysicsModel& physics, const std::vector<
   }
   if (!out.estimate) return out;
   const RegionStiffeningEstimate& e = *out.estimate;
-  out.log.push_back(
-      fmt::format("regional solves within {:g} mm: under probe \"{}\" the press is estimated {:.1f} % too hard "
-                  "(compliance {:.4g} mm/N of the whole model against {:.4g} with the far field held; "
-                  "{} of {} free nodes awake; {:.2f} s)",
-                  s.integrator.region_radius_mm, out.probe, 100.0 * e.error_rel(), e.compliance_full_mm_n,
-                  e.compliance_region_mm_n, e.region_nodes, e.region_nodes + e.far_nodes, e.seconds));
+  out.log.push_back(fmt::format(
+      "regional solves within {:g} mm: under probe \"{}\" the press is estimated {:.1f} % too hard "
+      "(compliance {:.4g} mm/N of the whole model against {:.4g} with the far field held; "
+      "{} of {} free nodes awake; {} + {} CG iterations, {:.2f} s)",
+      s.integrator.region_radius_mm, out.probe, 100.0 * e.error_rel(), e.compliance_full_mm_n, e.compliance_region_mm_n,
+      e.region_nodes, e.region_nodes + e.far_nodes, e.iterations_full, e.iterations_region, e.seconds));
   if (e.error_rel() > kRegionStiffeningWarnRel)
     out.warnings.push_back(fmt::format(
         "the regional solve (region_radius_mm {:g}) holds the far field still; on this support it presses about "

@@ -116,14 +116,19 @@ void assemble_projective_matrix(const PhysicsModel& p, const NodeNumbering& numb
   const std::vector<int>& free_index = numbering.free_index;
   const std::vector<int>& fixed_index = numbering.fixed_index;
   std::vector<Eigen::Triplet<double>> tff, tfc;
+  // the lower triangle only (all the factor reads): half the triplets, which with their sort are
+  // the assembly's memory peak (about 0.4 GB on the 1 mm folded organ)
   std::size_t guess = 0;
-  for (int e = 0; e < ne; ++e) guess += std::size_t(m.num_vertices(e)) * std::size_t(m.num_vertices(e));
+  for (int e = 0; e < ne; ++e) {
+    const auto n = std::size_t(m.num_vertices(e));
+    guess += n * (n + 1) / 2;
+  }
   tff.reserve(guess + std::size_t(nf));
   Eigen::MatrixXd ke;
   for_each_element_entry(p, numbering, setup, 0, ne, ke, [&](int fi, int node, double v) {
-    if (const int fj = free_index[std::size_t(node)]; fj >= 0)
-      tff.emplace_back(fi, fj, v);
-    else if (a_free_fixed)
+    if (const int fj = free_index[std::size_t(node)]; fj >= 0) {
+      if (fi >= fj) tff.emplace_back(fi, fj, v);
+    } else if (a_free_fixed)
       tfc.emplace_back(fi, fixed_index[std::size_t(node)], v);
   });
   for_each_mass_entry(p, numbering, setup, [&](int f, double v) { tff.emplace_back(f, f, v); });

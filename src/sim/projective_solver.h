@@ -86,7 +86,8 @@ struct NodeNumbering {
 
 /// The global matrix of `setup` over the free nodes (scalar: the same for x, y and z), as the
 /// solver factors it: A = [M/dt^2] + sum_e (K_e + kappa_e (diag(w) - w w^T / W)) with
-/// kappa_e = projective_centring_weight(). `a_free_fixed` (may be null): the free x fixed
+/// kappa_e = projective_centring_weight(), its lower triangle only (A is symmetric; read it as
+/// a_free.selfadjointView<Eigen::Lower>()). `a_free_fixed` (may be null): the free x fixed
 /// coupling. Allocates.
 void assemble_projective_matrix(const PhysicsModel& physics, const NodeNumbering& numbering,
                                 const ProjectiveSetup& setup, Eigen::SparseMatrix<double>& a_free,

@@ -42,7 +42,8 @@ SimState perturbed_block(double damping, double amplitude_mm = 0.3) {
   for (int i = 0; i < s.num_nodes(); ++i) {
     if (s.node_fixed[std::size_t(i)]) continue;
     const Eigen::Vector3d r = s.positions.col(i);
-    s.positions.col(i) += amplitude_mm * Eigen::Vector3d(std::sin(0.4 * r.z()), 0.5 * std::cos(0.3 * r.x()), 0.2 * r.z() / 6);
+    s.positions.col(i) +=
+        amplitude_mm * Eigen::Vector3d(std::sin(0.4 * r.z()), 0.5 * std::cos(0.3 * r.x()), 0.2 * r.z() / 6);
   }
   return s;
 }
@@ -248,6 +249,31 @@ TEST(FactorCache, AFactorFoundByItsKeyStepsBitForBitAsTheOneComputed) {
   }
   EXPECT_EQ(cache->files.size(), 1u);
   EXPECT_EQ(cache->loads, 2);
+}
+
+// The assembly is the lower triangle of a symmetric matrix whose rows (over the free and the
+// held nodes) sum to zero without the mass term: each element's K_e and centring term move a
+// translated element by nothing.
+TEST(ProjectiveAssembly, IsTheLowerTriangleOfTheSymmetricMatrixThatMovesATranslationByNothing) {
+  const SimState s = perturbed_block(0.2);
+  const NodeNumbering numbering = number_nodes(s.node_fixed);
+  ProjectiveSetup setup;
+  setup.time_step_s = 0.01;
+  setup.inertia = false;
+  setup.damping = false;
+  Eigen::SparseMatrix<double> a, coupling;
+  assemble_projective_matrix(*s.physics, numbering, setup, a, &coupling);
+  const Eigen::SparseMatrix<double> upper = a.triangularView<Eigen::StrictlyUpper>();
+  EXPECT_EQ(upper.nonZeros(), 0);
+  const Eigen::SparseMatrix<double> strict_lower = a.triangularView<Eigen::StrictlyLower>();
+  EXPECT_GT(strict_lower.nonZeros(), 0);
+  const Eigen::VectorXd ones_free = Eigen::VectorXd::Ones(a.rows()),
+                        ones_fixed = Eigen::VectorXd::Ones(coupling.cols());
+  const Eigen::VectorXd rows = a.selfadjointView<Eigen::Lower>() * ones_free + coupling * ones_fixed;
+  EXPECT_LT(rows.cwiseAbs().maxCoeff(), 1e-9 * a.diagonal().cwiseAbs().maxCoeff());
+  // and the matrix read as given (the lower triangle alone) is not: the reading matters
+  const Eigen::VectorXd lower_only = a * ones_free + coupling * ones_fixed;
+  EXPECT_GT(lower_only.cwiseAbs().maxCoeff(), 0.1 * a.diagonal().cwiseAbs().maxCoeff());
 }
 
 TEST(FactorCache, TheKeyFollowsEveryInputOfTheMatrixAndNotTheThreads) {
