@@ -80,7 +80,10 @@ SteadyClock::time_point GuiLoop::measure(const FixedRateThread& device) {
     for (const auto& m : s_.device.messages) s_.say("input: " + m);
     s_.device.messages.clear();
   }
-  if (started && !halted) warn_if_behind(meter_.over_last(kRateWindow_s));
+  // the window the HUD, the status lines, the warning and the frame budget all read this pass
+  window_ = meter_.over_last(kRateWindow_s);
+  behind_ = started && !halted && window_.full && window_.factor() < kBehindFactor;
+  if (started && !halted) warn_if_behind(window_);
   report_region_check();
   return now;
 }
@@ -99,7 +102,7 @@ void GuiLoop::report_region_check() {
 std::string GuiLoop::physics_rate_text(SteadyClock::time_point now) const {
   if (!s_.physics.started.load(std::memory_order_acquire))
     return StartupReport::preparing(seconds(now - s_.start), std::nullopt);
-  return describe_physics_rate(meter_.over_last(kRateWindow_s), kRateWindow_s, s_.local);
+  return describe_physics_rate(window_, kRateWindow_s, s_.local);
 }
 
 void GuiLoop::warn_if_behind(const RateWindow& w) {
@@ -121,14 +124,12 @@ void GuiLoop::warn_if_behind(const RateWindow& w) {
 HudInfo GuiLoop::hud(SteadyClock::time_point now) {
   HudInfo h;
   h.sim_s = double((s_.local ? s_.device.device_time_us : s_.physics.sim_time_us).load()) * 1e-6;
-  const RateWindow w = meter_.over_last(kRateWindow_s);
-  h.physics_steps_per_s = w.steps_per_s();
+  h.physics_steps_per_s = window_.steps_per_s();
   h.physics_updates_per_s = update_rate_.rate();
-  h.real_time_factor = w.factor();
+  h.real_time_factor = window_.factor();
   h.physics_rate = physics_rate_text(now);
   h.paused = s_.controls.paused.load();
-  h.behind_real_time =
-      !h.paused && !s_.physics.failed.load() && s_.physics.started.load() && w.full && w.factor() < 0.95;
+  h.behind_real_time = behind_;
   h.device_hz = device_rate_.rate();
   h.device_target_hz = s_.options.device_hz;
   h.probes = std::min(s_.probes, 2);
@@ -205,11 +206,9 @@ bool GuiLoop::show_frame(ProbeView& view, SteadyClock::time_point now) {
   return true;
 }
 
-bool GuiLoop::frame_allowed(SteadyClock::time_point now) {
+bool GuiLoop::frame_allowed(SteadyClock::time_point now) const {
   // the tissue behind real time: the physics is short of CPU, and the display keeps its frames
   // to a share of the wall time (on two cores they take the physics' CPU: docs/probe.md)
-  const RateWindow w = meter_.over_last(kRateWindow_s);
-  behind_ = w.full && w.factor() < 0.95 && !s_.controls.paused.load();
   return !behind_ || seconds(now - last_render_) >= last_render_s_ / kBehindDuty;
 }
 

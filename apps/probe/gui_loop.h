@@ -24,6 +24,9 @@ class GuiLoop {
  public:
   /// The window over which the HUD and the status lines measure the physics, s.
   static constexpr double kRateWindow_s = 1.0;
+  /// Below this real-time factor over that window the tissue is behind real time (the HUD says so
+  /// in red, and the display keeps to its frame budget).
+  static constexpr double kBehindFactor = 0.95;
   /// With nothing new to draw (no physics frame, no input), the HUD and the force plot are
   /// redrawn this far apart, s; while the tissue runs behind real time, kHudRefreshBehind_s.
   static constexpr double kHudRefresh_s = 0.25;
@@ -47,8 +50,8 @@ class GuiLoop {
   [[nodiscard]] const SoakMonitor& soak() const { return soak_; }
 
  private:
-  /// The rates of this pass (device, updates, the physics' meter), input messages, the
-  /// slow-motion warning; returns the pass's time.
+  /// The rates of this pass (device, updates, the physics' meter and its window_, behind_), input
+  /// messages, the slow-motion warning; returns the pass's time.
   SteadyClock::time_point measure(const FixedRateThread& device);
   /// The physics' rate line: start-up, or steps/s and the real-time factor over the last second.
   [[nodiscard]] std::string physics_rate_text(SteadyClock::time_point now) const;
@@ -62,8 +65,8 @@ class GuiLoop {
   /// The newest deformed surface, if the physics made one since the last pass (true: taken).
   bool take_frame(ProbeView& view);
   /// Whether a frame of the tissue may be asked for and drawn now (the frame budget while the
-  /// tissue runs behind real time); sets behind_.
-  bool frame_allowed(SteadyClock::time_point now);
+  /// tissue runs behind real time).
+  [[nodiscard]] bool frame_allowed(SteadyClock::time_point now) const;
   [[nodiscard]] HudInfo hud(SteadyClock::time_point now);
   /// Headless: a status line every 2 s.
   void report_headless(SteadyClock::time_point now);
@@ -85,7 +88,8 @@ class GuiLoop {
   SteadyClock::time_point last_pass_{};
   SteadyClock::time_point last_render_{};
   double last_render_s_{0.0};       ///< the last frame's wall time, s
-  bool behind_{false};              ///< the tissue behind real time over the last kRateWindow_s
+  RateWindow window_;               ///< the physics over the last kRateWindow_s, as of this pass
+  bool behind_{false};              ///< running, not paused, and window_ below kBehindFactor
   std::int64_t rendered_input_{0};  ///< the view's input events at the last render
   SteadyClock::duration frame_period_;
   SteadyClock::time_point next_frame_{SteadyClock::now()};
