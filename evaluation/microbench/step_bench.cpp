@@ -3,6 +3,8 @@
 // Counters: ns per element and per vertex entry, threads, model size, real-time factor.
 // element_pass/<kernel>/n: the element pass alone with each kernel, side by side.
 // element/<pass or step>/<element>/n: the paper's element against the hourglass one.
+// sweep/<full or regional>/<kernel>/n: the implicit solver's factor solved with the column
+//   sweeps against the gathered ones on each instruction set (sim/sparse_factor.h), side by side.
 //   voxelastic_bench_step [--benchmark_filter=...]   (OMP_NUM_THREADS sets the threads)
 // Targets (issue): explicit step of the 128^3 sphere (~19k elements, ~270k entries) < 1 ms on
 // 2 cores; ns/entry flat from 32^3 to 256^3; implicit 128^3 at dt = 1 ms in real time.
@@ -12,13 +14,19 @@
 #include <chrono>
 #include <map>
 #include <memory>
+#include <string>
+#include <utility>
+#include <vector>
 
+#include "base/error.h"
 #include "base/parallel.h"
 #include "bench/step_benchmark.h"
 #include "model/gradational_builder.h"
 #include "physics/calibration.h"
 #include "physics/elements.h"
 #include "sim/integrators.h"
+#include "sim/projective_solver.h"
+#include "sim/sparse_factor.h"
 #include "sim/state.h"
 
 namespace {
@@ -80,7 +88,8 @@ void step(benchmark::State& bs, IntegratorKind kind, int n, ElementKind element 
     }
   }
   const double steps = double(std::max<benchmark::IterationCount>(1, bs.iterations()));
-  const double step_ns = std::chrono::duration<double, std::nano>(std::chrono::steady_clock::now() - t0).count() / steps;
+  const double step_ns =
+      std::chrono::duration<double, std::nano>(std::chrono::steady_clock::now() - t0).count() / steps;
   size_counters(bs, model, step_ns);
   // real-time factor dt / step
   bs.counters["dt_ms"] = is.time_step_s * 1e3;
@@ -121,16 +130,75 @@ void element_pass(benchmark::State& bs, ElementKernel kernel, SimdLevel simd, in
     benchmark::ClobberMemory();
   }
   const double steps = double(std::max<benchmark::IterationCount>(1, bs.iterations()));
-  const double pass_ns = std::chrono::duration<double, std::nano>(std::chrono::steady_clock::now() - t0).count() / steps;
+  const double pass_ns =
+      std::chrono::duration<double, std::nano>(std::chrono::steady_clock::now() - t0).count() / steps;
   size_counters(bs, model, pass_ns);
   // rotation fit iterations per element and pass (warm-started: about one Newton step)
-  bs.counters["fit_iterations"] = double(fit_iterations) / double(std::max<std::int64_t>(1, passes)) / model.num_elements();
+  bs.counters["fit_iterations"] =
+      double(fit_iterations) / double(std::max<std::int64_t>(1, passes)) / model.num_elements();
+}
+
+/// The implicit solver's factor of a sphere (30 ms steps, damped, the lowest cap fixed), once per size.
+SparseFactor& sphere_factor(int n) {
+  static std::map<int, std::unique_ptr<SparseFactor>> cache;
+  auto& f = cache[n];
+  if (!f) {
+    const auto& physics = sphere(n);
+    const SimState s = sphere_state(physics);
+    const NodeNumbering numbering = number_nodes(s.node_fixed);
+    ProjectiveSetup setup;
+    setup.time_step_s = 0.03;
+    setup.damping = true;
+    Eigen::SparseMatrix<double> a;
+    assemble_projective_matrix(*physics, numbering, setup, a, nullptr);
+    f = std::make_unique<SparseFactor>();
+    if (!f->compute(a)) throw Error("sweep benchmark: the sphere's matrix did not factor");
+  }
+  return *f;
+}
+
+/// One solve with the factor: the whole model (solve3), or a regional one (the free nodes within
+/// 30 mm of the sphere's highest node awake; the right-hand side changed on them: the forward half on
+/// their ancestors, the backward half on the closure), as the fast configuration's step does.
+void sweep(benchmark::State& bs, bool regional, SparseFactor::SweepKernel kernel, SimdLevel simd, int n) {
+  SparseFactor& f = sphere_factor(n);
+  f.set_sweep_kernel(kernel, simd);
+  const auto& physics = sphere(n);
+  const Model& model = *physics->model;
+  const NodeNumbering numbering = number_nodes(sphere_state(physics).node_fixed);
+  const int rows = f.size();
+  Eigen::MatrixX3d b = Eigen::MatrixX3d::Random(rows, 3), x(rows, 3);
+  f.solve3(b, x);
+  std::vector<int> awake;
+  Eigen::Index highest = 0;
+  model.rest_positions.row(2).maxCoeff(&highest);
+  const Eigen::Vector3d top = model.rest_positions.col(highest);
+  for (int i = 0; i < rows; ++i)
+    if ((model.rest_positions.col(numbering.free_nodes[std::size_t(i)]) - top).norm() < 30.0) awake.push_back(i);
+  if (regional) f.set_partial_rows(awake);
+  std::int64_t k = 0;
+  for (auto _ : bs) {
+    if (regional) {
+      for (const int i : awake) b.row(i) *= 1.0 + 1e-3 * double(++k % 7);
+      f.forward3_partial(b);
+      f.backward3_partial({}, {}, x);
+    } else {
+      f.solve3(b, x);
+    }
+    benchmark::DoNotOptimize(x.data());
+  }
+  bs.counters["rows"] = rows;
+  bs.counters["awake"] = regional ? double(awake.size()) : double(rows);
+  bs.counters["closure_columns"] = regional ? double(f.partial_columns()) : double(rows);
+  bs.counters["factor_nonzeros"] = double(f.nonzeros());
+  bs.counters["widest_supernode"] = f.widest_supernode();
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  for (IntegratorKind kind : {IntegratorKind::explicit_euler, IntegratorKind::symplectic_euler, IntegratorKind::implicit})
+  for (IntegratorKind kind :
+       {IntegratorKind::explicit_euler, IntegratorKind::symplectic_euler, IntegratorKind::implicit})
     for (int n : {32, 64, 128, 256}) {
       if (kind == IntegratorKind::implicit && n > 128) continue;  // factorisation too large for the bench
       benchmark::RegisterBenchmark((std::string("step/") + to_string(kind) + "/" + std::to_string(n)).c_str(),
@@ -166,16 +234,45 @@ int main(int argc, char** argv) {
   for (int n : {32, 64, 128, 256})
     for (const ElementKind element : {ElementKind::paper, ElementKind::hourglass}) {
       const std::string tail = std::string("/") + to_string(element) + "/" + std::to_string(n);
-      benchmark::RegisterBenchmark(("element/packed" + tail).c_str(), [element, n](benchmark::State& bs) {
-        element_pass(bs, ElementKernel::packed, SimdLevel::automatic, n, element);
-      })->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(0.5);
-      benchmark::RegisterBenchmark(("element/batched" + tail).c_str(), [element, n](benchmark::State& bs) {
-        element_pass(bs, ElementKernel::batched, SimdLevel::automatic, n, element);
-      })->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(0.5);
-      benchmark::RegisterBenchmark(("element/step_symplectic" + tail).c_str(), [element, n](benchmark::State& bs) {
-        step(bs, IntegratorKind::symplectic_euler, n, element);
-      })->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(0.5);
+      benchmark::RegisterBenchmark(("element/packed" + tail).c_str(),
+                                   [element, n](benchmark::State& bs) {
+                                     element_pass(bs, ElementKernel::packed, SimdLevel::automatic, n, element);
+                                   })
+          ->Unit(benchmark::kMillisecond)
+          ->UseRealTime()
+          ->MinTime(0.5);
+      benchmark::RegisterBenchmark(("element/batched" + tail).c_str(),
+                                   [element, n](benchmark::State& bs) {
+                                     element_pass(bs, ElementKernel::batched, SimdLevel::automatic, n, element);
+                                   })
+          ->Unit(benchmark::kMillisecond)
+          ->UseRealTime()
+          ->MinTime(0.5);
+      benchmark::RegisterBenchmark(
+          ("element/step_symplectic" + tail).c_str(),
+          [element, n](benchmark::State& bs) { step(bs, IntegratorKind::symplectic_euler, n, element); })
+          ->Unit(benchmark::kMillisecond)
+          ->UseRealTime()
+          ->MinTime(0.5);
     }
+  // the factor's sweeps: the column kernel against the gathered one on each instruction set,
+  // interleaved per size and solve
+  std::vector<std::pair<SparseFactor::SweepKernel, SimdLevel>> sweeps{
+      {SparseFactor::SweepKernel::column, SimdLevel::generic}};
+  for (SimdLevel simd : {SimdLevel::generic, SimdLevel::avx2, SimdLevel::avx512})
+    if (simd_supported(simd)) sweeps.emplace_back(SparseFactor::SweepKernel::gathered, simd);
+  for (int n : {64, 128})
+    for (const bool regional : {false, true})
+      for (const auto& [kernel, simd] : sweeps) {
+        std::string name = std::string("sweep/") + (regional ? "regional/" : "full/") + SparseFactor::to_string(kernel);
+        if (kernel == SparseFactor::SweepKernel::gathered) name += std::string("_") + to_string(simd);
+        benchmark::RegisterBenchmark(
+            (name + "/" + std::to_string(n)).c_str(),
+            [regional, kernel = kernel, simd = simd, n](benchmark::State& bs) { sweep(bs, regional, kernel, simd, n); })
+            ->Unit(benchmark::kMillisecond)
+            ->UseRealTime()
+            ->MinTime(0.5);
+      }
   benchmark::Initialize(&argc, argv);
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
   benchmark::RunSpecifiedBenchmarks();

@@ -9,6 +9,8 @@
 #include <cstdlib>
 #include <string>
 
+#include "base/error.h"
+
 #ifdef VOXELASTIC_HAVE_METIS
 #include <iostream>  // Eigen's MetisSupport uses std::cerr without including it
 
@@ -59,6 +61,19 @@ SparseFactor::Backend SparseFactor::best_backend() {
   if (available(Backend::cholmod)) return Backend::cholmod;
   if (available(Backend::eigen_metis)) return Backend::eigen_metis;
   return Backend::eigen_amd;
+}
+
+SparseFactor::SweepKernel SparseFactor::default_sweep_kernel() {
+  // VOXELASTIC_SWEEP pins the sweeps' kernel (column, gathered), e.g. to compare them in a run
+  static const SweepKernel kernel = [] {
+    const char* env = std::getenv("VOXELASTIC_SWEEP");
+    if (env == nullptr || *env == '\0') return SweepKernel::gathered;
+    for (const SweepKernel k : {SweepKernel::column, SweepKernel::gathered})
+      if (std::string(env) == to_string(k)) return k;
+    throw Error(std::string("VOXELASTIC_SWEEP=") + env +
+                " is not a sweep kernel; unset it or choose column or gathered");
+  }();
+  return kernel;
 }
 
 void SparseFactor::reset() {
@@ -120,7 +135,8 @@ void SparseFactor::finish() {
     inv_sqrt_d_.resize(std::size_t(size_));
     for (int j = 0; j < size_; ++j) {
       int first = size_;
-      for (std::int64_t p = outer_[std::size_t(j)]; p < outer_[std::size_t(j) + 1]; ++p) first = std::min(first, inner_[std::size_t(p)]);
+      for (std::int64_t p = outer_[std::size_t(j)]; p < outer_[std::size_t(j) + 1]; ++p)
+        first = std::min(first, inner_[std::size_t(p)]);
       parent_[std::size_t(j)] = first < size_ ? first : -1;
       inv_sqrt_d_[std::size_t(j)] = std::sqrt(inv_d_[std::size_t(j)]);
     }

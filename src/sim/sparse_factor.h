@@ -31,6 +31,8 @@
 #include <utility>
 #include <vector>
 
+#include "base/simd.h"
+
 namespace vx {
 
 class SparseFactor;
@@ -158,6 +160,25 @@ class SparseFactor {
   [[nodiscard]] std::int64_t nonzeros() const { return std::int64_t(values_.size()); }
   /// The backend that computed the factor.
   [[nodiscard]] Backend backend() const { return backend_; }
+  /// How the supernodal sweeps run (every solve below; docs/bench.md, "The gathered sweeps"):
+  ///   - column: column by column, each entry of L scattered to its row through the row index;
+  ///   - gathered (the default): a supernode 4 or more columns wide has its rows gathered into
+  ///     contiguous arrays once, runs its columns on them with vector instructions, and scatters
+  ///     them back. The same solution to rounding (the backward sweep's dot products add 8
+  ///     partial sums); the same bits from run to run on one instruction set.
+  enum class SweepKernel : std::uint8_t { column, gathered };
+  [[nodiscard]] static const char* to_string(SweepKernel k);
+  /// The kernel a new factor sweeps with: gathered, or the one the environment variable
+  /// VOXELASTIC_SWEEP names (column, gathered). Throws vx::Error for another value.
+  [[nodiscard]] static SweepKernel default_sweep_kernel();
+  /// Sets the sweeps' kernel and instruction set (automatic or one this CPU lacks: the widest it
+  /// runs, best_simd_level()).
+  void set_sweep_kernel(SweepKernel kernel, SimdLevel simd = SimdLevel::automatic);
+  [[nodiscard]] SweepKernel sweep_kernel() const { return sweep_kernel_; }
+  /// The widest supernode's columns (0: a simplicial factor): the gathered kernel runs on
+  /// supernodes of 4 columns or more.
+  [[nodiscard]] int widest_supernode() const;
+  [[nodiscard]] SimdLevel sweep_simd() const { return sweep_simd_; }
   /// Wall time of the last compute() or read(), s.
   [[nodiscard]] double factor_seconds() const { return factor_s_; }
 
@@ -197,8 +218,8 @@ class SparseFactor {
   /// forward vectors are z[k]: on every row, or with `partial` on the closure rows of
   /// set_partial_rows() only (the others untouched; as solve3_partial). Allocation-free after
   /// compute().
-  void add_response3(const std::vector<const UnitForward*>& z, const std::vector<double>& forces3,
-                     Eigen::MatrixX3d& x, bool partial);
+  void add_response3(const std::vector<const UnitForward*>& z, const std::vector<double>& forces3, Eigen::MatrixX3d& x,
+                     bool partial);
 
   // --- regional (partial) solves: only where the tool is --------------------------------------
   // With a supernodal factor the solution on a set of rows S is exact without solving for the
@@ -298,11 +319,11 @@ class SparseFactor {
   std::vector<int> super_;
   SharedArray<int> rows_;
   std::vector<std::int64_t> row_start_, value_start_;
-  std::vector<int> column_super_;    ///< column -> its supernode
-  std::vector<int> super_parent_;    ///< supernode -> parent in the elimination tree (-1: a root)
+  std::vector<int> column_super_;  ///< column -> its supernode
+  std::vector<int> super_parent_;  ///< supernode -> parent in the elimination tree (-1: a root)
   // regional solves
   bool have_forward_{false};
-  std::vector<double> last_b_;       ///< n x 3 permuted: the last right-hand side solved
+  std::vector<double> last_b_;       ///< n x 3 column-major, original order (as b): the last right-hand side solved
   std::vector<double> forward_;      ///< n x 3 permuted: z = L^-1 P last_b
   std::vector<int> closure_supers_;  ///< ascending
   std::vector<int> closure_rows_;
@@ -322,8 +343,10 @@ class SparseFactor {
   int product_count_{0};
   std::vector<double> field_products_;
   std::vector<std::uint8_t> in_closure_;  ///< factored positions: 1 in the closure
-  std::vector<double> work3_;        ///< n x 3, row-major, permuted order
-  std::vector<double> work1_;        ///< n, permuted order
+  SweepKernel sweep_kernel_{default_sweep_kernel()};
+  SimdLevel sweep_simd_{best_simd_level()};
+  std::vector<double> work3_;  ///< n x 3, row-major, permuted order
+  std::vector<double> work1_;  ///< n, permuted order
 };
 
 }  // namespace vx

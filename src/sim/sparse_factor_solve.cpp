@@ -5,7 +5,10 @@
 #include <Eigen/Core>
 #include <algorithm>
 #include <cstdint>
+#include <cstring>
 #include <vector>
+
+#include "base/simd.h"
 
 namespace vx {
 
@@ -16,7 +19,7 @@ void SparseFactor::solve3(const Eigen::MatrixX3d& b, Eigen::MatrixX3d& x) {
     for (int c = 0; c < 3; ++c) w[3 * perm_[std::size_t(i)] + c] = b(i, c);
   if (supernodal_) {
     // keep b and the forward solution for regional solves
-    last_b_.assign(w, w + 3 * std::size_t(n));
+    last_b_.assign(b.data(), b.data() + 3 * std::size_t(n));
     all_supers_.resize(super_.size() - 1);
     for (std::size_t q = 0; q < all_supers_.size(); ++q) all_supers_[q] = int(q);
     forward_supers<3>(w, all_supers_);
@@ -28,6 +31,7 @@ void SparseFactor::solve3(const Eigen::MatrixX3d& b, Eigen::MatrixX3d& x) {
   }
   for (int i = 0; i < n; ++i)
     for (int c = 0; c < 3; ++c) x(i, c) = w[3 * perm_[std::size_t(i)] + c];
+  std::fill(work3_.begin(), work3_.end(), 0.0);  // the regional halves expect it zero
 }
 
 void SparseFactor::solve_unit(int i, double* out) {
@@ -89,18 +93,39 @@ struct Supernode {
   const double* x;
 };
 
-Supernode supernode(const std::vector<int>& super, const std::vector<std::int64_t>& row_start,
-                    const std::vector<std::int64_t>& value_start, const int* rows, const double* val, int q) {
-  const int k1 = super[std::size_t(q)], nscol = super[std::size_t(q) + 1] - k1;
-  const std::int64_t r0 = row_start[std::size_t(q)];
-  const int nsrow = int(row_start[std::size_t(q) + 1] - r0);
-  return {k1, nscol, nsrow, rows + r0, val + value_start[std::size_t(q)]};
-}
+/// The supernodal arrays a pass reads.
+struct SupernodalArrays {
+  const int* super;
+  const std::int64_t* row_start;
+  const std::int64_t* value_start;
+  const int* rows;
+  const double* values;
+  SupernodalArrays(const std::vector<int>& s, const std::vector<std::int64_t>& rs, const std::vector<std::int64_t>& vs,
+                   const SharedArray<int>& r, const SharedArray<double>& v)
+      : super(s.data()), row_start(rs.data()), value_start(vs.data()), rows(r.data()), values(v.data()) {}
+  [[nodiscard]] Supernode at(int q) const {
+    const int k1 = super[q], nscol = super[q + 1] - k1;
+    const std::int64_t r0 = row_start[q];
+    return {k1, nscol, int(row_start[q + 1] - r0), rows + r0, values + value_start[q]};
+  }
+};
+
+/// The supernodes of a pass: `list` (ascending, `count` of them), or without a list the range
+/// first .. first + count - 1.
+struct SuperList {
+  const int* list;
+  int count;
+  int first;
+  [[nodiscard]] int at(int i) const { return list != nullptr ? list[i] : first + i; }
+};
+
+#define VX_SWEEP_INLINE [[gnu::always_inline]] inline
 
 /// The forward sweep L z = w over one supernode (K right-hand sides interleaved in w), each
 /// column streamed once; a column whose value is zero for every right-hand side is skipped.
+/// The column kernel: every entry scatters to w through its row index.
 template <int K>
-void forward_supernode(double* w, const Supernode& s) {
+VX_SWEEP_INLINE void forward_columns(double* w, const Supernode& s) {
   for (int jj = 0; jj < s.nscol; ++jj) {
     const double* col = s.x + std::int64_t(jj) * s.nsrow;
     double* wj = w + K * std::int64_t(s.k1 + jj);
@@ -120,9 +145,9 @@ void forward_supernode(double* w, const Supernode& s) {
   }
 }
 
-/// The backward sweep L^T x = z over one supernode, its columns last to first.
+/// The backward sweep L^T x = z over one supernode, its columns last to first (column kernel).
 template <int K>
-void backward_supernode(double* w, const Supernode& s) {
+VX_SWEEP_INLINE void backward_columns(double* w, const Supernode& s) {
   for (int jj = s.nscol - 1; jj >= 0; --jj) {
     const double* col = s.x + std::int64_t(jj) * s.nsrow;
     double acc[K];
@@ -137,29 +162,318 @@ void backward_supernode(double* w, const Supernode& s) {
   }
 }
 
+// The gathered kernels (K = 1 or 3): the supernode's rows of w are gathered once into one
+// contiguous array per right-hand side, the columns run on those arrays (unit stride: the
+// compiler vectorises over the rows), and the rows are scattered back once. The column kernel
+// goes through the row index at every entry of every column; a supernode of nscol columns and
+// nsrow rows reads the index nsrow times here instead of about nscol x nsrow / 2. The top
+// separators of a nested-dissection factor, most of a regional pass, are hundreds of columns wide.
+
+/// Gathers w's rows r[0 .. n) into t (K arrays of `ld`).
+template <int K>
+VX_SWEEP_INLINE void gather_rows(const double* w, const int* r, int n, double* t, int ld) {
+  for (int ii = 0; ii < n; ++ii) {
+    const double* wi = w + K * std::int64_t(r[ii]);
+    for (int c = 0; c < K; ++c) t[c * ld + ii] = wi[c];
+  }
+}
+
+template <int K>
+VX_SWEEP_INLINE void scatter_rows(double* w, const int* r, int n, const double* t, int ld) {
+  for (int ii = 0; ii < n; ++ii) {
+    double* wi = w + K * std::int64_t(r[ii]);
+    for (int c = 0; c < K; ++c) wi[c] = t[c * ld + ii];
+  }
+}
+
+/// Columns per pass over the rows in the gathered kernels: each row of t is loaded and stored
+/// once for kBlock columns (the column kernel loads and stores it once per column).
+constexpr int kBlock = 4;
+
+/// kLanes doubles in one vector (GCC's and clang's vector extensions; the instruction set each
+/// copy of the passes is compiled for makes it one register or several).
+template <int kLanes>
+struct Lanes;
+template <>
+struct Lanes<2> {
+  using type = double __attribute__((vector_size(16)));
+};
+template <>
+struct Lanes<4> {
+  using type = double __attribute__((vector_size(32)));
+};
+template <>
+struct Lanes<8> {
+  using type = double __attribute__((vector_size(64)));
+};
+template <int kLanes>
+using vec = typename Lanes<kLanes>::type;
+
+template <int kLanes>
+VX_SWEEP_INLINE vec<kLanes> load(const double* p) {
+  vec<kLanes> v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+template <int kLanes>
+VX_SWEEP_INLINE void store(double* p, const vec<kLanes>& v) {
+  std::memcpy(p, &v, sizeof v);
+}
+template <int kLanes>
+VX_SWEEP_INLINE vec<kLanes> splat(double x) {
+  vec<kLanes> v;
+  for (int k = 0; k < kLanes; ++k) v[k] = x;
+  return v;
+}
+
+/// t_c -= l_j v_jc over rows [begin, end) for the m <= kBlock columns l_j (j in order, one
+/// subtraction after the other: the column kernel's arithmetic, the same bits).
+template <int K, int kLanes>
+VX_SWEEP_INLINE void update_rows(double* t, int ld, const double* const* l, const double (*v)[K], int m, int begin,
+                                 int end) {
+  using V = vec<kLanes>;
+  int ii = begin;
+  if (m == kBlock) {
+    V vv[kBlock][K];
+    for (int j = 0; j < kBlock; ++j)
+      for (int c = 0; c < K; ++c) vv[j][c] = splat<kLanes>(v[j][c]);
+    for (; ii + kLanes <= end; ii += kLanes) {
+      const V l0 = load<kLanes>(l[0] + ii), l1 = load<kLanes>(l[1] + ii), l2 = load<kLanes>(l[2] + ii),
+              l3 = load<kLanes>(l[3] + ii);
+      for (int c = 0; c < K; ++c) {
+        double* tc = t + c * ld + ii;
+        V u = load<kLanes>(tc);
+        u -= l0 * vv[0][c];
+        u -= l1 * vv[1][c];
+        u -= l2 * vv[2][c];
+        u -= l3 * vv[3][c];
+        store<kLanes>(tc, u);
+      }
+    }
+  }
+  for (; ii < end; ++ii)
+    for (int c = 0; c < K; ++c) {
+      double u = t[c * ld + ii];
+      for (int j = 0; j < m; ++j) u -= l[j][ii] * v[j][c];
+      t[c * ld + ii] = u;
+    }
+}
+
+/// out[j][c] = sum over rows [begin, end) of l_j t_c for the m <= kBlock columns l_j (kLanes
+/// partial sums each, added in a fixed order: the same bits from run to run).
+template <int K, int kLanes>
+VX_SWEEP_INLINE void dot_rows(const double* t, int ld, const double* const* l, int m, int begin, int end,
+                              double (*out)[K]) {
+  using V = vec<kLanes>;
+  V s[kBlock][K];
+  for (int j = 0; j < kBlock; ++j)
+    for (int c = 0; c < K; ++c) s[j][c] = splat<kLanes>(0.0);
+  int ii = begin;
+  if (m == kBlock)
+    for (; ii + kLanes <= end; ii += kLanes) {
+      const V l0 = load<kLanes>(l[0] + ii), l1 = load<kLanes>(l[1] + ii), l2 = load<kLanes>(l[2] + ii),
+              l3 = load<kLanes>(l[3] + ii);
+      for (int c = 0; c < K; ++c) {
+        const V x = load<kLanes>(t + c * ld + ii);
+        s[0][c] += l0 * x;
+        s[1][c] += l1 * x;
+        s[2][c] += l2 * x;
+        s[3][c] += l3 * x;
+      }
+    }
+  for (int j = 0; j < m; ++j)
+    for (int c = 0; c < K; ++c) {
+      double sum = 0.0;
+      for (int k = 0; k < kLanes; ++k) sum += s[j][c][k];
+      for (int i = ii; i < end; ++i) sum += l[j][i] * t[c * ld + i];
+      out[j][c] = sum;
+    }
+}
+
+template <int K, int kLanes>
+VX_SWEEP_INLINE void forward_gathered(double* w, const Supernode& s, double* t) {
+  const int n = s.nsrow, ld = n;
+  gather_rows<K>(w, s.r, n, t, ld);
+  for (int j0 = 0; j0 < s.nscol; j0 += kBlock) {
+    const int m = std::min(kBlock, s.nscol - j0), j1 = j0 + m;
+    // the block's own triangle, column by column
+    const double* l[kBlock];
+    double v[kBlock][K];
+    bool zero = true;
+    for (int j = 0; j < m; ++j) {
+      const int jj = j0 + j;
+      l[j] = s.x + std::int64_t(jj) * n;
+      for (int c = 0; c < K; ++c) {
+        v[j][c] = t[c * ld + jj] /= l[j][jj];
+        zero = zero && v[j][c] == 0.0;
+      }
+      for (int ii = jj + 1; ii < j1; ++ii)
+        for (int c = 0; c < K; ++c) t[c * ld + ii] -= l[j][ii] * v[j][c];
+    }
+    // the rows below it, all m columns in one pass
+    if (!zero) update_rows<K, kLanes>(t, ld, l, v, m, j1, n);
+  }
+  scatter_rows<K>(w, s.r, n, t, ld);
+}
+
+template <int K, int kLanes>
+VX_SWEEP_INLINE void backward_gathered(double* w, const Supernode& s, double* t) {
+  const int n = s.nsrow, ld = n;
+  gather_rows<K>(w, s.r, n, t, ld);
+  // blocks last to first; the last block holds the columns left over (nscol % kBlock)
+  for (int j1 = s.nscol; j1 > 0;) {
+    const int m = j1 % kBlock != 0 ? j1 % kBlock : kBlock, j0 = j1 - m;
+    const double* l[kBlock];
+    for (int j = 0; j < m; ++j) l[j] = s.x + std::int64_t(j0 + j) * n;
+    // the rows below the block (final already), all m columns in one pass
+    double d[kBlock][K];
+    dot_rows<K, kLanes>(t, ld, l, m, j1, n, d);
+    // the block's own triangle, its columns last to first
+    for (int j = m - 1; j >= 0; --j) {
+      const int jj = j0 + j;
+      for (int c = 0; c < K; ++c) {
+        double acc = t[c * ld + jj] - d[j][c];
+        for (int ii = jj + 1; ii < j1; ++ii) acc -= l[j][ii] * t[c * ld + ii];
+        t[c * ld + jj] = acc / l[j][jj];
+      }
+    }
+    j1 = j0;
+  }
+  scatter_rows<K>(w, s.r, s.nscol, t, ld);  // only its own columns changed
+}
+
+/// Supernodes narrower than this run the column kernel (gathering costs more than it saves).
+constexpr int kGatherMinColumns = 4;
+
+/// The per-thread scratch of the gathered kernels (K x the widest supernode's rows).
+double* gather_scratch(std::size_t values) {
+  thread_local std::vector<double> scratch;
+  if (scratch.size() < values) scratch.resize(values);
+  return scratch.data();
+}
+
+template <int K, bool kGathered, int kLanes = 2>
+VX_SWEEP_INLINE void forward_pass(double* w, const SupernodalArrays& a, const SuperList& supers) {
+  for (int i = 0; i < supers.count; ++i) {
+    const Supernode s = a.at(supers.at(i));
+    if constexpr (kGathered) {
+      if (s.nscol >= kGatherMinColumns) {
+        bool zero = true;  // a supernode whose own rows are all zero changes nothing
+        for (int j = 0; j < K * s.nscol && zero; ++j) zero = w[K * std::int64_t(s.k1) + j] == 0.0;
+        if (!zero) forward_gathered<K, kLanes>(w, s, gather_scratch(std::size_t(K) * std::size_t(s.nsrow)));
+        continue;
+      }
+    }
+    forward_columns<K>(w, s);
+  }
+}
+
+template <int K, bool kGathered, int kLanes = 2>
+VX_SWEEP_INLINE void backward_pass(double* w, const SupernodalArrays& a, const SuperList& supers) {
+  for (int i = supers.count - 1; i >= 0; --i) {
+    const Supernode s = a.at(supers.at(i));
+    if constexpr (kGathered) {
+      if (s.nscol >= kGatherMinColumns) {
+        backward_gathered<K, kLanes>(w, s, gather_scratch(std::size_t(K) * std::size_t(s.nsrow)));
+        continue;
+      }
+    }
+    backward_columns<K>(w, s);
+  }
+}
+
+// one copy of the gathered passes per instruction set (the same source; the compiler vectorises
+// the rows for each)
+#define VX_SWEEP_PASSES(name, lanes, attributes)                                                   \
+  template <int K>                                                                                 \
+  attributes void forward_##name(double* w, const SupernodalArrays& a, const SuperList& supers) {  \
+    forward_pass<K, true, lanes>(w, a, supers);                                                    \
+  }                                                                                                \
+  template <int K>                                                                                 \
+  attributes void backward_##name(double* w, const SupernodalArrays& a, const SuperList& supers) { \
+    backward_pass<K, true, lanes>(w, a, supers);                                                   \
+  }
+
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+VX_SWEEP_PASSES(avx512, 8, __attribute__((target("arch=x86-64-v4"))))
+VX_SWEEP_PASSES(avx2, 4, __attribute__((target("arch=x86-64-v3"))))
+#elif defined(__x86_64__) && defined(__clang__)
+VX_SWEEP_PASSES(avx512, 8, __attribute__((target("avx512f,avx512bw,avx512dq,avx512vl,avx2,fma,bmi2"))))
+VX_SWEEP_PASSES(avx2, 4, __attribute__((target("avx2,fma,bmi2"))))
+#endif
+VX_SWEEP_PASSES(generic, 2, )
+
+template <int K>
+void run_forward(double* w, const SupernodalArrays& a, const SuperList& supers, SparseFactor::SweepKernel kernel,
+                 SimdLevel simd) {
+  if constexpr (K == 1 || K == 3) {
+    if (kernel == SparseFactor::SweepKernel::gathered) {
+      switch (simd) {
+#if defined(__x86_64__) && defined(__GNUC__)
+        case SimdLevel::avx512: return forward_avx512<K>(w, a, supers);
+        case SimdLevel::avx2: return forward_avx2<K>(w, a, supers);
+#endif
+        default: return forward_generic<K>(w, a, supers);
+      }
+    }
+  }
+  forward_pass<K, false>(w, a, supers);
+}
+
+template <int K>
+void run_backward(double* w, const SupernodalArrays& a, const SuperList& supers, SparseFactor::SweepKernel kernel,
+                  SimdLevel simd) {
+  if constexpr (K == 1 || K == 3) {
+    if (kernel == SparseFactor::SweepKernel::gathered) {
+      switch (simd) {
+#if defined(__x86_64__) && defined(__GNUC__)
+        case SimdLevel::avx512: return backward_avx512<K>(w, a, supers);
+        case SimdLevel::avx2: return backward_avx2<K>(w, a, supers);
+#endif
+        default: return backward_generic<K>(w, a, supers);
+      }
+    }
+  }
+  backward_pass<K, false>(w, a, supers);
+}
+
 }  // namespace
+
+void SparseFactor::set_sweep_kernel(SweepKernel kernel, SimdLevel simd) {
+  if (simd == SimdLevel::automatic || !simd_supported(simd)) simd = best_simd_level();
+  sweep_kernel_ = kernel;
+  sweep_simd_ = simd;
+}
+
+int SparseFactor::widest_supernode() const {
+  int most = 0;
+  for (std::size_t q = 0; q + 1 < super_.size(); ++q) most = std::max(most, super_[q + 1] - super_[q]);
+  return most;
+}
+
+const char* SparseFactor::to_string(SweepKernel k) { return k == SweepKernel::column ? "column" : "gathered"; }
 
 template <int K>
 void SparseFactor::solve_supernodal(double* w, int first) const {
   const int ns = int(super_.size()) - 1;
   // forward: L z = w, supernode by supernode (columns in order), from the one holding `first`
-  for (int q = first > 0 ? column_super_[std::size_t(first)] : 0; q < ns; ++q)
-    forward_supernode<K>(w, supernode(super_, row_start_, value_start_, rows_.data(), values_.data(), q));
+  const int q0 = first > 0 ? column_super_[std::size_t(first)] : 0;
+  const SupernodalArrays a(super_, row_start_, value_start_, rows_, values_);
+  run_forward<K>(w, a, {nullptr, ns - q0, q0}, sweep_kernel_, sweep_simd_);
   // backward: L^T x = z
-  for (int q = ns - 1; q >= 0; --q)
-    backward_supernode<K>(w, supernode(super_, row_start_, value_start_, rows_.data(), values_.data(), q));
+  run_backward<K>(w, a, {nullptr, ns, 0}, sweep_kernel_, sweep_simd_);
 }
 
 template <int K>
 void SparseFactor::forward_supers(double* w, const std::vector<int>& supers) const {
-  for (const int q : supers)
-    forward_supernode<K>(w, supernode(super_, row_start_, value_start_, rows_.data(), values_.data(), q));
+  run_forward<K>(w, SupernodalArrays(super_, row_start_, value_start_, rows_, values_),
+                 {supers.data(), int(supers.size()), 0}, sweep_kernel_, sweep_simd_);
 }
 
 template <int K>
 void SparseFactor::backward_supers(double* w, const std::vector<int>& supers) const {
-  for (auto it = supers.rbegin(); it != supers.rend(); ++it)
-    backward_supernode<K>(w, supernode(super_, row_start_, value_start_, rows_.data(), values_.data(), *it));
+  run_backward<K>(w, SupernodalArrays(super_, row_start_, value_start_, rows_, values_),
+                  {supers.data(), int(supers.size()), 0}, sweep_kernel_, sweep_simd_);
 }
 
 /// Adds the ancestors of `supers` (marked with a new generation) and sorts: a closed set under
@@ -213,32 +527,36 @@ int SparseFactor::solve3_partial(const Eigen::MatrixX3d& b, Eigen::MatrixX3d& x)
 int SparseFactor::forward3_partial(const Eigen::MatrixX3d& b) {
   const int n = size_;
   double* w = work3_.data();  // zero outside what a pass touches (restored below)
-  // the rows where b changed, exactly, and their supernodes
+  // the rows where b changed, exactly, and their supernodes (b and last_b_ in the same layout:
+  // three linear streams each)
   changed_supers_.clear();
   int changed = 0;
+  const double* bc[3] = {b.data(), b.data() + n, b.data() + 2 * std::int64_t(n)};
+  double* lc[3] = {last_b_.data(), last_b_.data() + n, last_b_.data() + 2 * std::int64_t(n)};
   for (int i = 0; i < n; ++i) {
+    const double d0 = bc[0][i] - lc[0][i], d1 = bc[1][i] - lc[1][i], d2 = bc[2][i] - lc[2][i];
+    if (d0 == 0.0 && d1 == 0.0 && d2 == 0.0) continue;
     const int k = perm_[std::size_t(i)];
-    bool diff = false;
-    for (int c = 0; c < 3; ++c) {
-      const double d = b(i, c) - last_b_[3 * std::size_t(k) + std::size_t(c)];
-      w[3 * k + c] = d;
-      diff = diff || d != 0.0;
-    }
-    if (diff) {
-      ++changed;
-      for (int c = 0; c < 3; ++c) last_b_[3 * std::size_t(k) + std::size_t(c)] = b(i, c);
-      changed_supers_.push_back(column_super_[std::size_t(k)]);
-    }
+    w[3 * k] = d0;
+    w[3 * k + 1] = d1;
+    w[3 * k + 2] = d2;
+    for (int c = 0; c < 3; ++c) lc[c][i] = bc[c][i];
+    ++changed;
+    changed_supers_.push_back(column_super_[std::size_t(k)]);
   }
   // forward on the changed rows' ancestors: z += L^-1 P (b - last b)
   if (!changed_supers_.empty()) {
     ancestors(changed_supers_);
     forward_supers<3>(w, changed_supers_);
+    // the pass wrote the rows of these supernodes only (a supernode's rows are its ancestors'
+    // columns): add them to z and zero them again
     for (const int q : changed_supers_)
       for (int j = super_[std::size_t(q)]; j < super_[std::size_t(q) + 1]; ++j)
-        for (int c = 0; c < 3; ++c) forward_[3 * std::size_t(j) + std::size_t(c)] += w[3 * j + c];
+        for (int c = 0; c < 3; ++c) {
+          forward_[3 * std::size_t(j) + std::size_t(c)] += w[3 * j + c];
+          w[3 * j + c] = 0.0;
+        }
   }
-  std::fill(work3_.begin(), work3_.end(), 0.0);
   return changed;
 }
 
@@ -414,7 +732,6 @@ void SparseFactor::add_response3(const std::vector<const UnitForward*>& z, const
                                  Eigen::MatrixX3d& x, bool partial) {
   if (z.empty()) return;
   const int n = size_;
-  std::fill(work3_.begin(), work3_.end(), 0.0);  // (solve3 leaves its solution there)
   double* w = work3_.data();
   scatter_forward_forces(z, forces3, w);
   if (supernodal_) {

@@ -110,7 +110,7 @@ int check_layer(const fs::path& dir, const std::string& layer, std::vector<std::
 // (kept by hand: one folder a paragraph)
 // clang-format off
 const std::map<std::string, std::vector<std::string>> kRoomOrder{
-    {"src/base", {"error", "content_hash", "huge_pages", "cache_file_format", "parallel", "triple_buffer", "version"}},
+    {"src/base", {"error", "content_hash", "huge_pages", "simd", "cache_file_format", "parallel", "triple_buffer", "version"}},
     {"src/model", {"voxel_grid", "model", "voxel_shapes", "gradational_builder gradational_builder_2d", "lattice_origin"}},
     {"src/physics",
      {"rigid_sums", "element_gradient", "element_modes", "element_batch_layout", "material", "vertex_weights",

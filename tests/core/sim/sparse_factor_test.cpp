@@ -4,6 +4,8 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Sparse>
+#include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <iostream>
 #include <memory>
@@ -203,6 +205,51 @@ TEST(SparseFactor, ADamagedOrForeignFileIsRefusedAndLeavesTheFactorEmpty) {
   version[8] = 99;  // the format version after the 8-byte magic
   refused(version, "format version");
   refused(std::string(), "truncated");
+}
+
+/// The largest difference between two answers, relative to the first's largest entry.
+double relative_difference(const Answers& a, const Answers& b) {
+  const auto rel = [](const auto& x, const auto& y) {
+    const Eigen::Map<const Eigen::VectorXd> xm(x.data(), Eigen::Index(x.size())), ym(y.data(), Eigen::Index(y.size()));
+    return (xm - ym).cwiseAbs().maxCoeff() / xm.cwiseAbs().maxCoeff();
+  };
+  return std::max({rel(a.x, b.x), rel(a.column, b.column), std::abs(a.dot - b.dot) / std::abs(a.dot),
+                   rel(a.response, b.response), rel(a.partial, b.partial)});
+}
+
+TEST(SparseFactor, TheGatheredSweepsSolveAsTheColumnSweepsOnEveryInstructionSet) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "no supernodal factor in this build";
+  // a block large enough for nested dissection's separators to be supernodes of many columns
+  const SparseFactor::Matrix a = block_matrix(14, 13, 12);
+  const int n = int(a.rows());
+  SparseFactor f;
+  ASSERT_TRUE(f.compute(a, SparseFactor::Backend::cholmod));
+  ASSERT_GE(f.widest_supernode(), 40);  // the gathered kernel runs (4 columns or more)
+  f.set_sweep_kernel(SparseFactor::SweepKernel::column);
+  std::srand(11);
+  const Answers want = ask(f, n);
+  // the column sweeps solve A x = b (the reference the gathered ones are held to)
+  std::srand(11);
+  const Eigen::MatrixX3d b = Eigen::MatrixX3d::Random(n, 3);
+  EXPECT_LT((a.selfadjointView<Eigen::Lower>() * want.x - b).norm() / b.norm(), 1e-10);
+  int levels = 0;
+  for (const SimdLevel simd : {SimdLevel::generic, SimdLevel::avx2, SimdLevel::avx512}) {
+    if (!simd_supported(simd)) continue;
+    ++levels;
+    f.set_sweep_kernel(SparseFactor::SweepKernel::gathered, simd);
+    EXPECT_EQ(f.sweep_simd(), simd);
+    std::srand(11);
+    const Answers got = ask(f, n);
+    const double diff = relative_difference(want, got);
+    std::cout << "gathered " << to_string(simd) << ": largest difference from the column sweeps " << diff
+              << " (relative)\n";
+    EXPECT_LT(diff, 1e-12) << to_string(simd);
+    EXPECT_GT(diff, 0.0) << to_string(simd) << ": the same bits, so the gathered kernel did not run";
+    // and the same bits from run to run
+    std::srand(11);
+    expect_same_bits(got, ask(f, n), std::string("gathered ") + to_string(simd) + ", again");
+  }
+  EXPECT_GE(levels, 1);
 }
 
 TEST(ContentHash, DependsOnTheBytesNotOnHowTheyAreFed) {
