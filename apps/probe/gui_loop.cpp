@@ -168,9 +168,10 @@ bool GuiLoop::show_frame(ProbeView& view, SteadyClock::time_point now) {
   }
   s_.set_basis(view.view_basis());
   // the physics makes a frame (the display surface deformed, 4-6 ms on the folded organ) only
-  // when asked, and it is asked only when a frame may be drawn
+  // when asked, and it is asked only when a frame may be drawn; the node positions only while
+  // the elements view draws them
   const bool open = frame_allowed(now);
-  if (open) s_.exchange.request_frame();
+  if (open) s_.exchange.request_frame(view.shows_levels());
   const bool new_frame = take_frame(view);
   std::vector<PlotSample> samples;
   {

@@ -140,6 +140,9 @@ class ProbeView {
   void reset_camera();
   /// Shows or hides the element levels view (the `l` key).
   void toggle_levels();
+  /// True while the element levels view is shown: the only part of the view that draws the
+  /// nodes (update_geometry's node positions are not needed otherwise).
+  [[nodiscard]] bool shows_levels() const;
   /// The view basis for the sticks: columns right, up, away (world, unit).
   [[nodiscard]] Eigen::Matrix3d view_basis() const;
   /// Frames rendered so far and the measured rate.

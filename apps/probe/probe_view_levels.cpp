@@ -195,4 +195,6 @@ void ProbeView::Impl::update_levels(bool force_cut) {
 
 void ProbeView::toggle_levels() { impl_->set_levels(!impl_->levels_on); }
 
+bool ProbeView::shows_levels() const { return impl_->levels_on; }
+
 }  // namespace vx::probe

@@ -52,12 +52,13 @@ void SimulationExchange::apply_live(Simulation& sim) {
 
 void SimulationExchange::publish(Simulation& sim) {
   const bool frame = frame_requested_.exchange(false, std::memory_order_acq_rel);
-  // the surface deformed before the lock: the device thread reads the outputs meanwhile
-  if (frame && sim.has_surface()) (void)sim.surface_vertices();
+  // the surface deformed and the frame copied before the lock (the device thread reads the
+  // outputs meanwhile); under it only swapped
+  if (frame) sim.copy_frame(staging_, frame_positions_.load(std::memory_order_relaxed));
   std::lock_guard<std::mutex> lock(mutex_);
   for (std::size_t i = 0; i < published_.size(); ++i) published_[i] = sim.probe(int(i));
   if (frame) {
-    sim.copy_frame(frame_);
+    std::swap(frame_, staging_);
     frame_ready_ = true;
     frames_published_.fetch_add(1, std::memory_order_relaxed);
   }

@@ -6,11 +6,13 @@
 ///   device -> physics: a live command per probe (set_live), handed to the simulation before the
 ///                      physics thread's next step (apply_live);
 ///   physics -> device: each probe's output after the last step or reset (publish, probe);
-///   physics -> GUI:    a frame (positions, the deformed surface, the probes) copied at the end
-///                      of a step once the GUI asked for one (request_frame, publish,
-///                      take_frame), never waited for.
+///   physics -> GUI:    a frame (the deformed surface, the probes, the node positions when asked
+///                      for) copied at the end of a step once the GUI asked for one
+///                      (request_frame, publish, take_frame), never waited for.
 ///
-/// One mutex guards the commands, the outputs and the frame; it is held only to copy.
+/// One mutex guards the commands, the outputs and the frame; it is held only to copy the small
+/// things (commands, outputs) and to swap the frame, which is copied before the lock: the device
+/// thread reads the outputs at 1 kHz and never waits for the megabytes of a frame.
 
 #include <atomic>
 #include <cstdint>
@@ -34,8 +36,12 @@ class SimulationExchange {
   void set_live(int i, const LiveCommand& command);
   /// Probe `i` after the last published step: pose, raw force, contacts.
   [[nodiscard]] ProbeOutput probe(int i) const;
-  /// Asks the physics thread to copy a frame at the end of its next step.
-  void request_frame() { frame_requested_.store(true, std::memory_order_release); }
+  /// Asks the physics thread to copy a frame at the end of its next step, with the node
+  /// positions or without them (a display drawing the surface only).
+  void request_frame(bool with_positions = true) {
+    frame_positions_.store(with_positions, std::memory_order_relaxed);
+    frame_requested_.store(true, std::memory_order_release);
+  }
   /// Swaps the latest frame into `out` if a new one is ready; returns whether it was.
   bool take_frame(SimulationFrame& out);
   [[nodiscard]] std::int64_t frames_published() const { return frames_published_.load(std::memory_order_relaxed); }
@@ -55,6 +61,8 @@ class SimulationExchange {
   std::atomic<bool> live_pending_{false};
   std::vector<ProbeOutput> published_;  ///< guarded
   std::atomic<bool> frame_requested_{false};
+  std::atomic<bool> frame_positions_{true};
+  SimulationFrame staging_;  ///< the physics thread's: the next frame, copied before the lock
   SimulationFrame frame_;    ///< guarded
   bool frame_ready_{false};  ///< guarded
   std::atomic<std::int64_t> frames_published_{0};

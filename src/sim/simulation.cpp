@@ -287,11 +287,14 @@ const Eigen::Matrix3Xd& Simulation::surface_vertices() {
   return surface_frame_.vertices;
 }
 
-void Simulation::copy_frame(SimulationFrame& out) {
+void Simulation::copy_frame(SimulationFrame& out, bool with_positions) {
   if (settings_.surface) (void)surface_vertices();
   out.time_s = state_.time_s;
   out.step = state_.steps;
-  out.positions = state_.positions;
+  if (with_positions)
+    out.positions = state_.positions;
+  else
+    out.positions.resize(3, 0);
   if (settings_.surface) {
     out.surface_vertices = surface_frame_.vertices;
     out.surface_normals = surface_frame_.normals;

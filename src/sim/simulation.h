@@ -101,7 +101,7 @@ struct SimulationCounters {
 struct SimulationFrame {
   double time_s{0.0};
   std::int64_t step{0};
-  Eigen::Matrix3Xd positions;         ///< 3 x nodes, mm
+  Eigen::Matrix3Xd positions;         ///< 3 x nodes, mm (3 x 0 when not asked for: copy_frame)
   Eigen::Matrix3Xd surface_vertices;  ///< 3 x V (empty without a surface), mm
   Eigen::Matrix3Xd surface_normals;   ///< 3 x V
   std::vector<ProbeOutput> probes;
@@ -185,8 +185,10 @@ class Simulation {
   /// Throws vx::Error for a bad index or a probe that is not live.
   void set_live(int i, const LiveCommand& command);
   /// The state now as a frame (positions, the deformed surface and its normals, the probes),
-  /// into `out` (its buffers reused); deforms the surface when it is stale.
-  void copy_frame(SimulationFrame& out);
+  /// into `out` (its buffers reused); deforms the surface when it is stale. Without
+  /// `with_positions` the node positions are left out (3 x 0): a display that draws the surface
+  /// only does not need them (5 MB on a 327,000-node organ).
+  void copy_frame(SimulationFrame& out, bool with_positions = true);
 
   // --- what the device side (haptics/device_side.h) reads ------------------------------------
   /// Attaches `listener` (null: none), told after every step and reset. `record_contacts`: the

@@ -78,6 +78,22 @@ TEST(SimulationExchange, AFrameOnlyWhenAskedAndTakenOnce) {
   EXPECT_EQ(frame.step, 2);
   EXPECT_EQ(frame.positions, sim.state().positions);
   EXPECT_FALSE(exchange.take_frame(frame));  // taken
+  // without the node positions (a display that draws the surface only): the rest of the frame
+  exchange.request_frame(false);
+  sim.step();
+  exchange.publish(sim);
+  ASSERT_TRUE(exchange.take_frame(frame));
+  EXPECT_EQ(frame.step, 3);
+  EXPECT_EQ(frame.positions.cols(), 0);
+  ASSERT_EQ(frame.probes.size(), 2u);
+  EXPECT_EQ(frame.probes[0].pose.position_mm, sim.probe(0).pose.position_mm);
+  // and with them again, into the buffers the frames went through
+  exchange.request_frame(true);
+  sim.step();
+  exchange.publish(sim);
+  ASSERT_TRUE(exchange.take_frame(frame));
+  EXPECT_EQ(frame.step, 4);
+  EXPECT_EQ(frame.positions, sim.state().positions);
   // a command waits for apply_live: the simulation has not seen it before
   exchange.set_live(0, {LiveCommand::Kind::velocity, {0, 0, -20}});
   sim.step();

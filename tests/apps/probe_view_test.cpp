@@ -13,8 +13,8 @@
 #include "base/error.h"
 #include "model/gradational_builder.h"
 #include "probe_view.h"
-#include "surface/surface.h"
 #include "support/uv_sphere.h"
+#include "surface/surface.h"
 
 using namespace vx::probe;
 namespace fs = std::filesystem;
@@ -38,7 +38,8 @@ vx::VoxelGrid block_grid() {
 void folded_ball(Eigen::Matrix3Xd& vertices, Eigen::Matrix3Xi& triangles) {
   const int nt = 600, np = 300;  // longitudes, latitude bands
   const auto radius = [](double phi, double theta) {
-    return 50.0 * (1.0 + 0.05 * std::sin(12 * theta) * std::sin(10 * phi) + 0.03 * std::sin(30 * theta) * std::sin(24 * phi));
+    return 50.0 *
+           (1.0 + 0.05 * std::sin(12 * theta) * std::sin(10 * phi) + 0.03 * std::sin(30 * theta) * std::sin(24 * phi));
   };
   vx::testing::uv_sphere(np, nt, Eigen::Vector3d::Zero(), radius, vertices, triangles);
   if (vx::enclosed_volume_mm3(vertices, triangles) < 0) triangles.row(1).swap(triangles.row(2));
@@ -177,7 +178,9 @@ TEST(ProbeView, RendersUpdatesAndWritesScreenshots) {
   // a few frames with a deformed surface, the level view and the plot
   Eigen::Matrix3Xd verts = surface.rest_vertices, normals;
   vx::compute_vertex_normals(surface, verts, normals);
+  EXPECT_FALSE(view.shows_levels());  // the frames need no node positions
   view.toggle_levels();
+  EXPECT_TRUE(view.shows_levels());  // now they do
   for (int f = 0; f < 5; ++f) {
     verts.row(2).array() -= 0.1;
     ASSERT_TRUE(view.process_events());
@@ -273,9 +276,10 @@ TEST(ProbeView, ALargeFoldedSurfaceIsLitLikeASmallSample) {
     view.save_screenshot(dir / "large_later.png");
     later_lum = tissue_luminance(dir / "large_later.png", &later_px);
   }
-  std::printf("[ figures  ] mean tissue luminance: small sample %.1f (%d px), large first frame %.1f (%d px), large "
-              "after a frame %.1f (%d px)\n",
-              small_lum, small_px, first_lum, first_px, later_lum, later_px);
+  std::printf(
+      "[ figures  ] mean tissue luminance: small sample %.1f (%d px), large first frame %.1f (%d px), large "
+      "after a frame %.1f (%d px)\n",
+      small_lum, small_px, first_lum, first_px, later_lum, later_px);
   ASSERT_GT(small_px, 5000);
   ASSERT_GT(first_px, 20000);
   EXPECT_GT(small_lum, 60.0);
