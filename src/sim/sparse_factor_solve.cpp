@@ -407,38 +407,25 @@ VX_SWEEP_PASSES(avx2, 4, __attribute__((target("avx2,fma,bmi2"))))
 #endif
 VX_SWEEP_PASSES(generic, 2, )
 
-template <int K>
-void run_forward(double* w, const SupernodalArrays& a, const SuperList& supers, SparseFactor::SweepKernel kernel,
-                 SimdLevel simd) {
+/// One pass (forward: L z = w; backward: L^T x = z) with `kernel` on `simd`.
+template <int K, bool kForward>
+void run_pass(double* w, const SupernodalArrays& a, const SuperList& supers, SparseFactor::SweepKernel kernel,
+              SimdLevel simd) {
   if constexpr (K == 1 || K == 3) {
     if (kernel == SparseFactor::SweepKernel::gathered) {
       switch (simd) {
 #if defined(__x86_64__) && defined(__GNUC__)
-        case SimdLevel::avx512: return forward_avx512<K>(w, a, supers);
-        case SimdLevel::avx2: return forward_avx2<K>(w, a, supers);
+        case SimdLevel::avx512: return kForward ? forward_avx512<K>(w, a, supers) : backward_avx512<K>(w, a, supers);
+        case SimdLevel::avx2: return kForward ? forward_avx2<K>(w, a, supers) : backward_avx2<K>(w, a, supers);
 #endif
-        default: return forward_generic<K>(w, a, supers);
+        default: return kForward ? forward_generic<K>(w, a, supers) : backward_generic<K>(w, a, supers);
       }
     }
   }
-  forward_pass<K, false>(w, a, supers);
-}
-
-template <int K>
-void run_backward(double* w, const SupernodalArrays& a, const SuperList& supers, SparseFactor::SweepKernel kernel,
-                  SimdLevel simd) {
-  if constexpr (K == 1 || K == 3) {
-    if (kernel == SparseFactor::SweepKernel::gathered) {
-      switch (simd) {
-#if defined(__x86_64__) && defined(__GNUC__)
-        case SimdLevel::avx512: return backward_avx512<K>(w, a, supers);
-        case SimdLevel::avx2: return backward_avx2<K>(w, a, supers);
-#endif
-        default: return backward_generic<K>(w, a, supers);
-      }
-    }
-  }
-  backward_pass<K, false>(w, a, supers);
+  if constexpr (kForward)
+    forward_pass<K, false>(w, a, supers);
+  else
+    backward_pass<K, false>(w, a, supers);
 }
 
 }  // namespace
@@ -463,21 +450,21 @@ void SparseFactor::solve_supernodal(double* w, int first) const {
   // forward: L z = w, supernode by supernode (columns in order), from the one holding `first`
   const int q0 = first > 0 ? column_super_[std::size_t(first)] : 0;
   const SupernodalArrays a(super_, row_start_, value_start_, rows_, values_);
-  run_forward<K>(w, a, {nullptr, ns - q0, q0}, sweep_kernel_, sweep_simd_);
+  run_pass<K, true>(w, a, {nullptr, ns - q0, q0}, sweep_kernel_, sweep_simd_);
   // backward: L^T x = z
-  run_backward<K>(w, a, {nullptr, ns, 0}, sweep_kernel_, sweep_simd_);
+  run_pass<K, false>(w, a, {nullptr, ns, 0}, sweep_kernel_, sweep_simd_);
 }
 
 template <int K>
 void SparseFactor::forward_supers(double* w, const std::vector<int>& supers) const {
-  run_forward<K>(w, SupernodalArrays(super_, row_start_, value_start_, rows_, values_),
-                 {supers.data(), int(supers.size()), 0}, sweep_kernel_, sweep_simd_);
+  run_pass<K, true>(w, SupernodalArrays(super_, row_start_, value_start_, rows_, values_),
+                    {supers.data(), int(supers.size()), 0}, sweep_kernel_, sweep_simd_);
 }
 
 template <int K>
 void SparseFactor::backward_supers(double* w, const std::vector<int>& supers) const {
-  run_backward<K>(w, SupernodalArrays(super_, row_start_, value_start_, rows_, values_),
-                  {supers.data(), int(supers.size()), 0}, sweep_kernel_, sweep_simd_);
+  run_pass<K, false>(w, SupernodalArrays(super_, row_start_, value_start_, rows_, values_),
+                     {supers.data(), int(supers.size()), 0}, sweep_kernel_, sweep_simd_);
 }
 
 /// Adds the ancestors of `supers` (marked with a new generation) and sorts: a closed set under
