@@ -164,8 +164,9 @@ class SparseFactor {
   ///   - column: column by column, each entry of L scattered to its row through the row index;
   ///   - gathered (the default): a supernode 4 or more columns wide has its rows gathered into
   ///     contiguous arrays once, runs its columns on them with vector instructions, and scatters
-  ///     them back. The same solution to rounding (the backward sweep's dot products add 8
-  ///     partial sums); the same bits from run to run on one instruction set.
+  ///     them back. The same solution to rounding (the backward sweep's dot products add 2, 4 or
+  ///     8 partial sums, the lanes of the instruction set's vectors); the same bits from run to
+  ///     run on one instruction set.
   enum class SweepKernel : std::uint8_t { column, gathered };
   [[nodiscard]] static const char* to_string(SweepKernel k);
   /// The kernel a new factor sweeps with: gathered, or the one the environment variable
@@ -175,10 +176,10 @@ class SparseFactor {
   /// runs, best_simd_level()).
   void set_sweep_kernel(SweepKernel kernel, SimdLevel simd = SimdLevel::automatic);
   [[nodiscard]] SweepKernel sweep_kernel() const { return sweep_kernel_; }
+  [[nodiscard]] SimdLevel sweep_simd() const { return sweep_simd_; }
   /// The widest supernode's columns (0: a simplicial factor): the gathered kernel runs on
   /// supernodes of 4 columns or more.
   [[nodiscard]] int widest_supernode() const;
-  [[nodiscard]] SimdLevel sweep_simd() const { return sweep_simd_; }
   /// Wall time of the last compute() or read(), s.
   [[nodiscard]] double factor_seconds() const { return factor_s_; }
 
