@@ -160,9 +160,16 @@ SparseFactor& sphere_factor(int n) {
 /// One solve with the factor: the whole model (solve3), or a regional one (the free nodes within
 /// 30 mm of the sphere's highest node awake; the right-hand side changed on them: the forward half on
 /// their ancestors, the backward half on the closure), as the fast configuration's step does.
-void sweep(benchmark::State& bs, bool regional, SparseFactor::SweepKernel kernel, SimdLevel simd, int n) {
+struct SweepVariant {
+  SparseFactor::SweepKernel kernel;
+  SimdLevel simd;
+  int threads;  ///< the passes' threads (tree-parallel above 1)
+};
+
+void sweep(benchmark::State& bs, bool regional, const SweepVariant& v, int n) {
   SparseFactor& f = sphere_factor(n);
-  f.set_sweep_kernel(kernel, simd);
+  f.set_sweep_kernel(v.kernel, v.simd);
+  f.set_threads(v.threads);
   const auto& physics = sphere(n);
   const Model& model = *physics->model;
   const NodeNumbering numbering = number_nodes(sphere_state(physics).node_fixed);
@@ -257,18 +264,20 @@ int main(int argc, char** argv) {
     }
   // the factor's sweeps: the column kernel against the gathered one on each instruction set,
   // interleaved per size and solve
-  std::vector<std::pair<SparseFactor::SweepKernel, SimdLevel>> sweeps{
-      {SparseFactor::SweepKernel::column, SimdLevel::generic}};
+  // and on the widest instruction set tree-parallel on 2 threads
+  std::vector<SweepVariant> sweeps{{SparseFactor::SweepKernel::column, SimdLevel::generic, 1}};
   for (SimdLevel simd : {SimdLevel::generic, SimdLevel::avx2, SimdLevel::avx512})
-    if (simd_supported(simd)) sweeps.emplace_back(SparseFactor::SweepKernel::gathered, simd);
+    if (simd_supported(simd)) sweeps.push_back({SparseFactor::SweepKernel::gathered, simd, 1});
+  sweeps.push_back({SparseFactor::SweepKernel::gathered, best_simd_level(), 2});
   for (int n : {64, 128})
     for (const bool regional : {false, true})
-      for (const auto& [kernel, simd] : sweeps) {
-        std::string name = std::string("sweep/") + (regional ? "regional/" : "full/") + SparseFactor::to_string(kernel);
-        if (kernel == SparseFactor::SweepKernel::gathered) name += std::string("_") + to_string(simd);
-        benchmark::RegisterBenchmark(
-            (name + "/" + std::to_string(n)).c_str(),
-            [regional, kernel = kernel, simd = simd, n](benchmark::State& bs) { sweep(bs, regional, kernel, simd, n); })
+      for (const SweepVariant& v : sweeps) {
+        std::string name =
+            std::string("sweep/") + (regional ? "regional/" : "full/") + SparseFactor::to_string(v.kernel);
+        if (v.kernel == SparseFactor::SweepKernel::gathered) name += std::string("_") + to_string(v.simd);
+        if (v.threads > 1) name += "_" + std::to_string(v.threads) + "threads";
+        benchmark::RegisterBenchmark((name + "/" + std::to_string(n)).c_str(),
+                                     [regional, v, n](benchmark::State& bs) { sweep(bs, regional, v, n); })
             ->Unit(benchmark::kMillisecond)
             ->UseRealTime()
             ->MinTime(0.5);

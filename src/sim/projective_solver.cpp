@@ -220,6 +220,7 @@ void ProjectiveSolver::assemble_and_factor(FactorCache* cache, int threads) {
 void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveIterations& its,
                              ContactProvider* contact, StepReport& rep) {
   const int threads = its.threads;
+  factor_.set_threads(threads);  // the large supernodes' rows (the same bits on any number of threads)
   // the fixed nodes' coupling: rhs_const -= A_fc x_c
   if (!numbering_.fixed_nodes.empty()) {
     for (std::size_t c = 0; c < numbering_.fixed_nodes.size(); ++c)

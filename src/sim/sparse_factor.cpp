@@ -95,6 +95,8 @@ void SparseFactor::reset() {
   value_start_.clear();
   column_super_.clear();
   super_parent_.clear();
+  tree_ok_ = false;
+  tree_passes_ = 0;
 }
 
 bool SparseFactor::compute(const Matrix& a, Backend backend) {
@@ -129,6 +131,7 @@ void SparseFactor::finish() {
     path_.reserve(super_.size());
     mark_.assign(super_.size() - 1, 0);
     generation_ = 0;
+    index_tree();
   } else {
     // the elimination tree of L: a column's parent is its first row below the diagonal
     parent_.assign(std::size_t(size_), -1);
@@ -259,6 +262,42 @@ bool SparseFactor::compute_cholmod(const Matrix& a_in) {
   (void)a_in;
   return false;
 #endif
+}
+
+/// What the tree-parallel passes need (sparse_factor.h): every supernode's first descendant and
+/// entries, and whether the factor is postordered with its rows ascending (CHOLMOD's is; a
+/// factor that is not runs serial).
+void SparseFactor::index_tree() {
+  const int ns = int(super_.size()) - 1;
+  first_desc_.resize(std::size_t(ns));
+  super_work_.resize(std::size_t(ns));
+  std::vector<int> count(std::size_t(ns), 1);
+  tree_ok_ = ns > 1;
+  for (int q = 0; q < ns; ++q) first_desc_[std::size_t(q)] = q;
+  for (int q = 0; q < ns; ++q) {
+    const int up = super_parent_[std::size_t(q)];
+    if (up < 0) continue;
+    if (up <= q) {
+      tree_ok_ = false;
+      continue;
+    }
+    first_desc_[std::size_t(up)] = std::min(first_desc_[std::size_t(up)], first_desc_[std::size_t(q)]);
+    count[std::size_t(up)] += count[std::size_t(q)];
+  }
+  for (int q = 0; q < ns; ++q) {
+    // a subtree is the contiguous range [first descendant, q]
+    if (count[std::size_t(q)] != q - first_desc_[std::size_t(q)] + 1) tree_ok_ = false;
+    const int k1 = super_[std::size_t(q)], nscol = super_[std::size_t(q) + 1] - k1;
+    const std::int64_t r0 = row_start_[std::size_t(q)], nsrow = row_start_[std::size_t(q) + 1] - r0;
+    const int* r = rows_.data() + r0;
+    for (std::int64_t ii = 0; ii < nsrow && tree_ok_; ++ii)
+      if (ii < nscol ? r[ii] != k1 + int(ii) : r[ii] <= r[ii - 1]) tree_ok_ = false;
+    super_work_[std::size_t(q)] = std::int64_t(nscol) * nsrow - std::int64_t(nscol) * (nscol - 1) / 2;
+  }
+  tree_work_.assign(std::size_t(ns), 0);
+  tree_child_.assign(std::size_t(ns), -1);
+  tree_sibling_.assign(std::size_t(ns), -1);
+  tree_pos_.assign(std::size_t(ns), -1);
 }
 
 /// column_super_ and super_parent_ from super_, row_start_ and rows_ (size_ set); false when a

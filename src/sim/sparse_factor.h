@@ -20,7 +20,9 @@
 /// supernodal (L L^T in dense column blocks that share their row pattern): the solve streams 8
 /// bytes per entry instead of the 12 of a simplicial factor with its row index, which is what a
 /// solve of this size is bound by (memory). Eigen's is copied into one unit-lower L and diagonal
-/// D. Serial and in a fixed order: deterministic.
+/// D. A supernodal pass large enough runs tree-parallel (set_threads(): the disjoint subtrees
+/// below the top separators on the threads, the separators on one), every row's updates in the
+/// serial order: bit-identical on any number of threads.
 
 #include <Eigen/Core>
 #include <Eigen/SparseCore>
@@ -177,6 +179,21 @@ class SparseFactor {
   void set_sweep_kernel(SweepKernel kernel, SimdLevel simd = SimdLevel::automatic);
   [[nodiscard]] SweepKernel sweep_kernel() const { return sweep_kernel_; }
   [[nodiscard]] SimdLevel sweep_simd() const { return sweep_simd_; }
+  /// The supernodal passes' threads (1: serial; 0: OpenMP's default) and the least work, in
+  /// entries of L, that a pass splits into subtrees for them (a shorter one, a path of a few
+  /// supernodes, stays on the calling thread). A pass split runs the disjoint subtrees below the
+  /// top separators on the threads and the separators on the calling thread, every row's
+  /// updates in the serial order: the results are bit for bit the same whatever either is
+  /// (docs/bench.md, "The sweeps on two cores"). From inside a parallel region a pass is serial.
+  void set_threads(int threads, std::int64_t min_parallel_entries = kTreeMinParallelEntries) {
+    threads_ = threads;
+    min_parallel_entries_ = min_parallel_entries;
+  }
+  [[nodiscard]] int threads() const { return threads_; }
+  /// The least work of a tree-parallel pass by default: about 0.1 ms of sweeping.
+  static constexpr std::int64_t kTreeMinParallelEntries = 100000;
+  /// Passes that ran tree-parallel since compute() or read() (a diagnostic for tests).
+  [[nodiscard]] std::int64_t tree_parallel_passes() const { return tree_passes_; }
   /// The widest supernode's columns (0: a simplicial factor): the gathered kernel runs on
   /// supernodes of 4 columns or more.
   [[nodiscard]] int widest_supernode() const;
@@ -337,6 +354,29 @@ class SparseFactor {
   void forward_supers(double* w, const std::vector<int>& supers) const;
   template <int K>
   void backward_supers(double* w, const std::vector<int>& supers) const;
+  // tree-parallel passes (sparse_factor_solve.cpp, plan_tree()): a pass over a list of
+  // supernodes closed under the parent (ascending) is cut into slices that are whole subtrees of
+  // the list (contiguous: the factor is postordered), run on the threads, and the rest (the
+  // separators above them), run on the calling thread: a forward pass runs the slices first (the
+  // updates of rows above a slice put off, but for the first slice's), then the rest and the
+  // put-off updates in the serial order; a backward pass the rest first, then the slices.
+  struct TreeTask {
+    int begin, end;     ///< positions in the list
+    std::int64_t work;  ///< entries of L
+  };
+  bool tree_ok_{false};                   ///< postordered, rows ascending in every supernode
+  std::vector<int> first_desc_;           ///< supernode -> the first supernode of its subtree
+  std::vector<std::int64_t> super_work_;  ///< supernode -> entries of L it holds
+  int threads_{1};
+  std::int64_t min_parallel_entries_{kTreeMinParallelEntries};
+  mutable std::int64_t tree_passes_{0};
+  // plan_tree's work space (sized by supernodes); a factor is used from one thread at a time
+  mutable std::vector<TreeTask> tasks_;
+  mutable std::vector<std::int64_t> tree_work_;
+  mutable std::vector<int> tree_child_, tree_sibling_, tree_pos_;
+  mutable std::vector<int> frontier_, task_order_, roots_;
+  void index_tree();
+  bool plan_tree(const std::vector<int>& supers) const;
   void ancestors(std::vector<int>& supers);
   static void scatter_forward_forces(const std::vector<const UnitForward*>& z, const std::vector<double>& forces3,
                                      double* w);

@@ -6,8 +6,10 @@
 #include <algorithm>
 #include <cstdint>
 #include <cstring>
+#include <limits>
 #include <vector>
 
+#include "base/parallel.h"
 #include "base/simd.h"
 
 // The lane vectors of the gathered sweeps never cross a function boundary (always_inline), so the
@@ -127,9 +129,10 @@ struct SuperList {
 
 /// The forward sweep L z = w over one supernode (K right-hand sides interleaved in w), each
 /// column streamed once; a column whose value is zero for every right-hand side is skipped.
-/// The column kernel: every entry scatters to w through its row index.
+/// The column kernel: every entry scatters to w through its row index. Updates the rows
+/// r[.. row_end) (row_end >= nscol; the rest: forward_external_columns()).
 template <int K>
-VX_SWEEP_INLINE void forward_columns(double* w, const Supernode& s) {
+VX_SWEEP_INLINE void forward_columns(double* w, const Supernode& s, int row_end) {
   for (int jj = 0; jj < s.nscol; ++jj) {
     const double* col = s.x + std::int64_t(jj) * s.nsrow;
     double* wj = w + K * std::int64_t(s.k1 + jj);
@@ -141,7 +144,27 @@ VX_SWEEP_INLINE void forward_columns(double* w, const Supernode& s) {
     if (zero) continue;
     double v[K];
     for (int c = 0; c < K; ++c) v[c] = wj[c];
-    for (int ii = jj + 1; ii < s.nsrow; ++ii) {
+    for (int ii = jj + 1; ii < row_end; ++ii) {
+      double* wi = w + K * std::int64_t(s.r[ii]);
+      const double l = col[ii];
+      for (int c = 0; c < K; ++c) wi[c] -= l * v[c];
+    }
+  }
+}
+
+/// What forward_columns(w, s, ext) left out: the updates of the rows r[ext ..] from the
+/// supernode's columns (their values final), column by column as it would have made them.
+template <int K>
+VX_SWEEP_INLINE void forward_external_columns(double* w, const Supernode& s, int ext) {
+  for (int jj = 0; jj < s.nscol; ++jj) {
+    const double* col = s.x + std::int64_t(jj) * s.nsrow;
+    const double* wj = w + K * std::int64_t(s.k1 + jj);
+    bool zero = true;
+    for (int c = 0; c < K; ++c) zero = zero && wj[c] == 0.0;
+    if (zero) continue;
+    double v[K];
+    for (int c = 0; c < K; ++c) v[c] = wj[c];
+    for (int ii = ext; ii < s.nsrow; ++ii) {
       double* wi = w + K * std::int64_t(s.r[ii]);
       const double l = col[ii];
       for (int c = 0; c < K; ++c) wi[c] -= l * v[c];
@@ -294,9 +317,11 @@ VX_SWEEP_INLINE void dot_rows(const double* t, int ld, const double* const* l, i
     }
 }
 
+/// The gathered forward sweep over one supernode: the rows r[.. row_end) (row_end >= nscol; the
+/// rest: forward_external_gathered()).
 template <int K, int kLanes>
-VX_SWEEP_INLINE void forward_gathered(double* w, const Supernode& s, double* t) {
-  const int n = s.nsrow, ld = n;
+VX_SWEEP_INLINE void forward_gathered(double* w, const Supernode& s, double* t, int row_end) {
+  const int n = row_end, ld = s.nsrow;
   gather_rows<K>(w, s.r, n, t, ld);
   for (int j0 = 0; j0 < s.nscol; j0 += kBlock) {
     const int m = std::min(kBlock, s.nscol - j0), j1 = j0 + m;
@@ -306,7 +331,7 @@ VX_SWEEP_INLINE void forward_gathered(double* w, const Supernode& s, double* t) 
     bool zero = true;
     for (int j = 0; j < m; ++j) {
       const int jj = j0 + j;
-      l[j] = s.x + std::int64_t(jj) * n;
+      l[j] = s.x + std::int64_t(jj) * ld;
       for (int c = 0; c < K; ++c) {
         v[j][c] = t[c * ld + jj] /= l[j][jj];
         zero = zero && v[j][c] == 0.0;
@@ -318,6 +343,30 @@ VX_SWEEP_INLINE void forward_gathered(double* w, const Supernode& s, double* t) 
     if (!zero) update_rows<K, kLanes>(t, ld, l, v, m, j1, n);
   }
   scatter_rows<K>(w, s.r, n, t, ld);
+}
+
+/// What forward_gathered(w, s, t, ext) left out: the rows r[ext ..] updated by the supernode's
+/// columns (their values final), block by block as it would have updated them.
+template <int K, int kLanes>
+VX_SWEEP_INLINE void forward_external_gathered(double* w, const Supernode& s, double* t, int ext) {
+  const int n = s.nsrow, ld = n;
+  if (ext >= n) return;
+  gather_rows<K>(w, s.r + ext, n - ext, t + ext, ld);
+  for (int j0 = 0; j0 < s.nscol; j0 += kBlock) {
+    const int m = std::min(kBlock, s.nscol - j0);
+    const double* l[kBlock];
+    double v[kBlock][K];
+    bool zero = true;
+    for (int j = 0; j < m; ++j) {
+      l[j] = s.x + std::int64_t(j0 + j) * n;
+      for (int c = 0; c < K; ++c) {
+        v[j][c] = w[K * std::int64_t(s.k1 + j0 + j) + c];
+        zero = zero && v[j][c] == 0.0;
+      }
+    }
+    if (!zero) update_rows<K, kLanes>(t, ld, l, v, m, ext, n);
+  }
+  scatter_rows<K>(w, s.r + ext, n - ext, t + ext, ld);
 }
 
 template <int K, int kLanes>
@@ -356,19 +405,57 @@ double* gather_scratch(std::size_t values) {
   return scratch.data();
 }
 
+/// No row left out of a forward pass.
+constexpr int kAllRows = std::numeric_limits<int>::max();
+
+/// The first of s's rows at or past `end_column` (its rows ascend: SparseFactor::tree_ok_).
+VX_SWEEP_INLINE int first_row_from(const Supernode& s, int end_column) {
+  if (end_column == kAllRows) return s.nsrow;
+  return int(std::lower_bound(s.r + s.nscol, s.r + s.nsrow, end_column) - s.r);
+}
+
+/// True when a supernode's own rows of w are all zero (its forward sweep changes nothing).
+template <int K>
+VX_SWEEP_INLINE bool own_rows_zero(const double* w, const Supernode& s) {
+  bool zero = true;
+  for (int j = 0; j < K * s.nscol && zero; ++j) zero = w[K * std::int64_t(s.k1) + j] == 0.0;
+  return zero;
+}
+
+/// The forward pass over `supers`, the updates of rows at or past `end_column` left out (those of
+/// a slice of a tree-parallel pass: forward_external_pass()).
 template <int K, bool kGathered, int kLanes = 2>
-VX_SWEEP_INLINE void forward_pass(double* w, const SupernodalArrays& a, const SuperList& supers) {
+VX_SWEEP_INLINE void forward_pass(double* w, const SupernodalArrays& a, const SuperList& supers, int end_column) {
   for (int i = 0; i < supers.count; ++i) {
     const Supernode s = a.at(supers.at(i));
+    const int row_end = first_row_from(s, end_column);
     if constexpr (kGathered) {
       if (s.nscol >= kGatherMinColumns) {
-        bool zero = true;  // a supernode whose own rows are all zero changes nothing
-        for (int j = 0; j < K * s.nscol && zero; ++j) zero = w[K * std::int64_t(s.k1) + j] == 0.0;
-        if (!zero) forward_gathered<K, kLanes>(w, s, gather_scratch(std::size_t(K) * std::size_t(s.nsrow)));
+        if (!own_rows_zero<K>(w, s))
+          forward_gathered<K, kLanes>(w, s, gather_scratch(std::size_t(K) * std::size_t(s.nsrow)), row_end);
         continue;
       }
     }
-    forward_columns<K>(w, s);
+    forward_columns<K>(w, s, row_end);
+  }
+}
+
+/// What forward_pass(w, a, supers, end_column) left out, supernode by supernode in order.
+template <int K, bool kGathered, int kLanes = 2>
+VX_SWEEP_INLINE void forward_external_pass(double* w, const SupernodalArrays& a, const SuperList& supers,
+                                           int end_column) {
+  for (int i = 0; i < supers.count; ++i) {
+    const Supernode s = a.at(supers.at(i));
+    const int ext = first_row_from(s, end_column);
+    if (ext >= s.nsrow) continue;
+    if constexpr (kGathered) {
+      if (s.nscol >= kGatherMinColumns) {
+        if (!own_rows_zero<K>(w, s))
+          forward_external_gathered<K, kLanes>(w, s, gather_scratch(std::size_t(K) * std::size_t(s.nsrow)), ext);
+        continue;
+      }
+    }
+    forward_external_columns<K>(w, s, ext);
   }
 }
 
@@ -388,14 +475,18 @@ VX_SWEEP_INLINE void backward_pass(double* w, const SupernodalArrays& a, const S
 
 // one copy of the gathered passes per instruction set (the same source; the compiler vectorises
 // the rows for each)
-#define VX_SWEEP_PASSES(name, lanes, attributes)                                                   \
-  template <int K>                                                                                 \
-  attributes void forward_##name(double* w, const SupernodalArrays& a, const SuperList& supers) {  \
-    forward_pass<K, true, lanes>(w, a, supers);                                                    \
-  }                                                                                                \
-  template <int K>                                                                                 \
-  attributes void backward_##name(double* w, const SupernodalArrays& a, const SuperList& supers) { \
-    backward_pass<K, true, lanes>(w, a, supers);                                                   \
+#define VX_SWEEP_PASSES(name, lanes, attributes)                                                            \
+  template <int K>                                                                                          \
+  attributes void forward_##name(double* w, const SupernodalArrays& a, const SuperList& supers, int end) {  \
+    forward_pass<K, true, lanes>(w, a, supers, end);                                                        \
+  }                                                                                                         \
+  template <int K>                                                                                          \
+  attributes void external_##name(double* w, const SupernodalArrays& a, const SuperList& supers, int end) { \
+    forward_external_pass<K, true, lanes>(w, a, supers, end);                                               \
+  }                                                                                                         \
+  template <int K>                                                                                          \
+  attributes void backward_##name(double* w, const SupernodalArrays& a, const SuperList& supers, int) {     \
+    backward_pass<K, true, lanes>(w, a, supers);                                                            \
   }
 
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
@@ -407,23 +498,37 @@ VX_SWEEP_PASSES(avx2, 4, __attribute__((target("avx2,fma,bmi2"))))
 #endif
 VX_SWEEP_PASSES(generic, 2, )
 
-/// One pass (forward: L z = w; backward: L^T x = z) with `kernel` on `simd`.
-template <int K, bool kForward>
-void run_pass(double* w, const SupernodalArrays& a, const SuperList& supers, SparseFactor::SweepKernel kernel,
-              SimdLevel simd) {
+/// The three kinds of pass: forward (L z = w), the updates a forward pass left out, backward
+/// (L^T x = z).
+enum class Pass { forward, external, backward };
+
+/// One pass with `kernel` on `simd` (end_column: forward and external, kAllRows for none left out).
+template <int K, Pass kPass>
+void run_pass(double* w, const SupernodalArrays& a, const SuperList& supers, int end_column,
+              SparseFactor::SweepKernel kernel, SimdLevel simd) {
   if constexpr (K == 1 || K == 3) {
     if (kernel == SparseFactor::SweepKernel::gathered) {
+#define VX_SWEEP_CALL(name)                                                   \
+  switch (kPass) {                                                            \
+    case Pass::forward: return forward_##name<K>(w, a, supers, end_column);   \
+    case Pass::external: return external_##name<K>(w, a, supers, end_column); \
+    case Pass::backward: return backward_##name<K>(w, a, supers, end_column); \
+  }
       switch (simd) {
 #if defined(__x86_64__) && defined(__GNUC__)
-        case SimdLevel::avx512: return kForward ? forward_avx512<K>(w, a, supers) : backward_avx512<K>(w, a, supers);
-        case SimdLevel::avx2: return kForward ? forward_avx2<K>(w, a, supers) : backward_avx2<K>(w, a, supers);
+        case SimdLevel::avx512: VX_SWEEP_CALL(avx512) break;
+        case SimdLevel::avx2: VX_SWEEP_CALL(avx2) break;
 #endif
-        default: return kForward ? forward_generic<K>(w, a, supers) : backward_generic<K>(w, a, supers);
+        default: VX_SWEEP_CALL(generic) break;
       }
+#undef VX_SWEEP_CALL
+      return;
     }
   }
-  if constexpr (kForward)
-    forward_pass<K, false>(w, a, supers);
+  if constexpr (kPass == Pass::forward)
+    forward_pass<K, false>(w, a, supers, end_column);
+  else if constexpr (kPass == Pass::external)
+    forward_external_pass<K, false>(w, a, supers, end_column);
   else
     backward_pass<K, false>(w, a, supers);
 }
@@ -450,21 +555,148 @@ void SparseFactor::solve_supernodal(double* w, int first) const {
   // forward: L z = w, supernode by supernode (columns in order), from the one holding `first`
   const int q0 = first > 0 ? column_super_[std::size_t(first)] : 0;
   const SupernodalArrays a(super_, row_start_, value_start_, rows_, values_);
-  run_pass<K, true>(w, a, {nullptr, ns - q0, q0}, sweep_kernel_, sweep_simd_);
+  run_pass<K, Pass::forward>(w, a, {nullptr, ns - q0, q0}, kAllRows, sweep_kernel_, sweep_simd_);
   // backward: L^T x = z
-  run_pass<K, false>(w, a, {nullptr, ns, 0}, sweep_kernel_, sweep_simd_);
+  run_pass<K, Pass::backward>(w, a, {nullptr, ns, 0}, kAllRows, sweep_kernel_, sweep_simd_);
+}
+
+/// Cuts `supers` (ascending, closed under the parent) for a tree-parallel pass (sparse_factor.h):
+/// tasks_ (by position) and task_order_ (largest first). Splits the largest subtree (its root
+/// goes to the serial rest) while that shortens the estimated pass (the rest plus the larger of
+/// the largest subtree and an even share of the subtrees); false (serial) when the pass is
+/// shorter than min_parallel_entries_ or the split gains less than a sixth. Which split it
+/// picks changes the time, never the result.
+bool SparseFactor::plan_tree(const std::vector<int>& supers) const {
+  tasks_.clear();
+  const int threads = resolve_threads(threads_);
+  const int m = int(supers.size());
+  if (threads <= 1 || !tree_ok_ || m < 2 || omp_in_parallel()) return false;
+  std::int64_t total = 0;
+  for (int p = 0; p < m; ++p) {
+    const int q = supers[std::size_t(p)];
+    tree_pos_[std::size_t(q)] = p;
+    tree_work_[std::size_t(q)] = super_work_[std::size_t(q)];
+    tree_child_[std::size_t(q)] = -1;
+    total += super_work_[std::size_t(q)];
+  }
+  if (total < min_parallel_entries_) return false;
+  const auto in_list = [&](int q) {
+    const int p = tree_pos_[std::size_t(q)];
+    return p >= 0 && p < m && supers[std::size_t(p)] == q;
+  };
+  roots_.clear();
+  for (int p = 0; p < m; ++p) {
+    const int q = supers[std::size_t(p)], up = super_parent_[std::size_t(q)];
+    if (up >= 0 && in_list(up)) {
+      tree_work_[std::size_t(up)] += tree_work_[std::size_t(q)];
+      tree_sibling_[std::size_t(q)] = tree_child_[std::size_t(up)];
+      tree_child_[std::size_t(up)] = q;
+    } else {
+      roots_.push_back(q);
+    }
+  }
+  const auto lighter = [&](int a, int b) { return tree_work_[std::size_t(a)] < tree_work_[std::size_t(b)]; };
+  // splits the heaviest subtree of frontier_ (a heap) once; false when it is one supernode
+  const auto split = [&](std::int64_t& rest) {
+    const int t = frontier_.front();
+    if (tree_child_[std::size_t(t)] < 0) return false;
+    std::pop_heap(frontier_.begin(), frontier_.end(), lighter);
+    frontier_.pop_back();
+    rest += super_work_[std::size_t(t)];
+    for (int c = tree_child_[std::size_t(t)]; c >= 0; c = tree_sibling_[std::size_t(c)]) {
+      frontier_.push_back(c);
+      std::push_heap(frontier_.begin(), frontier_.end(), lighter);
+    }
+    return true;
+  };
+  const auto estimate = [&](std::int64_t rest) {
+    return rest + std::max(tree_work_[std::size_t(frontier_.front())], (total - rest + threads - 1) / threads);
+  };
+  constexpr int kMostSplits = 64;
+  frontier_.assign(roots_.begin(), roots_.end());
+  std::make_heap(frontier_.begin(), frontier_.end(), lighter);
+  std::int64_t rest = 0, best = estimate(0);
+  int best_splits = 0;
+  for (int k = 1; k <= kMostSplits && split(rest); ++k) {
+    const std::int64_t e = estimate(rest);
+    if (e < best) best = e, best_splits = k;
+  }
+  if (best * 6 > total * 5) return false;
+  frontier_.assign(roots_.begin(), roots_.end());
+  std::make_heap(frontier_.begin(), frontier_.end(), lighter);
+  rest = 0;
+  for (int k = 0; k < best_splits; ++k) split(rest);
+  for (const int t : frontier_) {
+    const int b = int(std::lower_bound(supers.begin(), supers.end(), first_desc_[std::size_t(t)]) - supers.begin());
+    tasks_.push_back({b, tree_pos_[std::size_t(t)] + 1, tree_work_[std::size_t(t)]});
+  }
+  std::sort(tasks_.begin(), tasks_.end(), [](const TreeTask& a, const TreeTask& b) { return a.begin < b.begin; });
+  task_order_.resize(tasks_.size());
+  for (std::size_t k = 0; k < tasks_.size(); ++k) task_order_[k] = int(k);
+  std::sort(task_order_.begin(), task_order_.end(), [&](int a, int b) {  // not stable_sort: it allocates
+    const std::int64_t wa = tasks_[std::size_t(a)].work, wb = tasks_[std::size_t(b)].work;
+    return wa != wb ? wa > wb : a < b;
+  });
+  ++tree_passes_;
+  return true;
 }
 
 template <int K>
 void SparseFactor::forward_supers(double* w, const std::vector<int>& supers) const {
-  run_pass<K, true>(w, SupernodalArrays(super_, row_start_, value_start_, rows_, values_),
-                    {supers.data(), int(supers.size()), 0}, sweep_kernel_, sweep_simd_);
+  const SupernodalArrays a(super_, row_start_, value_start_, rows_, values_);
+  const auto slice = [&](int begin, int end) { return SuperList{supers.data() + begin, end - begin, 0}; };
+  if (!plan_tree(supers)) {
+    run_pass<K, Pass::forward>(w, a, slice(0, int(supers.size())), kAllRows, sweep_kernel_, sweep_simd_);
+    return;
+  }
+  // the subtrees on the threads: a subtree's rows take updates from its own supernodes only;
+  // those of the rows above it wait (but the first slice's: nothing comes before them)
+  const auto end_column = [&](const TreeTask& t) {
+    return t.begin == 0 ? kAllRows : super_[std::size_t(supers[std::size_t(t.end - 1)]) + 1];
+  };
+  parallel_for_chunks(std::int64_t(tasks_.size()), 1, threads_, [&](std::int64_t c, std::int64_t, std::int64_t) {
+    const TreeTask& t = tasks_[std::size_t(task_order_[std::size_t(c)])];
+    run_pass<K, Pass::forward>(w, a, slice(t.begin, t.end), end_column(t), sweep_kernel_, sweep_simd_);
+  });
+  // the rest and the updates put off, in the serial order (each row's updates as serially)
+  std::size_t k = 0;
+  for (int p = 0; p < int(supers.size());) {
+    if (k < tasks_.size() && p == tasks_[k].begin) {
+      const TreeTask& t = tasks_[k++];
+      if (t.begin > 0)
+        run_pass<K, Pass::external>(w, a, slice(t.begin, t.end), end_column(t), sweep_kernel_, sweep_simd_);
+      p = t.end;
+    } else {
+      const int next = k < tasks_.size() ? tasks_[k].begin : int(supers.size());
+      run_pass<K, Pass::forward>(w, a, slice(p, next), kAllRows, sweep_kernel_, sweep_simd_);
+      p = next;
+    }
+  }
 }
 
 template <int K>
 void SparseFactor::backward_supers(double* w, const std::vector<int>& supers) const {
-  run_pass<K, false>(w, SupernodalArrays(super_, row_start_, value_start_, rows_, values_),
-                     {supers.data(), int(supers.size()), 0}, sweep_kernel_, sweep_simd_);
+  const SupernodalArrays a(super_, row_start_, value_start_, rows_, values_);
+  const auto slice = [&](int begin, int end) { return SuperList{supers.data() + begin, end - begin, 0}; };
+  if (!plan_tree(supers)) {
+    run_pass<K, Pass::backward>(w, a, slice(0, int(supers.size())), kAllRows, sweep_kernel_, sweep_simd_);
+    return;
+  }
+  // the rest first (a column reads only its ancestors'), then the subtrees on the threads
+  std::size_t k = tasks_.size();
+  for (int p = int(supers.size()); p > 0;) {
+    if (k > 0 && p == tasks_[k - 1].end) {
+      p = tasks_[--k].begin;
+      continue;
+    }
+    const int begin = k > 0 ? tasks_[k - 1].end : 0;
+    run_pass<K, Pass::backward>(w, a, slice(begin, p), kAllRows, sweep_kernel_, sweep_simd_);
+    p = begin;
+  }
+  parallel_for_chunks(std::int64_t(tasks_.size()), 1, threads_, [&](std::int64_t c, std::int64_t, std::int64_t) {
+    const TreeTask& t = tasks_[std::size_t(task_order_[std::size_t(c)])];
+    run_pass<K, Pass::backward>(w, a, slice(t.begin, t.end), kAllRows, sweep_kernel_, sweep_simd_);
+  });
 }
 
 /// Adds the ancestors of `supers` (marked with a new generation) and sorts: a closed set under

@@ -252,6 +252,104 @@ TEST(SparseFactor, TheGatheredSweepsSolveAsTheColumnSweepsOnEveryInstructionSet)
   EXPECT_GE(levels, 1);
 }
 
+/// Every supernodal pass the solver runs, on `f`: a full solve (forward and backward over the
+/// whole factor), the far field's forward fields (18 lanes), a regional step (forward half on
+/// the changed rows' ancestors, candidates' rows, one backward half with contact forces), the
+/// forces' response over everything and over the closure, a unit column on the closure.
+struct PassResults {
+  Eigen::MatrixX3d x, partial, response, response_partial;
+  std::vector<double> fields, column;
+  Eigen::Vector3d row;
+};
+
+PassResults run_passes(SparseFactor& f, const std::vector<int>& region, const std::vector<int>& candidates) {
+  const int n = f.size();
+  PassResults r;
+  std::srand(11);
+  const Eigen::MatrixX3d b = Eigen::MatrixX3d::Random(n, 3);
+  r.x.resize(n, 3);
+  f.solve3(b, r.x);
+  f.forward_fields(Eigen::MatrixXd::Random(n, 9), r.fields);
+  f.set_partial_rows(region);
+  Eigen::MatrixX3d b2 = b;
+  for (const int i : region) b2.row(i) += Eigen::RowVector3d(0.5, -1.0, 0.25);
+  f.forward3_partial(b2);
+  std::vector<SparseFactor::UnitForward> z(candidates.size());
+  std::vector<const SparseFactor::UnitForward*> zp;
+  std::vector<double> forces;
+  r.row.setZero();
+  for (std::size_t k = 0; k < candidates.size(); ++k) {
+    f.forward_unit(candidates[k], z[k]);
+    zp.push_back(&z[k]);
+    r.row += f.solution_row(z[k]);
+    forces.insert(forces.end(), {0.1 * double(k + 1), -0.2, 0.3});
+  }
+  r.partial = r.x;
+  f.backward3_partial(zp, forces, r.partial);
+  r.response = Eigen::MatrixX3d::Zero(n, 3);
+  f.add_response3(zp, forces, r.response, false);
+  r.response_partial = Eigen::MatrixX3d::Zero(n, 3);
+  f.add_response3(zp, forces, r.response_partial, true);
+  r.column.assign(std::size_t(n), 0.0);
+  f.solve_unit_partial(candidates.front(), r.column.data());
+  return r;
+}
+
+bool same_bits(const Eigen::MatrixX3d& a, const Eigen::MatrixX3d& b) {
+  return a.size() == b.size() && std::memcmp(a.data(), b.data(), sizeof(double) * std::size_t(a.size())) == 0;
+}
+
+TEST(SparseFactor, TreeParallelPassesGiveTheSerialPassesBitForBit) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "no supernodal factor in this build";
+  // a block of 17 x 17 x 13 nodes: a nested-dissection tree with subtrees worth splitting
+  const SparseFactor::Matrix a = block_matrix(16, 16, 12);
+  const int n = int(a.rows());
+  SparseFactor serial;
+  ASSERT_TRUE(serial.compute(a, SparseFactor::Backend::cholmod));
+  ASSERT_TRUE(serial.supports_partial());
+  // a region of rows spread over the block (its closure branches below the top separators) and
+  // contact candidates inside it
+  std::vector<int> region;
+  for (int i = 0; i < n; i += 7) region.push_back(i);
+  const std::vector<int> candidates = {region[3], region[region.size() / 2], region.back()};
+  serial.set_threads(1);
+  const PassResults want = run_passes(serial, region, candidates);
+  EXPECT_EQ(serial.tree_parallel_passes(), 0);
+  for (const int threads : {2, 3}) {
+    SparseFactor split = serial;  // the same factor, its passes on `threads` threads
+    split.set_threads(threads, 0);
+    const PassResults got = run_passes(split, region, candidates);
+    const std::string what = std::to_string(threads) + " threads";
+    // the passes ran split (the full ones, the regional ones and the 18-lane fields at least)
+    EXPECT_GE(split.tree_parallel_passes(), 6) << what;
+    EXPECT_TRUE(same_bits(got.x, want.x))
+        << what << " max diff " << (got.x - want.x).cwiseAbs().maxCoeff() << " of " << want.x.cwiseAbs().maxCoeff();
+    EXPECT_EQ(got.fields, want.fields) << what;
+    EXPECT_EQ(std::memcmp(got.row.data(), want.row.data(), sizeof(double) * 3), 0) << what;
+    EXPECT_TRUE(same_bits(got.partial, want.partial)) << what;
+    EXPECT_TRUE(same_bits(got.response, want.response)) << what;
+    EXPECT_TRUE(same_bits(got.response_partial, want.response_partial)) << what;
+    EXPECT_EQ(got.column, want.column) << what;
+  }
+  // and the serial answers are right: the full solve's residual, the regional solve's rows
+  std::srand(11);
+  const Eigen::MatrixX3d b = Eigen::MatrixX3d::Random(n, 3);
+  EXPECT_LT((a * want.x - b).norm(), 1e-10 * b.norm());
+  Eigen::MatrixX3d b2 = b;
+  for (const int i : region) b2.row(i) += Eigen::RowVector3d(0.5, -1.0, 0.25);
+  for (std::size_t k = 0; k < candidates.size(); ++k)
+    b2.row(candidates[k]) += Eigen::RowVector3d(0.1 * double(k + 1), -0.2, 0.3);
+  const Eigen::MatrixX3d full = Eigen::SimplicialLDLT<SparseFactor::Matrix>(a).solve(b2);
+  double worst = 0.0;
+  for (const int i : region) worst = std::max(worst, (want.partial.row(i) - full.row(i)).norm());
+  EXPECT_LT(worst, 1e-9 * full.norm());
+  // a pass shorter than the least parallel work stays serial
+  SparseFactor small = serial;
+  small.set_threads(2, std::int64_t(1) << 40);
+  run_passes(small, region, candidates);
+  EXPECT_EQ(small.tree_parallel_passes(), 0);
+}
+
 TEST(ContentHash, DependsOnTheBytesNotOnHowTheyAreFed) {
   std::vector<unsigned char> data(1000);
   for (std::size_t i = 0; i < data.size(); ++i) data[i] = static_cast<unsigned char>(i * 37 + 11);
