@@ -1,9 +1,11 @@
 #pragma once
 /// @file content_hash.h
 /// A 64-bit hash of bytes fed in pieces, for content keys and checksums (the factor cache:
-/// sparse_factor.h): the XXH64 round (Collet's xxHash, multiply-rotate per 8-byte word) in
-/// one lane, about 6 GB/s, the same value on every machine of the same byte order. Not
-/// cryptographic: it finds a changed matrix or a damaged file, not an attacker.
+/// sparse_factor.h): XXH64 (Collet's xxHash), four independent lanes of multiply-rotate rounds
+/// over 32-byte stripes, about 4x the speed of one lane (the checksums of a 450 MB factor and a
+/// 115 MB calibration are on the start-up's path); the same value on every machine of the same
+/// byte order, and the reference XXH64 value of the bytes (tested against its published values).
+/// Not cryptographic: it finds a changed matrix or a damaged file, not an attacker.
 
 #include <cstddef>
 #include <cstdint>
@@ -13,24 +15,24 @@ namespace vx {
 
 class ContentHash {
  public:
-  explicit ContentHash(std::uint64_t seed = 0) : h_(seed + kP5) {}
+  explicit ContentHash(std::uint64_t seed = 0) : seed_(seed), v_{seed + kP1 + kP2, seed + kP2, seed, seed - kP1} {}
 
   /// Feeds `bytes` bytes at `data`; pieces may be any size (the value depends only on the
   /// concatenation).
   void add(const void* data, std::size_t bytes) {
     const auto* p = static_cast<const unsigned char*>(data);
     total_ += bytes;
-    if (fill_ > 0) {  // complete the pending word first
-      const std::size_t take = bytes < std::size_t(8 - fill_) ? bytes : std::size_t(8 - fill_);
+    if (fill_ > 0) {  // complete the pending stripe first
+      const std::size_t take = bytes < std::size_t(kStripe - fill_) ? bytes : std::size_t(kStripe - fill_);
       std::memcpy(buf_ + fill_, p, take);
       fill_ += int(take);
       p += take;
       bytes -= take;
-      if (fill_ < 8) return;
-      word(buf_);
+      if (fill_ < kStripe) return;
+      stripe(buf_);
       fill_ = 0;
     }
-    for (; bytes >= 8; bytes -= 8, p += 8) word(p);
+    for (; bytes >= std::size_t(kStripe); bytes -= kStripe, p += kStripe) stripe(p);
     std::memcpy(buf_, p, bytes);
     fill_ = int(bytes);
   }
@@ -57,8 +59,23 @@ class ContentHash {
 
   /// The hash of everything fed so far (feeding may go on).
   [[nodiscard]] std::uint64_t value() const {
-    std::uint64_t h = h_ + total_;
-    for (int i = 0; i < fill_; ++i) h = rotl(h ^ (buf_[i] * kP5), 11) * kP1;
+    std::uint64_t h;
+    if (total_ >= std::uint64_t(kStripe)) {
+      h = rotl(v_[0], 1) + rotl(v_[1], 7) + rotl(v_[2], 12) + rotl(v_[3], 18);
+      for (const std::uint64_t v : v_) h = (h ^ round(0, v)) * kP1 + kP4;
+    } else {
+      h = seed_ + kP5;
+    }
+    h += total_;
+    int i = 0;
+    for (; i + 8 <= fill_; i += 8) h = rotl(h ^ round(0, read64(buf_ + i)), 27) * kP1 + kP4;
+    if (i + 4 <= fill_) {
+      std::uint32_t k;
+      std::memcpy(&k, buf_ + i, 4);
+      h = rotl(h ^ (std::uint64_t(k) * kP1), 23) * kP2 + kP3;
+      i += 4;
+    }
+    for (; i < fill_; ++i) h = rotl(h ^ (buf_[i] * kP5), 11) * kP1;
     h ^= h >> 33;
     h *= kP2;
     h ^= h >> 29;
@@ -70,20 +87,25 @@ class ContentHash {
  private:
   static constexpr std::uint64_t kP1 = 0x9E3779B185EBCA87ULL, kP2 = 0xC2B2AE3D27D4EB4FULL, kP3 = 0x165667B19E3779F9ULL,
                                  kP4 = 0x85EBCA77C2B2AE63ULL, kP5 = 0x27D4EB2F165667C5ULL;
+  static constexpr int kStripe = 32;
   static std::uint64_t rotl(std::uint64_t x, int r) { return (x << r) | (x >> (64 - r)); }
-  void word(const unsigned char* p) {
+  static std::uint64_t read64(const unsigned char* p) {
     std::uint64_t k;
     std::memcpy(&k, p, 8);
-    k *= kP2;
-    k = rotl(k, 31);
-    k *= kP1;
-    h_ ^= k;
-    h_ = rotl(h_, 27) * kP1 + kP4;
+    return k;
+  }
+  static std::uint64_t round(std::uint64_t acc, std::uint64_t input) { return rotl(acc + input * kP2, 31) * kP1; }
+  void stripe(const unsigned char* p) {
+    v_[0] = round(v_[0], read64(p));
+    v_[1] = round(v_[1], read64(p + 8));
+    v_[2] = round(v_[2], read64(p + 16));
+    v_[3] = round(v_[3], read64(p + 24));
   }
 
-  std::uint64_t h_;
+  std::uint64_t seed_;
+  std::uint64_t v_[4];
   std::uint64_t total_{0};
-  unsigned char buf_[8]{};
+  unsigned char buf_[kStripe]{};
   int fill_{0};
 };
 

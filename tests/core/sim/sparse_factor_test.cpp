@@ -350,6 +350,25 @@ TEST(SparseFactor, TreeParallelPassesGiveTheSerialPassesBitForBit) {
   EXPECT_EQ(small.tree_parallel_passes(), 0);
 }
 
+TEST(ContentHash, IsXXH64) {
+  // the reference values (Debian's xxhash, `xxhsum -H64`), for inputs below one stripe, of one,
+  // and of many fed in uneven pieces
+  const auto of = [](const std::string& text) {
+    ContentHash h;
+    h.add(text.data(), text.size());
+    return h.value();
+  };
+  EXPECT_EQ(of(""), 0xef46db3751d8e999ULL);
+  EXPECT_EQ(of("abc"), 0x44bc2cf5ad770999ULL);
+  EXPECT_EQ(of("Nobody inspects the spammish repetition"), 0xfbcea83c8a378bf1ULL);
+  std::vector<unsigned char> data(1000);
+  for (std::size_t i = 0; i < data.size(); ++i) data[i] = static_cast<unsigned char>(i * 37 % 256);
+  ContentHash parts;
+  for (std::size_t at = 0, piece = 1; at < data.size(); at += piece, piece = piece * 3 % 41 + 1)
+    parts.add(data.data() + at, std::min(piece, data.size() - at));
+  EXPECT_EQ(parts.value(), 0xbfba0b19df72611cULL);
+}
+
 TEST(ContentHash, DependsOnTheBytesNotOnHowTheyAreFed) {
   std::vector<unsigned char> data(1000);
   for (std::size_t i = 0; i < data.size(); ++i) data[i] = static_cast<unsigned char>(i * 37 + 11);
