@@ -149,7 +149,9 @@ TEST_F(ProbeFaults, AStickUnpluggedAndPluggedBackDrivesItsProbeAgain) {
   const double at3 = force_at(t, 3.03, dev), at3_2 = force_at(t, 3.2, dev);
   EXPECT_GT(at3_2, 0.05);
   EXPECT_LT(at3, 0.45 * at3_2);
-  EXPECT_LT(largest_step(t), 0.02);
+  // no cut (a cut force steps by more than 0.1 N): 0.007 N quiet, 0.029 N once in a clean-clone
+  // CI run beside the other tests (2026-11-27; the device thread late by a few ticks in the ramp)
+  EXPECT_LT(largest_step(t), 0.05);
 }
 
 }  // namespace
