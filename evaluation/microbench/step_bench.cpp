@@ -275,7 +275,7 @@ int main(int argc, char** argv) {
         std::string name =
             std::string("sweep/") + (regional ? "regional/" : "full/") + SparseFactor::to_string(v.kernel);
         if (v.kernel == SparseFactor::SweepKernel::gathered) name += std::string("_") + to_string(v.simd);
-        if (v.threads > 1) name += "_" + std::to_string(v.threads) + "threads";
+        if (v.threads > 1) name += std::string("_") + std::to_string(v.threads) + "threads";
         benchmark::RegisterBenchmark((name + "/" + std::to_string(n)).c_str(),
                                      [regional, v, n](benchmark::State& bs) { sweep(bs, regional, v, n); })
             ->Unit(benchmark::kMillisecond)

@@ -1,6 +1,7 @@
 #include "sim/sparse_factor.h"
 // The factorisation: the backends (CHOLMOD, Eigen's LDL^T with METIS or AMD), the supernodes'
-// index. The sweeps are in sparse_factor_solve.cpp, the byte form in sparse_factor_file.cpp.
+// index. The solves are in sparse_factor_solve.cpp, the supernodal sweeps in
+// sparse_factor_sweeps.cpp, the byte form in sparse_factor_file.cpp.
 
 #include <Eigen/SparseCholesky>
 #include <algorithm>

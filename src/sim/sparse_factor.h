@@ -350,11 +350,13 @@ class SparseFactor {
   std::uint32_t generation_{0};
   std::vector<int> changed_supers_;
   std::vector<int> all_supers_;
+  /// Right-hand sides per pass of forward_fields() (each entry of L read once for all of them).
+  static constexpr int kFieldLanes = 18;
   template <int K>
   void forward_supers(double* w, const std::vector<int>& supers) const;
   template <int K>
   void backward_supers(double* w, const std::vector<int>& supers) const;
-  // tree-parallel passes (sparse_factor_solve.cpp, plan_tree()): a pass over a list of
+  // tree-parallel passes (sparse_factor_sweeps.cpp, plan_tree()): a pass over a list of
   // supernodes closed under the parent (ascending) is cut into slices that are whole subtrees of
   // the list (contiguous: the factor is postordered), run on the threads, and the rest (the
   // separators above them), run on the calling thread: a forward pass runs the slices first (the

@@ -119,7 +119,7 @@ const std::map<std::string, std::vector<std::string>> kRoomOrder{
     {"src/surface", {"surface", "slice_surface"}},
     {"src/sim",
      {"integrator_kind", "time_step", "state", "step_report", "contact_constraint",
-      "sparse_factor sparse_factor_solve sparse_factor_file", "contact_active_set", "projective_solver",
+      "sparse_factor sparse_factor_solve sparse_factor_sweeps sparse_factor_file", "contact_active_set", "projective_solver",
       "region_stiffening", "static_solver", "integrators", "probe", "contact", "simulation"}},
     {"src/haptics", {"device_force", "local_compliance", "local_contact", "device_side"}},
     {"pipeline/util", {"system_memory", "thread_priority", "exit_codes", "text", "log", "progress", "atomic_file", "vtk_messages"}},
