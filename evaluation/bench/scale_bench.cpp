@@ -124,17 +124,6 @@ std::vector<ScaleConfig> ScaleBenchSettings::diagnostic_configs() {
     it.name = fmt::format("implicit 30 ms, {} iterations, region 60 mm", iterations);
     out.push_back(it);
   }
-  // the volume term's weight in the matrix (a nearly incompressible tissue's iterations)
-  for (const double weight : {0.75, 0.6, 0.5}) {
-    ScaleConfig vw;
-    vw.kind = IntegratorKind::implicit;
-    vw.time_step_s = 0.03;
-    vw.max_iterations = 1;
-    vw.region_radius_mm = 60;
-    vw.volume_matrix_weight = weight;
-    vw.name = fmt::format("implicit 30 ms, 1 iteration, region 60 mm, volume weight {:g}", weight);
-    out.push_back(vw);
-  }
   ScaleConfig coarse;
   coarse.kind = IntegratorKind::implicit;
   coarse.time_step_s = 0.01;
@@ -284,7 +273,6 @@ RunOutput run_one(const ScaleModelSpec& spec, const PreparedScene& prepared,
   ss.integrator.residual_tolerance_n = cfg.residual_tolerance_n;
   ss.integrator.free_iterations = cfg.free_iterations;
   ss.integrator.free_tolerance_mm = cfg.free_tolerance_mm;
-  ss.integrator.volume_matrix_weight = cfg.volume_matrix_weight;
   ss.integrator.region_radius_mm = cfg.region_radius_mm;
   ss.integrator.region_solve_far_field = cfg.region_solve_far_field;
   ss.integrator.region_refresh_on_move = cfg.region_refresh_on_move;

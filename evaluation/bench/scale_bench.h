@@ -40,7 +40,6 @@ struct ScaleConfig {
   double residual_tolerance_n{0};      ///< implicit
   int free_iterations{0};              ///< implicit: IntegratorSettings::free_iterations (the fast configuration's: 8)
   double free_tolerance_mm{0};         ///< implicit: IntegratorSettings::free_tolerance_mm
-  double volume_matrix_weight{1.0};    ///< implicit: IntegratorSettings::volume_matrix_weight
   double region_radius_mm{0};          ///< implicit: regional solves within this distance of the ball (0: everywhere)
   bool reference{false};               ///< the model's reference (the error of the others is against it)
   bool region_solve_far_field{false};  ///< diagnostic: IntegratorSettings::region_solve_far_field

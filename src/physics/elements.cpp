@@ -462,8 +462,7 @@ void gather_node_forces(const PhysicsModel& phys, const Eigen::Matrix3Xd& entry_
   });
 }
 
-void element_elastic_matrix(const PhysicsModel& phys, int e, Eigen::MatrixXd& k, bool relieved, double volume_weight) {
-  const bool volume = volume_weight != 0.0;
+void element_elastic_matrix(const PhysicsModel& phys, int e, Eigen::MatrixXd& k, bool relieved, bool volume) {
   const Model& m = *phys.model;
   const int b = m.element_offsets[e], n = m.element_offsets[e + 1] - b;
   const auto g = phys.entry_gradient.middleCols(b, n);
@@ -472,8 +471,7 @@ void element_elastic_matrix(const PhysicsModel& phys, int e, Eigen::MatrixXd& k,
   Eigen::MatrixXd p = -r0.transpose() * g;  // P_lj = delta_lj - w_j / W - R0_l . g_j
   p.rowwise() -= w.transpose() / w.sum();
   p.diagonal().array() += 1.0;
-  const double kv =
-      volume && phys.has_volume_term() ? volume_weight * phys.element_volume_stiffness[std::size_t(e)] : 0.0;
+  const double kv = volume && phys.has_volume_term() ? phys.element_volume_stiffness[std::size_t(e)] : 0.0;
   k.noalias() = (phys.element_affine_stiffness[std::size_t(e)] + kv) * (g.transpose() * g);
   k.noalias() += phys.element_stiffness[std::size_t(e)] * (p.transpose() * w.asDiagonal() * p);
   if (relieved && phys.has_bending_modes()) {
@@ -487,7 +485,7 @@ void element_elastic_matrix(const PhysicsModel& phys, int e, Eigen::MatrixXd& k,
       for (int t = phys.volume_point_term_offsets[std::size_t(s)];
            t < phys.volume_point_term_offsets[std::size_t(s) + 1]; ++t)
         gs.col(phys.volume_term_entry[std::size_t(t)] - b) += phys.volume_term_delta.col(t);
-      k.noalias() += volume_weight * phys.volume_point_stiffness[std::size_t(s)] * (gs.transpose() * gs);
+      k.noalias() += phys.volume_point_stiffness[std::size_t(s)] * (gs.transpose() * gs);
     }
   }
 }

@@ -84,11 +84,10 @@ void gather_node_forces(const PhysicsModel& physics, const Eigen::Matrix3Xd& ent
 /// rotation's curvature; rows sum to zero (translations cost nothing). The hourglass element
 /// (element_modes.h) subtracts its relief sum_p h_p h_p^T, unless `relieved` is false (the
 /// paper's matrix of the same element: an upper bound of it, for the stable-step estimates).
-/// `volume_weight` scales the volume term (its mean-dilatation part and its points): 0 leaves it
-/// out (the local contact model's compliance, local_compliance.h, replaces it by a factor in nu);
-/// the projective solver's matrix may carry a fraction of it (ProjectiveSetup::volume_matrix_weight).
+/// `volume` false leaves the volume term out (the local contact model's compliance,
+/// local_compliance.h, replaces it by a factor in nu).
 void element_elastic_matrix(const PhysicsModel& physics, int element, Eigen::MatrixXd& k, bool relieved = true,
-                            double volume_weight = 1.0);
+                            bool volume = true);
 
 /// Elastic energy of one element at `positions` with rotation warm start `q` (updated), N*mm.
 /// Includes the volume term. For tests and diagnostics (not the hot path).

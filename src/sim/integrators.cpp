@@ -403,7 +403,6 @@ class ImplicitIntegrator final : public SteppingIntegrator {
     setup.time_step_s = settings_.time_step_s;
     setup.inertia = true;
     setup.damping = s.physics->damped;
-    setup.volume_matrix_weight = settings_.volume_matrix_weight;
     if (!cache.solver || cache.solver->setup() != setup || cache.fixed_version != s.fixed_version ||
         &cache.solver->physics() != s.physics.get()) {
       cache.solver.reset();

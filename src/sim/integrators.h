@@ -65,10 +65,6 @@ struct IntegratorSettings {
   /// back to rest at Poisson 0.45 (docs/model.md section 5, "The return to rest"). 0: off.
   int free_iterations{0};
   double free_tolerance_mm{0.0};
-  /// The volume term's weight in the implicit solver's matrix, a fraction of k_v in [0.5, 1]
-  /// (ProjectiveSetup::volume_matrix_weight): the same converged step, faster iterations on a
-  /// nearly incompressible tissue. 1: the projective-dynamics matrix.
-  double volume_matrix_weight{1.0};
   /// > 0 (implicit, with a contact provider that names its tools): regional solves, the
   /// rotation fits and the global solve only within this distance of a tool, mm
   /// (ProjectiveSolver::set_region; the rest sleeps). The region follows a tool once it has

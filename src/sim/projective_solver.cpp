@@ -498,8 +498,6 @@ ElementPassStats ProjectiveSolver::local_step(SimState& s, const Eigen::Matrix3X
   const PhysicsModel& p = *physics_;
   const Model& m = *p.model;
   const bool volume = p.has_volume_term();
-  // the matrix holds omega k_v of the volume term: the targets carry the rest, -(1 - omega) k_v F
-  const double volume_rest = 1.0 - setup_.volume_matrix_weight;
   const bool damping = setup_.damping;
   const double inv_dt = 1.0 / setup_.time_step_s;
   const std::int64_t count = active_elements();
@@ -530,8 +528,7 @@ ElementPassStats ProjectiveSolver::local_step(SimState& s, const Eigen::Matrix3X
       Eigen::Matrix3d mg = p.element_affine_stiffness[std::size_t(el)] * rq;
       if (volume) {
         Eigen::Quaterniond qv = s.rotations[std::size_t(el)];
-        mg += p.element_volume_stiffness[std::size_t(el)] *
-              (element_closest_with_determinant(p, fg, 1.0, qv, fit) - volume_rest * fg);
+        mg += p.element_volume_stiffness[std::size_t(el)] * element_closest_with_determinant(p, fg, 1.0, qv, fit);
       }
       if (damping) {
         Eigen::Matrix3d rd;
@@ -546,9 +543,8 @@ ElementPassStats ProjectiveSolver::local_step(SimState& s, const Eigen::Matrix3X
       if (volume && p.has_volume_points()) {  // + sum_s k_s T_s (g_j + delta_sj)
         Eigen::Matrix3d tsum = Eigen::Matrix3d::Zero();
         for_each_volume_point(p, x.data(), int(el), fg, s.rotations[std::size_t(el)], fit,
-                              [&](int sp, const Eigen::Matrix3d& fs, const Eigen::Matrix3d& ts) {
-                                const Eigen::Matrix3d kt =
-                                    p.volume_point_stiffness[std::size_t(sp)] * (ts - volume_rest * fs);
+                              [&](int sp, const Eigen::Matrix3d&, const Eigen::Matrix3d& ts) {
+                                const Eigen::Matrix3d kt = p.volume_point_stiffness[std::size_t(sp)] * ts;
                                 tsum += kt;
                                 for (int t = p.volume_point_term_offsets[std::size_t(sp)];
                                      t < p.volume_point_term_offsets[std::size_t(sp) + 1]; ++t)

@@ -49,11 +49,6 @@ struct ProjectiveSetup {
   double time_step_s{1.0e-3};  ///< dt, s (the static solve uses 1)
   bool inertia{true};          ///< false: the static solve (no mass term)
   bool damping{false};         ///< the damping term c_e/dt (implicit steps of a damped material)
-  /// The volume term's weight in the factored matrix, a fraction of k_v (0.5 to 1; docs/model.md
-  /// section 7, "The volume term's weight in the matrix"). Below 1 the local step subtracts the
-  /// rest, k_v (1 - this) F g_i, from the targets, so a converged step is the same; one iteration
-  /// moves further along the volume-keeping (shear) directions, which the full k_v holds back.
-  double volume_matrix_weight{1.0};
 
   [[nodiscard]] bool operator==(const ProjectiveSetup&) const = default;
 };
@@ -121,7 +116,7 @@ void for_each_projective_entry(const PhysicsModel& physics, int e, const Project
   const double* w = physics.entry_weight.data() + b;
   double wsum = 0;
   for (int i = 0; i < n; ++i) wsum += w[i];
-  element_elastic_matrix(physics, e, ke, true, volume ? setup.volume_matrix_weight : 0.0);
+  element_elastic_matrix(physics, e, ke, true, volume);
   for (int i = 0; i < n; ++i)
     for (int j = 0; j < n; ++j)
       emit(i, j, elastic_scale * ke(i, j) + kap * ((i == j ? w[i] : 0.0) - w[i] * w[j] / wsum));
