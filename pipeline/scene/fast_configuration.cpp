@@ -1,5 +1,7 @@
 #include "scene/fast_configuration.h"
 
+#include <fmt/format.h>
+
 #include "sim/time_step.h"
 
 namespace vx {
@@ -32,6 +34,21 @@ DeviceForceSettings FastConfiguration::device_for(int nodes) const {
   DeviceForceSettings d;
   d.update_interval_s = device_update_interval_for(nodes);
   return d;
+}
+
+std::string incompressible_iterations_warning(const IntegratorSettings& integrator, double poisson_ratio) {
+  if (integrator.kind != IntegratorKind::implicit || integrator.residual_tolerance_n > 0 ||
+      integrator.max_iterations > kSlowVolumeMaxIterations || poisson_ratio < kSlowVolumePoissonRatio)
+    return {};
+  return fmt::format(
+      "Poisson ratio {:g} with {} local/global iteration{} per step: these iterations converge slowly on a nearly "
+      "incompressible tissue, and regional solves hold still the far field it pushes into, so the force runs high "
+      "in a press and falls away early in a slide (the fast configuration at 0.45 against converged runs of a "
+      "press and slide: 8.5 to 13 % RMS force error, of the peak, on spheres, the organ and the folded organ; "
+      "docs/bench.md, \"The 5 % table at Poisson 0.45\"); for forces within 5 % use \"integrator\": "
+      "{{\"type\": \"implicit\", \"dt_s\": 0.01, \"iterations\": 30, \"residual_tolerance_n\": 1e-5}} (no "
+      "region; 2.2 % on the 128 sphere, tens of times slower than real time)",
+      poisson_ratio, integrator.max_iterations, integrator.max_iterations == 1 ? "" : "s");
 }
 
 }  // namespace vx

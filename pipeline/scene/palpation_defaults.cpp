@@ -240,6 +240,9 @@ std::vector<std::uint8_t> place_palpation_defaults(const PalpationDefaults& defa
   sim.integrator.factor_cache = options.factor_cache;
   out.automatic_dt_s = sim.integrator.time_step_s;
   out.device_side.device = fast.device_for(nodes);
+  if (std::string w = incompressible_iterations_warning(sim.integrator, out.physics->material.poisson_ratio);
+      !w.empty())
+    out.warnings.push_back(std::move(w));
 
   const Material& material = out.physics->material;
   out.log.push_back(fmt::format(

@@ -199,6 +199,8 @@ void choose_integrator(const Scene& scene, const PrepareSceneOptions& options, c
                       "may blow up (the summary's \"stable\" will say)",
                       s.integrator.time_step_s, out.dt_stable_estimate_s, to_string(scene.integrator)));
   }
+  if (std::string w = incompressible_iterations_warning(s.integrator, out.physics->material.poisson_ratio); !w.empty())
+    out.warnings.push_back(std::move(w));
   if (scene.integrator == IntegratorKind::implicit && scene.contact.friction > 0)
     out.warnings.push_back(
         fmt::format("contact.friction {:g} is ignored by the implicit integrator (its contact is "
