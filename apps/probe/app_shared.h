@@ -190,6 +190,8 @@ struct AppShared {
   SteadyClock::time_point start{};  ///< the open: the threads started
   /// The regional solves' error on this support, still being estimated (null: none or reported)
   std::shared_ptr<BackgroundRegionCheck> region_check;
+  /// A standing accuracy warning for the status line (ProbeScene::accuracy_status); empty: none
+  std::string accuracy_status;
 
   AppControls controls;
   PhysicsReport physics;

@@ -140,7 +140,8 @@ HudInfo GuiLoop::hud(SteadyClock::time_point now) {
   else if (s_.physics.faults.load() > 0 && since_fault_s < 5.0)
     h.status = s_.physics.last_fault();  // shown for 5 s
   else
-    h.status = region_status_;
+    h.status = region_status_.empty() || s_.accuracy_status.empty() ? region_status_ + s_.accuracy_status
+                                                                    : region_status_ + "\n" + s_.accuracy_status;
   std::lock_guard lock(s_.device.mutex);
   h.force_N = s_.device.hud.force_N;
   h.contacts = s_.device.hud.contacts;

@@ -202,6 +202,7 @@ void App::start_simulation() {
     say(fmt::format("note: the scene has {} probes; the app drives the first {}", probes_, kMaxSticks));
   shared_ = std::make_unique<AppShared>(options_, *sim_, *device_side_);
   shared_->region_check = scene_.region_check;
+  shared_->accuracy_status = scene_.accuracy_status;
   shared_->probes = probes_;
   shared_->local = local_;
   shared_->physics_period_s = 1.0 / options_.physics_hz;

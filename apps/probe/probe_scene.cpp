@@ -10,6 +10,7 @@
 #include "convert/threshold.h"
 #include "io/surface_io.h"
 #include "io/volume_io.h"
+#include "scene/fast_configuration.h"
 #include "scene/palpation_defaults.h"
 #include "scene/scene.h"
 #include "util/text.h"
@@ -230,6 +231,8 @@ ProbeScene load_probe_scene(const std::filesystem::path& input, const DefaultSce
                                         : fmt::format(", device updates every {:g} ms (half sines)",
                                                       1e3 * scene.device_side.device->update_interval_s)));
   for (const auto& w : built.warnings) scene.notes.push_back("warning: " + w);
+  scene.accuracy_status =
+      incompressible_iterations_status(scene.simulation.integrator, scene.physics->material.poisson_ratio);
   make_probes_live(scene);
   if (built_display) {
     if (built_display->decimated || built_display->from_cache) scene.notes.push_back(built_display->summary());

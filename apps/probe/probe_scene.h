@@ -85,6 +85,9 @@ struct ProbeScene {
   /// The regional solves' error on this support, estimated while the run starts (a scene file
   /// with regional solves; null otherwise); the GUI loop reports it when it is ready.
   std::shared_ptr<BackgroundRegionCheck> region_check;
+  /// A standing accuracy warning for the screen's status line (incompressible_iterations_status;
+  /// the full warning is in `notes`); empty when there is none.
+  std::string accuracy_status;
   double load_s{0.0};  ///< wall time of loading and preparing it (part of the app's start-up), s
   bool control_from_scene{false};
 };

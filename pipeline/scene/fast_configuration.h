@@ -80,6 +80,9 @@ inline constexpr int kSlowVolumeMaxIterations = 5;
 /// force measured against converged references (docs/bench.md, "The 5 % table at Poisson 0.45") and the
 /// configuration that is right. Empty when that does not apply.
 [[nodiscard]] std::string incompressible_iterations_warning(const IntegratorSettings& integrator, double poisson_ratio);
+/// The same in one line for a screen (the probe app's status line; the warning goes to its
+/// console); empty when it does not apply.
+[[nodiscard]] std::string incompressible_iterations_status(const IntegratorSettings& integrator, double poisson_ratio);
 
 /// The fast configuration's values: implicit, 20 ms steps (kImplicitAutomaticTimeStepS,
 /// sim/time_step.h), one iteration (up to 8 while no tool touches, until no node moves 1e-6 mm);
