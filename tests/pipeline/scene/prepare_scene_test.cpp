@@ -201,6 +201,8 @@ TEST(Scene, ANearlyIncompressibleTissueUnderFewIterationsIsWarned) {
   const PreparedScene p45 = prepare_scene(parse_scene(j, ".", "t"));
   EXPECT_EQ(incompressible_iterations_status(p45.settings.integrator, 0.45),
             "Poisson 0.45, 1 iteration per step: forces 8.5-13 % off a converged run (console)");
+  EXPECT_EQ(incompressible_iterations_status(p45.settings.integrator, 0.4),
+            "Poisson 0.4, 1 iteration per step: forces over 5 % off a converged run (console)");
   EXPECT_EQ(incompressible_iterations_status(p45.settings.integrator, 0.3), "");
   j["material"]["poisson_ratio"] = 0.3;
   EXPECT_EQ(warned(j), "");
