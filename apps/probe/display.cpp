@@ -19,7 +19,10 @@ std::string display_problem() {
   // VTK renders through GLX; an X server without it would crash VTK at the first frame
   int opcode = 0, event = 0, error = 0;
   const bool glx = XQueryExtension(d, "GLX", &opcode, &event, &error);
-  XCloseDisplay(d);
+  // kept open for the life of the process when it passes: an X server resets when its last
+  // client leaves (Xvfb under xvfb-run does), and VTK aborts when its connection lands in the
+  // reset (docs/robustness.md)
+  if (!glx) XCloseDisplay(d);
   if (!glx)
     return std::string("the X display '") + name +
            "' has no OpenGL (GLX extension); run under xvfb-run (Xvfb provides GLX) or on a desktop with OpenGL";

@@ -91,7 +91,13 @@ MetaHeader parse_meta_header(const fs::path& path) {
                               text_line ? "line '" + line.substr(0, 40) + "' is not 'Key = Value'"
                                         : std::string("its header holds binary data, not 'Key = Value' lines")));
     }
-    h.fields.values[key] = trim(line.substr(eq + 1));
+    // metaio reads a field that is written twice twice, in order, and allocates by the first
+    // (NDims = -6 then NDims = 3: a loop for ever, found by fuzzing); no writer repeats a field
+    if (!h.fields.values.emplace(key, trim(line.substr(eq + 1))).second)
+      throw Error(
+          fmt::format("{} is not a valid MetaImage file: its header has the field {} twice (the file is "
+                      "damaged; keep one line per field)",
+                      quoted(path), key));
     if (key == "ElementDataFile") saw_data_file = true;
   }
   if (!saw_data_file)
@@ -257,13 +263,51 @@ std::vector<float> read_voxels_with_vtk(const fs::path& path, const Eigen::Vecto
   return vtk_array_to_float(array, n, 1.0, 0.0);
 }
 
+/// ElementDataFile = LIST [2D|3D]: the lines after the header name one file per slice (or per
+/// volume), which metaio reads line by line into fixed buffers (an empty line made it read before
+/// its buffer: a SIGSEGV, found by fuzzing) and skips when missing. Each must be a short name of a
+/// file that exists.
+void check_list_lines(const MetaHeader& h, const std::vector<std::string>& words, const Eigen::Vector3i& dims) {
+  const int ndims = int((*h.numbers({"NDims"}, 1, "NDims"))[0]);
+  int file_dims = words.size() == 2 ? words[1][0] - '0' : 0;  // metaio's rule
+  if (file_dims == 0 || file_dims > ndims) file_dims = ndims - 1;
+  std::size_t files = 1;
+  for (int i = ndims; i > file_dims; --i) files *= std::size_t(dims[i - 1]);
+  const std::string text = read_file_prefix(h.path, std::size_t(h.header_bytes) + files * 1024 + 1);
+  std::size_t pos = std::size_t(h.header_bytes);
+  const fs::path folder = h.path.has_parent_path() ? h.path.parent_path() : fs::path(".");
+  for (std::size_t f = 0; f < files; ++f) {
+    const std::size_t nl = pos < text.size() ? text.find('\n', pos) : std::string::npos;
+    const std::string name = nl == std::string::npos ? std::string() : trim(text.substr(pos, nl - pos));
+    const bool printable =
+        std::all_of(name.begin(), name.end(), [](char c) { return std::isprint(static_cast<unsigned char>(c)) != 0; });
+    std::error_code ec;
+    const fs::path file = fs::path(name).is_absolute() ? fs::path(name) : folder / name;
+    std::string problem;
+    if (nl == std::string::npos)
+      problem = "is missing";
+    else if (name.empty())
+      problem = "is empty";
+    else if (!printable || name.size() > 500)
+      problem = "is not a file name";
+    else if (!fs::is_regular_file(file, ec))
+      problem = "names " + quoted(file) + ", which does not exist";
+    if (!problem.empty())
+      throw Error(
+          fmt::format("{}: ElementDataFile = LIST needs {} file names, one per line after the header; "
+                      "line {} of the list {} (the header is damaged or a file is missing)",
+                      quoted(h.path), files, f + 1, problem));
+    pos = nl + 1;
+  }
+}
+
 /// What metaio (vtkMetaImageReader) gets to read is checked first: it copies header values into
 /// fixed buffers (a long or binary ElementDataFile overflowed one, found by fuzzing) and
 /// allocates the voxels before reading them. Values must be short printable text, and the
 /// voxels must fit in what the header's folder holds (text: two characters a value at least;
 /// compressed: deflate's ~1032:1 at most).
-void check_before_metaio(const MetaHeader& h, const std::string& data_file, bool binary, bool compressed,
-                         std::size_t n, std::uintmax_t raw_bytes) {
+void check_before_metaio(const MetaHeader& h, const std::string& data_file, const Eigen::Vector3i& dims, bool binary,
+                         bool compressed, std::size_t n, std::uintmax_t raw_bytes) {
   // metaio's inflate loops for ever on some damaged streams (found by fuzzing): compressed data
   // is read here only, from one file
   if (compressed)
@@ -286,16 +330,20 @@ void check_before_metaio(const MetaHeader& h, const std::string& data_file, bool
     out = std::strtol(w.c_str(), &end, 10);
     return end != w.c_str() && *end == '\0' && std::abs(out) < 1000000;
   };
-  bool form_ok = words.size() == 1 && data_file.find('%') == std::string::npos;
-  if (!words.empty() && words[0] == "LIST")
-    form_ok = words.size() == 1 || (words.size() == 2 && (words[1] == "2D" || words[1] == "3D"));
+  // metaio takes any value that starts with LIST for a list ("LIST5c" too)
+  const bool list = data_file.rfind("LIST", 0) == 0;
+  bool form_ok = !list && words.size() == 1 && data_file.find('%') == std::string::npos;
+  if (list)
+    form_ok =
+        words[0] == "LIST" && (words.size() == 1 || (words.size() == 2 && (words[1] == "2D" || words[1] == "3D")));
   if (words.size() == 4) {
     const auto pct = words[0].find('%');
     long first = 0, last = 0, step = 0;
     std::size_t k = pct == std::string::npos ? 0 : pct + 1;
     while (k < words[0].size() && std::isdigit(static_cast<unsigned char>(words[0][k]))) ++k;
+    // a field width of two digits at most: metaio prints the name into a fixed buffer
     const bool one_conversion = pct != std::string::npos && k < words[0].size() && words[0][k] == 'd' &&
-                                words[0].find('%', pct + 1) == std::string::npos;
+                                k - pct - 1 <= 2 && words[0].find('%', pct + 1) == std::string::npos;
     form_ok = one_conversion && integer(words[1], first) && integer(words[2], last) && integer(words[3], step) &&
               step != 0 && (last - first) / step >= 0 && (last - first) % step == 0 &&
               (last - first) / step + 1 <= 100000;
@@ -304,6 +352,7 @@ void check_before_metaio(const MetaHeader& h, const std::string& data_file, bool
     throw Error(fmt::format("{}: MetaImage ElementDataFile = {} is neither a file name, LOCAL, LIST nor a pattern "
                             "'name%03d.raw first last step' (step not 0); the header is damaged",
                             quoted(h.path), data_file.substr(0, 80)));
+  if (list) check_list_lines(h, words, dims);
   std::uintmax_t held = 0;
   std::error_code ec;
   const fs::path folder = h.path.has_parent_path() ? h.path.parent_path() : fs::path(".");
@@ -352,7 +401,7 @@ Volume read_mha(const fs::path& path) {
     v.hu = raw_to_float(raw.data(), n, image.scalar, msb != (std::endian::native == std::endian::big));
     return v;
   }
-  check_before_metaio(h, data_file, binary, compressed, n, raw_bytes);
+  check_before_metaio(h, data_file, image.dims, binary, compressed, n, raw_bytes);
   VtkMessages messages;
   v.hu = read_voxels_with_vtk(path, image.dims, n, messages);
   messages.print_warnings(path);

@@ -25,12 +25,13 @@
 #include <vtkTextProperty.h>
 #include <vtkWindowToImageFilter.h>
 
+#include <fmt/core.h>
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdlib>
-#include <fmt/core.h>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -47,7 +48,15 @@ namespace {
 
 /// Opens the X display named by DISPLAY and checks it offers GLX (OpenGL), through libX11
 /// loaded at run time: no X11 link dependency, and no VTK window (which would crash without X).
+/// The first connection that passes stays open for the life of the process: an X server resets
+/// when its last client leaves (Xvfb under xvfb-run does), a connection opened during the reset
+/// fails, and VTK then aborts. Closing this one let VTK's own connection land in that reset (a
+/// rare abort of the render tests, 6 in 100 pairs under load; docs/robustness.md).
 bool probe_x_display() {
+  static std::mutex mutex;
+  static void* kept = nullptr;
+  const std::lock_guard lock(mutex);
+  if (kept) return true;
   const char* name = std::getenv("DISPLAY");
   if (!name || !*name) return false;
   void* x11 = ::dlopen("libX11.so.6", RTLD_LAZY | RTLD_LOCAL);
@@ -63,7 +72,10 @@ bool probe_x_display() {
     if (void* display = open(name)) {
       int opcode = 0, event = 0, error = 0;
       ok = query(display, "GLX", &opcode, &event, &error) != 0;
-      close(display);
+      if (ok)
+        kept = display;
+      else
+        close(display);
     }
   }
   // libX11 stays loaded: it registers handlers at load time, and VTK uses it anyway

@@ -815,6 +815,22 @@ TEST_F(VolumeIo, MetaImageCompressedDataSizeMustBeAByteCount) {
   expect_error([&] { (void)vx::read_volume(path("n.mha")); }, {"n.mha", "NDims = nan"});
 }
 
+TEST_F(VolumeIo, MetaImageFieldWrittenTwiceIsRefused) {
+  // found by fuzzing: metaio read the first NDims (-6) and looped for ever where this reader
+  // had checked the second (3); text voxels, so the file would have gone to metaio
+  const std::string tail = "DimSize = 2 2 2\nElementType = MET_SHORT\nBinaryData = False\nElementDataFile = LOCAL\n" +
+                           std::string(8, '1') + "\n";
+  write_bytes(path("twice.mha"), "ObjectType = Image\nNDims = -6.125 -6.125 -6.125\nNDims = 3\n" + tail);
+  expect_error([&] { (void)vx::read_volume(path("twice.mha")); }, {"twice.mha", "NDims twice"});
+  // the same header with one NDims is read
+  write_bytes(path("once.mha"),
+              "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_SHORT\n"
+              "BinaryData = False\nElementDataFile = LOCAL\n1 2 3 4 5 6 7 8\n");
+  const Volume v = vx::read_volume(path("once.mha"));
+  ASSERT_EQ(v.hu.size(), 8u);
+  EXPECT_FLOAT_EQ(v.hu[7], 8.0f);
+}
+
 TEST(Compression, AnySizeIsFedToZlibInChunksAndComesBackWhole) {
   // zlib's counters are 32-bit: a volume over 4 GiB must be fed in chunks (it was cast to uInt and
   // written truncated). The same loop, with chunks of a few bytes, on a small buffer:
@@ -855,4 +871,28 @@ TEST_F(VolumeIo, MetaImageHeadersForMetaioAreCheckedFirst) {
   write_bytes(path("text.mha"), "ObjectType = Image\nNDims = 3\nDimSize = 100 100 100\nBinaryData = False\n"
                                 "ElementType = MET_SHORT\nElementDataFile = LOCAL\n1 2 3\n");
   expect_error([&] { (void)vx::read_volume(path("text.mha")); }, {"text.mha", "more than the files beside it hold"});
+}
+
+TEST_F(VolumeIo, MetaImageListNamesAFileOnEveryLine) {
+  // found by fuzzing: metaio takes any ElementDataFile that starts with LIST for a list, and an
+  // empty line in the list made it read before its buffer (SIGSEGV); a missing file it skips,
+  // leaving zeros. A good list is read slice by slice:
+  const std::string head = "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_UCHAR\n";
+  write_bytes(path("s0.raw"), std::string("\x01\x02\x03\x04", 4));
+  write_bytes(path("s1.raw"), std::string("\x05\x06\x07\x08", 4));
+  write_bytes(path("good.mhd"), head + "ElementDataFile = LIST\ns0.raw\ns1.raw\n");
+  const Volume v = vx::read_volume(path("good.mhd"));
+  ASSERT_EQ(v.hu.size(), 8u);
+  for (int i = 0; i < 8; ++i) EXPECT_FLOAT_EQ(v.hu[std::size_t(i)], float(i + 1));
+  write_bytes(path("empty.mhd"), head + "ElementDataFile = LIST\n\ns1.raw\n");
+  expect_error([&] { (void)vx::read_volume(path("empty.mhd")); }, {"empty.mhd", "2 file names", "line 1", "is empty"});
+  write_bytes(path("gone.mhd"), head + "ElementDataFile = LIST\ns0.raw\ns9.raw\n");
+  expect_error([&] { (void)vx::read_volume(path("gone.mhd")); }, {"gone.mhd", "line 2", "s9.raw", "does not exist"});
+  write_bytes(path("short.mhd"), head + "ElementDataFile = LIST\ns0.raw\n");
+  expect_error([&] { (void)vx::read_volume(path("short.mhd")); }, {"short.mhd", "line 2", "is missing"});
+  write_bytes(path("glued.mhd"), head + "ElementDataFile = LIST5cBinary\ns0.raw\ns1.raw\n");
+  expect_error([&] { (void)vx::read_volume(path("glued.mhd")); }, {"glued.mhd", "neither a file name"});
+  // a pattern's field width is two digits at most (metaio prints the name into a fixed buffer)
+  write_bytes(path("wide.mhd"), head + "ElementDataFile = s%0999d.raw 0 1 1\n");
+  expect_error([&] { (void)vx::read_volume(path("wide.mhd")); }, {"wide.mhd", "neither a file name"});
 }
