@@ -61,11 +61,16 @@ std::string incompressible_iterations_warning(const IntegratorSettings& integrat
       "configuration against converged runs of a press and "
       "slide, RMS force error of the peak: at 0.45 8.5 to 13 % on spheres, the organ and the folded organ, at 0.4 "
       "6.6 % and at 0.3 3.9 % on the 128 sphere; docs/bench.md, \"The 5 % table at Poisson 0.45\"); for forces within "
-      "5 % use \"integrator\": "
-      "{{\"type\": \"implicit\", \"dt_s\": 0.01, \"iterations\": 30, \"residual_tolerance_n\": 1e-5}} (no "
-      "region; 2.2 % on the 128 sphere, tens of times slower than real time)",
+      "5 % use \"integrator\": {} (no region; 2.2 % on the 128 sphere, tens of times slower than real time)",
       poisson_ratio, integrator.max_iterations, integrator.max_iterations == 1 ? "" : "s",
-      integrator.region_radius_mm > 0 ? ", and the regional solves hold still the far field it pushes into" : "");
+      integrator.region_radius_mm > 0 ? ", and the regional solves hold still the far field it pushes into" : "",
+      accurate_integrator_json(poisson_ratio));
+}
+
+std::string accurate_integrator_json(double poisson_ratio) {
+  if (poisson_ratio >= kSlowVolumePoissonRatio)
+    return "{\"type\": \"implicit\", \"dt_s\": 0.01, \"iterations\": 30, \"residual_tolerance_n\": 1e-5}";
+  return "{\"type\": \"implicit\", \"dt_s\": 0.01, \"iterations\": 5}";
 }
 
 }  // namespace vx

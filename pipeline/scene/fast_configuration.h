@@ -83,6 +83,11 @@ inline constexpr int kSlowVolumeMaxIterations = 5;
 /// The same in one line for a screen (the probe app's status line; the warning goes to its
 /// console); empty when it does not apply.
 [[nodiscard]] std::string incompressible_iterations_status(const IntegratorSettings& integrator, double poisson_ratio);
+/// The integrator a warning recommends for forces within 5 % of a converged run, as scene JSON
+/// (`"integrator": ...`): implicit 10 ms steps without a region, 5 iterations; from
+/// kSlowVolumePoissonRatio on, iterated to a 1e-5 N residual (at most 30 iterations), which
+/// incompressible_iterations_warning() does not warn about.
+[[nodiscard]] std::string accurate_integrator_json(double poisson_ratio);
 
 /// The fast configuration's values: implicit, 20 ms steps (kImplicitAutomaticTimeStepS,
 /// sim/time_step.h), one iteration (up to 8 while no tool touches, until no node moves 1e-6 mm);

@@ -368,9 +368,10 @@ RegionCheck check_region_support(const PhysicsModel& physics, const std::vector<
         "{:.2g}x too "
         "hard under probe \"{}\" (estimated: {:.0f} % force error: the object is held weakly and gives as a whole); "
         "for "
-        "accuracy use \"integrator\": {{\"type\": \"implicit\", \"dt_s\": 0.01, \"iterations\": 5}} (no region; "
-        "slower), or hold the object over a larger part (docs/model.md section 7)",
-        s.integrator.region_radius_mm, e.force_ratio, out.probe, 100.0 * e.error_rel()));
+        "accuracy use \"integrator\": {} (no region; slower), or hold the object over a larger part (docs/model.md "
+        "section 7)",
+        s.integrator.region_radius_mm, e.force_ratio, out.probe, 100.0 * e.error_rel(),
+        accurate_integrator_json(physics.material.poisson_ratio)));
   return out;
 }
 
