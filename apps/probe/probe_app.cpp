@@ -19,6 +19,7 @@
 #include "haptics/local_contact.h"
 #include "io/calibration_cache.h"
 #include "io/factor_cache.h"
+#include "io/region_check_cache.h"
 #include "io/surface_cache.h"
 #include "joystick_script.h"
 #include "physics_loop.h"
@@ -514,6 +515,8 @@ int run_probe_app(const AppOptions& options) {
   scene_options.surface_method = options.surface_method;
   // the second start of the same organ loads its calibration (io/calibration_cache.h, beside the factors)
   scene_options.calibration_cache = make_calibration_cache(options.factor_cache);
+  // and its region check's estimate (io/region_check_cache.h)
+  scene_options.region_check_cache = make_region_check_cache(options.factor_cache);
   // ... and its decimated display surface (io/surface_cache.h); headless: no surface at all
   scene_options.surface_cache = make_surface_cache(options.factor_cache);
   scene_options.display = !options.headless;

@@ -180,6 +180,7 @@ ProbeScene load_probe_scene(const std::filesystem::path& input, const DefaultSce
   // a scene file: seconds on a large organ, not before the run; the defaults: none
   prep.region_check = defaults ? RegionCheckTiming::none : RegionCheckTiming::background;
   prep.calibration_cache = options.calibration_cache;
+  prep.region_check_cache = options.region_check_cache;
   PreparedScene built = prepare_scene(file, prep);
   ProbeScene scene;
   scene.name = defaults ? input.filename().string() : input.stem().string();

@@ -57,6 +57,8 @@ struct DefaultSceneOptions {
   int display_triangles{100000};
   /// The material's calibration kept by the model's content (io/calibration_cache.h); null: none.
   std::shared_ptr<CalibrationCache> calibration_cache;
+  /// The region check's estimate kept by its content (io/region_check_cache.h); null: none.
+  std::shared_ptr<RegionStiffeningCache> region_check_cache;
   /// The decimated display surface kept by the content of the model and its full surface
   /// (io/surface_cache.h); null: none.
   std::shared_ptr<SurfaceCache> surface_cache;

@@ -17,6 +17,7 @@
 #include "commands.h"
 #include "io/calibration_cache.h"
 #include "io/factor_cache.h"
+#include "io/region_check_cache.h"
 #include "render/plot.h"
 #include "scene/run_outputs.h"
 #include "scene/scene.h"
@@ -154,6 +155,7 @@ void run_simulate(const SimulateOptions& o) {
   popt.region_check_nice = 0;                         // a batch run: its end waits for the check
   popt.factor_cache = make_factor_cache(o.factor_cache);
   popt.calibration_cache = make_calibration_cache(o.factor_cache);  // the same folder
+  popt.region_check_cache = make_region_check_cache(o.factor_cache);
   if (o.quiet) log::set_level(std::max(log::level(), log::Level::warn));
   const auto open = std::chrono::steady_clock::now();
   PreparedScene prepared = prepare_scene(scene, popt);
@@ -239,6 +241,7 @@ void run_simulate(const SimulateOptions& o) {
   summary["factors_from_cache"] = c.factors_from_cache;
   summary["factor_s"] = c.factor_s;
   summary["calibration_from_cache"] = calibration_loaded;
+  summary["region_check_from_cache"] = prepared.region_stiffening && prepared.region_stiffening->loaded;
   nlohmann::json& stages = summary["startup_stages_s"];
   for (const auto& [name, s] : startup) stages[name] = s;
   if (interrupted) summary["status"] = "interrupted";
@@ -258,7 +261,9 @@ void run_simulate(const SimulateOptions& o) {
                    : fmt::format("; factoring took {:.2f} s", c.factor_s);
     fmt::print("start-up {:.2f} s, open to the end of the first step ({}{}{}{})\n", startup_s, parts,
                calibration_loaded ? "; the calibration loaded from the cache" : "", factor,
-               prepared.region_stiffening ? "; the region check ran beside the run" : "");
+               !prepared.region_stiffening          ? ""
+               : prepared.region_stiffening->loaded ? "; the region check loaded from the cache"
+                                                    : "; the region check ran beside the run");
   }
   const ForceRecorder* recorder = outputs.forces();
   const bool stable = !sim.failed() && sim.state().positions.allFinite();

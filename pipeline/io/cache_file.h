@@ -15,7 +15,7 @@
 
 namespace vx {
 
-/// The extensions of the files a cache folder holds (".vxfactor", ".vxcalib", ".vxsurf"): the size limit
+/// The extensions of the files a cache folder holds (".vxfactor", ".vxcalib", ".vxsurf", ".vxregion"): the size limit
 /// counts them all, and nothing else in the folder.
 [[nodiscard]] bool is_cache_file(const std::filesystem::path& file);
 

@@ -16,6 +16,11 @@ namespace fs = std::filesystem;
 
 namespace {
 
+/// A file's size for a log line: "12 MB", or "84 bytes" for a small one.
+std::string size_text(double bytes) {
+  return bytes >= 1e6 ? fmt::format("{:.0f} MB", bytes / 1e6) : fmt::format("{:.0f} bytes", bytes);
+}
+
 double seconds_since(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
@@ -80,8 +85,8 @@ bool FolderCache::load(const std::string& name, const std::string& detail, const
   }
   ++counters_.hits;
   touch_cache_file(file);  // recently used: kept longest
-  log::info("{}: loaded the {} ({}, {:.0f} MB) from {} in {:.2f} s", words_.cache, words_.item, detail,
-            double(size) / 1e6, file.string(), seconds_since(t0));
+  log::info("{}: loaded the {} ({}, {}) from {} in {:.2f} s", words_.cache, words_.item, detail,
+            size_text(double(size)), file.string(), seconds_since(t0));
   return true;
 }
 
@@ -120,8 +125,8 @@ void FolderCache::store(const Offer& offer, const Writer& write) {
     return;
   }
   ++counters_.stored;
-  log::info("{}: kept the {} ({:.0f} MB, {}) in {} ({:.2f} s); the next start of {} loads it", words_.cache,
-            words_.item, double(bytes) / 1e6, offer.made, file.string(), seconds_since(t0), offer.next_start);
+  log::info("{}: kept the {} ({}, {}) in {} ({:.2f} s); the next start of {} loads it", words_.cache, words_.item,
+            size_text(double(bytes)), offer.made, file.string(), seconds_since(t0), offer.next_start);
   counters_.evicted += evict_cache_files(folder_, max_bytes_, file);
 }
 

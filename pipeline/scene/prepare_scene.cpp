@@ -333,7 +333,8 @@ void place_walls_and_probes(const Scene& scene, const std::vector<std::uint8_t>&
 /// when the worst is above kRegionStiffeningWarnRel. Reads only its arguments (runs on a thread
 /// of its own with RegionCheckTiming::background).
 RegionCheck check_region_support(const PhysicsModel& physics, const std::vector<std::uint8_t>& fixed,
-                                 const SimulationSettings& s, const std::atomic<bool>* cancel) {
+                                 const SimulationSettings& s, RegionStiffeningCache* cache,
+                                 const std::atomic<bool>* cancel) {
   RegionCheck out;
   for (const ProbeSettings& p : s.probes) {
     if (p.geometry.shape == ProbeShape::plane) continue;
@@ -343,6 +344,7 @@ RegionCheck check_region_support(const PhysicsModel& physics, const std::vector<
     rs.region_radius_mm = s.integrator.region_radius_mm;
     rs.time_step_s = s.integrator.time_step_s;
     rs.cancel = cancel;
+    rs.cache = cache;
     const RegionStiffeningEstimate e = estimate_region_stiffening(physics, fixed, rs);
     if (!e.valid) {
       out.log.push_back(
@@ -356,12 +358,13 @@ RegionCheck check_region_support(const PhysicsModel& physics, const std::vector<
   }
   if (!out.estimate) return out;
   const RegionStiffeningEstimate& e = *out.estimate;
-  out.log.push_back(fmt::format(
-      "regional solves within {:g} mm: under probe \"{}\" the press is estimated {:.1f} % too hard "
-      "(compliance {:.4g} mm/N of the whole model against {:.4g} with the far field held; "
-      "{} of {} free nodes awake; {} + {} CG iterations, {:.2f} s)",
-      s.integrator.region_radius_mm, out.probe, 100.0 * e.error_rel(), e.compliance_full_mm_n, e.compliance_region_mm_n,
-      e.region_nodes, e.region_nodes + e.far_nodes, e.iterations_full, e.iterations_region, e.seconds));
+  out.log.push_back(
+      fmt::format("regional solves within {:g} mm: under probe \"{}\" the press is estimated {:.1f} % too hard "
+                  "(compliance {:.4g} mm/N of the whole model against {:.4g} with the far field held; "
+                  "{} of {} free nodes awake; {} + {} CG iterations, {:.2f} s{})",
+                  s.integrator.region_radius_mm, out.probe, 100.0 * e.error_rel(), e.compliance_full_mm_n,
+                  e.compliance_region_mm_n, e.region_nodes, e.region_nodes + e.far_nodes, e.iterations_full,
+                  e.iterations_region, e.seconds, e.loaded ? ", loaded from the cache" : ""));
   if (e.error_rel() > kRegionStiffeningWarnRel)
     out.warnings.push_back(fmt::format(
         "the regional solve (region_radius_mm {:g}) holds the far field still; on this support it presses about "
@@ -415,16 +418,18 @@ PreparedScene prepare_scene(const Scene& scene, const PrepareSceneOptions& optio
       options.region_check != RegionCheckTiming::none) {
     if (options.region_check == RegionCheckTiming::background) {
       // the estimate reads only what it is given (the physics is immutable and shared)
-      out.pending_region_check =
-          std::make_shared<BackgroundRegionCheck>([physics = out.physics, fixed, settings = out.settings,
-                                                   nice = options.region_check_nice](const std::atomic<bool>& cancel) {
+      out.pending_region_check = std::make_shared<BackgroundRegionCheck>(
+          [physics = out.physics, fixed, settings = out.settings, cache = options.region_check_cache,
+           nice = options.region_check_nice](const std::atomic<bool>& cancel) {
             (void)set_this_thread_name("vx-region-check");
             if (nice != 0) (void)set_this_thread_nice(nice);  // a real-time run goes first
-            return check_region_support(*physics, fixed, settings, &cancel);
+            return check_region_support(*physics, fixed, settings, cache.get(), &cancel);
           });
     } else {
-      timed(out, "region check",
-            [&] { apply_region_check(check_region_support(*out.physics, fixed, out.settings, nullptr), out); });
+      timed(out, "region check", [&] {
+        apply_region_check(
+            check_region_support(*out.physics, fixed, out.settings, options.region_check_cache.get(), nullptr), out);
+      });
     }
   }
 

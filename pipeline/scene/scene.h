@@ -180,6 +180,8 @@ struct PrepareSceneOptions {
   std::shared_ptr<FactorCache> factor_cache;
   /// the calibration cache (io/calibration_cache.h; make_calibration_cache); null: none
   std::shared_ptr<CalibrationCache> calibration_cache;
+  /// the region check's estimates (io/region_check_cache.h; make_region_check_cache); null: none
+  std::shared_ptr<RegionStiffeningCache> region_check_cache;
 };
 
 /// The regional solves' error on a scene's support: the estimate of the probe where it is worst,

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <limits>
 
+#include "base/content_hash.h"
 #include "sim/projective_solver.h"
 
 namespace vx {
@@ -73,6 +74,35 @@ double compliance(const Tangent& t, const Preconditioner& ic, const Eigen::Matri
   return r.norm() <= s.tolerance * f_norm ? (f.array() * x.array()).sum() : std::numeric_limits<double>::quiet_NaN();
 }
 
+/// Raised when what an estimate computes from the same input changes (its cached files then miss).
+constexpr std::uint32_t kEstimateVersion = 1;
+
+/// The content an estimate is computed from (RegionStiffeningCache's key).
+std::uint64_t estimate_key(const PhysicsModel& p, const Eigen::SparseMatrix<double>& k_lower, const Eigen::MatrixXd& f,
+                           const Eigen::VectorXd& held, const std::vector<int>& free_index,
+                           const RegionStiffeningSettings& s) {
+  ContentHash h;
+  h.add_value(kEstimateVersion);
+  h.add_value(std::int32_t(s.rotation_curvature));
+  h.add_value(s.tolerance);
+  h.add_value(std::int32_t(s.max_iterations));
+  h.add_value(std::int64_t(k_lower.rows()));
+  h.add_value(std::int64_t(k_lower.nonZeros()));
+  h.add(k_lower.outerIndexPtr(), sizeof(int) * std::size_t(k_lower.outerSize() + 1));
+  h.add(k_lower.innerIndexPtr(), sizeof(int) * std::size_t(k_lower.nonZeros()));
+  h.add(k_lower.valuePtr(), sizeof(double) * std::size_t(k_lower.nonZeros()));
+  h.add_matrix(f);
+  h.add_matrix(held);
+  h.add_vector(free_index);
+  if (s.rotation_curvature) {
+    h.add_vector(p.model->element_offsets);
+    h.add_vector(p.model->element_vertices);
+    h.add_matrix(p.entry_gradient);
+    h.add_vector(p.element_affine_stiffness);
+  }
+  return h.value();
+}
+
 }  // namespace
 
 RegionStiffeningEstimate estimate_region_stiffening(const PhysicsModel& p, const std::vector<std::uint8_t>& node_fixed,
@@ -137,6 +167,19 @@ RegionStiffeningEstimate estimate_region_stiffening(const PhysicsModel& p, const
     out.force_ratio = 1.0;
     return done("the region covers the whole model");
   }
+  // the same content solved before: its estimate
+  std::uint64_t key = 0;
+  if (s.cache) {
+    k_lower.makeCompressed();
+    key = estimate_key(p, k_lower, f, held, free_index, s);
+    if (std::optional<RegionStiffeningEstimate> kept = s.cache->load(key, nf);
+        kept && kept->valid && kept->region_nodes == out.region_nodes && kept->far_nodes == out.far_nodes &&
+        kept->load_nodes == out.load_nodes) {
+      out = *kept;
+      out.loaded = true;
+      return done("");
+    }
+  }
   // one preconditioner for both: an incomplete Cholesky factor of K (D_far is a small shift), in
   // the model's own node order. An AMD ordering (fill-reducing, which an incomplete factor with a
   // fixed pattern does not need) made a full symmetric copy of K, and converged slower: 28 + 25
@@ -152,7 +195,9 @@ RegionStiffeningEstimate estimate_region_stiffening(const PhysicsModel& p, const
     return done("the solve did not converge (a part of the model held by nothing?)");
   out.force_ratio = out.compliance_full_mm_n / out.compliance_region_mm_n;
   out.valid = true;
-  return done("");
+  done("");
+  if (s.cache) s.cache->store(key, nf, out);
+  return out;
 }
 
 }  // namespace vx

@@ -27,12 +27,15 @@
 #include <Eigen/Core>
 #include <atomic>
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "physics/physics_model.h"
 
 namespace vx {
+
+class RegionStiffeningCache;
 
 struct RegionStiffeningSettings {
   Eigen::Vector3d tool_mm{0, 0, 0};  ///< the tool's centre where it starts (the region's centre)
@@ -50,6 +53,8 @@ struct RegionStiffeningSettings {
   /// no estimate (reason "cancelled"): a run that ends before a background estimate does not wait
   /// for it (prepare_scene's RegionCheck::background).
   const std::atomic<bool>* cancel{nullptr};
+  /// Estimates kept by their content (below); null: none.
+  RegionStiffeningCache* cache{nullptr};
 };
 
 struct RegionStiffeningEstimate {
@@ -62,7 +67,8 @@ struct RegionStiffeningEstimate {
   double compliance_region_mm_n{0.0};///< f^T (K + D_far)^-1 f, mm/N
   double force_ratio{1.0};           ///< c_full / c_region: the regional press's force over the whole model's
   int iterations_full{0}, iterations_region{0};  ///< conjugate-gradient iterations
-  double seconds{0.0};               ///< wall time of the estimate
+  double seconds{0.0};                           ///< wall time of the estimate (when loaded: of the load)
+  bool loaded{false};                            ///< true: read from RegionStiffeningSettings::cache, not solved
   /// The estimated relative force error, force_ratio - 1.
   [[nodiscard]] double error_rel() const { return force_ratio - 1.0; }
 };
@@ -72,5 +78,21 @@ struct RegionStiffeningEstimate {
 [[nodiscard]] RegionStiffeningEstimate estimate_region_stiffening(const PhysicsModel& physics,
                                                                   const std::vector<std::uint8_t>& node_fixed,
                                                                   const RegionStiffeningSettings& settings);
+
+/// A store of estimates by the content of what they are estimated from (pipeline/io/
+/// region_check_cache.h keeps one in the factor cache's folder): the estimate is the same every
+/// time an organ starts on the same support with the same tool, and on the folded organ it takes
+/// 10 s of one core beside the run's first seconds. estimate_region_stiffening asks it once K is
+/// assembled (its key: a 64-bit content hash of K, the load, the held far field, the node
+/// numbering, the solves' settings and, with rotation_curvature, the arrays the tangent reads)
+/// and offers it every valid estimate it solves.
+class RegionStiffeningCache {
+ public:
+  virtual ~RegionStiffeningCache() = default;
+  /// The stored estimate of `key` (`free_nodes`: of the model, for the file's name), or nothing.
+  virtual std::optional<RegionStiffeningEstimate> load(std::uint64_t key, int free_nodes) = 0;
+  /// Offers the estimate of `key`, just solved.
+  virtual void store(std::uint64_t key, int free_nodes, const RegionStiffeningEstimate& estimate) = 0;
+};
 
 }  // namespace vx

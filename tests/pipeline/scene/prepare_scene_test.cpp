@@ -3,6 +3,7 @@
 // per element, the fast configuration without an integrator key (and for a large model), and
 // the regional solves' error on the scene's support, before the run or beside it.
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <fmt/format.h>
 
@@ -12,6 +13,7 @@
 #include <nlohmann/json.hpp>
 
 #include "base/error.h"
+#include "io/region_check_cache.h"
 #include "scene/fast_configuration.h"
 #include "scene/scene.h"
 #include "sim/time_step.h"
@@ -368,4 +370,74 @@ TEST(Scene, TheRegionCheckInTheBackgroundGivesTheSameEstimate) {
   EXPECT_EQ(e.reason, "cancelled");
   // dropped while running: joins (cancelled) instead of leaving a thread behind
   { const PreparedScene dropped = prepare_scene(scene, background); }
+}
+
+TEST(Scene, TheRegionCheckIsKeptByItsContentAndLoadedAtTheNextStart) {
+  // io/region_check_cache.h: the second start on the same support loads the estimate the first
+  // solved (the same numbers, bit for bit, and the same warning); another support, tool place or
+  // time step is another key; a damaged file is removed and the estimate solved again
+  const fs::path dir = fs::temp_directory_path() / fmt::format("vx_region_check_cache_{}", ::getpid());
+  fs::remove_all(dir);
+  RegionCheckCacheSettings cs;
+  cs.folder = dir;
+  cs.min_seconds = 0.0;  // the column's estimate takes well under the default 0.25 s
+  auto cache = std::make_shared<RegionCheckCache>(cs);
+  PrepareSceneOptions options;
+  options.region_check_cache = cache;
+  json j = stem_held_column();
+  const auto prepare = [&](const json& scene) { return prepare_scene(parse_scene(scene, ".", "t"), options); };
+  const auto far_warning = [](const PreparedScene& p) {
+    for (const auto& w : p.warnings)
+      if (w.find("holds the far field still") != std::string::npos) return w;
+    return std::string();
+  };
+  const PreparedScene first = prepare(j);
+  ASSERT_TRUE(first.region_stiffening.has_value());
+  EXPECT_FALSE(first.region_stiffening->loaded);
+  EXPECT_EQ(cache->counters().stored, 1);
+  const PreparedScene second = prepare(j);
+  ASSERT_TRUE(second.region_stiffening.has_value());
+  EXPECT_TRUE(second.region_stiffening->loaded);
+  EXPECT_EQ(cache->counters().hits, 1);
+  const RegionStiffeningEstimate &a = *first.region_stiffening, &b = *second.region_stiffening;
+  EXPECT_EQ(a.force_ratio, b.force_ratio);
+  EXPECT_EQ(a.compliance_full_mm_n, b.compliance_full_mm_n);
+  EXPECT_EQ(a.compliance_region_mm_n, b.compliance_region_mm_n);
+  EXPECT_EQ(a.region_nodes, b.region_nodes);
+  EXPECT_EQ(a.iterations_full, b.iterations_full);
+  EXPECT_FALSE(far_warning(first).empty());
+  EXPECT_EQ(far_warning(first), far_warning(second));
+  bool said = false;
+  for (const auto& l : second.log) said = said || l.find("loaded from the cache") != std::string::npos;
+  EXPECT_TRUE(said);
+  // another key: the tool elsewhere, the support wider, a longer step
+  json moved = j;
+  moved["probes"][0]["path"][0]["position_mm"] = {20, 32, 132};
+  json wider = j;
+  wider["fixed"][0]["box_mm"]["max"] = {40.1, 40.1, 0.1};
+  json longer = j;
+  longer["integrator"]["dt_s"] = 0.04;
+  for (const json& other : {moved, wider, longer}) {
+    const PreparedScene p = prepare(other);
+    ASSERT_TRUE(p.region_stiffening.has_value());
+    EXPECT_FALSE(p.region_stiffening->loaded);
+  }
+  EXPECT_EQ(cache->counters().hits, 1);
+  EXPECT_EQ(cache->counters().stored, 4);
+  // a damaged file: removed with a warning, the estimate solved and kept again
+  std::vector<fs::path> files;
+  for (const auto& e : fs::directory_iterator(dir)) files.push_back(e.path());
+  ASSERT_EQ(files.size(), 4u);
+  for (const fs::path& f : files) {
+    std::fstream s(f, std::ios::in | std::ios::out | std::ios::binary);
+    s.seekp(40);
+    s.put('\x7f');
+  }
+  const PreparedScene damaged = prepare(j);
+  ASSERT_TRUE(damaged.region_stiffening.has_value());
+  EXPECT_FALSE(damaged.region_stiffening->loaded);
+  EXPECT_EQ(damaged.region_stiffening->force_ratio, a.force_ratio);
+  EXPECT_EQ(cache->counters().damaged, 1);
+  EXPECT_EQ(cache->counters().stored, 5);
+  fs::remove_all(dir);
 }
