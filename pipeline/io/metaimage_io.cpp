@@ -273,7 +273,9 @@ void check_list_lines(const MetaHeader& h, const std::vector<std::string>& words
   if (file_dims == 0 || file_dims > ndims) file_dims = ndims - 1;
   std::size_t files = 1;
   for (int i = ndims; i > file_dims; --i) files *= std::size_t(dims[i - 1]);
-  const std::string text = read_file_prefix(h.path, std::size_t(h.header_bytes) + files * 1024 + 1);
+  // a name per line, 1024 bytes at most as metaio reads them; never more than the file holds
+  const std::string text = read_file_prefix(
+      h.path, std::size_t(std::min<std::uintmax_t>(h.header_bytes + files * 1024 + 1, file_size_or_zero(h.path))));
   std::size_t pos = std::size_t(h.header_bytes);
   const fs::path folder = h.path.has_parent_path() ? h.path.parent_path() : fs::path(".");
   for (std::size_t f = 0; f < files; ++f) {
