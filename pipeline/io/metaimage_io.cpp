@@ -266,8 +266,9 @@ std::vector<float> read_voxels_with_vtk(const fs::path& path, const Eigen::Vecto
 /// ElementDataFile = LIST [2D|3D]: the lines after the header name one file per slice (or per
 /// volume), which metaio reads line by line into fixed buffers (an empty line made it read before
 /// its buffer: a SIGSEGV, found by fuzzing) and skips when missing. Each must be a short name of a
-/// file that exists.
-void check_list_lines(const MetaHeader& h, const std::vector<std::string>& words, const Eigen::Vector3i& dims) {
+/// file that exists (`folder`: the header's, where relative names point).
+void check_list_lines(const MetaHeader& h, const std::vector<std::string>& words, const Eigen::Vector3i& dims,
+                      const fs::path& folder) {
   const int ndims = int((*h.numbers({"NDims"}, 1, "NDims"))[0]);
   int file_dims = words.size() == 2 ? words[1][0] - '0' : 0;  // metaio's rule
   if (file_dims == 0 || file_dims > ndims) file_dims = ndims - 1;
@@ -277,7 +278,6 @@ void check_list_lines(const MetaHeader& h, const std::vector<std::string>& words
   const std::string text = read_file_prefix(
       h.path, std::size_t(std::min<std::uintmax_t>(h.header_bytes + files * 1024 + 1, file_size_or_zero(h.path))));
   std::size_t pos = std::size_t(h.header_bytes);
-  const fs::path folder = h.path.has_parent_path() ? h.path.parent_path() : fs::path(".");
   for (std::size_t f = 0; f < files; ++f) {
     const std::size_t nl = pos < text.size() ? text.find('\n', pos) : std::string::npos;
     const std::string name = nl == std::string::npos ? std::string() : trim(text.substr(pos, nl - pos));
@@ -354,10 +354,10 @@ void check_before_metaio(const MetaHeader& h, const std::string& data_file, cons
     throw Error(fmt::format("{}: MetaImage ElementDataFile = {} is neither a file name, LOCAL, LIST nor a pattern "
                             "'name%03d.raw first last step' (step not 0); the header is damaged",
                             quoted(h.path), data_file.substr(0, 80)));
-  if (list) check_list_lines(h, words, dims);
+  const fs::path folder = h.path.has_parent_path() ? h.path.parent_path() : fs::path(".");
+  if (list) check_list_lines(h, words, dims, folder);
   std::uintmax_t held = 0;
   std::error_code ec;
-  const fs::path folder = h.path.has_parent_path() ? h.path.parent_path() : fs::path(".");
   for (fs::directory_iterator it(folder, ec), end; !ec && it != end; it.increment(ec))
     if (it->is_regular_file(ec)) held += file_size_or_zero(it->path());
   const double needed = binary ? double(raw_bytes) : 2.0 * double(n);
