@@ -76,7 +76,8 @@ class StopSignals {
   [[nodiscard]] bool stop() const { return g_stop.load(); }
 
  private:
-  struct sigaction old_int_ {}, old_term_ {};
+  struct sigaction old_int_ {
+  }, old_term_{};
 };
 
 /// "3 h 20 min", "12 min", "40 s".
@@ -247,9 +248,10 @@ void run_simulate(const SimulateOptions& o) {
   if (interrupted) summary["status"] = "interrupted";
   write_text_atomically(dir / "summary.json", summary.dump(2) + "\n");
   if (interrupted)
-    throw Interrupted(fmt::format("interrupted at t = {:.6g} s of {:g} s ({} of {} steps); the outputs up to then are "
-                                  "in {} (summary.json says \"interrupted\": true)",
-                                  sim.time_s(), scene.duration_s, sim.counters().steps, steps, dir.string()));
+    throw Interrupted(
+        fmt::format("interrupted at t = {:.6g} s of {:g} s ({} of {} steps); the outputs up to then are "
+                    "in {} (summary.json says \"interrupted\": true)",
+                    sim.time_s(), scene.duration_s, sim.counters().steps, steps, dir.string()));
 
   if (!o.quiet) {
     std::string parts;
@@ -290,8 +292,8 @@ void run_simulate(const SimulateOptions& o) {
              c.contact.narrow_tests_skipped, device.counters().device_shaping_skipped, c.surface_updates_skipped,
              c.steps_at_rest);
   if (!stable)
-    throw Error(fmt::format("the simulation stopped at t = {:.6g} s: {}; the outputs up to then are in {}", sim.time_s(),
-                            sim.state().message, dir.string()));
+    throw Error(fmt::format("the simulation stopped at t = {:.6g} s: {}; the outputs up to then are in {}",
+                            sim.time_s(), sim.state().message, dir.string()));
 }
 
 }  // namespace

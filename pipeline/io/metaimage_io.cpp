@@ -16,8 +16,8 @@
 #include <algorithm>
 #include <bit>
 #include <cctype>
-#include <cstdlib>
 #include <cmath>
+#include <cstdlib>
 #include <iostream>
 #include <sstream>
 
@@ -82,14 +82,14 @@ MetaHeader parse_meta_header(const fs::path& path) {
       return std::isalnum(static_cast<unsigned char>(c)) || c == '_';
     });
     if (!key_ok) {
-      const bool text_line = std::all_of(line.begin(), line.end(), [](char c) {
-        return std::isprint(static_cast<unsigned char>(c)) || c == '\t';
-      });
-      throw Error(fmt::format("{} is not a valid MetaImage file: {} (a MetaImage header is text like "
-                              "'ObjectType = Image'; the file may be damaged or of another format)",
-                              quoted(path),
-                              text_line ? "line '" + line.substr(0, 40) + "' is not 'Key = Value'"
-                                        : std::string("its header holds binary data, not 'Key = Value' lines")));
+      const bool text_line = std::all_of(
+          line.begin(), line.end(), [](char c) { return std::isprint(static_cast<unsigned char>(c)) || c == '\t'; });
+      throw Error(
+          fmt::format("{} is not a valid MetaImage file: {} (a MetaImage header is text like "
+                      "'ObjectType = Image'; the file may be damaged or of another format)",
+                      quoted(path),
+                      text_line ? "line '" + line.substr(0, 40) + "' is not 'Key = Value'"
+                                : std::string("its header holds binary data, not 'Key = Value' lines")));
     }
     // metaio reads a field that is written twice twice, in order, and allocates by the first
     // (NDims = -6 then NDims = 3: a loop for ever, found by fuzzing); no writer repeats a field
@@ -101,21 +101,21 @@ MetaHeader parse_meta_header(const fs::path& path) {
     if (key == "ElementDataFile") saw_data_file = true;
   }
   if (!saw_data_file)
-    throw Error(quoted(path) + " is not a valid MetaImage file: its header has no 'ElementDataFile' line (the "
-                               "file is damaged or cut short)");
+    throw Error(quoted(path) +
+                " is not a valid MetaImage file: its header has no 'ElementDataFile' line (the "
+                "file is damaged or cut short)");
   h.header_bytes = pos;
   return h;
 }
-
 
 struct MetaType {
   const char* name;
   ScalarType type;
 };
 constexpr MetaType kMetaTypes[] = {
-    {"MET_CHAR", ScalarType::i8},       {"MET_UCHAR", ScalarType::u8},  {"MET_SHORT", ScalarType::i16},
-    {"MET_USHORT", ScalarType::u16},    {"MET_INT", ScalarType::i32},   {"MET_UINT", ScalarType::u32},
-    {"MET_LONG", ScalarType::i32},      {"MET_ULONG", ScalarType::u32}, {"MET_LONG_LONG", ScalarType::i64},
+    {"MET_CHAR", ScalarType::i8},        {"MET_UCHAR", ScalarType::u8},  {"MET_SHORT", ScalarType::i16},
+    {"MET_USHORT", ScalarType::u16},     {"MET_INT", ScalarType::i32},   {"MET_UINT", ScalarType::u32},
+    {"MET_LONG", ScalarType::i32},       {"MET_ULONG", ScalarType::u32}, {"MET_LONG_LONG", ScalarType::i64},
     {"MET_ULONG_LONG", ScalarType::u64}, {"MET_FLOAT", ScalarType::f32}, {"MET_DOUBLE", ScalarType::f64}};
 
 /// What the header says about the voxels: their grid, type and place in LPS.
@@ -133,8 +133,8 @@ void read_grid_and_type(const MetaHeader& h, int& ndims, MetaImage& image) {
   if (!ndims_v) throw Error(quoted(path) + ": MetaImage header has no NDims line (damaged file?)");
   const double nd = (*ndims_v)[0];
   if (nd != 2 && nd != 3)
-    throw Error(fmt::format("{}: MetaImage has NDims = {}; voxelastic reads 3D volumes (or one 2D slice)",
-                            quoted(path), *h.fields.get({"NDims"})));
+    throw Error(fmt::format("{}: MetaImage has NDims = {}; voxelastic reads 3D volumes (or one 2D slice)", quoted(path),
+                            *h.fields.get({"NDims"})));
   ndims = int(nd);
   const auto dim_v = h.numbers({"DimSize"}, std::size_t(ndims), "DimSize");
   if (!dim_v) throw Error(quoted(path) + ": MetaImage header has no DimSize line (damaged file?)");
@@ -146,18 +146,20 @@ void read_grid_and_type(const MetaHeader& h, int& ndims, MetaImage& image) {
     image.dims[i] = int(d);
   }
   if (const auto ch = h.numbers({"ElementNumberOfChannels"}, 1, "ElementNumberOfChannels"); ch && (*ch)[0] != 1)
-    throw Error(fmt::format("{}: MetaImage has {} channels per voxel; voxelastic needs one value (HU) per voxel: "
-                            "extract one channel first",
-                            quoted(path), (*ch)[0]));
+    throw Error(
+        fmt::format("{}: MetaImage has {} channels per voxel; voxelastic needs one value (HU) per voxel: "
+                    "extract one channel first",
+                    quoted(path), (*ch)[0]));
   const auto type = h.fields.get({"ElementType"});
   if (!type) throw Error(quoted(path) + ": MetaImage header has no ElementType line (damaged file?)");
   std::optional<ScalarType> scalar;
   for (const auto& t : kMetaTypes)
     if (*type == t.name) scalar = t.type;
   if (!scalar)
-    throw Error(fmt::format("{}: MetaImage ElementType '{}' is not a scalar type voxelastic reads (use MET_SHORT, "
-                            "MET_FLOAT, ...; vector types are not volumes of HU)",
-                            quoted(path), *type));
+    throw Error(
+        fmt::format("{}: MetaImage ElementType '{}' is not a scalar type voxelastic reads (use MET_SHORT, "
+                    "MET_FLOAT, ...; vector types are not volumes of HU)",
+                    quoted(path), *type));
   image.scalar = *scalar;
 }
 
@@ -172,8 +174,8 @@ MetaImage read_meta_image(const MetaHeader& h) {
     for (int i = 0; i < ndims; ++i) spacing[i] = (*s)[std::size_t(i)];
   if (auto o = h.numbers({"Offset", "Position", "Origin"}, std::size_t(ndims), "Offset"))
     for (int i = 0; i < ndims; ++i) image.offset_mm[i] = (*o)[std::size_t(i)];
-  if (auto m = h.numbers({"TransformMatrix", "Rotation", "Orientation"}, std::size_t(ndims * ndims),
-                         "TransformMatrix")) {
+  if (auto m =
+          h.numbers({"TransformMatrix", "Rotation", "Orientation"}, std::size_t(ndims * ndims), "TransformMatrix")) {
     // each group of NDims numbers is the direction of one index axis (ITK's convention)
     for (int axis = 0; axis < ndims; ++axis)
       for (int r = 0; r < ndims; ++r) D(r, axis) = (*m)[std::size_t(axis * ndims + r)];
@@ -196,17 +198,20 @@ std::vector<char> read_one_file_voxels(const MetaHeader& h, const std::string& d
     data_path = fs::path(data_file).is_absolute() ? fs::path(data_file) : path.parent_path() / data_file;
     std::error_code ec;
     if (!fs::is_regular_file(data_path, ec))
-      throw Error(fmt::format("{}: its voxel data file {} does not exist (keep the .mhd header and its data file "
-                              "together)",
-                              quoted(path), quoted(data_path)));
+      throw Error(
+          fmt::format("{}: its voxel data file {} does not exist (keep the .mhd header and its data file "
+                      "together)",
+                      quoted(path), quoted(data_path)));
     offset = 0;
     if (const auto hs = h.numbers({"HeaderSize"}, 1, "HeaderSize")) {
       const double v = (*hs)[0];
       if (!(v == -1 || (v >= 0 && v == std::floor(v) && v < 1e15)))
-        throw Error(fmt::format("{}: MetaImage HeaderSize = {} is not a byte count (a whole number >= 0, or -1 for "
-                                "'the data ends the file')",
-                                quoted(path), *h.fields.get({"HeaderSize"})));
-      if (v >= 0) offset = std::uintmax_t(v);
+        throw Error(
+            fmt::format("{}: MetaImage HeaderSize = {} is not a byte count (a whole number >= 0, or -1 for "
+                        "'the data ends the file')",
+                        quoted(path), *h.fields.get({"HeaderSize"})));
+      if (v >= 0)
+        offset = std::uintmax_t(v);
       else if (!compressed && file_size_or_zero(data_path) >= raw_bytes)  // -1: the data ends the file
         offset = file_size_or_zero(data_path) - raw_bytes;
     }
@@ -215,22 +220,25 @@ std::vector<char> read_one_file_voxels(const MetaHeader& h, const std::string& d
   const std::uintmax_t have = fsize > offset ? fsize - offset : 0;
   if (!compressed) {
     if (have < raw_bytes)
-      throw Error(fmt::format("{} is truncated: the header promises {} bytes of voxel data, {} holds {} (copy or "
-                              "export it again)",
-                              quoted(path), raw_bytes, data_path == path ? "the file" : quoted(data_path), have));
+      throw Error(
+          fmt::format("{} is truncated: the header promises {} bytes of voxel data, {} holds {} (copy or "
+                      "export it again)",
+                      quoted(path), raw_bytes, data_path == path ? "the file" : quoted(data_path), have));
     return read_file_bytes(data_path, offset, raw_bytes);
   }
   std::uintmax_t packed_bytes = have;
   if (const auto cs = h.numbers({"CompressedDataSize"}, 1, "CompressedDataSize")) {
     const double c = (*cs)[0];
     if (!(c >= 1 && c == std::floor(c)))
-      throw Error(fmt::format("{}: MetaImage CompressedDataSize = {} is not a byte count (a whole number >= 1); fix "
-                              "the header or leave the line out",
-                              quoted(path), *h.fields.get({"CompressedDataSize"})));
+      throw Error(
+          fmt::format("{}: MetaImage CompressedDataSize = {} is not a byte count (a whole number >= 1); fix "
+                      "the header or leave the line out",
+                      quoted(path), *h.fields.get({"CompressedDataSize"})));
     if (double(have) < c)
-      throw Error(fmt::format("{} is truncated: the header promises {} bytes of compressed voxel data, the "
-                              "file holds {} (copy or export it again)",
-                              quoted(path), (*cs)[0], have));
+      throw Error(
+          fmt::format("{} is truncated: the header promises {} bytes of compressed voxel data, the "
+                      "file holds {} (copy or export it again)",
+                      quoted(path), (*cs)[0], have));
     packed_bytes = std::uintmax_t((*cs)[0]);
   }
   if (packed_bytes == 0) throw Error(quoted(path) + " is truncated: no voxel data after the header");
@@ -255,8 +263,8 @@ std::vector<float> read_voxels_with_vtk(const fs::path& path, const Eigen::Vecto
   image->GetExtent(extent);
   vtkDataArray* array = image->GetPointData()->GetScalars();
   if (extent_dims(extent) != dims || !array || std::size_t(array->GetNumberOfTuples()) != n)
-    throw Error(fmt::format("cannot read the voxels of {}{}", quoted(path),
-                            metaio_text.empty() ? "" : ": " + metaio_text));
+    throw Error(
+        fmt::format("cannot read the voxels of {}{}", quoted(path), metaio_text.empty() ? "" : ": " + metaio_text));
   if (array->GetNumberOfComponents() != 1)
     throw Error(fmt::format("{}: {} values per voxel; voxelastic needs one (HU)", quoted(path),
                             array->GetNumberOfComponents()));
@@ -313,13 +321,13 @@ void check_before_metaio(const MetaHeader& h, const std::string& data_file, cons
   // metaio's inflate loops for ever on some damaged streams (found by fuzzing): compressed data
   // is read here only, from one file
   if (compressed)
-    throw Error(fmt::format("{}: compressed voxel data spread over several files (ElementDataFile = {}) is not "
-                            "supported; save the volume as one .mha (e.g. in 3D Slicer)",
-                            quoted(h.path), data_file.substr(0, 60)));
+    throw Error(
+        fmt::format("{}: compressed voxel data spread over several files (ElementDataFile = {}) is not "
+                    "supported; save the volume as one .mha (e.g. in 3D Slicer)",
+                    quoted(h.path), data_file.substr(0, 60)));
   for (const auto& [key, value] : h.fields.values) {
-    const bool text = std::all_of(value.begin(), value.end(), [](char c) {
-      return std::isprint(static_cast<unsigned char>(c)) || c == '\t';
-    });
+    const bool text = std::all_of(value.begin(), value.end(),
+                                  [](char c) { return std::isprint(static_cast<unsigned char>(c)) || c == '\t'; });
     if (!text || value.size() > 200)
       throw Error(fmt::format("{}: MetaImage field {} is {}; the header is damaged", quoted(h.path), key,
                               text ? "longer than 200 characters" : "not printable text"));
@@ -351,9 +359,10 @@ void check_before_metaio(const MetaHeader& h, const std::string& data_file, cons
               (last - first) / step + 1 <= 100000;
   }
   if (!form_ok)
-    throw Error(fmt::format("{}: MetaImage ElementDataFile = {} is neither a file name, LOCAL, LIST nor a pattern "
-                            "'name%03d.raw first last step' (step not 0); the header is damaged",
-                            quoted(h.path), data_file.substr(0, 80)));
+    throw Error(
+        fmt::format("{}: MetaImage ElementDataFile = {} is neither a file name, LOCAL, LIST nor a pattern "
+                    "'name%03d.raw first last step' (step not 0); the header is damaged",
+                    quoted(h.path), data_file.substr(0, 80)));
   const fs::path folder = h.path.has_parent_path() ? h.path.parent_path() : fs::path(".");
   if (list) check_list_lines(h, words, dims, folder);
   std::uintmax_t held = 0;
@@ -362,9 +371,10 @@ void check_before_metaio(const MetaHeader& h, const std::string& data_file, cons
     if (it->is_regular_file(ec)) held += file_size_or_zero(it->path());
   const double needed = binary ? double(raw_bytes) : 2.0 * double(n);
   if (needed > (compressed ? 1100.0 : 1.0) * double(held) + 4096.0)
-    throw Error(fmt::format("{}: the header promises {:.0f} bytes of voxels (ElementDataFile = {}), more than the "
-                            "files beside it hold; the header is damaged or files are missing",
-                            quoted(h.path), needed, data_file));
+    throw Error(
+        fmt::format("{}: the header promises {:.0f} bytes of voxels (ElementDataFile = {}), more than the "
+                    "files beside it hold; the header is damaged or files are missing",
+                    quoted(h.path), needed, data_file));
 }
 
 /// ITK's three-letter code for a direction matrix ("RAI" for the identity in LPS).
@@ -396,8 +406,8 @@ Volume read_mha(const fs::path& path) {
   const bool msb = lower(h.fields.get({"BinaryDataByteOrderMSB", "ElementByteOrderMSB"}).value_or("false")) == "true";
   const std::size_t n = checked_voxel_count(image.dims, path);
   const std::uintmax_t raw_bytes = std::uintmax_t(n) * std::uintmax_t(scalar_bytes(image.scalar));
-  const bool one_file = data_file.rfind("LIST", 0) != 0 && data_file.find('%') == std::string::npos &&
-                        split_ws(data_file).size() == 1;
+  const bool one_file =
+      data_file.rfind("LIST", 0) != 0 && data_file.find('%') == std::string::npos && split_ws(data_file).size() == 1;
   if (binary && one_file) {
     const std::vector<char> raw = read_one_file_voxels(h, data_file, compressed, raw_bytes);
     v.hu = raw_to_float(raw.data(), n, image.scalar, msb != (std::endian::native == std::endian::big));

@@ -91,7 +91,8 @@ double round_length(double mm) {
 }
 
 std::string format_mm(double mm) {
-  return mm >= 10 ? fmt::format("{:.0f} mm", mm) : (mm >= 1 ? fmt::format("{:.1f} mm", mm) : fmt::format("{:.2f} mm", mm));
+  return mm >= 10 ? fmt::format("{:.0f} mm", mm)
+                  : (mm >= 1 ? fmt::format("{:.1f} mm", mm) : fmt::format("{:.2f} mm", mm));
 }
 
 vtkSmartPointer<vtkTextActor> make_text(const std::string& text, int size, double x, double y, int justify,
@@ -120,8 +121,10 @@ vtkSmartPointer<vtkActor2D> make_shape(const std::vector<std::array<double, 2>>&
   for (vtkIdType i = 0; i < vtkIdType(xy.size()); ++i) cells->InsertCellPoint(i);
   vtkNew<vtkPolyData> pd;
   pd->SetPoints(pts);
-  if (filled) pd->SetPolys(cells);
-  else pd->SetLines(cells);
+  if (filled)
+    pd->SetPolys(cells);
+  else
+    pd->SetLines(cells);
   vtkNew<vtkCoordinate> coord;
   coord->SetCoordinateSystemToNormalizedViewport();
   vtkNew<vtkPolyDataMapper2D> mapper;
@@ -191,7 +194,8 @@ vtkSmartPointer<vtkPolyData> level_faces(const Model& model, const ModelView& mv
     faces.clear();
     append_element_faces(model, e, faces);
     for (int f = 0; f < faces.size(); ++f) {
-      ids.assign(faces.nodes.begin() + faces.offsets[std::size_t(f)], faces.nodes.begin() + faces.offsets[std::size_t(f) + 1]);
+      ids.assign(faces.nodes.begin() + faces.offsets[std::size_t(f)],
+                 faces.nodes.begin() + faces.offsets[std::size_t(f) + 1]);
       polys->InsertNextCell(vtkIdType(ids.size()), ids.data());
       levels->InsertNextValue(model.element_level[std::size_t(e)]);
     }
@@ -296,7 +300,8 @@ void add_orientation_marker(const ModelView& mv, PictureLayout& layout) {
   triad->SetZAxisLabelText("S");
   triad->SetShaftTypeToCylinder();
   triad->SetTotalLength(1.0, 1.0, 1.0);
-  for (vtkCaptionActor2D* c : {triad->GetXAxisCaptionActor2D(), triad->GetYAxisCaptionActor2D(), triad->GetZAxisCaptionActor2D()}) {
+  for (vtkCaptionActor2D* c :
+       {triad->GetXAxisCaptionActor2D(), triad->GetYAxisCaptionActor2D(), triad->GetZAxisCaptionActor2D()}) {
     c->GetCaptionTextProperty()->SetColor(0.1, 0.1, 0.1);
     c->GetCaptionTextProperty()->ShadowOff();
     c->GetCaptionTextProperty()->ItalicOff();
@@ -328,7 +333,8 @@ void add_scale_bar(PictureLayout& layout) {
 /// The title band: the title (when given) over the model's layout and size.
 void add_title(const Model& model, const RenderSettings& settings, PictureLayout& layout) {
   const int num_levels = model.num_levels();
-  const std::string what = fmt::format("{}{} model: {} elements in {} level{}, {} nodes", model.is_2d() ? "2D (slice) " : "", to_string(model.layout),
+  const std::string what = fmt::format("{}{} model: {} elements in {} level{}, {} nodes",
+                                       model.is_2d() ? "2D (slice) " : "", to_string(model.layout),
                                        model.num_elements(), num_levels, num_levels == 1 ? "" : "s", model.num_nodes());
   if (!settings.title.empty()) {
     layout.band->AddActor2D(make_text(settings.title, layout.font(24), 0.5, 0.66, VTK_TEXT_CENTERED, true));
@@ -347,7 +353,8 @@ void add_legend(const Model& model, const ModelView& mv, bool cutaway, const Ren
   const int num_levels = model.num_levels();
   const std::vector<std::int64_t> per_level = model.elements_per_level();
   std::vector<double> size_mm(std::size_t(num_levels), 0.0);
-  for (int e = 0; e < model.num_elements(); ++e) size_mm[std::size_t(model.element_level[std::size_t(e)])] = model.element_size_mm[std::size_t(e)];
+  for (int e = 0; e < model.num_elements(); ++e)
+    size_mm[std::size_t(model.element_level[std::size_t(e)])] = model.element_size_mm[std::size_t(e)];
   const double line = std::min(0.065, 0.62 / (num_levels + 2));
   double y = 0.95;
   legend->AddActor2D(make_text("element level", font(18), 0.08, y, VTK_TEXT_LEFT, true));
@@ -356,23 +363,34 @@ void add_legend(const Model& model, const ModelView& mv, bool cutaway, const Ren
   // square swatches: half height in the legend's normalized height, width converted by its aspect
   const double half = 0.28 * line, sw = 2.0 * half * layout.scene_h / (settings.width * (1.0 - layout.legend_x));
   for (int l = 0; l < num_levels; ++l, y -= line) {
-    legend->AddActor2D(make_shape({{0.08, y - half}, {0.08 + sw, y - half}, {0.08 + sw, y + half}, {0.08, y + half}}, true, level_colour(l)));
-    legend->AddActor2D(make_shape({{0.08, y - half}, {0.08 + sw, y - half}, {0.08 + sw, y + half}, {0.08, y + half}, {0.08, y - half}}, false, {0.2, 0.2, 0.2}));
-    legend->AddActor2D(make_text(fmt::format("level {}: {} elements, {}", l, per_level[std::size_t(l)], format_mm(size_mm[std::size_t(l)])),
-                                 font(15), 0.08 + sw + 0.04, y, VTK_TEXT_LEFT));
+    legend->AddActor2D(make_shape({{0.08, y - half}, {0.08 + sw, y - half}, {0.08 + sw, y + half}, {0.08, y + half}},
+                                  true, level_colour(l)));
+    legend->AddActor2D(
+        make_shape({{0.08, y - half}, {0.08 + sw, y - half}, {0.08 + sw, y + half}, {0.08, y + half}, {0.08, y - half}},
+                   false, {0.2, 0.2, 0.2}));
+    legend->AddActor2D(make_text(
+        fmt::format("level {}: {} elements, {}", l, per_level[std::size_t(l)], format_mm(size_mm[std::size_t(l)])),
+        font(15), 0.08 + sw + 0.04, y, VTK_TEXT_LEFT));
   }
   // size and view notes under the legend
   y -= 0.5 * line;
   legend->AddActor2D(make_text("tissue extent (mm)", font(15), 0.08, y, VTK_TEXT_LEFT, true));
   y -= 0.04;
-  legend->AddActor2D(make_text(fmt::format("R-L {:.1f}, A-P {:.1f}, I-S {:.1f}", mv.extent.x(), mv.extent.y(), mv.extent.z()), font(14), 0.08, y, VTK_TEXT_LEFT));
+  legend->AddActor2D(
+      make_text(fmt::format("R-L {:.1f}, A-P {:.1f}, I-S {:.1f}", mv.extent.x(), mv.extent.y(), mv.extent.z()),
+                font(14), 0.08, y, VTK_TEXT_LEFT));
   y -= 0.04;
   if (model.is_2d())
-    legend->AddActor2D(make_text(fmt::format("pixel {:.3g} x {:.3g} mm, slice {:.3g} mm", model.grid.spacing_mm.x(), model.grid.spacing_mm.y(), model.grid.spacing_mm.z()), font(14), 0.08, y, VTK_TEXT_LEFT));
+    legend->AddActor2D(make_text(fmt::format("pixel {:.3g} x {:.3g} mm, slice {:.3g} mm", model.grid.spacing_mm.x(),
+                                             model.grid.spacing_mm.y(), model.grid.spacing_mm.z()),
+                                 font(14), 0.08, y, VTK_TEXT_LEFT));
   else
-    legend->AddActor2D(make_text(fmt::format("voxel {:.3g} x {:.3g} x {:.3g} mm", model.grid.spacing_mm.x(), model.grid.spacing_mm.y(), model.grid.spacing_mm.z()), font(14), 0.08, y, VTK_TEXT_LEFT));
+    legend->AddActor2D(make_text(fmt::format("voxel {:.3g} x {:.3g} x {:.3g} mm", model.grid.spacing_mm.x(),
+                                             model.grid.spacing_mm.y(), model.grid.spacing_mm.z()),
+                                 font(14), 0.08, y, VTK_TEXT_LEFT));
   y -= 0.06;
-  legend->AddActor2D(make_text(model.is_2d() ? "view: the slice face on" : "view: from front-left, above", font(14), 0.08, y, VTK_TEXT_LEFT, false, 0.35));
+  legend->AddActor2D(make_text(model.is_2d() ? "view: the slice face on" : "view: from front-left, above", font(14),
+                               0.08, y, VTK_TEXT_LEFT, false, 0.35));
   if (cutaway) {
     y -= 0.04;
     legend->AddActor2D(make_text("front-left-top octant cut away", font(14), 0.08, y, VTK_TEXT_LEFT, false, 0.35));
@@ -416,10 +434,8 @@ bool display_available() {
   return available;
 }
 
-
 void render_model_png(const Model& model, const fs::path& png, const RenderSettings& settings) {
-  if (png.extension() != ".png")
-    throw Error("cannot write the picture '" + png.string() + "': use a .png file name");
+  if (png.extension() != ".png") throw Error("cannot write the picture '" + png.string() + "': use a .png file name");
   if (settings.width < 200 || settings.height < 150 || settings.width > 8192 || settings.height > 8192)
     throw Error(fmt::format("picture size {} x {} px is out of range: use 200..8192 x 150..8192", settings.width,
                             settings.height));

@@ -53,14 +53,14 @@ enum class ObjectSource : std::uint8_t { phantom, volume, model, box };
 /// The `object` of a scene.
 struct SceneObject {
   ObjectSource source{ObjectSource::phantom};
-  std::filesystem::path path;          ///< volume or model file (resolved against the scene's folder)
-  PhantomSettings phantom;             ///< phantom
-  PrepareOptions prepare;              ///< phantom, volume: threshold and clean-up
-  ReadOptions read;                    ///< volume
-  Eigen::Vector3d box_min_mm{0, 0, 0}; ///< box: a solid block of tissue
+  std::filesystem::path path;           ///< volume or model file (resolved against the scene's folder)
+  PhantomSettings phantom;              ///< phantom
+  PrepareOptions prepare;               ///< phantom, volume: threshold and clean-up
+  ReadOptions read;                     ///< volume
+  Eigen::Vector3d box_min_mm{0, 0, 0};  ///< box: a solid block of tissue
   Eigen::Vector3d box_max_mm{0, 0, 0};
-  double box_voxel_mm{1.0};            ///< box: voxel size
-  BuildSettings build;                 ///< resolution, max level (not for a model file)
+  double box_voxel_mm{1.0};  ///< box: voxel size
+  BuildSettings build;       ///< resolution, max level (not for a model file)
 };
 
 /// One row of a Hounsfield-to-modulus table.
@@ -79,11 +79,11 @@ struct Inclusion {
 
 /// The `material` of a scene.
 struct SceneMaterial {
-  Material base;                          ///< homogeneous part
+  Material base;                                      ///< homogeneous part
   ElementKind element{CalibrationOptions{}.element};  ///< "element": hourglass (default) or paper
-  MassScaling mass_scaling;               ///< `mass_scaling`: none by default (docs/model.md section 6)
-  std::vector<HuModulus> hounsfield;      ///< optional: modulus per voxel from its HU (piecewise linear)
-  std::vector<Inclusion> inclusions;      ///< optional: spheres with their own modulus
+  MassScaling mass_scaling;                           ///< `mass_scaling`: none by default (docs/model.md section 6)
+  std::vector<HuModulus> hounsfield;                  ///< optional: modulus per voxel from its HU (piecewise linear)
+  std::vector<Inclusion> inclusions;                  ///< optional: spheres with their own modulus
 };
 
 /// One entry of `fixed`: a face of the object's bounding box (nodes within `within_mm` of
@@ -121,7 +121,7 @@ struct PalpationDefaults {
 
 /// A whole scene, loaded and checked, nothing built yet.
 struct Scene {
-  std::filesystem::path file;        ///< the scene file ("" when parsed from text)
+  std::filesystem::path file;  ///< the scene file ("" when parsed from text)
   std::string description;
   SceneObject object;
   SceneMaterial material;
@@ -169,9 +169,9 @@ enum class RegionCheckTiming {
 
 /// What to build besides the physics.
 struct PrepareSceneOptions {
-  bool surface{false};          ///< build the embedded surface (display, .pvd surface output)
-  int threads_override{-1};     ///< >= 0: replaces the scene's `threads`
-  bool skip_unneeded{true};     ///< false: the Simulation does every optional piece of work
+  bool surface{false};       ///< build the embedded surface (display, .pvd surface output)
+  int threads_override{-1};  ///< >= 0: replaces the scene's `threads`
+  bool skip_unneeded{true};  ///< false: the Simulation does every optional piece of work
   RegionCheckTiming region_check{RegionCheckTiming::before_run};
   /// background: the check's thread's nice value (10: it yields to a real-time run; 0: a batch
   /// run, which waits for it at its end anyway)
@@ -220,19 +220,19 @@ struct PreparedScene {
   DeviceSideSettings device_side;                  ///< ready for DeviceSide (the device, no local contact models)
   Eigen::Vector3d bounds_min_mm{0, 0, 0};          ///< object's rest bounding box, LPS mm
   Eigen::Vector3d bounds_max_mm{0, 0, 0};
-  double dt_stable_estimate_s{0.0};                ///< the integrator's estimated stable step
-  double automatic_dt_s{0.0};  ///< the step `"dt_s": "auto"` picks (0: none, explicit Euler undamped)
+  double dt_stable_estimate_s{0.0};  ///< the integrator's estimated stable step
+  double automatic_dt_s{0.0};        ///< the step `"dt_s": "auto"` picks (0: none, explicit Euler undamped)
   int fixed_nodes{0};
-  int heterogeneous_elements{0};                   ///< elements whose modulus differs from the base
+  int heterogeneous_elements{0};  ///< elements whose modulus differs from the base
   double min_modulus_kpa{0.0}, max_modulus_kpa{0.0};
-  std::vector<std::string> warnings;               ///< plausible but risky choices
-  std::vector<std::string> log;                    ///< what was built, one line each
+  std::vector<std::string> warnings;  ///< plausible but risky choices
+  std::vector<std::string> log;       ///< what was built, one line each
   /// Scene::palpation: up as the defaults used it (in the slice plane of a 2D model); zero otherwise.
   Eigen::Vector3d up{0, 0, 0};
   /// Implicit with regional solves: how much the region over-stiffens the press of the probe
   /// where it is worst (region_stiffening.h; docs/model.md section 7); empty without a region.
   std::optional<RegionStiffeningEstimate> region_stiffening;
-  std::string region_stiffening_probe;             ///< that probe's name
+  std::string region_stiffening_probe;  ///< that probe's name
   /// RegionCheckTiming::background: the estimate still running (take_region_check() moves its
   /// result into region_stiffening, log and warnings); null otherwise and once taken.
   std::shared_ptr<BackgroundRegionCheck> pending_region_check;

@@ -42,8 +42,8 @@ struct RegionStiffeningSettings {
   double tool_radius_mm{4.0};        ///< the load spreads over the free nodes within this of the node nearest the tool
   double region_radius_mm{30.0};     ///< the regional solves' radius (integrators.h)
   double time_step_s{0.03};          ///< the implicit step
-  double tolerance{1e-3};            ///< conjugate gradients: relative residual (the compliance converges as its square)
-  int max_iterations{2000};          ///< conjugate gradients, per solve
+  double tolerance{1e-3};    ///< conjugate gradients: relative residual (the compliance converges as its square)
+  int max_iterations{2000};  ///< conjugate gradients, per solve
   /// true: the tangent at rest (three coordinates, less each element's rotation curvature): the
   /// whole model's compliance as the converged static press gives it (tested), about 4x the
   /// cost; false: the projective matrix alone (one coordinate): stiffer near the tool, but the
@@ -58,14 +58,14 @@ struct RegionStiffeningSettings {
 };
 
 struct RegionStiffeningEstimate {
-  bool valid{false};                 ///< false: no estimate (reason says why)
+  bool valid{false};  ///< false: no estimate (reason says why)
   std::string reason;
-  int load_nodes{0};                 ///< free nodes under the tool
-  int region_nodes{0};               ///< free nodes within the region radius (awake)
-  int far_nodes{0};                  ///< free nodes outside it (held by m/dt^2)
-  double compliance_full_mm_n{0.0};  ///< f^T K^-1 f for a unit total load, mm/N
-  double compliance_region_mm_n{0.0};///< f^T (K + D_far)^-1 f, mm/N
-  double force_ratio{1.0};           ///< c_full / c_region: the regional press's force over the whole model's
+  int load_nodes{0};                   ///< free nodes under the tool
+  int region_nodes{0};                 ///< free nodes within the region radius (awake)
+  int far_nodes{0};                    ///< free nodes outside it (held by m/dt^2)
+  double compliance_full_mm_n{0.0};    ///< f^T K^-1 f for a unit total load, mm/N
+  double compliance_region_mm_n{0.0};  ///< f^T (K + D_far)^-1 f, mm/N
+  double force_ratio{1.0};             ///< c_full / c_region: the regional press's force over the whole model's
   int iterations_full{0}, iterations_region{0};  ///< conjugate-gradient iterations
   double seconds{0.0};                           ///< wall time of the estimate (when loaded: of the load)
   bool loaded{false};                            ///< true: read from RegionStiffeningSettings::cache, not solved

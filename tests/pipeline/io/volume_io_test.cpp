@@ -28,9 +28,8 @@ namespace {
 class VolumeIo : public ::testing::Test {
  protected:
   void SetUp() override {
-    dir_ = fs::temp_directory_path() /
-           ("vx_volume_io_" + std::to_string(::getpid()) + "_" +
-            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    dir_ = fs::temp_directory_path() / ("vx_volume_io_" + std::to_string(::getpid()) + "_" +
+                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
     fs::remove_all(dir_);
     fs::create_directories(dir_);
   }
@@ -128,8 +127,11 @@ TEST_F(VolumeIo, RoundTripEveryFileFormat) {
   };
   // VTI, MetaImage and NRRD keep doubles as text (shortest round-trip form); NIfTI stores
   // float32, so positions are exact to float precision only
-  const Case cases[] = {{"v.vti", 1e-9, 1e-12},   {"v.mha", 1e-12, 1e-15},   {"v.nrrd", 1e-12, 1e-15},
-                        {"v.nii.gz", 2e-5, 1e-6}, {"v.nii", 2e-5, 1e-6}};
+  const Case cases[] = {{"v.vti", 1e-9, 1e-12},
+                        {"v.mha", 1e-12, 1e-15},
+                        {"v.nrrd", 1e-12, 1e-15},
+                        {"v.nii.gz", 2e-5, 1e-6},
+                        {"v.nii", 2e-5, 1e-6}};
   for (bool integral : {true, false})
     for (bool left_handed : {false, true})
       for (const Case& c : cases) {
@@ -224,11 +226,11 @@ TEST_F(VolumeIo, WrittenHeadersFollowTheFormatConventions) {
     std::memcpy(&x, h.data() + at, 2);
     return x;
   };
-  EXPECT_EQ(i16(70), 4);      // datatype int16
-  EXPECT_EQ(i16(252), 1);     // qform_code: scanner
-  EXPECT_GT(i16(254), 0);     // sform_code
-  EXPECT_EQ(h[123] & 7, 2);   // mm
-  EXPECT_EQ(f32(76), 1.0f);   // qfac: right-handed grid
+  EXPECT_EQ(i16(70), 4);     // datatype int16
+  EXPECT_EQ(i16(252), 1);    // qform_code: scanner
+  EXPECT_GT(i16(254), 0);    // sform_code
+  EXPECT_EQ(h[123] & 7, 2);  // mm
+  EXPECT_EQ(f32(76), 1.0f);  // qfac: right-handed grid
   const float srow[12] = {0, 2, 0, -10, -0.5f, 0, 0, -20, 0, 0, 3, 30};
   for (int e = 0; e < 12; ++e) EXPECT_NEAR(f32(280 + 4 * std::size_t(e)), srow[e], 1e-6) << "srow element " << e;
   EXPECT_NEAR(f32(268), -10, 1e-6);  // qoffset
@@ -447,8 +449,10 @@ TEST_F(VolumeIo, NrrdDetachedHeaderBigEndianLps) {
 TEST_F(VolumeIo, NrrdAsciiAndGzip) {
   std::string values;
   for (int i = 0; i < 8; ++i) values += std::to_string(i * 10 - 5) + (i % 4 == 3 ? "\n" : " ");
-  write_bytes(path("t.nrrd"), "NRRD0004\ntype: float\ndimension: 3\nsizes: 2 2 2\nspacings: 2 3 4\nencoding: "
-                              "ascii\n\n" + values);
+  write_bytes(path("t.nrrd"),
+              "NRRD0004\ntype: float\ndimension: 3\nsizes: 2 2 2\nspacings: 2 3 4\nencoding: "
+              "ascii\n\n" +
+                  values);
   const Volume v = vx::read_volume(path("t.nrrd"));
   EXPECT_EQ(v.at(1, 1, 1), 65.0f);
   EXPECT_EQ(v.geometry.spacing_mm, Eigen::Vector3d(2, 3, 4));
@@ -530,8 +534,8 @@ TEST(VolumeSamples, BundledPhantomSamples) {
 TEST_F(VolumeIo, MissingFileAndUnknownExtension) {
   expect_error([&] { (void)vx::read_volume(path("nope.vti")); }, {"nope.vti", "no such file"});
   write_bytes(path("x.xyz"), "hello");
-  expect_error([&] { (void)vx::read_volume(path("x.xyz")); }, {"x.xyz", "unknown volume format", ".vti", ".nii.gz",
-                                                                 ".nrrd", "DICOM"});
+  expect_error([&] { (void)vx::read_volume(path("x.xyz")); },
+               {"x.xyz", "unknown volume format", ".vti", ".nii.gz", ".nrrd", "DICOM"});
   expect_error([&] { vx::write_volume(test_volume(true), path("x.png")); }, {"x.png", "unknown", ".mha"});
   expect_error([&] { vx::write_volume(test_volume(true), path("x.mhd")); }, {".mha instead"});
   expect_error([&] { vx::write_volume(test_volume(true), path("missing_dir/x.vti")); }, {"does not exist"});
@@ -562,9 +566,10 @@ TEST_F(VolumeIo, GarbageAndTruncatedMetaImage) {
   write_bytes(path("t.mha"), header + int16_bytes(ramp(12)));
   expect_error([&] { (void)vx::read_volume(path("t.mha")); }, {"t.mha", "truncated", "48 bytes"});
   // compressed data that is not zlib
-  write_bytes(path("z.mha"), "ObjectType = Image\nNDims = 3\nDimSize = 3 4 2\nElementType = MET_SHORT\n"
-                             "CompressedData = True\nCompressedDataSize = 40\nElementDataFile = LOCAL\n" +
-                                 garbage.substr(0, 40));
+  write_bytes(path("z.mha"),
+              "ObjectType = Image\nNDims = 3\nDimSize = 3 4 2\nElementType = MET_SHORT\n"
+              "CompressedData = True\nCompressedDataSize = 40\nElementDataFile = LOCAL\n" +
+                  garbage.substr(0, 40));
   expect_error([&] { (void)vx::read_volume(path("z.mha")); }, {"z.mha"});
 }
 
@@ -574,8 +579,8 @@ TEST_F(VolumeIo, GarbageNiftiAndNrrd) {
   write_bytes(path("g.nrrd"), "PNG\x89 something else");
   expect_error([&] { (void)vx::read_volume(path("g.nrrd")); }, {"g.nrrd", "not a NRRD file"});
   // header fine, raw data short
-  write_bytes(path("s.nrrd"), "NRRD0004\ntype: short\ndimension: 3\nsizes: 3 4 2\nencoding: raw\n\n" +
-                                  int16_bytes(ramp(20)));
+  write_bytes(path("s.nrrd"),
+              "NRRD0004\ntype: short\ndimension: 3\nsizes: 3 4 2\nencoding: raw\n\n" + int16_bytes(ramp(20)));
   expect_error([&] { (void)vx::read_volume(path("s.nrrd")); }, {"s.nrrd", "truncated"});
   // gzip data cut short
   vx::write_volume(test_volume(false), path("c.nrrd"));
@@ -588,23 +593,27 @@ TEST_F(VolumeIo, AbsurdSizesInDamagedHeadersAreRefusedBeforeAllocating) {
   f.dim[0] = f.dim[1] = f.dim[2] = 30000;  // 2.7e13 voxels
   write_bytes(path("huge.nii"), f.bytes(ramp(24)));
   expect_error([&] { (void)vx::read_volume(path("huge.nii")); }, {"huge.nii", "30000x30000x30000", "damaged"});
-  write_bytes(path("huge.mha"), "NDims = 3\nDimSize = 100000 100000 100000\nElementType = MET_SHORT\n"
-                                "CompressedData = True\nElementDataFile = LOCAL\n" + std::string(100, 'x'));
+  write_bytes(path("huge.mha"),
+              "NDims = 3\nDimSize = 100000 100000 100000\nElementType = MET_SHORT\n"
+              "CompressedData = True\nElementDataFile = LOCAL\n" +
+                  std::string(100, 'x'));
   expect_error([&] { (void)vx::read_volume(path("huge.mha")); }, {"huge.mha", "voxels"});
   // a plausible size, but far more than 100 compressed bytes can hold
-  write_bytes(path("big.nrrd"), "NRRD0004\ntype: short\ndimension: 3\nsizes: 512 512 400\nencoding: gzip\n\n" +
-                                    std::string(100, 'x'));
+  write_bytes(path("big.nrrd"),
+              "NRRD0004\ntype: short\ndimension: 3\nsizes: 512 512 400\nencoding: gzip\n\n" + std::string(100, 'x'));
   expect_error([&] { (void)vx::read_volume(path("big.nrrd")); }, {"big.nrrd", "cannot hold"});
 }
 
 TEST_F(VolumeIo, MultiComponentDataIsRefused) {
-  write_bytes(path("rgb.nrrd"), "NRRD0004\ntype: uchar\ndimension: 4\nsizes: 3 2 2 2\nkinds: RGB-color domain "
-                                "domain domain\nencoding: raw\n\n" +
-                                    std::string(24, 'a'));
+  write_bytes(path("rgb.nrrd"),
+              "NRRD0004\ntype: uchar\ndimension: 4\nsizes: 3 2 2 2\nkinds: RGB-color domain "
+              "domain domain\nencoding: raw\n\n" +
+                  std::string(24, 'a'));
   expect_error([&] { (void)vx::read_volume(path("rgb.nrrd")); }, {"rgb.nrrd", "values per voxel"});
-  write_bytes(path("v.mha"), "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementNumberOfChannels = 3\n"
-                             "ElementType = MET_UCHAR\nElementDataFile = LOCAL\n" +
-                                 std::string(24, 'a'));
+  write_bytes(path("v.mha"),
+              "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementNumberOfChannels = 3\n"
+              "ElementType = MET_UCHAR\nElementDataFile = LOCAL\n" +
+                  std::string(24, 'a'));
   expect_error([&] { (void)vx::read_volume(path("v.mha")); }, {"v.mha", "3 channels"});
   const std::string xml =
       "<?xml version=\"1.0\"?>\n<VTKFile type=\"ImageData\" version=\"1.0\" byte_order=\"LittleEndian\">\n"
@@ -670,7 +679,8 @@ TEST_F(VolumeIo, VtiReversedExtentsAreRefusedBeforeVtkReadsThem) {
   ASSERT_NE(good.find("WholeExtent=\"0 6 0 4 0 3\""), std::string::npos);
   // the whole extent reversed along x (SIGSEGV in vtkXMLStructuredDataReader::ReadSubExtent)
   write_bytes(path("whole.vti"), edited(good, "WholeExtent=\"0 6", "WholeExtent=\"6 0"));
-  expect_error([&] { (void)vx::read_volume(path("whole.vti")); }, {"whole.vti", "WholeExtent", "reversed along axis x"});
+  expect_error([&] { (void)vx::read_volume(path("whole.vti")); },
+               {"whole.vti", "WholeExtent", "reversed along axis x"});
   // a piece reversed along z, and a piece reaching outside the whole extent
   write_bytes(path("piece.vti"), edited(good, "Extent=\"0 6 0 4 0 3\"  ", "Extent=\"0 6 0 4 3 0\"  "));
   expect_error([&] { (void)vx::read_volume(path("piece.vti")); }, {"piece.vti", "reversed along axis z"});
@@ -839,11 +849,12 @@ TEST(Compression, AnySizeIsFedToZlibInChunksAndComesBackWhole) {
   for (const bool gzip : {false, true}) {
     const auto whole = vx::deflate_bytes(data.data(), data.size(), gzip);
     const auto chunked = vx::deflate_bytes(data.data(), data.size(), gzip, 7);
-    const auto back = vx::inflate_bytes(reinterpret_cast<const char*>(chunked.data()), chunked.size(), data.size(),
-                                        "chunked", 5);
+    const auto back =
+        vx::inflate_bytes(reinterpret_cast<const char*>(chunked.data()), chunked.size(), data.size(), "chunked", 5);
     ASSERT_EQ(back.size(), data.size());
     EXPECT_EQ(std::memcmp(back.data(), data.data(), data.size()), 0);
-    const auto back_whole = vx::inflate_bytes(reinterpret_cast<const char*>(whole.data()), whole.size(), data.size(), "w");
+    const auto back_whole =
+        vx::inflate_bytes(reinterpret_cast<const char*>(whole.data()), whole.size(), data.size(), "w");
     EXPECT_EQ(std::memcmp(back_whole.data(), data.data(), data.size()), 0);
   }
   // an empty input is an empty stream, not an error
@@ -857,19 +868,23 @@ TEST_F(VolumeIo, MetaImageHeadersForMetaioAreCheckedFirst) {
                                            "ElementDataFile = LOCA\x01\xff\xfe x y\n") +
                                    std::string(16, 'x'));
   expect_error([&] { (void)vx::read_volume(path("bin.mha")); }, {"bin.mha", "ElementDataFile", "not printable"});
-  write_bytes(path("list.mha"), "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_SHORT\n"
-                                "CompressedData = True\nElementDataFile = LIST\na.zraw\nb.zraw\n");
+  write_bytes(path("list.mha"),
+              "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_SHORT\n"
+              "CompressedData = True\nElementDataFile = LIST\na.zraw\nb.zraw\n");
   expect_error([&] { (void)vx::read_volume(path("list.mha")); }, {"list.mha", "compressed", "several files"});
   // a file pattern whose step is 0 (metaio divides by it: SIGFPE), and words that are no pattern
-  write_bytes(path("pat.mha"), "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_SHORT\n"
-                               "ElementDataFile = slice%03d.raw 1 2 0\n");
+  write_bytes(path("pat.mha"),
+              "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_SHORT\n"
+              "ElementDataFile = slice%03d.raw 1 2 0\n");
   expect_error([&] { (void)vx::read_volume(path("pat.mha")); }, {"pat.mha", "ElementDataFile", "step not 0"});
-  write_bytes(path("words.mha"), "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_SHORT\n"
-                                 "ElementDataFile = c LO~~Elem%ntType = MET_SHORT\n");
+  write_bytes(path("words.mha"),
+              "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_SHORT\n"
+              "ElementDataFile = c LO~~Elem%ntType = MET_SHORT\n");
   expect_error([&] { (void)vx::read_volume(path("words.mha")); }, {"words.mha", "neither a file name"});
   // text voxels need at least two characters each in the file
-  write_bytes(path("text.mha"), "ObjectType = Image\nNDims = 3\nDimSize = 100 100 100\nBinaryData = False\n"
-                                "ElementType = MET_SHORT\nElementDataFile = LOCAL\n1 2 3\n");
+  write_bytes(path("text.mha"),
+              "ObjectType = Image\nNDims = 3\nDimSize = 100 100 100\nBinaryData = False\n"
+              "ElementType = MET_SHORT\nElementDataFile = LOCAL\n1 2 3\n");
   expect_error([&] { (void)vx::read_volume(path("text.mha")); }, {"text.mha", "more than the files beside it hold"});
 }
 
