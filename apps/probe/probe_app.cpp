@@ -11,6 +11,7 @@
 
 #include "app_shared.h"
 #include "base/error.h"
+#include "base/parallel.h"
 #include "device_loop.h"
 #include "display.h"
 #include "force_output.h"
@@ -316,6 +317,9 @@ std::string App::run_loops(const IoLines& lines) {
   FixedRateThread device(
       "device", options_.device_hz, [this](std::int64_t n) { device_loop_->tick(n); },
       [] { (void)set_this_thread_name("vx-device"); });
+  // the scene was loaded on this thread with OpenMP: its idle workers would make the physics'
+  // team sleep at every barrier (base/parallel.h)
+  (void)release_openmp_workers();
   const auto old_int = std::signal(SIGINT, on_interrupt);
   const auto old_term = std::signal(SIGTERM, on_interrupt);
   physics.start();

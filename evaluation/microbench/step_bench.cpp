@@ -3,6 +3,8 @@
 // Counters: ns per element and per vertex entry, threads, model size, real-time factor.
 // element_pass/<kernel>/n: the element pass alone with each kernel, side by side.
 // element/<pass or step>/<element>/n: the paper's element against the hourglass one.
+// team/<idle_team or released>/n: implicit steps beside another thread's idle OpenMP team, kept
+//   and released (base/parallel.h, release_openmp_workers), side by side.
 // sweep/<full or regional>/<kernel>/n: the implicit solver's factor solved with the column
 //   sweeps against the gathered ones on each instruction set (sim/sparse_factor.h), side by side.
 //   voxelastic_bench_step [--benchmark_filter=...]   (OMP_NUM_THREADS sets the threads)
@@ -12,9 +14,12 @@
 
 #include <algorithm>
 #include <chrono>
+#include <condition_variable>
 #include <map>
 #include <memory>
+#include <mutex>
 #include <string>
+#include <thread>
 #include <utility>
 #include <vector>
 
@@ -97,6 +102,42 @@ void step(benchmark::State& bs, IntegratorKind kind, int n, ElementKind element 
   if (kind == IntegratorKind::implicit) bs.counters["iterations"] = rep.iterations;
   // rotation fit iterations per element and step (explicit: those of the one element pass)
   bs.counters["fit_iterations"] = double(fit_iterations) / steps / model.num_elements();
+}
+
+/// Implicit steps with another thread's OpenMP team idle beside them, as the probe app's
+/// physics runs beside its main thread, which loaded the scene with OpenMP (base/parallel.h,
+/// release_openmp_workers): `idle_team` keeps that team, `released` lets its workers go first.
+/// GNU OpenMP counts the idle workers; once they and the steps' own outnumber the cores, the
+/// steps' waits stop spinning and each fork and barrier waits for a wake-up.
+void beside_another_team(benchmark::State& bs, bool release, int n) {
+  std::mutex m;
+  std::condition_variable cv;
+  bool ready = false, done = false;
+  std::thread other([&] {
+    std::vector<double> v(4096, 1.0);
+    parallel_for(std::int64_t(v.size()), 256, 2, [&](std::int64_t b, std::int64_t e) {
+      for (std::int64_t i = b; i < e; ++i) v[std::size_t(i)] *= 2.0;
+    });
+    if (release) (void)release_openmp_workers();
+    {
+      std::lock_guard lock(m);
+      ready = true;
+    }
+    cv.notify_all();
+    std::unique_lock lock(m);
+    cv.wait(lock, [&] { return done; });
+  });
+  {
+    std::unique_lock lock(m);
+    cv.wait(lock, [&] { return ready; });
+  }
+  step(bs, IntegratorKind::implicit, n);
+  {
+    std::lock_guard lock(m);
+    done = true;
+  }
+  cv.notify_all();
+  other.join();
 }
 
 /// The element pass alone (elastic and damping forces of every element, as in an explicit
@@ -214,6 +255,15 @@ int main(int argc, char** argv) {
           ->UseRealTime()
           ->MinTime(0.5);
     }
+  // implicit steps beside another thread's idle OpenMP team, kept and released, interleaved
+  for (int n : {32, 64, 128})
+    for (const bool release : {false, true})
+      benchmark::RegisterBenchmark(
+          (std::string("team/") + (release ? "released" : "idle_team") + "/" + std::to_string(n)).c_str(),
+          [release, n](benchmark::State& bs) { beside_another_team(bs, release, n); })
+          ->Unit(benchmark::kMillisecond)
+          ->UseRealTime()
+          ->MinTime(0.5);
   // the element pass with each kernel (the batched one with each instruction set this CPU
   // runs), interleaved per size so that they run under the same machine load (compare ratios,
   // not absolute times)

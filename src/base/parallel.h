@@ -18,6 +18,15 @@ namespace vx {
   return requested > 0 ? requested : std::max(1, omp_get_max_threads());
 }
 
+/// Ends the calling thread's OpenMP workers (they are started again by its next parallel
+/// region). Call it on a thread that is done with parallel work while another thread goes on
+/// with its own: GNU OpenMP counts the idle workers of every thread's team, and once they
+/// outnumber the cores, every team's waits stop spinning and sleep at once (1,000 spins, not
+/// 300,000), so each of the busy team's forks and barriers waits for a wake-up
+/// (docs/probe.md, "The app against simulate"). Returns false when the runtime refused
+/// (inside a parallel region, or a runtime without OpenMP 5's pause).
+inline bool release_openmp_workers() { return omp_pause_resource_all(omp_pause_soft) == 0; }
+
 /// Number of chunks parallel_for cuts [0, n) into.
 [[nodiscard]] inline std::int64_t chunk_count(std::int64_t n, std::int64_t grain) {
   grain = std::max<std::int64_t>(1, grain);

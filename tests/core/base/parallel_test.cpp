@@ -1,0 +1,78 @@
+// The core's parallel loop (base/parallel.h): chunk boundaries that do not depend on the thread
+// count (the same sums on 1 and 2 threads, bit for bit), and release_openmp_workers, which ends a
+// thread's idle OpenMP workers (they are counted against the cores by GNU OpenMP, and slow every
+// other team's waits: the microbenchmark team/*).
+#include "base/parallel.h"
+
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <thread>
+#include <vector>
+
+using namespace vx;
+
+namespace {
+
+/// Threads of this process now (Linux: /proc/self/task), -1 where that cannot be read.
+int thread_count() {
+  std::error_code ec;
+  int n = 0;
+  for (std::filesystem::directory_iterator it("/proc/self/task", ec), end; !ec && it != end; it.increment(ec)) ++n;
+  return ec ? -1 : n;
+}
+
+/// Per-chunk partial sums of 1/(i+1), reduced in chunk order.
+double chunked_sum(int threads) {
+  const std::int64_t n = 100003, grain = 1000;
+  std::vector<double> partial(std::size_t(chunk_count(n, grain)), 0.0);
+  parallel_for_chunks(n, grain, threads, [&](std::int64_t c, std::int64_t b, std::int64_t e) {
+    double s = 0.0;
+    for (std::int64_t i = b; i < e; ++i) s += 1.0 / double(i + 1);
+    partial[std::size_t(c)] = s;
+  });
+  double total = 0.0;
+  for (double p : partial) total += p;
+  return total;
+}
+
+}  // namespace
+
+TEST(Parallel, ChunksDoNotDependOnTheThreadCount) {
+  EXPECT_EQ(chunk_count(0, 10), 0);
+  EXPECT_EQ(chunk_count(10, 10), 1);
+  EXPECT_EQ(chunk_count(11, 10), 2);
+  const double one = chunked_sum(1), two = chunked_sum(2);
+  EXPECT_EQ(one, two);  // bit for bit
+  // the harmonic number H_n = ln n + gamma + 1/(2n) - ..., within 1e-9
+  EXPECT_NEAR(one, std::log(100003.0) + 0.5772156649015329 + 0.5 / 100003.0, 1e-9);
+}
+
+TEST(Parallel, ReleasingAThreadsWorkersEndsThem) {
+#ifndef _LIBGOMP_OMP_LOCK_DEFINED
+  GTEST_SKIP() << "not GNU OpenMP: another runtime's pause may keep its workers asleep";
+#endif
+  if (thread_count() < 0) GTEST_SKIP() << "no /proc/self/task";
+  int before = 0, with_team = 0, after = 0;
+  bool released = false;
+  std::thread t([&] {
+    before = thread_count();
+    // a region of 2 threads leaves this thread an idle worker
+    std::vector<int> hit(8, 0);
+    parallel_for(8, 1, 2, [&](std::int64_t b, std::int64_t e) {
+      for (std::int64_t i = b; i < e; ++i) hit[std::size_t(i)] = 1;
+    });
+    with_team = thread_count();
+    released = release_openmp_workers();
+    // the worker leaves on its own time: wait for it, at most 5 s
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(5);
+    while ((after = thread_count()) >= with_team && std::chrono::steady_clock::now() < deadline)
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  });
+  t.join();
+  EXPECT_EQ(with_team, before + 1);
+  EXPECT_TRUE(released);
+  EXPECT_EQ(after, before);
+}
