@@ -54,8 +54,7 @@ void parallel_for_chunks(std::int64_t n, std::int64_t grain, int threads, Fn&& f
 /// Calls fn(begin, end) over chunks of [0, n); see parallel_for_chunks.
 template <class Fn>
 void parallel_for(std::int64_t n, std::int64_t grain, int threads, Fn&& fn) {
-  parallel_for_chunks(n, grain, threads,
-                      [&](std::int64_t, std::int64_t b, std::int64_t e) { fn(b, e); });
+  parallel_for_chunks(n, grain, threads, [&](std::int64_t, std::int64_t b, std::int64_t e) { fn(b, e); });
 }
 
 }  // namespace vx
