@@ -194,13 +194,14 @@ void ProbeView::Impl::update_plot() {
 void ProbeView::Impl::update_hud_text() {
   const HudInfo& h = hud_info;
   std::string text = fmt::format("{}   t = {:.2f} s{}\n", setup.title, h.sim_s, h.paused ? "   [PAUSED]" : "");
-  const std::string config = setup.physics_line.empty() ? std::string() : ": " + setup.physics_line;
+  // the solver's configuration on a line of its own: after the rate it ran under the plot
+  const std::string config = setup.physics_line.empty() ? std::string() : "  solver: " + setup.physics_line + "\n";
   if (setup.local_shaping) {
     // the physics updates the model; the device computes the force from it at its own rate
     const std::string rate = h.physics_rate.empty() ? fmt::format("{:.0f} steps/s (tissue {:.2f}x real time)",
                                                                    h.physics_steps_per_s, h.real_time_factor)
                                                      : h.physics_rate;
-    text += fmt::format("physics {:.0f} updates/s, {}{}\n", h.physics_updates_per_s, rate, config);
+    text += fmt::format("physics {:.0f} updates/s, {}\n{}", h.physics_updates_per_s, rate, config);
     text += fmt::format("device {:.0f} forces/s (local contact model)   display {:.1f} frames/s\n", h.device_hz,
                         fps.rate());
   } else {
@@ -208,7 +209,7 @@ void ProbeView::Impl::update_hud_text() {
         h.physics_rate.empty()
             ? fmt::format("{:.0f} steps/s ({:.2f}x real time)", h.physics_steps_per_s, h.real_time_factor)
             : h.physics_rate;
-    text += fmt::format("physics {}{}\n", rate, config);
+    text += fmt::format("physics {}\n{}", rate, config);
     text += fmt::format("device {:.0f} updates/s   display {:.1f} frames/s\n", h.device_hz, fps.rate());
   }
   for (int p = 0; p < h.probes && p < 2; ++p) {
@@ -244,7 +245,8 @@ void ProbeView::Impl::update_hud_text() {
   status->SetVisibility(!warn.empty());
   // the warnings go under the HUD's lines
   const int* size = window->GetSize();
-  const int lines = 4 + std::min(h.probes, 2) + (setup.output_line.empty() ? 0 : 1);
+  const int lines =
+      4 + std::min(h.probes, 2) + (setup.output_line.empty() ? 0 : 1) + (setup.physics_line.empty() ? 0 : 1);
   status->SetDisplayPosition(10, std::max(240, size[1]) - 10 - lines * 19 - 8);
 }
 
