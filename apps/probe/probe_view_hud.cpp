@@ -53,7 +53,8 @@ void set_text_style(vtkTextProperty* p, int size, const Rgb& c) {
 void ProbeView::Impl::build_hud() {
   tint_legend = make<vtkTextActor>();
   set_text_style(tint_legend->GetTextProperty(), 13, Rgb{0.95, 0.80, 0.76});
-  tint_legend->SetInput(fmt::format("deeper red: tissue displaced (full at {:.1f} mm); d toggles", tint_full_mm).c_str());
+  tint_legend->SetInput(
+      fmt::format("deeper red: tissue displaced (full at {:.1f} mm); d toggles", tint_full_mm).c_str());
   renderer->AddViewProp(tint_legend);
   hud = make<vtkTextActor>();
   set_text_style(hud->GetTextProperty(), 15, Rgb{0.95, 0.97, 1.0});
@@ -80,12 +81,12 @@ void ProbeView::Impl::build_plot() {
   table->AddColumn(t);
   const int np = std::min(2, std::max<int>(1, int(setup.probes.size())));
   for (int p = 0; p < np; ++p) {
-    const std::string name =
-        p < int(setup.probe_names.size()) ? setup.probe_names[std::size_t(p)] : std::to_string(p);
+    const std::string name = p < int(setup.probe_names.size()) ? setup.probe_names[std::size_t(p)] : std::to_string(p);
     const std::string who = np > 1 ? " (" + name + ")" : "";
     const std::array<const char*, 3> names =
-        setup.local_shaping ? std::array<const char*, 3>{"raw sum per step", "device (local model, 1 kHz)", "physics update"}
-                            : std::array<const char*, 3>{"raw sum per step", "half sines played", "device update mean"};
+        setup.local_shaping
+            ? std::array<const char*, 3>{"raw sum per step", "device (local model, 1 kHz)", "physics update"}
+            : std::array<const char*, 3>{"raw sum per step", "half sines played", "device update mean"};
     for (const char* name : names) {
       auto col = make<vtkFloatArray>();
       col->SetName((name + who).c_str());
@@ -199,22 +200,21 @@ void ProbeView::Impl::update_hud_text() {
   if (setup.local_shaping) {
     // the physics updates the model; the device computes the force from it at its own rate
     const std::string rate = h.physics_rate.empty() ? fmt::format("{:.0f} steps/s (tissue {:.2f}x real time)",
-                                                                   h.physics_steps_per_s, h.real_time_factor)
-                                                     : h.physics_rate;
+                                                                  h.physics_steps_per_s, h.real_time_factor)
+                                                    : h.physics_rate;
     text += fmt::format("physics {:.0f} updates/s, {}\n{}", h.physics_updates_per_s, rate, config);
     text += fmt::format("device {:.0f} forces/s (local contact model)   display {:.1f} frames/s\n", h.device_hz,
                         fps.rate());
   } else {
-    const std::string rate =
-        h.physics_rate.empty()
-            ? fmt::format("{:.0f} steps/s ({:.2f}x real time)", h.physics_steps_per_s, h.real_time_factor)
-            : h.physics_rate;
+    const std::string rate = h.physics_rate.empty() ? fmt::format("{:.0f} steps/s ({:.2f}x real time)",
+                                                                  h.physics_steps_per_s, h.real_time_factor)
+                                                    : h.physics_rate;
     text += fmt::format("physics {}\n{}", rate, config);
     text += fmt::format("device {:.0f} updates/s   display {:.1f} frames/s\n", h.device_hz, fps.rate());
   }
   for (int p = 0; p < h.probes && p < 2; ++p) {
-    const std::string name = std::size_t(p) < setup.probe_names.size() ? setup.probe_names[std::size_t(p)]
-                                                                         : fmt::format("probe {}", p);
+    const std::string name =
+        std::size_t(p) < setup.probe_names.size() ? setup.probe_names[std::size_t(p)] : fmt::format("probe {}", p);
     if (setup.local_shaping)
       text += fmt::format("{}{}: force {:.3f} N  ({} nodes in contact, model of {})\n", name,
                           h.probes > 1 && p == h.active_probe ? " [keys]" : "", h.force_N[std::size_t(p)],
