@@ -318,8 +318,9 @@ std::string App::run_loops(const IoLines& lines) {
       "device", options_.device_hz, [this](std::int64_t n) { device_loop_->tick(n); },
       [] { (void)set_this_thread_name("vx-device"); });
   // the scene was loaded on this thread with OpenMP: its idle workers would make the physics'
-  // team sleep at every barrier (base/parallel.h)
-  (void)release_openmp_workers();
+  // team sleep at every barrier, and so would a team the display formed (its surface's normals)
+  // (base/parallel.h)
+  (void)leave_parallel_work_to_others();
   const auto old_int = std::signal(SIGINT, on_interrupt);
   const auto old_term = std::signal(SIGTERM, on_interrupt);
   physics.start();

@@ -27,6 +27,16 @@ namespace vx {
 /// (inside a parallel region, or a runtime without OpenMP 5's pause).
 inline bool release_openmp_workers() { return omp_pause_resource_all(omp_pause_soft) == 0; }
 
+/// For a thread that from now on leaves the parallel work to another (a display beside the
+/// physics): its idle workers go (release_openmp_workers) and its later parallel regions run on
+/// it alone, so it never forms a team again (its own OpenMP setting, omp_set_num_threads(1);
+/// parallel_for with 0 threads and Eigen follow it; the other threads keep theirs). Returns
+/// release_openmp_workers()'s answer.
+inline bool leave_parallel_work_to_others() {
+  omp_set_num_threads(1);
+  return release_openmp_workers();
+}
+
 /// Number of chunks parallel_for cuts [0, n) into.
 [[nodiscard]] inline std::int64_t chunk_count(std::int64_t n, std::int64_t grain) {
   grain = std::max<std::int64_t>(1, grain);

@@ -76,3 +76,31 @@ TEST(Parallel, ReleasingAThreadsWorkersEndsThem) {
   EXPECT_TRUE(released);
   EXPECT_EQ(after, before);
 }
+
+TEST(Parallel, AThreadThatLeavesTheWorkToOthersFormsNoTeamAgain) {
+#ifndef _LIBGOMP_OMP_LOCK_DEFINED
+  GTEST_SKIP() << "not GNU OpenMP: another runtime's pause may keep its workers asleep";
+#endif
+  if (thread_count() < 0) GTEST_SKIP() << "no /proc/self/task";
+  int before = 0, after = 0, max_threads = 0, other_max_threads = 0;
+  double one = 0.0, serial = 0.0;
+  std::thread t([&] {
+    before = thread_count();
+    one = chunked_sum(2);  // a team of 2: one idle worker after it
+    (void)leave_parallel_work_to_others();
+    max_threads = omp_get_max_threads();
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(5);
+    while (thread_count() > before && std::chrono::steady_clock::now() < deadline)
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    serial = chunked_sum(0);  // the default thread count: this thread alone, no worker
+    after = thread_count();
+  });
+  t.join();
+  std::thread other([&] { other_max_threads = omp_get_max_threads(); });
+  other.join();
+  EXPECT_EQ(max_threads, 1);
+  EXPECT_EQ(after, before);
+  EXPECT_EQ(serial, one);  // the same sum, bit for bit
+  // another thread keeps the default (the cores, or OMP_NUM_THREADS)
+  EXPECT_EQ(other_max_threads, omp_get_max_threads());
+}
