@@ -24,6 +24,18 @@ int thread_count() {
   return ec ? -1 : n;
 }
 
+/// The thread count once it has fallen to `n` (a released worker leaves on its own time), or
+/// after 5 s whatever it is then.
+int thread_count_once_at_most(int n) {
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(5);
+  int count = thread_count();
+  while (count > n && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    count = thread_count();
+  }
+  return count;
+}
+
 /// Per-chunk partial sums of 1/(i+1), reduced in chunk order.
 double chunked_sum(int threads) {
   const std::int64_t n = 100003, grain = 1000;
@@ -59,17 +71,10 @@ TEST(Parallel, ReleasingAThreadsWorkersEndsThem) {
   bool released = false;
   std::thread t([&] {
     before = thread_count();
-    // a region of 2 threads leaves this thread an idle worker
-    std::vector<int> hit(8, 0);
-    parallel_for(8, 1, 2, [&](std::int64_t b, std::int64_t e) {
-      for (std::int64_t i = b; i < e; ++i) hit[std::size_t(i)] = 1;
-    });
+    (void)chunked_sum(2);  // a team of 2: one idle worker after it
     with_team = thread_count();
     released = release_openmp_workers();
-    // the worker leaves on its own time: wait for it, at most 5 s
-    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(5);
-    while ((after = thread_count()) >= with_team && std::chrono::steady_clock::now() < deadline)
-      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    after = thread_count_once_at_most(before);
   });
   t.join();
   EXPECT_EQ(with_team, before + 1);
@@ -89,9 +94,7 @@ TEST(Parallel, AThreadThatLeavesTheWorkToOthersFormsNoTeamAgain) {
     one = chunked_sum(2);  // a team of 2: one idle worker after it
     (void)leave_parallel_work_to_others();
     max_threads = omp_get_max_threads();
-    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(5);
-    while (thread_count() > before && std::chrono::steady_clock::now() < deadline)
-      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    (void)thread_count_once_at_most(before);
     serial = chunked_sum(0);  // the default thread count: this thread alone, no worker
     after = thread_count();
   });
