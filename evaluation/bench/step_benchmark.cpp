@@ -43,6 +43,10 @@ std::string step_row_resolution(const StepBenchmarkRow& row) {
   return std::string(to_string(row.layout)) + (row.dimensions == 2 ? "-2d" : "");
 }
 
+std::vector<IntegratorKind> step_benchmark_integrators() {
+  return {IntegratorKind::explicit_euler, IntegratorKind::symplectic_euler, IntegratorKind::implicit};
+}
+
 std::vector<StepBenchmarkRow> run_step_benchmark(const StepBenchmarkSettings& set) {
   if (set.sizes.empty() || set.integrators.empty()) throw Error("step benchmark: no sizes or integrators");
   if (!(set.min_time_s >= 0) || set.min_steps < 1) throw Error("step benchmark: min_time_s >= 0 and min_steps >= 1");
