@@ -4,7 +4,8 @@
 # JOY (the same tilts after a wait) under a display and headless, --force-shaping local. The
 # physics' pace is simulated seconds over wall seconds: simulate's after its start-up (its own
 # summary line), the app's over the wall window [FROM, TO] s of its --force-log (`physics_s`
-# against `wall_s`: the press). Same dt, so the ratio is the ratio of steps per second.
+# against `wall_s`: the press). Same dt, so the ratio is the ratio of steps per second. The app
+# never runs the tissue faster than real time, so where simulate is faster the ratio is to 1x.
 #
 #   evaluation/app_vs_simulate.sh SCENE JOY FROM TO [OUT_DIR] [-- extra app and simulate options]
 #   e.g. evaluation/app_vs_simulate.sh folded-press-model.json samples/organ/folded-press.joy 60 70.5
@@ -55,9 +56,13 @@ display=$(run_app display "$here/scripts/with-display.sh")
 app_extra=(--headless)
 headless=$(run_app headless)
 
+# The app paces its physics to the wall clock: it never runs the tissue faster than real time.
+# So its figure is compared with what it can reach, simulate's pace up to 1x.
 awk -v s="$sim" -v d="$display" -v h="$headless" -v a="$from" -v b="$to" 'BEGIN {
+  r = s < 1 ? s : 1
+  what = s < 1 ? "simulate" : "real time, the app'"'"'s ceiling (simulate is faster)"
   printf "simulate after its start-up:      %.3fx real time\n", s
-  printf "app with a display, %g-%g s wall: %.3fx real time: %.0f %% of simulate\n", a, b, d, 100 * d / s
-  printf "app headless, the same window:    %.3fx real time: %.0f %% of simulate\n", h, 100 * h / s
+  printf "app with a display, %g-%g s wall: %.3fx real time: %.0f %% of %s\n", a, b, d, 100 * d / r, what
+  printf "app headless, the same window:    %.3fx real time: %.0f %% of %s\n", h, 100 * h / r, what
 }'
 echo "logs, force logs and the screenshot: $out"
