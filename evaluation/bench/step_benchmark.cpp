@@ -35,7 +35,8 @@ VoxelGrid make_disk_grid(int n, double voxel_mm) {
   VoxelGrid grid(g);
   const double c = 0.5 * n, r = 0.5 * n - 1.0;
   for (int j = 0; j < n; ++j)
-    for (int i = 0; i < n; ++i) grid.set(i, j, 0, (i + 0.5 - c) * (i + 0.5 - c) + (j + 0.5 - c) * (j + 0.5 - c) <= r * r);
+    for (int i = 0; i < n; ++i)
+      grid.set(i, j, 0, (i + 0.5 - c) * (i + 0.5 - c) + (j + 0.5 - c) * (j + 0.5 - c) <= r * r);
   return grid;
 }
 
@@ -67,8 +68,9 @@ std::vector<StepBenchmarkRow> run_step_benchmark(const StepBenchmarkSettings& se
     calibration.element = set.element;
     auto physics = make_physics_model(model, set.material, {}, calibration);
     const double build_s = seconds_since(t0);
-    log((flat ? "2D disk " : "sphere ") + std::to_string(n) + ": " + std::to_string(model->num_elements()) + " elements, " +
-        std::to_string(model->num_vertex_entries()) + " vertex entries, built in " + std::to_string(build_s) + " s");
+    log((flat ? "2D disk " : "sphere ") + std::to_string(n) + ": " + std::to_string(model->num_elements()) +
+        " elements, " + std::to_string(model->num_vertex_entries()) + " vertex entries, built in " +
+        std::to_string(build_s) + " s");
     // the lowest cap (one voxel high) is held; gravity pulls (a 2D disk: along -y, in its plane)
     const int down = flat ? 1 : 2;
     const double low = model->rest_positions.row(down).minCoeff();
@@ -133,9 +135,10 @@ std::vector<StepBenchmarkRow> run_step_benchmark(const StepBenchmarkSettings& se
       row.iterations = rep.iterations;
       if (state.failed()) row.note = state.message;
       char line[256];
-      std::snprintf(line, sizeof line, "  %-16s %9.3f ms/step  %6.2f ns/entry  dt %.2e s  real-time x%.3g  setup %.3f s%s",
-                    to_string(kind), row.step_s * 1e3, row.ns_per_entry, row.time_step_s, row.real_time_factor, row.setup_s,
-                    row.factor_nonzeros ? ("  nnz(L) " + std::to_string(row.factor_nonzeros)).c_str() : "");
+      std::snprintf(
+          line, sizeof line, "  %-16s %9.3f ms/step  %6.2f ns/entry  dt %.2e s  real-time x%.3g  setup %.3f s%s",
+          to_string(kind), row.step_s * 1e3, row.ns_per_entry, row.time_step_s, row.real_time_factor, row.setup_s,
+          row.factor_nonzeros ? ("  nnz(L) " + std::to_string(row.factor_nonzeros)).c_str() : "");
       log(line);
       rows.push_back(row);
     }

@@ -44,18 +44,18 @@ struct StepBenchmarkSettings {
   /// 3: sphere phantoms; 2: the 2D model of a disk n pixels across (one slice of voxel_mm
   /// thickness, docs/model.md section 12), its lowest cap held, gravity in its plane (-y)
   int dimensions{3};
-  Material material{5.0, 1000.0, 0.1, 0.0};  ///< soft tissue, E = 5 kPa
+  Material material{5.0, 1000.0, 0.1, 0.0};           ///< soft tissue, E = 5 kPa
   ElementKind element{CalibrationOptions{}.element};  ///< the element (physics_model.h)
   double voxel_mm{1.0};
-  int threads{0};                ///< 0: OpenMP default
-  double min_time_s{0.5};        ///< time each case at least this long
+  int threads{0};          ///< 0: OpenMP default
+  double min_time_s{0.5};  ///< time each case at least this long
   int min_steps{5};
   int warmup_steps{10};
   /// explicit integrators run at this fraction of their stable time step estimate
   double explicit_dt_fraction{0.5};
   double implicit_time_step_s{1e-3};  ///< the real-time target step
   int implicit_iterations{10};
-  int implicit_max_size{128};   ///< larger grids skip the implicit integrator (factorisation cost)
+  int implicit_max_size{128};                   ///< larger grids skip the implicit integrator (factorisation cost)
   std::function<void(const std::string&)> log;  ///< progress lines (may be empty)
 };
 
@@ -64,23 +64,23 @@ struct StepBenchmarkRow {
   int size{0};
   IntegratorKind integrator{IntegratorKind::symplectic_euler};
   Layout layout{Layout::gradational};
-  int dimensions{3};        ///< 2: the 2D disk (StepBenchmarkSettings::dimensions)
+  int dimensions{3};  ///< 2: the 2D disk (StepBenchmarkSettings::dimensions)
   int threads{0};
   int elements{0};
   int nodes{0};
   std::int64_t vertex_entries{0};
-  double build_s{0};        ///< build_model + calibration, s
-  double setup_s{0};        ///< first step (the implicit factorisation), s
-  double time_step_s{0};    ///< simulated dt, s
-  int steps{0};             ///< timed steps
-  double step_s{0};         ///< wall time per step, s
+  double build_s{0};      ///< build_model + calibration, s
+  double setup_s{0};      ///< first step (the implicit factorisation), s
+  double time_step_s{0};  ///< simulated dt, s
+  int steps{0};           ///< timed steps
+  double step_s{0};       ///< wall time per step, s
   double ns_per_element{0};
   double ns_per_entry{0};
-  double real_time_factor{0};  ///< dt / step time (>= 1: faster than real time)
-  int iterations{0};           ///< implicit: iterations per step
+  double real_time_factor{0};       ///< dt / step time (>= 1: faster than real time)
+  int iterations{0};                ///< implicit: iterations per step
   std::int64_t factor_nonzeros{0};  ///< implicit: nonzeros of the Cholesky factor
   bool skipped{false};
-  std::string note;            ///< why skipped, or a failure message
+  std::string note;  ///< why skipped, or a failure message
 };
 
 /// Runs the cases (sizes x integrators). Throws vx::Error for invalid settings.
