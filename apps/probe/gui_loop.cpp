@@ -130,6 +130,8 @@ HudInfo GuiLoop::hud(SteadyClock::time_point now) {
   h.physics_rate = physics_rate_text(now);
   h.paused = s_.controls.paused.load();
   h.behind_real_time = behind_;
+  h.physics_threads = s_.physics.threads.load(std::memory_order_relaxed);
+  h.physics_threads_given = s_.physics_threads;
   h.device_hz = device_rate_.rate();
   h.device_target_hz = s_.options.device_hz;
   h.probes = std::min(s_.probes, 2);

@@ -1,5 +1,7 @@
 #include "physics_loop.h"
 
+#include <omp.h>
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -27,6 +29,8 @@ void PhysicsLoop::tick() {
   // local shaping: the device thread is the one with a deadline; the physics' updates yield to
   // it when the CPU is short (Linux: per thread; the display yields more)
   if (s_.local && !started_) (void)set_this_thread_nice(2);
+  // sharing the cores: this thread's own OpenMP setting is what the core's loops follow
+  if (!started_ && s_.share_cores) omp_set_num_threads(share_.threads());
   apply_reset();
   Simulation& sim = s_.sim;
   const bool paused = s_.controls.paused.load();
@@ -34,6 +38,7 @@ void PhysicsLoop::tick() {
   last_ = now;
   if (!paused && !sim.failed()) {
     const double t0 = sim.time_s();
+    const bool was_started = s_.physics.started.load(std::memory_order_relaxed);
     int steps = 0;
     try {
       steps = advance(now, elapsed);
@@ -42,6 +47,8 @@ void PhysicsLoop::tick() {
       recover(fmt::format("the step threw: {}", e.what()), true);
     }
     if (sim.failed()) recover(fmt::format("{}: {}", to_string(sim.state().status), sim.state().message), false);
+    // the start-up's step (the factorisation) is not a step's load
+    if (was_started) share_cores(steps, seconds(SteadyClock::now() - now), sim.time_s() - t0);
     if (steps > 0 && !sim.failed()) keep_good_state(SteadyClock::now());
     if (publish(steps, t0)) {
       // the start-up ended: real time starts now (its wall time is not replayed, nor a lag)
@@ -164,6 +171,7 @@ int PhysicsLoop::advance(SteadyClock::time_point now, double elapsed) {
     }
   }
   const double lag = sim_target_s_ - sim.time_s();
+  lag_s_ = lag;
   if (lag > std::max(0.05, 3.0 * period)) {
     // cannot keep real time: drop the lag and go on in slow motion (the start-up's lag is the
     // start-up, not slow motion)
@@ -239,6 +247,18 @@ int PhysicsLoop::local_update(int steps, SteadyClock::time_point start) {
     s_.physics.updates.fetch_add(1, std::memory_order_relaxed);
   }
   return done;
+}
+
+void PhysicsLoop::share_cores(int steps, double busy_s, double sim_s) {
+  if (!s_.share_cores || steps <= 0) return;
+  PhysicsReport& r = s_.physics;
+  if (share_.threads() == 1) r.steps_on_one.fetch_add(steps, std::memory_order_relaxed);
+  const int before = share_.threads();
+  const int next = share_.after_steps(seconds(SteadyClock::now() - s_.start), busy_s, sim_s, lag_s_);
+  if (next == before) return;
+  omp_set_num_threads(next);
+  r.threads.store(next, std::memory_order_relaxed);
+  r.thread_changes.fetch_add(1, std::memory_order_relaxed);
 }
 
 bool PhysicsLoop::publish(int steps, double sim_before_s) {

@@ -18,12 +18,13 @@
 
 #include "app_shared.h"
 #include "sim/simulation.h"
+#include "thread_share.h"
 
 namespace vx::probe {
 
 class PhysicsLoop {
  public:
-  explicit PhysicsLoop(AppShared& shared) : s_(shared) {}
+  explicit PhysicsLoop(AppShared& shared) : s_(shared), share_(shared.share_cores ? shared.physics_threads : 1) {}
   /// One tick (the FixedRateThread body).
   void tick();
   /// Test hooks (--test-step-delay, --test-startup-delay): extra wall time per physics step, and
@@ -61,12 +62,17 @@ class PhysicsLoop {
   /// Publishes the steps and simulated time of this tick, the start-up, a failure; true when
   /// this tick ended the start-up.
   bool publish(int steps, double sim_before_s);
+  /// Sharing the cores: the threads for the next steps after this tick's `steps`, which took
+  /// `busy_s` of wall time and advanced `sim_s` (thread_share.h).
+  void share_cores(int steps, double busy_s, double sim_s);
 
   AppShared& s_;
+  ThreadShare share_;  ///< the physics' threads while it shares the cores (most 1: it does not)
   SteadyClock::time_point last_{};
   bool started_{false};
   double sim_target_s_{0.0};
   double lag_dropped_s_{0.0};
+  double lag_s_{0.0};  ///< behind real time after the last tick's steps (before a drop), s
   bool have_targets_{false};
   double step_cost_s_{0.0};  ///< wall time of one step (mean)
   double step_delay_s_{0.0};

@@ -1,6 +1,7 @@
 #include "probe_app.h"
 
 #include <fmt/core.h>
+#include <omp.h>
 
 #include <algorithm>
 #include <atomic>
@@ -180,7 +181,11 @@ void App::open_outputs() {
 
 void App::start_simulation() {
   // the simulation, with the options that override the scene
-  scene_.simulation.integrator.threads = options_.threads;
+  // sharing the cores (thread_share.h): the core's loops follow the physics thread's own OpenMP
+  // setting (0), which that thread sets to its share before each step
+  const int given = resolve_threads(options_.threads);
+  const bool share = options_.share_cores && given > 1;
+  scene_.simulation.integrator.threads = share ? 0 : given;
   // the second start of the same organ loads its factor instead of computing it (io/factor_cache.h)
   scene_.simulation.integrator.factor_cache = make_factor_cache(options_.factor_cache);
   // a session's memory flat: the contact solve's cache resident from the start, not filling as
@@ -209,6 +214,9 @@ void App::start_simulation() {
   shared_->local = local_;
   shared_->physics_period_s = 1.0 / options_.physics_hz;
   shared_->device_period_s = 1.0 / options_.device_hz;
+  shared_->physics_threads = given;
+  shared_->share_cores = share;
+  shared_->physics.threads.store(given);
   // the stick mapping: the command line over the scene over the defaults
   control_ = options_.control;
   if (scene_.control_from_scene) {
@@ -316,7 +324,13 @@ std::string App::run_loops(const IoLines& lines) {
       [] { (void)set_this_thread_name("vx-physics"); });
   FixedRateThread device(
       "device", options_.device_hz, [this](std::int64_t n) { device_loop_->tick(n); },
-      [] { (void)set_this_thread_name("vx-device"); });
+      [] {
+        (void)set_this_thread_name("vx-device");
+        // its deadline is 1 ms: the core's loops it calls run on it alone, never on a team of its
+        // own (with the physics sharing the cores the core runs with threads 0: each thread's own
+        // OpenMP setting)
+        omp_set_num_threads(1);
+      });
   // the scene was loaded on this thread with OpenMP: its idle workers would make the physics'
   // team sleep at every barrier, and so would a team the display formed (its surface's normals)
   // (base/parallel.h)
@@ -371,6 +385,14 @@ void App::summary(double wall_s) {
                                 : ", could not keep real time",
         steps, w.steps_per_s(), dt));
   }
+  if (shared_->share_cores)
+    say(fmt::format(
+        "physics threads: {}, the cores shared: {} of {} steps on one thread (ahead of real time "
+        "without the others), {} changes (--no-share-cores: every step on all {})",
+        shared_->physics_threads, r.steps_on_one.load(), steps, r.thread_changes.load(), shared_->physics_threads));
+  else
+    say(fmt::format("physics threads: {}{}", shared_->physics_threads,
+                    shared_->physics_threads > 1 ? ", every step on all of them (--no-share-cores)" : ""));
   if (local_)
     say(fmt::format("local force shaping: {} physics updates ({:.1f} per second), device clock {:.2f} s",
                     r.updates.load(), wall_s > 0 ? double(r.updates.load()) / wall_s : 0.0, device_loop_->clock_s()));

@@ -81,6 +81,9 @@ struct HudInfo {
   /// last 1 s)", or during the start-up "preparing the solver (3.2 s)"; empty: from the numbers
   std::string physics_rate;
   bool behind_real_time{false};  ///< physics cannot keep up
+  /// The threads the physics steps on now, of those it was given (thread_share.h)
+  int physics_threads{1};
+  int physics_threads_given{1};
   double device_hz{0.0};
   double device_target_hz{1000.0};  ///< the device thread's rate; below 90% of it the HUD warns
   int probes{0};

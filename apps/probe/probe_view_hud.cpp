@@ -197,19 +197,22 @@ void ProbeView::Impl::update_hud_text() {
   std::string text = fmt::format("{}   t = {:.2f} s{}\n", setup.title, h.sim_s, h.paused ? "   [PAUSED]" : "");
   // the solver's configuration on a line of its own: after the rate it ran under the plot
   const std::string config = setup.physics_line.empty() ? std::string() : "  solver: " + setup.physics_line + "\n";
+  // sharing the cores: on one thread while the others are not needed (the display has them)
+  const std::string threads =
+      h.physics_threads_given > 1 ? fmt::format(", {} of {} threads", h.physics_threads, h.physics_threads_given) : "";
   if (setup.local_shaping) {
     // the physics updates the model; the device computes the force from it at its own rate
     const std::string rate = h.physics_rate.empty() ? fmt::format("{:.0f} steps/s (tissue {:.2f}x real time)",
                                                                   h.physics_steps_per_s, h.real_time_factor)
                                                     : h.physics_rate;
-    text += fmt::format("physics {:.0f} updates/s, {}\n{}", h.physics_updates_per_s, rate, config);
+    text += fmt::format("physics {:.0f} updates/s, {}{}\n{}", h.physics_updates_per_s, rate, threads, config);
     text += fmt::format("device {:.0f} forces/s (local contact model)   display {:.1f} frames/s\n", h.device_hz,
                         fps.rate());
   } else {
     const std::string rate = h.physics_rate.empty() ? fmt::format("{:.0f} steps/s ({:.2f}x real time)",
                                                                   h.physics_steps_per_s, h.real_time_factor)
                                                     : h.physics_rate;
-    text += fmt::format("physics {}\n{}", rate, config);
+    text += fmt::format("physics {}{}\n{}", rate, threads, config);
     text += fmt::format("device {:.0f} updates/s   display {:.1f} frames/s\n", h.device_hz, fps.rate());
   }
   for (int p = 0; p < h.probes && p < 2; ++p) {

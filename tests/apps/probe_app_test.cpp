@@ -24,20 +24,7 @@ const fs::path kBinary = fs::path(VX_BINARY_DIR) / "apps" / "probe" / "voxelasti
 const fs::path kScene = fs::path(VX_SAMPLES_DIR) / "scenes" / "palpation-lesion.json";
 const fs::path kScript = fs::path(VX_SAMPLES_DIR) / "scenes" / "palpation-lesion.joy";
 
-// Under ThreadSanitizer (scripts/tsan.sh builds the app and this test with it) the app runs 5 to
-// 15 times slower: figures that depend on keeping real time get a wider margin there.
-#if defined(__SANITIZE_THREAD__)
-constexpr bool kUnderTsan = true;
-#elif defined(__has_feature)
-#if __has_feature(thread_sanitizer)
-constexpr bool kUnderTsan = true;
-#else
-constexpr bool kUnderTsan = false;
-#endif
-#else
-constexpr bool kUnderTsan = false;
-#endif
-
+using vx::testing::kUnderTsan;
 using vx::testing::RunResult;
 using vx::testing::slurp;
 
@@ -77,9 +64,12 @@ class ProbeApp : public ::testing::Test {
   }
   void TearDown() override { fs::remove_all(dir_); }
 
-  // runs the binary with `args` (a shell-quoted string) and an optional environment prefix
+  // runs the binary with `args` (a shell-quoted string) and an optional environment prefix; on
+  // one physics thread unless the args say (the tests run two at a time: two apps on all cores
+  // each would share two cores four ways, and the figures that keep real time would not)
   RunResult run(const std::string& args, const std::string& env = "") const {
-    return vx::testing::run_binary(kBinary, args, dir_, dir_, env);
+    const std::string threads = args.find("--threads") == std::string::npos ? " --threads 1" : "";
+    return vx::testing::run_binary(kBinary, args + threads, dir_, dir_, env);
   }
   static std::string q(const fs::path& p) {
     std::string s(1, '\'');

@@ -143,7 +143,7 @@ const std::map<std::string, std::vector<std::string>> kRoomOrder{
      {"usage", "commands", "cmd_bench", "cmd_convert", "cmd_palpate_map", "cmd_phantom", "cmd_plot", "cmd_simulate",
       "cmd_verify", "main"}},
     {"apps/probe",
-     {"joystick_script", "force_guard", "real_time_meter", "sim_exchange", "rate_thread", "soak", "display",
+     {"joystick_script", "force_guard", "real_time_meter", "thread_share", "sim_exchange", "rate_thread", "soak", "display",
       "sdl_input", "force_output", "stick_control",
       "probe_view probe_view_impl probe_view_actors probe_view_hud probe_view_levels", "probe_scene", "app_options",
       "app_shared", "device_loop", "gui_loop", "physics_loop", "probe_app", "main"}},

@@ -11,6 +11,20 @@
 
 namespace vx::testing {
 
+// Under ThreadSanitizer (scripts/tsan.sh builds the apps and their tests with it) a binary runs 5
+// to 15 times slower: figures that depend on keeping real time get a wider margin there.
+#if defined(__SANITIZE_THREAD__)
+inline constexpr bool kUnderTsan = true;
+#elif defined(__has_feature)
+#if __has_feature(thread_sanitizer)
+inline constexpr bool kUnderTsan = true;
+#else
+inline constexpr bool kUnderTsan = false;
+#endif
+#else
+inline constexpr bool kUnderTsan = false;
+#endif
+
 struct RunResult {
   int code{-1};  ///< exit code; -1 when killed by a signal (a crash)
   std::string out, err;

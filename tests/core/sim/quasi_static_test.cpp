@@ -4,12 +4,14 @@
 // reaches its tolerance; 1 and 2 threads give the same bits with
 // the fast configuration.
 #include <gtest/gtest.h>
+#include <omp.h>
 
-#include <cmath>
 #include <algorithm>
+#include <cmath>
 #include <cstring>
-#include <utility>
 #include <iostream>
+#include <thread>
+#include <utility>
 
 #include "base/error.h"
 #include "model/gradational_builder.h"
@@ -199,6 +201,43 @@ TEST(FastConfiguration, OneAndTwoThreadsGiveTheSameBits) {
         EXPECT_EQ(std::memcmp(ref.data(), s.positions.data(), sizeof(double) * std::size_t(ref.size())), 0)
             << to_string(kind);
     }
+  }
+}
+
+// The probe app shares the cores (apps/probe/thread_share.h): its core runs with threads 0 and
+// the physics thread changes its own OpenMP setting between steps. The steps give the same bits
+// as on one thread throughout.
+TEST(FastConfiguration, AThreadCountChangedBetweenStepsGivesTheSameBits) {
+  const auto model = ball(12);
+  CalibrationOptions opt;
+  opt.mass_scaling.time_step_s = 1e-4;
+  const auto p = make_physics_model(model, tissue(0.2), {}, opt);
+  for (IntegratorKind kind : {IntegratorKind::symplectic_euler, IntegratorKind::implicit}) {
+    Eigen::Matrix3Xd runs[2];
+    for (int changing : {0, 1}) {
+      // on a thread of its own: its OpenMP setting is its own (as the app's physics thread's)
+      std::thread([&] {
+        SimState s = make_state(p);
+        s.fix_nodes(bottom_cap(*model, 2.0));
+        s.gravity_mm_s2 = {0, 0, -kStandardGravityMmS2};
+        IntegratorSettings set;
+        set.kind = kind;
+        set.threads = changing ? 0 : 1;
+        set.time_step_s = kind == IntegratorKind::implicit ? 0.01 : 1e-4;
+        set.max_iterations = 3;
+        set.residual_tolerance_n = 1e-9;
+        auto integ = make_integrator(set);
+        for (int k = 0; k < 20; ++k) {
+          if (changing) omp_set_num_threads(k % 3 == 0 ? 1 : 2);
+          (void)integ->step(s);
+        }
+        EXPECT_FALSE(s.failed()) << s.message;
+        runs[changing] = s.positions;
+      }).join();
+    }
+    ASSERT_EQ(runs[0].size(), runs[1].size());
+    EXPECT_EQ(std::memcmp(runs[0].data(), runs[1].data(), sizeof(double) * std::size_t(runs[0].size())), 0)
+        << to_string(kind);
   }
 }
 

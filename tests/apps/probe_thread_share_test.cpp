@@ -1,0 +1,130 @@
+// Sharing the cores with the display (apps/probe/thread_share.h): when the physics goes to one
+// thread and back, driven by made-up step costs on a made-up clock.
+#include "thread_share.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <functional>
+
+namespace vx::probe {
+namespace {
+
+constexpr double kDt = 0.03;  // s: the fast configuration's step
+
+// Steps of kDt against a wall clock: a step starts when it is due (its simulated time in real
+// time) or, when the physics lags, at once, and costs cost(t, threads) s of wall time; the lag is
+// how far the wall clock is past the next step's due time (as PhysicsLoop::advance catches up).
+// Runs `seconds` of wall time on.
+struct Clocked {
+  ThreadShare share;
+  double wall{0.0};
+  double due{0.0};
+  double lag{0.0};
+  double max_lag_on_one{0.0};
+  int steps_on_one{0};
+
+  explicit Clocked(int most) : share(most) {}
+  void go(double seconds, const std::function<double(double, int)>& cost) {
+    const double end = wall + seconds;
+    while (wall < end) {
+      const int threads = share.threads();
+      wall = std::max(wall, due);
+      const double c = cost(wall, threads);
+      wall += c;
+      due += kDt;
+      lag = std::max(0.0, wall - due);
+      if (threads == 1) {
+        ++steps_on_one;
+        max_lag_on_one = std::max(max_lag_on_one, lag);
+      }
+      (void)share.after_steps(wall, c, kDt, lag);
+    }
+  }
+};
+
+TEST(ThreadShare, OneThreadGivenHasNothingToShare) {
+  Clocked r(1);
+  r.go(30.0, [](double, int) { return 0.001; });
+  EXPECT_EQ(r.share.threads(), 1);
+  EXPECT_EQ(r.share.changes(), 0);
+}
+
+TEST(ThreadShare, GoesToOneThreadAfterTheHoldOfLowLoad) {
+  ThreadShare s(2);
+  // load 0.3: twice that keeps real time
+  double t = 0.0;
+  s.after_steps(t, 0.009, kDt, 0.0);  // the window opens here
+  while (t + kDt < ThreadShare::kHold_s - 1e-9) {
+    t += kDt;
+    EXPECT_EQ(s.after_steps(t, 0.009, kDt, 0.0), 2) << t;
+  }
+  t = ThreadShare::kHold_s;
+  EXPECT_EQ(s.after_steps(t, 0.009, kDt, 0.0), 1);
+  EXPECT_EQ(s.changes(), 1);
+}
+
+TEST(ThreadShare, StaysOnAllWhenOneThreadWouldNotKeepRealTime) {
+  // load 0.46 on two threads: one thread could need 0.92 of real time, over kDrop
+  Clocked high(2);
+  high.go(60.0, [](double, int threads) { return (threads == 2 ? 0.46 : 0.92) * kDt; });
+  EXPECT_EQ(high.share.changes(), 0);
+  EXPECT_EQ(high.steps_on_one, 0);
+  // 0.44: one thread at twice that keeps it
+  Clocked low(2);
+  low.go(60.0, [](double, int threads) { return (threads == 2 ? 0.44 : 0.88) * kDt; });
+  EXPECT_EQ(low.share.changes(), 1);
+  EXPECT_EQ(low.share.threads(), 1);
+  EXPECT_GT(low.steps_on_one, 1800);  // all but the first 2 s of 60 s at 33 steps/s
+  EXPECT_EQ(low.max_lag_on_one, 0.0);
+}
+
+TEST(ThreadShare, ThreeThreadsGoToOneOnlyWhenThreeTimesTheLoadKeepsRealTime) {
+  Clocked r(3);
+  r.go(30.0, [](double, int threads) { return (threads == 3 ? 0.32 : 0.96) * kDt; });
+  EXPECT_EQ(r.share.changes(), 0);
+  Clocked s(3);
+  s.go(30.0, [](double, int threads) { return (threads == 3 ? 0.29 : 0.87) * kDt; });
+  EXPECT_EQ(s.share.threads(), 1);
+}
+
+TEST(ThreadShare, APressBringsTheThreadsBackWithinTheLag) {
+  // at rest (asleep: steps cost nothing), then from 10 s a press whose steps take 1.5 dt on one
+  // thread and 0.8 dt on two
+  Clocked r(2);
+  const auto cost = [](double t, int threads) {
+    if (t < 10.0) return 0.001;
+    return (threads == 2 ? 0.8 : 1.5) * kDt;
+  };
+  r.go(10.0, cost);
+  EXPECT_EQ(r.share.threads(), 1);
+  r.go(20.0, cost);
+  EXPECT_EQ(r.share.threads(), 2);
+  EXPECT_EQ(r.share.changes(), 2);  // down once, up once: no back and forth under the press
+  // it came back as soon as the lag passed kRiseLag_s: one step later at most
+  EXPECT_GT(r.max_lag_on_one, ThreadShare::kRiseLag_s);
+  EXPECT_LE(r.max_lag_on_one, ThreadShare::kRiseLag_s + 0.5 * kDt + 1e-12);
+}
+
+TEST(ThreadShare, ABurstItCatchesUpWithKeepsOneThread) {
+  // one thread at load 0.4 with a burst of three steps at 1.5 dt every 150 steps: 45 ms behind
+  // at most, caught up in the steps after
+  Clocked r(2);
+  int step = 0;
+  r.go(60.0, [&](double t, int threads) {
+    const bool burst = t > 3.0 && ++step % 150 < 3;
+    return (burst ? 1.5 : threads == 2 ? 0.2 : 0.4) * kDt;
+  });
+  EXPECT_EQ(r.share.changes(), 1);
+  EXPECT_EQ(r.share.threads(), 1);
+  EXPECT_GT(r.max_lag_on_one, 0.04);
+}
+
+TEST(ThreadShare, StepsWithoutSimulatedTimeChangeNothing) {
+  ThreadShare s(2);
+  for (int k = 0; k < 1000; ++k) EXPECT_EQ(s.after_steps(0.01 * k, 0.0, 0.0, 0.0), 2);
+  EXPECT_EQ(s.changes(), 0);
+}
+
+}  // namespace
+}  // namespace vx::probe
