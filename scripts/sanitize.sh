@@ -39,10 +39,7 @@ gl_tests='^Render\.|PictureUnderXvfb|^ProbeView\.|^ProbeApp\.'
 # Left out: a test that places its injected faults by physics step count on a Release build's
 # step rate (5500 steps/s; ASan gives about 1900, so the faults fall after the run's end). Its
 # code (the force guard, the rollback) runs under ASan in ProbeForceGuard.* and the unplug test.
-# And the test of sharing the cores, which needs the live-probe sample's steps under 45 % of real
-# time on two threads (a Release build's 20-30 %; ASan's are 2-3 times longer). The rule itself
-# runs under ASan in ThreadShare.*.
-timed_tests='^ProbeFaults\.EachFaultFades|^ProbeShare\.'
+timed_tests='^ProbeFaults\.EachFaultFades'
 scripts/with-display.sh ctest --test-dir "$build_dir" -LE slow -E "$gl_tests|$timed_tests" --output-on-failure -j "$jobs" "$@"
 ASAN_OPTIONS="detect_leaks=0:${ASAN_OPTIONS#detect_leaks=1:}" \
   scripts/with-display.sh ctest --test-dir "$build_dir" -LE slow -R "$gl_tests" --output-on-failure -j 1 "$@"

@@ -89,7 +89,7 @@ int main(int argc, char** argv) {
   g_run->add_option("--threads", o.threads, "physics threads (default 0: all cores)")->check(CLI::Range(0, 256));
   g_run->add_flag("--share-cores,!--no-share-cores", o.share_cores,
                   "while the physics runs well ahead of real time it steps on one of its threads and leaves the "
-                  "other cores to the display; back on all of them at the first step that needs them (default: on; "
+                  "other cores to the display; back on all of them as soon as it falls 50 ms behind (default: on; "
                   "--no-share-cores: every step on all --threads)");
   g_run->add_option(
       "--factor-cache", o.factor_cache,
