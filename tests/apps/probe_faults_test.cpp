@@ -74,11 +74,10 @@ class ProbeFaults : public ::testing::Test {
     fs::create_directories(dir_);
   }
   void TearDown() override { fs::remove_all(dir_); }
-  // on one physics thread: the tests run two at a time, and the fades are timed against real time
   vx::testing::RunResult run(const std::string& extra, const fs::path& csv) const {
     return vx::testing::run_binary(kBinary,
-                                   q(kScene) + " --headless --force-shaping local --threads 1 --virtual-joystick " +
-                                       q(kScript) + " --force-log " + q(csv) + " " + extra,
+                                   q(kScene) + " --headless --force-shaping local --virtual-joystick " + q(kScript) +
+                                       " --force-log " + q(csv) + " " + extra,
                                    dir_, dir_);
   }
   fs::path dir_;

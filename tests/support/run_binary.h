@@ -45,8 +45,8 @@ inline RunResult run_binary(const std::filesystem::path& binary, const std::stri
                             const std::filesystem::path& workdir, const std::filesystem::path& capture_dir,
                             const std::string& env = "") {
   const std::filesystem::path out = capture_dir / "stdout.txt", err = capture_dir / "stderr.txt";
-  const std::string cmd = "cd '" + workdir.string() + "' && " + env + " timeout 300 '" + binary.string() + "' " +
-                          args + " >'" + out.string() + "' 2>'" + err.string() + "'";
+  const std::string cmd = "cd '" + workdir.string() + "' && " + env + " timeout 300 '" + binary.string() + "' " + args +
+                          " >'" + out.string() + "' 2>'" + err.string() + "'";
   const int status = std::system(cmd.c_str());
   RunResult r;
   r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;

@@ -101,8 +101,8 @@ TEST(MassScaling, RaisesTheStableStepAsDerivedAndKeepsTheWeight) {
   const auto floored = make_physics_model(model, tissue(0.2), {}, fl);
   const TimeStepEstimate e2 = estimate_time_steps(*floored);
   std::cout << "floor for " << target << " s: stable step " << e2.symplectic_euler_s << " s, " << floored->scaled_nodes
-            << " of " << floored->num_nodes() << " nodes heavier, mass +" << 100 * floored->added_mass_kg / plain->total_mass_kg()
-            << " %\n";
+            << " of " << floored->num_nodes() << " nodes heavier, mass +"
+            << 100 * floored->added_mass_kg / plain->total_mass_kg() << " %\n";
   EXPECT_GE(e2.symplectic_euler_s, (1.0 - 1e-6) * 2.0 * target);
   EXPECT_GT(floored->scaled_nodes, 0);
   EXPECT_LT(floored->scaled_nodes, floored->num_nodes());
@@ -124,7 +124,8 @@ TEST(MassScaling, LeavesTheStaticSolutionUnchanged) {
   const auto plain = make_physics_model(model, tissue(0.5));
   CalibrationOptions opt;
   opt.mass_scaling.factor = 4.0;
-  opt.mass_scaling.time_step_s = 2.0 * automatic_time_step(estimate_time_steps(*plain), IntegratorKind::symplectic_euler);
+  opt.mass_scaling.time_step_s =
+      2.0 * automatic_time_step(estimate_time_steps(*plain), IntegratorKind::symplectic_euler);
   const auto scaled = make_physics_model(model, tissue(0.5), {}, opt);
   SimState st = make_state(scaled);
   st.fix_nodes(bottom_cap(*model, 3.0));
@@ -287,7 +288,9 @@ TEST(RegionalSolve, PartialSolvesAreExactOnTheirRows) {
     f.solve_unit_partial(rows[0], col.data());
     full.solve_unit(rows[0], colref.data());
     double cerr = 0, cmax = 0;
-    for (int i : closure) cerr = std::max(cerr, std::abs(col[std::size_t(i)] - colref[std::size_t(i)])), cmax = std::max(cmax, std::abs(colref[std::size_t(i)]));
+    for (int i : closure)
+      cerr = std::max(cerr, std::abs(col[std::size_t(i)] - colref[std::size_t(i)])),
+      cmax = std::max(cmax, std::abs(colref[std::size_t(i)]));
     EXPECT_LT(cerr, 1e-10 * cmax);
     // a force at a region row, applied on the closure only: exact there, nothing elsewhere
     SparseFactor::UnitForward z;
@@ -402,17 +405,20 @@ double pressed_force(const std::shared_ptr<const PhysicsModel>& p, double radius
   ss.integrator.threads = 1;
   ss.fixed_nodes = bottom_cap(*p->model, 3.0);
   const double ztop = p->model->rest_positions.row(2).maxCoeff();
-  const Eigen::Vector3d c = 0.5 * (p->model->rest_positions.rowwise().minCoeff() + p->model->rest_positions.rowwise().maxCoeff());
+  const Eigen::Vector3d c =
+      0.5 * (p->model->rest_positions.rowwise().minCoeff() + p->model->rest_positions.rowwise().maxCoeff());
   ProbeSettings probe;
   probe.name = "ball";
   probe.geometry.shape = ProbeShape::sphere;
   probe.geometry.radius_mm = 4.0;
-  probe.path = {{0.0, {c.x(), c.y(), ztop + 4.5}}, {0.5, {c.x(), c.y(), ztop + 1.0}}, {0.7, {c.x() + 1.0, c.y(), ztop + 1.0}}};
+  probe.path = {
+      {0.0, {c.x(), c.y(), ztop + 4.5}}, {0.5, {c.x(), c.y(), ztop + 1.0}}, {0.7, {c.x() + 1.0, c.y(), ztop + 1.0}}};
   ss.probes = {probe};
   Simulation sim(p, ss);
   while (sim.time_s() < 0.7 - 1e-9 && !sim.failed()) sim.step();
   EXPECT_FALSE(sim.failed()) << sim.state().message;
-  if (region_nodes) *region_nodes = sim.state().integrator_cache.solver ? sim.state().integrator_cache.solver->region_nodes() : 0;
+  if (region_nodes)
+    *region_nodes = sim.state().integrator_cache.solver ? sim.state().integrator_cache.solver->region_nodes() : 0;
   return sim.probe(0).raw_force_n.z();
 }
 
@@ -510,8 +516,9 @@ TEST(RegionalSolve, ASleepingNodeWakesWhenPressed) {
   while (sim.time_s() < 1.6 - 1e-9 && !sim.failed()) sim.step();
   ASSERT_FALSE(sim.failed()) << sim.state().message;
   const double moved = (sim.state().positions.col(watched) - x0).norm();
-  std::cout << "watched node " << watched << " moved " << moved << " mm once pressed; force " << sim.probe(0).raw_force_n.z()
-            << " N; sleeping element updates " << sim.counters().sleeping_element_updates << "\n";
+  std::cout << "watched node " << watched << " moved " << moved << " mm once pressed; force "
+            << sim.probe(0).raw_force_n.z() << " N; sleeping element updates "
+            << sim.counters().sleeping_element_updates << "\n";
   EXPECT_GT(moved, 0.5);
   EXPECT_GT(sim.probe(0).raw_force_n.z(), 0.0);
 }
