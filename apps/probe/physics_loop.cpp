@@ -258,7 +258,7 @@ void PhysicsLoop::share_cores(int steps, double busy_s, double sim_s) {
   if (next == before) return;
   omp_set_num_threads(next);
   r.threads.store(next, std::memory_order_relaxed);
-  r.thread_changes.fetch_add(1, std::memory_order_relaxed);
+  r.thread_changes.store(share_.changes(), std::memory_order_relaxed);
 }
 
 bool PhysicsLoop::publish(int steps, double sim_before_s) {

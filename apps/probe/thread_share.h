@@ -41,7 +41,6 @@ class ThreadShare {
   int after_steps(double now_s, double busy_s, double sim_s, double lag_s);
 
   [[nodiscard]] int threads() const { return threads_; }
-  [[nodiscard]] int most() const { return most_; }
   /// Changes of the thread count so far (either way).
   [[nodiscard]] std::int64_t changes() const { return changes_; }
 

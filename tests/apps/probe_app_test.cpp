@@ -64,12 +64,9 @@ class ProbeApp : public ::testing::Test {
   }
   void TearDown() override { fs::remove_all(dir_); }
 
-  // runs the binary with `args` (a shell-quoted string) and an optional environment prefix; on
-  // one physics thread unless the args say (the tests run two at a time: two apps on all cores
-  // each would share two cores four ways, and the figures that keep real time would not)
+  // runs the binary with `args` (a shell-quoted string) and an optional environment prefix
   RunResult run(const std::string& args, const std::string& env = "") const {
-    const std::string threads = args.find("--threads") == std::string::npos ? " --threads 1" : "";
-    return vx::testing::run_binary(kBinary, args + threads, dir_, dir_, env);
+    return vx::testing::run_binary(kBinary, args, dir_, dir_, env);
   }
   static std::string q(const fs::path& p) {
     std::string s(1, '\'');
