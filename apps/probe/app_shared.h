@@ -16,6 +16,10 @@
 ///                           rendering or stepping)
 ///   GUI     -> device:      the view basis (a mutex held for a copy); the keyboard (KeyboardStick)
 ///   GUI     -> all:         `AppControls` (pause, reset, screenshot, quit: atomics)
+///
+/// Every mutex that the device thread takes inherits priority (base/pi_mutex.h): the device runs
+/// at SCHED_FIFO, and a plain mutex held by the physics or the GUI would make it wait until the
+/// scheduler gave the holder a core again (priority inversion; tens of ms on a busy machine).
 
 #include <fmt/core.h>
 
@@ -30,6 +34,7 @@
 #include <vector>
 
 #include "app_options.h"
+#include "base/pi_mutex.h"
 #include "probe_view.h"
 #include "rate_thread.h"
 #include "real_time_meter.h"
@@ -73,7 +78,7 @@ struct AppControls {
   }
 
  private:
-  mutable std::mutex mutex_;
+  mutable PiMutex mutex_;
   std::string reason_;
 };
 
@@ -148,9 +153,9 @@ struct PhysicsReport {
   }
 
  private:
-  mutable std::mutex clock_mutex_;
+  mutable PiMutex clock_mutex_;
   SimClock clock_;
-  mutable std::mutex fault_mutex_;
+  mutable PiMutex fault_mutex_;
   std::string last_fault_;
 };
 
@@ -173,7 +178,7 @@ struct ForceStats {
 
 /// What the device loop hands the GUI (under `mutex`, held only to copy or swap).
 struct DeviceReport {
-  std::mutex mutex;
+  PiMutex mutex;
   HudForces hud;
   std::vector<PlotSample> plot_pending;
   std::vector<std::string> messages;
@@ -221,7 +226,7 @@ struct AppShared {
   }
 
  private:
-  mutable std::mutex basis_mutex_;
+  mutable PiMutex basis_mutex_;
   Eigen::Matrix3d basis_{Eigen::Matrix3d::Identity()};
 };
 

@@ -21,19 +21,19 @@ void SimulationExchange::set_live(int i, const LiveCommand& command) {
   if (!live_probe_[std::size_t(i)])
     throw Error("simulation: probe " + std::to_string(i) + " (" + names_[std::size_t(i)] +
                 ") is not live; give it \"live\": {} in the scene");
-  std::lock_guard<std::mutex> lock(mutex_);
+  std::lock_guard lock(mutex_);
   live_[std::size_t(i)] = command;
   live_dirty_[std::size_t(i)] = true;
   live_pending_.store(true, std::memory_order_release);
 }
 
 ProbeOutput SimulationExchange::probe(int i) const {
-  std::lock_guard<std::mutex> lock(mutex_);
+  std::lock_guard lock(mutex_);
   return published_.at(std::size_t(i));
 }
 
 bool SimulationExchange::take_frame(SimulationFrame& out) {
-  std::lock_guard<std::mutex> lock(mutex_);
+  std::lock_guard lock(mutex_);
   if (!frame_ready_) return false;
   std::swap(out, frame_);
   frame_ready_ = false;
@@ -42,7 +42,7 @@ bool SimulationExchange::take_frame(SimulationFrame& out) {
 
 void SimulationExchange::apply_live(Simulation& sim) {
   if (!live_pending_.exchange(false, std::memory_order_acq_rel)) return;
-  std::lock_guard<std::mutex> lock(mutex_);
+  std::lock_guard lock(mutex_);
   for (std::size_t i = 0; i < live_.size(); ++i)
     if (live_dirty_[i]) {
       sim.set_live(int(i), live_[i]);
@@ -55,7 +55,7 @@ void SimulationExchange::publish(Simulation& sim) {
   // the surface deformed and the frame copied before the lock (the device thread reads the
   // outputs meanwhile); under it only swapped
   if (frame) sim.copy_frame(staging_, frame_positions_.load(std::memory_order_relaxed));
-  std::lock_guard<std::mutex> lock(mutex_);
+  std::lock_guard lock(mutex_);
   for (std::size_t i = 0; i < published_.size(); ++i) published_[i] = sim.probe(int(i));
   if (frame) {
     std::swap(frame_, staging_);

@@ -12,7 +12,9 @@
 ///
 /// One mutex guards the commands, the outputs and the frame; it is held only to copy the small
 /// things (commands, outputs) and to swap the frame, which is copied before the lock: the device
-/// thread reads the outputs at 1 kHz and never waits for the megabytes of a frame.
+/// thread reads the outputs at 1 kHz and never waits for the megabytes of a frame. The mutex
+/// inherits priority (base/pi_mutex.h): the device thread at SCHED_FIFO that waits for it lends
+/// the physics thread its priority, so it never waits for a core the physics thread lacks.
 
 #include <atomic>
 #include <cstdint>
@@ -20,6 +22,7 @@
 #include <string>
 #include <vector>
 
+#include "base/pi_mutex.h"
 #include "sim/probe.h"
 #include "sim/simulation.h"
 
@@ -55,7 +58,7 @@ class SimulationExchange {
  private:
   std::vector<std::string> names_;  ///< per probe, for messages
   std::vector<bool> live_probe_;    ///< per probe: driven live
-  mutable std::mutex mutex_;
+  mutable PiMutex mutex_;
   std::vector<LiveCommand> live_;  ///< guarded
   std::vector<bool> live_dirty_;   ///< guarded
   std::atomic<bool> live_pending_{false};

@@ -16,6 +16,7 @@
 #include <mutex>
 #include <string>
 
+#include "base/pi_mutex.h"
 #include "sdl_input.h"
 #include "sim/probe.h"
 
@@ -110,7 +111,7 @@ class KeyboardStick {
 
  private:
   using Clock = std::chrono::steady_clock;
-  mutable std::mutex mutex_;
+  mutable PiMutex mutex_;
   std::array<bool, key_count> held_{};
   std::array<Clock::time_point, key_count> released_at_{};
   Eigen::Vector3d drag_{0, 0, 0};

@@ -26,7 +26,7 @@ int ThreadShare::after_steps(double now_s, double busy_s, double sim_s, double l
   if (!window_open_) set(threads_, now_s);
   window_busy_s_ += busy_s;
   window_sim_s_ += sim_s;
-  if (now_s - window_start_s_ < kHold_s) return threads_;
+  if (now_s - window_start_s_ < kHold_s || window_sim_s_ < kMinWindowSim_s) return threads_;
   // the window is over: one thread when even `most` times its load keeps real time
   set(window_busy_s_ * double(most_) < kDrop * window_sim_s_ ? 1 : most_, now_s);
   return threads_;

@@ -29,6 +29,9 @@ class ThreadShare {
   static constexpr double kDrop = 0.9;
   /// The wall time of low load before the physics goes to one thread, s.
   static constexpr double kHold_s = 2.0;
+  /// The simulated time a window needs before it decides, s: a window that spans a pause (no
+  /// steps, no calls) holds only the few steps around it, and waits for more.
+  static constexpr double kMinWindowSim_s = 0.5 * kHold_s;
   /// The lag behind real time on one thread that brings the others back, s.
   static constexpr double kRiseLag_s = 0.05;
 

@@ -77,7 +77,7 @@ void DeviceSide::after_reset() {
     m.resize(0);
     local_out_[i]->publish();
   }
-  std::lock_guard<std::mutex> lock(mutex_);
+  std::lock_guard lock(mutex_);
   published_ = outputs_;
 }
 
@@ -99,13 +99,13 @@ void DeviceSide::after_step() {
     }
   }
   if (has_device()) {
-    std::lock_guard<std::mutex> lock(mutex_);
+    std::lock_guard lock(mutex_);
     for (std::size_t i = 0; i < outputs_.size(); ++i) published_[i] = outputs_[i];
   }
 }
 
 DeviceOutput DeviceSide::output_snapshot(int i) const {
-  std::lock_guard<std::mutex> lock(mutex_);
+  std::lock_guard lock(mutex_);
   return published_.at(std::size_t(i));
 }
 

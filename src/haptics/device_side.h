@@ -25,6 +25,7 @@
 #include <string>
 #include <vector>
 
+#include "base/pi_mutex.h"
 #include "base/triple_buffer.h"
 #include "haptics/device_force.h"
 #include "haptics/local_compliance.h"
@@ -174,7 +175,7 @@ class DeviceSide final : public StepListener {
   Eigen::MatrixXd local_g_;
 
   // shared with other threads
-  mutable std::mutex mutex_;
+  mutable PiMutex mutex_;
   std::vector<DeviceOutput> published_;  ///< guarded
 };
 

@@ -9,6 +9,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <cstdio>
 #include <filesystem>
 #include <regex>
 #include <string>
@@ -37,10 +38,15 @@ TEST(ProbeSoak, AMinuteOfRandomPalpationOnAFoldedOrganStaysFiniteFlatAndRealTime
           kProbe, "folded.nrrd --headless --force-shaping local --soak-s 60 --seed 1 --test-step-delay 0.02", dir, dir);
   fs::remove_all(dir);
   ASSERT_EQ(r.code, 0) << r.out << r.err;
+  // the figures in the test's log, passed or failed (the device line: its longest tick, its priority)
+  std::smatch device;
+  const bool has_device = std::regex_search(r.out, device, std::regex(R"(device: \d+ ticks .*)"));
+  if (has_device) std::printf("%s\n", device.str().c_str());
   const std::regex line(
       R"(soak: 60 s, seed 1: non-finite (\d+) .*resident memory ([0-9.]+) MB after the warm-up \(at ([0-9.]+) s\), ([0-9.]+) MB at the end \(([-+0-9.]+) %; the contact solve's bounded cache ([0-9.]+) -> ([0-9.]+) MB, reserved at the start, the rest [-+0-9.]+ %\); device forces per second at least ([0-9.]+) over (\d+) one-second windows; tissue at the end ([0-9.]+) mm from its rest \(([^)]*)\), ([0-9.]+) % of its largest displacement ([0-9.]+) mm; energy guard (\d+) ticks)");
   std::smatch m;
   ASSERT_TRUE(std::regex_search(r.out, m, line)) << r.out;
+  std::printf("%s\n", m.str().c_str());
   EXPECT_EQ(std::stoi(m[1]), 0) << "non-finite values";
   EXPECT_GT(std::stod(m[2]), 50.0) << "the organ's memory was measured";
   // resident memory growth after the warm-up: 0.97-1.0 MB (0.75-0.77 %) in quiet runs, 1.35 MB
@@ -54,7 +60,8 @@ TEST(ProbeSoak, AMinuteOfRandomPalpationOnAFoldedOrganStaysFiniteFlatAndRealTime
   // the issue's aim is 950 in every second; on this shared 2-core machine the worst second read
   // 974-997 when it was quiet and 937-948 under a load of 8-10 (other builds), so CI, which runs
   // beside other tests, holds it to 900 (a device thread starved for 100 ms in one second)
-  EXPECT_GE(std::stod(m[8]), 900.0) << "device forces per second in the worst second";
+  EXPECT_GE(std::stod(m[8]), 900.0) << "device forces per second in the worst second; "
+                                    << (has_device ? device.str() : "no device line");
   EXPECT_GE(std::stoi(m[9]), 55) << "one-second windows";
   EXPECT_GT(std::stod(m[13]), 1.0) << "the presses deformed the tissue, mm";
   EXPECT_LT(std::stod(m[12]), 1.0) << "the tissue back at rest after the release, % of its largest displacement";

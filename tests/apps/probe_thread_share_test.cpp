@@ -120,6 +120,23 @@ TEST(ThreadShare, ABurstItCatchesUpWithKeepsOneThread) {
   EXPECT_GT(r.max_lag_on_one, 0.04);
 }
 
+TEST(ThreadShare, AWindowThatSpansAPauseWaitsForMoreSteps) {
+  // 0.3 s of light steps, a pause of 5 s (no steps, no calls), then a press at load 0.8 on two
+  // threads: deciding at the first step after the pause, on the light steps, would drop to one
+  // thread (and come back at the lag); the window waits for kMinWindowSim_s of steps instead
+  Clocked r(2);
+  bool pressing = false;
+  const auto cost = [&](double, int threads) { return (pressing ? 0.8 : 0.1) * (threads == 2 ? 1.0 : 2.0) * kDt; };
+  r.go(0.3, cost);
+  r.wall += 5.0;
+  r.due = r.wall;
+  pressing = true;
+  r.go(10.0, cost);
+  EXPECT_EQ(r.share.changes(), 0);
+  EXPECT_EQ(r.steps_on_one, 0);
+  EXPECT_EQ(r.share.threads(), 2);
+}
+
 TEST(ThreadShare, StepsWithoutSimulatedTimeChangeNothing) {
   ThreadShare s(2);
   for (int k = 0; k < 1000; ++k) EXPECT_EQ(s.after_steps(0.01 * k, 0.0, 0.0, 0.0), 2);
