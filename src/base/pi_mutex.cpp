@@ -1,6 +1,5 @@
 #include "base/pi_mutex.h"
 
-#include <cerrno>
 #include <system_error>
 
 namespace vx {

@@ -71,50 +71,56 @@ class Pinned {
 };
 
 bool real_time_permitted() {
-  std::atomic<bool> ran{false};
-  const Pinned probe(0, 1, [&] { ran = true; });
-  return probe.started();
+  return Pinned(0, 1, [] {}).started();
 }
 
-/// How long, s, the high thread waited for the lock (< 0: the threads could not be started).
+/// The stage on core `core`: how long, s, the high thread waited for the lock (< 0: a thread
+/// could not be started).
 template <class Mutex>
-double inversion_wait_s(Mutex& m) {
-  constexpr int kCore = 1;
-  // this thread off the staged core, so that it can start the others while the middle one spins
-  cpu_set_t self;
-  CPU_ZERO(&self);
-  CPU_SET(0, &self);
-  pthread_setaffinity_np(pthread_self(), sizeof self, &self);
-
+double stage_inversion(Mutex& m, int core) {
   std::atomic<bool> locked{false};
   std::atomic<bool> middle_on{false};
   double wait_s = -1.0;
+  const Pinned low(core, 0, [&] {
+    std::lock_guard lock(m);
+    locked = true;
+    const double t0 = thread_cpu_s();
+    while (thread_cpu_s() - t0 < 0.020) {
+    }
+  });
+  if (!low.started()) return -1.0;
+  while (!locked) std::this_thread::yield();
+  const Pinned middle(core, 2, [&] {
+    middle_on = true;
+    const auto until = Clock::now() + std::chrono::milliseconds(300);
+    while (Clock::now() < until) {
+    }
+  });
+  if (!middle.started()) return -1.0;
+  while (!middle_on) std::this_thread::yield();
   {
-    const Pinned low(kCore, 0, [&] {
-      std::lock_guard lock(m);
-      locked = true;
-      const double t0 = thread_cpu_s();
-      while (thread_cpu_s() - t0 < 0.020) {
-      }
-    });
-    while (!locked) std::this_thread::yield();
-    const Pinned middle(kCore, 2, [&] {
-      middle_on = true;
-      const auto until = Clock::now() + std::chrono::milliseconds(300);
-      while (Clock::now() < until) {
-      }
-    });
-    while (!middle_on) std::this_thread::yield();
-    const Pinned high(kCore, 3, [&] {
+    const Pinned high(core, 3, [&] {
       const auto t0 = Clock::now();
       std::lock_guard lock(m);
       wait_s = std::chrono::duration<double>(Clock::now() - t0).count();
     });
-    if (!low.started() || !middle.started() || !high.started()) return -1.0;
+    if (!high.started()) return -1.0;
   }
-  CPU_ZERO(&self);
-  for (int c = 0; c < CPU_SETSIZE; ++c) CPU_SET(c, &self);
-  pthread_setaffinity_np(pthread_self(), sizeof self, &self);
+  return wait_s;
+}
+
+/// The stage on core 1, with this thread on core 0 meanwhile (so that it can start the others
+/// while the middle one spins) and back on its own cores after.
+template <class Mutex>
+double inversion_wait_s(Mutex& m) {
+  cpu_set_t before;
+  pthread_getaffinity_np(pthread_self(), sizeof before, &before);
+  cpu_set_t off;
+  CPU_ZERO(&off);
+  CPU_SET(0, &off);
+  pthread_setaffinity_np(pthread_self(), sizeof off, &off);
+  const double wait_s = stage_inversion(m, 1);
+  pthread_setaffinity_np(pthread_self(), sizeof before, &before);
   return wait_s;
 }
 
