@@ -32,10 +32,10 @@ struct ControlSettings {
   /// - dead_zone: tilt below this counts as 0 (stick centre noise).
   /// Its `directions` are not used here: the view basis turns the stick into world motion.
   JoystickMapping mapping{JoystickMode::rate, Eigen::Matrix3d::Identity(), 25.0, 30.0, 0.08};
-  int z_axis{-1};                ///< axis for the third (depth) motion, e.g. 2 = twist, 3 = throttle; -1: buttons/hat only
-  bool invert_z_axis{false};     ///< flip the sign of z_axis
-  int z_away_button{0};          ///< button that moves the probe away from the user (into the screen)
-  int z_toward_button{1};        ///< button that moves it towards the user
+  int z_axis{-1};             ///< axis for the third (depth) motion, e.g. 2 = twist, 3 = throttle; -1: buttons/hat only
+  bool invert_z_axis{false};  ///< flip the sign of z_axis
+  int z_away_button{0};       ///< button that moves the probe away from the user (into the screen)
+  int z_toward_button{1};     ///< button that moves it towards the user
 };
 
 /// The command of one stick in the view frame, each component in [-1, 1]:
