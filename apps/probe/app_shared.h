@@ -125,10 +125,12 @@ struct PhysicsReport {
   /// section 7, "A tissue at rest sleeps"): a soak's end waits for it (DeviceLoop::soak_settled).
   std::atomic<bool> asleep{false};
   /// Sharing the cores (thread_share.h): the threads the physics steps on now, the steps it took
-  /// on one thread out of more, and how often it changed.
+  /// on one thread out of more, how often it changed, and its trials on one thread (all, kept).
   std::atomic<int> threads{1};
   std::atomic<std::int64_t> steps_on_one{0};
   std::atomic<std::int64_t> thread_changes{0};
+  std::atomic<std::int64_t> thread_trials{0};
+  std::atomic<std::int64_t> thread_trials_kept{0};
 
   [[nodiscard]] std::string last_fault() const {
     std::lock_guard lock(fault_mutex_);
@@ -198,7 +200,8 @@ struct AppShared {
   double physics_period_s{0.001};
   double device_period_s{0.001};
   /// The threads the physics was given (--threads, 0 resolved to the cores), and whether it
-  /// steps on one of them while it runs well ahead of real time (--share-cores; thread_share.h)
+  /// steps on one of them while it runs well ahead of real time or one is as fast (--share-cores;
+  /// thread_share.h)
   int physics_threads{1};
   bool share_cores{false};
   SteadyClock::time_point start{};  ///< the open: the threads started

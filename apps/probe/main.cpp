@@ -88,9 +88,10 @@ int main(int argc, char** argv) {
   g_run->add_option("--fps", o.fps, "display frame limit")->check(CLI::Range(1.0, 240.0));
   g_run->add_option("--threads", o.threads, "physics threads (0: all cores)")->check(CLI::Range(0, 256));
   g_run->add_flag("--share-cores,!--no-share-cores", o.share_cores,
-                  "while the physics runs well ahead of real time it steps on one of its threads and leaves the "
-                  "other cores to the display; back on all of them as soon as it falls 50 ms behind (default: on; "
-                  "--no-share-cores: every step on all --threads)");
+                  "while the physics runs well ahead of real time, or one thread is as fast as all (a trial now and "
+                  "then), it steps on one of its threads and leaves the other cores to the display; back on all of "
+                  "them when it falls 50 ms behind or its steps grow slower (default: on; --no-share-cores: every "
+                  "step on all --threads)");
   g_run->add_option(
       "--factor-cache", o.factor_cache,
       "where the implicit solver keeps its factors by the matrix's content, and the material's calibration by "

@@ -255,6 +255,8 @@ void PhysicsLoop::share_cores(int steps, double busy_s, double sim_s) {
   if (share_.threads() == 1) r.steps_on_one.fetch_add(steps, std::memory_order_relaxed);
   const int before = share_.threads();
   const int next = share_.after_steps(seconds(SteadyClock::now() - s_.start), busy_s, sim_s, lag_s_);
+  r.thread_trials.store(share_.trials(), std::memory_order_relaxed);
+  r.thread_trials_kept.store(share_.trials_kept(), std::memory_order_relaxed);
   if (next == before) return;
   omp_set_num_threads(next);
   r.threads.store(next, std::memory_order_relaxed);

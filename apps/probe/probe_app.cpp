@@ -388,8 +388,9 @@ void App::summary(double wall_s) {
   if (shared_->share_cores)
     say(fmt::format(
         "physics threads: {}, the cores shared: {} of {} steps on one thread (ahead of real time "
-        "without the others), {} changes (--no-share-cores: every step on all {})",
-        shared_->physics_threads, r.steps_on_one.load(), steps, r.thread_changes.load(), shared_->physics_threads));
+        "without the others, or as fast: {} of {} trials kept), {} changes (--no-share-cores: every step on all {})",
+        shared_->physics_threads, r.steps_on_one.load(), steps, r.thread_trials_kept.load(), r.thread_trials.load(),
+        r.thread_changes.load(), shared_->physics_threads));
   else
     say(fmt::format("physics threads: {}{}", shared_->physics_threads,
                     shared_->physics_threads > 1 ? ", every step on all of them (--no-share-cores)" : ""));

@@ -4,32 +4,77 @@
 
 namespace vx::probe {
 
-ThreadShare::ThreadShare(int most) : most_(std::max(1, most)), threads_(most_) {}
+ThreadShare::ThreadShare(int most) : most_(std::max(1, most)) {}
 
-void ThreadShare::set(int threads, double now_s) {
-  if (threads != threads_) ++changes_;
-  threads_ = threads;
+void ThreadShare::enter(Mode mode, double now_s) {
+  const int before = threads();
+  mode_ = mode;
+  if (threads() != before) ++changes_;
   window_open_ = true;
   window_start_s_ = now_s;
   window_busy_s_ = 0.0;
   window_sim_s_ = 0.0;
 }
 
-int ThreadShare::after_steps(double now_s, double busy_s, double sim_s, double lag_s) {
-  if (most_ == 1 || sim_s <= 0.0) return threads_;
-  if (threads_ == 1) {
-    // one thread falls behind: back to all of them
-    if (lag_s > kRiseLag_s) set(most_, now_s);
-    return threads_;
-  }
+bool ThreadShare::window_full(double now_s, double busy_s, double sim_s, double wall_s, double min_sim_s) {
   // the window starts with the first steps measured (the steps before them are the start-up)
-  if (!window_open_) set(threads_, now_s);
+  if (!window_open_) enter(mode_, now_s);
   window_busy_s_ += busy_s;
   window_sim_s_ += sim_s;
-  if (now_s - window_start_s_ < kHold_s || window_sim_s_ < kMinWindowSim_s) return threads_;
-  // the window is over: one thread when even `most` times its load keeps real time
-  set(window_busy_s_ * double(most_) < kDrop * window_sim_s_ ? 1 : most_, now_s);
-  return threads_;
+  return now_s - window_start_s_ >= wall_s && window_sim_s_ >= min_sim_s;
+}
+
+int ThreadShare::after_steps(double now_s, double busy_s, double sim_s, double lag_s) {
+  if (most_ == 1 || sim_s <= 0.0) return threads();
+  switch (mode_) {
+    case Mode::kAhead:
+      // one thread falls behind: back to all of them
+      if (lag_s > kRiseLag_s) enter(Mode::kAll, now_s);
+      break;
+    case Mode::kAll:
+      if (!window_full(now_s, busy_s, sim_s, kHold_s, kMinWindowSim_s)) break;
+      all_load_ = window_load();
+      // one thread when even `most` times the load keeps real time; else a trial when one is due
+      if (all_load_ * double(most_) < kDrop) {
+        enter(Mode::kAhead, now_s);
+      } else if (now_s >= next_trial_s_) {
+        ++trials_;
+        enter(Mode::kTrial, now_s);
+      } else {
+        enter(Mode::kAll, now_s);
+      }
+      break;
+    case Mode::kTrial: {
+      if (!window_full(now_s, busy_s, sim_s, kTrialWall_s, kTrialSim_s)) break;
+      const double load = window_load();
+      if (load <= kSame * all_load_) {
+        ++trials_kept_;
+        kept_load_ = load;
+        retry_s_ = kRetry_s;
+        recheck_s_ = now_s + kRecheck_s;
+        enter(load < kDrop ? Mode::kAhead : Mode::kKept, now_s);
+      } else {
+        next_trial_s_ = now_s + retry_s_;
+        retry_s_ = std::min(2.0 * retry_s_, kRetryMax_s);
+        enter(Mode::kAll, now_s);
+      }
+      break;
+    }
+    case Mode::kKept: {
+      if (!window_full(now_s, busy_s, sim_s, kTrialWall_s, kTrialSim_s)) break;
+      const double load = window_load();
+      if (load > kRise * kept_load_ || now_s >= recheck_s_) {
+        // the load changed (a press begins) or the machine may have: measure all threads again,
+        // and try one after that window
+        next_trial_s_ = now_s;
+        enter(Mode::kAll, now_s);
+      } else {
+        enter(load < kDrop ? Mode::kAhead : Mode::kKept, now_s);
+      }
+      break;
+    }
+  }
+  return threads();
 }
 
 }  // namespace vx::probe

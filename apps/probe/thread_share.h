@@ -1,22 +1,29 @@
 #pragma once
 /// @file thread_share.h
 /// How many threads the physics steps on when it shares the cores with a display: all it was
-/// given (`most`) while it needs them to keep real time, one while it runs well ahead of it, so
-/// that its idle OpenMP worker does not spin at the barriers inside each step on the core the
-/// display (and a software renderer) would use. The results do not change: the core's parallel
-/// loops give the same bits on any thread count (base/parallel.h).
+/// given (`most`) while they make it faster, one while it runs well ahead of real time or while
+/// one is as fast (a busy machine, a display on the other core), so that its idle OpenMP worker
+/// does not spin at the barriers inside each step on the core the display (and a software
+/// renderer) would use. The results do not change: the core's parallel loops give the same bits
+/// on any thread count (base/parallel.h).
 ///
-/// Going to one thread: the load is the wall time of the steps per simulated second (1: the steps
-/// take all of real time; a time the system held the physics up counts against going to one
-/// thread, never for it). On `most` threads the physics goes to one when the load times `most` has stayed below
-/// kDrop over kHold_s of wall time: on one thread the same steps take at most `most` times as
-/// long (no parallel speed-up is larger than the thread count), so the load there stays below
-/// kDrop and it keeps real time.
-///
-/// Going back: on one thread it goes back to `most` as soon as it lags real time by more than
-/// kRiseLag_s (a press begins, the solver refactors), so the tissue falls behind by that much at
-/// most. A burst of a few slow steps that it catches up with (the tick's budget is twice real
-/// time) is not a lag, and does not cost the display a kHold_s of spinning worker.
+/// The load is the wall time of the steps per simulated second (1: the steps take all of real
+/// time; a time the system held the physics up counts in it). Four modes:
+/// - **all** `most` threads, in windows of kHold_s of wall time (and kMinWindowSim_s of steps).
+///   When a window's load times `most` is below kDrop, it goes to **ahead**: no parallel speed-up
+///   is larger than the thread count, so one thread keeps real time with the same steps. Else,
+///   when a trial is due, it goes to **trial**.
+/// - **ahead**, one thread: back to all as soon as it lags real time by more than kRiseLag_s (a
+///   press begins, the solver refactors). A burst of a few slow steps that it catches up with (the
+///   tick's budget is twice real time) is not a lag.
+/// - **trial**, one thread for kTrialWall_s (and kTrialSim_s of steps): kept when its load is at
+///   most kSame times the load of the window on all threads before it (**kept**; ahead, when it
+///   keeps real time with room to spare). Else back to all; the next trial waits kRetry_s,
+///   doubled at each failed trial up to kRetryMax_s, so a scene that needs its threads loses a
+///   trial's few steps of pace now and then.
+/// - **kept**, one thread, in windows as long as a trial's: back to all (a trial due after their
+///   first window) when a window's load passes kRise times the kept trial's (a press begins), or
+///   after kRecheck_s (the machine may have quietened).
 /// docs/probe.md, "Sharing the cores with the display".
 
 #include <cstdint>
@@ -27,13 +34,27 @@ class ThreadShare {
  public:
   /// One thread when `most` times the load on `most` threads is below this.
   static constexpr double kDrop = 0.9;
-  /// The wall time of low load before the physics goes to one thread, s.
+  /// The wall time of a window on all threads, s.
   static constexpr double kHold_s = 2.0;
-  /// The simulated time a window needs before it decides, s: a window that spans a pause (no
-  /// steps, no calls) holds only the few steps around it, and waits for more.
+  /// The simulated time a window on all threads needs before it decides, s: a window that spans a
+  /// pause (no steps, no calls) holds only the few steps around it, and waits for more.
   static constexpr double kMinWindowSim_s = 0.5 * kHold_s;
-  /// The lag behind real time on one thread that brings the others back, s.
+  /// The lag behind real time, ahead on one thread, that brings the others back, s.
   static constexpr double kRiseLag_s = 0.05;
+  /// A trial's (and a kept window's) wall time and simulated time, s.
+  static constexpr double kTrialWall_s = 0.5;
+  static constexpr double kTrialSim_s = 0.15;
+  /// A trial is kept when its load is at most this times the load on all threads.
+  static constexpr double kSame = 1.1;
+  /// Kept on one thread, a window whose load passes this times the trial's brings the others back.
+  static constexpr double kRise = 1.3;
+  /// The wait after a failed trial, s, doubled at each failure up to kRetryMax_s.
+  static constexpr double kRetry_s = 10.0;
+  static constexpr double kRetryMax_s = 80.0;
+  /// Kept on one thread, the wall time after which it measures all threads again, s.
+  static constexpr double kRecheck_s = 30.0;
+
+  enum class Mode { kAll, kAhead, kTrial, kKept };
 
   /// `most`: the threads the physics was given (>= 1; 1: nothing to share).
   explicit ThreadShare(int most);
@@ -43,19 +64,35 @@ class ThreadShare {
   /// time, any fixed origin): the threads for the next steps.
   int after_steps(double now_s, double busy_s, double sim_s, double lag_s);
 
-  [[nodiscard]] int threads() const { return threads_; }
+  [[nodiscard]] int threads() const { return mode_ == Mode::kAll ? most_ : 1; }
+  [[nodiscard]] Mode mode() const { return mode_; }
   /// Changes of the thread count so far (either way).
   [[nodiscard]] std::int64_t changes() const { return changes_; }
+  /// Trials on one thread so far, and those kept (one thread as fast).
+  [[nodiscard]] std::int64_t trials() const { return trials_; }
+  [[nodiscard]] std::int64_t trials_kept() const { return trials_kept_; }
 
  private:
-  void set(int threads, double now_s);
+  /// Enters `mode` at `now_s` with a new window.
+  void enter(Mode mode, double now_s);
+  /// Adds a tick to the window; true when it holds `wall_s` of wall time and `sim_s` of steps.
+  bool window_full(double now_s, double busy_s, double sim_s, double wall_s, double min_sim_s);
+  [[nodiscard]] double window_load() const { return window_busy_s_ / window_sim_s_; }
+
   int most_;
-  int threads_;
+  Mode mode_{Mode::kAll};
   std::int64_t changes_{0};
+  std::int64_t trials_{0};
+  std::int64_t trials_kept_{0};
   bool window_open_{false};
   double window_start_s_{0.0};
   double window_busy_s_{0.0};
   double window_sim_s_{0.0};
+  double all_load_{0.0};      ///< the load of the last window on all threads
+  double kept_load_{0.0};     ///< the load of the kept trial
+  double next_trial_s_{0.0};  ///< no trial before this wall time
+  double retry_s_{kRetry_s};  ///< the wait after the next failed trial
+  double recheck_s_{0.0};     ///< kept: all threads again at this wall time
 };
 
 }  // namespace vx::probe

@@ -39,13 +39,15 @@ class ProbeShare : public ::testing::Test {
   fs::path dir_;
 };
 
-// It goes to one of its two threads after a hold of 2 s of low load; slowed on purpose to more
-// than 45 % of real time per step it stays on both; with --no-share-cores every step is on both.
-TEST_F(ProbeShare, ThePhysicsSharesTheCoresOnlyWhileItRunsWellAhead) {
+// It goes to one of its two threads after a hold of 2 s of low load. Slowed on purpose to more
+// than 45 % of real time per step (a sleep, which no thread count shortens) it tries one thread
+// after that hold and keeps it: as fast. With --no-share-cores every step is on both. When a
+// trial finds two threads faster: ThreadShare's tests (probe_thread_share_test.cpp).
+TEST_F(ProbeShare, ThePhysicsSharesTheCoresWhileItRunsWellAheadOrOneThreadIsAsFast) {
   if (vx::testing::kUnderTsan) GTEST_SKIP() << "under TSan the app's figures are not real time";
   const std::regex line(
       R"(physics threads: 2, the cores shared: (\d+) of (\d+) steps on one thread \(ahead of real time )"
-      R"(without the others\), (\d+) changes)");
+      R"(without the others, or as fast: (\d+) of (\d+) trials kept\), (\d+) changes)");
   std::smatch m;
   vx::testing::RunResult r = run("--duration 5");
   ASSERT_EQ(r.code, 0) << r.out << r.err;
@@ -53,13 +55,19 @@ TEST_F(ProbeShare, ThePhysicsSharesTheCoresOnlyWhileItRunsWellAhead) {
   // down at the end of the first window of 2 s of wall time: the last 3 of 5 s, 99 of 167 steps
   // (98 read in quiet and in busy runs)
   EXPECT_NEAR(std::stod(m[1]), 0.6 * std::stod(m[2]), 0.05 * std::stod(m[2])) << r.out;
-  EXPECT_EQ(m[3], "1") << r.out;
-  // 20 ms of sleep per 30 ms step: 67 % of real time more, over 45 % in all
+  EXPECT_EQ(m[3], "0") << r.out;  // no trial: the load alone sent it to one thread
+  EXPECT_EQ(m[4], "0") << r.out;
+  EXPECT_EQ(m[5], "1") << r.out;
+  // 20 ms of sleep per 30 ms step: 67 % of real time or more, over 45 % in all. The trial takes
+  // one thread at the end of the first window (2 s) and keeps it: the last 1 of 3 s, 33 of 100
+  // steps (31 read)
   r = run("--duration 3 --test-step-delay 0.02");
   ASSERT_EQ(r.code, 0) << r.out << r.err;
   ASSERT_TRUE(std::regex_search(r.out, m, line)) << r.out;
-  EXPECT_EQ(m[1], "0") << r.out;
-  EXPECT_EQ(m[3], "0") << r.out;
+  EXPECT_NEAR(std::stod(m[1]), 0.33 * std::stod(m[2]), 0.06 * std::stod(m[2])) << r.out;
+  EXPECT_EQ(m[3], "1") << r.out;
+  EXPECT_EQ(m[4], "1") << r.out;
+  EXPECT_EQ(m[5], "1") << r.out;
   r = run("--duration 1 --no-share-cores");
   ASSERT_EQ(r.code, 0) << r.out << r.err;
   EXPECT_NE(r.out.find("physics threads: 2, every step on all of them (--no-share-cores)"), std::string::npos) << r.out;
