@@ -16,12 +16,12 @@ void ThreadShare::enter(Mode mode, double now_s) {
   window_sim_s_ = 0.0;
 }
 
-bool ThreadShare::window_full(double now_s, double busy_s, double sim_s, double wall_s, double min_sim_s) {
+bool ThreadShare::window_full(double now_s, double busy_s, double sim_s, double wall_s, double min_s) {
   // the window starts with the first steps measured (the steps before them are the start-up)
   if (!window_open_) enter(mode_, now_s);
   window_busy_s_ += busy_s;
   window_sim_s_ += sim_s;
-  return now_s - window_start_s_ >= wall_s && window_sim_s_ >= min_sim_s;
+  return now_s - window_start_s_ >= wall_s && std::max(window_sim_s_, window_busy_s_) >= min_s;
 }
 
 int ThreadShare::after_steps(double now_s, double busy_s, double sim_s, double lag_s) {

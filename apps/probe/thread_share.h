@@ -36,12 +36,15 @@ class ThreadShare {
   static constexpr double kDrop = 0.9;
   /// The wall time of a window on all threads, s.
   static constexpr double kHold_s = 2.0;
-  /// The simulated time a window on all threads needs before it decides, s: a window that spans a
-  /// pause (no steps, no calls) holds only the few steps around it, and waits for more.
+  /// What a window on all threads needs before it decides, s: this much simulated time or this
+  /// much of the steps' wall time. A window that spans a pause (no steps, no calls) holds only the
+  /// few steps around it and waits for more; a physics far behind real time (0.07x) has spent its
+  /// window in steps and decides at its end.
   static constexpr double kMinWindowSim_s = 0.5 * kHold_s;
   /// The lag behind real time, ahead on one thread, that brings the others back, s.
   static constexpr double kRiseLag_s = 0.05;
-  /// A trial's (and a kept window's) wall time and simulated time, s.
+  /// A trial's (and a kept window's) wall time, and the simulated time (or the steps' wall time)
+  /// it needs, s.
   static constexpr double kTrialWall_s = 0.5;
   static constexpr double kTrialSim_s = 0.15;
   /// A trial is kept when its load is at most this times the load on all threads.
@@ -75,8 +78,9 @@ class ThreadShare {
  private:
   /// Enters `mode` at `now_s` with a new window.
   void enter(Mode mode, double now_s);
-  /// Adds a tick to the window; true when it holds `wall_s` of wall time and `sim_s` of steps.
-  bool window_full(double now_s, double busy_s, double sim_s, double wall_s, double min_sim_s);
+  /// Adds a tick to the window; true when it spans `wall_s` of wall time and holds `min_s` of
+  /// simulated time or of the steps' wall time.
+  bool window_full(double now_s, double busy_s, double sim_s, double wall_s, double min_s);
   [[nodiscard]] double window_load() const { return window_busy_s_ / window_sim_s_; }
 
   int most_;

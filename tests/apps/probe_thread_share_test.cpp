@@ -204,6 +204,19 @@ TEST(ThreadShare, TheRecheckFindsAQuietMachine) {
   EXPECT_EQ(r.share.mode(), ThreadShare::Mode::kAll);
 }
 
+// Far behind real time: a tiny model whose two threads wait at every barrier for a worker that a
+// busy machine has not scheduled (0.4 s a 30 ms step on two, 60 ms on one). Its window holds
+// 0.4 s of simulated time in 2 s of wall time, all of it in steps, and decides at its end: the
+// trial keeps one thread. (Waiting for 1 s of simulated time, it would decide after 13 s.)
+TEST(ThreadShare, APhysicsFarBehindDecidesAtItsWindowsEnd) {
+  Clocked r(2);
+  r.go(5.0, [](double, int threads) { return threads == 2 ? 0.4 : 0.06; });
+  EXPECT_EQ(r.share.trials(), 1);
+  EXPECT_EQ(r.share.trials_kept(), 1);
+  EXPECT_EQ(r.share.threads(), 1);
+  EXPECT_EQ(r.share.mode(), ThreadShare::Mode::kKept);  // 2x real time on one: not ahead
+}
+
 TEST(ThreadShare, StepsWithoutSimulatedTimeChangeNothing) {
   ThreadShare s(2);
   for (int k = 0; k < 1000; ++k) EXPECT_EQ(s.after_steps(0.01 * k, 0.0, 0.0, 0.0), 2);

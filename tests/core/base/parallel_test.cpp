@@ -1,11 +1,13 @@
 // The core's parallel loop (base/parallel.h): chunk boundaries that do not depend on the thread
-// count (the same sums on 1 and 2 threads, bit for bit), and release_openmp_workers, which ends a
+// count (the same sums on 1 and 2 threads, bit for bit), no fork for less than two full chunks,
+// and release_openmp_workers, which ends a
 // thread's idle OpenMP workers (they are counted against the cores by GNU OpenMP, and slow every
 // other team's waits: the microbenchmark team/*).
 #include "base/parallel.h"
 
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
@@ -60,6 +62,39 @@ TEST(Parallel, ChunksDoNotDependOnTheThreadCount) {
   EXPECT_EQ(one, two);  // bit for bit
   // the harmonic number H_n = ln n + gamma + 1/(2n) - ..., within 1e-9
   EXPECT_NEAR(one, std::log(100003.0) + 0.5772156649015329 + 0.5 / 100003.0, 1e-9);
+}
+
+// It forks at most one thread per full chunk: less than two full chunks run on the calling
+// thread, in chunk order; two full chunks fork two threads (each chunk waits for the other to
+// start, so one thread alone could not finish).
+TEST(Parallel, LessThanTwoFullChunksRunOnTheCallingThread) {
+  const auto threads_used = [](std::int64_t n, std::int64_t grain) {
+    std::vector<std::thread::id> who(std::size_t(chunk_count(n, grain)));
+    std::vector<std::int64_t> order;
+    parallel_for_chunks(n, grain, 2, [&](std::int64_t c, std::int64_t, std::int64_t) {
+      who[std::size_t(c)] = std::this_thread::get_id();
+#pragma omp critical
+      order.push_back(c);
+    });
+    return std::make_pair(who, order);
+  };
+  // 1,138 items in chunks of 1,024: one full chunk and 114 items
+  const auto [who, order] = threads_used(1138, 1024);
+  ASSERT_EQ(who.size(), 2u);
+  EXPECT_EQ(who[0], std::this_thread::get_id());
+  EXPECT_EQ(who[1], std::this_thread::get_id());
+  EXPECT_EQ(order, (std::vector<std::int64_t>{0, 1}));
+  // 2,048: two full chunks on two threads, which meet inside the chunks
+  std::atomic<int> arrived{0};
+  std::vector<std::thread::id> two(2);
+  parallel_for_chunks(2048, 1024, 2, [&](std::int64_t c, std::int64_t, std::int64_t) {
+    two[std::size_t(c)] = std::this_thread::get_id();
+    arrived.fetch_add(1);
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(5);
+    while (arrived.load() < 2 && std::chrono::steady_clock::now() < deadline) std::this_thread::yield();
+  });
+  EXPECT_EQ(arrived.load(), 2);
+  EXPECT_NE(two[0], two[1]);
 }
 
 TEST(Parallel, ReleasingAThreadsWorkersEndsThem) {
