@@ -49,9 +49,9 @@ inline bool leave_parallel_work_to_others() {
 /// full chunk: a range of less than two full chunks runs on the calling thread, in chunk order
 /// (the same chunks, so the same bits). A small model's loops (an explicit step of 1,138 nodes:
 /// one full node chunk and 114 nodes) then never wait at a barrier for a worker that a busy
-/// machine has not scheduled: 381 steps/s on two threads beside a test suite, against about
-/// 5,500 on one (docs/probe.md, "Sharing the cores with the display"). fn must not throw and
-/// must not write what another chunk writes.
+/// machine has not scheduled (it read 381 steps/s on two threads beside a test suite, where real
+/// time needs about 5,500: docs/probe.md, "Sharing the cores with the display"). fn must not
+/// throw and must not write what another chunk writes.
 template <class Fn>
 void parallel_for_chunks(std::int64_t n, std::int64_t grain, int threads, Fn&& fn) {
   grain = std::max<std::int64_t>(1, grain);
