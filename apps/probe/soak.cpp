@@ -77,23 +77,43 @@ std::int64_t resident_bytes() {
   return n == 2 ? std::int64_t(resident) * std::int64_t(sysconf(_SC_PAGESIZE)) : 0;
 }
 
+double cpu_steal_s() {
+  std::FILE* f = std::fopen("/proc/stat", "r");
+  if (!f) return 0.0;
+  // cpu  user nice system idle iowait irq softirq steal ...
+  unsigned long long v[8] = {};
+  const int n = std::fscanf(f, "cpu %llu %llu %llu %llu %llu %llu %llu %llu", &v[0], &v[1], &v[2], &v[3], &v[4], &v[5],
+                            &v[6], &v[7]);
+  std::fclose(f);
+  const long hz = sysconf(_SC_CLK_TCK);
+  return n == 8 && hz > 0 ? double(v[7]) / double(hz) : 0.0;
+}
+
 void SoakMonitor::sample(double wall_s, std::int64_t device_ticks, double started_at_s, std::int64_t cache_bytes,
                          double quiet_from_s) {
   // the device's rate over each whole second (from the first second on)
-  if (window_start_s_ < 0) {
+  // (and the hypervisor's steal in each: read only where a window starts or ends)
+  const auto open_window = [&] {
     window_start_s_ = wall_s;
     window_ticks_ = device_ticks;
-  } else if (started_at_s < 0 || window_start_s_ < started_at_s) {
+    // (not read at every GUI pass of a start-up, only once the physics runs)
+    window_steal_s_ = steal_s_ && started_at_s >= 0 ? steal_s_() : 0.0;
+  };
+  if (window_start_s_ < 0 || started_at_s < 0 || window_start_s_ < started_at_s) {
     // before the physics' first step (a start-up of seconds on an organ) the device plays
     // nothing: the windows count from then on
-    window_start_s_ = wall_s;
-    window_ticks_ = device_ticks;
+    open_window();
   } else if (wall_s - window_start_s_ >= 1.0) {
     const double rate = double(device_ticks - window_ticks_) / (wall_s - window_start_s_);
-    min_rate_ = windows_ == 0 ? rate : std::min(min_rate_, rate);
+    const double steal_before = window_steal_s_;
+    open_window();
+    const double steal = std::max(0.0, window_steal_s_ - steal_before);
+    if (windows_ == 0 || rate < min_rate_) {
+      min_rate_ = rate;
+      worst_steal_s_ = steal;
+    }
+    max_steal_s_ = std::max(max_steal_s_, steal);
     ++windows_;
-    window_start_s_ = wall_s;
-    window_ticks_ = device_ticks;
   }
   // memory: once after the warm-up, then at the end (sampled at most 10 times a second)
   // (the warm-up counts from the physics' start, or from the end of the start-up's background

@@ -7,6 +7,7 @@
 /// tissue back at rest after the release. docs/robustness.md, "Soak".
 
 #include <cstdint>
+#include <functional>
 #include <random>
 #include <string>
 
@@ -35,11 +36,19 @@ struct SoakMotion {
 /// Resident memory of this process now, bytes (0 where /proc is not there).
 [[nodiscard]] std::int64_t resident_bytes();
 
+/// CPU time the hypervisor has taken from this machine's CPUs since boot ("steal", the eighth
+/// figure of /proc/stat's `cpu` line), summed over the CPUs, s; 0 on bare metal or without /proc.
+/// In a virtual machine a device tick can be late with no thread of ours in its way: the whole
+/// guest does not run (docs/probe.md, "The device thread's late seconds").
+[[nodiscard]] double cpu_steal_s();
+
 /// The GUI thread's part of the judgement: memory and the device's rate per whole second.
 class SoakMonitor {
  public:
   /// `warm_up_s`: memory is compared from this long after the physics' first step on.
-  explicit SoakMonitor(double warm_up_s) : warm_up_s_(warm_up_s) {}
+  /// `steal_s`: reads the machine's steal so far, s (cpu_steal_s; a test passes its own).
+  explicit SoakMonitor(double warm_up_s, std::function<double()> steal_s = cpu_steal_s)
+      : warm_up_s_(warm_up_s), steal_s_(std::move(steal_s)) {}
   /// Called often (every GUI pass): wall time since the open, the device's ticks so far, the
   /// wall time the physics started at (< 0: not yet). The windows count from the physics' start.
   /// `cache_bytes`: the contact solver's bounded cache now (kept beside the resident memory).
@@ -49,6 +58,10 @@ class SoakMonitor {
               double quiet_from_s = 0.0);
   [[nodiscard]] double min_forces_per_s() const { return min_rate_; }
   [[nodiscard]] int windows() const { return windows_; }
+  /// The hypervisor's steal in the window of the fewest forces, and in the window that had the
+  /// most, s of CPU time (summed over the CPUs).
+  [[nodiscard]] double steal_in_worst_window_s() const { return worst_steal_s_; }
+  [[nodiscard]] double max_window_steal_s() const { return max_steal_s_; }
   [[nodiscard]] std::int64_t warm_bytes() const { return warm_bytes_; }
   [[nodiscard]] std::int64_t end_bytes() const { return end_bytes_; }
   [[nodiscard]] double warm_at_s() const { return warm_at_s_; }
@@ -57,8 +70,11 @@ class SoakMonitor {
 
  private:
   double warm_up_s_;
+  std::function<double()> steal_s_;
   double window_start_s_{-1.0};
   std::int64_t window_ticks_{0};
+  double window_steal_s_{0.0};
+  double worst_steal_s_{0.0}, max_steal_s_{0.0};
   double min_rate_{0.0};
   int windows_{0};
   std::int64_t warm_bytes_{0}, end_bytes_{0};
