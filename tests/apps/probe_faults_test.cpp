@@ -127,8 +127,13 @@ TEST_F(ProbeFaults, EachFaultFadesTheForceWithin50msThenRampsUpAndTheSessionGoes
     EXPECT_GT(at150, 0.5 * before) << "fault " << k;
     EXPECT_LT(at30, 0.45 * at150) << "fault " << k;
   }
-  // the hand never felt a jump (the run without faults: 0.007 N; a cut force would be > 0.1 N)
-  EXPECT_LT(largest_step(t), 0.02);
+  // the hand never felt a jump (the run without faults: 0.007 N; a cut force would be > 0.1 N).
+  // Held to 0.05 N as the unplug test below is: on a host that took a fifth to a half of the
+  // CPUs (/proc/stat's steal, 2026-11-28 22:00-22:15 UTC) the device thread came late by a few
+  // ticks in a fade or a ramp, and the largest step read 0.022 to 0.034 N in five runs of nine;
+  // in one more the machine stopped for over 40 ms in a fade (0.13 N, 2 fade ticks), which still
+  // fails. A cut is also caught by the fade's 30 ticks above.
+  EXPECT_LT(largest_step(t), 0.05);
   // the session went on: the physics kept stepping after the last fault
   EXPECT_GT(t.back().physics_s, sims.back() + 0.5);
 }
