@@ -13,7 +13,7 @@ GuiLoop::GuiLoop(AppShared& shared, ProbeView* view, KeyboardStick& keyboard)
       keyboard_(keyboard),
       probe_pos_(std::size_t(shared.probes), Eigen::Vector3d::Zero()),
       probe_contacts_(std::size_t(shared.probes), 0),
-      soak_(std::max(5.0, 0.1 * shared.options.soak_s)),
+      soak_(std::max(5.0, 0.1 * shared.options.soak_s), cpu_steal_s, shared.options.device_hz),
       frame_period_(std::chrono::duration_cast<SteadyClock::duration>(
           std::chrono::duration<double>(1.0 / std::max(1.0, shared.options.fps)))) {}
 

@@ -442,14 +442,15 @@ void App::soak_summary() {
       "memory {:.1f} MB after the warm-up (at {:.1f} s), {:.1f} MB at the end ({:+.2f} %; the contact solve's "
       "bounded cache {:.1f} -> {:.1f} MB, {}, the rest {:+.2f} %); device forces per "
       "second at least {:.0f} over {} one-second windows (the hypervisor's steal: {:.0f} ms of CPU in that second, at "
-      "most {:.0f} ms in one); tissue at the end {:.4f} mm from its rest ({}), {:.2f} % "
+      "most {:.0f} ms in one; short beyond the ticks the steal can take: at most {:.0f} forces in a second); "
+      "tissue at the end {:.4f} mm from its rest ({}), {:.2f} % "
       "of its largest displacement {:.3f} mm; energy guard {} ticks",
       options_.soak_s, options_.soak_seed, r.faults.load() + non_finite, r.faults.load(), non_finite,
       1e-6 * double(m.warm_bytes()), m.warm_at_s(), 1e-6 * double(m.end_bytes()), growth,
       1e-6 * double(m.warm_cache_bytes()), 1e-6 * double(m.end_cache_bytes()),
       options_.lazy_contact_cache ? "filled as the tools went" : "reserved at the start", rest_growth,
       m.min_forces_per_s(), m.windows(), 1e3 * m.steal_in_worst_window_s(), 1e3 * m.max_window_steal_s(),
-      r.soak_final_mm,
+      m.max_unexplained_shortfall_per_s(), r.soak_final_mm,
       r.soak_ref_is_shape ? std::string("the model's shape: no gravity")
                           : fmt::format("its state at t = {:.2f} s, sagged under gravity", r.soak_ref_s),
       r.soak_peak_mm > 0 ? 100.0 * r.soak_final_mm / r.soak_peak_mm : 0.0, r.soak_peak_mm,

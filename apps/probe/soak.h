@@ -47,8 +47,9 @@ class SoakMonitor {
  public:
   /// `warm_up_s`: memory is compared from this long after the physics' first step on.
   /// `steal_s`: reads the machine's steal so far, s (cpu_steal_s; a test passes its own).
-  explicit SoakMonitor(double warm_up_s, std::function<double()> steal_s = cpu_steal_s)
-      : warm_up_s_(warm_up_s), steal_s_(std::move(steal_s)) {}
+  /// `device_hz`: the device's tick rate, the forces a second should have.
+  explicit SoakMonitor(double warm_up_s, std::function<double()> steal_s = cpu_steal_s, double device_hz = 1000.0)
+      : warm_up_s_(warm_up_s), steal_s_(std::move(steal_s)), device_hz_(device_hz) {}
   /// Called often (every GUI pass): wall time since the open, the device's ticks so far, the
   /// wall time the physics started at (< 0: not yet). The windows count from the physics' start.
   /// `cache_bytes`: the contact solver's bounded cache now (kept beside the resident memory).
@@ -62,6 +63,14 @@ class SoakMonitor {
   /// most, s of CPU time (summed over the CPUs).
   [[nodiscard]] double steal_in_worst_window_s() const { return worst_steal_s_; }
   [[nodiscard]] double max_window_steal_s() const { return max_steal_s_; }
+  /// The most forces per second that any window lacked beyond what the hypervisor's steal in it
+  /// can explain: device_hz - rate - device_hz * steal / window, at least 0. While the machine is
+  /// stopped no thread of the guest runs, so a stop takes at most device_hz * its length forces;
+  /// the steal is summed over the CPUs, so this counts the whole stop even where only the
+  /// device's CPU stood still (and twice a stop of both CPUs of two: it never blames the
+  /// host for a loss of ours that it did not cause). On bare metal the steal reads 0 and this is
+  /// device_hz - min_forces_per_s().
+  [[nodiscard]] double max_unexplained_shortfall_per_s() const { return max_unexplained_; }
   [[nodiscard]] std::int64_t warm_bytes() const { return warm_bytes_; }
   [[nodiscard]] std::int64_t end_bytes() const { return end_bytes_; }
   [[nodiscard]] double warm_at_s() const { return warm_at_s_; }
@@ -74,7 +83,8 @@ class SoakMonitor {
   double window_start_s_{-1.0};
   std::int64_t window_ticks_{0};
   double window_steal_s_{0.0};
-  double worst_steal_s_{0.0}, max_steal_s_{0.0};
+  double device_hz_;
+  double worst_steal_s_{0.0}, max_steal_s_{0.0}, max_unexplained_{0.0};
   double min_rate_{0.0};
   int windows_{0};
   std::int64_t warm_bytes_{0}, end_bytes_{0};

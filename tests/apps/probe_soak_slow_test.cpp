@@ -43,7 +43,7 @@ TEST(ProbeSoak, AMinuteOfRandomPalpationOnAFoldedOrganStaysFiniteFlatAndRealTime
   const bool has_device = std::regex_search(r.out, device, std::regex(R"(device: \d+ ticks .*)"));
   if (has_device) std::printf("%s\n", device.str().c_str());
   const std::regex line(
-      R"(soak: 60 s, seed 1: non-finite (\d+) .*resident memory ([0-9.]+) MB after the warm-up \(at ([0-9.]+) s\), ([0-9.]+) MB at the end \(([-+0-9.]+) %; the contact solve's bounded cache ([0-9.]+) -> ([0-9.]+) MB, reserved at the start, the rest [-+0-9.]+ %\); device forces per second at least ([0-9.]+) over (\d+) one-second windows \(the hypervisor's steal: ([0-9]+) ms of CPU in that second, at most ([0-9]+) ms in one\); tissue at the end ([0-9.]+) mm from its rest \(([^)]*)\), ([0-9.]+) % of its largest displacement ([0-9.]+) mm; energy guard (\d+) ticks)");
+      R"(soak: 60 s, seed 1: non-finite (\d+) .*resident memory ([0-9.]+) MB after the warm-up \(at ([0-9.]+) s\), ([0-9.]+) MB at the end \(([-+0-9.]+) %; the contact solve's bounded cache ([0-9.]+) -> ([0-9.]+) MB, reserved at the start, the rest [-+0-9.]+ %\); device forces per second at least ([0-9.]+) over (\d+) one-second windows \(the hypervisor's steal: ([0-9]+) ms of CPU in that second, at most ([0-9]+) ms in one; short beyond the ticks the steal can take: at most ([0-9]+) forces in a second\); tissue at the end ([0-9.]+) mm from its rest \(([^)]*)\), ([0-9.]+) % of its largest displacement ([0-9.]+) mm; energy guard (\d+) ticks)");
   std::smatch m;
   ASSERT_TRUE(std::regex_search(r.out, m, line)) << r.out;
   std::printf("%s\n", m.str().c_str());
@@ -61,15 +61,20 @@ TEST(ProbeSoak, AMinuteOfRandomPalpationOnAFoldedOrganStaysFiniteFlatAndRealTime
   // 974-997 when it was quiet and 937-948 under a load of 8-10 (other builds), so CI holds it to
   // 900 (a device thread starved for 100 ms in one second). The test runs alone (RUN_SERIAL), but
   // in a virtual machine the whole guest stops now and then: for up to 4 ms in a quiet minute,
-  // 10-22 ms under the hypervisor's load. The line gives that second's steal (docs/probe.md).
-  EXPECT_GE(std::stod(m[8]), 900.0) << "device forces per second in the worst second (the hypervisor's steal in "
-                                    << "it: " << m[10] << " ms); " << (has_device ? device.str() : "no device line");
+  // 10-22 ms under the hypervisor's load, and a loaded host took 260-970 ms of CPU in a second
+  // (docs/probe.md, "The device thread's late seconds"). No thread of the guest runs then, ours
+  // or not, so the bar is held to the forces missing beyond what the steal can take (one per
+  // tick of steal, summed over the CPUs): 100 in a second. On bare metal the steal reads 0 and
+  // this is 900 forces in every second.
+  EXPECT_LE(std::stod(m[12]), 100.0) << "device forces missing in a second beyond the hypervisor's steal (the worst "
+                                     << "second: " << m[8] << " forces, " << m[10] << " ms of steal in it); "
+                                     << (has_device ? device.str() : "no device line");
   EXPECT_LE(std::stoi(m[10]), std::stoi(m[11])) << "the worst second's steal is at most the largest of any second, ms";
   EXPECT_GE(std::stoi(m[9]), 55) << "one-second windows";
-  EXPECT_GT(std::stod(m[15]), 1.0) << "the presses deformed the tissue, mm";
-  EXPECT_LT(std::stod(m[14]), 1.0) << "the tissue back at rest after the release, % of its largest displacement";
+  EXPECT_GT(std::stod(m[16]), 1.0) << "the presses deformed the tissue, mm";
+  EXPECT_LT(std::stod(m[15]), 1.0) << "the tissue back at rest after the release, % of its largest displacement";
   // the energy guard is reported (a count; it may act)
-  EXPECT_GE(std::stoi(m[16]), 0);
+  EXPECT_GE(std::stoi(m[17]), 0);
   // after the script the session went on until the tissue slept or had its idle window (10 s
   // simulated since the release; the script's 8 s of wall time gave it about 5)
   const std::regex settle(
