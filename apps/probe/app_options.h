@@ -62,7 +62,7 @@ struct AppOptions {
   double physics_hz{1000.0};  ///< physics thread tick
   double device_hz{1000.0};   ///< device thread tick
   double fps{60.0};           ///< display frame limit
-  int threads{1};             ///< physics threads (0: all cores; one by default: docs/probe.md)
+  int threads{0};             ///< physics threads (0, the default: all cores; docs/probe.md)
   bool share_cores{true};     ///< one physics thread while well ahead of real time or as fast (thread_share.h)
   std::string factor_cache;   ///< implicit factors kept by content: "" the default folder, "off", or a folder
   int width{1280};

@@ -86,7 +86,7 @@ int main(int argc, char** argv) {
   g_run->add_option("--device-rate", o.device_hz, "device thread updates per second (1000 for haptics)")
       ->check(CLI::Range(50.0, 10000.0));
   g_run->add_option("--fps", o.fps, "display frame limit")->check(CLI::Range(1.0, 240.0));
-  g_run->add_option("--threads", o.threads, "physics threads (0: all cores)")->check(CLI::Range(0, 256));
+  g_run->add_option("--threads", o.threads, "physics threads (0, the default: all cores)")->check(CLI::Range(0, 256));
   g_run->add_flag("--share-cores,!--no-share-cores", o.share_cores,
                   "while the physics runs well ahead of real time, or one thread is as fast as all (a trial now and "
                   "then), it steps on one of its threads and leaves the other cores to the display; back on all of "
