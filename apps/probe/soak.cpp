@@ -104,12 +104,12 @@ void SoakMonitor::sample(double wall_s, std::int64_t device_ticks, double starte
     // nothing: the windows count from then on
     open_window();
   } else if (wall_s - window_start_s_ >= 1.0) {
-    const double rate = double(device_ticks - window_ticks_) / (wall_s - window_start_s_);
-    const double steal_before = window_steal_s_, window_start_before = window_start_s_;
+    const double window_s = wall_s - window_start_s_;
+    const double rate = double(device_ticks - window_ticks_) / window_s;
+    const double steal_before = window_steal_s_;
     open_window();
     const double steal = std::max(0.0, window_steal_s_ - steal_before);
     // the forces missing beyond those the machine's stop could have taken (1 per tick of steal)
-    const double window_s = wall_s - window_start_before;
     max_unexplained_ = std::max(max_unexplained_, device_hz_ - rate - device_hz_ * steal / window_s);
     if (windows_ == 0 || rate < min_rate_) {
       min_rate_ = rate;

@@ -67,9 +67,9 @@ class SoakMonitor {
   /// can explain: device_hz - rate - device_hz * steal / window, at least 0. While the machine is
   /// stopped no thread of the guest runs, so a stop takes at most device_hz * its length forces;
   /// the steal is summed over the CPUs, so this counts the whole stop even where only the
-  /// device's CPU stood still (and twice a stop of both CPUs of two: it never blames the
-  /// host for a loss of ours that it did not cause). On bare metal the steal reads 0 and this is
-  /// device_hz - min_forces_per_s().
+  /// device's CPU stood still: it never credits the host with less than it took. It counts a
+  /// stop of both CPUs of two twice, so in such a second it can excuse up to half of a shortfall
+  /// that was ours. On bare metal the steal reads 0 and this is device_hz - min_forces_per_s().
   [[nodiscard]] double max_unexplained_shortfall_per_s() const { return max_unexplained_; }
   [[nodiscard]] std::int64_t warm_bytes() const { return warm_bytes_; }
   [[nodiscard]] std::int64_t end_bytes() const { return end_bytes_; }
