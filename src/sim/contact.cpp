@@ -6,8 +6,16 @@
 #include <sstream>
 
 #include "base/error.h"
+#include "base/parallel.h"
 
 namespace vx {
+
+namespace {
+
+/// Listed nodes per chunk of node_move()'s check (as the node passes' kNodeGrain).
+constexpr std::int64_t kMoveGrain = 1024;
+
+}  // namespace
 
 std::string ContactSettings::validate() const {
   std::ostringstream err;
@@ -29,6 +37,7 @@ void ContactSolver::init(std::vector<std::int32_t> nodes, int probes, const Work
   lists_.assign(std::size_t(probes_ + 1), {});
   for (auto& l : lists_) l.reserve(nodes_.size());
   node_at_rebuild_.resize(3, Eigen::Index(nodes_.size()));
+  chunk_move_.assign(std::size_t(chunk_count(std::int64_t(nodes_.size()), kMoveGrain)), 0.0);
   probe_at_rebuild_.assign(std::size_t(probes_), Eigen::Vector3d::Zero());
   counters_ = {};
   valid_ = false;
@@ -73,11 +82,18 @@ void ContactSolver::invalidate() {
   std::fill(anchor_owner_.begin(), anchor_owner_.end(), -1);
 }
 
-double ContactSolver::node_move(const Eigen::Matrix3Xd& x) const {
-  // largest node displacement since the rebuild
+double ContactSolver::node_move(const Eigen::Matrix3Xd& x) {
+  // largest node displacement since the rebuild: every listed node, twice in an implicit step
+  // (about 2 ms serial on the folded organ's 274,533 surface nodes), so on the step's threads
+  parallel_for_chunks(
+      std::int64_t(nodes_.size()), kMoveGrain, threads_, [&](std::int64_t c, std::int64_t b, std::int64_t e) {
+        double max_d2 = 0.0;
+        for (std::int64_t k = b; k < e; ++k)
+          max_d2 = std::max(max_d2, (x.col(nodes_[std::size_t(k)]) - node_at_rebuild_.col(k)).squaredNorm());
+        chunk_move_[std::size_t(c)] = max_d2;
+      });
   double max_d2 = 0.0;
-  for (std::size_t k = 0; k < nodes_.size(); ++k)
-    max_d2 = std::max(max_d2, (x.col(nodes_[k]) - node_at_rebuild_.col(Eigen::Index(k))).squaredNorm());
+  for (const double m : chunk_move_) max_d2 = std::max(max_d2, m);
   return std::sqrt(max_d2);
 }
 

@@ -102,6 +102,10 @@ class ContactSolver {
   [[nodiscard]] const ContactCounters& counters() const { return counters_; }
   [[nodiscard]] double skin_mm() const { return skin_mm_; }
   [[nodiscard]] const std::vector<std::int32_t>& nodes() const { return nodes_; }
+  /// Threads of the broad phase's check of every listed node's move (0: OpenMP's default; the
+  /// step's threads: the check runs between the step's parallel passes). The same result on any
+  /// number (a largest value).
+  void set_threads(int threads) { threads_ = threads; }
   /// Forces a broad-phase rebuild at the next resolve() and forgets the friction anchors
   /// (after positions were set from outside, e.g. a reset).
   void invalidate();
@@ -109,7 +113,7 @@ class ContactSolver {
  private:
   void rebuild(const Eigen::Matrix3Xd& positions, const std::vector<ProbeGeometry>& geometry,
                const std::vector<ProbeState>& probes);
-  [[nodiscard]] double node_move(const Eigen::Matrix3Xd& positions) const;
+  [[nodiscard]] double node_move(const Eigen::Matrix3Xd& positions);
   /// Rebuilds the lists unless list q (a probe, or probes_ for the walls) still holds every
   /// node within `margin` of its surface: `moved` (the largest node move since the rebuild;
   /// reset by one) plus the probe's own move plus the margin below the skin.
@@ -125,6 +129,8 @@ class ContactSolver {
   // broad phase: per probe (and the walls, last) the listed nodes, sorted by node id
   std::vector<std::vector<std::int32_t>> lists_;
   Eigen::Matrix3Xd node_at_rebuild_;             ///< 3 x nodes_.size()
+  int threads_{1};
+  std::vector<double> chunk_move_;  ///< node_move()'s largest squared move per chunk
   std::vector<Eigen::Vector3d> probe_at_rebuild_;
   ContactCounters counters_;
   // friction: where each node last touched a surface, in that surface's frame (per node id)

@@ -11,6 +11,9 @@ namespace vx {
 
 namespace {
 
+/// Nodes per chunk of the re-check's copy of the constrained iterate.
+constexpr std::int64_t kTrialGrain = 1024;
+
 bool key_less(const ContactConstraint& a, const ContactConstraint& b) {
   return a.owner != b.owner ? a.owner < b.owner : a.node < b.node;
 }
@@ -275,7 +278,6 @@ void ContactActiveSet::compliance(const std::vector<int>& free, SparseFactor& fa
 void ContactActiveSet::solve(ContactProvider& provider, const Eigen::Matrix3Xd& x, SparseFactor& factor,
                              Eigen::MatrixX3d& solution, ContactSolveCounters& counters, bool from_forward) {
   const std::vector<int>& free_index = *free_index_;
-  const std::vector<int>& free_nodes = *free_nodes_;
   ++solve_count_;
   if (!from_forward) unconstrained_ = solution;
   // candidates near the surfaces at the current iterate, sorted by (owner, node)
@@ -306,8 +308,13 @@ void ContactActiveSet::solve(ContactProvider& provider, const Eigen::Matrix3Xd& 
     if (pass + 1 >= kMaxPasses) break;
     // nodes that were not candidates but that the constrained solution puts inside a probe
     // (they moved farther than the provider's margin in this solve): add them and redo
-    trial_ = x;
-    for (int f = 0; f < num_free(); ++f) trial_.col(free_nodes[std::size_t(f)]) = solution.row(f).transpose();
+    trial_.resize(3, x.cols());
+    parallel_for(x.cols(), kTrialGrain, threads_, [&](std::int64_t b, std::int64_t e) {
+      for (std::int64_t i = b; i < e; ++i) {
+        const int f = std::size_t(i) < free_index.size() ? free_index[std::size_t(i)] : -1;
+        trial_.col(i) = f >= 0 ? Eigen::Vector3d(solution.row(f).transpose()) : Eigen::Vector3d(x.col(i));
+      }
+    });
     extra_.clear();
     provider.collect(trial_, false, extra_);
     const std::size_t before = candidates_.size();

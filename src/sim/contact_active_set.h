@@ -24,11 +24,11 @@
 /// do not depend on a regional solve's region, so they stay cached until the matrix is
 /// refactored (within kColumnBudgetBytes and kMaxSlots; the least recently used are reused
 /// beyond). Before, each contact node cost a whole column G e_j (a backward pass over the whole
-/// factor or region, n doubles of memory) and every region move dropped them all. An active-set iteration keeps lambda >= 0: it
-/// drops the constraints that pull and adds the candidates the solution violates, starting
-/// from the last solve's active set (a warm start that usually converges in 1-2 rounds).
-/// The multipliers are the contact forces (N, A x = b is a force balance). Serial and in a
-/// fixed order: the same result for any thread count.
+/// factor or region, n doubles of memory) and every region move dropped them all. An active-set iteration keeps lambda
+/// >= 0: it drops the constraints that pull and adds the candidates the solution violates, starting from the last
+/// solve's active set (a warm start that usually converges in 1-2 rounds). The multipliers are the contact forces (N, A
+/// x = b is a force balance). Serial and in a fixed order (but the re-check's copy of every node, split by node): the
+/// same result for any thread count.
 
 #include <Eigen/Core>
 #include <cstdint>
@@ -68,6 +68,9 @@ class ContactActiveSet {
   /// Apply the contact forces on the factor's regional rows only (SparseFactor::add_response3
   /// partial: exact on the region, the rest untouched) instead of on every node.
   void set_partial(bool partial) { partial_ = partial; }
+  /// Threads of the re-check's copy of the constrained iterate (every node; 0: OpenMP's default).
+  /// The same result on any number.
+  void set_threads(int threads) { threads_ = threads; }
   /// Forgets the warm start (the state was reset, replaced, or the provider changed).
   void forget_warm_start() { active_.clear(); }
 
@@ -111,6 +114,7 @@ class ContactActiveSet {
   void index_candidates(std::size_t from);
 
   bool partial_{false};
+  int threads_{1};
   const std::vector<int>* free_index_{nullptr};  ///< bound by bind(): nodes -> free index or -1
   const std::vector<int>* free_nodes_{nullptr};  ///< bound by bind(): free index -> node
 

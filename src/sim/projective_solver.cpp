@@ -221,6 +221,7 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
                              ContactProvider* contact, StepReport& rep) {
   const int threads = its.threads;
   factor_.set_threads(threads);  // the large supernodes' rows (the same bits on any number of threads)
+  contact_set_.set_threads(threads);
   // the fixed nodes' coupling: rhs_const -= A_fc x_c
   if (!numbering_.fixed_nodes.empty()) {
     for (std::size_t c = 0; c < numbering_.fixed_nodes.size(); ++c)

@@ -75,6 +75,7 @@ Simulation::Simulation(std::shared_ptr<const PhysicsModel> physics, SimulationSe
   if (!settings_.skip_unneeded) contact.broad_phase = false;  // test every node every step
   contact_.init(collidable_nodes(model, state_.node_fixed), int(np), settings_.workspace, contact,
                 surface_node_spacing_mm(model));
+  contact_.set_threads(settings_.integrator.threads);
   // the implicit integrator takes the probes and walls into its solve (the post-step projection
   // would lose most of the reaction force at its long steps); the explicit schemes keep the
   // post-step projection, unchanged

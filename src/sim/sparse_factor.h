@@ -349,6 +349,8 @@ class SparseFactor {
   std::vector<std::uint32_t> mark_;  ///< supernodes: generation stamp
   std::uint32_t generation_{0};
   std::vector<int> changed_supers_;
+  /// forward3_partial's scan: per chunk of rows, the supernode of each row that changed
+  std::vector<std::vector<int>> chunk_changed_;
   std::vector<int> all_supers_;
   /// Right-hand sides per pass of forward_fields() (each entry of L read once for all of them).
   static constexpr int kFieldLanes = 18;

@@ -260,6 +260,7 @@ struct PassResults {
   Eigen::MatrixX3d x, partial, response, response_partial;
   std::vector<double> fields, column;
   Eigen::Vector3d row;
+  int changed{0};  ///< the rows the forward half found changed
 };
 
 PassResults run_passes(SparseFactor& f, const std::vector<int>& region, const std::vector<int>& candidates) {
@@ -273,7 +274,7 @@ PassResults run_passes(SparseFactor& f, const std::vector<int>& region, const st
   f.set_partial_rows(region);
   Eigen::MatrixX3d b2 = b;
   for (const int i : region) b2.row(i) += Eigen::RowVector3d(0.5, -1.0, 0.25);
-  f.forward3_partial(b2);
+  r.changed = f.forward3_partial(b2);
   std::vector<SparseFactor::UnitForward> z(candidates.size());
   std::vector<const SparseFactor::UnitForward*> zp;
   std::vector<double> forces;
@@ -325,13 +326,17 @@ TEST(SparseFactor, TreeParallelPassesGiveTheSerialPassesBitForBit) {
     EXPECT_TRUE(same_bits(got.x, want.x))
         << what << " max diff " << (got.x - want.x).cwiseAbs().maxCoeff() << " of " << want.x.cwiseAbs().maxCoeff();
     EXPECT_EQ(got.fields, want.fields) << what;
+    // the forward half's scan for the changed rows (by chunks of 1,024 rows on the threads)
+    EXPECT_EQ(got.changed, want.changed) << what;
     EXPECT_EQ(std::memcmp(got.row.data(), want.row.data(), sizeof(double) * 3), 0) << what;
     EXPECT_TRUE(same_bits(got.partial, want.partial)) << what;
     EXPECT_TRUE(same_bits(got.response, want.response)) << what;
     EXPECT_TRUE(same_bits(got.response_partial, want.response_partial)) << what;
     EXPECT_EQ(got.column, want.column) << what;
   }
-  // and the serial answers are right: the full solve's residual, the regional solve's rows
+  // and the serial answers are right: the rows that changed (the region's, every one of them),
+  // the full solve's residual, the regional solve's rows
+  EXPECT_EQ(want.changed, int(region.size()));
   std::srand(11);
   const Eigen::MatrixX3d b = Eigen::MatrixX3d::Random(n, 3);
   EXPECT_LT((a * want.x - b).norm(), 1e-10 * b.norm());
