@@ -26,6 +26,10 @@ packages=(
   libgtest-dev libgmock-dev libbenchmark-dev
   libcli11-dev nlohmann-json3-dev libspdlog-dev libfmt-dev
   libopenjp2-7-dev
+  # OpenBLAS, single-threaded, as the libblas.so.3 CHOLMOD's supernodes call (Debian's alternatives
+  # put it above the reference BLAS): the folded organ factors in 4.7 s instead of 17.4 s
+  # (docs/bench.md); single-threaded, so it never competes with the physics' OpenMP threads
+  libopenblas0-serial
   xvfb xauth x11-utils dicom3tools libxml2-utils help2man
   # the palpation sweep (workflow/Snakefile, docs/palpation.md) and its CI test
   snakemake

@@ -3,6 +3,8 @@
 // index. The solves are in sparse_factor_solve.cpp, the supernodal sweeps in
 // sparse_factor_sweeps.cpp, the byte form in sparse_factor_file.cpp.
 
+#include <dlfcn.h>
+
 #include <Eigen/SparseCholesky>
 #include <algorithm>
 #include <chrono>
@@ -32,6 +34,34 @@ const char* SparseFactor::to_string(Backend b) {
   }
   return "?";
 }
+
+namespace {
+
+/// The name of the BLAS loaded in this process, from a function only it has ("" for none of
+/// those).
+std::string loaded_blas() {
+  using Text = const char* (*)();
+  if (void* f = dlsym(RTLD_DEFAULT, "openblas_get_config")) {
+    const char* config = reinterpret_cast<Text>(f)();
+    return config ? std::string(config) : std::string("OpenBLAS");
+  }
+  if (void* f = dlsym(RTLD_DEFAULT, "bli_info_get_version_str")) {
+    const char* version = reinterpret_cast<Text>(f)();
+    return std::string("BLIS ") + (version ? version : "");
+  }
+  if (dlsym(RTLD_DEFAULT, "MKL_Get_Version_String")) return "MKL";
+  return "";
+}
+
+}  // namespace
+
+std::string SparseFactor::blas_library() {
+  if (!available(Backend::cholmod)) return "none";
+  const std::string name = loaded_blas();
+  return name.empty() ? "the reference BLAS" : name;
+}
+
+bool SparseFactor::reference_blas() { return available(Backend::cholmod) && loaded_blas().empty(); }
 
 bool SparseFactor::available(Backend b) {
   switch (b) {

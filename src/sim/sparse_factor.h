@@ -134,6 +134,14 @@ class SparseFactor {
   [[nodiscard]] static Backend best_backend();
   /// True when this build has `b`.
   [[nodiscard]] static bool available(Backend b);
+  /// The BLAS under CHOLMOD's supernodes in this process (the libblas.so.3 that Debian's
+  /// alternatives chose): "OpenBLAS ..." with its build line, "BLIS ...", "MKL ...", else "the
+  /// reference BLAS"; "none" without CHOLMOD. The reference one factors about 3.7 times slower
+  /// (docs/bench.md, "The start-up on the folded organ"): scripts/install-deps.sh installs
+  /// OpenBLAS (single-threaded).
+  [[nodiscard]] static std::string blas_library();
+  /// Whether blas_library() is the reference BLAS (a factorisation that took long deserves a hint).
+  [[nodiscard]] static bool reference_blas();
 
   /// Factors `a` (n x n, symmetric; the lower triangle is read) with `backend` (automatic: the
   /// build's best; one the build lacks falls back to it). Returns false when it is not positive

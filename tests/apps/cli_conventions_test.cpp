@@ -15,6 +15,7 @@
 #include "convert/phantom.h"
 #include "io/dicom_series.h"
 #include "io/volume_io.h"
+#include "sim/sparse_factor.h"
 #include "support/run_binary.h"
 #include "util/exit_codes.h"
 
@@ -85,6 +86,11 @@ TEST_F(CliConventions, TheSecondRunOfAnImplicitSceneLoadsItsFactorAndCalibration
   EXPECT_EQ(sa.at("factorisations"), 1);
   EXPECT_EQ(sa.at("factors_from_cache"), 0);
   EXPECT_EQ(sb.at("factors_from_cache"), 1);
+  // which BLAS factored it (the run's process loads the libblas.so.3 this one does)
+  EXPECT_EQ(sa.at("blas").get<std::string>(), vx::SparseFactor::blas_library());
+  if (vx::SparseFactor::available(vx::SparseFactor::Backend::cholmod)) {
+    EXPECT_NE(sa.at("blas"), "none");
+  }
   // the same bits: the forces written are the same text
   const std::string fa = slurp(dir_ / "a" / "forces.csv");
   EXPECT_GT(fa.size(), 100u);

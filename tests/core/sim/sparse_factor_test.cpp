@@ -355,6 +355,22 @@ TEST(SparseFactor, TreeParallelPassesGiveTheSerialPassesBitForBit) {
   EXPECT_EQ(small.tree_parallel_passes(), 0);
 }
 
+TEST(SparseFactor, NamesTheBlasUnderItsSupernodes) {
+  const std::string name = SparseFactor::blas_library();
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) {
+    EXPECT_EQ(name, "none");
+    EXPECT_FALSE(SparseFactor::reference_blas());
+    return;
+  }
+  // OpenBLAS (scripts/install-deps.sh), BLIS, MKL, or else the reference one, and the hint's
+  // test agrees with the name
+  EXPECT_TRUE(name.rfind("OpenBLAS", 0) == 0 || name.rfind("BLIS", 0) == 0 || name == "MKL" ||
+              name == "the reference BLAS")
+      << name;
+  EXPECT_EQ(SparseFactor::reference_blas(), name == "the reference BLAS") << name;
+  std::cout << "BLAS: " << name << "\n";
+}
+
 TEST(ContentHash, IsXXH64) {
   // the reference values (Debian's xxhash, `xxhsum -H64`), for inputs below one stripe, of one,
   // and of many fed in uneven pieces
