@@ -53,6 +53,15 @@ std::string loaded_blas() {
   return "";
 }
 
+/// Puts an OpenBLAS with threads (Debian's libopenblas0-pthread or -openmp, which the
+/// alternatives prefer to the single-threaded one install-deps.sh installs) on the calling thread:
+/// its threads would compete with the physics' OpenMP team and the region check for the cores
+/// (measured 1.9x slower on a loaded machine, nothing gained on a quiet one: docs/bench.md).
+void single_threaded_blas() {
+  using SetThreads = void (*)(int);
+  if (void* f = dlsym(RTLD_DEFAULT, "openblas_set_num_threads")) reinterpret_cast<SetThreads>(f)(1);
+}
+
 }  // namespace
 
 std::string SparseFactor::blas_library() {
@@ -238,6 +247,7 @@ bool SparseFactor::compute_cholmod(const Matrix& a_in) {
   const int n = int(a.rows());
   cholmod_common cm;
   cholmod_start(&cm);
+  single_threaded_blas();
   cm.print = 0;
   cm.error_handler = nullptr;
   cm.supernodal = CHOLMOD_SUPERNODAL;

@@ -138,7 +138,8 @@ class SparseFactor {
   /// alternatives chose): "OpenBLAS ..." with its build line, "BLIS ...", "MKL ...", else "the
   /// reference BLAS"; "none" without CHOLMOD. The reference one factors about 3.7 times slower
   /// (docs/bench.md, "The start-up on the folded organ"): scripts/install-deps.sh installs
-  /// OpenBLAS (single-threaded).
+  /// OpenBLAS (single-threaded; a threaded OpenBLAS is put on one thread before each
+  /// factorisation).
   [[nodiscard]] static std::string blas_library();
   /// Whether blas_library() is the reference BLAS (a factorisation that took long deserves a hint).
   [[nodiscard]] static bool reference_blas();
