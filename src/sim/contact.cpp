@@ -83,8 +83,8 @@ void ContactSolver::invalidate() {
 }
 
 double ContactSolver::node_move(const Eigen::Matrix3Xd& x) {
-  // largest node displacement since the rebuild: every listed node, twice in an implicit step
-  // (about 2 ms serial on the folded organ's 274,533 surface nodes), so on the step's threads
+  // largest node displacement since the rebuild: every node that may collide (the folded
+  // organ's 274,533 surface nodes), twice in an implicit step, so on the step's threads
   parallel_for_chunks(
       std::int64_t(nodes_.size()), kMoveGrain, threads_, [&](std::int64_t c, std::int64_t b, std::int64_t e) {
         double max_d2 = 0.0;

@@ -24,11 +24,12 @@
 /// do not depend on a regional solve's region, so they stay cached until the matrix is
 /// refactored (within kColumnBudgetBytes and kMaxSlots; the least recently used are reused
 /// beyond). Before, each contact node cost a whole column G e_j (a backward pass over the whole
-/// factor or region, n doubles of memory) and every region move dropped them all. An active-set iteration keeps lambda
-/// >= 0: it drops the constraints that pull and adds the candidates the solution violates, starting from the last
-/// solve's active set (a warm start that usually converges in 1-2 rounds). The multipliers are the contact forces (N, A
-/// x = b is a force balance). Serial and in a fixed order (but the re-check's copy of every node, split by node): the
-/// same result for any thread count.
+/// factor or region, n doubles of memory) and every region move dropped them all.
+/// An active-set iteration keeps lambda >= 0: it drops the constraints that pull and adds the
+/// candidates the solution violates, starting from the last solve's active set (a warm start
+/// that usually converges in 1-2 rounds). The multipliers are the contact forces (N, A x = b is
+/// a force balance). Serial and in a fixed order, but for the re-check's copy of every node
+/// (split by node): the same result for any thread count.
 
 #include <Eigen/Core>
 #include <cstdint>
