@@ -10,6 +10,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
+#include <mutex>
 #include <string>
 
 #include "base/error.h"
@@ -60,6 +61,16 @@ std::string loaded_blas() {
 void single_threaded_blas() {
   using SetThreads = void (*)(int);
   if (void* f = dlsym(RTLD_DEFAULT, "openblas_set_num_threads")) reinterpret_cast<SetThreads>(f)(1);
+}
+
+/// One CHOLMOD factorisation at a time in the process: Debian's single-threaded OpenBLAS (the one
+/// install-deps.sh installs) is built without locking, and two threads in its kernels at once
+/// corrupt each other's buffers (a factor 24 off in SparseFactor.TwoThreadsFactoringAtOnceGet
+/// TheSerialFactor; the palpation map, which factors on each of its threads, read another lesion
+/// from run to run). A factorisation is a start-up's, so waiting for another costs little.
+std::mutex& factorisation_lock() {
+  static std::mutex lock;
+  return lock;
 }
 
 }  // namespace
@@ -245,6 +256,7 @@ bool SparseFactor::compute_cholmod(const Matrix& a_in) {
   Matrix a = a_in;
   a.makeCompressed();
   const int n = int(a.rows());
+  const std::lock_guard<std::mutex> one_at_a_time(factorisation_lock());
   cholmod_common cm;
   cholmod_start(&cm);
   single_threaded_blas();

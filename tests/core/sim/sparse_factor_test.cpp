@@ -10,6 +10,7 @@
 #include <iostream>
 #include <memory>
 #include <string>
+#include <thread>
 #include <utility>
 #include <vector>
 
@@ -353,6 +354,42 @@ TEST(SparseFactor, TreeParallelPassesGiveTheSerialPassesBitForBit) {
   small.set_threads(2, std::int64_t(1) << 40);
   run_passes(small, region, candidates);
   EXPECT_EQ(small.tree_parallel_passes(), 0);
+}
+
+// Two threads that factor at once get the serial factor, bit for bit: the palpation map factors
+// on each of its threads, and Debian's single-threaded OpenBLAS (built without locking) is not
+// safe to call from two threads at once (the map read another lesion from run to run).
+TEST(SparseFactor, TwoThreadsFactoringAtOnceGetTheSerialFactor) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "no supernodal factor in this build";
+  const SparseFactor::Matrix a = block_matrix(20, 20, 16);  // supernodes large enough for BLAS's blocked kernels
+  const int n = int(a.rows());
+  std::srand(5);
+  const Eigen::MatrixX3d b = Eigen::MatrixX3d::Random(n, 3);
+  SparseFactor serial;
+  ASSERT_TRUE(serial.compute(a, SparseFactor::Backend::cholmod));
+  Eigen::MatrixX3d want(n, 3);
+  serial.solve3(b, want);
+  constexpr int kRounds = 6;
+  std::vector<Eigen::MatrixX3d> got(2 * kRounds);
+  std::vector<int> ok(2 * kRounds, 0);
+  std::vector<std::thread> workers;
+  for (int t = 0; t < 2; ++t)
+    workers.emplace_back([&, t] {
+      for (int r = 0; r < kRounds; ++r) {
+        SparseFactor f;
+        const std::size_t k = std::size_t(t * kRounds + r);
+        ok[k] = f.compute(a, SparseFactor::Backend::cholmod) ? 1 : 0;
+        got[k].resize(n, 3);
+        if (ok[k]) f.solve3(b, got[k]);
+      }
+    });
+  for (std::thread& w : workers) w.join();
+  for (std::size_t k = 0; k < got.size(); ++k) {
+    ASSERT_EQ(ok[k], 1) << k;
+    EXPECT_EQ(std::memcmp(got[k].data(), want.data(), sizeof(double) * std::size_t(want.size())), 0)
+        << "factor " << k << ": max diff " << (got[k] - want).cwiseAbs().maxCoeff() << " ("
+        << SparseFactor::blas_library() << ")";
+  }
 }
 
 TEST(SparseFactor, NamesTheBlasUnderItsSupernodes) {
