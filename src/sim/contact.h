@@ -48,8 +48,8 @@ struct ContactSettings {
   /// impulse; its slip since it last touched the surface is then undone. Else it slides and
   /// that fraction of velocity and slip is removed.
   double friction{0.0};
-  double skin_mm{0.0};      ///< broad-phase margin, mm; <= 0 picks 2 x the mean surface node spacing
-  bool broad_phase{true};   ///< false tests every listed node every step (the reference)
+  double skin_mm{0.0};     ///< broad-phase margin, mm; <= 0 picks 2 x the mean surface node spacing
+  bool broad_phase{true};  ///< false tests every listed node every step (the reference)
 
   /// Empty when valid, else what is wrong.
   [[nodiscard]] std::string validate() const;
@@ -71,8 +71,8 @@ class ContactSolver {
  public:
   /// `nodes`: the node ids that may collide (simulation.h: the free nodes), `probes` the
   /// number of probes, `spacing_mm` the typical surface node spacing (for the automatic skin).
-  void init(std::vector<std::int32_t> nodes, int probes, const Workspace& workspace,
-            const ContactSettings& settings, double spacing_mm);
+  void init(std::vector<std::int32_t> nodes, int probes, const Workspace& workspace, const ContactSettings& settings,
+            double spacing_mm);
 
   /// Moves the listed nodes that entered a probe or left the workspace back onto the surface
   /// and reflects their velocities. `node_mass` in N*s^2/mm. Writes the force of the tissue on
@@ -128,7 +128,7 @@ class ContactSolver {
   bool valid_{false};
   // broad phase: per probe (and the walls, last) the listed nodes, sorted by node id
   std::vector<std::vector<std::int32_t>> lists_;
-  Eigen::Matrix3Xd node_at_rebuild_;             ///< 3 x nodes_.size()
+  Eigen::Matrix3Xd node_at_rebuild_;  ///< 3 x nodes_.size()
   int threads_{1};
   std::vector<double> chunk_move_;  ///< node_move()'s largest squared move per chunk
   std::vector<Eigen::Vector3d> probe_at_rebuild_;
@@ -136,7 +136,7 @@ class ContactSolver {
   // friction: where each node last touched a surface, in that surface's frame (per node id)
   static constexpr std::int64_t kAnchorSteps = 8;
   std::vector<Eigen::Vector3d> anchor_;
-  std::vector<int> anchor_owner_;                 ///< probe index, probes_ for the walls, -1 none
+  std::vector<int> anchor_owner_;  ///< probe index, probes_ for the walls, -1 none
   std::vector<std::int64_t> anchor_step_;
   std::int64_t step_{0};
 };

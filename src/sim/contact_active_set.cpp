@@ -180,7 +180,8 @@ int ContactActiveSet::iterate_working_set(SparseFactor& factor, ContactSolveCoun
     schur_.resize(std::size_t(nw) * std::size_t(nw));
     schur_rhs_.resize(std::size_t(nw));
     for (int a = 0; a < nw; ++a)
-      working_column_[std::size_t(a)] = column_of(candidate_free_[std::size_t(working_[std::size_t(a)])], factor, counters);
+      working_column_[std::size_t(a)] =
+          column_of(candidate_free_[std::size_t(working_[std::size_t(a)])], factor, counters);
     // S_ab = (n_a . n_b) G_ab, d_a = n_a . (p_a - x_u,a)
     for (int a = 0; a < nw; ++a) {
       const ContactConstraint& ca = candidates_[std::size_t(working_[std::size_t(a)])];
@@ -235,7 +236,8 @@ int ContactActiveSet::iterate_working_set(SparseFactor& factor, ContactSolveCoun
 void ContactActiveSet::apply_working_forces(Eigen::MatrixX3d& solution, SparseFactor& factor, bool from_forward) {
   if (!from_forward) solution = unconstrained_;
   working_forward_.clear();
-  for (std::size_t b = 0; b < working_.size(); ++b) working_forward_.push_back(&forward_[std::size_t(working_column_[b])]);
+  for (std::size_t b = 0; b < working_.size(); ++b)
+    working_forward_.push_back(&forward_[std::size_t(working_column_[b])]);
   if (from_forward)
     factor.backward3_partial(working_forward_, working_force_, solution);
   else if (!working_.empty())

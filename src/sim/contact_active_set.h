@@ -42,8 +42,8 @@ namespace vx {
 
 /// Work counters of the contact solves (added up over a step).
 struct ContactSolveCounters {
-  int rounds{0};             ///< active-set rounds
-  std::int64_t columns{0};   ///< new forward vectors z_i solved (SparseFactor::forward_unit)
+  int rounds{0};            ///< active-set rounds
+  std::int64_t columns{0};  ///< new forward vectors z_i solved (SparseFactor::forward_unit)
 };
 
 class ContactActiveSet {
@@ -52,7 +52,7 @@ class ContactActiveSet {
   static constexpr int kMaxPasses = 4;             ///< re-checks for nodes pushed into a probe
   static constexpr double kGapToleranceMm = 1e-9;  ///< a violation smaller than this is none
   static constexpr double kColumnBudgetBytes = 256.0 * 1024 * 1024;
-  static constexpr int kMaxSlots = 2048;           ///< cached nodes (the G matrix between them: 32 MB)
+  static constexpr int kMaxSlots = 2048;  ///< cached nodes (the G matrix between them: 32 MB)
 
   /// Binds the set to a new factor and its free-node numbering (free_index: nodes -> free index
   /// or -1; free_nodes: free index -> node): the cached columns belong to the old factor.
@@ -107,7 +107,8 @@ class ContactActiveSet {
   void grow_slots(int capacity);
   /// G between the nodes of two slots (computed once, then cached).
   double gram(int slot_a, int slot_b);
-  [[nodiscard]] Eigen::Vector3d constrained_position(int candidate, SparseFactor& factor, ContactSolveCounters& counters);
+  [[nodiscard]] Eigen::Vector3d constrained_position(int candidate, SparseFactor& factor,
+                                                     ContactSolveCounters& counters);
   int iterate_working_set(SparseFactor& factor, ContactSolveCounters& counters);
   void apply_working_forces(Eigen::MatrixX3d& solution, SparseFactor& factor, bool from_forward);
   /// unconstrained_ on the candidates from `from` on, from the factor's forward solution.
@@ -120,27 +121,27 @@ class ContactActiveSet {
   const std::vector<int>* free_nodes_{nullptr};  ///< bound by bind(): free index -> node
 
   // candidates and the working set of one solve
-  std::vector<ContactConstraint> candidates_;       ///< near the surfaces, sorted by (owner, node)
-  std::vector<ContactConstraint> extra_;            ///< found in a re-check pass
-  std::vector<ContactConstraint> active_;           ///< the last solve's active set (warm start)
-  std::vector<int> candidate_free_;                 ///< candidates: free index of the node
-  std::vector<std::uint8_t> in_working_set_;        ///< candidates: 1 in the working set
-  std::vector<int> working_;                        ///< the working set's candidates
-  std::vector<int> working_column_;                 ///< working set: column slot of the node
-  std::vector<double> working_force_;               ///< working set: lambda n (3 each), N
-  std::vector<double> schur_;                       ///< S, row-major (lower triangle used)
-  std::vector<double> schur_rhs_;                   ///< d, then lambda
-  Eigen::MatrixX3d unconstrained_;                  ///< x_u: the global step's solution without contact
-  Eigen::Matrix3Xd trial_;                          ///< constrained iterate (all nodes) for the re-check
+  std::vector<ContactConstraint> candidates_;  ///< near the surfaces, sorted by (owner, node)
+  std::vector<ContactConstraint> extra_;       ///< found in a re-check pass
+  std::vector<ContactConstraint> active_;      ///< the last solve's active set (warm start)
+  std::vector<int> candidate_free_;            ///< candidates: free index of the node
+  std::vector<std::uint8_t> in_working_set_;   ///< candidates: 1 in the working set
+  std::vector<int> working_;                   ///< the working set's candidates
+  std::vector<int> working_column_;            ///< working set: column slot of the node
+  std::vector<double> working_force_;          ///< working set: lambda n (3 each), N
+  std::vector<double> schur_;                  ///< S, row-major (lower triangle used)
+  std::vector<double> schur_rhs_;              ///< d, then lambda
+  Eigen::MatrixX3d unconstrained_;             ///< x_u: the global step's solution without contact
+  Eigen::Matrix3Xd trial_;                     ///< constrained iterate (all nodes) for the re-check
 
   // cached forward vectors z_f of the bound factor, and G between them
   std::vector<SparseFactor::UnitForward> forward_;  ///< slot -> z of its node
-  Eigen::MatrixXd gram_;                      ///< slots x slots, G between their nodes (NaN: not yet)
+  Eigen::MatrixXd gram_;                            ///< slots x slots, G between their nodes (NaN: not yet)
   std::size_t forward_bytes_{0};
   std::vector<const SparseFactor::UnitForward*> working_forward_;  ///< working set: z (for add_response3)
-  std::vector<int> column_slot_;              ///< free index -> column slot, -1 none
-  std::vector<int> slot_free_;                ///< column slot -> free index
-  std::vector<std::int64_t> slot_last_used_;  ///< column slot -> last solve that used it
+  std::vector<int> column_slot_;                                   ///< free index -> column slot, -1 none
+  std::vector<int> slot_free_;                                     ///< column slot -> free index
+  std::vector<std::int64_t> slot_last_used_;                       ///< column slot -> last solve that used it
   int used_slots_{0};
   bool reserved_{false};
   std::int64_t solve_count_{0};

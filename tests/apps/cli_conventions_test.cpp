@@ -30,9 +30,8 @@ const fs::path kBinary = fs::path(VX_BINARY_DIR) / "apps" / "voxelastic" / "voxe
 class CliConventions : public ::testing::Test {
  protected:
   void SetUp() override {
-    dir_ = fs::temp_directory_path() /
-           ("vx_cli_conventions_" + std::to_string(::getpid()) + "_" +
-            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    dir_ = fs::temp_directory_path() / ("vx_cli_conventions_" + std::to_string(::getpid()) + "_" +
+                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
     fs::remove_all(dir_);
     fs::create_directories(dir_);
   }
@@ -236,8 +235,8 @@ TEST_F(CliConventions, QuietWorksBeforeAndAfterTheSubcommand) {
   ASSERT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.out.find("threshold:"), std::string::npos) << r.out;
   EXPECT_EQ(r.err.find("reading s.nrrd"), std::string::npos) << r.err;
-  for (const std::string args : {"-q convert s.nrrd -o m.vtu", "convert s.nrrd -o m.vtu -q", "--quiet convert s.nrrd -o m.vtu",
-                                 "convert -q s.nrrd -o m.vtu"}) {
+  for (const std::string args : {"-q convert s.nrrd -o m.vtu", "convert s.nrrd -o m.vtu -q",
+                                 "--quiet convert s.nrrd -o m.vtu", "convert -q s.nrrd -o m.vtu"}) {
     r = run(args);
     EXPECT_EQ(r.code, 0) << args << "\n" << r.err;
     EXPECT_EQ(r.out, "") << args;
@@ -293,7 +292,8 @@ TEST_F(CliConventions, MessagesNameOptionsNotInternalApi) {
   // every string the programs print, searched for the C++ names of their settings
   for (const char* binary : {"apps/voxelastic/voxelastic", "apps/probe/voxelastic-probe"}) {
     const std::string bytes = slurp(fs::path(VX_BINARY_DIR) / binary);
-    for (const char* api : {"ReadOptions::", "PrepareOptions::", "BuildSettings::", "PhantomSettings::", "SceneOutputs::"})
+    for (const char* api :
+         {"ReadOptions::", "PrepareOptions::", "BuildSettings::", "PhantomSettings::", "SceneOutputs::"})
       EXPECT_EQ(bytes.find(api), std::string::npos) << binary << " prints " << api;
   }
 }
