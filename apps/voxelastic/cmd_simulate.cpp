@@ -241,6 +241,7 @@ void run_simulate(const SimulateOptions& o) {
   summary["startup_s"] = startup_s;
   summary["factorisations"] = c.factorisations;
   summary["factors_from_cache"] = c.factors_from_cache;
+  summary["orders_from_cache"] = c.orders_from_cache;
   summary["factor_s"] = c.factor_s;
   summary["blas"] = SparseFactor::blas_library();
   summary["calibration_from_cache"] = calibration_loaded;
@@ -262,7 +263,8 @@ void run_simulate(const SimulateOptions& o) {
     if (c.factorisations > 0)
       factor = c.factors_from_cache == c.factorisations
                    ? fmt::format("; the factor loaded from the cache in {:.2f} s", c.factor_s)
-                   : fmt::format("; factoring took {:.2f} s{}", c.factor_s,
+                   : fmt::format("; factoring took {:.2f} s{}{}", c.factor_s,
+                                 c.orders_from_cache > 0 ? " (METIS's order loaded from the cache)" : "",
                                  c.factor_s > 5.0 && SparseFactor::reference_blas()
                                      ? " on the reference BLAS (OpenBLAS factors about 3.7x faster: "
                                        "apt-get install libopenblas0-serial, or scripts/install-deps.sh)"

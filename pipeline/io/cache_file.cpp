@@ -18,7 +18,7 @@ namespace fs = std::filesystem;
 
 bool is_cache_file(const fs::path& file) {
   const fs::path ext = file.extension();
-  return ext == ".vxfactor" || ext == ".vxcalib" || ext == ".vxsurf" || ext == ".vxregion";
+  return ext == ".vxfactor" || ext == ".vxorder" || ext == ".vxcalib" || ext == ".vxsurf" || ext == ".vxregion";
 }
 
 std::shared_ptr<const void> map_cache_file(const fs::path& file, std::size_t size, std::string& why) {

@@ -15,8 +15,8 @@
 
 namespace vx {
 
-/// The extensions of the files a cache folder holds (".vxfactor", ".vxcalib", ".vxsurf", ".vxregion"): the size limit
-/// counts them all, and nothing else in the folder.
+/// The extensions of the files a cache folder holds (".vxfactor", ".vxorder", ".vxcalib", ".vxsurf", ".vxregion"): the
+/// size limit counts them all, and nothing else in the folder.
 [[nodiscard]] bool is_cache_file(const std::filesystem::path& file);
 
 /// `file` (`size` bytes) mapped read-only and private, its pages brought in at once (from the

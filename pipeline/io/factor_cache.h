@@ -6,6 +6,12 @@
 /// factorisation against a 0.7 GB file read back; docs/bench.md). A changed model, material,
 /// support or step changes the matrix and so the key: a stale factor is never used.
 ///
+/// Beside the factors, the fill-reducing orders by the matrix's pattern (`order-<rows>n-
+/// <nonzeros>nz-<hash>.vxorder`): the first start of an organ already opened with another
+/// material, step or damping takes METIS's order from there (METIS takes 5 to 7 s of the folded
+/// organ's first start: 0.79x the wall time with the order kept; docs/bench.md) and factors the
+/// same factor, bit for bit.
+///
 /// One file per factor, `<backend>-<rows>n-<nonzeros>nz-<hash>.vxfactor`, written to a
 /// temporary name and renamed; read back checked (header, structure, checksum: a damaged file
 /// is removed and the factor computed). The folder is kept under a size limit by dropping the
@@ -16,6 +22,7 @@
 #include <filesystem>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "io/folder_cache.h"
 #include "sim/sparse_factor.h"
@@ -43,18 +50,38 @@ class FolderFactorCache final : public FactorCache {
 
   bool load(const FactorKey& key, SparseFactor& factor) override;
   void store(const FactorKey& key, const SparseFactor& factor) override;
+  /// Orders are kept when finding them took at least min_factor_s, as factors are.
+  bool load_order(const FactorKey& pattern, std::vector<int>& order) override;
+  void store_order(const FactorKey& pattern, const SparseFactor& factor) override;
 
   [[nodiscard]] const FactorCacheSettings& settings() const { return settings_; }
   /// The file of `key`.
   [[nodiscard]] std::filesystem::path file_of(const FactorKey& key) const { return folder_.file_of(key.name()); }
+  /// The order file of `pattern`.
+  [[nodiscard]] std::filesystem::path order_file_of(const FactorKey& pattern) const {
+    return orders_.file_of(order_name(pattern));
+  }
 
   /// hits: factors loaded; skipped: computed faster than min_factor_s (folder_cache.h)
   using Counters = FolderCacheCounters;
   [[nodiscard]] Counters counters() const { return folder_.counters(); }
+  /// The same for the orders.
+  [[nodiscard]] Counters order_counters() const { return orders_.counters(); }
 
  private:
+  static std::string order_name(const FactorKey& pattern);
+
   FactorCacheSettings settings_;
   FolderCache folder_;
+  FolderCache orders_;
 };
+
+/// An order file: the pattern's key and the order (order[k]: the row factored k-th), with a
+/// checksum (base/cache_file_format.h).
+void write_order_file(std::ostream& out, const FactorKey& pattern, const std::vector<int>& order);
+/// Reads what write_order_file wrote: false with `why` when it is another pattern's, damaged,
+/// or not a permutation of the pattern's rows.
+[[nodiscard]] bool read_order_file(const unsigned char* data, std::size_t bytes, const FactorKey& pattern,
+                                   std::vector<int>& order, std::string* why);
 
 }  // namespace vx

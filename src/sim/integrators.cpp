@@ -413,6 +413,7 @@ class ImplicitIntegrator final : public SteppingIntegrator {
       if (settings_.reserve_contact_cache) cache.solver->reserve_contact_cache();
       rep.refactored = true;
       rep.factor_from_cache = cache.solver->factor().from_cache();
+      rep.order_from_cache = cache.solver->factor().order_given();
       rep.factor_s = cache.solver->factor().factor_seconds();
     }
     if (cache.next_step != s.steps || cache.next_time_s != s.time_s || cache.contact_epoch != contact_epoch_)

@@ -211,10 +211,21 @@ void ProjectiveSolver::assemble_and_factor(FactorCache* cache, int threads) {
   }
   SparseFactor::Matrix a;
   assemble_projective_matrix(p, numbering_, setup_, a, &a_free_fixed_);
-  if (!factor_.compute(a))
+  // the order kept for this pattern (the model and its support; another material, step or
+  // damping): METIS's time saved, the same factor's structure
+  const bool ordered = cache && SparseFactor::best_backend() == SparseFactor::Backend::cholmod;
+  FactorKey pattern;
+  std::vector<int> order;
+  if (ordered) {
+    pattern = SparseFactor::pattern_key(a);
+    if (!cache->load_order(pattern, order) || int(order.size()) != nf) order.clear();
+  }
+  // (an order CHOLMOD refuses, which the cache's checks should never let through: METIS's)
+  if (!factor_.compute(a, SparseFactor::Backend::automatic, order) && (order.empty() || !factor_.compute(a)))
     throw Error("implicit integrator: the system matrix could not be factored (" + std::to_string(nf) +
                 " free nodes); is a part of the model held by nothing?");
   if (cache) cache->store(key, factor_);
+  if (ordered && order.empty()) cache->store_order(pattern, factor_);
 }
 
 void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveIterations& its,

@@ -164,6 +164,7 @@ StepStatus Simulation::step() {
   if (report.refactored) {
     ++counters_.factorisations;
     counters_.factors_from_cache += report.factor_from_cache ? 1 : 0;
+    counters_.orders_from_cache += report.order_from_cache ? 1 : 0;
     counters_.factor_s += report.factor_s;
   }
   counters_.steps_at_rest += report.asleep ? 1 : 0;

@@ -92,6 +92,7 @@ struct SimulationCounters {
   /// implicit: system matrices factored (or loaded from the factor cache), and their wall time, s
   std::int64_t factorisations{0};
   std::int64_t factors_from_cache{0};
+  std::int64_t orders_from_cache{0};  ///< factored in METIS's order kept by the pattern
   double factor_s{0.0};
   /// implicit: local/global iterations (global solves) summed over the steps
   std::int64_t iterations{0};

@@ -13,6 +13,7 @@
 #include <mutex>
 #include <string>
 
+#include "base/content_hash.h"
 #include "base/error.h"
 
 #ifdef VOXELASTIC_HAVE_METIS
@@ -130,8 +131,10 @@ SparseFactor::SweepKernel SparseFactor::default_sweep_kernel() {
 void SparseFactor::reset() {
   size_ = 0;
   supernodal_ = false;
+  order_s_ = 0.0;
   have_forward_ = false;
   from_cache_ = false;
+  order_given_ = false;
   closure_rows_.clear();
   closure_supers_.clear();
   closure_columns_ = 0;
@@ -150,13 +153,40 @@ void SparseFactor::reset() {
   tree_passes_ = 0;
 }
 
-bool SparseFactor::compute(const Matrix& a, Backend backend) {
+std::vector<int> SparseFactor::order() const {
+  std::vector<int> o(perm_.size());
+  for (std::size_t row = 0; row < perm_.size(); ++row) o[std::size_t(perm_[row])] = int(row);
+  return o;
+}
+
+FactorKey SparseFactor::pattern_key(const Matrix& a) {
+  ContentHash h;
+  const std::int64_t n = a.rows();
+  h.add_value(n);
+  // column by column, the rows of the lower triangle's entries (the upper is not read)
+  std::vector<int> rows;
+  for (Eigen::Index j = 0; j < a.outerSize(); ++j) {
+    rows.clear();
+    for (Matrix::InnerIterator it(a, j); it; ++it)
+      if (it.index() >= j) rows.push_back(int(it.index()));
+    h.add_value(std::int64_t(rows.size()));
+    h.add(rows.data(), rows.size() * sizeof(int));
+  }
+  FactorKey k;
+  k.hash = h.value();
+  k.rows = n;
+  k.nonzeros = a.nonZeros();
+  k.backend = std::uint8_t(Backend::cholmod);
+  return k;
+}
+
+bool SparseFactor::compute(const Matrix& a, Backend backend, std::span<const int> order) {
   const auto t0 = std::chrono::steady_clock::now();
   reset();
   if (backend == Backend::automatic || !available(backend)) backend = best_backend();
   bool ok = false;
   switch (backend) {
-    case Backend::cholmod: ok = compute_cholmod(a); break;
+    case Backend::cholmod: ok = compute_cholmod(a, order); break;
     case Backend::eigen_metis: ok = compute_eigen(a, true); break;
     default: ok = compute_eigen(a, false); break;
   }
@@ -251,7 +281,7 @@ bool SparseFactor::compute_eigen(const Matrix& a, bool metis) {
   return ok;
 }
 
-bool SparseFactor::compute_cholmod(const Matrix& a_in) {
+bool SparseFactor::compute_cholmod(const Matrix& a_in, std::span<const int> order) {
 #ifdef VOXELASTIC_HAVE_CHOLMOD
   Matrix a = a_in;
   a.makeCompressed();
@@ -264,7 +294,11 @@ bool SparseFactor::compute_cholmod(const Matrix& a_in) {
   cm.error_handler = nullptr;
   cm.supernodal = CHOLMOD_SUPERNODAL;
   cm.nmethods = 1;
-  cm.method[0].ordering = CHOLMOD_METIS;
+  const bool given = !order.empty();
+  if (given && int(order.size()) != n)
+    throw Error("SparseFactor: an order of " + std::to_string(order.size()) + " rows for a matrix of " +
+                std::to_string(n));
+  cm.method[0].ordering = given ? CHOLMOD_GIVEN : CHOLMOD_METIS;
   cm.postorder = 1;
   cm.quick_return_if_not_posdef = 1;
   cholmod_sparse view{};
@@ -280,7 +314,13 @@ bool SparseFactor::compute_cholmod(const Matrix& a_in) {
   view.dtype = CHOLMOD_DOUBLE;
   view.sorted = 1;
   view.packed = 1;
-  cholmod_factor* l = cholmod_analyze(&view, &cm);
+  // CHOLMOD checks a given order is a permutation (a null factor if not) and postorders it (an
+  // order() is postordered already: it comes back the same)
+  const auto t0 = std::chrono::steady_clock::now();
+  cholmod_factor* l =
+      given ? cholmod_analyze_p(&view, const_cast<int*>(order.data()), nullptr, 0, &cm) : cholmod_analyze(&view, &cm);
+  order_s_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  order_given_ = given;
   bool ok = l != nullptr;
   if (ok) ok = cholmod_factorize(&view, l, &cm) && cm.status == CHOLMOD_OK && l->minor == l->n;
   // keep the supernodal L L^T: its blocks as they are
@@ -313,6 +353,7 @@ bool SparseFactor::compute_cholmod(const Matrix& a_in) {
   return ok;
 #else
   (void)a_in;
+  (void)order;
   return false;
 #endif
 }

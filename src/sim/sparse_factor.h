@@ -29,6 +29,7 @@
 #include <cstdint>
 #include <iosfwd>
 #include <memory>
+#include <span>
 #include <string>
 #include <utility>
 #include <vector>
@@ -118,6 +119,21 @@ class FactorCache {
   /// Offers the factor of `key` just computed (SparseFactor::write; factor_seconds() says what
   /// it cost).
   virtual void store(const FactorKey& key, const SparseFactor& factor) = 0;
+  /// The fill-reducing order kept for the matrix pattern `pattern` (SparseFactor::pattern_key):
+  /// METIS's order of another matrix of the same model and support (another material, step or
+  /// damping), which the factor of this one may take instead of ordering again. False when there
+  /// is none (`order` then empty); a cache may keep none.
+  virtual bool load_order(const FactorKey& pattern, std::vector<int>& order) {
+    (void)pattern;
+    order.clear();
+    return false;
+  }
+  /// Offers the order `factor` was just factored in (SparseFactor::order(); order_seconds() says
+  /// what finding it cost).
+  virtual void store_order(const FactorKey& pattern, const SparseFactor& factor) {
+    (void)pattern;
+    (void)factor;
+  }
 };
 
 class SparseFactor {
@@ -146,8 +162,10 @@ class SparseFactor {
 
   /// Factors `a` (n x n, symmetric; the lower triangle is read) with `backend` (automatic: the
   /// build's best; one the build lacks falls back to it). Returns false when it is not positive
-  /// definite (a part of the model held by nothing, a NaN).
-  [[nodiscard]] bool compute(const Matrix& a, Backend backend = Backend::automatic);
+  /// definite (a part of the model held by nothing, a NaN). `order` (CHOLMOD only; empty: METIS's)
+  /// is the fill-reducing order to factor in, order[k] the row that comes k-th: an order() kept
+  /// from a matrix of the same pattern (the order cache: METIS's time saved, the same factor).
+  [[nodiscard]] bool compute(const Matrix& a, Backend backend = Backend::automatic, std::span<const int> order = {});
   /// Writes the factor in a binary form (native byte order; a header, the arrays each at a
   /// 64-byte boundary, a checksum): what read() reads back on this machine. Throws vx::Error
   /// when the stream fails.
@@ -162,6 +180,9 @@ class SparseFactor {
   bool read(const unsigned char* data, std::size_t size, std::shared_ptr<const void> keep, std::string* why = nullptr);
   /// True when the factor was read (read()), not computed.
   [[nodiscard]] bool from_cache() const { return from_cache_; }
+  /// True when the factor was computed in an order compute() was given (the order cache's), not
+  /// one it found.
+  [[nodiscard]] bool order_given() const { return order_given_; }
   /// Bytes write() writes (about: the arrays).
   [[nodiscard]] std::uint64_t stored_bytes() const;
 
@@ -208,6 +229,15 @@ class SparseFactor {
   [[nodiscard]] int widest_supernode() const;
   /// Wall time of the last compute() or read(), s.
   [[nodiscard]] double factor_seconds() const { return factor_s_; }
+  /// Of that, the fill-reducing order and the symbolic analysis (CHOLMOD's analyze: METIS's
+  /// order, or a given order's check and postorder), s; 0 for the other backends and a read.
+  [[nodiscard]] double order_seconds() const { return order_s_; }
+  /// The order the factor is in: order()[k] is the row factored k-th (what compute() takes back
+  /// for a matrix of the same pattern: the same order, the same factor's structure).
+  [[nodiscard]] std::vector<int> order() const;
+  /// The key of a's pattern (its size and the rows of its lower triangle's entries, not their
+  /// values): the key an order is kept by (FactorCache::load_order). backend: CHOLMOD's.
+  [[nodiscard]] static FactorKey pattern_key(const Matrix& a);
 
   /// x = A^-1 b for the three columns of b (n x 3) at once. Allocation-free after compute().
   void solve3(const Eigen::MatrixX3d& b, Eigen::MatrixX3d& x);
@@ -324,12 +354,14 @@ class SparseFactor {
   void finish();
   bool index_supernodes();
   bool compute_eigen(const Matrix& a, bool metis);
-  bool compute_cholmod(const Matrix& a);
+  bool compute_cholmod(const Matrix& a, std::span<const int> order);
 
   int size_{0};
   Backend backend_{Backend::automatic};
   double factor_s_{0.0};
+  double order_s_{0.0};
   bool from_cache_{false};
+  bool order_given_{false};
   // P A P^T = L D L^T: L strictly lower (unit diagonal implied), column-compressed
   std::vector<int> perm_;            ///< original row -> factored position
   std::vector<std::int64_t> outer_;  ///< n + 1 column starts

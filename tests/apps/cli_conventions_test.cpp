@@ -74,6 +74,10 @@ TEST_F(CliConventions, TheSecondRunOfAnImplicitSceneLoadsItsFactorAndCalibration
   EXPECT_NE(first.err.find("factor cache: kept the factor"), std::string::npos) << first.err;
   EXPECT_NE(first.out.find("factoring took"), std::string::npos) << first.out;
   EXPECT_NE(first.err.find("calibration cache: kept the calibration"), std::string::npos) << first.err;
+  const bool orders = vx::SparseFactor::best_backend() == vx::SparseFactor::Backend::cholmod;
+  if (orders) {  // METIS's order, kept by the pattern
+    EXPECT_NE(first.err.find("factor cache: kept the order"), std::string::npos) << first.err;
+  }
   const RunResult second = run("simulate implicit.json --out b --factor-cache fc", keep_all);
   ASSERT_EQ(second.code, 0) << second.err;
   EXPECT_NE(second.err.find("factor cache: loaded the factor"), std::string::npos) << second.err;
@@ -109,11 +113,22 @@ TEST_F(CliConventions, TheSecondRunOfAnImplicitSceneLoadsItsFactorAndCalibration
   EXPECT_EQ(nlohmann::json::parse(slurp(dir_ / "c" / "summary.json")).at("factors_from_cache"), 0);
   // the calibration does not depend on the step: loaded
   EXPECT_NE(third.err.find("calibration cache: loaded the calibration"), std::string::npos) << third.err;
+  // nor does the matrix's pattern: METIS's order loaded, not found again
+  if (orders) {
+    EXPECT_NE(third.err.find("factor cache: loaded the order"), std::string::npos) << third.err;
+    EXPECT_NE(third.out.find("METIS's order loaded from the cache"), std::string::npos) << third.out;
+    EXPECT_EQ(nlohmann::json::parse(slurp(dir_ / "c" / "summary.json")).at("orders_from_cache"), 1);
+    EXPECT_EQ(sa.at("orders_from_cache"), 0);
+  }
   // off: nothing looked up
   const RunResult off = run("simulate implicit.json --out d --factor-cache off", keep_all);
   ASSERT_EQ(off.code, 0) << off.err;
   EXPECT_EQ(off.err.find("factor cache"), std::string::npos) << off.err;
   EXPECT_EQ(off.err.find("calibration cache"), std::string::npos) << off.err;
+  // the order loaded is the order METIS finds: the same factor, the same forces as text
+  const std::string fc = slurp(dir_ / "c" / "forces.csv");
+  EXPECT_GT(fc.size(), 100u);
+  EXPECT_EQ(fc, slurp(dir_ / "d" / "forces.csv"));
 }
 
 TEST_F(CliConventions, CtrlCInSimulateKeepsAUsablePvdAndSaysWhereItStopped) {

@@ -1,7 +1,8 @@
 // The factor cache in a folder (io/factor_cache.h): a factor kept is loaded back and solves bit
 // for bit as computed; a damaged file is removed and the factor computed; the folder stays
 // under its size limit by dropping the least recently used; quick factors are not kept; the
-// option and the environment pick the folder or none.
+// option and the environment pick the folder or none; an order kept by the matrix's pattern
+// serves another matrix of it with METIS's factor, and a false order file is refused.
 #include "io/factor_cache.h"
 
 #include <gtest/gtest.h>
@@ -12,9 +13,12 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 #include <string>
 #include <thread>
 #include <vector>
+
+#include "base/error.h"
 
 namespace vx {
 namespace {
@@ -143,6 +147,102 @@ TEST_F(FactorCacheTest, ADamagedFileIsRemovedAndTheFactorComputed) {
   SparseFactor h = factor_with(again, a);
   EXPECT_FALSE(h.from_cache());
   EXPECT_EQ(again.counters().damaged, 2);
+}
+
+TEST_F(FactorCacheTest, AnOrderKeptServesAnotherMatrixOfThePatternWithTheSameFactor) {
+  if (SparseFactor::best_backend() != SparseFactor::Backend::cholmod) GTEST_SKIP() << "orders are CHOLMOD's";
+  const SparseFactor::Matrix a = grid_matrix(12), b = grid_matrix(12, 0.5);  // the pattern, other values
+  EXPECT_NE(key_of(a).hash, key_of(b).hash);
+  const FactorKey pattern = SparseFactor::pattern_key(a);
+  EXPECT_EQ(SparseFactor::pattern_key(b), pattern);
+  EXPECT_NE(SparseFactor::pattern_key(grid_matrix(11)), pattern);
+  {  // one more entry in a column: another pattern
+    SparseFactor::Matrix c = a;
+    c.coeffRef(5, 0) = 0.0;
+    EXPECT_NE(SparseFactor::pattern_key(c), pattern);
+  }
+  SparseFactor first;
+  ASSERT_TRUE(first.compute(a));
+  EXPECT_GT(first.order_seconds(), 0.0);
+  FolderFactorCache cache(settings());
+  cache.store_order(pattern, first);
+  EXPECT_EQ(cache.order_counters().stored, 1);
+  EXPECT_EQ(cache.order_file_of(pattern).extension(), ".vxorder");
+
+  FolderFactorCache again(settings());
+  std::vector<int> order;
+  ASSERT_TRUE(again.load_order(pattern, order));
+  EXPECT_EQ(again.order_counters().hits, 1);
+  EXPECT_EQ(order, first.order());
+  // b factored in the kept order and b factored with METIS: the same order, the same bits
+  SparseFactor kept, metis;
+  ASSERT_TRUE(kept.compute(b, SparseFactor::Backend::automatic, order));
+  ASSERT_TRUE(metis.compute(b));
+  EXPECT_EQ(kept.order(), metis.order());
+  EXPECT_EQ(kept.nonzeros(), metis.nonzeros());
+  const Eigen::MatrixX3d rhs = Eigen::MatrixX3d::Random(b.rows(), 3);
+  Eigen::MatrixX3d x1(b.rows(), 3), x2(b.rows(), 3);
+  kept.solve3(rhs, x1);
+  metis.solve3(rhs, x2);
+  EXPECT_EQ(x1, x2);
+  EXPECT_LT((b * x1 - rhs).norm(), 1e-10 * rhs.norm());
+  // another pattern finds nothing
+  EXPECT_FALSE(again.load_order(SparseFactor::pattern_key(grid_matrix(11)), order));
+  EXPECT_TRUE(order.empty());
+  // an order of the wrong length is refused by the factor, not used
+  SparseFactor wrong;
+  EXPECT_THROW((void)wrong.compute(b, SparseFactor::Backend::cholmod, std::vector<int>(5, 0)), Error);
+}
+
+TEST_F(FactorCacheTest, AnOrderFileThatIsNotThePatternsPermutationIsRefused) {
+  const FactorKey pattern{.hash = 0x1234, .rows = 4, .nonzeros = 7, .backend = 0};
+  const auto read = [&](const std::vector<int>& written, const FactorKey& key, std::string& why) {
+    std::ostringstream out;
+    write_order_file(out, key, written);
+    const std::string bytes = out.str();
+    std::vector<int> order;
+    const bool ok =
+        read_order_file(reinterpret_cast<const unsigned char*>(bytes.data()), bytes.size(), pattern, order, &why);
+    EXPECT_EQ(ok, !order.empty());
+    return ok;
+  };
+  std::string why;
+  EXPECT_TRUE(read({2, 0, 3, 1}, pattern, why)) << why;
+  EXPECT_FALSE(read({2, 0, 2, 1}, pattern, why));  // a row twice
+  EXPECT_NE(why.find("not a permutation"), std::string::npos) << why;
+  EXPECT_FALSE(read({2, 0, 4, 1}, pattern, why));  // a row out of range
+  EXPECT_NE(why.find("not a permutation"), std::string::npos) << why;
+  EXPECT_FALSE(read({2, 0, 1}, pattern, why));  // too short
+  EXPECT_FALSE(why.empty());
+  FactorKey other = pattern;
+  other.hash = 0x1235;
+  EXPECT_FALSE(read({2, 0, 3, 1}, other, why));
+  EXPECT_NE(why.find("another matrix pattern"), std::string::npos) << why;
+
+  // a stored file with a bit flipped: removed, counted damaged, nothing loaded
+  if (SparseFactor::best_backend() != SparseFactor::Backend::cholmod) return;
+  const SparseFactor::Matrix a = grid_matrix(10);
+  SparseFactor f;
+  ASSERT_TRUE(f.compute(a));
+  FolderFactorCache cache(settings());
+  const FactorKey key = SparseFactor::pattern_key(a);
+  cache.store_order(key, f);
+  const fs::path file = cache.order_file_of(key);
+  ASSERT_TRUE(fs::exists(file));
+  {
+    std::fstream io(file, std::ios::in | std::ios::out | std::ios::binary);
+    io.seekg(std::streamoff(fs::file_size(file) / 2));
+    char c = 0;
+    io.read(&c, 1);
+    c = char(c ^ 0x10);
+    io.seekp(std::streamoff(fs::file_size(file) / 2));
+    io.write(&c, 1);
+  }
+  std::vector<int> order;
+  EXPECT_FALSE(cache.load_order(key, order));
+  EXPECT_TRUE(order.empty());
+  EXPECT_EQ(cache.order_counters().damaged, 1);
+  EXPECT_FALSE(fs::exists(file));
 }
 
 TEST_F(FactorCacheTest, TheFolderStaysUnderItsLimitDroppingTheLeastRecentlyUsed) {
