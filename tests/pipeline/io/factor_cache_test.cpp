@@ -68,6 +68,17 @@ SparseFactor factor_with(FolderFactorCache& cache, const SparseFactor::Matrix& a
   return f;
 }
 
+/// Flips the bits of `mask` in the byte in the middle of `file`.
+void flip_middle_bit(const fs::path& file, char mask) {
+  std::fstream io(file, std::ios::in | std::ios::out | std::ios::binary);
+  io.seekg(std::streamoff(fs::file_size(file) / 2));
+  char c = 0;
+  io.read(&c, 1);
+  c = char(c ^ mask);
+  io.seekp(std::streamoff(fs::file_size(file) / 2));
+  io.write(&c, 1);
+}
+
 class FactorCacheTest : public ::testing::Test {
  protected:
   void SetUp() override {
@@ -124,15 +135,7 @@ TEST_F(FactorCacheTest, ADamagedFileIsRemovedAndTheFactorComputed) {
   SparseFactor f = factor_with(cache, a);
   const fs::path file = cache.file_of(key_of(a));
   ASSERT_TRUE(fs::exists(file));
-  {  // a bit flipped in the middle of the values
-    std::fstream io(file, std::ios::in | std::ios::out | std::ios::binary);
-    io.seekg(std::streamoff(fs::file_size(file) / 2));
-    char c = 0;
-    io.read(&c, 1);
-    c = char(c ^ 0x04);
-    io.seekp(std::streamoff(fs::file_size(file) / 2));
-    io.write(&c, 1);
-  }
+  flip_middle_bit(file, 0x04);  // in the middle of the values
   FolderFactorCache again(settings());
   SparseFactor g = factor_with(again, a);
   EXPECT_FALSE(g.from_cache());
@@ -229,15 +232,7 @@ TEST_F(FactorCacheTest, AnOrderFileThatIsNotThePatternsPermutationIsRefused) {
   cache.store_order(key, f);
   const fs::path file = cache.order_file_of(key);
   ASSERT_TRUE(fs::exists(file));
-  {
-    std::fstream io(file, std::ios::in | std::ios::out | std::ios::binary);
-    io.seekg(std::streamoff(fs::file_size(file) / 2));
-    char c = 0;
-    io.read(&c, 1);
-    c = char(c ^ 0x10);
-    io.seekp(std::streamoff(fs::file_size(file) / 2));
-    io.write(&c, 1);
-  }
+  flip_middle_bit(file, 0x10);  // in the middle of the order
   std::vector<int> order;
   EXPECT_FALSE(cache.load_order(key, order));
   EXPECT_TRUE(order.empty());
