@@ -220,8 +220,7 @@ void ProjectiveSolver::assemble_and_factor(FactorCache* cache, int threads) {
     pattern = SparseFactor::pattern_key(a);
     if (!cache->load_order(pattern, order) || int(order.size()) != nf) order.clear();
   }
-  // (an order CHOLMOD refuses, which the cache's checks should never let through: METIS's)
-  if (!factor_.compute(a, SparseFactor::Backend::automatic, order) && (order.empty() || !factor_.compute(a)))
+  if (!factor_.compute(a, SparseFactor::Backend::automatic, order))
     throw Error("implicit integrator: the system matrix could not be factored (" + std::to_string(nf) +
                 " free nodes); is a part of the model held by nothing?");
   if (cache) cache->store(key, factor_);

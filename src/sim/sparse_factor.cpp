@@ -283,6 +283,9 @@ bool SparseFactor::compute_eigen(const Matrix& a, bool metis) {
 
 bool SparseFactor::compute_cholmod(const Matrix& a_in, std::span<const int> order) {
 #ifdef VOXELASTIC_HAVE_CHOLMOD
+  if (!order.empty() && order.size() != std::size_t(a_in.rows()))
+    throw Error("SparseFactor: an order of " + std::to_string(order.size()) + " rows for a matrix of " +
+                std::to_string(a_in.rows()));
   Matrix a = a_in;
   a.makeCompressed();
   const int n = int(a.rows());
@@ -295,9 +298,6 @@ bool SparseFactor::compute_cholmod(const Matrix& a_in, std::span<const int> orde
   cm.supernodal = CHOLMOD_SUPERNODAL;
   cm.nmethods = 1;
   const bool given = !order.empty();
-  if (given && int(order.size()) != n)
-    throw Error("SparseFactor: an order of " + std::to_string(order.size()) + " rows for a matrix of " +
-                std::to_string(n));
   cm.method[0].ordering = given ? CHOLMOD_GIVEN : CHOLMOD_METIS;
   cm.postorder = 1;
   cm.quick_return_if_not_posdef = 1;
