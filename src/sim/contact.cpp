@@ -53,6 +53,14 @@ void ContactSolver::rebuild(const Eigen::Matrix3Xd& x, const std::vector<ProbeGe
                             const std::vector<ProbeState>& probes) {
   const std::size_t n = nodes_.size();
   for (auto& l : lists_) l.clear();
+  // a ball round each probe rejects the far nodes with a squared distance (probe.h)
+  reach_.resize(std::size_t(probes_));
+  for (int q = 0; q < probes_; ++q) {
+    ProbeReach& r = reach_[std::size_t(q)];
+    const double reach =
+        probe_bounding_ball(geometry[std::size_t(q)], probes[std::size_t(q)].position_mm, r.centre) + skin_mm_;
+    r.reach2 = reach * reach;
+  }
   for (std::size_t k = 0; k < n; ++k) {
     const std::int32_t i = nodes_[k];
     const Eigen::Vector3d p = x.col(i);
@@ -62,7 +70,8 @@ void ContactSolver::rebuild(const Eigen::Matrix3Xd& x, const std::vector<ProbeGe
       continue;
     }
     for (int q = 0; q < probes_; ++q)
-      if (probe_signed_distance(geometry[std::size_t(q)], probes[std::size_t(q)].position_mm, p) < skin_mm_)
+      if ((p - reach_[std::size_t(q)].centre).squaredNorm() < reach_[std::size_t(q)].reach2 &&
+          probe_signed_distance(geometry[std::size_t(q)], probes[std::size_t(q)].position_mm, p) < skin_mm_)
         lists_[std::size_t(q)].push_back(i);
     if (workspace_.enabled) {
       const double inside = std::min((p - workspace_.min_mm).minCoeff(), (workspace_.max_mm - p).minCoeff());

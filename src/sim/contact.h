@@ -132,6 +132,12 @@ class ContactSolver {
   int threads_{1};
   std::vector<double> chunk_move_;  ///< node_move()'s largest squared move per chunk
   std::vector<Eigen::Vector3d> probe_at_rebuild_;
+  /// rebuild(): a ball round each probe and its squared reach (the ball's radius plus the skin)
+  struct ProbeReach {
+    Eigen::Vector3d centre{Eigen::Vector3d::Zero()};
+    double reach2{0.0};
+  };
+  std::vector<ProbeReach> reach_;
   ContactCounters counters_;
   // friction: where each node last touched a surface, in that surface's frame (per node id)
   static constexpr std::int64_t kAnchorSteps = 8;

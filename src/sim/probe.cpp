@@ -3,6 +3,7 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <sstream>
 
 #include "base/error.h"
@@ -125,6 +126,20 @@ double probe_signed_distance(const ProbeGeometry& g, const Eigen::Vector3d& c, c
     }
   }
   return 0.0;
+}
+
+double probe_bounding_ball(const ProbeGeometry& g, const Eigen::Vector3d& position, Eigen::Vector3d& centre) {
+  centre = position;
+  switch (g.shape) {
+    case ProbeShape::sphere: return g.radius_mm;
+    case ProbeShape::capsule:
+      // the segment's middle; its half length plus the radius reaches both rounded ends
+      centre = position + 0.5 * g.length_mm * g.axis;
+      return 0.5 * g.length_mm + g.radius_mm;
+    case ProbeShape::cylinder: return std::hypot(0.5 * g.length_mm, g.radius_mm);  // a rim's corner
+    case ProbeShape::plane: return std::numeric_limits<double>::infinity();
+  }
+  return std::numeric_limits<double>::infinity();
 }
 
 const char* to_string(JoystickMode m) { return m == JoystickMode::rate ? "rate" : "position"; }

@@ -60,6 +60,14 @@ struct ProbeState {
                                            const Eigen::Vector3d& x, Eigen::Vector3d* surface_point = nullptr,
                                            Eigen::Vector3d* normal = nullptr);
 
+/// A ball that holds the probe at `position`: its centre in `centre`, its radius returned (mm;
+/// infinite for a plane). No point is nearer the probe than it is to the ball:
+/// probe_signed_distance(g, position, x) >= |x - centre| - radius for every x, with equality for
+/// a sphere. A scan over many nodes rejects the far ones with a squared distance, without the
+/// signed distance's square root and normal.
+[[nodiscard]] double probe_bounding_ball(const ProbeGeometry& g, const Eigen::Vector3d& position,
+                                         Eigen::Vector3d& centre);
+
 /// A keyframe of a path: where the probe is at time t.
 struct PathKey {
   double t_s{0.0};

@@ -5,7 +5,10 @@
 
 #include <gtest/gtest.h>
 
+#include <Eigen/Geometry>
+
 #include <cmath>
+#include <limits>
 #include <random>
 
 #include "base/error.h"
@@ -88,6 +91,43 @@ TEST(ProbeGeometry, SurfacePointsAndNormalsConsistent) {
       make_geometry(ProbeShape::cylinder, 2.5, 5, {0, 1, 2}), make_geometry(ProbeShape::plane, 0, 0, {1, -1, 1})};
   for (const auto& g : shapes)
     for (int k = 0; k < 300; ++k) expect_consistent(g, c, c + Eigen::Vector3d(u(rng), u(rng), u(rng)));
+}
+
+// The ball the broad phase and the local contact model reject far nodes with: no point is
+// nearer the probe than the ball's surface (a scan that skips the nodes beyond the ball plus a
+// margin misses none within the margin), and the ball touches the probe (it is no larger than
+// it must be: the point of the probe farthest from the centre is on the ball).
+TEST(ProbeGeometry, TheBoundingBallHoldsTheProbeAndTouchesIt) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(-12.0, 12.0);
+  const Eigen::Vector3d c(1, -2, 0.5);
+  const ProbeGeometry shapes[] = {make_geometry(ProbeShape::sphere, 3, 0, {0, 0, 1}),
+                                  make_geometry(ProbeShape::capsule, 2, 6, {1, 1, 0}),
+                                  make_geometry(ProbeShape::cylinder, 2.5, 5, {0, 1, 2})};
+  for (const auto& g : shapes) {
+    Eigen::Vector3d centre;
+    const double radius = probe_bounding_ball(g, c, centre);
+    double nearest_gap = std::numeric_limits<double>::infinity();  // distance minus the ball's bound
+    for (int k = 0; k < 20000; ++k) {
+      const Eigen::Vector3d x = c + Eigen::Vector3d(u(rng), u(rng), u(rng));
+      const double bound = (x - centre).norm() - radius;
+      const double d = probe_signed_distance(g, c, x);
+      EXPECT_GE(d, bound - 1e-12) << to_string(g.shape) << " at " << x.transpose();
+      nearest_gap = std::min(nearest_gap, d - bound);
+    }
+    // the farthest point of the probe from the centre: the capsule's far tip, the cylinder's rim
+    Eigen::Vector3d far = c + 3.0 * Eigen::Vector3d::UnitX();  // the sphere: any surface point
+    if (g.shape == ProbeShape::capsule) far = c + (g.length_mm + g.radius_mm) * g.axis;
+    if (g.shape == ProbeShape::cylinder)
+      far = c + 0.5 * g.length_mm * g.axis + g.radius_mm * g.axis.cross(Eigen::Vector3d::UnitX()).normalized();
+    EXPECT_NEAR(probe_signed_distance(g, c, far), 0.0, 1e-12) << to_string(g.shape);
+    EXPECT_NEAR((far - centre).norm(), radius, 1e-12) << to_string(g.shape);
+    if (g.shape == ProbeShape::sphere) {
+      EXPECT_NEAR(nearest_gap, 0.0, 1e-12);  // exact for a ball
+    }
+  }
+  Eigen::Vector3d centre;
+  EXPECT_TRUE(std::isinf(probe_bounding_ball(make_geometry(ProbeShape::plane, 0, 0, {0, 0, 1}), c, centre)));
 }
 
 TEST(ProbeGeometry, ValidationNamesTheProblem) {
