@@ -7,6 +7,7 @@
 //   and released (base/parallel.h, release_openmp_workers), side by side.
 // sweep/<full or regional>/<kernel>/n: the implicit solver's factor solved with the column
 //   sweeps against the gathered ones on each instruction set (sim/sparse_factor.h), side by side.
+// assembly/<threads>/n: the implicit solver's matrix assembled on one thread and on two.
 //   voxelastic_bench_step [--benchmark_filter=...]   (OMP_NUM_THREADS sets the threads)
 // Targets (issue): explicit step of the 128^3 sphere (~19k elements, ~270k entries) < 1 ms on
 // 2 cores; ns/entry flat from 32^3 to 256^3; implicit 128^3 at dt = 1 ms in real time.
@@ -242,6 +243,24 @@ void sweep(benchmark::State& bs, bool regional, const SweepVariant& v, int n) {
   bs.counters["widest_supernode"] = f.widest_supernode();
 }
 
+/// The implicit solver's matrix assembled (the first start's share before the ordering and the
+/// factorisation) on `threads`.
+void assembly(benchmark::State& bs, int threads, int n) {
+  const auto& physics = sphere(n);
+  const NodeNumbering numbering = number_nodes(sphere_state(physics).node_fixed);
+  ProjectiveSetup setup;
+  setup.time_step_s = 0.03;
+  setup.damping = true;
+  Eigen::SparseMatrix<double> a, coupling;
+  for (auto _ : bs) {
+    assemble_projective_matrix(*physics, numbering, setup, a, &coupling, threads);
+    benchmark::DoNotOptimize(a.valuePtr());
+  }
+  bs.counters["threads"] = threads;
+  bs.counters["rows"] = double(a.rows());
+  bs.counters["nonzeros"] = double(a.nonZeros());
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -332,6 +351,14 @@ int main(int argc, char** argv) {
             ->UseRealTime()
             ->MinTime(0.5);
       }
+  // the implicit solver's assembly on one thread and on two, interleaved per size
+  for (int n : {64, 128, 256})
+    for (const int threads : {1, 2})
+      benchmark::RegisterBenchmark(("assembly/" + std::to_string(threads) + "threads/" + std::to_string(n)).c_str(),
+                                   [threads, n](benchmark::State& bs) { assembly(bs, threads, n); })
+          ->Unit(benchmark::kMillisecond)
+          ->UseRealTime()
+          ->MinTime(0.5);
   benchmark::Initialize(&argc, argv);
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
   benchmark::RunSpecifiedBenchmarks();

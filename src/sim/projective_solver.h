@@ -88,10 +88,11 @@ struct NodeNumbering {
 /// solver factors it: A = [M/dt^2] + sum_e (K_e + kappa_e (diag(w) - w w^T / W)) with
 /// kappa_e = projective_centring_weight(), its lower triangle only (A is symmetric; read it as
 /// a_free.selfadjointView<Eigen::Lower>()). `a_free_fixed` (may be null): the free x fixed
-/// coupling. Allocates.
+/// coupling. The element entries on `threads` (0: OpenMP's default), the same bits on any number.
+/// Allocates.
 void assemble_projective_matrix(const PhysicsModel& physics, const NodeNumbering& numbering,
                                 const ProjectiveSetup& setup, Eigen::SparseMatrix<double>& a_free,
-                                Eigen::SparseMatrix<double>* a_free_fixed);
+                                Eigen::SparseMatrix<double>* a_free_fixed, int threads = 1);
 /// The factor cache's key of that matrix (sim/sparse_factor.h): a hash of every entry the
 /// assembly would sum (from the same generator, in the same order, so no input of the matrix
 /// can be missed), the mass diagonal, the sizes and the backend; bit-identical on any number

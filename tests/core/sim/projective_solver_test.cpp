@@ -276,6 +276,47 @@ TEST(ProjectiveAssembly, IsTheLowerTriangleOfTheSymmetricMatrixThatMovesATransla
   EXPECT_GT(lower_only.cwiseAbs().maxCoeff(), 0.1 * a.diagonal().cwiseAbs().maxCoeff());
 }
 
+// The assembly on several threads (the elements in chunks of 512, each written to its own stretch
+// of the triplets): the same matrix to the bit as on one thread, and still the symmetric matrix
+// that moves a translation by nothing, on a block of 1,152 elements (three chunks).
+TEST(ProjectiveAssembly, OnSeveralThreadsIsTheSameMatrixToTheBit) {
+  auto physics = make_physics_model(hand_block(12, 12, 8, 1.0), soft(0.2));
+  SimState s = make_state(physics);
+  s.fix_nodes(nodes_on_face(*physics->model, BoxFace::z_min));
+  ASSERT_GT(physics->num_elements(), 1024);
+  const NodeNumbering numbering = number_nodes(s.node_fixed);
+  ProjectiveSetup setup;
+  setup.time_step_s = 0.01;
+  setup.damping = true;
+  Eigen::SparseMatrix<double> a1, c1;
+  assemble_projective_matrix(*physics, numbering, setup, a1, &c1, 1);
+  const auto same = [](const Eigen::SparseMatrix<double>& x, const Eigen::SparseMatrix<double>& y) {
+    return x.rows() == y.rows() && x.cols() == y.cols() && x.nonZeros() == y.nonZeros() &&
+           std::memcmp(x.valuePtr(), y.valuePtr(), sizeof(double) * std::size_t(x.nonZeros())) == 0 &&
+           std::memcmp(x.innerIndexPtr(), y.innerIndexPtr(), sizeof(int) * std::size_t(x.nonZeros())) == 0 &&
+           std::memcmp(x.outerIndexPtr(), y.outerIndexPtr(), sizeof(int) * std::size_t(x.cols() + 1)) == 0;
+  };
+  for (const int threads : {2, 3}) {
+    Eigen::SparseMatrix<double> a, c;
+    assemble_projective_matrix(*physics, numbering, setup, a, &c, threads);
+    a.makeCompressed();
+    c.makeCompressed();
+    a1.makeCompressed();
+    c1.makeCompressed();
+    EXPECT_TRUE(same(a, a1)) << threads;
+    EXPECT_TRUE(same(c, c1)) << threads;
+  }
+  // without the mass term, the rows sum to zero: every entry is where it belongs
+  setup.inertia = false;
+  setup.damping = false;
+  Eigen::SparseMatrix<double> k, coupling;
+  assemble_projective_matrix(*physics, numbering, setup, k, &coupling, 2);
+  EXPECT_EQ(Eigen::SparseMatrix<double>(k.triangularView<Eigen::StrictlyUpper>()).nonZeros(), 0);
+  const Eigen::VectorXd rows = k.selfadjointView<Eigen::Lower>() * Eigen::VectorXd::Ones(k.rows()) +
+                               coupling * Eigen::VectorXd::Ones(coupling.cols());
+  EXPECT_LT(rows.cwiseAbs().maxCoeff(), 1e-9 * k.diagonal().cwiseAbs().maxCoeff());
+}
+
 TEST(FactorCache, TheKeyFollowsEveryInputOfTheMatrixAndNotTheThreads) {
   const SimState s = perturbed_block(0.2);
   const NodeNumbering numbering = number_nodes(s.node_fixed);
