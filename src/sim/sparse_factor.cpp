@@ -151,6 +151,8 @@ void SparseFactor::reset() {
   super_parent_.clear();
   tree_ok_ = false;
   tree_passes_ = 0;
+  most_rows_ = 0;
+  scratch_team_ = 0;
 }
 
 std::vector<int> SparseFactor::order() const {
@@ -410,9 +412,12 @@ bool SparseFactor::index_supernodes() {
     }
   }
   super_parent_.assign(std::size_t(ns), -1);
+  most_rows_ = 0;
+  scratch_team_ = 0;
   for (int q = 0; q < ns; ++q) {
     const int nscol = super_[std::size_t(q) + 1] - super_[std::size_t(q)];
     const std::int64_t nsrow = row_start_[std::size_t(q) + 1] - row_start_[std::size_t(q)];
+    most_rows_ = std::max(most_rows_, nsrow);
     if (nsrow > nscol)
       super_parent_[std::size_t(q)] =
           column_super_[std::size_t(rows_[std::size_t(row_start_[std::size_t(q)] + nscol)])];

@@ -31,6 +31,7 @@
 #include <memory>
 #include <span>
 #include <string>
+#include <thread>
 #include <utility>
 #include <vector>
 
@@ -415,6 +416,18 @@ class SparseFactor {
   int threads_{1};
   std::int64_t min_parallel_entries_{kTreeMinParallelEntries};
   mutable std::int64_t tree_passes_{0};
+  /// The gathered kernels' per-thread scratch (K x a supernode's rows) is grown before a pass,
+  /// not when a thread first meets a wide supernode: which thread takes which subtree changes
+  /// from pass to pass, and a step must not allocate (Integrators.StepsDoNotAllocate under load).
+  /// The most rows of a supernode; the team (its size and the thread that formed it) whose
+  /// threads' scratch holds scratch_values_ values.
+  std::int64_t most_rows_{0};
+  mutable int scratch_team_{0};
+  mutable std::thread::id scratch_master_;
+  mutable std::size_t scratch_values_{0};
+  /// Grows the calling thread's scratch to K x most_rows_ values, and with `team` every thread of
+  /// the team of threads_ this thread forms (once per team and size).
+  void ready_scratch(int k, bool team) const;
   // plan_tree's work space (sized by supernodes); a factor is used from one thread at a time
   mutable std::vector<TreeTask> tasks_;
   mutable std::vector<std::int64_t> tree_work_;

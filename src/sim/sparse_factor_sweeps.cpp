@@ -539,11 +539,29 @@ bool SparseFactor::plan_tree(const std::vector<int>& supers) const {
   return true;
 }
 
+void SparseFactor::ready_scratch(int k, bool team) const {
+  const std::size_t values = std::size_t(k) * std::size_t(most_rows_);
+  (void)gather_scratch(values);
+  if (!team) return;
+  const int t = resolve_threads(threads_);
+  const std::thread::id me = std::this_thread::get_id();
+  if (t <= 1 || (scratch_team_ >= t && scratch_master_ == me && scratch_values_ >= values)) return;
+#pragma omp parallel num_threads(t)
+  {
+    (void)gather_scratch(values);  // on every thread of the team (a loop's chunks might all go to one)
+  }
+  scratch_team_ = t;
+  scratch_master_ = me;
+  scratch_values_ = values;
+}
+
 template <int K>
 void SparseFactor::forward_supers(double* w, const std::vector<int>& supers) const {
   const SupernodalArrays a(super_, row_start_, value_start_, rows_, values_);
   const auto slice = [&](int begin, int end) { return SuperList{supers.data() + begin, end - begin, 0}; };
-  if (!plan_tree(supers)) {
+  const bool tree = plan_tree(supers);
+  ready_scratch(K, tree);
+  if (!tree) {
     run_pass<K, Pass::forward>(w, a, slice(0, int(supers.size())), kAllRows, sweep_kernel_, sweep_simd_);
     return;
   }
@@ -576,7 +594,9 @@ template <int K>
 void SparseFactor::backward_supers(double* w, const std::vector<int>& supers) const {
   const SupernodalArrays a(super_, row_start_, value_start_, rows_, values_);
   const auto slice = [&](int begin, int end) { return SuperList{supers.data() + begin, end - begin, 0}; };
-  if (!plan_tree(supers)) {
+  const bool tree = plan_tree(supers);
+  ready_scratch(K, tree);
+  if (!tree) {
     run_pass<K, Pass::backward>(w, a, slice(0, int(supers.size())), kAllRows, sweep_kernel_, sweep_simd_);
     return;
   }
