@@ -152,7 +152,6 @@ void SparseFactor::reset() {
   tree_ok_ = false;
   tree_passes_ = 0;
   most_rows_ = 0;
-  scratch_team_ = 0;
 }
 
 std::vector<int> SparseFactor::order() const {
@@ -413,7 +412,6 @@ bool SparseFactor::index_supernodes() {
   }
   super_parent_.assign(std::size_t(ns), -1);
   most_rows_ = 0;
-  scratch_team_ = 0;
   for (int q = 0; q < ns; ++q) {
     const int nscol = super_[std::size_t(q) + 1] - super_[std::size_t(q)];
     const std::int64_t nsrow = row_start_[std::size_t(q) + 1] - row_start_[std::size_t(q)];

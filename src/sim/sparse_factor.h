@@ -419,8 +419,9 @@ class SparseFactor {
   /// The gathered kernels' per-thread scratch (K x a supernode's rows) is grown before a pass,
   /// not when a thread first meets a wide supernode: which thread takes which subtree changes
   /// from pass to pass, and a step must not allocate (Integrators.StepsDoNotAllocate under load).
-  /// The most rows of a supernode; the team (its size and the thread that formed it) whose
-  /// threads' scratch holds scratch_values_ values.
+  /// The most rows of a supernode; the last team grown (its size and the thread that formed it)
+  /// and the values its threads' scratch holds (thread_local: it outlives a factor, so a new
+  /// factor regrows only when it needs more).
   std::int64_t most_rows_{0};
   mutable int scratch_team_{0};
   mutable std::thread::id scratch_master_;
