@@ -257,8 +257,9 @@ Eigen::Vector3d ProbeSettings::initial_position() const {
   switch (drive) {
     case ProbeDrive::path: return path_position(path, 0.0);
     case ProbeDrive::joystick:
-      return mapping.mode == JoystickMode::position ? Eigen::Vector3d(start_mm + mapping.map(joystick_axes(joystick, 0.0)))
-                                                    : start_mm;
+      return mapping.mode == JoystickMode::position
+                 ? Eigen::Vector3d(start_mm + mapping.map(joystick_axes(joystick, 0.0)))
+                 : start_mm;
     case ProbeDrive::live: return start_mm;
   }
   return start_mm;
@@ -280,9 +281,7 @@ double ProbeSettings::max_scripted_speed_mm_s() const {
                               (joystick[k].t_s - joystick[k - 1].t_s));
       }
       break;
-    case ProbeDrive::live:
-      v = std::max(max_speed_mm_s, mapping.max_speed_mm_s);
-      break;
+    case ProbeDrive::live: v = std::max(max_speed_mm_s, mapping.max_speed_mm_s); break;
   }
   return v;
 }
@@ -299,9 +298,7 @@ void ProbeDriver::advance(double t, double dt) {
   const Eigen::Vector3d old = state_.position_mm;
   Eigen::Vector3d next = old;
   switch (settings_.drive) {
-    case ProbeDrive::path:
-      next = path_position(settings_.path, t);
-      break;
+    case ProbeDrive::path: next = path_position(settings_.path, t); break;
     case ProbeDrive::joystick:
       if (settings_.mapping.mode == JoystickMode::rate) {
         // velocity proportional to tilt; the trapezoid of the (piecewise-linear) stick signal
@@ -318,8 +315,10 @@ void ProbeDriver::advance(double t, double dt) {
         case LiveCommand::Kind::velocity: next = old + dt * live_.value; break;
         case LiveCommand::Kind::axes: {
           const JoystickMapping& m = settings_.mapping;
-          if (m.mode == JoystickMode::rate) next = old + dt * m.map(live_.value);
-          else next = settings_.start_mm + m.map(live_.value);
+          if (m.mode == JoystickMode::rate)
+            next = old + dt * m.map(live_.value);
+          else
+            next = settings_.start_mm + m.map(live_.value);
           break;
         }
         case LiveCommand::Kind::position: next = live_.value; break;

@@ -97,9 +97,9 @@ enum class JoystickMode : std::uint8_t {
 struct JoystickMapping {
   JoystickMode mode{JoystickMode::rate};
   Eigen::Matrix3d directions{Eigen::Matrix3d::Identity()};  ///< column j: LPS direction of axis j (unit or 0)
-  double max_speed_mm_s{20.0};  ///< rate: speed at full deflection, mm/s
-  double range_mm{20.0};        ///< position: displacement at full deflection, mm
-  double dead_zone{0.0};        ///< in [0, 1)
+  double max_speed_mm_s{20.0};                              ///< rate: speed at full deflection, mm/s
+  double range_mm{20.0};                                    ///< position: displacement at full deflection, mm
+  double dead_zone{0.0};                                    ///< in [0, 1)
 
   /// The mapped LPS vector of deflections (rate: velocity mm/s; position: offset mm).
   [[nodiscard]] Eigen::Vector3d map(const Eigen::Vector3d& axes) const;
@@ -112,14 +112,14 @@ enum class ProbeDrive : std::uint8_t { path, joystick, live };
 
 /// A probe: its shape and how it moves (plain settings; the scene file fills them).
 struct ProbeSettings {
-  std::string name;                  ///< for reports ("probe0", "left", ...)
+  std::string name;  ///< for reports ("probe0", "left", ...)
   ProbeGeometry geometry;
   ProbeDrive drive{ProbeDrive::path};
-  std::vector<PathKey> path;         ///< path: at least one key, times increasing
-  std::vector<JoystickKey> joystick; ///< joystick: at least one sample, times increasing
-  JoystickMapping mapping;           ///< joystick (and live axes)
+  std::vector<PathKey> path;                          ///< path: at least one key, times increasing
+  std::vector<JoystickKey> joystick;                  ///< joystick: at least one sample, times increasing
+  JoystickMapping mapping;                            ///< joystick (and live axes)
   Eigen::Vector3d start_mm{Eigen::Vector3d::Zero()};  ///< joystick and live: position at t = 0
-  double max_speed_mm_s{200.0};      ///< live: a position target is approached at most this fast
+  double max_speed_mm_s{200.0};                       ///< live: a position target is approached at most this fast
 
   /// Empty when valid, else what is wrong.
   [[nodiscard]] std::string validate() const;
