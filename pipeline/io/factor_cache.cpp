@@ -4,6 +4,7 @@
 
 #include "io/cache_file.h"
 #include "util/log.h"
+#include "util/thread_priority.h"
 
 namespace vx {
 namespace {
@@ -17,7 +18,8 @@ constexpr std::uint32_t kOrderVersion = 1;
 }  // namespace
 
 std::shared_ptr<FactorCache> make_factor_cache(const std::string& option) {
-  return make_folder_cache<FolderFactorCache>(option, &FactorCacheSettings::min_factor_s);
+  return make_folder_cache<FolderFactorCache>(option, &FactorCacheSettings::min_factor_s,
+                                              [](FactorCacheSettings& s) { s.background_writes = true; });
 }
 
 void write_order_file(std::ostream& out, const FactorKey& pattern, const std::vector<int>& order) {
@@ -87,21 +89,44 @@ void FolderFactorCache::store_order(const FactorKey& pattern, const SparseFactor
 }
 
 bool FolderFactorCache::load(const FactorKey& key, SparseFactor& factor) {
+  wait_for_writes();  // a factor stored is found (a write begun is finished first)
   return folder_.load(key.name(), fmt::format("{} rows", key.rows),
                       [&](const unsigned char* data, std::size_t bytes, const std::shared_ptr<const void>& mapping,
                           std::string& why) { return factor.read(data, bytes, mapping, &why); });
 }
 
+FolderFactorCache::~FolderFactorCache() { wait_for_writes(); }
+
+void FolderFactorCache::wait_for_writes() {
+  std::vector<std::thread> writes;
+  {
+    std::lock_guard lock(writes_mutex_);
+    writes.swap(writes_);
+  }
+  for (std::thread& t : writes) t.join();
+}
+
 void FolderFactorCache::store(const FactorKey& key, const SparseFactor& factor) {
   const double seconds = factor.factor_seconds();
   // a factor over the folder's limit is not written (its size is known before)
-  folder_.store({.name = key.name(),
-                 .seconds = seconds,
-                 .min_seconds = settings_.min_factor_s,
-                 .bytes = factor.stored_bytes(),
-                 .made = fmt::format("factored in {:.1f} s", seconds),
-                 .next_start = "this model"},
-                [&](std::ostream& out) { factor.write(out); });
+  FolderCache::Offer offer{.name = key.name(),
+                           .seconds = seconds,
+                           .min_seconds = settings_.min_factor_s,
+                           .bytes = factor.stored_bytes(),
+                           .made = fmt::format("factored in {:.1f} s", seconds),
+                           .next_start = "this model"};
+  if (!settings_.background_writes || seconds < offer.min_seconds) {
+    folder_.store(offer, [&](std::ostream& out) { factor.write(out); });
+    return;
+  }
+  // the solver goes on with its factor while a copy that shares its arrays is written (read-only
+  // on both threads); FolderCache::store keeps the folder locked meanwhile, so a load waits
+  auto copy = std::make_shared<const SparseFactor>(factor.file_copy());
+  std::lock_guard lock(writes_mutex_);
+  writes_.emplace_back([this, offer = std::move(offer), copy = std::move(copy)] {
+    if (settings_.writer_nice != 0) (void)set_this_thread_nice(settings_.writer_nice);
+    folder_.store(offer, [&](std::ostream& out) { copy->write(out); });
+  });
 }
 
 }  // namespace vx

@@ -21,7 +21,9 @@
 #include <cstdint>
 #include <filesystem>
 #include <memory>
+#include <mutex>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "io/folder_cache.h"
@@ -35,18 +37,29 @@ struct FactorCacheSettings {
   std::uint64_t max_bytes{std::uint64_t(8) << 30};
   /// factors computed faster than this are not kept (reading them back would cost as much), s
   double min_factor_s{1.0};
+  /// store() writes the factor on a thread of its own and returns at once (the folded organ's
+  /// 450 MB took 2 s of its first start's path; docs/bench.md); false: store() writes it
+  bool background_writes{false};
+  /// that thread's nice value (a real-time run goes first)
+  int writer_nice{10};
 };
 
 /// The factor cache of a command-line option (`--factor-cache`): "" the default folder
 /// (default_factor_cache_folder(), folder_cache.h, or none), "off" none, anything else a folder
 /// (created when used). Null: no cache. $VOXELASTIC_FACTOR_CACHE_MIN_S sets min_factor_s (0: keep every factor).
+/// Its factors are written in the background (FactorCacheSettings::background_writes).
 [[nodiscard]] std::shared_ptr<FactorCache> make_factor_cache(const std::string& option);
 
 /// A FactorCache in a folder (folder_cache.h: the folder's bookkeeping; here what a file
-/// holds: SparseFactor::write and read). Thread-safe (one lock around each call).
+/// holds: SparseFactor::write and read). Thread-safe (one lock around each call). With
+/// background writes a load first waits for the writes begun (so a factor stored is found), and
+/// so does the destructor: a run's factor is on disk when its cache is gone.
 class FolderFactorCache final : public FactorCache {
  public:
   explicit FolderFactorCache(FactorCacheSettings settings);
+  ~FolderFactorCache() override;
+  FolderFactorCache(const FolderFactorCache&) = delete;
+  FolderFactorCache& operator=(const FolderFactorCache&) = delete;
 
   bool load(const FactorKey& key, SparseFactor& factor) override;
   void store(const FactorKey& key, const SparseFactor& factor) override;
@@ -55,6 +68,8 @@ class FolderFactorCache final : public FactorCache {
   void store_order(const FactorKey& pattern, const SparseFactor& factor) override;
 
   [[nodiscard]] const FactorCacheSettings& settings() const { return settings_; }
+  /// Waits for the background writes begun so far.
+  void wait_for_writes();
   /// The file of `key`.
   [[nodiscard]] std::filesystem::path file_of(const FactorKey& key) const { return folder_.file_of(key.name()); }
   /// The order file of `pattern`.
@@ -74,6 +89,8 @@ class FolderFactorCache final : public FactorCache {
   FactorCacheSettings settings_;
   FolderCache folder_;
   FolderCache orders_;
+  std::mutex writes_mutex_;
+  std::vector<std::thread> writes_;  ///< background writes (joined by wait_for_writes)
 };
 
 /// An order file: the pattern's key and the order (order[k]: the row factored k-th), with a

@@ -19,6 +19,7 @@
 #include <optional>
 #include <ostream>
 #include <string>
+#include <type_traits>
 #include <utility>
 
 #include "io/cache_file.h"
@@ -36,14 +37,17 @@ namespace vx {
 
 /// A cache of a command-line option (cache_folder_of_option): `Cache` made from its `Settings`
 /// with the option's folder, their `min_seconds` member (the seconds below which nothing is
-/// kept) from $VOXELASTIC_FACTOR_CACHE_MIN_S when that holds a number >= 0. Null: no cache.
+/// kept) from $VOXELASTIC_FACTOR_CACHE_MIN_S when that holds a number >= 0, then `adjust`
+/// (may be null) given the settings. Null: no cache.
 template <class Cache, class Settings>
-[[nodiscard]] std::shared_ptr<Cache> make_folder_cache(const std::string& option, double Settings::*min_seconds) {
+[[nodiscard]] std::shared_ptr<Cache> make_folder_cache(const std::string& option, double Settings::*min_seconds,
+                                                       std::type_identity_t<void (*)(Settings&)> adjust = nullptr) {
   const std::optional<std::filesystem::path> folder = cache_folder_of_option(option);
   if (!folder) return nullptr;
   Settings s;
   s.folder = *folder;
   s.*min_seconds = cache_min_seconds(s.*min_seconds);
+  if (adjust) adjust(s);
   return std::make_shared<Cache>(std::move(s));
 }
 

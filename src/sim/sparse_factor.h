@@ -42,52 +42,47 @@ namespace vx {
 class SparseFactor;
 
 /// An array that either owns its values or views them in memory that `keep` keeps alive (a
-/// factor read from a mapped file: sparse_factor.h, read()). Read-only once filled.
+/// factor read from a mapped file: sparse_factor.h, read()). Read-only once filled, so a copy
+/// shares the values instead of copying them (owned values are held by a shared vector): a copy
+/// of a factor for a background write (SparseFactor::file_copy) costs no memory.
 template <typename T>
 class SharedArray {
  public:
   SharedArray() = default;
-  SharedArray(const SharedArray& o) { *this = o; }
-  SharedArray(SharedArray&& o) noexcept { *this = std::move(o); }
-  SharedArray& operator=(const SharedArray& o) {
-    if (this != &o) {
-      owned_ = o.owned_;
-      keep_ = o.keep_;
-      size_ = o.size_;
-      data_ = keep_ ? o.data_ : owned_.data();
-    }
-    return *this;
-  }
+  SharedArray(const SharedArray&) = default;
+  SharedArray& operator=(const SharedArray&) = default;
+  SharedArray(SharedArray&& o) noexcept
+      : keep_(std::move(o.keep_)), data_(std::exchange(o.data_, nullptr)), size_(std::exchange(o.size_, 0)) {}
   SharedArray& operator=(SharedArray&& o) noexcept {
-    owned_ = std::move(o.owned_);
     keep_ = std::move(o.keep_);
-    size_ = o.size_;
-    data_ = keep_ ? o.data_ : owned_.data();
-    o.clear();
+    data_ = std::exchange(o.data_, nullptr);
+    size_ = std::exchange(o.size_, 0);
     return *this;
   }
-  /// Owns `v`.
+  /// Owns `v` (its buffer moves, no copy).
   void own(std::vector<T> v) {
-    owned_ = std::move(v);
-    keep_.reset();
-    data_ = owned_.data();
-    size_ = owned_.size();
+    auto held = std::make_shared<const std::vector<T>>(std::move(v));
+    data_ = held->data();
+    size_ = held->size();
+    keep_ = std::move(held);
   }
   /// Views n values at `data`, kept alive by `keep`.
   void view(const T* data, std::size_t n, std::shared_ptr<const void> keep) {
-    owned_ = {};
     keep_ = std::move(keep);
     data_ = data;
     size_ = n;
   }
-  void clear() { own({}); }
+  void clear() {
+    keep_.reset();
+    data_ = nullptr;
+    size_ = 0;
+  }
   [[nodiscard]] const T* data() const { return data_; }
   [[nodiscard]] std::size_t size() const { return size_; }
   [[nodiscard]] bool empty() const { return size_ == 0; }
   [[nodiscard]] const T& operator[](std::size_t i) const { return data_[i]; }
 
  private:
-  std::vector<T> owned_;
   std::shared_ptr<const void> keep_;
   const T* data_{nullptr};
   std::size_t size_{0};
@@ -171,6 +166,10 @@ class SparseFactor {
   /// 64-byte boundary, a checksum): what read() reads back on this machine. Throws vx::Error
   /// when the stream fails.
   void write(std::ostream& out) const;
+  /// What write() writes and nothing else (no solve state), sharing the factor's values and row
+  /// indices rather than copying them: a copy to write on another thread while this one solves
+  /// (the factor cache's background write, pipeline/io/factor_cache.h).
+  [[nodiscard]] SparseFactor file_copy() const;
   /// Reads what write() wrote from the `size` bytes at `data` (8-byte aligned: a mapped file).
   /// With `keep`, the factor's two large arrays (values and row indices) view `data`, which
   /// `keep` keeps alive for as long as the factor uses them (no copy: a mapped file is read in

@@ -78,6 +78,29 @@ std::uint64_t SparseFactor::stored_bytes() const {
          (supernodal_ ? b(super_) + b(rows_) + b(row_start_) + b(value_start_) : b(outer_) + b(inner_) + b(inv_d_));
 }
 
+SparseFactor SparseFactor::file_copy() const {
+  // write()'s members only: the values and row indices shared (SharedArray), the rest a few MB
+  SparseFactor c;
+  c.size_ = size_;
+  c.backend_ = backend_;
+  c.supernodal_ = supernodal_;
+  c.factor_s_ = factor_s_;
+  c.order_s_ = order_s_;
+  c.perm_ = perm_;
+  c.values_ = values_;
+  if (supernodal_) {
+    c.super_ = super_;
+    c.rows_ = rows_;
+    c.row_start_ = row_start_;
+    c.value_start_ = value_start_;
+  } else {
+    c.outer_ = outer_;
+    c.inner_ = inner_;
+    c.inv_d_ = inv_d_;
+  }
+  return c;
+}
+
 void SparseFactor::write(std::ostream& out) const {
   CacheFileWriter w(out);
   w.header(kMagic, kFormatVersion);

@@ -129,6 +129,35 @@ TEST_F(FactorCacheTest, AFactorKeptIsLoadedBackAndSolvesTheSame) {
   EXPECT_LT((a * x2 - b).norm(), 1e-10 * b.norm());
 }
 
+TEST_F(FactorCacheTest, AFactorWrittenInTheBackgroundOutlivesItsSolverAndIsFoundAtOnce) {
+  // the solver's factor may be gone before its background write ends: the copy written shares
+  // its arrays and keeps them; a load right after the store waits for the write and finds it
+  const SparseFactor::Matrix a = grid_matrix(16);
+  FactorCacheSettings s = settings();
+  s.background_writes = true;
+  s.writer_nice = 0;
+  FolderFactorCache cache(s);
+  const Eigen::MatrixX3d b = Eigen::MatrixX3d::Random(a.rows(), 3);
+  Eigen::MatrixX3d x1(a.rows(), 3), x2(a.rows(), 3);
+  {
+    SparseFactor f;
+    ASSERT_TRUE(f.compute(a));
+    f.solve3(b, x1);
+    cache.store(key_of(a), f);
+  }  // the solver's factor is gone; its arrays are freed unless the copy keeps them
+  std::vector<std::vector<double>> scribble;  // reuse what a free returned, with other values
+  for (int i = 0; i < 8; ++i) scribble.emplace_back(std::size_t(1) << 18, -1e300);
+  SparseFactor g;
+  ASSERT_TRUE(cache.load(key_of(a), g));
+  EXPECT_TRUE(g.from_cache());
+  EXPECT_EQ(cache.counters().stored, 1);
+  EXPECT_EQ(cache.counters().hits, 1);
+  ASSERT_EQ(files(s.folder).size(), 1u);  // no temporary file left beside it
+  g.solve3(b, x2);
+  EXPECT_EQ(x1, x2);  // bit for bit
+  EXPECT_LT((a * x2 - b).norm(), 1e-10 * b.norm());
+}
+
 TEST_F(FactorCacheTest, ADamagedFileIsRemovedAndTheFactorComputed) {
   const SparseFactor::Matrix a = grid_matrix(10);
   FolderFactorCache cache(settings());
@@ -299,6 +328,7 @@ TEST_F(FactorCacheTest, TheOptionAndTheEnvironmentPickTheFolder) {
   const auto explicit_folder = std::dynamic_pointer_cast<FolderFactorCache>(make_factor_cache((dir_ / "x").string()));
   ASSERT_NE(explicit_folder, nullptr);
   EXPECT_EQ(explicit_folder->settings().folder, dir_ / "x");
+  EXPECT_TRUE(explicit_folder->settings().background_writes);  // the runs' caches write beside the run
   const char* saved = std::getenv("VOXELASTIC_FACTOR_CACHE");
   const std::string keep = saved ? saved : "";
   ::setenv("VOXELASTIC_FACTOR_CACHE", "off", 1);
