@@ -3,6 +3,7 @@
 #include <fmt/core.h>
 #include <CLI/CLI.hpp>
 
+#include <cstdio>
 #include <exception>
 #include <string>
 
@@ -15,6 +16,10 @@
 
 int main(int argc, char** argv) {
   using namespace vx::probe;
+  // stdout a line at a time: the app's lines (status, notes) come from several threads beside the
+  // log's on stderr (the region check, the factor cache's writer); block-buffered into a file
+  // shared with stderr, a line was cut where the buffer filled
+  std::setvbuf(stdout, nullptr, _IOLBF, 0);
   AppOptions o;
   std::string control = "rate", device = "auto", size = "1280x800", surface = "iso", shaping;
 
