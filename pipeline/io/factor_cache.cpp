@@ -1,5 +1,6 @@
 #include "io/factor_cache.h"
 
+#include <system_error>
 #include <utility>
 
 #include "io/cache_file.h"
@@ -122,11 +123,18 @@ void FolderFactorCache::store(const FactorKey& key, const SparseFactor& factor) 
   // the solver goes on with its factor while a copy that shares its arrays is written (read-only
   // on both threads); FolderCache::store keeps the folder locked meanwhile, so a load waits
   auto copy = std::make_shared<const SparseFactor>(factor.file_copy());
-  std::lock_guard lock(writes_mutex_);
-  writes_.emplace_back([this, offer = std::move(offer), copy = std::move(copy)] {
-    if (settings_.writer_nice != 0) (void)set_this_thread_nice(settings_.writer_nice);
+  const auto write = [this, offer = std::move(offer), copy = std::move(copy)](bool beside) {
+    if (beside && settings_.writer_nice != 0) (void)set_this_thread_nice(settings_.writer_nice);
     folder_.store(offer, [&](std::ostream& out) { copy->write(out); });
-  });
+  };
+  std::lock_guard lock(writes_mutex_);
+  try {
+    writes_.emplace_back(write, true);  // copies `write`: it is still whole should this throw
+  } catch (const std::system_error& e) {
+    // no thread to be had: written here, as without background writes (a store never stops a run)
+    log::debug(fmt::format("factor cache: no thread for the write ({}); writing it now", e.what()));
+    write(false);
+  }
 }
 
 }  // namespace vx
