@@ -124,7 +124,10 @@ void FolderFactorCache::store(const FactorKey& key, const SparseFactor& factor) 
   // on both threads); FolderCache::store keeps the folder locked meanwhile, so a load waits
   auto copy = std::make_shared<const SparseFactor>(factor.file_copy());
   const auto write = [this, offer = std::move(offer), copy = std::move(copy)](bool beside) {
-    if (beside && settings_.writer_nice != 0) (void)set_this_thread_nice(settings_.writer_nice);
+    if (beside) {
+      (void)set_this_thread_name("vx-factor-write");  // as the run's other threads, for top -H and perf
+      if (settings_.writer_nice != 0) (void)set_this_thread_nice(settings_.writer_nice);
+    }
     folder_.store(offer, [&](std::ostream& out) { copy->write(out); });
   };
   std::lock_guard lock(writes_mutex_);

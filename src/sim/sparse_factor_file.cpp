@@ -84,8 +84,6 @@ SparseFactor SparseFactor::file_copy() const {
   c.size_ = size_;
   c.backend_ = backend_;
   c.supernodal_ = supernodal_;
-  c.factor_s_ = factor_s_;
-  c.order_s_ = order_s_;
   c.perm_ = perm_;
   c.values_ = values_;
   if (supernodal_) {
