@@ -38,6 +38,11 @@ void ContactSolver::init(std::vector<std::int32_t> nodes, int probes, const Work
   for (auto& l : lists_) l.reserve(nodes_.size());
   node_at_rebuild_.resize(3, Eigen::Index(nodes_.size()));
   chunk_move_.assign(std::size_t(chunk_count(std::int64_t(nodes_.size()), kMoveGrain)), 0.0);
+  chunk_still_.assign(chunk_move_.size(), 0.0);
+  is_watched_.assign(nodes_.size(), 0);
+  watched_.clear();
+  watched_.reserve(nodes_.size());
+  end_watch();
   probe_at_rebuild_.assign(std::size_t(probes_), Eigen::Vector3d::Zero());
   counters_ = {};
   valid_ = false;
@@ -79,6 +84,9 @@ void ContactSolver::rebuild(const Eigen::Matrix3Xd& x, const std::vector<ProbeGe
     }
   }
   for (int q = 0; q < probes_; ++q) probe_at_rebuild_[std::size_t(q)] = probes[std::size_t(q)].position_mm;
+  // every node's move is 0 now; under a promise the others keep these positions
+  still_move2_ = 0.0;
+  watch_ready_ = watch_period_ != 0;
   if (settings_.broad_phase) {
     counters_.broad_tests += std::int64_t(n) * (probes_ + (workspace_.enabled ? 1 : 0));
     ++counters_.rebuilds;
@@ -89,20 +97,73 @@ void ContactSolver::rebuild(const Eigen::Matrix3Xd& x, const std::vector<ProbeGe
 void ContactSolver::invalidate() {
   valid_ = false;
   std::fill(anchor_owner_.begin(), anchor_owner_.end(), -1);
+  end_watch();
+}
+
+void ContactSolver::end_watch() {
+  watch_period_ = 0;
+  watch_active_ = false;
+  watch_ready_ = false;
+}
+
+void ContactSolver::watch_moving(const std::vector<int>* moving, std::uint64_t period) {
+  if (period == 0) {
+    end_watch();
+    return;
+  }
+  if (period == watch_period_) {
+    watch_active_ = moving != nullptr;
+    return;
+  }
+  if (moving == nullptr) {  // a pause of a period never begun
+    end_watch();
+    return;
+  }
+  for (const std::int64_t k : watched_) is_watched_[std::size_t(k)] = 0;
+  watched_.clear();
+  // both ascending: one merge
+  std::size_t k = 0;
+  for (const int i : *moving) {
+    while (k < nodes_.size() && nodes_[k] < i) ++k;
+    if (k == nodes_.size()) break;
+    if (nodes_[k] == i) {
+      watched_.push_back(std::int64_t(k));
+      is_watched_[k] = 1;
+    }
+  }
+  watch_period_ = period;
+  watch_active_ = true;
+  watch_ready_ = false;
 }
 
 double ContactSolver::node_move(const Eigen::Matrix3Xd& x) {
   // largest node displacement since the rebuild: every node that may collide (the folded
-  // organ's 274,533 surface nodes), twice in an implicit step, so on the step's threads
-  parallel_for_chunks(
-      std::int64_t(nodes_.size()), kMoveGrain, threads_, [&](std::int64_t c, std::int64_t b, std::int64_t e) {
-        double max_d2 = 0.0;
-        for (std::int64_t k = b; k < e; ++k)
-          max_d2 = std::max(max_d2, (x.col(nodes_[std::size_t(k)]) - node_at_rebuild_.col(k)).squaredNorm());
-        chunk_move_[std::size_t(c)] = max_d2;
-      });
-  double max_d2 = 0.0;
-  for (const double m : chunk_move_) max_d2 = std::max(max_d2, m);
+  // organ's 274,533 surface nodes), twice in an implicit step, so on the step's threads. Under
+  // the regional solves' promise only the watched ones (the closure's), the others' largest
+  // move kept from the period's first check, which looks at every node.
+  const bool watched = watch_period_ != 0 && watch_active_ && watch_ready_;
+  const bool split = watch_period_ != 0 && !watched;
+  const std::int64_t n = watched ? std::int64_t(watched_.size()) : std::int64_t(nodes_.size());
+  parallel_for_chunks(n, kMoveGrain, threads_, [&](std::int64_t c, std::int64_t b, std::int64_t e) {
+    double max_d2 = 0.0, still = 0.0;
+    for (std::int64_t j = b; j < e; ++j) {
+      const std::int64_t k = watched ? watched_[std::size_t(j)] : j;
+      const double d2 = (x.col(nodes_[std::size_t(k)]) - node_at_rebuild_.col(k)).squaredNorm();
+      max_d2 = std::max(max_d2, d2);
+      if (split && !is_watched_[std::size_t(k)]) still = std::max(still, d2);
+    }
+    chunk_move_[std::size_t(c)] = max_d2;
+    chunk_still_[std::size_t(c)] = still;
+  });
+  const auto chunks = std::size_t(chunk_count(n, kMoveGrain));
+  double max_d2 = watched ? still_move2_ : 0.0;
+  for (std::size_t c = 0; c < chunks; ++c) max_d2 = std::max(max_d2, chunk_move_[c]);
+  if (split) {
+    still_move2_ = 0.0;
+    for (std::size_t c = 0; c < chunks; ++c) still_move2_ = std::max(still_move2_, chunk_still_[c]);
+    watch_ready_ = true;
+  }
+  if (watched) ++watched_checks_;
   return std::sqrt(max_d2);
 }
 
@@ -120,6 +181,7 @@ void ContactSolver::resolve(Eigen::Matrix3Xd& x, Eigen::Matrix3Xd& v, const std:
                             double dt, std::vector<Eigen::Vector3d>& probe_force, Eigen::Vector3d& wall_force,
                             std::vector<int>* probe_contacts, std::vector<ContactConstraint>* records) {
   ++step_;
+  end_watch();  // this path moves the nodes it resolves
   probe_force.assign(std::size_t(probes_), Eigen::Vector3d::Zero());
   if (probe_contacts) probe_contacts->assign(std::size_t(probes_), 0);
   wall_force.setZero();

@@ -107,8 +107,18 @@ class ContactSolver {
   /// number (a largest value).
   void set_threads(int threads) { threads_ = threads; }
   /// Forces a broad-phase rebuild at the next resolve() and forgets the friction anchors
-  /// (after positions were set from outside, e.g. a reset).
+  /// (after positions were set from outside, e.g. a reset). Ends a promise (watch_moving).
   void invalidate();
+  /// The regional solves' promise (ContactProvider::watch_moving): while it holds, the broad
+  /// phase's check of the nodes' move since the rebuild looks at the nodes of `moving` only,
+  /// after one check of every node in the period, which keeps the largest move of the others.
+  /// The same largest move to the bit as a check of every node (the same values). `moving` null
+  /// pauses the promise: the checks look at every node again (and keep the others' largest
+  /// move), and a later call with the same period resumes it. Period 0, resolve() (it moves
+  /// nodes), init() and invalidate() end it. Allocates only when `moving` outgrows the nodes.
+  void watch_moving(const std::vector<int>* moving, std::uint64_t period);
+  /// Checks of the nodes' move that looked at the watched nodes only (a diagnostic for tests).
+  [[nodiscard]] std::int64_t watched_checks() const { return watched_checks_; }
 
  private:
   void rebuild(const Eigen::Matrix3Xd& positions, const std::vector<ProbeGeometry>& geometry,
@@ -131,6 +141,16 @@ class ContactSolver {
   Eigen::Matrix3Xd node_at_rebuild_;  ///< 3 x nodes_.size()
   int threads_{1};
   std::vector<double> chunk_move_;  ///< node_move()'s largest squared move per chunk
+  // the promise (watch_moving)
+  std::uint64_t watch_period_{0};         ///< 0: none
+  bool watch_active_{false};              ///< not paused
+  bool watch_ready_{false};               ///< still_move2_ known for this period
+  double still_move2_{0.0};               ///< the largest squared move of the nodes outside the watch
+  std::vector<std::int64_t> watched_;     ///< positions in nodes_ of the watched nodes, ascending
+  std::vector<std::uint8_t> is_watched_;  ///< per position in nodes_
+  std::vector<double> chunk_still_;       ///< a full check's largest squared move outside the watch, per chunk
+  std::int64_t watched_checks_{0};
+  void end_watch();
   std::vector<Eigen::Vector3d> probe_at_rebuild_;
   /// rebuild(): a ball round each probe and its squared reach (the ball's radius plus the skin)
   struct ProbeReach {

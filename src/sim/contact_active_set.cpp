@@ -310,13 +310,19 @@ void ContactActiveSet::solve(ContactProvider& provider, const Eigen::Matrix3Xd& 
     if (pass + 1 >= kMaxPasses) break;
     // nodes that were not candidates but that the constrained solution puts inside a probe
     // (they moved farther than the provider's margin in this solve): add them and redo
-    trial_.resize(3, x.cols());
-    parallel_for(x.cols(), kTrialGrain, threads_, [&](std::int64_t b, std::int64_t e) {
-      for (std::int64_t i = b; i < e; ++i) {
+    // (under the regional solves' promise, the moving nodes only once the period's first copy
+    // put every node in place: the others' rows and positions have not changed since)
+    const bool moving_only = moving_period_ != 0 && trial_period_ == moving_period_ && trial_.cols() == x.cols();
+    if (!moving_only) trial_.resize(3, x.cols());
+    const std::int64_t n = moving_only ? std::int64_t(moving_->size()) : x.cols();
+    parallel_for(n, kTrialGrain, threads_, [&](std::int64_t b, std::int64_t e) {
+      for (std::int64_t k = b; k < e; ++k) {
+        const std::int64_t i = moving_only ? (*moving_)[std::size_t(k)] : k;
         const int f = std::size_t(i) < free_index.size() ? free_index[std::size_t(i)] : -1;
         trial_.col(i) = f >= 0 ? Eigen::Vector3d(solution.row(f).transpose()) : Eigen::Vector3d(x.col(i));
       }
     });
+    trial_period_ = moving_period_;
     extra_.clear();
     provider.collect(trial_, false, extra_);
     const std::size_t before = candidates_.size();

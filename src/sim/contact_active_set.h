@@ -72,6 +72,15 @@ class ContactActiveSet {
   /// Threads of the re-check's copy of the constrained iterate (every node; 0: OpenMP's default).
   /// The same result on any number.
   void set_threads(int threads) { threads_ = threads; }
+  /// The regional solves' promise (ContactProvider::watch_moving) for the solves that follow:
+  /// the re-check's copy of the constrained iterate copies the nodes of `moving` only once it has
+  /// copied every node in the period (the others' solution rows and positions stay as they were,
+  /// so the copy is the same). Null or period 0: every node, every time. `moving` is kept by
+  /// pointer and must outlive the promise.
+  void watch_moving(const std::vector<int>* moving, std::uint64_t period) {
+    moving_ = period != 0 ? moving : nullptr;
+    moving_period_ = moving_ != nullptr ? period : 0;
+  }
   /// Forgets the warm start (the state was reset, replaced, or the provider changed).
   void forget_warm_start() { active_.clear(); }
 
@@ -133,6 +142,9 @@ class ContactActiveSet {
   std::vector<double> schur_rhs_;              ///< d, then lambda
   Eigen::MatrixX3d unconstrained_;             ///< x_u: the global step's solution without contact
   Eigen::Matrix3Xd trial_;                     ///< constrained iterate (all nodes) for the re-check
+  const std::vector<int>* moving_{nullptr};    ///< watch_moving()
+  std::uint64_t moving_period_{0};
+  std::uint64_t trial_period_{0};  ///< the period trial_ was last copied whole in (0: none)
 
   // cached forward vectors z_f of the bound factor, and G between them
   std::vector<SparseFactor::UnitForward> forward_;  ///< slot -> z of its node

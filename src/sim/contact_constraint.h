@@ -41,6 +41,18 @@ class ContactProvider {
   /// The owners below this are tools (probes), the others walls: a solve goes on iterating
   /// only while no tool touches (ProjectiveIterations::free_max_iterations). Every owner by default.
   [[nodiscard]] virtual int tool_owners() const { return std::numeric_limits<int>::max(); }
+  /// A promise for the collects that follow, until the next call: the nodes outside `moving`
+  /// (node ids, ascending) have the same position in every x given to collect(), so the provider
+  /// may look for the broad phase's largest move among `moving` only. `period` names the stretch
+  /// the promise covers: a call with the last call's period (and the same `moving`) continues it,
+  /// the positions outside `moving` still those of its earlier collects; any other value starts a
+  /// new one. `moving` null or `period` 0: no promise (every node may move). The regional
+  /// solves' (projective_solver.h): the rows outside the closure keep their positions. Ignored
+  /// by default.
+  virtual void watch_moving(const std::vector<int>* moving, std::uint64_t period) {
+    (void)moving;
+    (void)period;
+  }
 };
 
 }  // namespace vx

@@ -324,8 +324,15 @@ class ImplicitIntegrator final : public SteppingIntegrator {
     const std::vector<int>& free = solver.free_nodes();
     Eigen::MatrixX3d& rc = solver.constant_rhs();
     const double inv_dt2 = 1.0 / (dt * dt);
-    parallel_for(p.num_nodes(), kNodeGrain, threads, [&](std::int64_t b, std::int64_t e) {
-      for (std::int64_t i = b; i < e; ++i) x.col(i) = xs.col(i) + dt * s.velocities.col(i);
+    // (once the regional solves hold the far field still, its nodes are where this would put
+    // them already: ProjectiveSolver::still_far_field_nodes)
+    const std::vector<int>* near = solver.still_far_field_nodes(s, false);
+    const std::int64_t n_near = near ? std::int64_t(near->size()) : p.num_nodes();
+    parallel_for(n_near, kNodeGrain, threads, [&](std::int64_t b, std::int64_t e) {
+      for (std::int64_t k = b; k < e; ++k) {
+        const std::int64_t i = near ? (*near)[std::size_t(k)] : k;
+        x.col(i) = xs.col(i) + dt * s.velocities.col(i);
+      }
     });
     parallel_for(std::int64_t(free.size()), kNodeGrain, threads, [&](std::int64_t b, std::int64_t e) {
       for (std::int64_t f = b; f < e; ++f) {
@@ -357,10 +364,21 @@ class ImplicitIntegrator final : public SteppingIntegrator {
     const double max_d = max_displacement(p, settings_.limits), max_d2 = max_d * max_d;
     const Eigen::Matrix3Xd& rest = p.model->rest_positions;
     const bool track = settings_.track_energy;
-    parallel_for_chunks(p.num_nodes(), kNodeGrain, threads, [&](std::int64_t c, std::int64_t b, std::int64_t e) {
+    // (the far field held still in this solve and the two before: its velocities are 0 in both
+    // buffers and its checks passed when they were written; not with the energies, which sum
+    // every node)
+    const std::vector<int>* still = track ? nullptr : solver.still_far_field_nodes(s, true);
+    const std::int64_t n_pass = still ? std::int64_t(still->size()) : p.num_nodes();
+    const std::int64_t pass_chunks = chunk_count(n_pass, kNodeGrain);
+    for (auto c = std::size_t(pass_chunks); c < std::size_t(chunk_count(p.num_nodes(), kNodeGrain)); ++c) {
+      s.scratch.node_chunk_flags[c] = 0;
+      for (int k = 0; k < 3; ++k) s.scratch.node_chunk_sums[3 * c + std::size_t(k)] = 0.0;
+    }
+    parallel_for_chunks(n_pass, kNodeGrain, threads, [&](std::int64_t c, std::int64_t b, std::int64_t e) {
       std::uint8_t flags = 0;
       double kin = 0, grav = 0, v2 = 0;
-      for (std::int64_t i = b; i < e; ++i) {
+      for (std::int64_t k = b; k < e; ++k) {
+        const std::int64_t i = still ? (*still)[std::size_t(k)] : k;
         const double mass = p.node_mass[std::size_t(i)];
         if (track) {
           kin += 0.5 * mass * s.velocities.col(i).squaredNorm();
@@ -502,6 +520,7 @@ class ImplicitIntegrator final : public SteppingIntegrator {
     s.velocities.setZero();
     if (to_rest) {
       s.positions = s.physics->model->rest_positions;
+      ++s.positions_version;
       std::fill(s.rotations.begin(), s.rotations.end(), Eigen::Quaterniond::Identity());
     }
     rep.fell_asleep = cause;

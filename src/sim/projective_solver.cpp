@@ -1,7 +1,9 @@
 #include "sim/projective_solver.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <iterator>
 #include <numeric>
 #include <string>
 
@@ -78,6 +80,13 @@ NodeNumbering number_nodes(const std::vector<std::uint8_t>& node_fixed) {
 }
 
 namespace {
+
+/// A number no other period of the regional solves' promise has, in any solver (the contact
+/// outlives a solver: a new factor must not continue an old solver's period).
+std::uint64_t next_watch_period() {
+  static std::atomic<std::uint64_t> counter{0};
+  return ++counter;
+}
 
 /// Calls emit(free_row, node, value) for every entry of sum_e (K_e + kappa_e (diag(w) - w w^T / W))
 /// on a free row, elements [e_begin, e_end) in order (node: the column's node, free or fixed).
@@ -260,9 +269,13 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
   factor_.set_threads(threads);  // the large supernodes' rows (the same bits on any number of threads)
   contact_set_.set_threads(threads);
   // the fixed nodes' coupling: rhs_const -= A_fc x_c
+  bool fixed_still = true;  // every fixed node where it was at the last solve
   if (!numbering_.fixed_nodes.empty()) {
-    for (std::size_t c = 0; c < numbering_.fixed_nodes.size(); ++c)
-      fixed_positions_.row(Eigen::Index(c)) = x.col(numbering_.fixed_nodes[c]).transpose();
+    for (std::size_t c = 0; c < numbering_.fixed_nodes.size(); ++c) {
+      const Eigen::RowVector3d p = x.col(numbering_.fixed_nodes[c]).transpose();
+      fixed_still = fixed_still && p == fixed_positions_.row(Eigen::Index(c));
+      fixed_positions_.row(Eigen::Index(c)) = p;
+    }
     rhs_const_.noalias() -= a_free_fixed_ * fixed_positions_;
   }
   // the first solve computes every element's targets and the whole solution (a regional solve
@@ -284,6 +297,20 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
     carry_far_field_in(setup_.time_step_s);
     factor_.set_product_fields(&far_.forward, far_.fields);
   }
+  // The promise to the contact (ContactProvider::watch_moving): a regional solve (nothing
+  // carried) that follows one over the same closure, from the state it left (no reset, restore
+  // or jump in time) with the fixed nodes where they were, keeps every node outside the closure
+  // where it was: the last solve did not move it, so its velocity is 0 and the iterate starts it
+  // there, and this one writes only the closure's rows. Its contact then checks the closure's
+  // nodes only for the broad phase's move and the re-check's copy; the period runs while such
+  // solves follow one another.
+  const bool partial_now = region_ && !solve_far_field_ && !carried;
+  const int run = partial_run(s);
+  const bool steady = partial_now && run >= 1 && fixed_still;
+  if (steady && !last_steady_) watch_period_ = next_watch_period();
+  if (steady) ++steady_solves_;
+  if (contact) contact->watch_moving(steady ? &closure_nodes_ : nullptr, steady ? watch_period_ : 0);
+  contact_set_.watch_moving(steady ? &closure_nodes_ : nullptr, steady ? watch_period_ : 0);
   if (setup_.damping) record_start_shape(s.positions, threads);
   double max_update = std::numeric_limits<double>::infinity();
   ElementPassStats last;
@@ -324,13 +351,19 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
       contact_set_.set_partial(partial);  // the full refresh after a region move applies contact everywhere
       contact_set_.solve(*contact, x, factor_, solution_, counters, halves);
     }
-    max_update = scatter(x, threads);
+    max_update = scatter(x, threads, steady);
     rhs_previous_.swap(rhs_);
   }
   if (carried) {
     carry_far_field_out(x);
     factor_.set_product_fields(nullptr, 0);
   }
+  // paused between solves: the positions may be set from outside (a sleep put at rest)
+  if (contact && steady) contact->watch_moving(nullptr, watch_period_);
+  partial_run_ = partial_now ? run + 1 : 0;
+  run_closure_version_ = closure_version_;
+  run_positions_version_ = s.positions_version;
+  last_steady_ = steady;
   region_ = region;
   targets_valid_ = true;
   rep.contact_rounds += counters.rounds;
@@ -494,6 +527,13 @@ void ProjectiveSolver::set_region(const std::vector<int>& awake_nodes) {
   for (int f = 0; f < num_free(); ++f)
     if (wanted[std::size_t(numbering_.free_nodes[std::size_t(f)])]) rows.push_back(f);
   factor_.set_partial_rows(rows);
+  closure_nodes_.clear();
+  for (const int r : factor_.partial_rows()) closure_nodes_.push_back(numbering_.free_nodes[std::size_t(r)]);
+  // the node passes' nodes: the closure's and the fixed ones, ascending
+  pass_nodes_.clear();
+  std::merge(closure_nodes_.begin(), closure_nodes_.end(), numbering_.fixed_nodes.begin(), numbering_.fixed_nodes.end(),
+             std::back_inserter(pass_nodes_));
+  ++closure_version_;
   region_ = true;
   // the next solve is a full one: every element's targets and every node's position brought up
   // to date (the far field that slept while the tool moved), then regional solves again
@@ -501,9 +541,21 @@ void ProjectiveSolver::set_region(const std::vector<int>& awake_nodes) {
   contact_set_.set_partial(!solve_far_field_);  // the cached forward vectors hold for any region
 }
 
+int ProjectiveSolver::partial_run(const SimState& s) const {
+  return run_closure_version_ == closure_version_ && run_positions_version_ == s.positions_version ? partial_run_ : 0;
+}
+
+const std::vector<int>* ProjectiveSolver::still_far_field_nodes(const SimState& s, bool after_solve) const {
+  // before a solve: the last one was regional over this closure (the positions: the one before
+  // wrote them where they are); after one: it and the two before (the velocities: the step before
+  // last wrote the buffer this step writes, 0 if it was regional over this closure)
+  return partial_run(s) >= (after_solve ? 3 : 1) ? &pass_nodes_ : nullptr;
+}
+
 void ProjectiveSolver::clear_region() {
   if (!region_) return;
   region_ = false;
+  ++closure_version_;
   region_elements_.clear();
   contact_set_.set_partial(false);
 }
@@ -610,13 +662,16 @@ void ProjectiveSolver::gather_rhs(int threads) {
   });
 }
 
-/// Writes the solution into x; returns the largest node move.
-double ProjectiveSolver::scatter(Eigen::Matrix3Xd& x, int threads) {
-  const int nf = num_free();
+/// Writes the solution into x; returns the largest node move. `closure_only`: a steady regional
+/// solve (solve()), whose rows outside the closure are where x has them already.
+double ProjectiveSolver::scatter(Eigen::Matrix3Xd& x, int threads, bool closure_only) {
+  const std::vector<int>& rows = factor_.partial_rows();
+  const std::int64_t nf = closure_only ? std::int64_t(rows.size()) : std::int64_t(num_free());
   const std::int64_t chunks = chunk_count(nf, kNodeGrain);
   parallel_for_chunks(nf, kNodeGrain, threads, [&](std::int64_t c, std::int64_t b, std::int64_t e) {
     double mx = 0;
-    for (std::int64_t f = b; f < e; ++f) {
+    for (std::int64_t k = b; k < e; ++k) {
+      const std::int64_t f = closure_only ? rows[std::size_t(k)] : k;
       const int i = numbering_.free_nodes[std::size_t(f)];
       const Eigen::Vector3d nx = solution_.row(f).transpose();
       mx = std::max(mx, (nx - x.col(i)).squaredNorm());

@@ -210,8 +210,25 @@ class ProjectiveSolver {
   /// Reserves (and touches) the contact solve's cache for this factor now, so that it never grows
   /// later (ContactActiveSet::reserve: a long session's memory flat). Allocates.
   void reserve_contact_cache() { contact_set_.reserve(factor_); }
-  /// Forgets the contact warm start (the next solve does not follow the last one).
-  void forget_contacts() { contact_set_.forget_warm_start(); }
+  /// Forgets the contact warm start (the next solve does not follow the last one), and with it
+  /// the regional solves' promise to the contact (solve()).
+  void forget_contacts() {
+    contact_set_.forget_warm_start();
+    partial_run_ = 0;
+    last_steady_ = false;
+  }
+  /// Solves that kept the contact's promise (ContactProvider::watch_moving: the rows outside
+  /// the closure stayed where they were); a diagnostic for tests.
+  [[nodiscard]] std::int64_t steady_solves() const { return steady_solves_; }
+  /// The nodes an implicit step's node passes (the iterate's start x_n + dt v_n, the velocities and
+  /// their checks) must visit, or null for every node. Not null once the regional solves have held
+  /// the far field still long enough, from one continued state: before the step's solve, the last
+  /// solve was regional over the present closure (every free node outside it then has velocity 0
+  /// and its position in both of the state's position buffers, its own and its scratch's, swapped
+  /// every step); after it (`after_solve`), it and the two before were (then its velocity is 0 in
+  /// both velocity buffers too). A pass that skips such a node writes what is there already.
+  /// Then: the closure's nodes and the fixed ones, ascending.
+  [[nodiscard]] const std::vector<int>* still_far_field_nodes(const SimState& s, bool after_solve) const;
   /// g (m x m) = (A^-1)_ij between `nodes`, mm/N: the compliance of one step between them (the
   /// local contact model's, local_contact.h). False when a node is fixed.
   bool contact_compliance(const std::vector<std::int32_t>& nodes, Eigen::MatrixXd& g);
@@ -230,7 +247,7 @@ class ProjectiveSolver {
     return region_ ? std::int64_t(region_elements_[std::size_t(k)]) : k;
   }
   void gather_rhs(int threads);
-  double scatter(Eigen::Matrix3Xd& x, int threads);
+  double scatter(Eigen::Matrix3Xd& x, int threads, bool closure_only = false);
   /// RMS and largest per-node norm of a - b (free nodes), N.
   std::pair<double, double> difference_norms(const Eigen::MatrixX3d& a, const Eigen::MatrixX3d& b, int threads);
 
@@ -285,6 +302,18 @@ class ProjectiveSolver {
   void carry_far_field_in(double dt);
   void carry_far_field_out(Eigen::Matrix3Xd& x);
   std::vector<int> region_elements_;     ///< ascending
+  // the regional solves' promise to the contact (solve(): ContactProvider::watch_moving)
+  std::vector<int> closure_nodes_;          ///< the closure's rows as node ids, ascending
+  std::uint64_t closure_version_{0};        ///< bumped by set_region() and clear_region()
+  std::vector<int> pass_nodes_;             ///< closure_nodes_ and the fixed nodes, ascending
+  int partial_run_{0};                      ///< regional solves (nothing carried) in a row, the last ones
+  std::uint64_t run_closure_version_{0};    ///< ... over this closure
+  std::uint64_t run_positions_version_{0};  ///< ... and SimState::positions_version
+  /// partial_run_ if it is of this closure and state, else 0
+  [[nodiscard]] int partial_run(const SimState& s) const;
+  bool last_steady_{false};  ///< the last solve kept the promise
+  std::uint64_t watch_period_{0};
+  std::int64_t steady_solves_{0};
   std::vector<double> free_chunk_sums_;  ///< per node chunk: 2 partial sums
   ContactActiveSet contact_set_;
 };

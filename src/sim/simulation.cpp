@@ -132,6 +132,7 @@ void Simulation::restore_tissue(const TissueSnapshot& snap, bool drop_solver) {
       snap.rotations.size() != state_.rotations.size())
     throw Error("simulation: a tissue snapshot of another model");
   state_.positions = snap.positions;
+  ++state_.positions_version;
   state_.velocities = snap.velocities;
   std::copy(snap.rotations.begin(), snap.rotations.end(), state_.rotations.begin());
   state_.clear_failure();
@@ -239,6 +240,12 @@ void Simulation::hold_plane() {
 
 void Simulation::ImplicitContact::collect(const Eigen::Matrix3Xd& x, bool near, std::vector<ContactConstraint>& out) {
   sim_.contact_.collect(x, sim_.geometry_, sim_.poses_, near, out);
+}
+
+void Simulation::ImplicitContact::watch_moving(const std::vector<int>* moving, std::uint64_t period) {
+  // a slice model's nodes are all put back on its plane after every step (hold_plane)
+  if (sim_.physics_->is_2d()) moving = nullptr;
+  sim_.contact_.watch_moving(moving, period);
 }
 
 void Simulation::ImplicitContact::focus_points(std::vector<Eigen::Vector3d>& out) {

@@ -211,6 +211,7 @@ class Simulation {
     explicit ImplicitContact(Simulation& sim) : sim_(sim) {}
     void collect(const Eigen::Matrix3Xd& x, bool near, std::vector<ContactConstraint>& out) override;
     void focus_points(std::vector<Eigen::Vector3d>& out) override;
+    void watch_moving(const std::vector<int>* moving, std::uint64_t period) override;
     [[nodiscard]] int tool_owners() const override { return sim_.num_probes(); }  // then the walls
 
    private:

@@ -84,6 +84,7 @@ IntegratorCache& IntegratorCache::operator=(IntegratorCache&&) noexcept = defaul
 
 void SimState::reset() {
   positions = physics->model->rest_positions;
+  ++positions_version;
   velocities.setZero();
   std::fill(rotations.begin(), rotations.end(), Eigen::Quaterniond::Identity());
   time_s = 0;

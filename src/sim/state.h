@@ -95,6 +95,10 @@ struct SimState {
   Eigen::Matrix3Xd external_forces;  ///< 3 x nodes, N, added every step until changed (contacts)
   std::vector<std::uint8_t> node_fixed;  ///< nodes: 1 = kinematic (moves with its velocity only)
   std::uint64_t fixed_version{0};        ///< bumped whenever node_fixed changes
+  /// Bumped whenever the positions are set other than by a step (a reset, a restore, a static
+  /// solve, the tissue put at rest): the regional solves' promise to the contact
+  /// (ProjectiveSolver::solve, ContactProvider::watch_moving) does not outlive it.
+  std::uint64_t positions_version{0};
 
   // results of the last step
   Energies energies;             ///< at the start of the last step (when tracked)

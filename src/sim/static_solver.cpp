@@ -37,6 +37,7 @@ StepReport solve_static(SimState& s, const StaticSolveSettings& settings) {
     return rep;
   }
   s.positions = x;
+  ++s.positions_version;
   for (int i = 0; i < s.num_nodes(); ++i)
     if (!s.node_fixed[std::size_t(i)]) s.velocities.col(i).setZero();
   return rep;

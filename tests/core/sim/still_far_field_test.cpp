@@ -1,0 +1,178 @@
+// The regional solves' still far field: the contact's broad phase and re-check, and the implicit
+// step's node passes, look at the region's closure only while the far field is held still
+// (ContactProvider::watch_moving, ProjectiveSolver::still_far_field_nodes). Exact: the same
+// rebuilds, constraints, forces and positions, bit for bit, as looking at every node.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <memory>
+#include <vector>
+
+#include "model/gradational_builder.h"
+#include "physics/calibration.h"
+#include "sim/contact.h"
+#include "sim/integrators.h"
+#include "sim/probe.h"
+#include "sim/projective_solver.h"
+#include "sim/simulation.h"
+#include "sim/sparse_factor.h"
+#include "sim/state.h"
+
+namespace vx {
+namespace {
+
+/// A flat sheet of n x n nodes at z = 0 on a 1 mm lattice, centred on the origin.
+Eigen::Matrix3Xd sheet(int n) {
+  Eigen::Matrix3Xd x(3, n * n);
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < n; ++i) x.col(i + n * j) = Eigen::Vector3d(i - (n - 1) / 2.0, j - (n - 1) / 2.0, 0.0);
+  return x;
+}
+
+TEST(StillFarField, TheBroadPhaseUnderThePromiseRebuildsAndFindsAsEveryNodeDoes) {
+  // 40 x 40 nodes (two chunks of the check), a ball of 3 mm above the left half; the left half
+  // is watched (it moves), the right half is not. One node of the right half moved 1.2 mm before
+  // the period began: the watched checks must carry that move, or they rebuild too late.
+  const int n = 40;
+  Eigen::Matrix3Xd x = sheet(n);
+  std::vector<std::int32_t> ids(std::size_t(n * n));
+  for (int i = 0; i < n * n; ++i) ids[std::size_t(i)] = i;
+  std::vector<int> watched;
+  for (int i = 0; i < n * n; ++i)
+    if (x(0, i) < 0.0) watched.push_back(i);
+  ProbeGeometry g;
+  g.shape = ProbeShape::sphere;
+  g.radius_mm = 3.0;
+  const std::vector<ProbeGeometry> geometry = {g};
+  std::vector<ProbeState> probes = {{Eigen::Vector3d(-8.0, 0.0, 3.2), Eigen::Vector3d::Zero()}};
+  ContactSettings cs;
+  cs.skin_mm = 2.0;
+  ContactSolver every, promised;
+  every.init(ids, 1, {}, cs, 1.0);
+  promised.init(ids, 1, {}, cs, 1.0);
+  std::vector<ContactConstraint> a, b;
+  const auto collect_both = [&](const char* when) {
+    a.clear();
+    b.clear();
+    every.collect(x, geometry, probes, true, a);
+    promised.collect(x, geometry, probes, true, b);
+    EXPECT_EQ(every.counters().rebuilds, promised.counters().rebuilds) << when;
+    ASSERT_EQ(a.size(), b.size()) << when;
+    for (std::size_t k = 0; k < a.size(); ++k) {
+      EXPECT_EQ(a[k].node, b[k].node) << when;
+      EXPECT_EQ(a[k].point_mm, b[k].point_mm) << when;
+    }
+  };
+  collect_both("at rest");
+  const int far = n * n - 1;  // the right half's corner
+  x(2, far) = 1.2;
+  promised.watch_moving(&watched, 7);
+  collect_both("the period's first check");
+  // the watched nodes rise a little and the ball comes down 0.2 mm a time: the far node's
+  // 1.2 mm, the ball's 0.4 mm and the margin's 0.5 mm reach the skin of 2 mm at the second move
+  // (the watched nodes' own moves alone would not, so a check that forgot the far node's move
+  // would rebuild later); then again after the rebuild
+  const std::int64_t rebuilds_before = every.counters().rebuilds;
+  for (int t = 1; t <= 12; ++t) {
+    for (const int i : watched) x(2, i) = 0.02 * t * std::exp(-0.01 * x.col(i).head<2>().squaredNorm());
+    probes[0].position_mm.z() -= 0.2;
+    collect_both("a watched move");
+    if (t == 2) EXPECT_GT(every.counters().rebuilds, rebuilds_before) << "the far node's move did not count";
+    if (t == 5) {
+      // a pause checks every node and keeps the others' move; the same period resumes it
+      promised.watch_moving(nullptr, 7);
+      collect_both("paused");
+      promised.watch_moving(&watched, 7);
+    }
+  }
+  EXPECT_GE(every.counters().rebuilds, rebuilds_before + 2) << "the moves reached the skin once only";
+  EXPECT_GT(promised.watched_checks(), 8);
+  EXPECT_FALSE(a.empty()) << "the ball touched nothing: the test shows nothing";
+  // a period ended by invalidate() starts again with a check of every node
+  promised.invalidate();
+  every.invalidate();
+  const std::int64_t checks = promised.watched_checks();
+  promised.watch_moving(&watched, 7);
+  collect_both("after invalidate");
+  EXPECT_EQ(promised.watched_checks(), checks);
+}
+
+/// A gradational ball of n voxels across (1 mm voxels, radius n/2 - 1).
+std::shared_ptr<const PhysicsModel> ball_model(int n) {
+  GridGeometry geometry;
+  geometry.dims = {n, n, n};
+  geometry.spacing_mm = Eigen::Vector3d::Ones();
+  VoxelGrid grid(geometry);
+  const double c = 0.5 * (n - 1), r = 0.5 * n - 1.0;
+  for (int k = 0; k < n; ++k)
+    for (int j = 0; j < n; ++j)
+      for (int i = 0; i < n; ++i)
+        grid.set(i, j, k, (i - c) * (i - c) + (j - c) * (j - c) + (k - c) * (k - c) <= r * r ? 1 : 0);
+  Material m;
+  m.youngs_modulus_kpa = 10.0;
+  m.density_kg_m3 = 1000.0;
+  m.damping_ratio = 0.2;
+  m.poisson_ratio = 0.45;
+  return make_physics_model(std::make_shared<const Model>(build_model(grid)), m);
+}
+
+TEST(StillFarField, ARegionalPressIsTheSameBitForBitAsOneThatVisitsEveryNode) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "needs CHOLMOD (supernodal)";
+  // a 32-voxel ball held at its bottom 3 mm, pressed 2.5 mm by a ball of 3 mm and slid 6 mm
+  // (the region, 8 mm, moves with it), then lifted; implicit 20 ms steps of one iteration (up to
+  // four while the ball is off) on two threads.
+  // The other run saves and restores its tissue before every step: that changes nothing but the
+  // state's positions_version, so the regional solves never hold the far field still and every
+  // pass visits every node.
+  const auto p = ball_model(32);
+  const Model& m = *p->model;
+  const Eigen::Vector3d c = 0.5 * (m.rest_positions.rowwise().minCoeff() + m.rest_positions.rowwise().maxCoeff());
+  const double ztop = m.rest_positions.row(2).maxCoeff();
+  SimulationSettings ss;
+  ss.integrator.kind = IntegratorKind::implicit;
+  ss.integrator.time_step_s = 0.02;
+  ss.integrator.max_iterations = 1;
+  ss.integrator.region_radius_mm = 8.0;
+  ss.integrator.threads = 2;
+  // while no tool touches, up to 4 iterations while a node moves more than 1 um: the iterations
+  // count on the largest move, every node's
+  ss.integrator.free_iterations = 4;
+  ss.integrator.free_tolerance_mm = 1e-3;
+  const double zmin = m.rest_positions.row(2).minCoeff();
+  for (int i = 0; i < m.num_nodes(); ++i)
+    if (m.rest_positions(2, i) <= zmin + 3.0) ss.fixed_nodes.push_back(i);
+  ProbeSettings probe;
+  probe.name = "ball";
+  probe.geometry.radius_mm = 3.0;
+  probe.path = {{0.0, {c.x() - 3.0, c.y(), ztop + 3.5}},
+                {0.5, {c.x() - 3.0, c.y(), ztop + 0.5}},
+                {1.1, {c.x() + 3.0, c.y(), ztop + 0.5}},
+                {1.4, {c.x() + 3.0, c.y(), ztop + 4.0}},
+                {1.8, {c.x() + 3.0, c.y(), ztop + 4.0}}};
+  ss.probes = {probe};
+  Simulation held(p, ss), visited(p, ss);
+  TissueSnapshot snap;
+  int steps = 0;
+  double peak = 0.0;
+  while (held.time_s() < 1.8 - 1e-9 && !held.failed() && !visited.failed()) {
+    visited.save_tissue(snap);
+    visited.restore_tissue(snap);
+    held.step();
+    visited.step();
+    ++steps;
+    ASSERT_EQ(held.probe(0).raw_force_n, visited.probe(0).raw_force_n) << "step " << steps;
+    ASSERT_TRUE(held.state().positions == visited.state().positions) << "step " << steps;
+    ASSERT_TRUE(held.state().velocities == visited.state().velocities) << "step " << steps;
+    peak = std::max(peak, held.probe(0).raw_force_n.z());
+  }
+  ASSERT_FALSE(held.failed()) << held.state().message;
+  ASSERT_FALSE(visited.failed()) << visited.state().message;
+  EXPECT_GT(peak, 0.005) << "the ball pressed nothing: the test shows nothing";
+  const ProjectiveSolver& solver = *held.state().integrator_cache.solver;
+  EXPECT_GT(solver.steady_solves(), steps / 2) << "the far field was hardly ever held still";
+  EXPECT_EQ(visited.state().integrator_cache.solver->steady_solves(), 0);
+  EXPECT_LT(solver.region_nodes(), std::int64_t(solver.free_nodes().size()));
+}
+
+}  // namespace
+}  // namespace vx
