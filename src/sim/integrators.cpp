@@ -288,7 +288,8 @@ class ImplicitIntegrator final : public SteppingIntegrator {
     const int threads = settings_.threads;
     const double dt = settings_.time_step_s;
     ProjectiveSolver& solver = solver_for(s, rep);
-    solver.set_region_diagnostics(settings_.region_solve_far_field, settings_.region_refresh_on_move);
+    solver.set_region_diagnostics(settings_.region_solve_far_field, settings_.region_refresh_on_move,
+                                  settings_.region_visit_still_far_field);
     solver.set_carry_far_field(settings_.region_far_field_degree);
     rep.factor_nonzeros = solver.factor_nonzeros();
     const bool regional = settings_.region_radius_mm > 0 && contact_;

@@ -98,6 +98,10 @@ struct IntegratorSettings {
   /// false: a region move keeps the far field as it is (no full solve at the move; the elements
   /// that join the region are fitted from the next step on).
   bool region_refresh_on_move{true};
+  /// true: every step's node passes and contact checks visit every node even while the regional
+  /// solves hold the far field still (ProjectiveSolver::still_far_field_nodes; the same bits,
+  /// slower: the bench's side by side, docs/bench.md).
+  bool region_visit_still_far_field{false};
   /// implicit with a region: once no tool touches and a full solve finds the tissue at rest, it
   /// sleeps as a whole: its steps only advance the time (no rotation fit, no solve, velocities
   /// 0) until a tool comes within the contact margin of a node, the state is replaced, or the

@@ -306,7 +306,7 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
   // solves follow one another.
   const bool partial_now = region_ && !solve_far_field_ && !carried;
   const int run = partial_run(s);
-  const bool steady = partial_now && run >= 1 && fixed_still;
+  const bool steady = partial_now && run >= 1 && fixed_still && !visit_still_;
   if (steady && !last_steady_) watch_period_ = next_watch_period();
   if (steady) ++steady_solves_;
   if (contact) contact->watch_moving(steady ? &closure_nodes_ : nullptr, steady ? watch_period_ : 0);
@@ -549,7 +549,7 @@ const std::vector<int>* ProjectiveSolver::still_far_field_nodes(const SimState& 
   // before a solve: the last one was regional over this closure (the positions: the one before
   // wrote them where they are); after one: it and the two before (the velocities: the step before
   // last wrote the buffer this step writes, 0 if it was regional over this closure)
-  return partial_run(s) >= (after_solve ? 3 : 1) ? &pass_nodes_ : nullptr;
+  return !visit_still_ && partial_run(s) >= (after_solve ? 3 : 1) ? &pass_nodes_ : nullptr;
 }
 
 void ProjectiveSolver::clear_region() {

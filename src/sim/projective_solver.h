@@ -170,9 +170,10 @@ class ProjectiveSolver {
   /// Diagnostics (IntegratorSettings::region_solve_far_field, region_refresh_on_move): with
   /// `solve_far_field` the regional solves fit rotations in the region only but solve every
   /// node; without `refresh_on_move` set_region() does not make the next solve a full one.
-  void set_region_diagnostics(bool solve_far_field, bool refresh_on_move) {
+  void set_region_diagnostics(bool solve_far_field, bool refresh_on_move, bool visit_still_far_field = false) {
     solve_far_field_ = solve_far_field;
     refresh_on_move_ = refresh_on_move;
+    visit_still_ = visit_still_far_field;
   }
   /// Regional solves carry the far field (IntegratorSettings::region_carry_far_field; docs/model.md
   /// section 7, "The far field carried"): the nodes outside the region's closure move by a
@@ -278,6 +279,7 @@ class ProjectiveSolver {
   bool last_full_{false};        ///< the last solve() was a full one
   bool solve_far_field_{false};  ///< set_region_diagnostics()
   bool refresh_on_move_{true};
+  bool visit_still_{false};  ///< set_region_diagnostics(): never hold the far field still
   int far_degree_{1};  ///< set_carry_far_field()
   /// The carried far field (the free rows outside the region's closure): positions
   /// a + sum_k q_k U_k with U_k = e_c phi_j((a - centre) / scale) for the monomials phi_j of

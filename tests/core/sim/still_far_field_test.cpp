@@ -77,7 +77,9 @@ TEST(StillFarField, TheBroadPhaseUnderThePromiseRebuildsAndFindsAsEveryNodeDoes)
     for (const int i : watched) x(2, i) = 0.02 * t * std::exp(-0.01 * x.col(i).head<2>().squaredNorm());
     probes[0].position_mm.z() -= 0.2;
     collect_both("a watched move");
-    if (t == 2) EXPECT_GT(every.counters().rebuilds, rebuilds_before) << "the far node's move did not count";
+    if (t == 2) {
+      EXPECT_GT(every.counters().rebuilds, rebuilds_before) << "the far node's move did not count";
+    }
     if (t == 5) {
       // a pause checks every node and keeps the others' move; the same period resumes it
       promised.watch_moving(nullptr, 7);
