@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "model/gradational_builder.h"
+#include "model/voxel_shapes.h"
 #include "physics/calibration.h"
 #include "sim/contact.h"
 #include "sim/integrators.h"
@@ -99,23 +100,14 @@ TEST(StillFarField, TheBroadPhaseUnderThePromiseRebuildsAndFindsAsEveryNodeDoes)
   EXPECT_EQ(promised.watched_checks(), checks);
 }
 
-/// A gradational ball of n voxels across (1 mm voxels, radius n/2 - 1).
+/// A gradational ball of n voxels across (1 mm voxels, radius n/2 - 1), Poisson 0.45.
 std::shared_ptr<const PhysicsModel> ball_model(int n) {
-  GridGeometry geometry;
-  geometry.dims = {n, n, n};
-  geometry.spacing_mm = Eigen::Vector3d::Ones();
-  VoxelGrid grid(geometry);
-  const double c = 0.5 * (n - 1), r = 0.5 * n - 1.0;
-  for (int k = 0; k < n; ++k)
-    for (int j = 0; j < n; ++j)
-      for (int i = 0; i < n; ++i)
-        grid.set(i, j, k, (i - c) * (i - c) + (j - c) * (j - c) + (k - c) * (k - c) <= r * r ? 1 : 0);
   Material m;
   m.youngs_modulus_kpa = 10.0;
   m.density_kg_m3 = 1000.0;
   m.damping_ratio = 0.2;
   m.poisson_ratio = 0.45;
-  return make_physics_model(std::make_shared<const Model>(build_model(grid)), m);
+  return make_physics_model(std::make_shared<const Model>(build_model(ball_grid(n, 0.5 * n - 1.0))), m);
 }
 
 TEST(StillFarField, ARegionalPressIsTheSameBitForBitAsOneThatVisitsEveryNode) {
