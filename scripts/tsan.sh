@@ -36,7 +36,7 @@ cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=None -DCMAKE_C_COMPILER=clang-14 -
 rm -f "$build_dir.configure.log"
 # the test executables with threads, and the app probe_app_test runs
 targets=(triple_buffer_test probe_output_test probe_sim_exchange_test simulation_test device_side_test factor_cache_test
-  probe_app_test voxelastic-probe)
+  still_far_field_test probe_app_test voxelastic-probe)
 echo "tsan: building ${targets[*]} with ThreadSanitizer into $build_dir/ ..."
 cmake --build "$build_dir" -j "$jobs" --target "${targets[@]}"
 # the tests of those executables that start threads (std::thread, FixedRateThread, OpenMP on
@@ -50,6 +50,8 @@ app+='|TheRegionCheckOfAWeakSupportIsReportedDuringTheRun|WindowScreenshotUnderA
 tests="^TripleBuffer\\.|^FixedRateThread\\.|^Simulation\\.SameResultsOnOneAndTwoThreads\$|^SimulationExchange\\.LiveProbeAcrossThreads\$|^DeviceSide\\.LocalContactModelsAcrossThreads\$|^ProbeApp\\.($app)\$"
 # the factor cache's writer thread beside the solver (io/factor_cache.h, background_writes)
 tests+="|^FactorCacheTest\\.AFactorWrittenInTheBackgroundOutlivesItsSolverAndIsFoundAtOnce\$"
+# the regional solves' passes over the closure on two threads (sim/projective_solver.h, still_far_field_nodes)
+tests+="|^StillFarField\\.ARegionalPressIsTheSameBitForBitAsOneThatVisitsEveryNode\$"
 export TSAN_OPTIONS=${TSAN_OPTIONS:-ignore_noninstrumented_modules=1:suppressions=$PWD/tests/sanitizers/tsan.supp:second_deadlock_stack=1:history_size=4}
 export OMP_TOOL_LIBRARIES=$archer
 # the app's tests time their runs; one at a time so that two TSan-slowed apps do not share a core
