@@ -542,6 +542,8 @@ void ProjectiveSolver::set_region(const std::vector<int>& awake_nodes) {
 }
 
 int ProjectiveSolver::partial_run(const SimState& s) const {
+  // a slice model's nodes are all put back on its plane after every step (Simulation::hold_plane)
+  if (physics_->is_2d()) return 0;
   return run_closure_version_ == closure_version_ && run_positions_version_ == s.positions_version ? partial_run_ : 0;
 }
 

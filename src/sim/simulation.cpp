@@ -243,8 +243,8 @@ void Simulation::ImplicitContact::collect(const Eigen::Matrix3Xd& x, bool near, 
 }
 
 void Simulation::ImplicitContact::watch_moving(const std::vector<int>* moving, std::uint64_t period) {
-  // a slice model's nodes are all put back on its plane after every step (hold_plane)
-  if (sim_.physics_->is_2d()) moving = nullptr;
+  // (never for a slice model: its nodes are all put back on its plane after every step, so the
+  // solver holds no far field still there: ProjectiveSolver::partial_run)
   sim_.contact_.watch_moving(moving, period);
 }
 
