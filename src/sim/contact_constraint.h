@@ -46,7 +46,8 @@ class ContactProvider {
   /// may look for the broad phase's largest move among `moving` only. `period` names the stretch
   /// the promise covers: a call with the last call's period (and the same `moving`) continues it,
   /// the positions outside `moving` still those of its earlier collects; any other value starts a
-  /// new one. `moving` null or `period` 0: no promise (every node may move). The regional
+  /// new one. `period` 0: no promise (every node may move); `moving` null with the period: a
+  /// pause (every node may move until the same period resumes the promise). The regional
   /// solves' (projective_solver.h): the rows outside the closure keep their positions. Ignored
   /// by default.
   virtual void watch_moving(const std::vector<int>* moving, std::uint64_t period) {

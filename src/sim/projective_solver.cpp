@@ -35,7 +35,7 @@ ProjectiveSolver::ProjectiveSolver(std::shared_ptr<const PhysicsModel> physics,
   rhs_.resize(nf, 3);
   rhs_previous_.resize(nf, 3);
   solution_.resize(nf, 3);
-  fixed_positions_.resize(nc, 3);
+  fixed_positions_.setZero(nc, 3);  // solve() compares against the last (fixed_still)
   element_chunk_stats_.assign(std::size_t(chunk_count(ne, kElementGrain)), ElementPassStats{});
   free_chunk_sums_.assign(2 * std::size_t(chunk_count(nf, kNodeGrain)), 0.0);
   contact_set_.bind(numbering_.free_index, numbering_.free_nodes);
