@@ -45,7 +45,7 @@ struct ScaleConfig {
   bool region_solve_far_field{false};  ///< diagnostic: IntegratorSettings::region_solve_far_field
   bool region_refresh_on_move{true};   ///< diagnostic: IntegratorSettings::region_refresh_on_move
   bool region_visit_still_far_field{false};  ///< diagnostic: IntegratorSettings::region_visit_still_far_field
-  int region_far_field_degree{0};      ///< IntegratorSettings::region_far_field_degree (0: held)
+  int region_far_field_degree{0};            ///< IntegratorSettings::region_far_field_degree (0: held)
 };
 
 /// One model: a phantom at 1 mm voxels, gradational layout.

@@ -280,7 +280,7 @@ class ProjectiveSolver {
   bool solve_far_field_{false};  ///< set_region_diagnostics()
   bool refresh_on_move_{true};
   bool visit_still_{false};  ///< set_region_diagnostics(): never hold the far field still
-  int far_degree_{1};  ///< set_carry_far_field()
+  int far_degree_{1};        ///< set_carry_far_field()
   /// The carried far field (the free rows outside the region's closure): positions
   /// a + sum_k q_k U_k with U_k = e_c phi_j((a - centre) / scale) for the monomials phi_j of
   /// degree <= far_degree_ (1 first: the translations are q_0..q_2), q = 0 at the anchor.
@@ -303,7 +303,7 @@ class ProjectiveSolver {
   bool anchor_far_field(const SimState& s, const Eigen::Matrix3Xd& x);
   void carry_far_field_in(double dt);
   void carry_far_field_out(Eigen::Matrix3Xd& x);
-  std::vector<int> region_elements_;     ///< ascending
+  std::vector<int> region_elements_;  ///< ascending
   // the regional solves' promise to the contact (solve(): ContactProvider::watch_moving)
   std::vector<int> closure_nodes_;          ///< the closure's rows as node ids, ascending
   std::uint64_t closure_version_{0};        ///< bumped by set_region() and clear_region()

@@ -143,7 +143,8 @@ Energies compute_energies(const SimState& s, int threads) {
     double k = 0, g = 0;
     for (std::int64_t i = b; i < e; ++i) {
       k += 0.5 * p.node_mass[std::size_t(i)] * s.velocities.col(i).squaredNorm();
-      g -= p.node_mass[std::size_t(i)] * p.node_gravity_ratio[std::size_t(i)] * s.gravity_mm_s2.dot(s.positions.col(i) - rest.col(i));
+      g -= p.node_mass[std::size_t(i)] * p.node_gravity_ratio[std::size_t(i)] *
+           s.gravity_mm_s2.dot(s.positions.col(i) - rest.col(i));
     }
     kin[std::size_t(c)] = k;
     grav[std::size_t(c)] = g;

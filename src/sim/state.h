@@ -44,10 +44,10 @@ enum class BoxFace : std::uint8_t { x_min, x_max, y_min, y_max, z_min, z_max };
 
 /// Scratch of a step: buffers sized once by make_state().
 struct StepScratch {
-  Eigen::Matrix3Xd entry_forces;      ///< 3 x vertex entries, N (node-major, see PhysicsModel::entry_slot)
-  Eigen::Matrix3Xd next_positions;    ///< 3 x nodes: the step writes here, then swaps
-  Eigen::Matrix3Xd next_velocities;   ///< 3 x nodes
-  std::vector<double> element_energy; ///< elements, N*mm (when energies are tracked)
+  Eigen::Matrix3Xd entry_forces;       ///< 3 x vertex entries, N (node-major, see PhysicsModel::entry_slot)
+  Eigen::Matrix3Xd next_positions;     ///< 3 x nodes: the step writes here, then swaps
+  Eigen::Matrix3Xd next_velocities;    ///< 3 x nodes
+  std::vector<double> element_energy;  ///< elements, N*mm (when energies are tracked)
   ElementPassScratch element_pass;
   std::vector<std::uint8_t> node_chunk_flags;  ///< per node chunk: bit 0 non-finite, bit 1 runaway
   std::vector<double> node_chunk_sums;  ///< per node chunk: partial kinetic and gravitational energies, the implicit
@@ -64,11 +64,11 @@ class ProjectiveSolver;
 /// gives (integrators.cpp), so the state never includes the solver's header.
 struct IntegratorCache {
   using SolverPtr = std::unique_ptr<ProjectiveSolver, void (*)(ProjectiveSolver*)>;
-  SolverPtr solver{nullptr, nullptr};        ///< null until the first implicit step
-  std::uint64_t fixed_version{0};            ///< SimState::fixed_version the solver was built for
-  std::uint64_t contact_epoch{0};            ///< the contact provider the warm start belongs to (0: none)
-  std::int64_t next_step{-1};                ///< the warm start holds for the step that starts at this count
-  double next_time_s{0.0};                   ///< ... and at this time
+  SolverPtr solver{nullptr, nullptr};  ///< null until the first implicit step
+  std::uint64_t fixed_version{0};      ///< SimState::fixed_version the solver was built for
+  std::uint64_t contact_epoch{0};      ///< the contact provider the warm start belongs to (0: none)
+  std::int64_t next_step{-1};          ///< the warm start holds for the step that starts at this count
+  double next_time_s{0.0};             ///< ... and at this time
 
   IntegratorCache();
   ~IntegratorCache();
@@ -84,27 +84,27 @@ struct SimState {
   std::shared_ptr<const PhysicsModel> physics;
 
   // dynamic state
-  Eigen::Matrix3Xd positions;   ///< 3 x nodes, mm
-  Eigen::Matrix3Xd velocities;  ///< 3 x nodes, mm/s (fixed nodes: their prescribed velocity)
+  Eigen::Matrix3Xd positions;                 ///< 3 x nodes, mm
+  Eigen::Matrix3Xd velocities;                ///< 3 x nodes, mm/s (fixed nodes: their prescribed velocity)
   std::vector<Eigen::Quaterniond> rotations;  ///< elements: last fitted rotation (warm start)
   double time_s{0.0};
   std::int64_t steps{0};
 
   // scene inputs
   Eigen::Vector3d gravity_mm_s2{0.0, 0.0, 0.0};  ///< e.g. (0, 0, -kStandardGravityMmS2)
-  Eigen::Matrix3Xd external_forces;  ///< 3 x nodes, N, added every step until changed (contacts)
-  std::vector<std::uint8_t> node_fixed;  ///< nodes: 1 = kinematic (moves with its velocity only)
-  std::uint64_t fixed_version{0};        ///< bumped whenever node_fixed changes
+  Eigen::Matrix3Xd external_forces;              ///< 3 x nodes, N, added every step until changed (contacts)
+  std::vector<std::uint8_t> node_fixed;          ///< nodes: 1 = kinematic (moves with its velocity only)
+  std::uint64_t fixed_version{0};                ///< bumped whenever node_fixed changes
   /// Bumped whenever the positions are set other than by a step (a reset, a restore, a static
   /// solve, the tissue put at rest): the regional solves' promise to the contact
   /// (ProjectiveSolver::solve, ContactProvider::watch_moving) does not outlive it.
   std::uint64_t positions_version{0};
 
   // results of the last step
-  Energies energies;             ///< at the start of the last step (when tracked)
-  ElementPassStats element_stats;///< counters of the last force pass
+  Energies energies;               ///< at the start of the last step (when tracked)
+  ElementPassStats element_stats;  ///< counters of the last force pass
   StepStatus status{StepStatus::ok};
-  std::string message;           ///< what went wrong (empty when ok)
+  std::string message;  ///< what went wrong (empty when ok)
 
   StepScratch scratch;
   IntegratorCache integrator_cache;  ///< the implicit integrator's factorisation (integrators.h)
@@ -136,7 +136,6 @@ struct SimState {
 
 /// Net elastic force (N) on the given nodes at the state's positions (e.g. the reaction on a
 /// fixed face). Allocates; not for the hot loop.
-[[nodiscard]] Eigen::Vector3d elastic_force_on(const SimState& state, const std::vector<int>& nodes,
-                                               int threads = 0);
+[[nodiscard]] Eigen::Vector3d elastic_force_on(const SimState& state, const std::vector<int>& nodes, int threads = 0);
 
 }  // namespace vx

@@ -21,7 +21,9 @@ StepReport solve_static(SimState& s, const StaticSolveSettings& settings) {
   Eigen::MatrixX3d& rc = solver.constant_rhs();
   for (std::size_t f = 0; f < free.size(); ++f) {
     const int i = free[f];
-    rc.row(Eigen::Index(f)) = (p.node_mass[std::size_t(i)] * p.node_gravity_ratio[std::size_t(i)] * s.gravity_mm_s2 + s.external_forces.col(i)).transpose();
+    rc.row(Eigen::Index(f)) = (p.node_mass[std::size_t(i)] * p.node_gravity_ratio[std::size_t(i)] * s.gravity_mm_s2 +
+                               s.external_forces.col(i))
+                                  .transpose();
   }
   Eigen::Matrix3Xd x = s.positions;
   ProjectiveIterations its;
