@@ -68,11 +68,12 @@ ScaleBenchSettings ScaleBenchSettings::standard() {
   const ScaleConfig region30 = implicit(20, 1, 30, "");
   const ScaleConfig region30_30 = implicit(30, 1, 30, "");
   const ScaleConfig region45_30 = implicit(30, 1, 45, "");
-  const ScaleConfig region60_30 = implicit(30, 1, 60, "the fast configuration of larger models");
+  ScaleConfig region60_30 = implicit(30, 1, 60, "the fast configuration of larger models");
   // the fast configuration's iterations while no tool touches (fast_configuration.h)
   const FastConfiguration fast = default_fast_configuration();
   implicit20.free_iterations = fast.free_iterations;  // small models only (fast_configuration.h)
   implicit20.free_tolerance_mm = fast.free_tolerance_mm;
+  region60_30.single_precision_sweeps = fast.large_model_single_precision_sweeps;  // as a large model's
   s.configs = {ref,      floor,    floor_scale, implicit10,  implicit20, implicit30,
                region15, region30, region30_30, region45_30, region60_30};
   return s;
@@ -132,8 +133,18 @@ std::vector<ScaleConfig> ScaleBenchSettings::diagnostic_configs() {
   visit.max_iterations = 1;
   visit.region_radius_mm = 60;
   visit.region_visit_still_far_field = true;
+  visit.single_precision_sweeps = true;
   visit.name = "implicit 30 ms, 1 iteration, region 60 mm, every node visited (the still far field's passes)";
   out.push_back(visit);
+  // the fast configuration of larger models with its factor swept in double: what the single
+  // precision sweeps gain and cost (docs/bench.md, "Single-precision sweeps")
+  ScaleConfig twice;
+  twice.kind = IntegratorKind::implicit;
+  twice.time_step_s = 0.03;
+  twice.max_iterations = 1;
+  twice.region_radius_mm = 60;
+  twice.name = "implicit 30 ms, 1 iteration, region 60 mm, double-precision sweeps";
+  out.push_back(twice);
   ScaleConfig coarse;
   coarse.kind = IntegratorKind::implicit;
   coarse.time_step_s = 0.01;
@@ -288,6 +299,7 @@ RunOutput run_one(const ScaleModelSpec& spec, const PreparedScene& prepared,
   ss.integrator.region_refresh_on_move = cfg.region_refresh_on_move;
   ss.integrator.region_visit_still_far_field = cfg.region_visit_still_far_field;
   ss.integrator.region_far_field_degree = cfg.region_far_field_degree;
+  ss.integrator.single_precision_sweeps = cfg.single_precision_sweeps;
   ProbeSettings probe;
   probe.name = "ball";
   probe.geometry.shape = ProbeShape::sphere;

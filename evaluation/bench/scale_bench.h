@@ -46,6 +46,7 @@ struct ScaleConfig {
   bool region_refresh_on_move{true};   ///< diagnostic: IntegratorSettings::region_refresh_on_move
   bool region_visit_still_far_field{false};  ///< diagnostic: IntegratorSettings::region_visit_still_far_field
   int region_far_field_degree{0};            ///< IntegratorSettings::region_far_field_degree (0: held)
+  bool single_precision_sweeps{false};       ///< IntegratorSettings::single_precision_sweeps
 };
 
 /// One model: a phantom at 1 mm voxels, gradational layout.

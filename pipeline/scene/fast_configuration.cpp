@@ -26,6 +26,7 @@ IntegratorSettings FastConfiguration::integrator_for(int nodes) const {
   s.max_iterations = iterations;
   s.free_iterations = free_iterations_for(nodes);
   s.free_tolerance_mm = free_tolerance_mm;
+  s.single_precision_sweeps = large(nodes) && large_model_single_precision_sweeps;
   s.threads = 1;
   return s;
 }

@@ -44,6 +44,11 @@ struct FastConfiguration {
   int large_model_nodes{0};
   double large_model_time_step_s{0.0};
   double large_model_region_radius_mm{0.0};
+  /// A large model's factor sweeps in single precision (IntegratorSettings::single_precision_sweeps):
+  /// the folded organ's regional step about a sixth faster for about 1e-5 of the force (docs/bench.md,
+  /// "Single-precision sweeps"). A smaller model's factor is swept from the caches, so it stays in
+  /// double there.
+  bool large_model_single_precision_sweeps{true};
   /// The device's force updates span this many steps (a half sine spans at least two).
   double device_update_steps{0.0};
 

@@ -161,12 +161,14 @@ void choose_integrator(const Scene& scene, const PrepareSceneOptions& options, c
     s.integrator.factor_cache = options.factor_cache;
     s.integrator.region_radius_mm = large ? fast.region_radius_for(out.model->num_nodes()) : scene.region_radius_mm;
     s.integrator.region_far_field_degree = scene.region_far_field_degree;
+    s.integrator.single_precision_sweeps = scene.single_precision_sweeps.value_or(
+        fast.large(out.model->num_nodes()) && fast.large_model_single_precision_sweeps);
     if (large)
-      out.log.push_back(
-          fmt::format("the fast configuration of a large model ({} nodes, {} or more): implicit, {:g} ms steps, "
-                      "regional solves within {:g} mm of a tool (docs/bench.md)",
-                      out.model->num_nodes(), fast.large_model_nodes,
-                      1e3 * std::min(automatic_dt_s, fast.large_model_time_step_s), fast.large_model_region_radius_mm));
+      out.log.push_back(fmt::format(
+          "the fast configuration of a large model ({} nodes, {} or more): implicit, {:g} ms steps, "
+          "regional solves within {:g} mm of a tool, the factor swept in {} precision (docs/bench.md)",
+          out.model->num_nodes(), fast.large_model_nodes, 1e3 * std::min(automatic_dt_s, fast.large_model_time_step_s),
+          fast.large_model_region_radius_mm, s.integrator.single_precision_sweeps ? "single" : "double"));
   }
   out.automatic_dt_s = automatic_dt_s;
   if (scene.dt_s > 0) {

@@ -174,6 +174,7 @@ json run_summary_json(const Scene& scene, const fs::path& scene_file, const Prep
       conf["iterations"] = in.max_iterations;
       conf["residual_tolerance_n"] = in.residual_tolerance_n;
       conf["region_radius_mm"] = in.region_radius_mm;
+      conf["sweep_precision"] = in.single_precision_sweeps ? "single" : "double";
     }
     const PhysicsModel& p = *prepared.physics;
     conf["mass_scaling"] = {{"factor", p.mass_scaling.factor},

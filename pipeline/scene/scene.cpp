@@ -514,7 +514,8 @@ Scene parse_scene(const json& j, const fs::path& base, const std::string& name) 
   }
   if (o.has("integrator")) {
     const Obj in(o.at("integrator"), o.at_where("integrator"),
-                 {"type", "dt_s", "iterations", "residual_tolerance_n", "region_radius_mm", "region_far_field"});
+                 {"type", "dt_s", "iterations", "residual_tolerance_n", "region_radius_mm", "region_far_field",
+                  "sweep_precision"});
     s.integrator_given = true;
     const std::string t = in.string("type", "symplectic_euler");
     try {
@@ -545,11 +546,19 @@ Scene parse_scene(const json& j, const fs::path& base, const std::string& name) 
       in.at_where("region_far_field")
           .fail("unknown \"" + far + "\"; use held (the default) or carried (docs/model.md section 7)");
     s.region_far_field_degree = far == "carried" ? 1 : 0;
-    if ((s.iterations > 0 || s.residual_tolerance_n > 0 || s.region_radius_mm > 0 || in.has("region_far_field")) &&
+    const std::string precision = in.string("sweep_precision", "auto");
+    if (precision != "auto" && precision != "single" && precision != "double")
+      in.at_where("sweep_precision")
+          .fail("unknown \"" + precision +
+                "\"; use auto (the default: single on a large model), single or double (docs/bench.md, "
+                "\"Single-precision sweeps\")");
+    if (precision != "auto") s.single_precision_sweeps = precision == "single";
+    if ((s.iterations > 0 || s.residual_tolerance_n > 0 || s.region_radius_mm > 0 || in.has("region_far_field") ||
+         in.has("sweep_precision")) &&
         s.integrator != IntegratorKind::implicit)
       in.where().fail(
-          "iterations, residual_tolerance_n, region_radius_mm and region_far_field are settings of the implicit "
-          "integrator");
+          "iterations, residual_tolerance_n, region_radius_mm, region_far_field and sweep_precision are settings of "
+          "the implicit integrator");
   }
   if (o.has("contact")) {
     const Obj c(o.at("contact"), o.at_where("contact"), {"restitution", "friction", "skin_mm"});

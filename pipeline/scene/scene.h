@@ -139,6 +139,10 @@ struct Scene {
   /// implicit with regional solves: 0 the far field held ("held", the default), 1 carried by an
   /// affine field ("carried": IntegratorSettings::region_far_field_degree)
   int region_far_field_degree{0};
+  /// implicit: the factor's sweeps in single precision ("sweep_precision": "single") or double
+  /// ("double"); unset ("auto", the default): single on a model of the fast configuration's large
+  /// size (IntegratorSettings::single_precision_sweeps)
+  std::optional<bool> single_precision_sweeps;
   ContactSettings contact;
   std::optional<DeviceForceSettings> device;
   std::vector<ProbeSettings> probes;

@@ -422,6 +422,7 @@ class ImplicitIntegrator final : public SteppingIntegrator {
     setup.time_step_s = settings_.time_step_s;
     setup.inertia = true;
     setup.damping = s.physics->damped;
+    setup.single_precision_sweeps = settings_.single_precision_sweeps;
     if (!cache.solver || cache.solver->setup() != setup || cache.fixed_version != s.fixed_version ||
         &cache.solver->physics() != s.physics.get()) {
       cache.solver.reset();

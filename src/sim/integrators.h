@@ -102,6 +102,11 @@ struct IntegratorSettings {
   /// solves hold the far field still (ProjectiveSolver::still_far_field_nodes; the same bits,
   /// slower: the bench's side by side, docs/bench.md).
   bool region_visit_still_far_field{false};
+  /// implicit: the factor's supernodal sweeps read L's values in single precision, the sums in
+  /// double (ProjectiveSolver::use_single_precision_sweeps): a regional step on the folded organ
+  /// about a sixth faster for about 1e-5 of the force (docs/bench.md, "Single-precision sweeps"),
+  /// and the factor a third smaller in memory. The fast configuration of a large model sets it.
+  bool single_precision_sweeps{false};
   /// implicit with a region: once no tool touches and a full solve finds the tissue at rest, it
   /// sleeps as a whole: its steps only advance the time (no rotation fit, no solve, velocities
   /// 0) until a tool comes within the contact margin of a node, the state is replaced, or the

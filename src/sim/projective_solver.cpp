@@ -242,7 +242,11 @@ void ProjectiveSolver::assemble_and_factor(FactorCache* cache, int threads) {
     // the key from the element entries (a fraction of the assembly's cost), the coupling to the
     // fixed nodes with it: a factor found needs nothing else
     key = projective_matrix_key(p, numbering_, setup_, threads, &a_free_fixed_);
-    if (cache->load(key, factor_) && factor_.size() == nf) return;
+    key.single = setup_.single_precision_sweeps && key.backend == std::uint8_t(SparseFactor::Backend::cholmod);
+    if (cache->load(key, factor_) && factor_.size() == nf) {
+      if (setup_.single_precision_sweeps) factor_.use_single_precision_sweeps();  // a file of doubles: converted
+      return;
+    }
     factor_ = SparseFactor();  // none, or not this matrix's after all: factor it
   }
   SparseFactor::Matrix a;
@@ -259,6 +263,8 @@ void ProjectiveSolver::assemble_and_factor(FactorCache* cache, int threads) {
   if (!factor_.compute(a, SparseFactor::Backend::automatic, order))
     throw Error("implicit integrator: the system matrix could not be factored (" + std::to_string(nf) +
                 " free nodes); is a part of the model held by nothing?");
+  // before the cache keeps it: the file holds the values the sweeps read (half the bytes)
+  if (setup_.single_precision_sweeps) factor_.use_single_precision_sweeps();
   if (cache) cache->store(key, factor_);
   if (ordered && order.empty()) cache->store_order(pattern, factor_);
 }

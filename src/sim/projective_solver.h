@@ -49,6 +49,9 @@ struct ProjectiveSetup {
   double time_step_s{1.0e-3};  ///< dt, s (the static solve uses 1)
   bool inertia{true};          ///< false: the static solve (no mass term)
   bool damping{false};         ///< the damping term c_e/dt (implicit steps of a damped material)
+  /// The factor swept in single precision (SparseFactor::use_single_precision_sweeps; a factor
+  /// cache keeps it apart, FactorKey::single): IntegratorSettings::single_precision_sweeps.
+  bool single_precision_sweeps{false};
 
   [[nodiscard]] bool operator==(const ProjectiveSetup&) const = default;
 };

@@ -9,7 +9,6 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <cstdlib>
 #include <mutex>
 #include <string>
 
@@ -142,6 +141,7 @@ void SparseFactor::reset() {
   outer_.assign(1, 0);
   inner_.clear();
   values_.clear();
+  values_single_.clear();
   inv_d_.clear();
   super_.clear();
   rows_.clear();
@@ -395,6 +395,18 @@ void SparseFactor::index_tree() {
   tree_pos_.assign(std::size_t(ns), -1);
 }
 
+bool SparseFactor::use_single_precision_sweeps() {
+  if (!supernodal_ || values_.empty()) return single_precision_sweeps();
+  std::vector<float> single(values_.size());
+  const double* v = values_.data();
+  for (std::size_t k = 0; k < single.size(); ++k) single[k] = float(v[k]);
+  values_single_.own(std::move(single));
+  // the row indices owned, so that a mapped factor file goes with the double values
+  if (rows_.views()) rows_.own(std::vector<int>(rows_.data(), rows_.data() + rows_.size()));
+  values_.clear();
+  return true;
+}
+
 /// column_super_ and super_parent_ from super_, row_start_ and rows_ (size_ set); false when a
 /// diagonal entry is not positive and finite.
 bool SparseFactor::index_supernodes() {
@@ -405,8 +417,9 @@ bool SparseFactor::index_supernodes() {
     const std::int64_t nsrow = row_start_[std::size_t(q) + 1] - row_start_[std::size_t(q)];
     for (int j = super_[std::size_t(q)]; j < super_[std::size_t(q) + 1]; ++j) {
       column_super_[std::size_t(j)] = q;
-      const double d =
-          values_[std::size_t(value_start_[std::size_t(q)] + std::int64_t(j - super_[std::size_t(q)]) * (nsrow + 1))];
+      const std::size_t at =
+          std::size_t(value_start_[std::size_t(q)] + std::int64_t(j - super_[std::size_t(q)]) * (nsrow + 1));
+      const double d = values_.empty() ? double(values_single_[at]) : values_[at];
       if (!(d > 0) || !std::isfinite(d)) ok = false;
     }
   }

@@ -52,11 +52,15 @@ class SharedArray {
   SharedArray(const SharedArray&) = default;
   SharedArray& operator=(const SharedArray&) = default;
   SharedArray(SharedArray&& o) noexcept
-      : keep_(std::move(o.keep_)), data_(std::exchange(o.data_, nullptr)), size_(std::exchange(o.size_, 0)) {}
+      : keep_(std::move(o.keep_)),
+        data_(std::exchange(o.data_, nullptr)),
+        size_(std::exchange(o.size_, 0)),
+        views_(std::exchange(o.views_, false)) {}
   SharedArray& operator=(SharedArray&& o) noexcept {
     keep_ = std::move(o.keep_);
     data_ = std::exchange(o.data_, nullptr);
     size_ = std::exchange(o.size_, 0);
+    views_ = std::exchange(o.views_, false);
     return *this;
   }
   /// Owns `v` (its buffer moves, no copy).
@@ -65,18 +69,23 @@ class SharedArray {
     data_ = held->data();
     size_ = held->size();
     keep_ = std::move(held);
+    views_ = false;
   }
   /// Views n values at `data`, kept alive by `keep`.
   void view(const T* data, std::size_t n, std::shared_ptr<const void> keep) {
     keep_ = std::move(keep);
     data_ = data;
     size_ = n;
+    views_ = true;
   }
   void clear() {
     keep_.reset();
     data_ = nullptr;
     size_ = 0;
+    views_ = false;
   }
+  /// True when the values are another's (view()), not owned.
+  [[nodiscard]] bool views() const { return views_; }
   [[nodiscard]] const T* data() const { return data_; }
   [[nodiscard]] std::size_t size() const { return size_; }
   [[nodiscard]] bool empty() const { return size_ == 0; }
@@ -86,6 +95,7 @@ class SharedArray {
   std::shared_ptr<const void> keep_;
   const T* data_{nullptr};
   std::size_t size_{0};
+  bool views_{false};
 };
 
 /// What a factor is the factor of: the content of the matrix it factors and who factored it.
@@ -97,6 +107,9 @@ struct FactorKey {
   std::int64_t rows{0};
   std::int64_t nonzeros{0};  ///< a size of the matrix (for the file name; the hash holds the content)
   std::uint8_t backend{0};   ///< SparseFactor::Backend
+  /// The factor's values in single precision (SparseFactor::use_single_precision_sweeps): the
+  /// same matrix's factor in double is another file.
+  bool single{false};
   /// A file-name-safe name: "cholmod-326564n-7012345nz-0123456789abcdef".
   [[nodiscard]] std::string name() const;
   [[nodiscard]] bool operator==(const FactorKey&) const = default;
@@ -163,8 +176,9 @@ class SparseFactor {
   /// from a matrix of the same pattern (the order cache: METIS's time saved, the same factor).
   [[nodiscard]] bool compute(const Matrix& a, Backend backend = Backend::automatic, std::span<const int> order = {});
   /// Writes the factor in a binary form (native byte order; a header, the arrays each at a
-  /// 64-byte boundary, a checksum): what read() reads back on this machine. Throws vx::Error
-  /// when the stream fails.
+  /// 64-byte boundary, a checksum): what read() reads back on this machine, with its values in
+  /// the precision the sweeps read (use_single_precision_sweeps()). Throws vx::Error when the
+  /// stream fails.
   void write(std::ostream& out) const;
   /// What write() writes and nothing else (no solve state), sharing the factor's values and row
   /// indices rather than copying them: a copy to write on another thread while this one solves
@@ -189,7 +203,9 @@ class SparseFactor {
   /// Rows of the factored matrix.
   [[nodiscard]] int size() const { return size_; }
   /// Nonzeros of L (the cost of one solve; supernodal: the stored entries of its blocks).
-  [[nodiscard]] std::int64_t nonzeros() const { return std::int64_t(values_.size()); }
+  [[nodiscard]] std::int64_t nonzeros() const {
+    return supernodal_ && !value_start_.empty() ? value_start_.back() : std::int64_t(values_.size());
+  }
   /// The backend that computed the factor.
   [[nodiscard]] Backend backend() const { return backend_; }
   /// How the supernodal sweeps run (every solve below; docs/bench.md, "The gathered sweeps"):
@@ -204,6 +220,19 @@ class SparseFactor {
   /// The kernel a new factor sweeps with: gathered, or the one the environment variable
   /// VOXELASTIC_SWEEP names (column, gathered). Throws vx::Error for another value.
   [[nodiscard]] static SweepKernel default_sweep_kernel();
+  /// From now on (until the next compute() or read()) the supernodal sweeps read L's values in
+  /// single precision, the sums and the right-hand sides staying in double (docs/bench.md,
+  /// "Single-precision sweeps"): a regional step streams the factor's closure from memory twice,
+  /// and floats halve that. It costs the solution about 1e-7 of its size (L's entries rounded to
+  /// 24 bits); the same bits from run to run and on any number of threads, as in double. The
+  /// double values are released (with a mapped factor file: its pages, the row indices copied
+  /// first), so the factor's memory falls by a third rather than grows; write() then writes the
+  /// single values (a factor cache keeps them under a key of their own: FactorKey::single). A
+  /// factor read from such a file sweeps in single precision already. Returns whether the sweeps
+  /// are in single precision: false for a simplicial factor (Eigen's backends), whose passes stay
+  /// in double.
+  bool use_single_precision_sweeps();
+  [[nodiscard]] bool single_precision_sweeps() const { return !values_single_.empty(); }
   /// Sets the sweeps' kernel and instruction set (automatic or one this CPU lacks: the widest it
   /// runs, best_simd_level()).
   void set_sweep_kernel(SweepKernel kernel, SimdLevel simd = SimdLevel::automatic);
@@ -367,6 +396,7 @@ class SparseFactor {
   std::vector<std::int64_t> outer_;  ///< n + 1 column starts
   std::vector<int> inner_;           ///< row of each entry
   SharedArray<double> values_;       ///< L entries
+  SharedArray<float> values_single_;  ///< supernodal: L's entries in single precision (use_single_precision_sweeps)
   std::vector<double> inv_d_;        ///< 1 / D
   std::vector<double> inv_sqrt_d_;   ///< D^-1/2 (forward vectors of the simplicial factor)
   std::vector<int> parent_;          ///< simplicial: column -> parent in the elimination tree (-1: a root)

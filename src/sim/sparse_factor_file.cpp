@@ -19,7 +19,9 @@ namespace vx {
 namespace {
 
 constexpr char kMagic[8] = {'V', 'X', 'F', 'A', 'C', 'T', 'O', 'R'};
-constexpr std::uint32_t kFormatVersion = 2;
+/// 3: the values' bytes (8: double, 4: single, SparseFactor::use_single_precision_sweeps)
+/// before them.
+constexpr std::uint32_t kFormatVersion = 3;
 
 /// An array of T in place (aligned for T) and its count; null on failure.
 template <typename T>
@@ -69,12 +71,12 @@ std::string FactorKey::name() const {
   for (int i = 0; i < 16; ++i) hex[i] = kDigits[(hash >> (60 - 4 * i)) & 0xF];
   hex[16] = 0;
   return std::string(SparseFactor::to_string(SparseFactor::Backend(backend))) + "-" + std::to_string(rows) + "n-" +
-         std::to_string(nonzeros) + "nz-" + hex;
+         std::to_string(nonzeros) + "nz-" + hex + (single ? "-single" : "");
 }
 
 std::uint64_t SparseFactor::stored_bytes() const {
   const auto b = [](const auto& v) { return std::uint64_t(v.size() * sizeof(v[0])); };
-  return 64 + b(perm_) + b(values_) +
+  return 64 + b(perm_) + b(values_) + b(values_single_) +
          (supernodal_ ? b(super_) + b(rows_) + b(row_start_) + b(value_start_) : b(outer_) + b(inner_) + b(inv_d_));
 }
 
@@ -86,6 +88,7 @@ SparseFactor SparseFactor::file_copy() const {
   c.supernodal_ = supernodal_;
   c.perm_ = perm_;
   c.values_ = values_;
+  c.values_single_ = values_single_;
   if (supernodal_) {
     c.super_ = super_;
     c.rows_ = rows_;
@@ -107,7 +110,12 @@ void SparseFactor::write(std::ostream& out) const {
   w.value(std::uint8_t(supernodal_ ? 1 : 0));
   w.value(std::int64_t(size_));
   w.array(perm_);
-  w.array(values_);
+  const bool single = single_precision_sweeps();
+  w.value(std::uint8_t(single ? sizeof(float) : sizeof(double)));
+  if (single)
+    w.array(values_single_);
+  else
+    w.array(values_);
   if (supernodal_) {
     w.array(super_);
     w.array(rows_);
@@ -127,7 +135,7 @@ bool SparseFactor::read(const unsigned char* data, std::size_t bytes, std::share
   reset();
   CacheFileReader r(data, bytes);
   std::uint32_t int_bytes = 0;
-  std::uint8_t backend = 0, supernodal = 0;
+  std::uint8_t backend = 0, supernodal = 0, value_bytes = 0;
   std::int64_t n = 0;
   r.header(kMagic, kFormatVersion, "not a voxelastic factor file");
   r.value(int_bytes, "the header");
@@ -138,7 +146,13 @@ bool SparseFactor::read(const unsigned char* data, std::size_t bytes, std::share
                  n > std::numeric_limits<int>::max()))
     r.fail("a header this build cannot read");
   copy(r, perm_, "the permutation");
-  share(r, values_, keep, "the values");
+  r.value(value_bytes, "the values' precision");
+  if (r.ok() && value_bytes != sizeof(double) && !(value_bytes == sizeof(float) && supernodal == 1))
+    r.fail("values of a precision this build cannot read");
+  if (value_bytes == sizeof(float))
+    share(r, values_single_, keep, "the values");
+  else
+    share(r, values_, keep, "the values");
   if (supernodal) {
     copy(r, super_, "the supernodes");
     share(r, rows_, keep, "the row indices");
@@ -158,7 +172,8 @@ bool SparseFactor::read(const unsigned char* data, std::size_t bytes, std::share
     const std::size_t ns = super_.empty() ? 0 : super_.size() - 1;
     bool good = !super_.empty() && super_.front() == 0 && super_.back() == size && row_start_.size() == ns + 1 &&
                 value_start_.size() == ns + 1 && row_start_.front() == 0 && value_start_.front() == 0 &&
-                row_start_.back() == std::int64_t(rows_.size()) && value_start_.back() == std::int64_t(values_.size());
+                row_start_.back() == std::int64_t(rows_.size()) &&
+                value_start_.back() == std::int64_t(values_.size() + values_single_.size());
     for (std::size_t q = 0; good && q < ns; ++q) {
       const std::int64_t nscol = std::int64_t(super_[q + 1]) - super_[q];
       const std::int64_t nsrow = row_start_[q + 1] - row_start_[q];

@@ -23,23 +23,25 @@ namespace {
 
 /// One supernode of L as the sweeps read it: columns k1 .. k1 + nscol - 1, rows r[0 .. nsrow)
 /// (its own columns first), values x column by column (nsrow each).
+template <typename T>
 struct Supernode {
   int k1, nscol, nsrow;
   const int* r;
-  const double* x;
+  const T* x;
 };
 
-/// The supernodal arrays a pass reads.
+/// The supernodal arrays a pass reads (T: the values' type).
+template <typename T>
 struct SupernodalArrays {
   const int* super;
   const std::int64_t* row_start;
   const std::int64_t* value_start;
   const int* rows;
-  const double* values;
+  const T* values;
   SupernodalArrays(const std::vector<int>& s, const std::vector<std::int64_t>& rs, const std::vector<std::int64_t>& vs,
-                   const SharedArray<int>& r, const SharedArray<double>& v)
-      : super(s.data()), row_start(rs.data()), value_start(vs.data()), rows(r.data()), values(v.data()) {}
-  [[nodiscard]] Supernode at(int q) const {
+                   const SharedArray<int>& r, const T* v)
+      : super(s.data()), row_start(rs.data()), value_start(vs.data()), rows(r.data()), values(v) {}
+  [[nodiscard]] Supernode<T> at(int q) const {
     const int k1 = super[q], nscol = super[q + 1] - k1;
     const std::int64_t r0 = row_start[q];
     return {k1, nscol, int(row_start[q + 1] - r0), rows + r0, values + value_start[q]};
@@ -62,10 +64,10 @@ struct SuperList {
 /// The column kernel: every entry scatters to w through its row index. Updates the rows
 /// r[.. row_end) (row_end >= nscol); kLeftOut: only what that left out, the updates of the rows
 /// r[row_end ..] from the columns' final values, column by column as it would have made them.
-template <int K, bool kLeftOut = false>
-VX_SWEEP_INLINE void forward_columns(double* w, const Supernode& s, int row_end) {
+template <int K, bool kLeftOut = false, typename T>
+VX_SWEEP_INLINE void forward_columns(double* w, const Supernode<T>& s, int row_end) {
   for (int jj = 0; jj < s.nscol; ++jj) {
-    const double* col = s.x + std::int64_t(jj) * s.nsrow;
+    const T* col = s.x + std::int64_t(jj) * s.nsrow;
     double* wj = w + K * std::int64_t(s.k1 + jj);
     bool zero = true;
     for (int c = 0; c < K; ++c) {
@@ -85,10 +87,10 @@ VX_SWEEP_INLINE void forward_columns(double* w, const Supernode& s, int row_end)
 }
 
 /// The backward sweep L^T x = z over one supernode, its columns last to first (column kernel).
-template <int K>
-VX_SWEEP_INLINE void backward_columns(double* w, const Supernode& s) {
+template <int K, typename T>
+VX_SWEEP_INLINE void backward_columns(double* w, const Supernode<T>& s) {
   for (int jj = s.nscol - 1; jj >= 0; --jj) {
-    const double* col = s.x + std::int64_t(jj) * s.nsrow;
+    const T* col = s.x + std::int64_t(jj) * s.nsrow;
     double acc[K];
     double* wj = w + K * std::int64_t(s.k1 + jj);
     for (int c = 0; c < K; ++c) acc[c] = wj[c];
@@ -165,10 +167,33 @@ VX_SWEEP_INLINE vec<kLanes> splat(double x) {
   return v;
 }
 
+/// kLanes floats of L widened to doubles (the single-precision copy of the values:
+/// SparseFactor::set_sweep_precision).
+template <int kLanes>
+struct FloatLanes;
+template <>
+struct FloatLanes<2> {
+  using type = float __attribute__((vector_size(8)));
+};
+template <>
+struct FloatLanes<4> {
+  using type = float __attribute__((vector_size(16)));
+};
+template <>
+struct FloatLanes<8> {
+  using type = float __attribute__((vector_size(32)));
+};
+template <int kLanes>
+VX_SWEEP_INLINE vec<kLanes> load(const float* p) {
+  typename FloatLanes<kLanes>::type f;
+  std::memcpy(&f, p, sizeof f);
+  return __builtin_convertvector(f, vec<kLanes>);
+}
+
 /// t_c -= l_j v_jc over rows [begin, end) for the m <= kBlock columns l_j (j in order, one
 /// subtraction after the other: the column kernel's arithmetic, the same bits).
-template <int K, int kLanes>
-VX_SWEEP_INLINE void update_rows(double* t, int ld, const double* const* l, const double (*v)[K], int m, int begin,
+template <int K, int kLanes, typename T>
+VX_SWEEP_INLINE void update_rows(double* t, int ld, const T* const* l, const double (*v)[K], int m, int begin,
                                  int end) {
   using V = vec<kLanes>;
   int ii = begin;
@@ -200,9 +225,8 @@ VX_SWEEP_INLINE void update_rows(double* t, int ld, const double* const* l, cons
 
 /// out[j][c] = sum over rows [begin, end) of l_j t_c for the m <= kBlock columns l_j (kLanes
 /// partial sums each, added in a fixed order: the same bits from run to run).
-template <int K, int kLanes>
-VX_SWEEP_INLINE void dot_rows(const double* t, int ld, const double* const* l, int m, int begin, int end,
-                              double (*out)[K]) {
+template <int K, int kLanes, typename T>
+VX_SWEEP_INLINE void dot_rows(const double* t, int ld, const T* const* l, int m, int begin, int end, double (*out)[K]) {
   using V = vec<kLanes>;
   V s[kBlock][K];
   for (int j = 0; j < kBlock; ++j)
@@ -231,14 +255,14 @@ VX_SWEEP_INLINE void dot_rows(const double* t, int ld, const double* const* l, i
 
 /// The gathered forward sweep over one supernode: the rows r[.. row_end) (row_end >= nscol; the
 /// rest: forward_external_gathered()).
-template <int K, int kLanes>
-VX_SWEEP_INLINE void forward_gathered(double* w, const Supernode& s, double* t, int row_end) {
+template <int K, int kLanes, typename T>
+VX_SWEEP_INLINE void forward_gathered(double* w, const Supernode<T>& s, double* t, int row_end) {
   const int n = row_end, ld = s.nsrow;
   gather_rows<K>(w, s.r, n, t, ld);
   for (int j0 = 0; j0 < s.nscol; j0 += kBlock) {
     const int m = std::min(kBlock, s.nscol - j0), j1 = j0 + m;
     // the block's own triangle, column by column
-    const double* l[kBlock];
+    const T* l[kBlock];
     double v[kBlock][K];
     bool zero = true;
     for (int j = 0; j < m; ++j) {
@@ -259,14 +283,14 @@ VX_SWEEP_INLINE void forward_gathered(double* w, const Supernode& s, double* t, 
 
 /// What forward_gathered(w, s, t, ext) left out: the rows r[ext ..] updated by the supernode's
 /// columns (their values final), block by block as it would have updated them.
-template <int K, int kLanes>
-VX_SWEEP_INLINE void forward_external_gathered(double* w, const Supernode& s, double* t, int ext) {
+template <int K, int kLanes, typename T>
+VX_SWEEP_INLINE void forward_external_gathered(double* w, const Supernode<T>& s, double* t, int ext) {
   const int n = s.nsrow, ld = n;
   if (ext >= n) return;
   gather_rows<K>(w, s.r + ext, n - ext, t + ext, ld);
   for (int j0 = 0; j0 < s.nscol; j0 += kBlock) {
     const int m = std::min(kBlock, s.nscol - j0);
-    const double* l[kBlock];
+    const T* l[kBlock];
     double v[kBlock][K];
     bool zero = true;
     for (int j = 0; j < m; ++j) {
@@ -281,14 +305,14 @@ VX_SWEEP_INLINE void forward_external_gathered(double* w, const Supernode& s, do
   scatter_rows<K>(w, s.r + ext, n - ext, t + ext, ld);
 }
 
-template <int K, int kLanes>
-VX_SWEEP_INLINE void backward_gathered(double* w, const Supernode& s, double* t) {
+template <int K, int kLanes, typename T>
+VX_SWEEP_INLINE void backward_gathered(double* w, const Supernode<T>& s, double* t) {
   const int n = s.nsrow, ld = n;
   gather_rows<K>(w, s.r, n, t, ld);
   // blocks last to first; the last block holds the columns left over (nscol % kBlock)
   for (int j1 = s.nscol; j1 > 0;) {
     const int m = j1 % kBlock != 0 ? j1 % kBlock : kBlock, j0 = j1 - m;
-    const double* l[kBlock];
+    const T* l[kBlock];
     for (int j = 0; j < m; ++j) l[j] = s.x + std::int64_t(j0 + j) * n;
     // the rows below the block (final already), all m columns in one pass
     double d[kBlock][K];
@@ -321,14 +345,15 @@ double* gather_scratch(std::size_t values) {
 constexpr int kAllRows = std::numeric_limits<int>::max();
 
 /// The first of s's rows at or past `end_column` (its rows ascend: SparseFactor::tree_ok_).
-VX_SWEEP_INLINE int first_row_from(const Supernode& s, int end_column) {
+template <typename T>
+VX_SWEEP_INLINE int first_row_from(const Supernode<T>& s, int end_column) {
   if (end_column == kAllRows) return s.nsrow;
   return int(std::lower_bound(s.r + s.nscol, s.r + s.nsrow, end_column) - s.r);
 }
 
 /// True when a supernode's own rows of w are all zero (its forward sweep changes nothing).
-template <int K>
-VX_SWEEP_INLINE bool own_rows_zero(const double* w, const Supernode& s) {
+template <int K, typename T>
+VX_SWEEP_INLINE bool own_rows_zero(const double* w, const Supernode<T>& s) {
   bool zero = true;
   for (int j = 0; j < K * s.nscol && zero; ++j) zero = w[K * std::int64_t(s.k1) + j] == 0.0;
   return zero;
@@ -336,10 +361,10 @@ VX_SWEEP_INLINE bool own_rows_zero(const double* w, const Supernode& s) {
 
 /// The forward pass over `supers`, the updates of rows at or past `end_column` left out (those of
 /// a slice of a tree-parallel pass); kLeftOut: only those updates, supernode by supernode in order.
-template <int K, bool kGathered, int kLanes = 2, bool kLeftOut = false>
-VX_SWEEP_INLINE void forward_pass(double* w, const SupernodalArrays& a, const SuperList& supers, int end_column) {
+template <int K, bool kGathered, int kLanes = 2, bool kLeftOut = false, typename T>
+VX_SWEEP_INLINE void forward_pass(double* w, const SupernodalArrays<T>& a, const SuperList& supers, int end_column) {
   for (int i = 0; i < supers.count; ++i) {
-    const Supernode s = a.at(supers.at(i));
+    const Supernode<T> s = a.at(supers.at(i));
     const int row_end = first_row_from(s, end_column);
     if (kLeftOut && row_end >= s.nsrow) continue;
     if constexpr (kGathered) {
@@ -357,10 +382,10 @@ VX_SWEEP_INLINE void forward_pass(double* w, const SupernodalArrays& a, const Su
   }
 }
 
-template <int K, bool kGathered, int kLanes = 2>
-VX_SWEEP_INLINE void backward_pass(double* w, const SupernodalArrays& a, const SuperList& supers) {
+template <int K, bool kGathered, int kLanes = 2, typename T>
+VX_SWEEP_INLINE void backward_pass(double* w, const SupernodalArrays<T>& a, const SuperList& supers) {
   for (int i = supers.count - 1; i >= 0; --i) {
-    const Supernode s = a.at(supers.at(i));
+    const Supernode<T> s = a.at(supers.at(i));
     if constexpr (kGathered) {
       if (s.nscol >= kGatherMinColumns) {
         backward_gathered<K, kLanes>(w, s, gather_scratch(std::size_t(K) * std::size_t(s.nsrow)));
@@ -373,18 +398,18 @@ VX_SWEEP_INLINE void backward_pass(double* w, const SupernodalArrays& a, const S
 
 // one copy of the gathered passes per instruction set (the same source; the compiler vectorises
 // the rows for each)
-#define VX_SWEEP_PASSES(name, lanes, attributes)                                                            \
-  template <int K>                                                                                          \
-  attributes void forward_##name(double* w, const SupernodalArrays& a, const SuperList& supers, int end) {  \
-    forward_pass<K, true, lanes>(w, a, supers, end);                                                        \
-  }                                                                                                         \
-  template <int K>                                                                                          \
-  attributes void external_##name(double* w, const SupernodalArrays& a, const SuperList& supers, int end) { \
-    forward_pass<K, true, lanes, true>(w, a, supers, end);                                                  \
-  }                                                                                                         \
-  template <int K>                                                                                          \
-  attributes void backward_##name(double* w, const SupernodalArrays& a, const SuperList& supers, int) {     \
-    backward_pass<K, true, lanes>(w, a, supers);                                                            \
+#define VX_SWEEP_PASSES(name, lanes, attributes)                                                               \
+  template <int K, typename T>                                                                                 \
+  attributes void forward_##name(double* w, const SupernodalArrays<T>& a, const SuperList& supers, int end) {  \
+    forward_pass<K, true, lanes>(w, a, supers, end);                                                           \
+  }                                                                                                            \
+  template <int K, typename T>                                                                                 \
+  attributes void external_##name(double* w, const SupernodalArrays<T>& a, const SuperList& supers, int end) { \
+    forward_pass<K, true, lanes, true>(w, a, supers, end);                                                     \
+  }                                                                                                            \
+  template <int K, typename T>                                                                                 \
+  attributes void backward_##name(double* w, const SupernodalArrays<T>& a, const SuperList& supers, int) {     \
+    backward_pass<K, true, lanes>(w, a, supers);                                                               \
   }
 
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
@@ -401,8 +426,8 @@ VX_SWEEP_PASSES(generic, 2, )
 enum class Pass { forward, external, backward };
 
 /// One pass with `kernel` on `simd` (end_column: forward and external, kAllRows for none left out).
-template <int K, Pass kPass>
-void run_pass(double* w, const SupernodalArrays& a, const SuperList& supers, int end_column,
+template <int K, Pass kPass, typename T>
+void run_pass(double* w, const SupernodalArrays<T>& a, const SuperList& supers, int end_column,
               SparseFactor::SweepKernel kernel, SimdLevel simd) {
   if constexpr (K == 1 || K == 3) {
     if (kernel == SparseFactor::SweepKernel::gathered) {
@@ -452,10 +477,15 @@ void SparseFactor::solve_supernodal(double* w, int first) const {
   const int ns = int(super_.size()) - 1;
   // forward: L z = w, supernode by supernode (columns in order), from the one holding `first`
   const int q0 = first > 0 ? column_super_[std::size_t(first)] : 0;
-  const SupernodalArrays a(super_, row_start_, value_start_, rows_, values_);
-  run_pass<K, Pass::forward>(w, a, {nullptr, ns - q0, q0}, kAllRows, sweep_kernel_, sweep_simd_);
-  // backward: L^T x = z
-  run_pass<K, Pass::backward>(w, a, {nullptr, ns, 0}, kAllRows, sweep_kernel_, sweep_simd_);
+  const auto passes = [&](const auto& a) {
+    run_pass<K, Pass::forward>(w, a, {nullptr, ns - q0, q0}, kAllRows, sweep_kernel_, sweep_simd_);
+    // backward: L^T x = z
+    run_pass<K, Pass::backward>(w, a, {nullptr, ns, 0}, kAllRows, sweep_kernel_, sweep_simd_);
+  };
+  if (!values_single_.empty())
+    passes(SupernodalArrays<float>(super_, row_start_, value_start_, rows_, values_single_.data()));
+  else
+    passes(SupernodalArrays<double>(super_, row_start_, value_start_, rows_, values_.data()));
 }
 
 /// Cuts `supers` (ascending, closed under the parent) for a tree-parallel pass (sparse_factor.h):
@@ -557,64 +587,74 @@ void SparseFactor::ready_scratch(int k, bool team) const {
 
 template <int K>
 void SparseFactor::forward_supers(double* w, const std::vector<int>& supers) const {
-  const SupernodalArrays a(super_, row_start_, value_start_, rows_, values_);
-  const auto slice = [&](int begin, int end) { return SuperList{supers.data() + begin, end - begin, 0}; };
-  const bool tree = plan_tree(supers);
-  ready_scratch(K, tree);
-  if (!tree) {
-    run_pass<K, Pass::forward>(w, a, slice(0, int(supers.size())), kAllRows, sweep_kernel_, sweep_simd_);
-    return;
-  }
-  // the subtrees on the threads: a subtree's rows take updates from its own supernodes only;
-  // those of the rows above it wait (but the first slice's: nothing comes before them)
-  const auto end_column = [&](const TreeTask& t) {
-    return t.begin == 0 ? kAllRows : super_[std::size_t(supers[std::size_t(t.end - 1)]) + 1];
-  };
-  parallel_for_chunks(std::int64_t(tasks_.size()), 1, threads_, [&](std::int64_t c, std::int64_t, std::int64_t) {
-    const TreeTask& t = tasks_[std::size_t(task_order_[std::size_t(c)])];
-    run_pass<K, Pass::forward>(w, a, slice(t.begin, t.end), end_column(t), sweep_kernel_, sweep_simd_);
-  });
-  // the rest and the updates put off, in the serial order (each row's updates as serially)
-  std::size_t k = 0;
-  for (int p = 0; p < int(supers.size());) {
-    if (k < tasks_.size() && p == tasks_[k].begin) {
-      const TreeTask& t = tasks_[k++];
-      if (t.begin > 0)
-        run_pass<K, Pass::external>(w, a, slice(t.begin, t.end), end_column(t), sweep_kernel_, sweep_simd_);
-      p = t.end;
-    } else {
-      const int next = k < tasks_.size() ? tasks_[k].begin : int(supers.size());
-      run_pass<K, Pass::forward>(w, a, slice(p, next), kAllRows, sweep_kernel_, sweep_simd_);
-      p = next;
+  const auto pass = [&](const auto& a) {
+    const auto slice = [&](int begin, int end) { return SuperList{supers.data() + begin, end - begin, 0}; };
+    const bool tree = plan_tree(supers);
+    ready_scratch(K, tree);
+    if (!tree) {
+      run_pass<K, Pass::forward>(w, a, slice(0, int(supers.size())), kAllRows, sweep_kernel_, sweep_simd_);
+      return;
     }
-  }
+    // the subtrees on the threads: a subtree's rows take updates from its own supernodes only;
+    // those of the rows above it wait (but the first slice's: nothing comes before them)
+    const auto end_column = [&](const TreeTask& t) {
+      return t.begin == 0 ? kAllRows : super_[std::size_t(supers[std::size_t(t.end - 1)]) + 1];
+    };
+    parallel_for_chunks(std::int64_t(tasks_.size()), 1, threads_, [&](std::int64_t c, std::int64_t, std::int64_t) {
+      const TreeTask& t = tasks_[std::size_t(task_order_[std::size_t(c)])];
+      run_pass<K, Pass::forward>(w, a, slice(t.begin, t.end), end_column(t), sweep_kernel_, sweep_simd_);
+    });
+    // the rest and the updates put off, in the serial order (each row's updates as serially)
+    std::size_t k = 0;
+    for (int p = 0; p < int(supers.size());) {
+      if (k < tasks_.size() && p == tasks_[k].begin) {
+        const TreeTask& t = tasks_[k++];
+        if (t.begin > 0)
+          run_pass<K, Pass::external>(w, a, slice(t.begin, t.end), end_column(t), sweep_kernel_, sweep_simd_);
+        p = t.end;
+      } else {
+        const int next = k < tasks_.size() ? tasks_[k].begin : int(supers.size());
+        run_pass<K, Pass::forward>(w, a, slice(p, next), kAllRows, sweep_kernel_, sweep_simd_);
+        p = next;
+      }
+    }
+  };
+  if (!values_single_.empty())
+    pass(SupernodalArrays<float>(super_, row_start_, value_start_, rows_, values_single_.data()));
+  else
+    pass(SupernodalArrays<double>(super_, row_start_, value_start_, rows_, values_.data()));
 }
 
 template <int K>
 void SparseFactor::backward_supers(double* w, const std::vector<int>& supers) const {
-  const SupernodalArrays a(super_, row_start_, value_start_, rows_, values_);
-  const auto slice = [&](int begin, int end) { return SuperList{supers.data() + begin, end - begin, 0}; };
-  const bool tree = plan_tree(supers);
-  ready_scratch(K, tree);
-  if (!tree) {
-    run_pass<K, Pass::backward>(w, a, slice(0, int(supers.size())), kAllRows, sweep_kernel_, sweep_simd_);
-    return;
-  }
-  // the rest first (a column reads only its ancestors'), then the subtrees on the threads
-  std::size_t k = tasks_.size();
-  for (int p = int(supers.size()); p > 0;) {
-    if (k > 0 && p == tasks_[k - 1].end) {
-      p = tasks_[--k].begin;
-      continue;
+  const auto pass = [&](const auto& a) {
+    const auto slice = [&](int begin, int end) { return SuperList{supers.data() + begin, end - begin, 0}; };
+    const bool tree = plan_tree(supers);
+    ready_scratch(K, tree);
+    if (!tree) {
+      run_pass<K, Pass::backward>(w, a, slice(0, int(supers.size())), kAllRows, sweep_kernel_, sweep_simd_);
+      return;
     }
-    const int begin = k > 0 ? tasks_[k - 1].end : 0;
-    run_pass<K, Pass::backward>(w, a, slice(begin, p), kAllRows, sweep_kernel_, sweep_simd_);
-    p = begin;
-  }
-  parallel_for_chunks(std::int64_t(tasks_.size()), 1, threads_, [&](std::int64_t c, std::int64_t, std::int64_t) {
-    const TreeTask& t = tasks_[std::size_t(task_order_[std::size_t(c)])];
-    run_pass<K, Pass::backward>(w, a, slice(t.begin, t.end), kAllRows, sweep_kernel_, sweep_simd_);
-  });
+    // the rest first (a column reads only its ancestors'), then the subtrees on the threads
+    std::size_t k = tasks_.size();
+    for (int p = int(supers.size()); p > 0;) {
+      if (k > 0 && p == tasks_[k - 1].end) {
+        p = tasks_[--k].begin;
+        continue;
+      }
+      const int begin = k > 0 ? tasks_[k - 1].end : 0;
+      run_pass<K, Pass::backward>(w, a, slice(begin, p), kAllRows, sweep_kernel_, sweep_simd_);
+      p = begin;
+    }
+    parallel_for_chunks(std::int64_t(tasks_.size()), 1, threads_, [&](std::int64_t c, std::int64_t, std::int64_t) {
+      const TreeTask& t = tasks_[std::size_t(task_order_[std::size_t(c)])];
+      run_pass<K, Pass::backward>(w, a, slice(t.begin, t.end), kAllRows, sweep_kernel_, sweep_simd_);
+    });
+  };
+  if (!values_single_.empty())
+    pass(SupernodalArrays<float>(super_, row_start_, value_start_, rows_, values_single_.data()));
+  else
+    pass(SupernodalArrays<double>(super_, row_start_, value_start_, rows_, values_.data()));
 }
 
 template void SparseFactor::solve_supernodal<1>(double*, int) const;

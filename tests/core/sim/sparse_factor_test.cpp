@@ -301,19 +301,10 @@ bool same_bits(const Eigen::MatrixX3d& a, const Eigen::MatrixX3d& b) {
   return a.size() == b.size() && std::memcmp(a.data(), b.data(), sizeof(double) * std::size_t(a.size())) == 0;
 }
 
-TEST(SparseFactor, TreeParallelPassesGiveTheSerialPassesBitForBit) {
-  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "no supernodal factor in this build";
-  // a block of 17 x 17 x 13 nodes: a nested-dissection tree with subtrees worth splitting
-  const SparseFactor::Matrix a = block_matrix(16, 16, 12);
-  const int n = int(a.rows());
-  SparseFactor serial;
-  ASSERT_TRUE(serial.compute(a, SparseFactor::Backend::cholmod));
-  ASSERT_TRUE(serial.supports_partial());
-  // a region of rows spread over the block (its closure branches below the top separators) and
-  // contact candidates inside it
-  std::vector<int> region;
-  for (int i = 0; i < n; i += 7) region.push_back(i);
-  const std::vector<int> candidates = {region[3], region[region.size() / 2], region.back()};
+/// The passes of `serial` (on one thread) on 2 and 3 threads: the same bits. Returns the serial
+/// results.
+PassResults expect_tree_passes_as_serial(SparseFactor& serial, const std::vector<int>& region,
+                                         const std::vector<int>& candidates) {
   serial.set_threads(1);
   const PassResults want = run_passes(serial, region, candidates);
   EXPECT_EQ(serial.tree_parallel_passes(), 0);
@@ -335,6 +326,23 @@ TEST(SparseFactor, TreeParallelPassesGiveTheSerialPassesBitForBit) {
     EXPECT_TRUE(same_bits(got.response_partial, want.response_partial)) << what;
     EXPECT_EQ(got.column, want.column) << what;
   }
+  return want;
+}
+
+TEST(SparseFactor, TreeParallelPassesGiveTheSerialPassesBitForBit) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "no supernodal factor in this build";
+  // a block of 17 x 17 x 13 nodes: a nested-dissection tree with subtrees worth splitting
+  const SparseFactor::Matrix a = block_matrix(16, 16, 12);
+  const int n = int(a.rows());
+  SparseFactor serial;
+  ASSERT_TRUE(serial.compute(a, SparseFactor::Backend::cholmod));
+  ASSERT_TRUE(serial.supports_partial());
+  // a region of rows spread over the block (its closure branches below the top separators) and
+  // contact candidates inside it
+  std::vector<int> region;
+  for (int i = 0; i < n; i += 7) region.push_back(i);
+  const std::vector<int> candidates = {region[3], region[region.size() / 2], region.back()};
+  const PassResults want = expect_tree_passes_as_serial(serial, region, candidates);
   // and the serial answers are right: the rows that changed (the region's, every one of them),
   // the full solve's residual, the regional solve's rows
   EXPECT_EQ(want.changed, int(region.size()));
@@ -354,6 +362,100 @@ TEST(SparseFactor, TreeParallelPassesGiveTheSerialPassesBitForBit) {
   small.set_threads(2, std::int64_t(1) << 40);
   run_passes(small, region, candidates);
   EXPECT_EQ(small.tree_parallel_passes(), 0);
+}
+
+// Single-precision sweeps (SparseFactor::use_single_precision_sweeps, docs/bench.md): every
+// answer within the floats' rounding of the double sweeps' and not the same bits (the floats are
+// read), the same bits on any number of threads and from run to run, the double values released.
+TEST(SparseFactor, SinglePrecisionSweepsAnswerWithinTheFloatsRounding) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "no supernodal factor in this build";
+  const SparseFactor::Matrix a = block_matrix(14, 13, 12);
+  const int n = int(a.rows());
+  SparseFactor twice;
+  ASSERT_TRUE(twice.compute(a, SparseFactor::Backend::cholmod));
+  SparseFactor single = twice;  // shares the double values until it releases its own
+  EXPECT_FALSE(single.single_precision_sweeps());
+  ASSERT_TRUE(single.use_single_precision_sweeps());
+  EXPECT_TRUE(single.single_precision_sweeps());
+  EXPECT_FALSE(twice.single_precision_sweeps());
+  EXPECT_EQ(single.nonzeros(), twice.nonzeros());
+  // the values' bytes halved: what a cache file holds
+  EXPECT_LT(double(single.stored_bytes()), 0.6 * double(twice.stored_bytes()));
+  EXPECT_GT(double(single.stored_bytes()), 0.4 * double(twice.stored_bytes()));
+  std::srand(11);
+  const Answers want = ask(twice, n);
+  std::srand(11);
+  const Answers got = ask(single, n);
+  const double diff = relative_difference(want, got);
+  std::cout << "single-precision sweeps: largest difference from the double sweeps " << diff << " (relative)\n";
+  EXPECT_LT(diff, 2e-6);
+  EXPECT_GT(diff, 1e-9) << "the floats were not read";
+  std::srand(11);
+  const Eigen::MatrixX3d b = Eigen::MatrixX3d::Random(n, 3);
+  EXPECT_LT((a.selfadjointView<Eigen::Lower>() * got.x - b).norm() / b.norm(), 1e-6);
+  std::srand(11);
+  expect_same_bits(got, ask(single, n), "single, again");
+  // once single, it stays single; the double factor it was copied from is untouched
+  EXPECT_TRUE(single.use_single_precision_sweeps());
+  std::srand(11);
+  expect_same_bits(want, ask(twice, n), "the double factor after its copy went single");
+  // a factor of Eigen's (simplicial) stays in double
+  if (SparseFactor::available(SparseFactor::Backend::eigen_amd)) {
+    SparseFactor simplicial;
+    ASSERT_TRUE(simplicial.compute(a, SparseFactor::Backend::eigen_amd));
+    EXPECT_FALSE(simplicial.use_single_precision_sweeps());
+    EXPECT_FALSE(simplicial.single_precision_sweeps());
+  }
+}
+
+TEST(SparseFactor, SinglePrecisionTreeParallelPassesGiveTheSerialPassesBitForBit) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "no supernodal factor in this build";
+  const SparseFactor::Matrix a = block_matrix(16, 16, 12);
+  const int n = int(a.rows());
+  SparseFactor serial;
+  ASSERT_TRUE(serial.compute(a, SparseFactor::Backend::cholmod));
+  ASSERT_TRUE(serial.use_single_precision_sweeps());
+  std::vector<int> region;
+  for (int i = 0; i < n; i += 7) region.push_back(i);
+  const std::vector<int> candidates = {region[3], region[region.size() / 2], region.back()};
+  expect_tree_passes_as_serial(serial, region, candidates);
+}
+
+TEST(SparseFactor, ASinglePrecisionFactorReadBackSolvesBitForBitAndAMappedOneIsReleased) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "no supernodal factor in this build";
+  const SparseFactor::Matrix a = block_matrix(10, 9, 8);
+  const int n = int(a.rows());
+  SparseFactor computed;
+  ASSERT_TRUE(computed.compute(a, SparseFactor::Backend::cholmod));
+  const std::string doubles = bytes_of(computed);
+  ASSERT_TRUE(computed.use_single_precision_sweeps());
+  const std::string floats = bytes_of(computed);
+  EXPECT_LT(floats.size(), doubles.size());
+  std::srand(5);
+  const Answers want = ask(computed, n);
+  for (bool view : {true, false}) {
+    const std::shared_ptr<const void> mem = aligned_copy(floats);
+    SparseFactor read;
+    std::string why;
+    ASSERT_TRUE(read.read(static_cast<const unsigned char*>(mem.get()), floats.size(), view ? mem : nullptr, &why))
+        << why;
+    EXPECT_TRUE(read.single_precision_sweeps());
+    EXPECT_EQ(read.nonzeros(), computed.nonzeros());
+    std::srand(5);
+    expect_same_bits(want, ask(read, n), view ? "single, viewed" : "single, copied");
+    EXPECT_EQ(bytes_of(read), floats);
+  }
+  // a mapped file of doubles made single: the same floats, and the mapping no longer held
+  std::shared_ptr<const void> mem = aligned_copy(doubles);
+  const std::weak_ptr<const void> mapped = mem;
+  SparseFactor converted;
+  ASSERT_TRUE(converted.read(static_cast<const unsigned char*>(mem.get()), doubles.size(), mem));
+  mem.reset();
+  EXPECT_FALSE(mapped.expired());  // viewed by the double factor
+  ASSERT_TRUE(converted.use_single_precision_sweeps());
+  EXPECT_TRUE(mapped.expired()) << "the double values and row indices still hold the mapped file";
+  std::srand(5);
+  expect_same_bits(want, ask(converted, n), "a mapped double factor made single");
 }
 
 // Two threads that factor at once get the serial factor, bit for bit: the palpation map factors

@@ -2,7 +2,8 @@
 // for bit as computed; a damaged file is removed and the factor computed; the folder stays
 // under its size limit by dropping the least recently used; quick factors are not kept; the
 // option and the environment pick the folder or none; an order kept by the matrix's pattern
-// serves another matrix of it with METIS's factor, and a false order file is refused.
+// serves another matrix of it with METIS's factor, and a false order file is refused; a factor
+// swept in single precision is kept under a key of its own and loaded in single precision.
 #include "io/factor_cache.h"
 
 #include <gtest/gtest.h>
@@ -127,6 +128,39 @@ TEST_F(FactorCacheTest, AFactorKeptIsLoadedBackAndSolvesTheSame) {
   second.solve3(b, x2);
   EXPECT_EQ(x1, x2);  // bit for bit
   EXPECT_LT((a * x2 - b).norm(), 1e-10 * b.norm());
+}
+
+TEST_F(FactorCacheTest, ASinglePrecisionFactorIsKeptApartAndLoadedInSinglePrecision) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "no supernodal factor in this build";
+  const SparseFactor::Matrix a = grid_matrix(12);
+  FactorKey single_key = key_of(a);
+  single_key.single = true;
+  FolderFactorCache cache(settings());
+  SparseFactor first;
+  ASSERT_TRUE(first.compute(a));
+  ASSERT_TRUE(first.use_single_precision_sweeps());  // before it is kept, as the solver does
+  cache.store(single_key, first);
+  const fs::path file = cache.file_of(single_key);
+  EXPECT_NE(file.filename().string().find("-single.vxfactor"), std::string::npos) << file;
+  // the same matrix in double is another file: not found
+  FolderFactorCache again(settings());
+  SparseFactor twice;
+  EXPECT_FALSE(again.load(key_of(a), twice));
+  ASSERT_TRUE(twice.compute(a));
+  again.store(key_of(a), twice);
+  EXPECT_LT(fs::file_size(file), fs::file_size(again.file_of(key_of(a))));
+  SparseFactor second;
+  ASSERT_TRUE(again.load(single_key, second));
+  EXPECT_TRUE(second.from_cache());
+  EXPECT_TRUE(second.single_precision_sweeps());
+  const Eigen::MatrixX3d b = Eigen::MatrixX3d::Random(a.rows(), 3);
+  Eigen::MatrixX3d x1(a.rows(), 3), x2(a.rows(), 3), xd(a.rows(), 3);
+  first.solve3(b, x1);
+  second.solve3(b, x2);
+  twice.solve3(b, xd);
+  EXPECT_EQ(x1, x2);  // bit for bit
+  EXPECT_NE(x1, xd);  // the floats were read
+  EXPECT_LT((x1 - xd).norm(), 1e-6 * xd.norm());
 }
 
 TEST_F(FactorCacheTest, AFactorWrittenInTheBackgroundOutlivesItsSolverAndIsFoundAtOnce) {

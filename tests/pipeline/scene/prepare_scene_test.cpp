@@ -247,11 +247,17 @@ TEST(Scene, LargeModelsGetRegionalSolvesAtLongerSteps) {
   // full solve): its let-go tissue is brought to rest by the idle refresh
   EXPECT_EQ(p.settings.integrator.free_iterations, 0);
   EXPECT_EQ(fast.integrator_for(p.model->num_nodes()).free_iterations, 0);
-  // an explicit integrator block keeps its own choices
+  // and its factor swept in single precision (docs/bench.md, "Single-precision sweeps")
+  EXPECT_TRUE(p.settings.integrator.single_precision_sweeps);
+  EXPECT_TRUE(fast.integrator_for(p.model->num_nodes()).single_precision_sweeps);
+  // an explicit integrator block keeps its own choices; "auto" precision is single on a large model
   j["integrator"] = {{"type", "implicit"}};
   const PreparedScene q = prepare_scene(parse_scene(j, ".", "t"));
   EXPECT_DOUBLE_EQ(q.settings.integrator.region_radius_mm, 0.0);
   EXPECT_DOUBLE_EQ(q.settings.integrator.time_step_s, fast.time_step_s);
+  EXPECT_TRUE(q.settings.integrator.single_precision_sweeps);
+  j["integrator"]["sweep_precision"] = "double";
+  EXPECT_FALSE(prepare_scene(parse_scene(j, ".", "t")).settings.integrator.single_precision_sweeps);
   // a small model keeps 20 ms and no region
   j = base_scene();
   j.erase("integrator");
@@ -263,6 +269,17 @@ TEST(Scene, LargeModelsGetRegionalSolvesAtLongerSteps) {
   EXPECT_EQ(small.settings.integrator.free_iterations, fast.free_iterations);
   EXPECT_DOUBLE_EQ(small.settings.integrator.free_tolerance_mm, 1e-6);
   EXPECT_EQ(fast.integrator_for(small.model->num_nodes()).free_iterations, 8);
+  // in double, unless the scene asks
+  EXPECT_FALSE(small.settings.integrator.single_precision_sweeps);
+  EXPECT_FALSE(fast.integrator_for(small.model->num_nodes()).single_precision_sweeps);
+  j["integrator"] = {{"type", "implicit"}, {"sweep_precision", "single"}};
+  EXPECT_TRUE(prepare_scene(parse_scene(j, ".", "t")).settings.integrator.single_precision_sweeps);
+  // a precision it does not know, or one on an explicit scheme, is an error naming the key
+  j["integrator"]["sweep_precision"] = "half";
+  EXPECT_CONTAINS(error_of(j), "$.integrator.sweep_precision");
+  EXPECT_CONTAINS(error_of(j), "use auto");
+  j["integrator"] = {{"type", "symplectic_euler"}, {"sweep_precision", "double"}};
+  EXPECT_CONTAINS(error_of(j), "settings of the implicit integrator");
 }
 
 /// docs/model.md section 7: a 64 x 64 x 128 mm column (4 mm voxels) pressed at its top with regional
