@@ -492,7 +492,11 @@ int App::finish(ProbeView* view, std::string error) {
   if (const std::string why = shared_->controls.quit_reason(); !why.empty()) say("stopped: " + why);
   summary(wall_s);
   if (view)
-    say(fmt::format("display: {} frames, {:.1f} frames/s ({})", view->frames(), view->frames_per_s(),
+    // over the run since the open, as the device's line; the HUD's rate (its last half second) apart
+    say(
+        fmt::format("display: {} frames in {:.1f} s since the open ({:.1f} frames/s; {:.1f} frames/s over its last "
+                    "half second) ({})",
+                    view->frames(), wall_s, wall_s > 0 ? double(view->frames()) / wall_s : 0.0, view->frames_per_s(),
                     gui_nice_ ? fmt::format("nice {}, below the physics", kGuiNice) : "default priority"));
   const DeviceLoop& d = *device_loop_;
   say(fmt::format(

@@ -461,4 +461,11 @@ TEST_F(ProbeApp, ADisplayDrawsOnlyWhatChanged) {
   const double bound = double(f.steps) + f.wall_s + 4.0 * (f.total_startup_s + 1.0) + 1.0;
   EXPECT_LE(frames, bound) << r.out;
   EXPECT_GE(frames, 3) << r.out;  // and it did draw
+  // the final line's rate is over the interval it names: its frames over its seconds
+  ASSERT_TRUE(std::regex_search(
+      r.out, m, std::regex(R"(display: (\d+) frames in ([\d.]+) s since the open \(([\d.]+) frames/s)")))
+      << r.out;
+  EXPECT_NEAR(std::stod(m[3]), std::stod(m[1]) / std::stod(m[2]), 0.05 + 0.01 * std::stod(m[3])) << r.out;
+  // since the open: the start-up's open to the first step, then the run's wall after it
+  EXPECT_NEAR(std::stod(m[2]), f.startup_s + f.wall_s, 0.5) << r.out;
 }
