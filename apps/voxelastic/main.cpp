@@ -1,6 +1,7 @@
 // voxelastic: CT volumes to gradational-resolution elastic models, simulation, verification.
 #include <fmt/core.h>
 
+#include <cstdio>
 #include <exception>
 #include <string>
 #include <vector>
@@ -14,6 +15,9 @@
 #include "util/log.h"
 
 int main(int argc, char** argv) {
+  // stdout a line at a time: its notes and results come between the progress and warnings on
+  // stderr; block-buffered into a pipe or a log, they all came after them, at the exit
+  std::setvbuf(stdout, nullptr, _IOLBF, 0);
   CLI::App app{"voxelastic: CT volumes to gradational-resolution elastic models (units: mm, s, N, kPa, HU)"};
   app.require_subcommand(1);
   app.set_version_flag("--version", std::string("voxelastic ") + vx::kVersion);

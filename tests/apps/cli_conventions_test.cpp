@@ -1,11 +1,12 @@
 // What users expect of the command line (issues #17, #29), through the built binaries: -q keeps
 // warnings on stderr and hides notes and progress everywhere (the DICOM reader too), wherever
 // it is written; the exit codes of the shared table (util/exit_codes.h), every command-line
-// mistake exit 2 with the nearest correct word; and Ctrl-C in `simulate` leaving a usable .pvd
-// and a summary.json that says where it stopped.
+// mistake exit 2 with the nearest correct word; Ctrl-C in `simulate` leaving a usable .pvd
+// and a summary.json that says where it stopped; stdout and stderr in one file in the order printed.
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -188,6 +189,30 @@ TEST_F(CliConventions, QuietKeepsWarningsOnStderrAndHidesNotes) {
   // -v: the same run says more than without it, never less
   r = run("convert series -o m.vtu -v");
   EXPECT_EQ(r.code, 0) << r.err;
+}
+
+// stdout a line at a time: in one file with stderr (a pipe, a log, `2>&1 | tee`), the notes come
+// where they were printed, between the progress lines, not all at the exit.
+TEST_F(CliConventions, StdoutAndStderrInOneFileKeepTheirOrder) {
+  // a run of a few seconds (progress lines on a pipe come only for work over a second)
+  nlohmann::json j = nlohmann::json::parse(box_scene(6.0, 6.0, 15.0));
+  j["object"]["box_mm"]["max"] = {24, 24, 12};
+  j["integrator"] = {{"type", "symplectic_euler"}};
+  j["outputs"].erase("pvd");
+  std::ofstream(dir_ / "long.json") << j.dump(2);
+  const std::string cmd = "cd '" + dir_.string() + "' && timeout 300 '" + kBinary.string() +
+                          "' simulate long.json --out out > both.txt 2>&1";
+  ASSERT_EQ(std::system(cmd.c_str()), 0) << slurp(dir_ / "both.txt");
+  const std::string both = slurp(dir_ / "both.txt");
+  // the first progress line ("simulate: 40%": the deciles after the run's first second)
+  const std::size_t simulating = both.find("simulating 6 s"), first = both.find("\nsimulate: "),
+                    done = both.find("simulate: done in"), result = both.find(" s simulated in ");
+  ASSERT_NE(done, std::string::npos) << "no progress lines: the run took under a second?\n" << both;
+  ASSERT_NE(first, std::string::npos) << both;
+  ASSERT_NE(simulating, std::string::npos) << both;
+  ASSERT_NE(result, std::string::npos) << both;
+  EXPECT_LT(simulating, first) << both;  // the note before the progress, as printed
+  EXPECT_GT(result, done) << both;       // the result after it
 }
 
 TEST_F(CliConventions, ExitCodesFollowTheSharedTable) {
