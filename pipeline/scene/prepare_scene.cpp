@@ -16,6 +16,7 @@
 #include "scene/palpation_defaults.h"
 #include "scene/scene.h"
 #include "sim/region_stiffening.h"
+#include "sim/sparse_factor.h"
 #include "sim/time_step.h"
 #include "util/thread_priority.h"
 
@@ -161,8 +162,16 @@ void choose_integrator(const Scene& scene, const PrepareSceneOptions& options, c
     s.integrator.factor_cache = options.factor_cache;
     s.integrator.region_radius_mm = large ? fast.region_radius_for(out.model->num_nodes()) : scene.region_radius_mm;
     s.integrator.region_far_field_degree = scene.region_far_field_degree;
-    s.integrator.single_precision_sweeps = scene.single_precision_sweeps.value_or(
-        fast.large(out.model->num_nodes()) && fast.large_model_single_precision_sweeps);
+    // only a supernodal (CHOLMOD) factor sweeps in single precision: what runs is what is said
+    const bool supernodal = SparseFactor::best_backend() == SparseFactor::Backend::cholmod;
+    s.integrator.single_precision_sweeps =
+        supernodal && scene.single_precision_sweeps.value_or(fast.large(out.model->num_nodes()) &&
+                                                             fast.large_model_single_precision_sweeps);
+    if (!supernodal && scene.single_precision_sweeps.value_or(false))
+      out.warnings.push_back(fmt::format(
+          "integrator.sweep_precision \"single\" needs the supernodal factor of CHOLMOD, and this run factors with "
+          "{}: its sweeps stay in double (scripts/install-deps.sh installs SuiteSparse; VOXELASTIC_FACTOR chooses)",
+          SparseFactor::to_string(SparseFactor::best_backend())));
     if (large)
       out.log.push_back(fmt::format(
           "the fast configuration of a large model ({} nodes, {} or more): implicit, {:g} ms steps, "

@@ -3,7 +3,9 @@
 // per element, the fast configuration without an integrator key (and for a large model), and
 // the regional solves' error on the scene's support, before the run or beside it.
 #include <gtest/gtest.h>
+
 #include <unistd.h>
+#include <cstdlib>
 
 #include <fmt/format.h>
 
@@ -16,6 +18,7 @@
 #include "io/region_check_cache.h"
 #include "scene/fast_configuration.h"
 #include "scene/scene.h"
+#include "sim/sparse_factor.h"
 #include "sim/time_step.h"
 #include "support/scene_helpers.h"
 
@@ -273,7 +276,21 @@ TEST(Scene, LargeModelsGetRegionalSolvesAtLongerSteps) {
   EXPECT_FALSE(small.settings.integrator.single_precision_sweeps);
   EXPECT_FALSE(fast.integrator_for(small.model->num_nodes()).single_precision_sweeps);
   j["integrator"] = {{"type", "implicit"}, {"sweep_precision", "single"}};
-  EXPECT_TRUE(prepare_scene(parse_scene(j, ".", "t")).settings.integrator.single_precision_sweeps);
+  if (SparseFactor::available(SparseFactor::Backend::cholmod)) {
+    const PreparedScene asked = prepare_scene(parse_scene(j, ".", "t"));
+    EXPECT_TRUE(asked.settings.integrator.single_precision_sweeps);
+    EXPECT_TRUE(asked.warnings.empty());
+  }
+  // a factor of Eigen's (simplicial) sweeps in double: the run says so, and its settings too
+  if (SparseFactor::available(SparseFactor::Backend::eigen_amd)) {
+    ::setenv("VOXELASTIC_FACTOR", "eigen_amd", 1);
+    const PreparedScene eigen = prepare_scene(parse_scene(j, ".", "t"));
+    ::unsetenv("VOXELASTIC_FACTOR");
+    EXPECT_FALSE(eigen.settings.integrator.single_precision_sweeps);
+    ASSERT_EQ(eigen.warnings.size(), 1u);
+    EXPECT_CONTAINS(eigen.warnings[0], "needs the supernodal factor of CHOLMOD");
+    EXPECT_CONTAINS(eigen.warnings[0], "eigen_amd");
+  }
   // a precision it does not know, or one on an explicit scheme, is an error naming the key
   j["integrator"]["sweep_precision"] = "half";
   EXPECT_CONTAINS(error_of(j), "$.integrator.sweep_precision");
