@@ -138,11 +138,9 @@ std::vector<ScaleConfig> ScaleBenchSettings::diagnostic_configs() {
   out.push_back(visit);
   // the fast configuration of larger models with its factor swept in double: what the single
   // precision sweeps gain and cost (docs/bench.md, "Single-precision sweeps")
-  ScaleConfig twice;
-  twice.kind = IntegratorKind::implicit;
-  twice.time_step_s = 0.03;
-  twice.max_iterations = 1;
-  twice.region_radius_mm = 60;
+  ScaleConfig twice = visit;
+  twice.region_visit_still_far_field = false;
+  twice.single_precision_sweeps = false;
   twice.name = "implicit 30 ms, 1 iteration, region 60 mm, double-precision sweeps";
   out.push_back(twice);
   ScaleConfig coarse;

@@ -401,8 +401,9 @@ bool SparseFactor::use_single_precision_sweeps() {
   const double* v = values_.data();
   for (std::size_t k = 0; k < single.size(); ++k) single[k] = float(v[k]);
   values_single_.own(std::move(single));
-  // the row indices owned, so that a mapped factor file goes with the double values
-  if (rows_.views()) rows_.own(std::vector<int>(rows_.data(), rows_.data() + rows_.size()));
+  // the row indices in memory of their own (a copy of a few MB), so that a mapped factor file goes
+  // with the double values
+  rows_.own(std::vector<int>(rows_.data(), rows_.data() + rows_.size()));
   values_.clear();
   return true;
 }

@@ -52,15 +52,11 @@ class SharedArray {
   SharedArray(const SharedArray&) = default;
   SharedArray& operator=(const SharedArray&) = default;
   SharedArray(SharedArray&& o) noexcept
-      : keep_(std::move(o.keep_)),
-        data_(std::exchange(o.data_, nullptr)),
-        size_(std::exchange(o.size_, 0)),
-        views_(std::exchange(o.views_, false)) {}
+      : keep_(std::move(o.keep_)), data_(std::exchange(o.data_, nullptr)), size_(std::exchange(o.size_, 0)) {}
   SharedArray& operator=(SharedArray&& o) noexcept {
     keep_ = std::move(o.keep_);
     data_ = std::exchange(o.data_, nullptr);
     size_ = std::exchange(o.size_, 0);
-    views_ = std::exchange(o.views_, false);
     return *this;
   }
   /// Owns `v` (its buffer moves, no copy).
@@ -69,23 +65,18 @@ class SharedArray {
     data_ = held->data();
     size_ = held->size();
     keep_ = std::move(held);
-    views_ = false;
   }
   /// Views n values at `data`, kept alive by `keep`.
   void view(const T* data, std::size_t n, std::shared_ptr<const void> keep) {
     keep_ = std::move(keep);
     data_ = data;
     size_ = n;
-    views_ = true;
   }
   void clear() {
     keep_.reset();
     data_ = nullptr;
     size_ = 0;
-    views_ = false;
   }
-  /// True when the values are another's (view()), not owned.
-  [[nodiscard]] bool views() const { return views_; }
   [[nodiscard]] const T* data() const { return data_; }
   [[nodiscard]] std::size_t size() const { return size_; }
   [[nodiscard]] bool empty() const { return size_ == 0; }
@@ -95,7 +86,6 @@ class SharedArray {
   std::shared_ptr<const void> keep_;
   const T* data_{nullptr};
   std::size_t size_{0};
-  bool views_{false};
 };
 
 /// What a factor is the factor of: the content of the matrix it factors and who factored it.
@@ -378,6 +368,10 @@ class SparseFactor {
   void solve_in_place(double* w, int first) const;
   template <int K>
   void solve_supernodal(double* w, int first) const;
+  /// pass(the supernodal arrays the sweeps read): L's values in single precision when it has them
+  /// (use_single_precision_sweeps()), else in double (sparse_factor_sweeps.cpp).
+  template <typename Pass>
+  void with_sweep_arrays(const Pass& pass) const;
 
   void reset();
   void finish();

@@ -472,6 +472,14 @@ int SparseFactor::widest_supernode() const {
 
 const char* SparseFactor::to_string(SweepKernel k) { return k == SweepKernel::column ? "column" : "gathered"; }
 
+template <typename Pass>
+void SparseFactor::with_sweep_arrays(const Pass& pass) const {
+  if (single_precision_sweeps())
+    pass(SupernodalArrays<float>(super_, row_start_, value_start_, rows_, values_single_.data()));
+  else
+    pass(SupernodalArrays<double>(super_, row_start_, value_start_, rows_, values_.data()));
+}
+
 template <int K>
 void SparseFactor::solve_supernodal(double* w, int first) const {
   const int ns = int(super_.size()) - 1;
@@ -482,10 +490,7 @@ void SparseFactor::solve_supernodal(double* w, int first) const {
     // backward: L^T x = z
     run_pass<K, Pass::backward>(w, a, {nullptr, ns, 0}, kAllRows, sweep_kernel_, sweep_simd_);
   };
-  if (!values_single_.empty())
-    passes(SupernodalArrays<float>(super_, row_start_, value_start_, rows_, values_single_.data()));
-  else
-    passes(SupernodalArrays<double>(super_, row_start_, value_start_, rows_, values_.data()));
+  with_sweep_arrays(passes);
 }
 
 /// Cuts `supers` (ascending, closed under the parent) for a tree-parallel pass (sparse_factor.h):
@@ -619,10 +624,7 @@ void SparseFactor::forward_supers(double* w, const std::vector<int>& supers) con
       }
     }
   };
-  if (!values_single_.empty())
-    pass(SupernodalArrays<float>(super_, row_start_, value_start_, rows_, values_single_.data()));
-  else
-    pass(SupernodalArrays<double>(super_, row_start_, value_start_, rows_, values_.data()));
+  with_sweep_arrays(pass);
 }
 
 template <int K>
@@ -651,10 +653,7 @@ void SparseFactor::backward_supers(double* w, const std::vector<int>& supers) co
       run_pass<K, Pass::backward>(w, a, slice(t.begin, t.end), kAllRows, sweep_kernel_, sweep_simd_);
     });
   };
-  if (!values_single_.empty())
-    pass(SupernodalArrays<float>(super_, row_start_, value_start_, rows_, values_single_.data()));
-  else
-    pass(SupernodalArrays<double>(super_, row_start_, value_start_, rows_, values_.data()));
+  with_sweep_arrays(pass);
 }
 
 template void SparseFactor::solve_supernodal<1>(double*, int) const;
