@@ -9,8 +9,8 @@
 #include "base/error.h"
 #include "base/version.h"
 #include "commands.h"
-#include "usage.h"
 #include "physics/element_batches.h"
+#include "usage.h"
 #include "util/exit_codes.h"
 #include "util/log.h"
 

@@ -165,7 +165,8 @@ json run_summary_json(const Scene& scene, const fs::path& scene_file, const Prep
   j["fixed_nodes"] = prepared.fixed_nodes;
   j["integrator"] = to_string(scene.integrator);
   j["dt_s"] = dt;
-  j["dt_stable_estimate_s"] = std::isfinite(prepared.dt_stable_estimate_s) ? json(prepared.dt_stable_estimate_s) : json(nullptr);
+  j["dt_stable_estimate_s"] =
+      std::isfinite(prepared.dt_stable_estimate_s) ? json(prepared.dt_stable_estimate_s) : json(nullptr);
   j["threads"] = prepared.settings.integrator.threads;
   {
     const IntegratorSettings& in = prepared.settings.integrator;

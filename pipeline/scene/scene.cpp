@@ -40,8 +40,8 @@ SceneObject read_object(const Obj& o, const fs::path& base) {
     if (p.empty()) o.at_where(k).fail("the path is empty");
     const fs::path full = fs::path(p).is_absolute() ? fs::path(p) : base / p;
     if (!fs::exists(full))
-      o.at_where(k).fail(fmt::format("\"{}\" does not exist (looked for {}; relative paths start at the scene's folder)",
-                                     p, full.string()));
+      o.at_where(k).fail(fmt::format(
+          "\"{}\" does not exist (looked for {}; relative paths start at the scene's folder)", p, full.string()));
     return full;
   };
 
@@ -66,8 +66,9 @@ SceneObject read_object(const Obj& o, const fs::path& base) {
       require(h.lo < h.hi, w, fmt::format("lo {} HU must be below hi {} HU", h.lo, h.hi));
       return h;
     }
-    w.fail("expected a number (lowest tissue HU), a string \"LO:HI\" or a preset name, or {\"lo\": .., \"hi\": ..}; got " +
-           type_name(t));
+    w.fail(
+        "expected a number (lowest tissue HU), a string \"LO:HI\" or a preset name, or {\"lo\": .., \"hi\": ..}; got " +
+        type_name(t));
   };
 
   if (src == "phantom") {
@@ -75,8 +76,8 @@ SceneObject read_object(const Obj& o, const fs::path& base) {
     obj.phantom.name = o.string("phantom", "");
     const auto names = phantom_names();
     if (std::find(names.begin(), names.end(), obj.phantom.name) == names.end())
-      o.at_where("phantom").fail(fmt::format("unknown phantom \"{}\"; choose one of: {}", obj.phantom.name,
-                                             fmt::join(names, ", ")));
+      o.at_where("phantom").fail(
+          fmt::format("unknown phantom \"{}\"; choose one of: {}", obj.phantom.name, fmt::join(names, ", ")));
     obj.phantom.size = o.integer("size", obj.phantom.size);
     require(obj.phantom.size >= 4 && obj.phantom.size <= 1024, o.at_where("size"), "must be 4 to 1024 voxels per axis");
     obj.phantom.spacing_mm = o.number("spacing_mm", obj.phantom.spacing_mm);
@@ -105,8 +106,8 @@ SceneObject read_object(const Obj& o, const fs::path& base) {
         o.at_where("thickness_mm").fail("applies to the one-slice phantoms (disk, rectangle, disk-lesion) only");
     }
     // between air and tissue by default
-    obj.prepare.range = read_threshold({0.5 * (obj.phantom.air_hu + obj.phantom.tissue_hu),
-                                        std::numeric_limits<double>::infinity()});
+    obj.prepare.range =
+        read_threshold({0.5 * (obj.phantom.air_hu + obj.phantom.tissue_hu), std::numeric_limits<double>::infinity()});
     o.forbid("series_uid", "series_uid applies to a DICOM \"volume\" only");
   } else if (src == "volume") {
     obj.source = ObjectSource::volume;
@@ -121,10 +122,11 @@ SceneObject read_object(const Obj& o, const fs::path& base) {
     obj.source = ObjectSource::model;
     obj.path = path_of("model");
     for (const char* k : {"threshold", "resolution", "max_level", "largest_component", "fill_holes", "voxel_mm", "crop",
-                          "lattice_origin", "size", "spacing_mm", "tissue_hu", "air_hu", "lesion_hu", "noise_hu", "seed", "series_uid",
-                          "thickness_mm", "lesion_center_mm", "lesion_radius_mm"})
-      o.forbid(k, std::string(k) + " does not apply to a model file: it was set when the model was converted "
-                                   "(voxelastic convert)");
+                          "lattice_origin", "size", "spacing_mm", "tissue_hu", "air_hu", "lesion_hu", "noise_hu",
+                          "seed", "series_uid", "thickness_mm", "lesion_center_mm", "lesion_radius_mm"})
+      o.forbid(k, std::string(k) +
+                      " does not apply to a model file: it was set when the model was converted "
+                      "(voxelastic convert)");
   } else {
     obj.source = ObjectSource::box;
     const Obj b(o.at("box_mm"), o.at_where("box_mm"), {"min", "max"});
@@ -137,15 +139,16 @@ SceneObject read_object(const Obj& o, const fs::path& base) {
     for (int c = 0; c < 3; ++c) {
       require(size[c] > 0, b.where(), "min must be below max on every axis");
       const double n = size[c] / obj.box_voxel_mm;
-      require(std::abs(n - std::round(n)) < 1e-6 * std::max(1.0, n), b.where(),
-              fmt::format("the box is {} mm along axis {}, not a whole number of {} mm voxels; adjust min/max or voxel_mm",
-                          size[c], "xyz"[c], obj.box_voxel_mm));
+      require(
+          std::abs(n - std::round(n)) < 1e-6 * std::max(1.0, n), b.where(),
+          fmt::format("the box is {} mm along axis {}, not a whole number of {} mm voxels; adjust min/max or voxel_mm",
+                      size[c], "xyz"[c], obj.box_voxel_mm));
       require(std::round(n) >= 2, b.where(), fmt::format("the box needs at least 2 voxels along {}", "xyz"[c]));
       require(std::round(n) <= 1024, b.where(), fmt::format("the box is more than 1024 voxels along {}", "xyz"[c]));
     }
-    for (const char* k : {"threshold", "largest_component", "fill_holes", "crop", "lattice_origin", "size", "spacing_mm", "tissue_hu",
-                          "air_hu", "lesion_hu", "noise_hu", "seed", "series_uid", "thickness_mm", "lesion_center_mm",
-                          "lesion_radius_mm"})
+    for (const char* k : {"threshold", "largest_component", "fill_holes", "crop", "lattice_origin", "size",
+                          "spacing_mm", "tissue_hu", "air_hu", "lesion_hu", "noise_hu", "seed", "series_uid",
+                          "thickness_mm", "lesion_center_mm", "lesion_radius_mm"})
       o.forbid(k, std::string(k) + " does not apply to a box (it is all tissue; its voxel size is voxel_mm)");
   }
   if (src == "phantom" || src == "volume") {
@@ -158,8 +161,10 @@ SceneObject read_object(const Obj& o, const fs::path& base) {
     // docs/model.md section 3.5: the crop's first voxel where the model has the fewest vertex entries
     const std::string origin = o.string("lattice_origin", "best");
     if (origin != "best" && origin != "crop")
-      o.at_where("lattice_origin").fail("unknown lattice origin \"" + origin + "\"; use best (the fewest vertex "
-                                        "entries) or crop (the crop's 1-voxel margin)");
+      o.at_where("lattice_origin")
+          .fail("unknown lattice origin \"" + origin +
+                "\"; use best (the fewest vertex "
+                "entries) or crop (the crop's 1-voxel margin)");
     obj.prepare.lattice_period = origin == "best" && obj.prepare.crop ? 4 : 0;
   }
   if (src != "model") {
@@ -221,7 +226,9 @@ SceneMaterial read_material(const Obj& o, ObjectSource source) {
   if (o.has("hounsfield_table")) {
     const Where w = o.at_where("hounsfield_table");
     if (source == ObjectSource::model || source == ObjectSource::box)
-      w.fail("needs the object's HU values: use an object with \"volume\" or \"phantom\" (a model file or a box has none)");
+      w.fail(
+          "needs the object's HU values: use an object with \"volume\" or \"phantom\" (a model file or a box has "
+          "none)");
     const json& t = array_at(o, "hounsfield_table", 2, "rows {\"hu\": .., \"youngs_modulus_kpa\": ..}");
     for (std::size_t i = 0; i < t.size(); ++i) {
       const Obj r(t[i], w.index(i), {"hu", "youngs_modulus_kpa"});
@@ -265,7 +272,8 @@ BoxFace parse_face(const std::string& s, const Where& w) {
       {"y_max", BoxFace::y_max}, {"z_min", BoxFace::z_min}, {"z_max", BoxFace::z_max}};
   for (const auto& [n, f] : faces)
     if (n == s) return f;
-  w.fail("unknown face \"" + s + "\"; use x_min, x_max, y_min, y_max, z_min or z_max (faces of the object's bounding box, LPS)");
+  w.fail("unknown face \"" + s +
+         "\"; use x_min, x_max, y_min, y_max, z_min or z_max (faces of the object's bounding box, LPS)");
 }
 
 std::vector<FixedRegion> read_fixed(const json& j, const Where& w) {
@@ -296,8 +304,10 @@ std::vector<FixedRegion> read_fixed(const json& j, const Where& w) {
         r.label = "box";
       }
     } else {
-      wi.fail("expected a face name such as \"z_min\" or an object {\"face\": .., \"within_mm\": ..} / {\"box_mm\": ..}; got " +
-              type_name(j[i]));
+      wi.fail(
+          "expected a face name such as \"z_min\" or an object {\"face\": .., \"within_mm\": ..} / {\"box_mm\": ..}; "
+          "got " +
+          type_name(j[i]));
     }
     out.push_back(r);
   }
@@ -331,10 +341,12 @@ void read_mapping(const Obj& o, JoystickMapping& m) {
   try {
     m.mode = parse_joystick_mode(mode);
   } catch (const Error&) {
-    o.at_where("mode").fail("unknown mode \"" + mode + "\"; use \"rate\" (velocity proportional to tilt, the paper) or \"position\"");
+    o.at_where("mode").fail("unknown mode \"" + mode +
+                            "\"; use \"rate\" (velocity proportional to tilt, the paper) or \"position\"");
   }
   m.max_speed_mm_s = o.number("speed_mm_s", m.max_speed_mm_s);
-  require(m.max_speed_mm_s > 0 && m.max_speed_mm_s <= 1e5, o.at_where("speed_mm_s"), "must be > 0 mm/s (speed at full tilt)");
+  require(m.max_speed_mm_s > 0 && m.max_speed_mm_s <= 1e5, o.at_where("speed_mm_s"),
+          "must be > 0 mm/s (speed at full tilt)");
   m.range_mm = o.number("range_mm", m.range_mm);
   require(m.range_mm > 0, o.at_where("range_mm"), "must be > 0 mm (displacement at full tilt)");
   m.dead_zone = o.number("dead_zone", m.dead_zone);
@@ -407,7 +419,8 @@ ProbeSettings read_probe(const json& j, const Where& w, std::size_t index) {
     if (!js.has("start_mm")) js.where().fail("missing \"start_mm\" [x, y, z]: where the probe is at t = 0 (LPS mm)");
     p.start_mm = js.vec3("start_mm");
     read_mapping(js, p.mapping);
-    if (!js.has("input")) js.where().fail("missing \"input\": [{\"t_s\": 0, \"axes\": [x, y]}, ...] stick deflections in [-1, 1]");
+    if (!js.has("input"))
+      js.where().fail("missing \"input\": [{\"t_s\": 0, \"axes\": [x, y]}, ...] stick deflections in [-1, 1]");
     const json& in = array_at(js, "input", 1, "samples {\"t_s\": .., \"axes\": [..]}");
     for (std::size_t i = 0; i < in.size(); ++i) {
       const Obj k(in[i], js.at_where("input").index(i), {"t_s", "axes"});
@@ -466,7 +479,8 @@ SceneOutputs read_outputs(const Obj& o) {
         v.at_where("surface_method").fail("unknown surface method \"" + m + "\"; use paper or staircase");
       }
       if (out.surface_method == SurfaceMethod::iso)
-        v.at_where("surface_method").fail("the iso surface is not available in simulations yet; use paper or staircase");
+        v.at_where("surface_method")
+            .fail("the iso surface is not available in simulations yet; use paper or staircase");
     }
   }
   return out;
@@ -479,17 +493,38 @@ SceneOutputs read_outputs(const Obj& o) {
 Scene parse_scene(const json& j, const fs::path& base, const std::string& name) {
   const Where root{name, "$"};
   const Obj o(j, root,
-              {"description", "object", "material", "fixed", "gravity", "workspace_mm", "integrator", "contact", "device",
-               "probes", "duration_s", "outputs", "threads"});
+              {"description", "object", "material", "fixed", "gravity", "workspace_mm", "integrator", "contact",
+               "device", "probes", "duration_s", "outputs", "threads"});
   Scene s;
   s.description = o.string("description", "");
   if (!o.has("object"))
-    root.fail("missing \"object\": {\"phantom\": NAME}, {\"volume\": PATH}, {\"model\": PATH.vtu} or {\"box_mm\": {..}}");
+    root.fail(
+        "missing \"object\": {\"phantom\": NAME}, {\"volume\": PATH}, {\"model\": PATH.vtu} or {\"box_mm\": {..}}");
   s.object = read_object(Obj(o.at("object"), o.at_where("object"),
-                             {"phantom", "volume", "model", "box_mm", "voxel_mm", "threshold", "resolution", "max_level",
-                              "largest_component", "fill_holes", "crop", "lattice_origin", "series_uid", "any_modality", "size",
-                              "spacing_mm", "tissue_hu", "air_hu", "lesion_hu", "noise_hu", "seed", "thickness_mm",
-                              "lesion_center_mm", "lesion_radius_mm"}),
+                             {"phantom",
+                              "volume",
+                              "model",
+                              "box_mm",
+                              "voxel_mm",
+                              "threshold",
+                              "resolution",
+                              "max_level",
+                              "largest_component",
+                              "fill_holes",
+                              "crop",
+                              "lattice_origin",
+                              "series_uid",
+                              "any_modality",
+                              "size",
+                              "spacing_mm",
+                              "tissue_hu",
+                              "air_hu",
+                              "lesion_hu",
+                              "noise_hu",
+                              "seed",
+                              "thickness_mm",
+                              "lesion_center_mm",
+                              "lesion_radius_mm"}),
                          base);
   if (o.has("material"))
     s.material = read_material(Obj(o.at("material"), o.at_where("material"),
@@ -521,7 +556,8 @@ Scene parse_scene(const json& j, const fs::path& base, const std::string& name) 
     try {
       s.integrator = parse_integrator(t);
     } catch (const Error&) {
-      in.at_where("type").fail("unknown integrator \"" + t + "\"; use explicit_euler (the paper), symplectic_euler or implicit");
+      in.at_where("type").fail("unknown integrator \"" + t +
+                               "\"; use explicit_euler (the paper), symplectic_euler or implicit");
     }
     if (in.has("dt_s")) {
       const json& d = in.at("dt_s");
@@ -530,8 +566,9 @@ Scene parse_scene(const json& j, const fs::path& base, const std::string& name) 
       } else {
         s.dt_s = in.number("dt_s");
         require(s.dt_s > 0, in.at_where("dt_s"), "must be > 0 s (or \"auto\")");
-        require(s.dt_s <= 0.1, in.at_where("dt_s"),
-                fmt::format("{} s is far too long for a physics step; the unit is s (e.g. 1e-4), or use \"auto\"", s.dt_s));
+        require(
+            s.dt_s <= 0.1, in.at_where("dt_s"),
+            fmt::format("{} s is far too long for a physics step; the unit is s (e.g. 1e-4), or use \"auto\"", s.dt_s));
       }
     }
     s.iterations = in.integer("iterations", 0);
@@ -586,8 +623,9 @@ Scene parse_scene(const json& j, const fs::path& base, const std::string& name) 
     dev.mean_preserving = d.boolean("mean_preserving", dev.mean_preserving);
     if (d.has("force_shaping")) {
       const std::string f = d.string("force_shaping", "paper");
-      require(f == "paper" || f == "local", d.at_where("force_shaping"),
-              "unknown force shaping \"" + f + "\"; use local (the local contact model at 1 kHz) or paper (half sines)");
+      require(
+          f == "paper" || f == "local", d.at_where("force_shaping"),
+          "unknown force shaping \"" + f + "\"; use local (the local contact model at 1 kHz) or paper (half sines)");
       dev.shaping = parse_force_shaping(f);
     }
     const double b = d.number("device_damping_n_s_m", 1e3 * dev.device_damping_n_s_mm);
@@ -604,14 +642,15 @@ Scene parse_scene(const json& j, const fs::path& base, const std::string& name) 
       s.probes.push_back(read_probe(list[i], o.at_where("probes").index(i), i));
       if (!names.insert(s.probes.back().name).second)
         o.at_where("probes").index(i).key("name").fail("probe names must be unique (\"" + s.probes.back().name +
-                                                        "\" is used twice)");
+                                                       "\" is used twice)");
     }
   }
   s.duration_s = o.required_number("duration_s", "how long to simulate, s");
   require(s.duration_s > 0 && s.duration_s <= kMaxSceneTime_s, o.at_where("duration_s"),
           fmt::format("must be > 0 s and at most {:g} s (got {}); the unit is s", kMaxSceneTime_s, s.duration_s));
   if (o.has("outputs"))
-    s.outputs = read_outputs(Obj(o.at("outputs"), o.at_where("outputs"), {"forces_csv", "forces_interval_s", "plot", "pvd"}));
+    s.outputs =
+        read_outputs(Obj(o.at("outputs"), o.at_where("outputs"), {"forces_csv", "forces_interval_s", "plot", "pvd"}));
   s.threads = o.integer("threads", 0);
   require(s.threads >= 0 && s.threads <= 1024, o.at_where("threads"), "must be >= 0 (0: all cores)");
   return s;

@@ -386,15 +386,15 @@ class SparseFactor {
   bool from_cache_{false};
   bool order_given_{false};
   // P A P^T = L D L^T: L strictly lower (unit diagonal implied), column-compressed
-  std::vector<int> perm_;            ///< original row -> factored position
-  std::vector<std::int64_t> outer_;  ///< n + 1 column starts
-  std::vector<int> inner_;           ///< row of each entry
-  SharedArray<double> values_;       ///< L entries
+  std::vector<int> perm_;             ///< original row -> factored position
+  std::vector<std::int64_t> outer_;   ///< n + 1 column starts
+  std::vector<int> inner_;            ///< row of each entry
+  SharedArray<double> values_;        ///< L entries
   SharedArray<float> values_single_;  ///< supernodal: L's entries in single precision (use_single_precision_sweeps)
-  std::vector<double> inv_d_;        ///< 1 / D
-  std::vector<double> inv_sqrt_d_;   ///< D^-1/2 (forward vectors of the simplicial factor)
-  std::vector<int> parent_;          ///< simplicial: column -> parent in the elimination tree (-1: a root)
-  std::vector<int> path_;            ///< forward_unit's path (supernodes or columns)
+  std::vector<double> inv_d_;         ///< 1 / D
+  std::vector<double> inv_sqrt_d_;    ///< D^-1/2 (forward vectors of the simplicial factor)
+  std::vector<int> parent_;           ///< simplicial: column -> parent in the elimination tree (-1: a root)
+  std::vector<int> path_;             ///< forward_unit's path (supernodes or columns)
   // supernodal L L^T (CHOLMOD): supernode s has columns super_[s] .. super_[s+1]-1, rows
   // rows_[row_start_[s] ..] (its own columns first), values values_[value_start_[s] ..]
   // column-major (leading dimension: its row count), diagonal included
