@@ -335,18 +335,25 @@ class ImplicitIntegrator final : public SteppingIntegrator {
         x.col(i) = xs.col(i) + dt * s.velocities.col(i);
       }
     });
-    parallel_for(std::int64_t(free.size()), kNodeGrain, threads, [&](std::int64_t b, std::int64_t e) {
-      for (std::int64_t f = b; f < e; ++f) {
-        const int i = free[std::size_t(f)];
-        const double mass = p.node_mass[std::size_t(i)];
-        // y = x_n + dt v_n + dt^2 (g + f_ext / m); rhs = M y / dt^2
-        // (the iterations start from x_n + dt v_n, not from y: at large dt the dt^2 g of a
-        // held body puts y far from the solution)
-        const Eigen::Vector3d y =
-            x.col(i) + dt * dt * (p.node_gravity_ratio[std::size_t(i)] * g + s.external_forces.col(i) / mass);
-        rc.row(f) = (mass * inv_dt2) * y.transpose();
-      }
-    });
+    // (and whether a free node has an external force: the solver's closure-only passes)
+    std::vector<std::uint8_t>& pushed = s.scratch.node_chunk_flags;  // written again after the solve
+    const std::int64_t free_chunks = chunk_count(std::int64_t(free.size()), kNodeGrain);
+    parallel_for_chunks(
+        std::int64_t(free.size()), kNodeGrain, threads, [&](std::int64_t c, std::int64_t b, std::int64_t e) {
+          bool any = false;
+          for (std::int64_t f = b; f < e; ++f) {
+            const int i = free[std::size_t(f)];
+            const double mass = p.node_mass[std::size_t(i)];
+            // y = x_n + dt v_n + dt^2 (g + f_ext / m); rhs = M y / dt^2
+            // (the iterations start from x_n + dt v_n, not from y: at large dt the dt^2 g of a
+            // held body puts y far from the solution)
+            const Eigen::Vector3d fe = s.external_forces.col(i);
+            any = any || !fe.isZero(0.0);
+            const Eigen::Vector3d y = x.col(i) + dt * dt * (p.node_gravity_ratio[std::size_t(i)] * g + fe / mass);
+            rc.row(f) = (mass * inv_dt2) * y.transpose();
+          }
+          pushed[std::size_t(c)] = any ? 1 : 0;
+        });
     ProjectiveIterations its;
     its.max_iterations = settings_.max_iterations;
     its.tolerance_mm = settings_.tolerance_mm;
@@ -355,6 +362,10 @@ class ImplicitIntegrator final : public SteppingIntegrator {
     its.free_tolerance_mm = settings_.free_tolerance_mm;
     its.rotation = settings_.rotation;
     its.threads = threads;
+    its.inputs_given = true;
+    its.gravity_mm_s2 = g;
+    its.external_forces =
+        std::any_of(pushed.begin(), pushed.begin() + free_chunks, [](std::uint8_t f) { return f != 0; });
     solver.solve(s, x, its, contact_, rep);
     rep.region_elements = solver.region_elements();
     rep.region_nodes = solver.region_nodes();

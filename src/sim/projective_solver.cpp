@@ -317,6 +317,20 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
   if (steady) ++steady_solves_;
   if (contact) contact->watch_moving(steady ? &closure_nodes_ : nullptr, steady ? watch_period_ : 0);
   contact_set_.watch_moving(steady ? &closure_nodes_ : nullptr, steady ? watch_period_ : 0);
+  // The rows a steady solve's right-hand side can change on (docs/model.md section 7, "Passes
+  // over the closure only"): after two steady solves over this closure, a free node outside it
+  // has velocity 0 in this step and the last, so its inertial term is the last step's bit for
+  // bit given the same gravity and no external force; its elements' targets were not recomputed
+  // since, and the fixed nodes' coupling is the same (fixed_still). Its rows of the right-hand
+  // side are then the last solve's, which the factor keeps (the forward half's last b): the
+  // gathering, the comparison and the residual visit the closure's rows only.
+  const bool inputs_same =
+      its.inputs_given && !its.external_forces && last_inputs_quiet_ && its.gravity_mm_s2 == last_gravity_;
+  last_inputs_quiet_ = its.inputs_given && !its.external_forces;
+  last_gravity_ = its.gravity_mm_s2;
+  const std::vector<int>* rows =
+      closure_passes_ && steady && run >= 2 && inputs_same ? &factor_.partial_rows() : nullptr;
+  if (rows) ++closure_pass_solves_;
   if (setup_.damping) record_start_shape(s.positions, threads);
   double max_update = std::numeric_limits<double>::infinity();
   ElementPassStats last;
@@ -335,9 +349,9 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
     if (it >= its.max_iterations && (max_update <= its.free_tolerance_mm || tool_touches())) break;
     // local: rotation fits and targets; global: right-hand side, solve, contact
     last = local_step(s, x, its.rotation, threads);
-    gather_rhs(threads);
+    gather_rhs(threads, rows);
     if (it > 0) {
-      const auto [rms, largest] = difference_norms(rhs_, rhs_previous_, threads);
+      const auto [rms, largest] = difference_norms(rhs_, rhs_previous_, threads, rows);
       rep.residual_n = rms;
       rep.max_residual_n = largest;
       if (its.tolerance_mm > 0 && max_update <= its.tolerance_mm) break;
@@ -348,9 +362,9 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
     const bool partial = region_ && !solve_far_field_;
     const bool halves = partial && contact && factor_.partial_ready();
     if (halves)
-      factor_.forward3_partial(rhs_);
+      factor_.forward3_partial(rhs_, rows);
     else if (partial)
-      factor_.solve3_partial(rhs_, solution_);
+      factor_.solve3_partial(rhs_, solution_, rows);
     else
       factor_.solve3(rhs_, solution_);
     if (contact) {
@@ -659,15 +673,18 @@ ElementPassStats ProjectiveSolver::local_step(SimState& s, const Eigen::Matrix3X
   return total;
 }
 
-/// The global right-hand side: per free node, the constant part plus its targets in entry order.
-void ProjectiveSolver::gather_rhs(int threads) {
+/// The global right-hand side: per free node, the constant part plus its targets in entry order;
+/// on every free row, or on `rows` only (solve(): the others are the last solve's).
+void ProjectiveSolver::gather_rhs(int threads, const std::vector<int>* rows) {
   const PhysicsModel& p = *physics_;
-  parallel_for(num_free(), kNodeGrain, threads, [&](std::int64_t b, std::int64_t e) {
-    for (std::int64_t f = b; f < e; ++f) {
-      const Eigen::Vector3d t = gather_node_force(p, targets_, numbering_.free_nodes[std::size_t(f)]);
-      rhs_.row(f) = rhs_const_.row(f) + t.transpose();
-    }
-  });
+  parallel_for(rows ? std::int64_t(rows->size()) : num_free(), kNodeGrain, threads,
+               [&](std::int64_t b, std::int64_t e) {
+                 for (std::int64_t k = b; k < e; ++k) {
+                   const std::int64_t f = rows ? (*rows)[std::size_t(k)] : k;
+                   const Eigen::Vector3d t = gather_node_force(p, targets_, numbering_.free_nodes[std::size_t(f)]);
+                   rhs_.row(f) = rhs_const_.row(f) + t.transpose();
+                 }
+               });
 }
 
 /// Writes the solution into x; returns the largest node move. `closure_only`: a steady regional
@@ -692,14 +709,18 @@ double ProjectiveSolver::scatter(Eigen::Matrix3Xd& x, int threads, bool closure_
   return std::sqrt(mx);
 }
 
+/// The RMS over the free rows and the largest row norm of a - b; with `rows`, a and b are equal
+/// on the other rows (gather_rhs), which are not read.
 std::pair<double, double> ProjectiveSolver::difference_norms(const Eigen::MatrixX3d& a, const Eigen::MatrixX3d& b,
-                                                             int threads) {
+                                                             int threads, const std::vector<int>* rows) {
   const int nf = num_free();
   if (nf == 0) return {0.0, 0.0};
-  const std::int64_t chunks = chunk_count(nf, kNodeGrain);
-  parallel_for_chunks(nf, kNodeGrain, threads, [&](std::int64_t c, std::int64_t lo, std::int64_t hi) {
+  const std::int64_t visited = rows ? std::int64_t(rows->size()) : nf;
+  const std::int64_t chunks = chunk_count(visited, kNodeGrain);
+  parallel_for_chunks(visited, kNodeGrain, threads, [&](std::int64_t c, std::int64_t lo, std::int64_t hi) {
     double s = 0, mx = 0;
-    for (std::int64_t f = lo; f < hi; ++f) {
+    for (std::int64_t k = lo; k < hi; ++k) {
+      const std::int64_t f = rows ? (*rows)[std::size_t(k)] : k;
       const double d2 = (a.row(f) - b.row(f)).squaredNorm();
       s += d2;
       mx = std::max(mx, d2);

@@ -75,6 +75,14 @@ struct ProjectiveIterations {
   double free_tolerance_mm{0.0};
   RotationFitSettings rotation;
   int threads{0};  ///< 0: OpenMP default
+  /// The caller's word on the constant right-hand side's inputs besides the positions: its
+  /// gravity, and whether any node has an external force. With no external force at this solve
+  /// and the last, and the same gravity, a steady regional solve that follows two over the same
+  /// closure passes over the closure's rows only (docs/model.md section 7, "Passes over the
+  /// closure only"). Not given (`inputs_given` false): every row, every solve.
+  bool inputs_given{false};
+  Eigen::Vector3d gravity_mm_s2{Eigen::Vector3d::Zero()};
+  bool external_forces{true};
 };
 
 /// The free and fixed numbering of a model's nodes.
@@ -224,6 +232,12 @@ class ProjectiveSolver {
   /// Solves that kept the contact's promise (ContactProvider::watch_moving: the rows outside
   /// the closure stayed where they were); a diagnostic for tests.
   [[nodiscard]] std::int64_t steady_solves() const { return steady_solves_; }
+  /// Solves whose right-hand side was gathered, compared and solved over the closure's rows only
+  /// (ProjectiveIterations::inputs_given); a diagnostic for tests.
+  [[nodiscard]] std::int64_t closure_pass_solves() const { return closure_pass_solves_; }
+  /// Off: every solve passes over every row, as before the closure-only passes (for the tests
+  /// that compare the two, bit for bit). On by default.
+  void set_closure_passes(bool on) { closure_passes_ = on; }
   /// The nodes an implicit step's node passes (the iterate's start x_n + dt v_n, the velocities and
   /// their checks) must visit, or null for every node. Not null once the regional solves have held
   /// the far field still long enough, from one continued state: before the step's solve, the last
@@ -250,10 +264,11 @@ class ProjectiveSolver {
   [[nodiscard]] std::int64_t active_element(std::int64_t k) const {
     return region_ ? std::int64_t(region_elements_[std::size_t(k)]) : k;
   }
-  void gather_rhs(int threads);
+  void gather_rhs(int threads, const std::vector<int>* rows);
   double scatter(Eigen::Matrix3Xd& x, int threads, bool closure_only = false);
   /// RMS and largest per-node norm of a - b (free nodes), N.
-  std::pair<double, double> difference_norms(const Eigen::MatrixX3d& a, const Eigen::MatrixX3d& b, int threads);
+  std::pair<double, double> difference_norms(const Eigen::MatrixX3d& a, const Eigen::MatrixX3d& b, int threads,
+                                             const std::vector<int>* rows);
 
   std::shared_ptr<const PhysicsModel> physics_;
   ProjectiveSetup setup_;
@@ -319,6 +334,11 @@ class ProjectiveSolver {
   bool last_steady_{false};  ///< the last solve kept the promise
   std::uint64_t watch_period_{0};
   std::int64_t steady_solves_{0};
+  // the closure-only passes (solve(), ProjectiveIterations::inputs_given): the last solve's inputs
+  bool last_inputs_quiet_{false};  ///< given, and no external force
+  Eigen::Vector3d last_gravity_{Eigen::Vector3d::Zero()};
+  bool closure_passes_{true};
+  std::int64_t closure_pass_solves_{0};
   std::vector<double> free_chunk_sums_;  ///< per node chunk: 2 partial sums
   ContactActiveSet contact_set_;
 };

@@ -316,16 +316,19 @@ class SparseFactor {
   /// Columns of the closure (the cost of a partial backward pass, against size()).
   [[nodiscard]] std::int64_t partial_columns() const { return closure_columns_; }
   /// x = A^-1 b on the closure rows (others untouched). Needs a full solve3() since compute().
-  /// Returns the number of rows where b changed.
-  int solve3_partial(const Eigen::MatrixX3d& b, Eigen::MatrixX3d& x);
+  /// Returns the number of rows where b changed. `rows`: as forward3_partial's.
+  int solve3_partial(const Eigen::MatrixX3d& b, Eigen::MatrixX3d& x, const std::vector<int>* rows = nullptr);
   // solve3_partial in two halves, so that the contact set can add its forces between them and
   // substitute backward once (docs/model.md section 8, "One backward pass"):
   /// True when the two halves below can run (a supernodal factor, a full solve3() since
   /// compute(), a closure set).
   [[nodiscard]] bool partial_ready() const { return supernodal_ && have_forward_ && !closure_supers_.empty(); }
   /// The forward half: z = L^-1 P b kept current on the ancestors of the rows where b changed.
-  /// Needs partial_ready(). Returns the number of rows where b changed.
-  int forward3_partial(const Eigen::MatrixX3d& b);
+  /// Needs partial_ready(). Returns the number of rows where b changed. Every row is compared
+  /// with the last b, or with `rows` only these: the caller's word that b is the last b, bit for
+  /// bit, on every other row (a steady regional solve's closure: docs/model.md section 7,
+  /// "Passes over the closure only"); b's other rows are then not read.
+  int forward3_partial(const Eigen::MatrixX3d& b, const std::vector<int>* rows = nullptr);
   /// Row i of A^-1 b for the right-hand side of the last forward half: z_i . z (no backward pass).
   [[nodiscard]] Eigen::Vector3d solution_row(const UnitForward& zi) const;
   /// The backward half: x = A^-1 (b + sum_k e_(row k) f_k^T) on the closure rows (others

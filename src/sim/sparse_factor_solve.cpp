@@ -129,31 +129,33 @@ const std::vector<int>& SparseFactor::set_partial_rows(const std::vector<int>& r
   return closure_rows_;
 }
 
-int SparseFactor::solve3_partial(const Eigen::MatrixX3d& b, Eigen::MatrixX3d& x) {
+int SparseFactor::solve3_partial(const Eigen::MatrixX3d& b, Eigen::MatrixX3d& x, const std::vector<int>* rows) {
   if (!partial_ready()) {
     solve3(b, x);
     return size_;
   }
-  const int changed = forward3_partial(b);
+  const int changed = forward3_partial(b, rows);
   backward3_partial({}, {}, x);
   return changed;
 }
 
-int SparseFactor::forward3_partial(const Eigen::MatrixX3d& b) {
+int SparseFactor::forward3_partial(const Eigen::MatrixX3d& b, const std::vector<int>* rows) {
   const int n = size_;
   double* w = work3_.data();  // zero outside what a pass touches (restored below)
   // the rows where b changed, exactly, and their supernodes (b and last_b_ in the same layout:
   // three linear streams each)
   // (every row, about 1 ms serial on the folded organ's 326,564: on the threads by chunks of rows,
-  // whose lists are joined in row order, so the list is the serial one)
+  // whose lists are joined in order; ancestors() sorts them, so the order does not matter)
   const double* bc[3] = {b.data(), b.data() + n, b.data() + 2 * std::int64_t(n)};
   double* lc[3] = {last_b_.data(), last_b_.data() + n, last_b_.data() + 2 * std::int64_t(n)};
-  const std::int64_t chunks = chunk_count(n, kScanGrain);
+  const std::int64_t scanned = rows ? std::int64_t(rows->size()) : n;
+  const std::int64_t chunks = chunk_count(scanned, kScanGrain);
   if (std::int64_t(chunk_changed_.size()) < chunks) chunk_changed_.resize(std::size_t(chunks));
-  parallel_for_chunks(n, kScanGrain, threads_, [&](std::int64_t chunk, std::int64_t lo, std::int64_t hi) {
+  parallel_for_chunks(scanned, kScanGrain, threads_, [&](std::int64_t chunk, std::int64_t lo, std::int64_t hi) {
     std::vector<int>& supers = chunk_changed_[std::size_t(chunk)];
     supers.clear();
-    for (std::int64_t i = lo; i < hi; ++i) {
+    for (std::int64_t r = lo; r < hi; ++r) {
+      const std::int64_t i = rows ? (*rows)[std::size_t(r)] : r;
       const double d0 = bc[0][i] - lc[0][i], d1 = bc[1][i] - lc[1][i], d2 = bc[2][i] - lc[2][i];
       if (d0 == 0.0 && d1 == 0.0 && d2 == 0.0) continue;
       const int k = perm_[std::size_t(i)];
@@ -205,6 +207,7 @@ void SparseFactor::backward3_partial(const std::vector<const UnitForward*>& z, c
     for (int j = super_[std::size_t(q)]; j < super_[std::size_t(q) + 1]; ++j)
       for (int c = 0; c < 3; ++c) w[3 * j + c] = forward_[3 * std::size_t(j) + std::size_t(c)];
   scatter_forward_forces(z, forces3, w);
+  // (w is nonzero on the closure's columns and the forces' rows only: zeroed there below)
   if (product_fields_) {
     // g_k^T x = w_k . (the forward solution with the forces): the closure's positions from w,
     // the others from the forward solution (the forces' forward vectors lie on the closure)
@@ -221,7 +224,12 @@ void SparseFactor::backward3_partial(const std::vector<const UnitForward*>& z, c
   backward_supers<3>(w, closure_supers_);
   for (const int i : closure_rows_)
     for (int c = 0; c < 3; ++c) x(i, c) = w[3 * perm_[std::size_t(i)] + c];
-  std::fill(work3_.begin(), work3_.end(), 0.0);
+  // zero again where written, not the whole of n x 3 (a pass over memory as long as the scan)
+  for (const int q : closure_supers_)
+    std::fill(w + 3 * std::int64_t(super_[std::size_t(q)]), w + 3 * std::int64_t(super_[std::size_t(q) + 1]), 0.0);
+  for (const UnitForward* zk : z)
+    for (std::size_t g = 0; g < zk->first.size(); ++g)
+      std::fill(w + 3 * std::int64_t(zk->first[g]), w + 3 * (std::int64_t(zk->first[g]) + zk->count[g]), 0.0);
 }
 
 void SparseFactor::solve_unit_partial(int i, double* out) {

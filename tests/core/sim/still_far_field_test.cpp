@@ -170,8 +170,92 @@ TEST(StillFarField, ARegionalPressIsTheSameBitForBitAsOneThatVisitsEveryNode) {
   EXPECT_GT(peak, 0.005) << "the ball pressed nothing: the test shows nothing";
   const ProjectiveSolver& solver = *held.state().integrator_cache.solver;
   EXPECT_GT(solver.steady_solves(), steps / 2) << "the far field was hardly ever held still";
+  EXPECT_GT(solver.closure_pass_solves(), steps / 3) << "the right-hand side hardly ever gathered on the closure only";
   EXPECT_EQ(visited.state().integrator_cache.solver->steady_solves(), 0);
+  EXPECT_EQ(visited.state().integrator_cache.solver->closure_pass_solves(), 0);
   EXPECT_LT(solver.region_nodes(), std::int64_t(solver.free_nodes().size()));
+}
+
+// The closure-only passes (ProjectiveIterations::inputs_given, docs/model.md section 7, "Passes
+// over the closure only"), at the solver: a 24-voxel ball held at its bottom 3 mm, sagging under
+// gravity with its top 8 mm solved, gives the every-row passes' positions bit for bit, across a
+// force on one node of the far field (step 15) and a turn of gravity (from step 25). The far rows
+// of the right-hand side change then, and the closure's answer with them (through the forward
+// solution's shared ancestors): passes that missed it would not be bit for bit.
+TEST(ClosurePasses, GiveTheEveryRowPassesBitForBitAcrossAFarForceAndAGravityTurn) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "needs CHOLMOD (supernodal)";
+  const auto p = ball_model(24);
+  const Model& m = *p->model;
+  const double dt = 0.02, zmin = m.rest_positions.row(2).minCoeff(), ztop = m.rest_positions.row(2).maxCoeff();
+  SimState start = make_state(p);
+  std::vector<int> held;
+  for (int i = 0; i < m.num_nodes(); ++i)
+    if (m.rest_positions(2, i) <= zmin + 3.0) held.push_back(i);
+  start.fix_nodes(held);
+  ProjectiveSetup setup;
+  setup.time_step_s = dt;
+  setup.inertia = true;
+  setup.damping = p->damped;
+  ProjectiveSolver on(p, start.node_fixed, setup), off(p, start.node_fixed, setup);
+  off.set_closure_passes(false);
+  for (ProjectiveSolver* solver : {&on, &off})
+    solver->set_carry_far_field(0);  // held still, as the integrator's default
+  std::vector<int> top;
+  int far = -1;
+  for (int i = 0; i < m.num_nodes(); ++i) {
+    if (start.node_fixed[std::size_t(i)]) continue;
+    if (m.rest_positions(2, i) >= ztop - 8.0)
+      top.push_back(i);
+    else if (m.rest_positions(2, i) <= zmin + 5.0 && (far < 0 || m.rest_positions(0, i) < m.rest_positions(0, far)))
+      far = i;  // the lowest free layer's leftmost node
+  }
+  on.set_region(top);
+  off.set_region(top);
+  ASSERT_GE(far, 0);
+  SimState a = start, b = start;
+  const auto step = [&](ProjectiveSolver& solver, SimState& s, const Eigen::Vector3d& g) {
+    Eigen::Matrix3Xd x = s.positions + dt * s.velocities;
+    bool pushed = false;
+    for (std::size_t f = 0; f < solver.free_nodes().size(); ++f) {
+      const int i = solver.free_nodes()[f];
+      const double mass = p->node_mass[std::size_t(i)];
+      pushed = pushed || !s.external_forces.col(i).isZero(0.0);
+      const Eigen::Vector3d y =
+          x.col(i) + dt * dt * (p->node_gravity_ratio[std::size_t(i)] * g + s.external_forces.col(i) / mass);
+      solver.constant_rhs().row(Eigen::Index(f)) = (mass / (dt * dt)) * y.transpose();
+    }
+    ProjectiveIterations its;
+    its.max_iterations = 2;
+    its.threads = 2;
+    its.inputs_given = true;
+    its.gravity_mm_s2 = g;
+    its.external_forces = pushed;
+    StepReport rep;
+    solver.solve(s, x, its, nullptr, rep);
+    s.velocities = (x - s.positions) / dt;
+    s.positions = x;
+  };
+  std::int64_t before_force = 0, before_turn = 0;
+  for (int n = 0; n < 40; ++n) {
+    const Eigen::Vector3d g = n < 25 ? Eigen::Vector3d(0, 0, -9810) : Eigen::Vector3d(4000, 0, -9810);
+    for (SimState* s : {&a, &b})
+      s->external_forces.col(far) = n == 15 ? Eigen::Vector3d(0.0, 0.0, -0.05) : Eigen::Vector3d::Zero();
+    if (n == 15) before_force = on.closure_pass_solves();
+    if (n == 25) before_turn = on.closure_pass_solves();
+    step(on, a, g);
+    step(off, b, g);
+    ASSERT_TRUE(a.positions == b.positions) << "step " << n;
+  }
+  // the closure's passes ran from the third regional solve on, but not at the force nor the
+  // solve after it (the force gone: its row changed again), nor at the turn: solves 3-14, 17-24
+  // and 26-39
+  EXPECT_EQ(before_force, 12);
+  EXPECT_EQ(before_turn - before_force, 8);
+  EXPECT_EQ(on.closure_pass_solves() - before_turn, 14);
+  EXPECT_EQ(off.closure_pass_solves(), 0);
+  EXPECT_GT((a.positions - start.positions).colwise().norm().maxCoeff(), 0.05)
+      << "nothing sagged: the test shows nothing";
+  EXPECT_LT(on.region_nodes(), std::int64_t(on.free_nodes().size()));
 }
 
 // Single-precision sweeps (IntegratorSettings::single_precision_sweeps, docs/bench.md): the same
