@@ -2,7 +2,9 @@
 
 #include <X11/Xlib.h>
 
+#include <algorithm>
 #include <cstdlib>
+#include <string>
 
 namespace vx::probe {
 
@@ -27,6 +29,16 @@ std::string display_problem() {
     return std::string("the X display '") + name +
            "' has no OpenGL (GLX extension); run under xvfb-run (Xvfb provides GLX) or on a desktop with OpenGL";
   return {};
+}
+
+int software_render_threads(int cores, int physics_threads) {
+  return std::max(1, cores - std::max(0, physics_threads));
+}
+
+int limit_software_render_threads(int cores, int physics_threads) {
+  (void)setenv("LP_NUM_THREADS", std::to_string(software_render_threads(cores, physics_threads)).c_str(), 0);
+  const char* v = std::getenv("LP_NUM_THREADS");
+  return v ? std::atoi(v) : 0;
 }
 
 }  // namespace vx::probe

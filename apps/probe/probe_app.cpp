@@ -8,6 +8,7 @@
 #include <csignal>
 #include <limits>
 #include <memory>
+#include <string>
 #include <vector>
 
 #include "app_shared.h"
@@ -96,6 +97,8 @@ class App {
   /// The display thread's nice value (it and its renderer's threads yield to the physics).
   static constexpr int kGuiNice = 10;
   bool gui_nice_{false};
+  int physics_threads_{1};
+  int render_threads_{0};  ///< LP_NUM_THREADS for a software renderer (display.h)
   int probes_{0};
   bool local_{false};
   // after the run (finish)
@@ -184,6 +187,7 @@ void App::start_simulation() {
   // sharing the cores (thread_share.h): the core's loops follow the physics thread's own OpenMP
   // setting (0), which that thread sets to its share before each step
   const int given = resolve_threads(options_.threads);
+  physics_threads_ = given;
   const bool share = options_.share_cores && given > 1;
   scene_.simulation.integrator.threads = share ? 0 : given;
   // the second start of the same organ loads its factor instead of computing it (io/factor_cache.h)
@@ -345,6 +349,8 @@ std::string App::run_loops(const IoLines& lines) {
   // not at the physics')
   if (!options_.headless) {
     gui_nice_ = set_this_thread_nice(kGuiNice);
+    // and a software renderer's threads keep off the physics' cores (display.h)
+    render_threads_ = limit_software_render_threads(omp_get_num_procs(), physics_threads_);
     view_ = open_view(lines);
   }
   gui_loop_ = std::make_unique<GuiLoop>(*shared_, view_.get(), keyboard_);
@@ -493,11 +499,13 @@ int App::finish(ProbeView* view, std::string error) {
   summary(wall_s);
   if (view)
     // over the run since the open, as the device's line; the HUD's rate (its last half second) apart
-    say(
-        fmt::format("display: {} frames in {:.1f} s since the open ({:.1f} frames/s; {:.1f} frames/s over its last "
-                    "half second) ({})",
-                    view->frames(), wall_s, wall_s > 0 ? double(view->frames()) / wall_s : 0.0, view->frames_per_s(),
-                    gui_nice_ ? fmt::format("nice {}, below the physics", kGuiNice) : "default priority"));
+    say(fmt::format(
+        "display: {} frames in {:.1f} s since the open ({:.1f} frames/s; {:.1f} frames/s over its last "
+        "half second) ({})",
+        view->frames(), wall_s, wall_s > 0 ? double(view->frames()) / wall_s : 0.0, view->frames_per_s(),
+        (gui_nice_ ? fmt::format("nice {}, below the physics", kGuiNice) : std::string("default priority")) +
+            (view->software_gl() ? fmt::format("; software OpenGL on {} thread(s): LP_NUM_THREADS", render_threads_)
+                                 : std::string())));
   const DeviceLoop& d = *device_loop_;
   say(fmt::format(
       "device: {} ticks ({:.0f} updates/s, {} late ticks skipped; a tick takes {:.0f} us on average, {:.0f} "

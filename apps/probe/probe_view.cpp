@@ -362,4 +362,6 @@ std::int64_t ProbeView::frames() const { return impl_->frames; }
 std::int64_t ProbeView::input_events() const { return impl_->input_events; }
 double ProbeView::frames_per_s() const { return impl_->fps.rate(); }
 
+bool ProbeView::software_gl() const { return impl_->frames > 0 && impl_->software_gl; }
+
 }  // namespace vx::probe

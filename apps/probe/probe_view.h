@@ -153,6 +153,8 @@ class ProbeView {
   /// Window events handled so far (keys, mouse, resize, expose): what the user did to the view.
   [[nodiscard]] std::int64_t input_events() const;
   [[nodiscard]] double frames_per_s() const;
+  /// The OpenGL renderer is a software one (llvmpipe, softpipe, swrast), known after the first frame.
+  [[nodiscard]] bool software_gl() const;
 
   struct Impl;
 
