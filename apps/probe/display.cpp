@@ -31,12 +31,9 @@ std::string display_problem() {
   return {};
 }
 
-int software_render_threads(int cores, int physics_threads) {
-  return std::max(1, cores - std::max(0, physics_threads));
-}
-
 int limit_software_render_threads(int cores, int physics_threads) {
-  (void)setenv("LP_NUM_THREADS", std::to_string(software_render_threads(cores, physics_threads)).c_str(), 0);
+  const int leave = std::max(1, cores - std::max(0, physics_threads));
+  (void)setenv("LP_NUM_THREADS", std::to_string(leave).c_str(), 0);
   const char* v = std::getenv("LP_NUM_THREADS");
   return v ? std::atoi(v) : 0;
 }

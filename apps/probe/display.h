@@ -10,14 +10,12 @@ namespace vx::probe {
 /// Empty when an X display can be opened; otherwise what is missing and how to fix it.
 [[nodiscard]] std::string display_problem();
 
-/// The threads a software OpenGL renderer (Mesa's llvmpipe: Xvfb, a machine without a GPU)
-/// rasterises on: the cores the physics' `physics_threads` leave, at least one. By default it
-/// takes one per core, and on the physics' cores its threads stall the physics' OpenMP team at
-/// every barrier (docs/probe.md, "The software renderer's threads").
-[[nodiscard]] int software_render_threads(int cores, int physics_threads);
-
-/// Sets LP_NUM_THREADS to software_render_threads() for the renderer loaded after it, unless
-/// it is set already (the user's choice is kept). Returns the value in force (0: not a number).
+/// Sets LP_NUM_THREADS, the threads a software OpenGL renderer (Mesa's llvmpipe: Xvfb, a machine
+/// without a GPU) rasterises on, to the cores the physics' `physics_threads` leave, at least one,
+/// for the renderer loaded after it; unless it is set already (the user's choice is kept). By
+/// default llvmpipe takes one per core, and on the physics' cores its threads stall the physics'
+/// OpenMP team at every barrier (docs/probe.md, "The right-hand side over the closure only, then
+/// the software renderer off the physics' cores"). Returns the value in force (0: not a number).
 int limit_software_render_threads(int cores, int physics_threads);
 
 }  // namespace vx::probe

@@ -235,9 +235,6 @@ class ProjectiveSolver {
   /// Solves whose right-hand side was gathered, compared and solved over the closure's rows only
   /// (ProjectiveIterations::inputs_given); a diagnostic for tests.
   [[nodiscard]] std::int64_t closure_pass_solves() const { return closure_pass_solves_; }
-  /// Off: every solve passes over every row, as before the closure-only passes (for the tests
-  /// that compare the two, bit for bit). On by default.
-  void set_closure_passes(bool on) { closure_passes_ = on; }
   /// The nodes an implicit step's node passes (the iterate's start x_n + dt v_n, the velocities and
   /// their checks) must visit, or null for every node. Not null once the regional solves have held
   /// the far field still long enough, from one continued state: before the step's solve, the last
@@ -337,7 +334,6 @@ class ProjectiveSolver {
   // the closure-only passes (solve(), ProjectiveIterations::inputs_given): the last solve's inputs
   bool last_inputs_quiet_{false};  ///< given, and no external force
   Eigen::Vector3d last_gravity_{Eigen::Vector3d::Zero()};
-  bool closure_passes_{true};
   std::int64_t closure_pass_solves_{0};
   std::vector<double> free_chunk_sums_;  ///< per node chunk: 2 partial sums
   ContactActiveSet contact_set_;
