@@ -74,6 +74,9 @@ struct AppOptions {
   /// (a slow start-up), s. The figures the app reports must show them.
   double test_step_delay_s{0.0};
   double test_startup_delay_s{0.0};
+  /// Test hook (hidden option): extra wall time per frame drawn in the display's turn (a slow
+  /// renderer while the tissue is behind real time; AppControls::display_turn), s.
+  double test_frame_delay_s{0.0};
   /// Test hooks: faults injected into the physics (each once), and the virtual stick 0 unplugged
   /// and plugged back at these device times (s; negative: never).
   std::vector<InjectedFault> test_faults;

@@ -66,6 +66,12 @@ struct AppControls {
   std::atomic<int> reset_generation{0};      ///< physics -> device: resets done
   std::atomic<bool> screenshot_requested{false};
   std::atomic<bool> quit{false};
+  /// GUI -> physics: the display draws a frame while the tissue runs behind real time. With the
+  /// cores shared (--share-cores), the physics steps on one thread until it ends, so that the
+  /// renderer has a core to itself for the frame's own time; drawn beside the physics' team it
+  /// took one of its cores for a second or more of wall time at its lower priority, and the
+  /// team waited at its barriers meanwhile (docs/probe.md, "The display's turn").
+  std::atomic<bool> display_turn{false};
 
   /// The first reason given wins.
   void request_quit(const std::string& why) {
@@ -131,6 +137,17 @@ struct PhysicsReport {
   std::atomic<std::int64_t> thread_changes{0};
   std::atomic<std::int64_t> thread_trials{0};
   std::atomic<std::int64_t> thread_trials_kept{0};
+  /// Steps taken on one thread during the display's turns (AppControls::display_turn).
+  std::atomic<std::int64_t> steps_in_display_turns{0};
+  /// Where the physics thread's wall time went after the start-up, us: in the steps
+  /// (Simulation::step), the local contact models built after them (local shaping), the copies of
+  /// the last good state, and the outputs handed to the other threads after each step (a frame's
+  /// positions when the GUI asked); the rest of the interval is waiting for real time and the
+  /// tick's own work. The steps' figure is the one `simulate` and `bench` time.
+  std::atomic<std::int64_t> in_steps_us{0};
+  std::atomic<std::int64_t> in_local_models_us{0};
+  std::atomic<std::int64_t> in_snapshots_us{0};
+  std::atomic<std::int64_t> in_outputs_us{0};
 
   [[nodiscard]] std::string last_fault() const {
     std::lock_guard lock(fault_mutex_);

@@ -191,9 +191,19 @@ bool GuiLoop::show_frame(ProbeView& view, SteadyClock::time_point now) {
   const double refresh_s = behind_ ? kHudRefreshBehind_s : kHudRefresh_s;
   if (screenshot || input || view.frames() == 0 || (open && (new_frame || since_s >= refresh_s))) {
     view.set_hud(hud(now));
+    // behind real time with the cores shared: the display's turn, the physics on one thread
+    const bool turn = behind_ && s_.share_cores && s_.physics_threads > 1;
+    if (turn) s_.controls.display_turn.store(true, std::memory_order_relaxed);
     view.render();  // no lock held: the physics and the device go on meanwhile
+    if (turn && s_.options.test_frame_delay_s > 0)
+      std::this_thread::sleep_for(std::chrono::duration<double>(s_.options.test_frame_delay_s));
+    if (turn) s_.controls.display_turn.store(false, std::memory_order_relaxed);
     last_render_ = now;
     last_render_s_ = seconds(SteadyClock::now() - now);
+    if (turn) {
+      ++display_turns_;
+      display_turns_s_ += last_render_s_;
+    }
     rendered_input_ = view.input_events();
   }
   if (screenshot) {

@@ -33,7 +33,11 @@ class GuiLoop {
   static constexpr double kHudRefreshBehind_s = 1.0;
   /// While the tissue runs behind real time, the display's frames take at most this share of
   /// the wall time (after a frame that took 0.1 s the next starts 0.1 / kBehindDuty s after it).
-  static constexpr double kBehindDuty = 0.5;
+  /// Each is drawn in the display's turn (AppControls::display_turn), with the physics on one
+  /// thread of two, about 0.4x its pace for the frame's time: at 0.12 about 5 % of the physics'
+  /// pace, a frame every 1.5 to 2 s on the folded organ under Xvfb (docs/probe.md, "The display's
+  /// turn").
+  static constexpr double kBehindDuty = 0.12;
 
   GuiLoop(AppShared& shared, ProbeView* view, KeyboardStick& keyboard);
   /// Runs until a quit; returns the error that ended it ("" for none). `interrupted` is polled
@@ -46,6 +50,10 @@ class GuiLoop {
   [[nodiscard]] bool window_closed() const { return window_closed_; }
   /// Wall time spent paused after the start-up, s (excluded from the final real-time factor).
   [[nodiscard]] double paused_s() const { return paused_s_; }
+  /// Frames drawn in the display's turn (the tissue behind real time, the physics on one thread
+  /// meanwhile; AppControls::display_turn), and their wall time, s.
+  [[nodiscard]] std::int64_t display_turns() const { return display_turns_; }
+  [[nodiscard]] double display_turns_s() const { return display_turns_s_; }
   /// Soak: memory and the device's rate per second (soak.h).
   [[nodiscard]] const SoakMonitor& soak() const { return soak_; }
 
@@ -88,6 +96,8 @@ class GuiLoop {
   SteadyClock::time_point last_pass_{};
   SteadyClock::time_point last_render_{};
   double last_render_s_{0.0};       ///< the last frame's wall time, s
+  std::int64_t display_turns_{0};   ///< frames drawn in the display's turn (AppControls::display_turn)
+  double display_turns_s_{0.0};     ///< ... and their wall time, s
   RateWindow window_;               ///< the physics over the last kRateWindow_s, as of this pass
   bool behind_{false};              ///< running, not paused, and window_ below kBehindFactor
   std::int64_t rendered_input_{0};  ///< the view's input events at the last render

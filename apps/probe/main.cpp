@@ -115,6 +115,9 @@ int main(int argc, char** argv) {
   app.add_option("--test-startup-delay", o.test_startup_delay_s, "extra wall time on the first physics step, s")
       ->check(CLI::Range(0.0, 60.0))
       ->group("");
+  app.add_option("--test-frame-delay", o.test_frame_delay_s, "extra wall time per frame drawn in the display's turn, s")
+      ->check(CLI::Range(0.0, 10.0))
+      ->group("");
   // faults on purpose (nan@STEP, runaway@STEP, throw@STEP) and a stick unplugged and back
   std::vector<std::string> faults;
   app.add_option("--test-fault", faults, "inject a physics fault: nan@STEP, runaway@STEP or throw@STEP")->group("");

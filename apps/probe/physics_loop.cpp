@@ -30,7 +30,8 @@ void PhysicsLoop::tick() {
   // it when the CPU is short (Linux: per thread; the display yields more)
   if (s_.local && !started_) (void)set_this_thread_nice(2);
   // sharing the cores: this thread's own OpenMP setting is what the core's loops follow
-  if (!started_ && s_.share_cores) omp_set_num_threads(share_.threads());
+  const bool display_turn = s_.share_cores && s_.controls.display_turn.load(std::memory_order_relaxed);
+  if (s_.share_cores) set_threads(display_turn ? 1 : share_.threads());
   apply_reset();
   Simulation& sim = s_.sim;
   const bool paused = s_.controls.paused.load();
@@ -48,7 +49,7 @@ void PhysicsLoop::tick() {
     }
     if (sim.failed()) recover(fmt::format("{}: {}", to_string(sim.state().status), sim.state().message), false);
     // the start-up's step (the factorisation) is not a step's load
-    if (was_started) share_cores(steps, seconds(SteadyClock::now() - now), sim.time_s() - t0);
+    if (was_started) share_cores(steps, seconds(SteadyClock::now() - now), sim.time_s() - t0, display_turn);
     if (steps > 0 && !sim.failed()) keep_good_state(SteadyClock::now());
     if (publish(steps, t0)) {
       // the start-up ended: real time starts now (its wall time is not replayed, nor a lag)
@@ -100,7 +101,9 @@ void PhysicsLoop::keep_good_state(SteadyClock::time_point now) {
   faults_since_good_ = 0;
   PhysicsReport& r = s_.physics;
   r.snapshots.fetch_add(1, std::memory_order_relaxed);
-  const double copy_s = seconds(SteadyClock::now() - t0);
+  const auto t1 = SteadyClock::now();
+  add_time(r.in_snapshots_us, t0, t1);
+  const double copy_s = seconds(t1 - t0);
   snapshot_every_s_ = std::max(kSnapshotEvery_s, kSnapshotCostShare * copy_s);
   const std::int64_t us = std::llround(1e6 * copy_s);
   if (us > r.snapshot_max_us.load(std::memory_order_relaxed)) r.snapshot_max_us.store(us, std::memory_order_relaxed);
@@ -203,16 +206,23 @@ void PhysicsLoop::step_once() {
     sim.restore_tissue(bad);
   }
   const std::int64_t rest_steps = sim.counters().steps_at_rest, sleeps = sim.counters().sleeps;
+  const auto t0 = SteadyClock::now();
   sim.step();
-  // asleep: this step computed nothing, or the tissue fell asleep in it
-  const SimulationCounters& c = sim.counters();
-  s_.physics.asleep.store(c.steps_at_rest > rest_steps || c.sleeps > sleeps, std::memory_order_relaxed);
-  // the probes' outputs (and a frame when the GUI asked) for the other threads
-  if (!sim.failed()) s_.exchange.publish(sim);
+  // the test hook's delay stands for a slower step: in it, before its outputs
   double delay = step_delay_s_;
   if (first_step_delay_s_ > 0 && !first_step_done_) delay += first_step_delay_s_;
   first_step_done_ = true;
   if (delay > 0) std::this_thread::sleep_for(std::chrono::duration<double>(delay));
+  const auto t1 = SteadyClock::now();
+  add_time(s_.physics.in_steps_us, t0, t1);
+  // asleep: this step computed nothing, or the tissue fell asleep in it
+  const SimulationCounters& c = sim.counters();
+  s_.physics.asleep.store(c.steps_at_rest > rest_steps || c.sleeps > sleeps, std::memory_order_relaxed);
+  // the probes' outputs (and a frame when the GUI asked) for the other threads
+  if (!sim.failed()) {
+    s_.exchange.publish(sim);
+    add_time(s_.physics.in_outputs_us, t1, SteadyClock::now());
+  }
 }
 
 int PhysicsLoop::local_update(int steps, SteadyClock::time_point start) {
@@ -243,24 +253,43 @@ int PhysicsLoop::local_update(int steps, SteadyClock::time_point start) {
     step_cost_s_ = step_cost_s_ > 0 ? 0.7 * step_cost_s_ + 0.3 * per_step : per_step;
   }
   if (done > 0 && !sim.failed()) {
+    const auto t0 = SteadyClock::now();
     s_.device_side.publish_local_contact();
+    add_time(s_.physics.in_local_models_us, t0, SteadyClock::now());
     s_.physics.updates.fetch_add(1, std::memory_order_relaxed);
   }
   return done;
 }
 
-void PhysicsLoop::share_cores(int steps, double busy_s, double sim_s) {
+void PhysicsLoop::set_threads(int threads) {
+  if (threads == omp_threads_) return;
+  omp_set_num_threads(threads);
+  omp_threads_ = threads;
+}
+
+void PhysicsLoop::share_cores(int steps, double busy_s, double sim_s, bool display_turn) {
   if (!s_.share_cores || steps <= 0) return;
   PhysicsReport& r = s_.physics;
+  if (display_turn) {
+    // the steps the display's turn held to one thread (read from the setting they ran with)
+    if (omp_get_max_threads() == 1) r.steps_in_display_turns.fetch_add(steps, std::memory_order_relaxed);
+    // on one thread of more while the display drew: not the sharing's measure of its threads
+    if (share_.threads() > 1) return;
+  }
   if (share_.threads() == 1) r.steps_on_one.fetch_add(steps, std::memory_order_relaxed);
   const int before = share_.threads();
   const int next = share_.after_steps(seconds(SteadyClock::now() - s_.start), busy_s, sim_s, lag_s_);
   r.thread_trials.store(share_.trials(), std::memory_order_relaxed);
   r.thread_trials_kept.store(share_.trials_kept(), std::memory_order_relaxed);
   if (next == before) return;
-  omp_set_num_threads(next);
   r.threads.store(next, std::memory_order_relaxed);
   r.thread_changes.store(share_.changes(), std::memory_order_relaxed);
+}
+
+void PhysicsLoop::add_time(std::atomic<std::int64_t>& to, SteadyClock::time_point from, SteadyClock::time_point until) {
+  // after the start-up only: the interval the final line's real-time factor names
+  if (!s_.physics.started.load(std::memory_order_relaxed)) return;
+  to.fetch_add(std::chrono::duration_cast<std::chrono::microseconds>(until - from).count(), std::memory_order_relaxed);
 }
 
 bool PhysicsLoop::publish(int steps, double sim_before_s) {

@@ -9,7 +9,7 @@
 /// Faults: a step that gives NaN/Inf or runs away (the state's own check) or throws does not end
 /// the session: the tissue goes back to its last good state (`TissueSnapshot`, copied at the end
 /// of a tick whose steps all passed the check, at least `kSnapshotEvery_s` of wall time apart and
-/// at least `kSnapshotCostShare` times the last copy's time, so copying stays under 5 % of the
+/// at least `kSnapshotCostShare` times the last copy's time, so copying stays under 2 % of the
 /// physics' time on an organ whose copy takes tens of ms;
 /// three faults in a row from the same snapshot: back to rest), the console and the HUD say so,
 /// and `fault_generation` tells the device to fade its force out (force_guard.h).
@@ -40,7 +40,7 @@ class PhysicsLoop {
   /// The wall time between two snapshots of the last good state at least, s.
   static constexpr double kSnapshotEvery_s = 0.25;
   /// ... and at least this many times the last copy's own time.
-  static constexpr double kSnapshotCostShare = 20.0;
+  static constexpr double kSnapshotCostShare = 50.0;
 
  private:
   /// Resets the simulation when the GUI asked.
@@ -63,11 +63,18 @@ class PhysicsLoop {
   /// this tick ended the start-up.
   bool publish(int steps, double sim_before_s);
   /// Sharing the cores: the threads for the next steps after this tick's `steps`, which took
-  /// `busy_s` of wall time and advanced `sim_s` (thread_share.h).
-  void share_cores(int steps, double busy_s, double sim_s);
+  /// `busy_s` of wall time and advanced `sim_s` (thread_share.h). Steps on one thread in the
+  /// display's turn (`display_turn`, AppControls::display_turn) are counted, not measured.
+  void share_cores(int steps, double busy_s, double sim_s, bool display_turn);
+  /// This thread's OpenMP threads for the next steps (set only when they change).
+  void set_threads(int threads);
+  /// Adds `until - from` to one of the physics thread's time counters (PhysicsReport::in_steps_us
+  /// and the others) once the start-up has ended.
+  void add_time(std::atomic<std::int64_t>& to, SteadyClock::time_point from, SteadyClock::time_point until);
 
   AppShared& s_;
   ThreadShare share_;  ///< the physics' threads while it shares the cores (most 1: it does not)
+  int omp_threads_{0};  ///< this thread's OpenMP setting (0: not set yet)
   SteadyClock::time_point last_{};
   bool started_{false};
   double sim_target_s_{0.0};

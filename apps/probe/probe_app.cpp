@@ -400,6 +400,24 @@ void App::summary(double wall_s) {
   else
     say(fmt::format("physics threads: {}{}", shared_->physics_threads,
                     shared_->physics_threads > 1 ? ", every step on all of them (--no-share-cores)" : ""));
+  if (r.started.load(std::memory_order_acquire)) {
+    // the physics thread's wall time after the start-up, pauses included, and where it went
+    const double after_s = rate_between(r.at_startup, end_).wall_s;
+    const auto s_of = [](const std::atomic<std::int64_t>& us) { return 1e-6 * double(us.load()); };
+    const double in_steps = s_of(r.in_steps_us), in_local = s_of(r.in_local_models_us),
+                 in_snapshots = s_of(r.in_snapshots_us), in_outputs = s_of(r.in_outputs_us);
+    const std::int64_t after_steps = std::max<std::int64_t>(0, steps - r.at_startup.steps);
+    const std::int64_t updates = r.updates.load();
+    say(fmt::format(
+        "physics thread after the start-up ({:.2f} s): in the steps {:.2f} s ({:.1f} ms per step){}, "
+        "last good states {:.2f} s, outputs to the other threads {:.2f} s, the rest {:.2f} s (waiting for "
+        "real time, pauses)",
+        after_s, in_steps, after_steps > 0 ? 1e3 * in_steps / double(after_steps) : 0.0,
+        local_ ? fmt::format(", local contact models {:.2f} s ({:.1f} ms each)", in_local,
+                             updates > 0 ? 1e3 * in_local / double(updates) : 0.0)
+               : std::string(),
+        in_snapshots, in_outputs, std::max(0.0, after_s - in_steps - in_local - in_snapshots - in_outputs)));
+  }
   if (local_)
     say(fmt::format("local force shaping: {} physics updates ({:.1f} per second), device clock {:.2f} s",
                     r.updates.load(), wall_s > 0 ? double(r.updates.load()) / wall_s : 0.0, device_loop_->clock_s()));
@@ -505,7 +523,12 @@ int App::finish(ProbeView* view, std::string error) {
         view->frames(), wall_s, wall_s > 0 ? double(view->frames()) / wall_s : 0.0, view->frames_per_s(),
         (gui_nice_ ? fmt::format("nice {}, below the physics", kGuiNice) : std::string("default priority")) +
             (view->software_gl() ? fmt::format("; software OpenGL on {} thread(s): LP_NUM_THREADS", render_threads_)
-                                 : std::string())));
+                                 : std::string()) +
+            (gui_loop_->display_turns() > 0
+                 ? fmt::format("; {} behind real time, in the display's turn: {:.2f} s, {} physics steps on one thread",
+                               gui_loop_->display_turns(), gui_loop_->display_turns_s(),
+                               shared_->physics.steps_in_display_turns.load())
+                 : std::string())));
   const DeviceLoop& d = *device_loop_;
   say(fmt::format(
       "device: {} ticks ({:.0f} updates/s, {} late ticks skipped; a tick takes {:.0f} us on average, {:.0f} "

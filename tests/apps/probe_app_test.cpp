@@ -381,6 +381,24 @@ TEST_F(ProbeApp, SlowedPhysicsReadsBelowRealTime) {
   EXPECT_GE(f.sim_s, 0.38) << r.out;  // --duration 0.4 of simulated time, less the start-up's step
   ASSERT_FALSE(f.status_factors.empty()) << r.out;
   for (const double x : f.status_factors) EXPECT_LT(x, 0.12) << r.out;
+  // where the physics thread's wall time after the start-up went: over the final line's interval,
+  // in the steps most of it (the delay is in each step: 2 ms at least per step), the parts adding
+  // up to the interval (each printed to 0.01 s)
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(
+      r.out, m,
+      std::regex(R"(physics thread after the start-up \(([0-9.]+) s\): in the steps ([0-9.]+) s \(([0-9.]+) ms per )"
+                 R"(step\)(?:, local contact models ([0-9.]+) s \([0-9.]+ ms each\))?, last good states ([0-9.]+) s, )"
+                 R"(outputs to the other threads ([0-9.]+) s, the rest ([0-9.]+) s)")))
+      << r.out;
+  const double interval = std::stod(m[1]), in_steps = std::stod(m[2]), per_step_ms = std::stod(m[3]);
+  const double local = m[4].matched ? std::stod(m[4]) : 0.0, snapshots = std::stod(m[5]), outputs = std::stod(m[6]),
+               rest = std::stod(m[7]);
+  EXPECT_NEAR(interval, f.wall_s, 0.006) << r.out;
+  EXPECT_GE(per_step_ms, 2.0) << r.out;
+  EXPECT_LT(per_step_ms, 5.0) << r.out;
+  EXPECT_NEAR(in_steps + local + snapshots + outputs + rest, interval, 0.03) << r.out;
+  EXPECT_GT(in_steps, 0.7 * interval) << r.out;
 }
 
 // A slow start-up (2.5 s on the first step, as a factorisation takes) is reported as start-up:
@@ -430,6 +448,36 @@ TEST_F(ProbeApp, TheRegionCheckOfAWeakSupportIsReportedDuringTheRun) {
   const std::size_t loaded = r.out.find("physics: ");
   ASSERT_NE(loaded, std::string::npos) << r.out;
   EXPECT_GT(warned, loaded) << r.out;
+}
+
+// The display's turn (gui_loop.h, AppControls::display_turn): with the tissue behind real time on
+// two threads (10 ms of sleep per 0.18 ms step), a frame (slowed to 0.3 s on purpose in the turn)
+// holds the physics to one thread until it is drawn. The steps meanwhile are counted from the
+// OpenMP setting they ran with: the first turn comes when the meter's first second says "behind",
+// before the sharing's first window ends (2 s) while it has both threads, and holds about 25 steps. Frames behind real
+// time keep to kBehindDuty (0.12) of the wall time. With --no-share-cores there is no turn.
+TEST_F(ProbeApp, ADisplayBehindRealTimeDrawsInItsTurnWithThePhysicsOnOneThread) {
+  if (!std::getenv("DISPLAY")) GTEST_SKIP() << "no DISPLAY (run under xvfb-run, as scripts/test.sh does)";
+  const std::string args =
+      q(kScene) + " --duration 0.045 --threads 2 --test-step-delay 0.01 --test-frame-delay 0.3 --size 640x400";
+  RunResult r = run(args);
+  ASSERT_EQ(r.code, 0) << r.out << r.err;
+  const Figures f = read_figures(r.out);
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(
+      r.out, m,
+      std::regex(R"((\d+) behind real time, in the display's turn: ([\d.]+) s, (\d+) physics steps on one thread)")))
+      << r.out;
+  const int turns = std::stoi(m[1]);
+  const double turn_s = std::stod(m[2]);
+  const long turn_steps = std::stol(m[3]);
+  EXPECT_GE(turns, 1) << r.out;
+  EXPECT_GE(turn_s, 0.3 * turns) << r.out;
+  EXPECT_GE(turn_steps, 5) << r.out;
+  EXPECT_LE(turn_s, 0.12 * (f.startup_s + f.wall_s) + 0.4) << r.out;  // the budget, and the frame that began it
+  r = run(args + " --no-share-cores");
+  ASSERT_EQ(r.code, 0) << r.out << r.err;
+  EXPECT_EQ(r.out.find("in the display's turn"), std::string::npos) << r.out;
 }
 
 TEST_F(ProbeApp, WindowScreenshotUnderADisplay) {
