@@ -193,11 +193,19 @@ bool GuiLoop::show_frame(ProbeView& view, SteadyClock::time_point now) {
     view.set_hud(hud(now));
     // behind real time with the cores shared: the display's turn, the physics on one thread
     const bool turn = behind_ && s_.share_cores && s_.physics_threads > 1;
-    if (turn) s_.controls.display_turn.store(true, std::memory_order_relaxed);
-    view.render();  // no lock held: the physics and the device go on meanwhile
-    if (turn && s_.options.test_frame_delay_s > 0)
-      std::this_thread::sleep_for(std::chrono::duration<double>(s_.options.test_frame_delay_s));
-    if (turn) s_.controls.display_turn.store(false, std::memory_order_relaxed);
+    {
+      // the turn ends with the frame, also when drawing it throws
+      struct Turn {
+        std::atomic<bool>* flag;
+        ~Turn() {
+          if (flag) flag->store(false, std::memory_order_relaxed);
+        }
+      } held{turn ? &s_.controls.display_turn : nullptr};
+      if (turn) s_.controls.display_turn.store(true, std::memory_order_relaxed);
+      view.render();  // no lock held: the physics and the device go on meanwhile
+      if (turn && s_.options.test_frame_delay_s > 0)
+        std::this_thread::sleep_for(std::chrono::duration<double>(s_.options.test_frame_delay_s));
+    }
     last_render_ = now;
     last_render_s_ = seconds(SteadyClock::now() - now);
     if (turn) {
