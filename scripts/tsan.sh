@@ -42,13 +42,14 @@ cmake --build "$build_dir" -j "$jobs" --target "${targets[@]}"
 # the tests of those executables that start threads (std::thread, FixedRateThread, OpenMP on
 # two threads, the app's three loops); the rest of them run single-threaded code the ASan pass
 # already covers. Of the app's tests: the paper's half sines and local shaping, two sticks, the
-# region check beside the physics, the display thread under Xvfb and its turn with the physics
-# (a flag between the two threads); left out are the ones that
+# region check beside the physics, the display thread under Xvfb; left out are the ones that
 # start no thread (usage and input errors), the 2D model's (the same loops) and the two that
-# assert wall times (start-up, slowed physics), which TSan's 5-15x slow-down makes meaningless.
+# assert wall times (start-up, slowed physics), which TSan's 5-15x slow-down makes meaningless,
+# and the display's turn with the physics (a relaxed atomic flag between the two threads), whose
+# first turn needs frames of a fraction of a second: under TSan a frame takes seconds (one frame
+# in its 3 s run, tried 2026-11-30).
 app='ScriptedPalpationFeelsTheLesion|LocalShapingAtSixtyUpdatesFeelsTheLesionSmoothly|TwoJoysticksGraspWithTwoProbes'
 app+='|TheRegionCheckOfAWeakSupportIsReportedDuringTheRun|WindowScreenshotUnderADisplay'
-app+='|ADisplayBehindRealTimeDrawsInItsTurnWithThePhysicsOnOneThread'
 tests="^TripleBuffer\\.|^FixedRateThread\\.|^Simulation\\.SameResultsOnOneAndTwoThreads\$|^SimulationExchange\\.LiveProbeAcrossThreads\$|^DeviceSide\\.LocalContactModelsAcrossThreads\$|^ProbeApp\\.($app)\$"
 # the factor cache's writer thread beside the solver (io/factor_cache.h, background_writes)
 tests+="|^FactorCacheTest\\.AFactorWrittenInTheBackgroundOutlivesItsSolverAndIsFoundAtOnce\$"
