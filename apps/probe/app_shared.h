@@ -70,7 +70,8 @@ struct AppControls {
   /// cores shared (--share-cores), the physics steps on one thread until it ends, so that the
   /// renderer has a core to itself for the frame's own time; drawn beside the physics' team it
   /// took one of its cores for a second or more of wall time at its lower priority, and the
-  /// team waited at its barriers meanwhile (docs/probe.md, "The display's turn").
+  /// team waited at its barriers meanwhile (docs/probe.md, "Where the physics thread's time
+  /// goes, and the display's turn").
   std::atomic<bool> display_turn{false};
 
   /// The first reason given wins.
