@@ -35,7 +35,7 @@ export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
 # "<unknown module>" that no suppression can name. They run with the leak check off (memory
 # errors and undefined behaviour still fail them), one at a time (a run of them two at a time
 # aborted once under Xvfb, not reproduced in three reruns); every other test runs with it on.
-gl_tests='^Render\.|PictureUnderXvfb|^ProbeView\.|^ProbeApp\.'
+gl_tests='^Render\.|PictureUnderXvfb|^ProbeView\.|^ProbeApp\.|^ProbeDisplay\.'
 # Left out: a test that places its injected faults by physics step count on a Release build's
 # step rate (5500 steps/s; ASan gives about 1900, so the faults fall after the run's end). Its
 # code (the force guard, the rollback) runs under ASan in ProbeForceGuard.* and the unplug test.

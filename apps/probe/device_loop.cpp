@@ -117,7 +117,7 @@ void DeviceLoop::run_tick() {
   parts_.outputs->write(tick);
   ++ticks_;
   report(tick, t, std::move(msgs));
-  check_stop(now_s, script_start_s_ < 0 && s_.options.soak_s > 0 ? 0.0 : script_s);
+  check_stop(script_start_s_ < 0 && s_.options.soak_s > 0 ? 0.0 : script_s);
 }
 
 void DeviceLoop::follow_connections(double now_s) {
@@ -283,7 +283,7 @@ void DeviceLoop::report(const DeviceTick& tick, const std::array<ProbeTick, kMax
   for (auto& m : msgs) d.messages.push_back(std::move(m));
 }
 
-void DeviceLoop::check_stop(double now_s, double script_s) {
+void DeviceLoop::check_stop(double script_s) {
   const AppOptions& o = s_.options;
   // a soak's release: its tools are up from here on (soak.h)
   if (o.soak_s > 0 && release_sim_s_ < 0 && script_s >= o.soak_s - soak_rest_s(o.soak_s))
@@ -291,7 +291,11 @@ void DeviceLoop::check_stop(double now_s, double script_s) {
   if (o.exit_after_script && parts_.script && script_s > parts_.script->duration_s() + 0.25 && soak_settled())
     s_.controls.request_quit(fmt::format("the joystick script ended ({:.2f} s){}", parts_.script->duration_s(),
                                          settle_.empty() ? "" : "; " + settle_));
-  if (o.duration_s > 0 && now_s >= o.duration_s)
+  // the tissue's simulated time (resets excluded), not the device's clock: with local shaping
+  // that clock runs from the open, the start-up included, and ahead of a tissue behind real time
+  // (a --duration shorter than a first start's factorisation ended the run with nothing simulated)
+  const double simulated_s = 1e-6 * double(s_.physics.sim_advanced_us.load(std::memory_order_relaxed));
+  if (o.duration_s > 0 && simulated_s >= o.duration_s)
     s_.controls.request_quit(fmt::format("simulated {:.2f} s (--duration)", o.duration_s));
 }
 

@@ -97,8 +97,9 @@ class DeviceLoop {
                    ProbeForce& f);
   /// The HUD's forces, the statistics, a plot point every 4 ms, the input messages.
   void report(const DeviceTick& tick, const std::array<ProbeTick, kMaxSticks>& t, std::vector<std::string> msgs);
-  /// Stop conditions in the device's time (the script's end in the script's time, --duration).
-  void check_stop(double now_s, double script_s);
+  /// Stop conditions: the script's end in the script's time, --duration in the tissue's simulated
+  /// time.
+  void check_stop(double script_s);
   /// A soak's end, after its script: true once the tissue sleeps, its idle window has passed in
   /// simulated time, or kSoakSettleWall_s of wall time (true at once outside a soak).
   [[nodiscard]] bool soak_settled();

@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "probe_figures.h"
 #include "support/run_binary.h"
 
 namespace fs = std::filesystem;
@@ -24,7 +25,9 @@ const fs::path kBinary = fs::path(VX_BINARY_DIR) / "apps" / "probe" / "voxelasti
 const fs::path kScene = fs::path(VX_SAMPLES_DIR) / "scenes" / "palpation-lesion.json";
 const fs::path kScript = fs::path(VX_SAMPLES_DIR) / "scenes" / "palpation-lesion.joy";
 
+using vx::testing::Figures;
 using vx::testing::kUnderTsan;
+using vx::testing::read_figures;
 using vx::testing::RunResult;
 using vx::testing::slurp;
 
@@ -335,37 +338,6 @@ TEST_F(ProbeApp, SliceGraspWithTwoSticksLiftsTheDisk) {
 
 // The figures the app reports (docs/probe.md, "Timing"): the final line's real-time factor over
 // the run after the start-up, and the status lines' over the last second.
-struct Figures {
-  double startup_s{-1}, sim_s{-1}, wall_s{-1}, factor{-1}, steps_per_s{-1}, dt_ms{-1};
-  double load_s{-1}, total_startup_s{-1};  // loading the scene; the whole start-up (load + open to the first step)
-  long steps{-1};
-  std::vector<double> status_factors;  // "(0.09x real time, last 1 s)" of each status line
-  std::vector<std::string> status_lines;
-};
-
-Figures read_figures(const std::string& out) {
-  Figures f;
-  std::smatch m;
-  const std::regex last(
-      R"(start-up ([0-9.]+) s \(loading the scene ([0-9.]+) s, then open to the first physics step ([0-9.]+) s\); )"
-      R"(after it ([0-9.]+) s simulated in ([0-9.]+) s wall )"
-      R"(\(([0-9.]+)x real time[^)]*\); physics ([0-9]+) steps \(([0-9.]+) steps/s after the start-up, )"
-      R"(dt ([0-9.e-]+) ms\))");
-  if (std::regex_search(out, m, last)) {
-    f.total_startup_s = std::stod(m[1]), f.load_s = std::stod(m[2]), f.startup_s = std::stod(m[3]);
-    f.sim_s = std::stod(m[4]), f.wall_s = std::stod(m[5]), f.factor = std::stod(m[6]);
-    f.steps = std::stol(m[7]), f.steps_per_s = std::stod(m[8]), f.dt_ms = std::stod(m[9]);
-  }
-  std::stringstream ss(out);
-  for (std::string line; std::getline(ss, line);) {
-    if (line.rfind("t = ", 0) != 0) continue;
-    f.status_lines.push_back(line);
-    if (std::regex_search(line, m, std::regex(R"(\(([0-9.]+)x real time, last 1 s\))")))
-      f.status_factors.push_back(std::stod(m[1]));
-  }
-  return f;
-}
-
 // A physics slowed on purpose (2 ms of sleep per 0.18 ms step: at most 0.09x) reads below 1x in
 // the status lines and the final line, and the final factor is steps x dt over the same wall time.
 TEST_F(ProbeApp, SlowedPhysicsReadsBelowRealTime) {
@@ -418,6 +390,15 @@ TEST_F(ProbeApp, StartUpIsReportedAsStartUp) {
   EXPECT_NEAR(f.factor, f.sim_s / f.wall_s, 0.01) << r.out;
   EXPECT_GT(f.sim_s, 0.29) << r.out;
   EXPECT_LT(f.wall_s, 2.5) << r.out;  // not the start-up's 2.5 s plus the run
+  // with local shaping too: --duration is the tissue's simulated time, not the device's clock,
+  // which runs from the open (a --duration shorter than the start-up ended the run with nothing
+  // simulated: "after it 0.000 s simulated")
+  const RunResult local = run(q(kScene) + " --headless --force-shaping local --duration 0.3 --test-startup-delay 1.0");
+  ASSERT_EQ(local.code, 0) << local.out << local.err;
+  const Figures l = read_figures(local.out);
+  EXPECT_GE(l.startup_s, 1.0) << local.out;
+  EXPECT_GT(l.sim_s, 0.25) << local.out;  // 0.3 s, less the start-up's step
+  EXPECT_NE(local.out.find("stopped: simulated 0.30 s (--duration)"), std::string::npos) << local.out;
 }
 
 // A scene with regional solves on a weak support (the column of scene_test's region tests, held
@@ -450,38 +431,6 @@ TEST_F(ProbeApp, TheRegionCheckOfAWeakSupportIsReportedDuringTheRun) {
   EXPECT_GT(warned, loaded) << r.out;
 }
 
-// The display's turn (gui_loop.h, AppControls::display_turn): with the tissue behind real time on
-// two threads (10 ms of sleep per 0.18 ms step), a frame (slowed to 0.3 s on purpose in the turn)
-// holds the physics to one thread until it is drawn. The steps meanwhile are counted from the
-// OpenMP setting they ran with: the first turn comes when the meter's first second says "behind",
-// before the sharing's first window ends (2 s) while it has both threads, and holds about 30 steps
-// (36 read, in Release and under ASan; the run is about 4 s, so a slower first turn still comes).
-// Frames behind real time keep to kBehindDuty (0.12) of the wall time. With --no-share-cores there
-// is no turn.
-TEST_F(ProbeApp, ADisplayBehindRealTimeDrawsInItsTurnWithThePhysicsOnOneThread) {
-  if (!std::getenv("DISPLAY")) GTEST_SKIP() << "no DISPLAY (run under xvfb-run, as scripts/test.sh does)";
-  const std::string args =
-      q(kScene) + " --duration 0.07 --threads 2 --test-step-delay 0.01 --test-frame-delay 0.3 --size 640x400";
-  RunResult r = run(args);
-  ASSERT_EQ(r.code, 0) << r.out << r.err;
-  const Figures f = read_figures(r.out);
-  std::smatch m;
-  ASSERT_TRUE(std::regex_search(
-      r.out, m,
-      std::regex(R"((\d+) behind real time, in the display's turn: ([\d.]+) s, (\d+) physics steps on one thread)")))
-      << r.out;
-  const int turns = std::stoi(m[1]);
-  const double turn_s = std::stod(m[2]);
-  const long turn_steps = std::stol(m[3]);
-  EXPECT_GE(turns, 1) << r.out;
-  EXPECT_GE(turn_s, 0.3 * turns) << r.out;
-  EXPECT_GE(turn_steps, 5) << r.out;
-  EXPECT_LE(turn_s, 0.12 * (f.startup_s + f.wall_s) + 0.4) << r.out;  // the budget, and the frame that began it
-  r = run(args + " --no-share-cores");
-  ASSERT_EQ(r.code, 0) << r.out << r.err;
-  EXPECT_EQ(r.out.find("in the display's turn"), std::string::npos) << r.out;
-}
-
 TEST_F(ProbeApp, WindowScreenshotUnderADisplay) {
   if (!std::getenv("DISPLAY")) GTEST_SKIP() << "no DISPLAY (run under xvfb-run, as scripts/test.sh does)";
   const fs::path png = dir_ / "probe.png";
@@ -500,29 +449,3 @@ TEST_F(ProbeApp, WindowScreenshotUnderADisplay) {
   EXPECT_NE(mine.out.find("software OpenGL on 3 thread(s)"), std::string::npos) << mine.out;
 }
 #include "support/run_binary.h"
-
-// The display draws what changed: with the physics slowed to a step each 0.25 s (20 steps of
-// 0.18 ms, about 3 s of wall time after the start-up's) it draws each new physics frame and the HUD about once a
-// second, not the 60 frames/s it is allowed (about 150 frames over the run, as it drew before it yielded).
-TEST_F(ProbeApp, ADisplayDrawsOnlyWhatChanged) {
-  if (!std::getenv("DISPLAY")) GTEST_SKIP() << "no DISPLAY (run under xvfb-run, as scripts/test.sh does)";
-  const RunResult r = run(q(kScene) + " --duration 0.0036 --test-step-delay 0.25 --fps 60 --size 640x400");
-  ASSERT_EQ(r.code, 0) << r.out << r.err;
-  const Figures f = read_figures(r.out);
-  std::smatch m;
-  ASSERT_TRUE(std::regex_search(r.out, m, std::regex(R"(display: (\d+) frames)"))) << r.out;
-  const int frames = std::stoi(m[1]);
-  EXPECT_GE(f.wall_s, 2.0) << r.out;  // the steps took their 0.25 s each
-  // at most one per physics step, the HUD once a second while the tissue is behind real time
-  // (gui_loop.h), four a second during the start-up and the meter's first second, and the first
-  const double bound = double(f.steps) + f.wall_s + 4.0 * (f.total_startup_s + 1.0) + 1.0;
-  EXPECT_LE(frames, bound) << r.out;
-  EXPECT_GE(frames, 3) << r.out;  // and it did draw
-  // the final line's rate is over the interval it names: its frames over its seconds
-  ASSERT_TRUE(std::regex_search(
-      r.out, m, std::regex(R"(display: (\d+) frames in ([\d.]+) s since the open \(([\d.]+) frames/s)")))
-      << r.out;
-  EXPECT_NEAR(std::stod(m[3]), std::stod(m[1]) / std::stod(m[2]), 0.05 + 0.01 * std::stod(m[3])) << r.out;
-  // since the open: the start-up's open to the first step, then the run's wall after it
-  EXPECT_NEAR(std::stod(m[2]), f.startup_s + f.wall_s, 0.5) << r.out;
-}
