@@ -35,7 +35,7 @@ class GuiLoop {
   /// the wall time (after a frame that took 0.1 s the next starts 0.1 / kBehindDuty s after it).
   /// Each is drawn in the display's turn (AppControls::display_turn), with the physics on one
   /// thread of two, about 0.4x its pace for the frame's time: at 0.12 about 5 % of the physics'
-  /// pace, a frame every 1.5 to 2 s on the folded organ under Xvfb (docs/probe.md, "Where the
+  /// pace, a frame about every 2 s on the folded organ under Xvfb (docs/probe.md, "Where the
   /// physics thread's time goes, and the display's turn").
   static constexpr double kBehindDuty = 0.12;
 
