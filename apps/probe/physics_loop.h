@@ -73,7 +73,7 @@ class PhysicsLoop {
   void add_time(std::atomic<std::int64_t>& to, SteadyClock::time_point from, SteadyClock::time_point until);
 
   AppShared& s_;
-  ThreadShare share_;  ///< the physics' threads while it shares the cores (most 1: it does not)
+  ThreadShare share_;   ///< the physics' threads while it shares the cores (most 1: it does not)
   int omp_threads_{0};  ///< this thread's OpenMP setting (0: not set yet)
   SteadyClock::time_point last_{};
   bool started_{false};

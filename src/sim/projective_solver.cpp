@@ -328,8 +328,7 @@ void ProjectiveSolver::solve(SimState& s, Eigen::Matrix3Xd& x, const ProjectiveI
       its.inputs_given && !its.external_forces && last_inputs_quiet_ && its.gravity_mm_s2 == last_gravity_;
   last_inputs_quiet_ = its.inputs_given && !its.external_forces;
   last_gravity_ = its.gravity_mm_s2;
-  const std::vector<int>* rows =
-      steady && run >= 2 && inputs_same ? &factor_.partial_rows() : nullptr;
+  const std::vector<int>* rows = steady && run >= 2 && inputs_same ? &factor_.partial_rows() : nullptr;
   if (rows) ++closure_pass_solves_;
   if (setup_.damping) record_start_shape(s.positions, threads);
   double max_update = std::numeric_limits<double>::infinity();
