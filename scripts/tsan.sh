@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The threaded tests under ThreadSanitizer (clang-14, -O1), in their own build folder
 # (build-tsan): the triple buffer and the fixed-rate thread, the app's live probe and frames
-# (SimulationExchange) and local contact models handed across threads, OpenMP loops on two threads, and the probe app
+# (SimulationExchange) and local contact models handed across threads, OpenMP loops on two threads, a solver built on a thread of its own, and the probe app
 # (physics, device and display threads) run headless and under Xvfb. CI runs this after
 # scripts/sanitize.sh. Only the targets these tests need are built. Extra arguments go to ctest.
 # Any data race or lock-order inversion fails the test that hit it (TSan exits with 66).
@@ -36,7 +36,7 @@ cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=None -DCMAKE_C_COMPILER=clang-14 -
 rm -f "$build_dir.configure.log"
 # the test executables with threads, and the app probe_app_test runs
 targets=(triple_buffer_test probe_output_test probe_sim_exchange_test simulation_test device_side_test factor_cache_test
-  still_far_field_test probe_app_test voxelastic-probe)
+  still_far_field_test quasi_static_test probe_app_test voxelastic-probe)
 echo "tsan: building ${targets[*]} with ThreadSanitizer into $build_dir/ ..."
 cmake --build "$build_dir" -j "$jobs" --target "${targets[@]}"
 # the tests of those executables that start threads (std::thread, FixedRateThread, OpenMP on
@@ -53,6 +53,8 @@ app+='|TheRegionCheckOfAWeakSupportIsReportedDuringTheRun|WindowScreenshotUnderA
 tests="^TripleBuffer\\.|^FixedRateThread\\.|^Simulation\\.SameResultsOnOneAndTwoThreads\$|^SimulationExchange\\.LiveProbeAcrossThreads\$|^DeviceSide\\.LocalContactModelsAcrossThreads\$|^ProbeApp\\.($app)\$"
 # the factor cache's writer thread beside the solver (io/factor_cache.h, background_writes)
 tests+="|^FactorCacheTest\\.AFactorWrittenInTheBackgroundOutlivesItsSolverAndIsFoundAtOnce\$"
+# a solver built on a thread of its own while the tissue rests (integrators.h, factor_in_background)
+tests+="|^RegionalSolve\\.ASolverBuiltInTheBackgroundWhileTheTissueRestsPressesTheSame\$"
 # the regional solves' passes over the closure on two threads (sim/projective_solver.h, still_far_field_nodes)
 tests+="|^StillFarField\\.ARegionalPressIsTheSameBitForBitAsOneThatVisitsEveryNode\$"
 export TSAN_OPTIONS=${TSAN_OPTIONS:-ignore_noninstrumented_modules=1:suppressions=$PWD/tests/sanitizers/tsan.supp:second_deadlock_stack=1:history_size=4}

@@ -64,6 +64,8 @@ struct AppOptions {
   double fps{60.0};           ///< display frame limit
   int threads{0};             ///< physics threads (0, the default: all cores; docs/probe.md)
   bool share_cores{true};     ///< one physics thread while well ahead of real time or as fast (thread_share.h)
+  bool background_factor{
+      true};                  ///< the solver factored while the tissue rests (IntegratorSettings::factor_in_background)
   std::string factor_cache;   ///< implicit factors kept by content: "" the default folder, "off", or a folder
   int width{1280};
   int height{800};
@@ -77,6 +79,9 @@ struct AppOptions {
   /// Test hook (hidden option): extra wall time per frame drawn in the display's turn (a slow
   /// renderer while the tissue is behind real time; AppControls::display_turn), s.
   double test_frame_delay_s{0.0};
+  /// Test hook (hidden option): extra wall time on building a solver in the background (a large
+  /// model's factorisation; IntegratorSettings::factor_in_background_delay_s), s.
+  double test_factor_delay_s{0.0};
   /// Test hooks: faults injected into the physics (each once), and the virtual stick 0 unplugged
   /// and plugged back at these device times (s; negative: never).
   std::vector<InjectedFault> test_faults;

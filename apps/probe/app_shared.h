@@ -149,6 +149,12 @@ struct PhysicsReport {
   std::atomic<std::int64_t> in_local_models_us{0};
   std::atomic<std::int64_t> in_snapshots_us{0};
   std::atomic<std::int64_t> in_outputs_us{0};
+  /// The implicit solver built in the background while the tissue rests
+  /// (IntegratorSettings::factor_in_background): being built now; when it was taken (wall time
+  /// since the open, us; < 0: not yet or never built so); the wall time steps waited for it, us.
+  std::atomic<bool> solver_pending{false};
+  std::atomic<std::int64_t> solver_ready_us{-1};
+  std::atomic<std::int64_t> factor_wait_us{0};
 
   [[nodiscard]] std::string last_fault() const {
     std::lock_guard lock(fault_mutex_);

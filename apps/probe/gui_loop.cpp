@@ -58,7 +58,10 @@ SteadyClock::time_point GuiLoop::measure(const FixedRateThread& device) {
   const auto now = SteadyClock::now();
   device_rate_.sample(device.ticks(), now);
   if (s_.options.soak_s > 0) {
-    if (background_done_s_ < 0 && !s_.region_check) background_done_s_ = seconds(now - s_.start);
+    // the start-up's work beside the run: the region check, and a solver built in the background
+    if (background_done_s_ < 0 && !s_.region_check && s_.physics.started.load(std::memory_order_acquire) &&
+        !s_.physics.solver_pending.load(std::memory_order_relaxed))
+      background_done_s_ = seconds(now - s_.start);
     soak_.sample(seconds(now - s_.start), device.ticks(),
                  s_.physics.started.load(std::memory_order_acquire) ? s_.physics.startup_s : -1.0,
                  s_.physics.contact_cache_bytes.load(std::memory_order_relaxed), background_done_s_);
@@ -105,6 +108,14 @@ std::string GuiLoop::physics_rate_text(SteadyClock::time_point now) const {
   return describe_physics_rate(window_, kRateWindow_s, s_.local);
 }
 
+std::string GuiLoop::solver_note(SteadyClock::time_point now) const {
+  // the tissue rests while its solver is factored beside the session (--background-factor)
+  if (!s_.physics.started.load(std::memory_order_acquire) || !s_.physics.solver_pending.load(std::memory_order_relaxed))
+    return {};
+  return fmt::format("factoring in the background ({:.0f} s since the open); the tissue rests till then",
+                     seconds(now - s_.start));
+}
+
 void GuiLoop::warn_if_behind(const RateWindow& w) {
   if (warned_behind_ || !w.full || w.factor() >= 0.9 || s_.physics.lag_drops.load() == 0) return;
   if (s_.local)
@@ -128,6 +139,7 @@ HudInfo GuiLoop::hud(SteadyClock::time_point now) {
   h.physics_updates_per_s = update_rate_.rate();
   h.real_time_factor = window_.factor();
   h.physics_rate = physics_rate_text(now);
+  h.solver_note = solver_note(now);
   h.paused = s_.controls.paused.load();
   h.behind_real_time = behind_;
   h.physics_threads = s_.physics.threads.load(std::memory_order_relaxed);
@@ -240,7 +252,8 @@ void GuiLoop::report_headless(SteadyClock::time_point now) {
     s_.device.plot_pending.clear();
   }
   if (now >= next_report_) {
-    const std::string rate = physics_rate_text(now);
+    std::string rate = physics_rate_text(now);
+    if (const std::string note = solver_note(now); !note.empty()) rate += "; solver: " + note;
     if (s_.local)
       s_.say(fmt::format("t = {:.2f} s, physics {:.0f} updates/s, {}, device {:.0f} forces/s",
                          double(s_.device.device_time_us.load()) * 1e-6, update_rate_.rate(), rate,

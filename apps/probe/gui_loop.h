@@ -63,6 +63,9 @@ class GuiLoop {
   SteadyClock::time_point measure(const FixedRateThread& device);
   /// The physics' rate line: start-up, or steps/s and the real-time factor over the last second.
   [[nodiscard]] std::string physics_rate_text(SteadyClock::time_point now) const;
+  /// While the solver is factored in the background (--background-factor): "factoring in the
+  /// background (8 s since the open); the tissue rests till then"; else empty.
+  [[nodiscard]] std::string solver_note(SteadyClock::time_point now) const;
   /// Says the background region check's result once it is ready (console; the HUD's status
   /// line when it warns).
   void report_region_check();

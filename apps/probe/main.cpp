@@ -102,6 +102,11 @@ int main(int argc, char** argv) {
       "where the implicit solver keeps its factors by the matrix's content, and the material's calibration by "
       "the model's, so the next start of the same organ loads instead of factoring and calibrating: a folder, or "
       "off (default: $VOXELASTIC_FACTOR_CACHE, else ~/.cache/voxelastic/factors)");
+  g_run->add_flag("--background-factor,!--no-background-factor", o.background_factor,
+                  "while the tissue rests at its rest shape (no tool within reach), the implicit solver is factored "
+                  "on a thread of its own and the session runs meanwhile; a tool that reaches the tissue before "
+                  "the solver is ready waits for it (default: on; --no-background-factor: the first physics step "
+                  "factors, as the start-up)");
   g_run->add_option("--size", size, "window size WIDTHxHEIGHT");
   g_run->add_flag("--levels", o.show_levels, "start with the element levels view");
   g_run
@@ -113,6 +118,10 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.0, 10.0))
       ->group("");
   app.add_option("--test-startup-delay", o.test_startup_delay_s, "extra wall time on the first physics step, s")
+      ->check(CLI::Range(0.0, 60.0))
+      ->group("");
+  app.add_option("--test-factor-delay", o.test_factor_delay_s,
+                 "extra wall time on a solver factored in the background (--background-factor), s")
       ->check(CLI::Range(0.0, 60.0))
       ->group("");
   app.add_option("--test-frame-delay", o.test_frame_delay_s, "extra wall time per frame drawn in the display's turn, s")

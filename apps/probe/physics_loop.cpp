@@ -218,6 +218,14 @@ void PhysicsLoop::step_once() {
   // asleep: this step computed nothing, or the tissue fell asleep in it
   const SimulationCounters& c = sim.counters();
   s_.physics.asleep.store(c.steps_at_rest > rest_steps || c.sleeps > sleeps, std::memory_order_relaxed);
+  // the solver built in the background while the tissue rests: when it was taken, how long steps
+  // waited for it
+  PhysicsReport& r = s_.physics;
+  const bool pending = sim.solver_pending();
+  if (r.solver_pending.load(std::memory_order_relaxed) && !pending)
+    r.solver_ready_us.store(std::llround(1e6 * seconds(t1 - s_.start)), std::memory_order_relaxed);
+  r.solver_pending.store(pending, std::memory_order_relaxed);
+  r.factor_wait_us.store(std::llround(1e6 * c.factor_wait_s), std::memory_order_relaxed);
   // the probes' outputs (and a frame when the GUI asked) for the other threads
   if (!sim.failed()) {
     s_.exchange.publish(sim);

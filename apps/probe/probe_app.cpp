@@ -196,6 +196,9 @@ void App::start_simulation() {
   // the tool visits new places (--test-lazy-contact-cache: as before, to measure the difference)
   scene_.simulation.integrator.reserve_contact_cache = !options_.lazy_contact_cache;
   if (options_.test_rest_fraction >= 0) scene_.simulation.integrator.region_rest_fraction = options_.test_rest_fraction;
+  // the session starts while the solver is factored beside it, the tissue at rest meanwhile
+  scene_.simulation.integrator.factor_in_background = options_.background_factor;
+  scene_.simulation.integrator.factor_in_background_delay_s = options_.test_factor_delay_s;
   std::optional<DeviceForceSettings>& dev = scene_.device_side.device;
   local_ = options_.force_shaping.value_or(dev ? dev->shaping : ForceShaping::paper) == ForceShaping::local;
   if (local_ && !dev) dev = DeviceForceSettings{};
@@ -390,6 +393,17 @@ void App::summary(double wall_s) {
         : local_                ? ", the tissue could not keep real time"
                                 : ", could not keep real time",
         steps, w.steps_per_s(), dt));
+    // the solver factored beside the session while the tissue rested (--background-factor)
+    const std::int64_t ready_us = r.solver_ready_us.load();
+    const double waited_s = 1e-6 * double(r.factor_wait_us.load());
+    if (ready_us >= 0)
+      say(
+          fmt::format("solver: factored in the background while the tissue rested, ready {:.2f} s after the open "
+                      "({:.2f} s with the loading); steps waited {:.2f} s for it{}",
+                      1e-6 * double(ready_us), scene_.load_s + 1e-6 * double(ready_us), waited_s,
+                      waited_s > 0 ? " (a tool reached the tissue before it was ready)" : ""));
+    else if (r.solver_pending.load())
+      say("solver: still being factored in the background at the end (the tissue rested all the run)");
   }
   if (shared_->share_cores)
     say(fmt::format(

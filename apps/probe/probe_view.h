@@ -80,6 +80,9 @@ struct HudInfo {
   /// The physics' rate as the app words it (real_time_meter.h): "34 steps/s (0.52x real time,
   /// last 1 s)", or during the start-up "preparing the solver (3.2 s)"; empty: from the numbers
   std::string physics_rate;
+  /// While the solver is factored in the background: a line under the solver's configuration
+  /// (GuiLoop::solver_note); empty: none.
+  std::string solver_note;
   bool behind_real_time{false};  ///< physics cannot keep up
   /// The threads the physics steps on now, of those it was given (thread_share.h)
   int physics_threads{1};

@@ -120,7 +120,8 @@ void SoakMonitor::sample(double wall_s, std::int64_t device_ticks, double starte
   }
   // memory: once after the warm-up, then at the end (sampled at most 10 times a second)
   // (the warm-up counts from the physics' start, or from the end of the start-up's background
-  // work if that is later: the region check holds a copy of the model until it ends)
+  // work if that is later: the region check holds a copy of the model until it ends, and a solver
+  // built in the background is allocated when it is taken)
   if (started_at_s < 0 || quiet_from_s < 0 || (last_rss_s_ >= 0 && wall_s - last_rss_s_ < 0.1)) return;
   last_rss_s_ = wall_s;
   const std::int64_t rss = resident_bytes();

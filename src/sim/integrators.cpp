@@ -2,11 +2,15 @@
 
 #include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <future>
 #include <optional>
 #include <sstream>
+#include <thread>
+#include <utility>
 
 #include "base/error.h"
 #include "base/parallel.h"
@@ -287,14 +291,18 @@ class ImplicitIntegrator final : public SteppingIntegrator {
     const PhysicsModel& p = *s.physics;
     const int threads = settings_.threads;
     const double dt = settings_.time_step_s;
-    ProjectiveSolver& solver = solver_for(s, rep);
+    const bool regional = settings_.region_radius_mm > 0 && contact_;
+    ProjectiveSolver* built = solver_for(s, rep, regional);
+    // at rest while its solver is built on a thread of its own (factor_in_background)
+    if (!built) return sleep_step(s, rep);
+    ProjectiveSolver& solver = *built;
     solver.set_region_diagnostics(settings_.region_solve_far_field, settings_.region_refresh_on_move,
                                   settings_.region_visit_still_far_field);
     solver.set_carry_far_field(settings_.region_far_field_degree);
     rep.factor_nonzeros = solver.factor_nonzeros();
-    const bool regional = settings_.region_radius_mm > 0 && contact_;
     if (regional) {
-      if (asleep_ && still_at_rest(s, rep.refactored)) return sleep_step(s, rep);
+      // (a solver taken from the background finds the tissue as it was built for: still asleep)
+      if (asleep_ && still_at_rest(s, rep.refactored && !rep.factored_in_background)) return sleep_step(s, rep);
       asleep_ = false;
       update_region(s, solver, rep.refactored);
       // while the tissue may move and no tool touches, a full solve now and then lets the far
@@ -426,30 +434,91 @@ class ImplicitIntegrator final : public SteppingIntegrator {
 
   /// The state's solver, (re)built when it has none or when its fixed nodes, the time step or
   /// the damping changed; the contact warm start is dropped unless this step follows the last
-  /// one with the same provider.
-  ProjectiveSolver& solver_for(SimState& s, StepReport& rep) {
+  /// one with the same provider. Null: the tissue rests while its solver is built on a thread of
+  /// its own (factor_in_background); this step is a step at rest.
+  ProjectiveSolver* solver_for(SimState& s, StepReport& rep, bool regional) {
     IntegratorCache& cache = s.integrator_cache;
     ProjectiveSetup setup;
     setup.time_step_s = settings_.time_step_s;
     setup.inertia = true;
     setup.damping = s.physics->damped;
     setup.single_precision_sweeps = settings_.single_precision_sweeps;
+    if (cache.pending.valid() && !take_pending(s, rep)) return nullptr;
     if (!cache.solver || cache.solver->setup() != setup || cache.fixed_version != s.fixed_version ||
         &cache.solver->physics() != s.physics.get()) {
       cache.solver.reset();
-      cache.solver = IntegratorCache::SolverPtr(
-          new ProjectiveSolver(s.physics, s.node_fixed, setup, settings_.factor_cache.get(), settings_.threads),
-          [](ProjectiveSolver* p) { delete p; });
+      if (regional && settings_.factor_in_background && settings_.region_rest_speed_mm_s > 0 && exactly_at_rest(s)) {
+        // the tissue's one equilibrium is where it is: it sleeps while the solver is built
+        auto physics = s.physics;
+        auto fixed = s.node_fixed;  // a copy: the state's may change while the thread reads it
+        auto factor_cache = settings_.factor_cache;
+        const int threads = settings_.threads;
+        const double delay_s = settings_.factor_in_background_delay_s;
+        cache.pending = std::async(std::launch::async, [physics, fixed, setup, factor_cache, threads, delay_s] {
+          if (delay_s > 0) std::this_thread::sleep_for(std::chrono::duration<double>(delay_s));
+          return new_solver(physics, fixed, setup, factor_cache.get(), threads);
+        });
+        cache.pending_fixed_version = s.fixed_version;
+        cache.pending_since_s =
+            std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+        fall_asleep(s, rep, SleepCause::near_rest, 0.0, false);
+        rep.factor_pending = true;
+        return nullptr;
+      }
+      cache.solver = new_solver(s.physics, s.node_fixed, setup, settings_.factor_cache.get(), settings_.threads);
       cache.fixed_version = s.fixed_version;
-      if (settings_.reserve_contact_cache) cache.solver->reserve_contact_cache();
-      rep.refactored = true;
-      rep.factor_from_cache = cache.solver->factor().from_cache();
-      rep.order_from_cache = cache.solver->factor().order_given();
-      rep.factor_s = cache.solver->factor().factor_seconds();
+      took_solver(*cache.solver, rep);
     }
     if (cache.next_step != s.steps || cache.next_time_s != s.time_s || cache.contact_epoch != contact_epoch_)
       cache.solver->forget_contacts();
-    return *cache.solver;
+    return cache.solver.get();
+  }
+
+  /// The solver being built in the background: taken when it is ready, or once the tissue is
+  /// not at rest any more (then this step waits for it); false: neither, the tissue rests on.
+  /// A solver built for other fixed nodes is taken too, and solver_for() replaces it. Rethrows
+  /// what the building threw.
+  bool take_pending(SimState& s, StepReport& rep) {
+    IntegratorCache& cache = s.integrator_cache;
+    const bool ready = cache.pending.wait_for(std::chrono::seconds(0)) == std::future_status::ready;
+    if (!ready && asleep_ && cache.pending_fixed_version == s.fixed_version && still_at_rest(s, false)) {
+      rep.factor_pending = true;
+      return false;
+    }
+    const auto t0 = std::chrono::steady_clock::now();
+    cache.solver = cache.pending.get();  // (the future is empty from here, whatever it threw)
+    if (!ready) rep.factor_wait_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    cache.fixed_version = cache.pending_fixed_version;
+    took_solver(*cache.solver, rep);
+    rep.factored_in_background = true;
+    return true;
+  }
+
+  static IntegratorCache::SolverPtr new_solver(std::shared_ptr<const PhysicsModel> physics,
+                                               const std::vector<std::uint8_t>& fixed, const ProjectiveSetup& setup,
+                                               FactorCache* factor_cache, int threads) {
+    return {new ProjectiveSolver(std::move(physics), fixed, setup, factor_cache, threads),
+            [](ProjectiveSolver* p) { delete p; }};
+  }
+
+  /// A new solver for the state: its contact cache reserved (reserve_contact_cache), the step's
+  /// report told.
+  void took_solver(ProjectiveSolver& solver, StepReport& rep) const {
+    if (settings_.reserve_contact_cache) solver.reserve_contact_cache();
+    rep.refactored = true;
+    rep.factor_from_cache = solver.factor().from_cache();
+    rep.order_from_cache = solver.factor().order_given();
+    rep.factor_s = solver.factor().factor_seconds();
+  }
+
+  /// Whether the tissue is exactly at its rest shape and at rest, with its rest shape its one
+  /// equilibrium and no node within the contact margin of a tool or a wall: its step is itself.
+  bool exactly_at_rest(const SimState& s) {
+    if (!rest_shape_known(s) || !s.velocities.isZero(0.0) || s.positions != s.physics->model->rest_positions)
+      return false;
+    near_.clear();
+    contact_->collect(s.positions, true, near_);
+    return near_.empty();
   }
 
   /// The largest node speed of the step just finished, mm/s (the velocity pass keeps each

@@ -128,6 +128,18 @@ struct IntegratorSettings {
   /// as tools visit new nodes (up to tens of MB on an organ): for a long session whose memory must
   /// stay flat (the probe app). Costs its whole bound at once (ContactActiveSet::reserve).
   bool reserve_contact_cache{false};
+  /// implicit with a region (and region_rest_speed_mm_s > 0): a solver needed while the tissue is
+  /// exactly at its rest shape and at rest (no gravity, no external force, the fixed nodes at
+  /// rest, no node within the contact margin of a tool or a wall) is built on a thread of its own;
+  /// meanwhile the tissue sleeps (its steps advance the time, as the solver would: its rest shape
+  /// is its one equilibrium). A step whose tissue is not at rest any more (a tool within reach, a
+  /// load) waits for it (StepReport::factor_wait_s). The steps are the same bits whenever the
+  /// solver is ready: the tissue starts asleep either way. For a session that starts while a large
+  /// model factors (the probe app; docs/model.md section 7, "A solver built while the tissue rests").
+  bool factor_in_background{false};
+  /// Tests: extra wall time on building a solver in the background (stands for a large model's
+  /// factorisation), s.
+  double factor_in_background_delay_s{0.0};
   /// implicit: where factors are looked up before and kept after a factorisation (by the
   /// content of the matrix: sparse_factor.h); null: every solver factors. Shared, not owned by
   /// one integrator: pipeline/io/factor_cache.h keeps one in a folder.

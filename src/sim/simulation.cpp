@@ -167,7 +167,9 @@ StepStatus Simulation::step() {
     counters_.factors_from_cache += report.factor_from_cache ? 1 : 0;
     counters_.orders_from_cache += report.order_from_cache ? 1 : 0;
     counters_.factor_s += report.factor_s;
+    counters_.factors_in_background += report.factored_in_background ? 1 : 0;
   }
+  counters_.factor_wait_s += report.factor_wait_s;
   counters_.steps_at_rest += report.asleep ? 1 : 0;
   counters_.iterations += report.iterations;
   if (report.fell_asleep != SleepCause::none) {

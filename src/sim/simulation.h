@@ -94,6 +94,10 @@ struct SimulationCounters {
   std::int64_t factors_from_cache{0};
   std::int64_t orders_from_cache{0};  ///< factored in METIS's order kept by the pattern
   double factor_s{0.0};
+  /// ... of them built on a thread of their own while the tissue rested
+  /// (IntegratorSettings::factor_in_background), and the wall time steps waited for them, s
+  std::int64_t factors_in_background{0};
+  double factor_wait_s{0.0};
   /// implicit: local/global iterations (global solves) summed over the steps
   std::int64_t iterations{0};
 };
@@ -165,6 +169,10 @@ class Simulation {
   [[nodiscard]] const PhysicsModel& physics() const { return *physics_; }
   [[nodiscard]] const SimulationSettings& settings() const { return settings_; }
   [[nodiscard]] const SimulationCounters& counters() const { return counters_; }
+  /// The implicit solver is being built on a thread of its own while the tissue rests
+  /// (IntegratorSettings::factor_in_background); for how long so far, s (0: not being built).
+  [[nodiscard]] bool solver_pending() const { return state_.integrator_cache.pending.valid(); }
+  [[nodiscard]] double solver_pending_s() const { return state_.integrator_cache.pending_age_s(); }
   [[nodiscard]] const std::shared_ptr<const PhysicsModel>& shared_physics() const { return physics_; }
 
   [[nodiscard]] int num_probes() const { return int(drivers_.size()); }

@@ -1,5 +1,7 @@
 #include "sim/state.h"
 
+#include <algorithm>
+#include <chrono>
 #include <cmath>
 
 #include "base/error.h"
@@ -81,6 +83,12 @@ IntegratorCache& IntegratorCache::operator=(const IntegratorCache& other) {
 }
 IntegratorCache::IntegratorCache(IntegratorCache&&) noexcept = default;
 IntegratorCache& IntegratorCache::operator=(IntegratorCache&&) noexcept = default;
+
+double IntegratorCache::pending_age_s() const {
+  if (!pending.valid()) return 0.0;
+  const double now = std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+  return std::max(0.0, now - pending_since_s);
+}
 
 void SimState::reset() {
   positions = physics->model->rest_positions;

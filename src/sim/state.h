@@ -8,6 +8,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <cstdint>
+#include <future>
 #include <memory>
 #include <string>
 #include <vector>
@@ -69,6 +70,15 @@ struct IntegratorCache {
   std::uint64_t contact_epoch{0};      ///< the contact provider the warm start belongs to (0: none)
   std::int64_t next_step{-1};          ///< the warm start holds for the step that starts at this count
   double next_time_s{0.0};             ///< ... and at this time
+  /// A solver being built on a thread of its own while the tissue rests
+  /// (IntegratorSettings::factor_in_background); valid() until a step takes it. Destroying a
+  /// cache that holds one waits for it to finish (a factorisation cannot be cut short).
+  std::future<SolverPtr> pending;
+  std::uint64_t pending_fixed_version{0};  ///< SimState::fixed_version the pending solver is built for
+  double pending_since_s{0.0};             ///< steady-clock seconds when it was started (pending_age_s())
+
+  /// Wall time since the pending solver was started, s (0 without one).
+  [[nodiscard]] double pending_age_s() const;
 
   IntegratorCache();
   ~IntegratorCache();

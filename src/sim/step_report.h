@@ -43,6 +43,11 @@ struct StepReport {
   bool factor_from_cache{false};          ///< implicit, refactored: the factor was loaded from the factor cache
   bool order_from_cache{false};           ///< implicit, refactored: factored in an order from the factor cache
   double factor_s{0.0};                   ///< implicit, refactored: wall time of the factorisation (or of the load), s
+  /// implicit, refactored: the solver was built on a thread of its own while the tissue rested
+  /// (IntegratorSettings::factor_in_background); factor_s is then its whole wall time there
+  bool factored_in_background{false};
+  double factor_wait_s{0.0};   ///< implicit: wall time this step waited for a solver built in the background, s
+  bool factor_pending{false};  ///< implicit: a solver is being built in the background (the step was at rest)
   std::int64_t factor_nonzeros{0};        ///< implicit: nonzeros of the Cholesky factor L (cost of a solve)
   int contacts{0};                        ///< implicit with a contact provider: active constraints at the end
   int contact_rounds{0};                  ///< implicit with a contact provider: active-set rounds in the step

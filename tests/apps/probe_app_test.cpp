@@ -401,6 +401,54 @@ TEST_F(ProbeApp, StartUpIsReportedAsStartUp) {
   EXPECT_NE(local.out.find("stopped: simulated 0.30 s (--duration)"), std::string::npos) << local.out;
 }
 
+// The fast configuration's regional solves on a block with the tool 3 mm above it: the session
+// starts at once while the solver is factored beside it (--background-factor, the default;
+// --test-factor-delay stands for a large organ's factorisation), the tissue at rest meanwhile.
+// The tool reaches the tissue before the solver is ready: that step waits for it, and the press
+// is felt. --no-background-factor factors in the first step, as the start-up.
+TEST_F(ProbeApp, TheSolverIsFactoredInTheBackgroundWhileTheTissueRests) {
+  const fs::path scene = dir_ / "rest.json";
+  std::ofstream(scene) << R"({
+    "object": {"box_mm": {"min": [0, 0, 0], "max": [32, 32, 32]}, "voxel_mm": 2},
+    "material": {"youngs_modulus_kpa": 10, "damping": 0.2},
+    "integrator": {"type": "implicit", "dt_s": 0.03, "iterations": 1, "region_radius_mm": 20},
+    "fixed": ["z_min"],
+    "probes": [{"name": "ball", "shape": "sphere", "radius_mm": 4,
+                "live": {"start_mm": [16, 16, 39], "speed_mm_s": 10, "max_speed_mm_s": 50}}],
+    "duration_s": 10
+  })";
+  // down at 3 mm/s from the open: within reach after about 0.7 s, 2 to 3 mm deep by the solver
+  std::ofstream(dir_ / "press.joy") << "sticks 1\n0 0 0 0.3\n5 0 0 0.3\n";
+  const std::string args = q(scene) + " --headless --force-shaping local --virtual-joystick " + q(dir_ / "press.joy") +
+                           " --test-factor-delay 2.5";
+  const RunResult r = run(args + " --duration 3");
+  ASSERT_EQ(r.code, 0) << r.out << r.err;
+  const Figures f = read_figures(r.out);
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(
+      r.out, m,
+      std::regex(R"(solver: factored in the background while the tissue rested, ready ([0-9.]+) s after the open )"
+                 R"(\(([0-9.]+) s with the loading\); steps waited ([0-9.]+) s for it \(a tool reached)")))
+      << r.out;
+  const double ready_s = std::stod(m[1]), waited_s = std::stod(m[3]);
+  EXPECT_LT(f.startup_s, 2.5) << "the session started before the solver was ready\n" << r.out;
+  EXPECT_GE(ready_s, 2.5) << r.out;
+  EXPECT_GT(ready_s, f.startup_s + 1.0) << r.out;
+  EXPECT_NEAR(std::stod(m[2]), f.load_s + ready_s, 0.016) << r.out;
+  EXPECT_GT(waited_s, 0.5) << "the tool was within reach from about 0.7 s\n" << r.out;
+  // (from about 0.7 s, not from the first step on: the tissue stepped at rest until the tool came)
+  EXPECT_LT(waited_s, ready_s - f.startup_s - 0.3) << r.out;
+  // the status line in the meantime says so, and the press is felt once the solver is there
+  ASSERT_FALSE(f.status_lines.empty()) << r.out;
+  EXPECT_NE(f.status_lines.front().find("solver: factoring in the background"), std::string::npos) << r.out;
+  ASSERT_TRUE(std::regex_search(r.out, m, std::regex(R"(raw reaction max ([0-9.]+) N)"))) << r.out;
+  EXPECT_GT(std::stod(m[1]), 0.01) << r.out;
+  const RunResult off = run(args + " --duration 1 --no-background-factor");
+  ASSERT_EQ(off.code, 0) << off.out << off.err;
+  EXPECT_EQ(off.out.find("solver: "), std::string::npos) << off.out;
+  EXPECT_EQ(off.out.find("factoring in the background"), std::string::npos) << off.out;
+}
+
 // A scene with regional solves on a weak support (the column of scene_test's region tests, held
 // at an 8 mm stem): the estimate of their error runs beside the physics, and its warning reaches
 // the console during the run, after the physics has started (the start-up does not wait for it).

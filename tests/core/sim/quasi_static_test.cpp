@@ -694,6 +694,77 @@ TEST(RegionalSolve, ATissueAtRestSleepsUntilAToolComesBack) {
   EXPECT_NEAR(on.second_force_n, off.second_force_n, 0.03 * off.second_force_n);
 }
 
+TEST(RegionalSolve, ASolverBuiltInTheBackgroundWhileTheTissueRestsPressesTheSame) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "needs CHOLMOD (supernodal)";
+  // factor_in_background: the first step starts the factorisation on a thread of its own and
+  // the tissue, exactly at rest with the tool above, sleeps (its steps advance the time and
+  // nothing moves). The tool comes within reach 0.16 s in (8 steps that take microseconds; the
+  // 40-voxel ball factors in a tenth of a second or more): that step waits for the solver. A run
+  // that waits for it before its second step (taken while the tissue rests) presses the same
+  // bits, so when the factor is ready does not change the result; a run that factors in its first
+  // step (the default) presses within the rounding of one solve of the rest shape.
+  const auto p = make_physics_model(ball(40), tissue(0.2));
+  const Model& m = *p->model;
+  const Eigen::Vector3d c = 0.5 * (m.rest_positions.rowwise().minCoeff() + m.rest_positions.rowwise().maxCoeff());
+  const double ztop = m.rest_positions.row(2).maxCoeff();
+  struct Run {
+    std::vector<double> forces;
+    bool pending_after_first{false}, at_rest_after_first{false}, pending_at_end{true};
+    std::int64_t in_background{0}, factorisations{0}, sleeps{0}, steps_pending{0};
+    double wait_s{0.0};
+  };
+  const auto run = [&](bool background, bool ready_before_second_step) {
+    SimulationSettings ss = regional_ball_press(m);
+    ss.integrator.factor_in_background = background;
+    ss.probes.front().path = {
+        {0.0, {c.x(), c.y(), ztop + 6.0}}, {0.5, {c.x(), c.y(), ztop - 1.5}}, {0.8, {c.x(), c.y(), ztop - 1.5}}};
+    Simulation sim(p, ss);
+    Run r;
+    sim.step();
+    r.pending_after_first = sim.solver_pending();
+    r.at_rest_after_first = sim.state().positions == m.rest_positions;
+    if (ready_before_second_step && sim.solver_pending()) sim.state().integrator_cache.pending.wait();
+    while (sim.time_s() < 0.8 - 1e-9 && !sim.failed()) {
+      sim.step();
+      r.forces.push_back(sim.probe(0).raw_force_n.z());
+      r.steps_pending += sim.solver_pending() ? 1 : 0;
+    }
+    EXPECT_FALSE(sim.failed()) << sim.state().message;
+    const SimulationCounters& k = sim.counters();
+    r.pending_at_end = sim.solver_pending();
+    r.in_background = k.factors_in_background;
+    r.factorisations = k.factorisations;
+    r.sleeps = k.sleeps;
+    r.wait_s = k.factor_wait_s;
+    return r;
+  };
+  const Run waited = run(true, false), ready = run(true, true), first = run(false, false);
+  const double peak = *std::max_element(first.forces.begin(), first.forces.end());
+  double off = 0.0;
+  for (std::size_t k = 0; k < first.forces.size() && k < waited.forces.size(); ++k)
+    off = std::max(off, std::abs(waited.forces[k] - first.forces[k]));
+  std::cout << "the press waited " << waited.wait_s << " s for the solver built in the background; peak " << peak
+            << " N; against factoring in the first step: largest difference " << off << " N\n";
+  EXPECT_GT(peak, 0.01);
+  for (const Run* r : {&waited, &ready}) {
+    EXPECT_TRUE(r->pending_after_first);
+    EXPECT_TRUE(r->at_rest_after_first);
+    EXPECT_FALSE(r->pending_at_end);
+    EXPECT_EQ(r->in_background, 1);
+    EXPECT_EQ(r->factorisations, 1);
+    EXPECT_EQ(r->sleeps, 1) << "asleep from the start, as the default finds it after its first step";
+  }
+  EXPECT_GT(waited.wait_s, 0.0) << "the tool came within reach before the solver was ready";
+  EXPECT_GE(waited.steps_pending, 5) << "the tissue stepped at rest while its solver was built (7 before the tool)";
+  EXPECT_EQ(ready.wait_s, 0.0);
+  EXPECT_EQ(waited.forces, ready.forces) << "when the solver is ready does not change a bit";
+  EXPECT_FALSE(first.pending_after_first);
+  EXPECT_EQ(first.in_background, 0);
+  EXPECT_EQ(first.sleeps, 1);
+  ASSERT_EQ(first.forces.size(), waited.forces.size());
+  EXPECT_LT(off, 1e-9 * peak);
+}
+
 }  // namespace
 }  // namespace vx
 
