@@ -481,9 +481,14 @@ class ImplicitIntegrator final : public SteppingIntegrator {
   bool take_pending(SimState& s, StepReport& rep) {
     IntegratorCache& cache = s.integrator_cache;
     const bool ready = cache.pending.wait_for(std::chrono::seconds(0)) == std::future_status::ready;
-    if (!ready && asleep_ && cache.pending_fixed_version == s.fixed_version && still_at_rest(s, false)) {
-      rep.factor_pending = true;
-      return false;
+    if (!ready && cache.pending_fixed_version == s.fixed_version) {
+      // asleep as before, or put back at rest (a reset): it rests on
+      const bool resting = asleep_ && still_at_rest(s, false);
+      if (resting || exactly_at_rest(s)) {
+        if (!resting) rest_from_here(s);
+        rep.factor_pending = true;
+        return false;
+      }
     }
     const auto t0 = std::chrono::steady_clock::now();
     cache.solver = cache.pending.get();  // (the future is empty from here, whatever it threw)
@@ -509,6 +514,16 @@ class ImplicitIntegrator final : public SteppingIntegrator {
     rep.factor_from_cache = solver.factor().from_cache();
     rep.order_from_cache = solver.factor().order_given();
     rep.factor_s = solver.factor().factor_seconds();
+  }
+
+  /// The tissue, exactly at rest (exactly_at_rest()), sleeps from this step on; no report.
+  void rest_from_here(const SimState& s) {
+    asleep_ = true;
+    settling_ = false;
+    asleep_gravity_ = s.gravity_mm_s2;
+    asleep_fixed_version_ = s.fixed_version;
+    asleep_step_ = s.steps;
+    asleep_time_s_ = s.time_s;
   }
 
   /// Whether the tissue is exactly at its rest shape and at rest, with its rest shape its one

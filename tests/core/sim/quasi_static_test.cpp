@@ -701,8 +701,9 @@ TEST(RegionalSolve, ASolverBuiltInTheBackgroundWhileTheTissueRestsPressesTheSame
   // nothing moves). The tool comes within reach 0.16 s in (8 steps that take microseconds; the
   // 40-voxel ball factors in a tenth of a second or more): that step waits for the solver. A run
   // that waits for it before its second step (taken while the tissue rests) presses the same
-  // bits, so when the factor is ready does not change the result; a run that factors in its first
-  // step (the default) presses within the rounding of one solve of the rest shape.
+  // bits, so when the factor is ready does not change the result, and so does one reset to rest
+  // after its first step (it rests on); a run that factors in its first step (the default)
+  // presses within the rounding of one solve of the rest shape.
   const auto p = make_physics_model(ball(40), tissue(0.2));
   const Model& m = *p->model;
   const Eigen::Vector3d c = 0.5 * (m.rest_positions.rowwise().minCoeff() + m.rest_positions.rowwise().maxCoeff());
@@ -713,7 +714,7 @@ TEST(RegionalSolve, ASolverBuiltInTheBackgroundWhileTheTissueRestsPressesTheSame
     std::int64_t in_background{0}, factorisations{0}, sleeps{0}, steps_pending{0};
     double wait_s{0.0};
   };
-  const auto run = [&](bool background, bool ready_before_second_step) {
+  const auto run = [&](bool background, bool ready_before_second_step, bool reset_after_first = false) {
     SimulationSettings ss = regional_ball_press(m);
     ss.integrator.factor_in_background = background;
     ss.probes.front().path = {
@@ -723,6 +724,10 @@ TEST(RegionalSolve, ASolverBuiltInTheBackgroundWhileTheTissueRestsPressesTheSame
     sim.step();
     r.pending_after_first = sim.solver_pending();
     r.at_rest_after_first = sim.state().positions == m.rest_positions;
+    if (reset_after_first) {
+      sim.reset();  // (the app's reset key): back at rest, it rests on
+      sim.step();
+    }
     if (ready_before_second_step && sim.solver_pending()) sim.state().integrator_cache.pending.wait();
     while (sim.time_s() < 0.8 - 1e-9 && !sim.failed()) {
       sim.step();
@@ -738,7 +743,8 @@ TEST(RegionalSolve, ASolverBuiltInTheBackgroundWhileTheTissueRestsPressesTheSame
     r.wait_s = k.factor_wait_s;
     return r;
   };
-  const Run waited = run(true, false), ready = run(true, true), first = run(false, false);
+  const Run waited = run(true, false), ready = run(true, true), first = run(false, false),
+            reset = run(true, false, true);
   const double peak = *std::max_element(first.forces.begin(), first.forces.end());
   double off = 0.0;
   for (std::size_t k = 0; k < first.forces.size() && k < waited.forces.size(); ++k)
@@ -746,7 +752,7 @@ TEST(RegionalSolve, ASolverBuiltInTheBackgroundWhileTheTissueRestsPressesTheSame
   std::cout << "the press waited " << waited.wait_s << " s for the solver built in the background; peak " << peak
             << " N; against factoring in the first step: largest difference " << off << " N\n";
   EXPECT_GT(peak, 0.01);
-  for (const Run* r : {&waited, &ready}) {
+  for (const Run* r : {&waited, &ready, &reset}) {
     EXPECT_TRUE(r->pending_after_first);
     EXPECT_TRUE(r->at_rest_after_first);
     EXPECT_FALSE(r->pending_at_end);
@@ -758,6 +764,8 @@ TEST(RegionalSolve, ASolverBuiltInTheBackgroundWhileTheTissueRestsPressesTheSame
   EXPECT_GE(waited.steps_pending, 5) << "the tissue stepped at rest while its solver was built (7 before the tool)";
   EXPECT_EQ(ready.wait_s, 0.0);
   EXPECT_EQ(waited.forces, ready.forces) << "when the solver is ready does not change a bit";
+  EXPECT_GE(reset.steps_pending, 5) << "reset to rest while the solver is built: the tissue rests on";
+  EXPECT_EQ(reset.forces, waited.forces);
   EXPECT_FALSE(first.pending_after_first);
   EXPECT_EQ(first.in_background, 0);
   EXPECT_EQ(first.sleeps, 1);
