@@ -65,8 +65,8 @@ struct AppOptions {
   int threads{0};             ///< physics threads (0, the default: all cores; docs/probe.md)
   bool share_cores{true};     ///< one physics thread while well ahead of real time or as fast (thread_share.h)
   bool background_factor{
-      true};                  ///< the solver factored while the tissue rests (IntegratorSettings::factor_in_background)
-  std::string factor_cache;   ///< implicit factors kept by content: "" the default folder, "off", or a folder
+      true};                 ///< the solver factored while the tissue rests (IntegratorSettings::factor_in_background)
+  std::string factor_cache;  ///< implicit factors kept by content: "" the default folder, "off", or a folder
   int width{1280};
   int height{800};
   bool headless{false};     ///< no window (needs --duration or --exit-after-script)

@@ -516,7 +516,8 @@ class ImplicitIntegrator final : public SteppingIntegrator {
     rep.factor_s = solver.factor().factor_seconds();
   }
 
-  /// The tissue, exactly at rest (exactly_at_rest()), sleeps from this step on; no report.
+  /// The tissue sleeps from this step on: what still_at_rest() watches is recorded (no report;
+  /// fall_asleep() reports).
   void rest_from_here(const SimState& s) {
     asleep_ = true;
     settling_ = false;
@@ -529,11 +530,8 @@ class ImplicitIntegrator final : public SteppingIntegrator {
   /// Whether the tissue is exactly at its rest shape and at rest, with its rest shape its one
   /// equilibrium and no node within the contact margin of a tool or a wall: its step is itself.
   bool exactly_at_rest(const SimState& s) {
-    if (!rest_shape_known(s) || !s.velocities.isZero(0.0) || s.positions != s.physics->model->rest_positions)
-      return false;
-    near_.clear();
-    contact_->collect(s.positions, true, near_);
-    return near_.empty();
+    return rest_shape_known(s) && s.velocities.isZero(0.0) && s.positions == s.physics->model->rest_positions &&
+           nothing_near(s);
   }
 
   /// The largest node speed of the step just finished, mm/s (the velocity pass keeps each
@@ -624,12 +622,7 @@ class ImplicitIntegrator final : public SteppingIntegrator {
     rep.sleep_offset_mm = offset_mm;
     rep.since_release_s = s.time_s - release_time_s_;
     rep.release_offset_mm = release_offset_mm_;
-    asleep_ = true;
-    settling_ = false;
-    asleep_gravity_ = s.gravity_mm_s2;
-    asleep_fixed_version_ = s.fixed_version;
-    asleep_step_ = s.steps;
-    asleep_time_s_ = s.time_s;
+    rest_from_here(s);
   }
 
   /// Whether a sleeping tissue may go on sleeping this step: the same state continued (no reset,
@@ -639,6 +632,11 @@ class ImplicitIntegrator final : public SteppingIntegrator {
     if (refactored || s.steps != asleep_step_ || s.time_s != asleep_time_s_ || s.gravity_mm_s2 != asleep_gravity_ ||
         s.fixed_version != asleep_fixed_version_ || !s.external_forces.isZero(0.0))
       return false;
+    return nothing_near(s);
+  }
+
+  /// No node within the contact margin of a tool or a wall.
+  bool nothing_near(const SimState& s) {
     near_.clear();
     contact_->collect(s.positions, true, near_);
     return near_.empty();

@@ -46,15 +46,15 @@ struct StepReport {
   /// implicit, refactored: the solver was built on a thread of its own while the tissue rested
   /// (IntegratorSettings::factor_in_background); factor_s is then its whole wall time there
   bool factored_in_background{false};
-  double factor_wait_s{0.0};   ///< implicit: wall time this step waited for a solver built in the background, s
-  bool factor_pending{false};  ///< implicit: a solver is being built in the background (the step was at rest)
-  std::int64_t factor_nonzeros{0};        ///< implicit: nonzeros of the Cholesky factor L (cost of a solve)
-  int contacts{0};                        ///< implicit with a contact provider: active constraints at the end
-  int contact_rounds{0};                  ///< implicit with a contact provider: active-set rounds in the step
-  std::int64_t contact_columns{0};        ///< implicit: new columns A^-1 e_i solved in this step (each allocates once)
-  std::int64_t region_elements{0};        ///< implicit with a region: elements computed (0: all)
-  std::int64_t region_nodes{0};           ///< implicit with a region: free nodes solved for (0: all)
-  bool asleep{false};                     ///< implicit with a region: the tissue was at rest, nothing computed
+  double factor_wait_s{0.0};        ///< implicit: wall time this step waited for a solver built in the background, s
+  bool factor_pending{false};       ///< implicit: a solver is being built in the background (the step was at rest)
+  std::int64_t factor_nonzeros{0};  ///< implicit: nonzeros of the Cholesky factor L (cost of a solve)
+  int contacts{0};                  ///< implicit with a contact provider: active constraints at the end
+  int contact_rounds{0};            ///< implicit with a contact provider: active-set rounds in the step
+  std::int64_t contact_columns{0};  ///< implicit: new columns A^-1 e_i solved in this step (each allocates once)
+  std::int64_t region_elements{0};  ///< implicit with a region: elements computed (0: all)
+  std::int64_t region_nodes{0};     ///< implicit with a region: free nodes solved for (0: all)
+  bool asleep{false};               ///< implicit with a region: the tissue was at rest, nothing computed
   SleepCause fell_asleep{SleepCause::none};  ///< implicit with a region: the tissue fell asleep after this step
   double sleep_offset_mm{-1.0};              ///< ... its largest node displacement from its rest shape then, mm (before
                                              ///< it was put there); < 0: not known (gravity or a load)
