@@ -31,15 +31,24 @@ if ! command -v clang++-14 >/dev/null 2>&1; then
   echo "fuzz: clang++-14 is missing (run scripts/install-deps.sh --dev)" >&2
   exit 1
 fi
-cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=None -DCMAKE_C_COMPILER=clang-14 -DCMAKE_CXX_COMPILER=clang++-14 \
-  -DCMAKE_CXX_FLAGS="-O1 -g" -DCMAKE_C_FLAGS="-O1 -g" "${launcher[@]}" \
-  -DVOXELASTIC_FUZZ=ON -DVOXELASTIC_BUILD_TESTS=OFF -DVOXELASTIC_BUILD_APPS=OFF >"$build_dir.configure.log" 2>&1 || {
-  cat "$build_dir.configure.log" >&2
-  echo "fuzz: cmake configure failed (log above)" >&2
-  exit 1
-}
-rm -f "$build_dir.configure.log"
-echo "fuzz: building the targets into $build_dir/ ..."
+# A build folder configured by scripts/sanitize.sh (ASan + UBSan with the fuzz targets beside the
+# tests; CI passes VX_FUZZ_BUILD_DIR=build-asan) is used as it is: only the pipeline and the
+# targets carry coverage there. Otherwise the folder is configured for fuzzing alone, with
+# coverage in the core too.
+if grep -qs '^VOXELASTIC_SANITIZE:BOOL=ON$' "$build_dir/CMakeCache.txt" &&
+  grep -qs '^VOXELASTIC_FUZZ:BOOL=ON$' "$build_dir/CMakeCache.txt"; then
+  echo "fuzz: the targets of the sanitized build in $build_dir/ (scripts/sanitize.sh) ..."
+else
+  cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=None -DCMAKE_C_COMPILER=clang-14 -DCMAKE_CXX_COMPILER=clang++-14 \
+    -DCMAKE_CXX_FLAGS="-O1 -g" -DCMAKE_C_FLAGS="-O1 -g" "${launcher[@]}" \
+    -DVOXELASTIC_FUZZ=ON -DVOXELASTIC_BUILD_TESTS=OFF -DVOXELASTIC_BUILD_APPS=OFF >"$build_dir.configure.log" 2>&1 || {
+    cat "$build_dir.configure.log" >&2
+    echo "fuzz: cmake configure failed (log above)" >&2
+    exit 1
+  }
+  rm -f "$build_dir.configure.log"
+  echo "fuzz: building the targets into $build_dir/ ..."
+fi
 cmake --build "$build_dir" -j "$jobs" --target fuzz_all
 
 export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=0:allocator_may_return_null=0:handle_abort=1}

@@ -2,7 +2,9 @@
 # The non-slow tests under AddressSanitizer + UndefinedBehaviorSanitizer (clang-14, -O1), in
 # their own build folder (build-asan). CI runs this after scripts/test.sh; extra arguments go
 # to ctest (e.g. -R volume_io). Any memory error, leak of our own or undefined behaviour fails
-# the test that hit it.
+# the test that hit it. The libFuzzer targets are built here too (fuzz/), so that CI's smoke
+# run of them (VX_FUZZ_BUILD_DIR=build-asan scripts/fuzz.sh --smoke) does not build the sanitized
+# tree a second time.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 build_dir=${VX_ASAN_BUILD_DIR:-build-asan}
@@ -18,7 +20,7 @@ if ! command -v clang++-14 >/dev/null 2>&1; then
 fi
 cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=None -DCMAKE_C_COMPILER=clang-14 -DCMAKE_CXX_COMPILER=clang++-14 \
   -DCMAKE_CXX_FLAGS="-O1 -g" -DCMAKE_C_FLAGS="-O1 -g" "${launcher[@]}" \
-  -DVOXELASTIC_SANITIZE=ON -DVOXELASTIC_BUILD_MICROBENCH=OFF -DVOXELASTIC_BUILD_SLOW_TESTS=OFF >"$build_dir.configure.log" 2>&1 || {
+  -DVOXELASTIC_SANITIZE=ON -DVOXELASTIC_FUZZ=ON -DVOXELASTIC_BUILD_MICROBENCH=OFF -DVOXELASTIC_BUILD_SLOW_TESTS=OFF >"$build_dir.configure.log" 2>&1 || {
   cat "$build_dir.configure.log" >&2
   echo "sanitize: cmake configure failed (log above)" >&2
   exit 1
