@@ -36,7 +36,7 @@ cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=None -DCMAKE_C_COMPILER=clang-14 -
 rm -f "$build_dir.configure.log"
 # the test executables with threads, and the app probe_app_test runs
 targets=(triple_buffer_test probe_output_test probe_sim_exchange_test simulation_test device_side_test factor_cache_test
-  still_far_field_test quasi_static_test probe_app_test voxelastic-probe)
+  calibration_cache_test still_far_field_test quasi_static_test probe_app_test voxelastic-probe)
 echo "tsan: building ${targets[*]} with ThreadSanitizer into $build_dir/ ..."
 cmake --build "$build_dir" -j "$jobs" --target "${targets[@]}"
 # the tests of those executables that start threads (std::thread, FixedRateThread, OpenMP on
@@ -53,6 +53,8 @@ app+='|TheRegionCheckOfAWeakSupportIsReportedDuringTheRun|WindowScreenshotUnderA
 tests="^TripleBuffer\\.|^FixedRateThread\\.|^Simulation\\.SameResultsOnOneAndTwoThreads\$|^SimulationExchange\\.LiveProbeAcrossThreads\$|^DeviceSide\\.LocalContactModelsAcrossThreads\$|^ProbeApp\\.($app)\$"
 # the factor cache's writer thread beside the solver (io/factor_cache.h, background_writes)
 tests+="|^FactorCacheTest\\.AFactorWrittenInTheBackgroundOutlivesItsSolverAndIsFoundAtOnce\$"
+# ... and the calibration cache's, reading the calibrated arrays while make_physics_model sets the derived ones
+tests+="|^CalibrationCacheTest\\.ACalibrationWrittenInTheBackgroundIsTheFileWrittenInPlaceAndIsFoundAtOnce\$"
 # a solver built on a thread of its own while the tissue rests (integrators.h, factor_in_background)
 tests+="|^RegionalSolve\\.ASolverBuiltInTheBackgroundWhileTheTissueRestsPressesTheSame\$"
 # the regional solves' passes over the closure on two threads (sim/projective_solver.h, still_far_field_nodes)

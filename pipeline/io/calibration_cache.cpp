@@ -138,7 +138,8 @@ bool read_calibration(const unsigned char* data, std::size_t bytes, const Calibr
 }
 
 std::shared_ptr<CalibrationCache> make_calibration_cache(const std::string& option) {
-  return make_folder_cache<FolderCalibrationCache>(option, &CalibrationCacheSettings::min_calibration_s);
+  return make_folder_cache<FolderCalibrationCache>(option, &CalibrationCacheSettings::min_calibration_s,
+                                                   [](CalibrationCacheSettings& s) { s.background_writes = true; });
 }
 
 FolderCalibrationCache::FolderCalibrationCache(CalibrationCacheSettings settings)
@@ -150,13 +151,21 @@ bool FolderCalibrationCache::load(const CalibrationKey& key, PhysicsModel& physi
                           std::string& why) { return read_calibration(data, bytes, key, physics, &why); });
 }
 
-void FolderCalibrationCache::store(const CalibrationKey& key, const PhysicsModel& physics, double seconds) {
-  folder_.store({.name = key.name(),
-                 .seconds = seconds,
-                 .min_seconds = settings_.min_calibration_s,
-                 .made = fmt::format("calibrated in {:.2f} s", seconds),
-                 .next_start = "this model and material"},
-                [&](std::ostream& out) { write_calibration(out, key, physics); });
+void FolderCalibrationCache::store(const CalibrationKey& key, std::shared_ptr<const PhysicsModel> physics,
+                                   double seconds) {
+  FolderCache::Offer offer{.name = key.name(),
+                           .seconds = seconds,
+                           .min_seconds = settings_.min_calibration_s,
+                           .made = fmt::format("calibrated in {:.2f} s", seconds),
+                           .next_start = "this model and material"};
+  // reads the calibrated fields only: final while make_physics_model sets the derived ones
+  FolderCache::Writer write = [key, physics = std::move(physics)](std::ostream& out) {
+    write_calibration(out, key, *physics);
+  };
+  if (settings_.background_writes)
+    folder_.store_beside(std::move(offer), std::move(write), "vx-calib-write", settings_.writer_nice);
+  else
+    folder_.store(offer, write);
 }
 
 }  // namespace vx

@@ -34,12 +34,19 @@ struct CalibrationCacheSettings {
   std::uint64_t max_bytes{std::uint64_t(8) << 30};
   /// calibrations computed faster than this are not kept, s
   double min_calibration_s{0.25};
+  /// store() writes the calibration on a thread of its own and returns at once (the folded
+  /// organ's 115 MB took 0.3 to 0.45 s of its first start's path; docs/bench.md); false:
+  /// store() writes it
+  bool background_writes{false};
+  /// that thread's nice value (a real-time run goes first)
+  int writer_nice{10};
 };
 
 /// The calibration cache of a command-line option (`--factor-cache`), in the factor cache's
 /// folder: "" the default folder (default_factor_cache_folder(), folder_cache.h, or none), "off" none, anything
 /// else a folder (created when used). Null: no cache. $VOXELASTIC_FACTOR_CACHE_MIN_S sets
-/// min_calibration_s (0: keep every calibration).
+/// min_calibration_s (0: keep every calibration). Its calibrations are written in the
+/// background (CalibrationCacheSettings::background_writes).
 [[nodiscard]] std::shared_ptr<CalibrationCache> make_calibration_cache(const std::string& option);
 
 /// The file form of the calibrated part of `physics` under `key` (what the folder keeps). Throws
@@ -52,13 +59,16 @@ void write_calibration(std::ostream& out, const CalibrationKey& key, const Physi
                                     PhysicsModel& physics, std::string* why);
 
 /// A CalibrationCache in a folder (folder_cache.h: the folder's bookkeeping; here what a file
-/// holds: write_calibration, read_calibration). Thread-safe (one lock around each call).
+/// holds: write_calibration, read_calibration). Thread-safe (one lock around each call). With
+/// background writes a load first waits for the writes begun, and so does the destructor.
 class FolderCalibrationCache final : public CalibrationCache {
  public:
   explicit FolderCalibrationCache(CalibrationCacheSettings settings);
 
   bool load(const CalibrationKey& key, PhysicsModel& physics) override;
-  void store(const CalibrationKey& key, const PhysicsModel& physics, double seconds) override;
+  void store(const CalibrationKey& key, std::shared_ptr<const PhysicsModel> physics, double seconds) override;
+  /// Waits for the background writes begun so far.
+  void wait_for_writes() { folder_.wait_for_writes(); }
 
   [[nodiscard]] const CalibrationCacheSettings& settings() const { return settings_; }
   /// The file of `key`.

@@ -1,11 +1,9 @@
 #include "io/factor_cache.h"
 
-#include <system_error>
 #include <utility>
 
 #include "io/cache_file.h"
 #include "util/log.h"
-#include "util/thread_priority.h"
 
 namespace vx {
 namespace {
@@ -90,21 +88,9 @@ void FolderFactorCache::store_order(const FactorKey& pattern, const SparseFactor
 }
 
 bool FolderFactorCache::load(const FactorKey& key, SparseFactor& factor) {
-  wait_for_writes();  // a factor stored is found (a write begun is finished first)
   return folder_.load(key.name(), fmt::format("{} rows", key.rows),
                       [&](const unsigned char* data, std::size_t bytes, const std::shared_ptr<const void>& mapping,
                           std::string& why) { return factor.read(data, bytes, mapping, &why); });
-}
-
-FolderFactorCache::~FolderFactorCache() { wait_for_writes(); }
-
-void FolderFactorCache::wait_for_writes() {
-  std::vector<std::thread> writes;
-  {
-    std::lock_guard lock(writes_mutex_);
-    writes.swap(writes_);
-  }
-  for (std::thread& t : writes) t.join();
 }
 
 void FolderFactorCache::store(const FactorKey& key, const SparseFactor& factor) {
@@ -121,23 +107,11 @@ void FolderFactorCache::store(const FactorKey& key, const SparseFactor& factor) 
     return;
   }
   // the solver goes on with its factor while a copy that shares its arrays is written (read-only
-  // on both threads); FolderCache::store keeps the folder locked meanwhile, so a load waits
+  // on both threads)
   auto copy = std::make_shared<const SparseFactor>(factor.file_copy());
-  const auto write = [this, offer = std::move(offer), copy = std::move(copy)](bool beside) {
-    if (beside) {
-      (void)set_this_thread_name("vx-factor-write");  // as the run's other threads, for top -H and perf
-      if (settings_.writer_nice != 0) (void)set_this_thread_nice(settings_.writer_nice);
-    }
-    folder_.store(offer, [&](std::ostream& out) { copy->write(out); });
-  };
-  std::lock_guard lock(writes_mutex_);
-  try {
-    writes_.emplace_back(write, true);  // copies `write`: it is still whole should this throw
-  } catch (const std::system_error& e) {
-    // no thread to be had: written here, as without background writes (a store never stops a run)
-    log::debug(fmt::format("factor cache: no thread for the write ({}); writing it now", e.what()));
-    write(false);
-  }
+  folder_.store_beside(
+      std::move(offer), [copy = std::move(copy)](std::ostream& out) { copy->write(out); }, "vx-factor-write",
+      settings_.writer_nice);
 }
 
 }  // namespace vx

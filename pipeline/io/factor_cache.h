@@ -21,9 +21,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <memory>
-#include <mutex>
 #include <string>
-#include <thread>
 #include <vector>
 
 #include "io/folder_cache.h"
@@ -57,9 +55,6 @@ struct FactorCacheSettings {
 class FolderFactorCache final : public FactorCache {
  public:
   explicit FolderFactorCache(FactorCacheSettings settings);
-  ~FolderFactorCache() override;
-  FolderFactorCache(const FolderFactorCache&) = delete;
-  FolderFactorCache& operator=(const FolderFactorCache&) = delete;
 
   bool load(const FactorKey& key, SparseFactor& factor) override;
   void store(const FactorKey& key, const SparseFactor& factor) override;
@@ -69,7 +64,7 @@ class FolderFactorCache final : public FactorCache {
 
   [[nodiscard]] const FactorCacheSettings& settings() const { return settings_; }
   /// Waits for the background writes begun so far.
-  void wait_for_writes();
+  void wait_for_writes() { folder_.wait_for_writes(); }
   /// The file of `key`.
   [[nodiscard]] std::filesystem::path file_of(const FactorKey& key) const { return folder_.file_of(key.name()); }
   /// The order file of `pattern`.
@@ -89,8 +84,6 @@ class FolderFactorCache final : public FactorCache {
   FactorCacheSettings settings_;
   FolderCache folder_;
   FolderCache orders_;
-  std::mutex writes_mutex_;
-  std::vector<std::thread> writes_;  ///< background writes (joined by wait_for_writes)
 };
 
 /// An order file: the pattern's key and the order (order[k]: the row factored k-th), with a

@@ -10,6 +10,7 @@
 #include "io/cache_file.h"
 #include "util/atomic_file.h"
 #include "util/log.h"
+#include "util/thread_priority.h"
 
 namespace vx {
 namespace fs = std::filesystem;
@@ -47,6 +48,40 @@ std::optional<fs::path> cache_folder_of_option(const std::string& option) {
 FolderCache::FolderCache(FolderCacheWords words, fs::path folder, std::uint64_t max_bytes)
     : words_(words), folder_(std::move(folder)), max_bytes_(max_bytes) {}
 
+FolderCache::~FolderCache() { wait_for_writes(); }
+
+void FolderCache::wait_for_writes() {
+  std::vector<std::thread> writes;
+  {
+    std::lock_guard lock(writes_mutex_);
+    writes.swap(writes_);
+  }
+  for (std::thread& t : writes) t.join();
+}
+
+void FolderCache::store_beside(Offer offer, Writer write, const char* thread_name, int nice) {
+  if (offer.seconds < offer.min_seconds) {  // skipped: nothing to write
+    store(offer, write);
+    return;
+  }
+  // FolderCache::store keeps the folder locked while it writes, so a load waits for it too
+  const auto work = [this, offer = std::move(offer), write = std::move(write), thread_name, nice](bool beside) {
+    if (beside) {
+      (void)set_this_thread_name(thread_name);
+      if (nice != 0) (void)set_this_thread_nice(nice);
+    }
+    store(offer, write);
+  };
+  std::lock_guard lock(writes_mutex_);
+  try {
+    writes_.emplace_back(work, true);  // copies `work`: it is still whole should this throw
+  } catch (const std::system_error& e) {
+    // no thread to be had: written here, as store() would (a store never stops a run)
+    log::debug(fmt::format("{}: no thread for the write ({}); writing it now", words_.cache, e.what()));
+    work(false);
+  }
+}
+
 fs::path FolderCache::file_of(const std::string& name) const { return folder_ / (name + words_.extension); }
 
 FolderCache::Counters FolderCache::counters() const {
@@ -64,6 +99,7 @@ void FolderCache::complain(const std::string& what) {
 }
 
 bool FolderCache::load(const std::string& name, const std::string& detail, const Reader& read) {
+  wait_for_writes();  // what was stored is found (a write begun is finished first)
   std::lock_guard lock(mutex_);
   const fs::path file = file_of(name);
   std::error_code ec;

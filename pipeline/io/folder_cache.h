@@ -8,7 +8,9 @@
 /// seconds or over the folder's limit, written to a temporary name and renamed, the least
 /// recently used cache files of the folder dropped after), the counters and the one warning.
 /// Nothing here may stop a run: a folder that cannot be used says so once as a warning and
-/// the run goes on as without a cache. Thread-safe (one lock around each call).
+/// the run goes on as without a cache. Thread-safe (one lock around each call). A store may be
+/// written on a thread of its own (store_beside: a large model's first start does not wait for
+/// its files); a load first waits for the writes begun, and so does the destructor.
 
 #include <cstddef>
 #include <cstdint>
@@ -19,8 +21,10 @@
 #include <optional>
 #include <ostream>
 #include <string>
+#include <thread>
 #include <type_traits>
 #include <utility>
+#include <vector>
 
 #include "io/cache_file.h"
 
@@ -82,13 +86,18 @@ class FolderCache {
 
   /// `max_bytes`: every cache file of the folder together at most this many bytes.
   FolderCache(FolderCacheWords words, std::filesystem::path folder, std::uint64_t max_bytes);
+  /// Waits for the writes begun (store_beside): what a run stored is on disk when its cache is gone.
+  ~FolderCache();
+  FolderCache(const FolderCache&) = delete;
+  FolderCache& operator=(const FolderCache&) = delete;
 
   /// The file of the key named `name` (its extension added).
   [[nodiscard]] std::filesystem::path file_of(const std::string& name) const;
   [[nodiscard]] Counters counters() const;
 
   /// Looks up `name` and reads it with `read`; true when read (the file then counts as just
-  /// used). `detail` describes it in the log line ("12 rows").
+  /// used). `detail` describes it in the log line ("12 rows"). Waits for the writes begun first,
+  /// so that what was stored is found.
   bool load(const std::string& name, const std::string& detail, const Reader& read);
 
   /// What a store offers.
@@ -103,6 +112,12 @@ class FolderCache {
   /// Keeps what `write` writes under offer.name (or skips it, see Offer), then keeps the folder
   /// under its limit.
   void store(const Offer& offer, const Writer& write);
+  /// The same on a thread of its own, named `thread_name` (for top -H and perf) at nice `nice`
+  /// (0: the caller's; a real-time run goes first), and returns at once; `write` must own or
+  /// share what it writes. Written here when no thread can be had, or when it would be skipped.
+  void store_beside(Offer offer, Writer write, const char* thread_name, int nice);
+  /// Waits for the writes begun so far.
+  void wait_for_writes();
 
  private:
   /// A warning the first time the folder cannot be used, debug lines after (locked).
@@ -114,6 +129,8 @@ class FolderCache {
   mutable std::mutex mutex_;
   Counters counters_;
   bool complained_{false};
+  std::mutex writes_mutex_;
+  std::vector<std::thread> writes_;  ///< store_beside's threads (joined by wait_for_writes)
 };
 
 }  // namespace vx

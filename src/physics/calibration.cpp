@@ -514,9 +514,9 @@ std::shared_ptr<const PhysicsModel> make_physics_model(std::shared_ptr<const Mod
     set_volume_points(*p, options);
     set_bending_modes(*p, options);
     lump_masses(*p, anisotropy, bad);
-    if (cache) cache->store(key, *p, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    if (cache) cache->store(key, p, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
   }
-  // the derived part
+  // the derived part: fields of its own (the cache may still be writing the calibrated part)
   set_node_masses(*p);
   index_entries(*p);
   build_element_batches(*p, kElementGrain, p->element_batches);

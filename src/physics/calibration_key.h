@@ -61,8 +61,11 @@ class CalibrationCache {
   /// with the stored calibration of `key`; false when there is none or it cannot be read (then
   /// `physics` is as it was).
   virtual bool load(const CalibrationKey& key, PhysicsModel& physics) = 0;
-  /// Offers the calibration of `key`, just computed in `seconds` (wall time).
-  virtual void store(const CalibrationKey& key, const PhysicsModel& physics, double seconds) = 0;
+  /// Offers the calibration of `key`, just computed in `seconds` (wall time). The calibrated
+  /// part of `physics` is final from here on (make_physics_model then sets the derived part, in
+  /// other fields), so a store may write it on a thread of its own while the model is finished
+  /// and used, holding `physics` till then.
+  virtual void store(const CalibrationKey& key, std::shared_ptr<const PhysicsModel> physics, double seconds) = 0;
 };
 
 }  // namespace vx

@@ -2,7 +2,8 @@
 // calibrated model's arrays bit for bit and steps the same; another model, material or option is
 // another key; a damaged file is removed and the model calibrated; quick calibrations are not
 // kept; the folder's size limit counts factors and calibrations together; the option and the
-// environment pick the factor cache's folder or none.
+// environment pick the factor cache's folder or none; a calibration written in the background is
+// the file written in place and is found at once.
 #include "io/calibration_cache.h"
 
 #include <gtest/gtest.h>
@@ -280,6 +281,58 @@ TEST_F(CalibrationCacheTest, ADamagedFileIsRemovedWithAWarningAndTheModelCalibra
   const PreparedScene third = prepare_with(scene, c3);
   EXPECT_EQ(c3->counters().damaged, 1);
   expect_same_physics(*plain.physics, *third.physics);
+}
+
+TEST_F(CalibrationCacheTest, ACalibrationWrittenInTheBackgroundIsTheFileWrittenInPlaceAndIsFoundAtOnce) {
+  // the write reads the calibrated part while make_physics_model sets the derived part (here the
+  // scaled masses too) beside it: the file is the one written in place, byte for byte, and the
+  // same cache's next lookup waits for it and loads it
+  const Scene scene = folded_scene(nlohmann::json::parse(R"({
+    "material": {"poisson_ratio": 0.3, "mass_scaling": {"factor": 2, "time_step_s": 0.0005}}
+  })"));
+  const PreparedScene prepared = prepare_with(scene, nullptr);
+  CalibrationOptions o;
+  o.element = scene.material.element;
+  o.mass_scaling = scene.material.mass_scaling;
+  o.volume_mean_fraction = 0.5;
+  const auto plain = make_physics_model(prepared.model, scene.material.base, {}, o);
+  const auto in_place = cache();
+  (void)make_physics_model(prepared.model, scene.material.base, {}, o, in_place.get());
+  ASSERT_EQ(in_place->counters().stored, 1);
+  const auto read_bytes = [](const fs::path& file) {
+    std::ifstream in(file, std::ios::binary);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  };
+  const std::string expected = read_bytes(files(settings().folder).at(0));
+  ASSERT_GT(expected.size(), 100000u);
+
+  CalibrationCacheSettings s = settings();
+  s.folder = dir_ / "beside";
+  s.background_writes = true;
+  s.writer_nice = 0;
+  const auto beside = std::make_shared<FolderCalibrationCache>(s);
+  const auto computed = make_physics_model(prepared.model, scene.material.base, {}, o, beside.get());
+  const auto loaded = make_physics_model(prepared.model, scene.material.base, {}, o, beside.get());
+  EXPECT_EQ(beside->counters().stored, 1);  // the lookup waited for the write ...
+  EXPECT_EQ(beside->counters().hits, 1);    // ... and found it
+  expect_same_physics(*plain, *computed);
+  expect_same_physics(*plain, *loaded);
+  const std::vector<fs::path> kept = files(s.folder);
+  ASSERT_EQ(kept.size(), 1u);  // no temporary file left beside it
+  EXPECT_EQ(read_bytes(kept[0]) == expected, true);
+
+  // a lookup right after the store, before its thread has begun to write: found every time
+  const CalibrationKey key = calibration_key(*prepared.model, scene.material.base, {}, o);
+  int found = 0;
+  for (std::uint64_t i = 1; i <= 50; ++i) {
+    CalibrationKey k = key;
+    k.hash ^= i;  // another name, another file
+    beside->store(k, computed, 1.0);
+    PhysicsModel t = *plain;
+    t.node_mass_kg.assign(t.node_mass_kg.size(), 0.0);
+    found += beside->load(k, t) && t.node_mass_kg == plain->node_mass_kg;
+  }
+  EXPECT_EQ(found, 50);
 }
 
 TEST_F(CalibrationCacheTest, QuickCalibrationsAreNotKept) {
