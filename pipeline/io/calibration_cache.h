@@ -67,8 +67,6 @@ class FolderCalibrationCache final : public CalibrationCache {
 
   bool load(const CalibrationKey& key, PhysicsModel& physics) override;
   void store(const CalibrationKey& key, std::shared_ptr<const PhysicsModel> physics, double seconds) override;
-  /// Waits for the background writes begun so far.
-  void wait_for_writes() { folder_.wait_for_writes(); }
 
   [[nodiscard]] const CalibrationCacheSettings& settings() const { return settings_; }
   /// The file of `key`.

@@ -63,8 +63,6 @@ class FolderFactorCache final : public FactorCache {
   void store_order(const FactorKey& pattern, const SparseFactor& factor) override;
 
   [[nodiscard]] const FactorCacheSettings& settings() const { return settings_; }
-  /// Waits for the background writes begun so far.
-  void wait_for_writes() { folder_.wait_for_writes(); }
   /// The file of `key`.
   [[nodiscard]] std::filesystem::path file_of(const FactorKey& key) const { return folder_.file_of(key.name()); }
   /// The order file of `pattern`.

@@ -116,10 +116,10 @@ class FolderCache {
   /// (0: the caller's; a real-time run goes first), and returns at once; `write` must own or
   /// share what it writes. Written here when no thread can be had, or when it would be skipped.
   void store_beside(Offer offer, Writer write, const char* thread_name, int nice);
-  /// Waits for the writes begun so far.
-  void wait_for_writes();
 
  private:
+  /// Waits for the writes begun so far (a load, the destructor).
+  void wait_for_writes();
   /// A warning the first time the folder cannot be used, debug lines after (locked).
   void complain(const std::string& what);
 
