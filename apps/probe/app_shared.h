@@ -29,6 +29,7 @@
 #include <atomic>
 #include <chrono>
 #include <cstdint>
+#include <memory>
 #include <mutex>
 #include <string>
 #include <vector>
@@ -39,6 +40,10 @@
 #include "rate_thread.h"
 #include "real_time_meter.h"
 #include "sim_exchange.h"
+
+namespace vx::probe {
+class BackgroundDisplaySurface;  // probe_scene.h
+}  // namespace vx::probe
 
 namespace vx {
 class BackgroundRegionCheck;  // scene/scene.h
@@ -233,6 +238,11 @@ struct AppShared {
   std::shared_ptr<BackgroundRegionCheck> region_check;
   /// A standing accuracy warning for the status line (ProbeScene::accuracy_status); empty: none
   std::string accuracy_status;
+  /// The display surface the window opened with (the physics' frames carry the one they deform)
+  std::shared_ptr<const EmbeddedSurface> display_surface;
+  /// Its decimation, still running while display_surface is a preview (null: none, or taken
+  /// by the GUI loop, which hands the result to the physics: SimulationExchange::offer_surface)
+  std::shared_ptr<BackgroundDisplaySurface> surface_refinement;
 
   AppControls controls;
   PhysicsReport physics;

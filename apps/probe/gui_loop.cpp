@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <thread>
 
+#include "convert/decimate_surface.h"
+#include "probe_scene.h"
 #include "scene/scene.h"
 
 namespace vx::probe {
@@ -13,6 +15,10 @@ GuiLoop::GuiLoop(AppShared& shared, ProbeView* view, KeyboardStick& keyboard)
       keyboard_(keyboard),
       probe_pos_(std::size_t(shared.probes), Eigen::Vector3d::Zero()),
       probe_contacts_(std::size_t(shared.probes), 0),
+      shown_surface_(shared.display_surface),
+      preview_triangles_(shared.surface_refinement && shared.display_surface ? shared.display_surface->num_triangles()
+                                                                             : 0),
+      opened_with_preview_(preview_triangles_ > 0),
       soak_(std::max(5.0, 0.1 * shared.options.soak_s), cpu_steal_s, shared.options.device_hz),
       frame_period_(std::chrono::duration_cast<SteadyClock::duration>(
           std::chrono::duration<double>(1.0 / std::max(1.0, shared.options.fps)))) {}
@@ -88,7 +94,43 @@ SteadyClock::time_point GuiLoop::measure(const FixedRateThread& device) {
   behind_ = started && !halted && window_.full && window_.factor() < kBehindFactor;
   if (started && !halted) warn_if_behind(window_);
   report_region_check();
+  take_refined_surface();
   return now;
+}
+
+void GuiLoop::take_refined_surface() {
+  if (!s_.surface_refinement) return;
+  if (!s_.surface_refinement->started()) {
+    // once the solver is built (the first step, or the background factor ready): the
+    // decimation's memory never on top of the factorisation's
+    if (s_.physics.started.load(std::memory_order_acquire) &&
+        !s_.physics.solver_pending.load(std::memory_order_relaxed))
+      s_.surface_refinement->start();
+    return;
+  }
+  if (!s_.surface_refinement->ready()) return;
+  const std::shared_ptr<BackgroundDisplaySurface> job = std::move(s_.surface_refinement);
+  s_.surface_refinement.reset();
+  preview_triangles_ = 0;
+  try {
+    DecimationReport report;
+    std::shared_ptr<const EmbeddedSurface> refined = job->get(&report);
+    s_.exchange.offer_surface(std::move(refined));
+    s_.say(fmt::format("{} ({:.1f} s after the open, decimated in the background: the preview replaced)",
+                       report.summary(), seconds(SteadyClock::now() - s_.start)));
+  } catch (const DecimationCancelled&) {
+    // the app is quitting
+  } catch (const std::exception& e) {
+    s_.say(fmt::format("warning: the display surface's decimation failed ({}); the preview stays", e.what()));
+  }
+}
+
+std::string GuiLoop::surface_note(SteadyClock::time_point now) const {
+  if (preview_triangles_ == 0) return {};
+  if (s_.surface_refinement && !s_.surface_refinement->started())
+    return fmt::format("a preview ({} triangles), decimated once the solver is built", preview_triangles_);
+  return fmt::format("a preview ({} triangles) while decimating ({:.0f} s since the open)", preview_triangles_,
+                     seconds(now - s_.start));
 }
 
 void GuiLoop::report_region_check() {
@@ -140,6 +182,7 @@ HudInfo GuiLoop::hud(SteadyClock::time_point now) {
   h.real_time_factor = window_.factor();
   h.physics_rate = physics_rate_text(now);
   h.solver_note = solver_note(now);
+  h.surface_note = surface_note(now);
   h.paused = s_.controls.paused.load();
   h.behind_real_time = behind_;
   h.physics_threads = s_.physics.threads.load(std::memory_order_relaxed);
@@ -167,6 +210,12 @@ bool GuiLoop::take_frame(ProbeView& view) {
   // the newest frame, if the physics made one since it was asked for; never waited for (no new
   // frame: the surface is not touched)
   if (!s_.exchange.take_frame(frame_)) return false;
+  if (frame_.surface && frame_.surface != shown_surface_) {
+    // the physics deforms another surface now (the decimated one in place of the preview)
+    view.replace_surface(frame_.surface->rest_vertices, frame_.surface->triangles);
+    shown_surface_ = frame_.surface;
+    surface_replaced_s_ = seconds(SteadyClock::now() - s_.start);
+  }
   for (int p = 0; p < s_.probes && p < int(frame_.probes.size()); ++p) {
     probe_pos_[std::size_t(p)] = frame_.probes[std::size_t(p)].pose.position_mm;
     probe_contacts_[std::size_t(p)] = frame_.probes[std::size_t(p)].contacts;

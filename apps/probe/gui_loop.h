@@ -54,6 +54,11 @@ class GuiLoop {
   /// meanwhile; AppControls::display_turn), and their wall time, s.
   [[nodiscard]] std::int64_t display_turns() const { return display_turns_; }
   [[nodiscard]] double display_turns_s() const { return display_turns_s_; }
+  /// Whether the window opened with a preview of the display surface (its decimation in the
+  /// background), and when the decimated surface replaced it on screen, s since the open (-1:
+  /// never: the run ended first).
+  [[nodiscard]] bool opened_with_preview() const { return opened_with_preview_; }
+  [[nodiscard]] double surface_replaced_s() const { return surface_replaced_s_; }
   /// Soak: memory and the device's rate per second (soak.h).
   [[nodiscard]] const SoakMonitor& soak() const { return soak_; }
 
@@ -69,6 +74,14 @@ class GuiLoop {
   /// Says the background region check's result once it is ready (console; the HUD's status
   /// line when it warns).
   void report_region_check();
+  /// Starts the display surface's background decimation once the solver is built; once it is
+  /// ready, hands it to the physics (its frames then carry it, and take_frame swaps the view's
+  /// triangles) and says so; a failed one is said and the preview stays.
+  void take_refined_surface();
+  /// While the display surface is a preview: "a preview (77287 triangles), decimated once the
+  /// solver is built", then "a preview (77287 triangles) while decimating (25 s since the
+  /// open)"; else empty.
+  [[nodiscard]] std::string surface_note(SteadyClock::time_point now) const;
   /// Warns once when the physics cannot keep real time.
   void warn_if_behind(const RateWindow& w);
   /// One frame of the window; false once the window closed.
@@ -90,6 +103,12 @@ class GuiLoop {
   SimulationFrame frame_;
   std::vector<Eigen::Vector3d> probe_pos_;
   std::vector<int> probe_contacts_;
+  /// The surface the view draws (a frame that carries another has its triangles swapped in)
+  std::shared_ptr<const EmbeddedSurface> shown_surface_;
+  /// The preview's triangles while the background decimation runs (0: no preview)
+  int preview_triangles_{0};
+  bool opened_with_preview_{false};
+  double surface_replaced_s_{-1.0};
   bool window_closed_{false};
   bool warned_behind_{false};
   std::string region_status_;       ///< the region check's warning for the HUD (empty: none)

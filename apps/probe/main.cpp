@@ -107,6 +107,10 @@ int main(int argc, char** argv) {
                   "on a thread of its own and the session runs meanwhile; a tool that reaches the tissue before "
                   "the solver is ready waits for it (default: on; --no-background-factor: the first physics step "
                   "factors, as the start-up)");
+  g_run->add_flag("--background-surface,!--no-background-surface", o.scene.surface_in_background,
+                  "a display surface neither in the cache nor small is decimated on a thread of its own while the "
+                  "session runs, a coarser preview shown until it is ready (default: on; --no-background-surface: "
+                  "decimated while loading, as the start-up)");
   g_run->add_option("--size", size, "window size WIDTHxHEIGHT");
   g_run->add_flag("--levels", o.show_levels, "start with the element levels view");
   g_run

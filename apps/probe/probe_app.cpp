@@ -217,6 +217,8 @@ void App::start_simulation() {
   shared_ = std::make_unique<AppShared>(options_, *sim_, *device_side_);
   shared_->region_check = scene_.region_check;
   shared_->accuracy_status = scene_.accuracy_status;
+  shared_->display_surface = scene_.surface;
+  shared_->surface_refinement = scene_.surface_refinement;
   shared_->probes = probes_;
   shared_->local = local_;
   shared_->physics_period_s = 1.0 / options_.physics_hz;
@@ -538,6 +540,11 @@ int App::finish(ProbeView* view, std::string error) {
         (gui_nice_ ? fmt::format("nice {}, below the physics", kGuiNice) : std::string("default priority")) +
             (view->software_gl() ? fmt::format("; software OpenGL on {} thread(s): LP_NUM_THREADS", render_threads_)
                                  : std::string()) +
+            (!gui_loop_->opened_with_preview() ? std::string()
+             : gui_loop_->surface_replaced_s() >= 0
+                 ? fmt::format("; the preview replaced by the decimated surface {:.1f} s after the open",
+                               gui_loop_->surface_replaced_s())
+                 : std::string("; the surface still the preview at the end (its decimation stopped)")) +
             (gui_loop_->display_turns() > 0
                  ? fmt::format("; {} behind real time, in the display's turn: {:.2f} s, {} physics steps on one thread",
                                gui_loop_->display_turns(), gui_loop_->display_turns_s(),

@@ -2,9 +2,11 @@
 
 #include <fmt/core.h>
 
+#include <chrono>
 #include <optional>
 
 #include "base/error.h"
+#include "base/parallel.h"
 #include "convert/decimate_surface.h"
 #include "convert/iso_surface.h"
 #include "convert/threshold.h"
@@ -14,6 +16,7 @@
 #include "scene/palpation_defaults.h"
 #include "scene/scene.h"
 #include "util/text.h"
+#include "util/thread_priority.h"
 
 namespace vx::probe {
 
@@ -103,6 +106,39 @@ Scene scene_of_input(const std::filesystem::path& input, const DefaultSceneOptio
 }
 
 }  // namespace
+
+BackgroundDisplaySurface::BackgroundDisplaySurface(std::function<EmbeddedSurface(DecimationReport*)> finish,
+                                                   std::shared_ptr<std::atomic<bool>> cancel)
+    : finish_(std::move(finish)), cancel_(std::move(cancel)) {}
+
+void BackgroundDisplaySurface::start() {
+  if (started()) return;
+  result_ = std::async(std::launch::async, [this, finish = std::move(finish_)] {
+    (void)set_this_thread_name("vx-surface");
+    // below the physics and the device, and never an OpenMP team of its own (an idle team on
+    // another thread makes the physics' waits sleep: base/parallel.h)
+    (void)set_this_thread_nice(10);
+    (void)leave_parallel_work_to_others();
+    return std::make_shared<const EmbeddedSurface>(finish(&report_));
+  });
+}
+
+BackgroundDisplaySurface::~BackgroundDisplaySurface() {
+  cancel_->store(true);
+  if (result_.valid()) result_.wait();
+}
+
+bool BackgroundDisplaySurface::ready() const {
+  return result_.valid() && result_.wait_for(std::chrono::seconds(0)) == std::future_status::ready;
+}
+
+std::shared_ptr<const EmbeddedSurface> BackgroundDisplaySurface::get(DecimationReport* report) {
+  if (!result_.valid()) throw Error("the background display surface was not started or already taken");
+  taken_ = true;
+  std::shared_ptr<const EmbeddedSurface> s = result_.get();
+  if (report) *report = report_;
+  return s;
+}
 
 void use_display_surface(ProbeScene& scene, const DefaultSceneOptions& options) {
   if (!scene.surface || !scene.model) return;
@@ -202,10 +238,23 @@ ProbeScene load_probe_scene(const std::filesystem::path& input, const DefaultSce
     // decimated for display; a second start of the same organ loads it (io/surface_cache.h)
     DecimationSettings settings;
     settings.target_triangles = options.display_triangles;
+    const SurfaceMethod method = defaults ? options.surface_method : SurfaceMethod::iso;
     built_display.emplace();
-    scene.surface = std::make_shared<const EmbeddedSurface>(
-        display_surface_of_grid(*built.model, built.grid, defaults ? options.surface_method : SurfaceMethod::iso,
-                                settings, &*built_display, options.surface_cache.get()));
+    if (options.surface_in_background) {
+      // a first start: a preview now, the decimation (10 s on the folded organ) on a thread of
+      // its own while the session runs (the GUI loop swaps it in)
+      auto cancel = std::make_shared<std::atomic<bool>>(false);
+      settings.cancel = cancel.get();
+      StagedDisplaySurface staged =
+          stage_display_surface_of_grid(built.model, built.grid, method, settings, options.surface_cache);
+      *built_display = staged.report;
+      scene.surface = std::make_shared<const EmbeddedSurface>(std::move(staged.shown));
+      if (staged.finish)
+        scene.surface_refinement = std::make_shared<BackgroundDisplaySurface>(std::move(staged.finish), cancel);
+    } else {
+      scene.surface = std::make_shared<const EmbeddedSurface>(display_surface_of_grid(
+          *built.model, built.grid, method, settings, &*built_display, options.surface_cache.get()));
+    }
   } else {
     scene.surface = built.surface;
   }
@@ -236,7 +285,8 @@ ProbeScene load_probe_scene(const std::filesystem::path& input, const DefaultSce
       incompressible_iterations_status(scene.simulation.integrator, scene.physics->material.poisson_ratio);
   make_probes_live(scene);
   if (built_display) {
-    if (built_display->decimated || built_display->from_cache) scene.notes.push_back(built_display->summary());
+    if (built_display->decimated || built_display->from_cache || built_display->preview)
+      scene.notes.push_back(built_display->summary());
   } else {
     use_display_surface(scene, options);
   }

@@ -7,11 +7,15 @@
 /// becomes a `live` probe driven by the app.
 
 #include <Eigen/Core>
+#include <atomic>
 #include <filesystem>
+#include <functional>
+#include <future>
 #include <memory>
 #include <string>
 #include <vector>
 
+#include "convert/decimate_surface.h"
 #include "haptics/device_side.h"
 #include "io/surface_cache.h"
 #include "model/model.h"
@@ -64,6 +68,11 @@ struct DefaultSceneOptions {
   std::shared_ptr<SurfaceCache> surface_cache;
   /// false (headless): nothing is shown, so no surface is built, decimated or deformed.
   bool display{true};
+  /// A display surface that is neither cached nor small is decimated on a thread of its own
+  /// while the session runs, a preview shown meanwhile (convert/decimate_surface.h,
+  /// stage_display_surface_of_grid: the folded organ's first start no longer waits 10 s for it);
+  /// false: decimated during the loading, as before.
+  bool surface_in_background{true};
 };
 
 struct ProbeScene;
@@ -71,6 +80,38 @@ struct ProbeScene;
 /// (convert/decimate_surface.h), set as the scene's and the simulation's surface (so the
 /// physics deforms only that), with a note saying what was done.
 void use_display_surface(ProbeScene& scene, const DefaultSceneOptions& options);
+
+/// The display surface decimated on a thread of its own (StagedDisplaySurface::finish) at nice
+/// 10, with OpenMP on that thread alone (so the physics' team keeps the cores and its waits
+/// spin), from start() on. The destructor cancels the decimation (it stops within 10,000 edge
+/// collapses) and waits for the thread.
+class BackgroundDisplaySurface {
+ public:
+  BackgroundDisplaySurface(std::function<EmbeddedSurface(DecimationReport*)> finish,
+                           std::shared_ptr<std::atomic<bool>> cancel);
+  ~BackgroundDisplaySurface();
+  BackgroundDisplaySurface(const BackgroundDisplaySurface&) = delete;
+  BackgroundDisplaySurface& operator=(const BackgroundDisplaySurface&) = delete;
+  /// Starts the decimation (once; later calls do nothing). The probe app starts it once the
+  /// solver is built, so that the decimation's memory never comes on top of the factorisation's
+  /// (the folded organ's peak: 2.4 GB with the two together, docs/probe.md).
+  void start();
+  [[nodiscard]] bool started() const { return result_.valid() || taken_; }
+  /// Started and done.
+  [[nodiscard]] bool ready() const;
+  /// The decimated surface, with its report in `report` (waits for it; once: later calls
+  /// throw). Rethrows what the decimation threw (DecimationCancelled after cancel()).
+  [[nodiscard]] std::shared_ptr<const EmbeddedSurface> get(DecimationReport* report);
+  /// Stops the decimation under way (get() then throws DecimationCancelled).
+  void cancel() { cancel_->store(true); }
+
+ private:
+  std::function<EmbeddedSurface(DecimationReport*)> finish_;
+  std::shared_ptr<std::atomic<bool>> cancel_;
+  bool taken_{false};
+  DecimationReport report_;
+  std::future<std::shared_ptr<const EmbeddedSurface>> result_;
+};
 
 /// A scene ready to simulate and show.
 struct ProbeScene {
@@ -87,6 +128,9 @@ struct ProbeScene {
   /// The regional solves' error on this support, estimated while the run starts (a scene file
   /// with regional solves; null otherwise); the GUI loop reports it when it is ready.
   std::shared_ptr<BackgroundRegionCheck> region_check;
+  /// The display surface still being decimated while `surface` is its preview
+  /// (DefaultSceneOptions::surface_in_background); null when `surface` is final.
+  std::shared_ptr<BackgroundDisplaySurface> surface_refinement;
   /// A standing accuracy warning for the screen's status line (incompressible_iterations_status;
   /// the full warning is in `notes`); empty when there is none.
   std::string accuracy_status;

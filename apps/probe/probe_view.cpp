@@ -286,6 +286,18 @@ bool ProbeView::process_events() {
   return !v.closed;
 }
 
+void ProbeView::replace_surface(const Eigen::Matrix3Xd& rest_vertices, const Eigen::Matrix3Xi& triangles) {
+  if (rest_vertices.cols() == 0 || triangles.cols() == 0)
+    throw Error("the view needs a surface (no vertices or triangles)");
+  Impl& v = *impl_;
+  v.setup.surface_vertices = rest_vertices;
+  v.setup.surface_triangles = triangles;
+  v.set_tissue_mesh();
+  ++v.surfaces_replaced;
+}
+
+int ProbeView::surfaces_replaced() const { return impl_->surfaces_replaced; }
+
 void ProbeView::update_geometry(const Eigen::Matrix3Xd& surface_vertices, const Eigen::Matrix3Xd& surface_normals,
                                 const Eigen::Matrix3Xd& node_positions,
                                 const std::vector<Eigen::Vector3d>& probe_positions,

@@ -83,6 +83,9 @@ struct HudInfo {
   /// While the solver is factored in the background: a line under the solver's configuration
   /// (GuiLoop::solver_note); empty: none.
   std::string solver_note;
+  /// While the display surface is a preview, decimated in the background: a line saying so
+  /// (GuiLoop::surface_note); empty: none.
+  std::string surface_note;
   bool behind_real_time{false};  ///< physics cannot keep up
   /// The threads the physics steps on now, of those it was given (thread_share.h)
   int physics_threads{1};
@@ -132,6 +135,13 @@ class ProbeView {
   void update_geometry(const Eigen::Matrix3Xd& surface_vertices, const Eigen::Matrix3Xd& surface_normals,
                        const Eigen::Matrix3Xd& node_positions, const std::vector<Eigen::Vector3d>& probe_positions,
                        const std::vector<int>& probe_contacts);
+  /// Another tissue surface at rest (3 x V vertices, 3 x T triangles), drawn from now on in
+  /// place of the first (the camera, the tint and the views stay): the physics deforms a refined
+  /// display surface once it is ready. The next update_geometry must have V vertices. Throws
+  /// vx::Error when it has no vertices or triangles.
+  void replace_surface(const Eigen::Matrix3Xd& rest_vertices, const Eigen::Matrix3Xi& triangles);
+  /// Surfaces replaced so far.
+  [[nodiscard]] int surfaces_replaced() const;
   /// Appends samples to the force plot (times increasing; older than the window are dropped).
   void add_plot_samples(const std::vector<PlotSample>& samples);
   /// Clears the force plot (after a reset).

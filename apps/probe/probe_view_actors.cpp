@@ -107,48 +107,52 @@ Eigen::Matrix3Xd vertex_normals(const Eigen::Matrix3Xd& vertices, const Eigen::M
   return std::move(s.rest_normals);
 }
 
-void ProbeView::Impl::build_tissue() {
-  // the tissue surface (points and normals replaced every frame)
-  surface = make<vtkPolyData>();
-  {
-    const auto nv = setup.surface_vertices.cols();
-    auto pts = make<vtkPoints>();
-    pts->SetDataTypeToDouble();
-    pts->SetNumberOfPoints(nv);
-    std::copy_n(setup.surface_vertices.data(), 3 * nv, static_cast<double*>(pts->GetVoidPointer(0)));
-    surface->SetPoints(pts);
-    // the rest normals until the physics sends its first frame: with zero normals only the
-    // ambient term lights the tissue (12 %: a large organ whose start-up takes seconds was drawn
-    // almost black until its first step)
-    auto normals = make<vtkDoubleArray>();
-    normals->SetName("Normals");
-    normals->SetNumberOfComponents(3);
-    normals->SetNumberOfTuples(nv);
-    const Eigen::Matrix3Xd rest_normals = vertex_normals(setup.surface_vertices, setup.surface_triangles);
-    std::copy_n(rest_normals.data(), 3 * nv, normals->GetPointer(0));
-    surface->GetPointData()->SetNormals(normals);
-    auto offsets = make<vtkIdTypeArray>();
-    auto conn = make<vtkIdTypeArray>();
-    const auto nt = setup.surface_triangles.cols();
-    offsets->SetNumberOfValues(nt + 1);
-    conn->SetNumberOfValues(3 * nt);
-    for (vtkIdType t = 0; t <= nt; ++t) offsets->SetValue(t, 3 * t);
-    for (vtkIdType i = 0; i < 3 * nt; ++i) conn->SetValue(i, setup.surface_triangles.data()[i]);
-    auto tris = make<vtkCellArray>();
-    tris->SetData(offsets, conn);
-    surface->SetPolys(tris);
-  }
+void ProbeView::Impl::set_tissue_mesh() {
+  // the rest surface's points, normals, triangles and tint (points and normals replaced every
+  // frame; all of it again when the physics swaps the surface: replace_surface)
+  const auto nv = setup.surface_vertices.cols();
+  auto pts = make<vtkPoints>();
+  pts->SetDataTypeToDouble();
+  pts->SetNumberOfPoints(nv);
+  std::copy_n(setup.surface_vertices.data(), 3 * nv, static_cast<double*>(pts->GetVoidPointer(0)));
+  surface->SetPoints(pts);
+  // the rest normals until the physics sends its first frame: with zero normals only the
+  // ambient term lights the tissue (12 %: a large organ whose start-up takes seconds was drawn
+  // almost black until its first step)
+  auto normals = make<vtkDoubleArray>();
+  normals->SetName("Normals");
+  normals->SetNumberOfComponents(3);
+  normals->SetNumberOfTuples(nv);
+  const Eigen::Matrix3Xd rest_normals = vertex_normals(setup.surface_vertices, setup.surface_triangles);
+  std::copy_n(rest_normals.data(), 3 * nv, normals->GetPointer(0));
+  surface->GetPointData()->SetNormals(normals);
+  auto offsets = make<vtkIdTypeArray>();
+  auto conn = make<vtkIdTypeArray>();
+  const auto nt = setup.surface_triangles.cols();
+  offsets->SetNumberOfValues(nt + 1);
+  conn->SetNumberOfValues(3 * nt);
+  for (vtkIdType t = 0; t <= nt; ++t) offsets->SetValue(t, 3 * t);
+  for (vtkIdType i = 0; i < 3 * nt; ++i) conn->SetValue(i, setup.surface_triangles.data()[i]);
+  auto tris = make<vtkCellArray>();
+  tris->SetData(offsets, conn);
+  surface->SetPolys(tris);
   // the displacement tint: per-vertex colours, the tissue colour deepening where it is pressed
   tint = make<vtkUnsignedCharArray>();
   tint->SetName("tint");
   tint->SetNumberOfComponents(3);
-  tint->SetNumberOfTuples(setup.surface_vertices.cols());
-  for (vtkIdType i = 0; i < setup.surface_vertices.cols(); ++i)
+  tint->SetNumberOfTuples(nv);
+  for (vtkIdType i = 0; i < nv; ++i)
     tint->SetTypedTuple(i, std::array<unsigned char, 3>{static_cast<unsigned char>(255 * kTissue.r),
                                                         static_cast<unsigned char>(255 * kTissue.g),
                                                         static_cast<unsigned char>(255 * kTissue.b)}
                                .data());
   surface->GetPointData()->SetScalars(tint);
+  surface->Modified();
+}
+
+void ProbeView::Impl::build_tissue() {
+  surface = make<vtkPolyData>();
+  set_tissue_mesh();
   auto surface_mapper = make<vtkPolyDataMapper>();
   surface_mapper->SetInputData(surface);
   surface_mapper->SetColorModeToDirectScalars();

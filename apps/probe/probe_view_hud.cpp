@@ -198,6 +198,7 @@ void ProbeView::Impl::update_hud_text() {
   // the solver's configuration on a line of its own: after the rate it ran under the plot
   std::string config = setup.physics_line.empty() ? std::string() : "  solver: " + setup.physics_line + "\n";
   if (!h.solver_note.empty()) config += "  solver: " + h.solver_note + "\n";
+  if (!h.surface_note.empty()) config += "  display: " + h.surface_note + "\n";
   // sharing the cores: on one thread while the others are not needed (the display has them)
   const std::string threads =
       h.physics_threads_given > 1 ? fmt::format(", {} of {} threads", h.physics_threads, h.physics_threads_given) : "";

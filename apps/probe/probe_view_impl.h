@@ -151,6 +151,7 @@ struct ProbeView::Impl {
 
   // rates
   std::int64_t frames{0};
+  int surfaces_replaced{0};      ///< replace_surface calls
   std::int64_t input_events{0};  // window events (keys, mouse, resize, expose) so far
   RateMeter fps{0.5};
 
@@ -176,6 +177,8 @@ struct ProbeView::Impl {
   void drag(int dx, int dy, bool depth);
   void camera_to_start();
   void update_tissue(const Eigen::Matrix3Xd& surface_vertices, const Eigen::Matrix3Xd& surface_normals);
+  /// The tissue's polydata from setup.surface_vertices and setup.surface_triangles.
+  void set_tissue_mesh();
   void update_probes(const std::vector<Eigen::Vector3d>& probe_positions, const std::vector<int>& probe_contacts);
 };
 

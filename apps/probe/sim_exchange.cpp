@@ -50,7 +50,22 @@ void SimulationExchange::apply_live(Simulation& sim) {
     }
 }
 
+void SimulationExchange::offer_surface(std::shared_ptr<const EmbeddedSurface> surface) {
+  std::lock_guard lock(mutex_);
+  offered_surface_ = std::move(surface);
+  surface_offered_.store(true, std::memory_order_release);
+}
+
 void SimulationExchange::publish(Simulation& sim) {
+  if (surface_offered_.exchange(false, std::memory_order_acq_rel)) {
+    std::shared_ptr<const EmbeddedSurface> surface;
+    {
+      std::lock_guard lock(mutex_);
+      surface.swap(offered_surface_);
+    }
+    sim.set_surface(std::move(surface));
+    surfaces_taken_.fetch_add(1, std::memory_order_relaxed);
+  }
   const bool frame = frame_requested_.exchange(false, std::memory_order_acq_rel);
   // the surface deformed and the frame copied before the lock (the device thread reads the
   // outputs meanwhile); under it only swapped

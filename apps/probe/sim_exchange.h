@@ -18,6 +18,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <memory>
 #include <mutex>
 #include <string>
 #include <vector>
@@ -48,11 +49,19 @@ class SimulationExchange {
   /// Swaps the latest frame into `out` if a new one is ready; returns whether it was.
   bool take_frame(SimulationFrame& out);
   [[nodiscard]] std::int64_t frames_published() const { return frames_published_.load(std::memory_order_relaxed); }
+  /// A display surface for the simulation to deform instead of its own from the next publish
+  /// on (Simulation::set_surface: the probe app's preview replaced by the decimated surface once
+  /// it is ready). Each frame carries its surface, so the display takes the new triangles with
+  /// the first frame of it. Must be embedded in the simulation's model.
+  void offer_surface(std::shared_ptr<const EmbeddedSurface> surface);
+  /// Surfaces offered and taken by the simulation so far.
+  [[nodiscard]] std::int64_t surfaces_taken() const { return surfaces_taken_.load(std::memory_order_relaxed); }
 
   // --- the physics thread ---------------------------------------------------------------------
   /// The live commands set since the last call, to `sim` (before a step).
   void apply_live(Simulation& sim);
-  /// After a step or a reset: the probes' outputs, and a frame when one was asked for.
+  /// After a step or a reset: an offered surface to `sim`, the probes' outputs, and a frame when
+  /// one was asked for.
   void publish(Simulation& sim);
 
  private:
@@ -69,6 +78,9 @@ class SimulationExchange {
   SimulationFrame frame_;    ///< guarded
   bool frame_ready_{false};  ///< guarded
   std::atomic<std::int64_t> frames_published_{0};
+  std::shared_ptr<const EmbeddedSurface> offered_surface_;  ///< guarded
+  std::atomic<bool> surface_offered_{false};
+  std::atomic<std::int64_t> surfaces_taken_{0};
 };
 
 }  // namespace vx::probe

@@ -9,9 +9,12 @@
 #include <vtkPointData.h>
 #include <vtkPoints.h>
 #include <vtkPolyData.h>
+#include <vtkQuadricClustering.h>
 #include <vtkQuadricDecimation.h>
 #include <vtkSmartPointer.h>
 #include <vtkStaticCellLocator.h>
+#include <vtkStaticPointLocator.h>
+#include <Eigen/Geometry>
 
 #include <algorithm>
 #include <chrono>
@@ -51,9 +54,46 @@ vtkSmartPointer<vtkPolyData> to_poly(const Eigen::Matrix3Xd& vertices, const Eig
   return poly;
 }
 
+bool cancelled(const DecimationSettings& s) { return s.cancel && s.cancel->load(std::memory_order_relaxed); }
+
+/// Whether decimate_surface keeps `full` as it is.
+bool kept_whole(const Model& model, const EmbeddedSurface& full, const DecimationSettings& settings) {
+  if (settings.target_triangles < 0) throw Error("display surface: the target triangle count must be >= 0");
+  if (full.model_nodes != model.num_nodes())
+    throw Error(fmt::format("display surface: the surface is embedded in a model of {} nodes, this one has {}",
+                            full.model_nodes, model.num_nodes()));
+  return settings.target_triangles == 0 || full.num_triangles() <= settings.target_triangles ||
+         full.method == SurfaceMethod::slice || model.is_2d();
+}
+
+/// `full` restricted to the vertices `source` (ids into `full`) and `triangles` over them, each
+/// vertex with its embedding row of `full`.
+EmbeddedSurface sub_surface(const EmbeddedSurface& full, const std::vector<std::int32_t>& source,
+                            Eigen::Matrix3Xd vertices, Eigen::Matrix3Xi triangles) {
+  EmbeddedSurface s;
+  s.method = full.method;
+  s.model_nodes = full.model_nodes;
+  s.rest_vertices = std::move(vertices);
+  s.triangles = std::move(triangles);
+  s.embed_offsets.assign(1, 0);
+  for (const std::int32_t f : source) {
+    const auto b = full.embed_offsets[std::size_t(f)], e = full.embed_offsets[std::size_t(f) + 1];
+    s.embed_nodes.insert(s.embed_nodes.end(), full.embed_nodes.begin() + b, full.embed_nodes.begin() + e);
+    s.embed_weights.insert(s.embed_weights.end(), full.embed_weights.begin() + b, full.embed_weights.begin() + e);
+    s.embed_offsets.push_back(std::int32_t(s.embed_nodes.size()));
+  }
+  s.finalize();
+  return s;
+}
+
 }  // namespace
 
 std::string DecimationReport::summary() const {
+  if (preview)
+    return fmt::format(
+        "display surface: a preview of {} triangles ({} vertices, {}) of the {} in {:.2f} s, shown "
+        "while the decimation runs in the background",
+        triangles_after, vertices_after, method, triangles_before, decimate_s + embed_s);
   if (!decimated && !from_cache) return fmt::format("display surface: {} triangles (not decimated)", triangles_before);
   if (from_cache)
     return fmt::format("display surface {} -> {} triangles ({} -> {} vertices): loaded from the cache in {:.2f} s",
@@ -69,13 +109,7 @@ EmbeddedSurface decimate_surface(const Model& model, const EmbeddedSurface& full
   DecimationReport report;
   report.triangles_before = report.triangles_after = full.num_triangles();
   report.vertices_before = report.vertices_after = full.num_vertices();
-  if (settings.target_triangles < 0) throw Error("display surface: the target triangle count must be >= 0");
-  if (full.model_nodes != model.num_nodes())
-    throw Error(fmt::format("display surface: the surface is embedded in a model of {} nodes, this one has {}",
-                            full.model_nodes, model.num_nodes()));
-  const bool keep = settings.target_triangles == 0 || full.num_triangles() <= settings.target_triangles ||
-                    full.method == SurfaceMethod::slice || model.is_2d();
-  if (keep) {
+  if (kept_whole(model, full, settings)) {
     if (report_out) *report_out = report;
     return full;
   }
@@ -99,7 +133,6 @@ EmbeddedSurface decimate_surface(const Model& model, const EmbeddedSurface& full
 
   // the rest surface, each point carrying its vertex id in the full surface
   const auto t0 = std::chrono::steady_clock::now();
-  const VtkMessageCapture vtk_messages;
   vtkSmartPointer<vtkPolyData> input = to_poly(full.rest_vertices, full.triangles);
   {
     vtkNew<vtkIdTypeArray> ids;
@@ -111,7 +144,11 @@ EmbeddedSurface decimate_surface(const Model& model, const EmbeddedSurface& full
   const double reduction = 1.0 - double(settings.target_triangles) / double(full.num_triangles());
   // topology-preserving vertex removal first (vertices stay where they were, on the full
   // surface); should it stop short of the target, quadric edge collapses instead
+  // each filter watched on its own (not VTK's global output window: this may run on a thread
+  // beside a window's rendering), and stopped when the caller cancels
+  vtkNew<VtkFilterWatch> watch;
   vtkNew<vtkDecimatePro> pro;
+  watch->watch(pro, settings.cancel);
   pro->SetInputData(input);
   pro->SetTargetReduction(reduction);
   pro->PreserveTopologyOn();
@@ -123,7 +160,9 @@ EmbeddedSurface decimate_surface(const Model& model, const EmbeddedSurface& full
   vtkPolyDataAlgorithm* decimate = pro;
   report.method = "vtkDecimatePro, topology preserved";
   vtkNew<vtkQuadricDecimation> quadric;
+  if (cancelled(settings)) throw DecimationCancelled();
   if (pro->GetOutput()->GetNumberOfPolys() > vtkIdType(1.1 * settings.target_triangles)) {
+    watch->watch(quadric, settings.cancel);
     quadric->SetInputData(input);
     quadric->SetTargetReduction(reduction);
     quadric->VolumePreservationOn();  // Lindstrom-Turk volume constraint: no shrinking
@@ -132,9 +171,10 @@ EmbeddedSurface decimate_surface(const Model& model, const EmbeddedSurface& full
     decimate = quadric;
     report.method = "vtkQuadricDecimation";
   }
+  if (watch->cancelled || cancelled(settings)) throw DecimationCancelled();
   vtkPolyData* out = decimate->GetOutput();
-  if (!vtk_messages.errors().empty() || !out || out->GetNumberOfPolys() == 0)
-    throw Error("VTK could not decimate the display surface: " + vtk_messages.first_error("no triangles left"));
+  if (!watch->errors.empty() || !out || out->GetNumberOfPolys() == 0)
+    throw Error("VTK could not decimate the display surface: " + watch->first_error("no triangles left"));
 
   // the triangles (dropping any that repeat a vertex) and the vertices they use, renumbered
   const vtkIdType np = out->GetNumberOfPoints();
@@ -187,18 +227,7 @@ EmbeddedSurface decimate_surface(const Model& model, const EmbeddedSurface& full
   EmbeddedSurface s;
   if (all_kept) {
     // every vertex is one of the full surface's: its embedding row as it is (no new weights)
-    s.method = full.method;
-    s.model_nodes = full.model_nodes;
-    s.rest_vertices = std::move(vertices);
-    s.triangles = std::move(triangles);
-    s.embed_offsets.assign(1, 0);
-    for (const std::int32_t f : source) {
-      const auto b = full.embed_offsets[std::size_t(f)], e = full.embed_offsets[std::size_t(f) + 1];
-      s.embed_nodes.insert(s.embed_nodes.end(), full.embed_nodes.begin() + b, full.embed_nodes.begin() + e);
-      s.embed_weights.insert(s.embed_weights.end(), full.embed_weights.begin() + b, full.embed_weights.begin() + e);
-      s.embed_offsets.push_back(std::int32_t(s.embed_nodes.size()));
-    }
-    s.finalize();
+    s = sub_surface(full, source, std::move(vertices), std::move(triangles));
     report.embedding = "the full surface's";
   } else {
     // moved vertices: the embedding the iso-surface uses (trilinear in the voxel cell over
@@ -216,41 +245,50 @@ EmbeddedSurface decimate_surface(const Model& model, const EmbeddedSurface& full
   return s;
 }
 
-EmbeddedSurface display_surface_of_grid(const Model& model, const VoxelGrid& grid, SurfaceMethod method,
-                                        const DecimationSettings& settings, DecimationReport* report_out,
-                                        SurfaceCache* cache, const IsoSurfaceSettings& iso) {
-  std::optional<SurfaceKey> key;
-  const auto t0 = std::chrono::steady_clock::now();
-  if (cache) {
-    ContentHash h = surface_key_hash(model, settings.target_triangles, settings.feature_angle_deg);
-    h.add_value(std::uint8_t(2));  // built from this grid by make_surface, then decimated
-    const GridGeometry& g = grid.geometry();
-    h.add(g.dims.data(), sizeof(int) * 3);
-    h.add(g.spacing_mm.data(), sizeof(double) * 3);
-    h.add(g.origin_mm.data(), sizeof(double) * 3);
-    h.add(g.direction.data(), sizeof(double) * 9);
-    h.add_value(std::uint64_t(grid.data().size()));
-    if (!grid.data().empty()) h.add(grid.data().data(), grid.data().size());
-    h.add_value(std::int32_t(method));
-    h.add_value(iso.iso_hu);
-    h.add_value(std::int32_t(iso.smoothing_iterations));
-    h.add_value(iso.pass_band);
-    key = SurfaceKey{h.value(), model.num_nodes(), settings.target_triangles};
-    if (std::optional<CachedSurface> kept = cache->load(*key)) {
-      DecimationReport report;
-      report.from_cache = true;
-      report.triangles_before = int(kept->source_triangles);
-      report.vertices_before = int(kept->source_vertices);
-      report.triangles_after = kept->surface.num_triangles();
-      report.vertices_after = kept->surface.num_vertices();
-      report.decimated = report.triangles_after != report.triangles_before;
-      report.cache_s = seconds_since(t0);
-      if (report_out) *report_out = report;
-      return std::move(kept->surface);
-    }
-  }
-  const EmbeddedSurface full = make_surface(model, grid, nullptr, method, iso);
-  const double build_s = seconds_since(t0);
+namespace {
+
+/// display_surface_of_grid's key: the model, the grid, the method, the iso-surface and
+/// decimation settings (and, through surface_key_hash, the VTK version).
+SurfaceKey grid_surface_key(const Model& model, const VoxelGrid& grid, SurfaceMethod method,
+                            const DecimationSettings& settings, const IsoSurfaceSettings& iso) {
+  ContentHash h = surface_key_hash(model, settings.target_triangles, settings.feature_angle_deg);
+  h.add_value(std::uint8_t(2));  // built from this grid by make_surface, then decimated
+  const GridGeometry& g = grid.geometry();
+  h.add(g.dims.data(), sizeof(int) * 3);
+  h.add(g.spacing_mm.data(), sizeof(double) * 3);
+  h.add(g.origin_mm.data(), sizeof(double) * 3);
+  h.add(g.direction.data(), sizeof(double) * 9);
+  h.add_value(std::uint64_t(grid.data().size()));
+  if (!grid.data().empty()) h.add(grid.data().data(), grid.data().size());
+  h.add_value(std::int32_t(method));
+  h.add_value(iso.iso_hu);
+  h.add_value(std::int32_t(iso.smoothing_iterations));
+  h.add_value(iso.pass_band);
+  return SurfaceKey{h.value(), model.num_nodes(), settings.target_triangles};
+}
+
+/// The display surface of `key` from `cache`, with its report; nothing when it is not there.
+std::optional<EmbeddedSurface> cached_display_surface(SurfaceCache& cache, const SurfaceKey& key,
+                                                      std::chrono::steady_clock::time_point t0,
+                                                      DecimationReport* report_out) {
+  std::optional<CachedSurface> kept = cache.load(key);
+  if (!kept) return std::nullopt;
+  DecimationReport report;
+  report.from_cache = true;
+  report.triangles_before = int(kept->source_triangles);
+  report.vertices_before = int(kept->source_vertices);
+  report.triangles_after = kept->surface.num_triangles();
+  report.vertices_after = kept->surface.num_vertices();
+  report.decimated = report.triangles_after != report.triangles_before;
+  report.cache_s = seconds_since(t0);
+  if (report_out) *report_out = report;
+  return std::move(kept->surface);
+}
+
+/// The full surface decimated (decimate_surface) and offered to `cache` under `key`.
+EmbeddedSurface decimate_and_keep(const Model& model, const EmbeddedSurface& full, double build_s,
+                                  const DecimationSettings& settings, DecimationReport* report_out, SurfaceCache* cache,
+                                  const std::optional<SurfaceKey>& key) {
   DecimationReport report;
   EmbeddedSurface shown = decimate_surface(model, full, settings, &report);
   report.build_s = build_s;
@@ -259,6 +297,157 @@ EmbeddedSurface display_surface_of_grid(const Model& model, const VoxelGrid& gri
                  build_s + report.decimate_s + report.embed_s);
   if (report_out) *report_out = report;
   return shown;
+}
+
+}  // namespace
+
+EmbeddedSurface display_surface_of_grid(const Model& model, const VoxelGrid& grid, SurfaceMethod method,
+                                        const DecimationSettings& settings, DecimationReport* report_out,
+                                        SurfaceCache* cache, const IsoSurfaceSettings& iso) {
+  std::optional<SurfaceKey> key;
+  const auto t0 = std::chrono::steady_clock::now();
+  if (cache) {
+    key = grid_surface_key(model, grid, method, settings, iso);
+    if (std::optional<EmbeddedSurface> kept = cached_display_surface(*cache, *key, t0, report_out))
+      return *std::move(kept);
+  }
+  const EmbeddedSurface full = make_surface(model, grid, nullptr, method, iso);
+  return decimate_and_keep(model, full, seconds_since(t0), settings, report_out, cache, key);
+}
+
+StagedDisplaySurface stage_display_surface_of_grid(std::shared_ptr<const Model> model, const VoxelGrid& grid,
+                                                   SurfaceMethod method, const DecimationSettings& settings,
+                                                   std::shared_ptr<SurfaceCache> cache, const IsoSurfaceSettings& iso) {
+  if (!model) throw Error("display surface: no model");
+  StagedDisplaySurface staged;
+  std::optional<SurfaceKey> key;
+  const auto t0 = std::chrono::steady_clock::now();
+  if (cache) {
+    key = grid_surface_key(*model, grid, method, settings, iso);
+    if (std::optional<EmbeddedSurface> kept = cached_display_surface(*cache, *key, t0, &staged.report)) {
+      staged.shown = *std::move(kept);
+      return staged;
+    }
+  }
+  EmbeddedSurface full = make_surface(*model, grid, nullptr, method, iso);
+  const double build_s = seconds_since(t0);
+  if (kept_whole(*model, full, settings)) {
+    staged.shown = decimate_and_keep(*model, full, build_s, settings, &staged.report, cache.get(), key);
+    return staged;
+  }
+  staged.shown = preview_surface(*model, full, settings, &staged.report);
+  staged.report.build_s = build_s;
+  // the full surface is built again when the decimation runs, not kept meanwhile: 80 MB on the
+  // folded organ (its embedding), which would otherwise sit on top of the factorisation's peak
+  // (make_surface gives the same surface each time: SurfaceCacheTest)
+  auto kept_grid = std::make_shared<const VoxelGrid>(grid);
+  staged.finish = [model, kept_grid, method, iso, settings, cache, key](DecimationReport* report) {
+    const auto t = std::chrono::steady_clock::now();
+    const EmbeddedSurface again = make_surface(*model, *kept_grid, nullptr, method, iso);
+    return decimate_and_keep(*model, again, seconds_since(t), settings, report, cache.get(), key);
+  };
+  return staged;
+}
+
+EmbeddedSurface preview_surface(const Model& model, const EmbeddedSurface& full, const DecimationSettings& settings,
+                                DecimationReport* report_out) {
+  DecimationReport report;
+  report.triangles_before = report.triangles_after = full.num_triangles();
+  report.vertices_before = report.vertices_after = full.num_vertices();
+  if (kept_whole(model, full, settings)) {
+    if (report_out) *report_out = report;
+    return full;
+  }
+  const auto t0 = std::chrono::steady_clock::now();
+  vtkSmartPointer<vtkPolyData> input = to_poly(full.rest_vertices, full.triangles);
+  // bins of side h: a closed surface of area A crosses about c A / h^2 of them (c about 1.5 to
+  // 2), each a vertex with about two triangles; so h from A and the target, then once more
+  // from the count the first try gave
+  double area = 0.0;
+  for (Eigen::Index t = 0; t < full.triangles.cols(); ++t) {
+    const Eigen::Vector3d a = full.rest_vertices.col(full.triangles(0, t));
+    area += 0.5 * (full.rest_vertices.col(full.triangles(1, t)) - a)
+                      .cross(full.rest_vertices.col(full.triangles(2, t)) - a)
+                      .norm();
+  }
+  const double target = double(settings.target_triangles);
+  double h = std::sqrt(3.5 * area / target);
+  vtkNew<VtkFilterWatch> watch;
+  vtkNew<vtkQuadricClustering> cluster;
+  watch->watch(cluster, nullptr);
+  cluster->SetInputData(input);
+  cluster->AutoAdjustNumberOfDivisionsOff();
+  cluster->UseInputPointsOn();  // each bin's vertex one of the input's: its embedding row kept
+  cluster->CopyCellDataOff();
+  const auto run = [&] {
+    double b[6];
+    input->GetBounds(b);
+    const auto divisions = [&](int axis) {
+      return std::max(1, int(std::ceil((b[2 * axis + 1] - b[2 * axis]) / h)) + 1);
+    };
+    cluster->SetNumberOfDivisions(divisions(0), divisions(1), divisions(2));
+    cluster->Update();
+    return double(cluster->GetOutput()->GetNumberOfPolys());
+  };
+  const double first = run();
+  if (first > 1.15 * target || first < 0.7 * target) {
+    h *= std::sqrt(first / target);
+    (void)run();
+  }
+  vtkPolyData* out = cluster->GetOutput();
+  if (!watch->errors.empty() || !out || out->GetNumberOfPolys() == 0)
+    throw Error("VTK could not cluster the display surface's preview: " + watch->first_error("no triangles left"));
+  // the output's points are input points: find each one's id in `full` (nearest point, at
+  // distance 0 up to the output's float precision)
+  vtkNew<vtkStaticPointLocator> locator;
+  locator->SetDataSet(input);
+  locator->BuildLocator();
+  const vtkIdType np = out->GetNumberOfPoints();
+  std::vector<std::int32_t> full_id(std::size_t(np), -1);
+  std::vector<int> new_id(std::size_t(np), -1);
+  std::vector<Eigen::Vector3i> tris;
+  tris.reserve(std::size_t(out->GetNumberOfPolys()));
+  std::vector<std::int32_t> source;
+  vtkCellArray* polys = out->GetPolys();
+  polys->InitTraversal();
+  vtkIdType npts = 0;
+  const vtkIdType* pts = nullptr;
+  while (polys->GetNextCell(npts, pts)) {
+    if (npts != 3) continue;
+    Eigen::Vector3i tri;
+    for (int k = 0; k < 3; ++k) {
+      const auto p = std::size_t(pts[k]);
+      if (new_id[p] < 0) {
+        double x[3];
+        out->GetPoint(pts[k], x);
+        const vtkIdType f = locator->FindClosestPoint(x);
+        if (f < 0) throw Error("display surface preview: a clustered point has no input point");
+        new_id[p] = int(source.size());
+        source.push_back(std::int32_t(f));
+      }
+      tri[k] = new_id[p];
+    }
+    if (source[std::size_t(tri[0])] == source[std::size_t(tri[1])] ||
+        source[std::size_t(tri[1])] == source[std::size_t(tri[2])] ||
+        source[std::size_t(tri[2])] == source[std::size_t(tri[0])])
+      continue;
+    tris.push_back(tri);
+  }
+  Eigen::Matrix3Xd vertices(3, Eigen::Index(source.size()));
+  for (std::size_t v = 0; v < source.size(); ++v) vertices.col(Eigen::Index(v)) = full.rest_vertices.col(source[v]);
+  Eigen::Matrix3Xi triangles(3, Eigen::Index(tris.size()));
+  for (std::size_t t = 0; t < tris.size(); ++t) triangles.col(Eigen::Index(t)) = tris[t];
+  report.decimate_s = seconds_since(t0);
+  const auto t1 = std::chrono::steady_clock::now();
+  EmbeddedSurface s = sub_surface(full, source, std::move(vertices), std::move(triangles));
+  report.embed_s = seconds_since(t1);
+  report.preview = true;
+  report.method = fmt::format("vtkQuadricClustering, bins of {:.2f} mm", h);
+  report.embedding = "the full surface's";
+  report.triangles_after = s.num_triangles();
+  report.vertices_after = s.num_vertices();
+  if (report_out) *report_out = report;
+  return s;
 }
 
 MeshDistance mesh_distance_mm(const Eigen::Matrix3Xd& a_vertices, const Eigen::Matrix3Xi& a_triangles,

@@ -7,8 +7,12 @@
 /// brain becomes 100,000 triangles.
 
 #include <Eigen/Core>
+#include <atomic>
+#include <functional>
+#include <memory>
 #include <string>
 
+#include "base/error.h"
 #include "convert/iso_surface.h"
 #include "model/model.h"
 #include "model/voxel_grid.h"
@@ -26,6 +30,17 @@ struct DecimationSettings {
   /// met the target within 10 % on a folded test surface (1 mm voxels, 2 mm sulci, 3.5x fewer
   /// triangles) with the least distance (0.42 mm; 15: 0.73 mm; 5 stopped 28 % above the target).
   double feature_angle_deg{10.0};
+  /// When set and it turns true, a decimation under way stops (VTK's abort flag, which the
+  /// filters read every 10,000 edge collapses) and decimate_surface throws DecimationCancelled:
+  /// an app that quits before its background decimation ends (the probe app's first start of an
+  /// organ). Null: never.
+  const std::atomic<bool>* cancel{nullptr};
+};
+
+/// Thrown by decimate_surface when DecimationSettings::cancel turned true: nothing was kept.
+class DecimationCancelled : public Error {
+ public:
+  DecimationCancelled() : Error("display surface: the decimation was cancelled") {}
 };
 
 /// What decimate_surface did.
@@ -40,6 +55,7 @@ struct DecimationReport {
   std::string method;           ///< the VTK filter that made it
   std::string embedding;        ///< "the full surface's" (kept vertices) or "embed_surface" (moved ones)
   bool from_cache{false};       ///< loaded from the display surface cache (io/surface_cache.h)
+  bool preview{false};          ///< preview_surface's quick stand-in, the decimation still to come
   double build_s{0.0};          ///< display_surface_of_grid: wall time of building the full surface, s
   double cache_s{0.0};          ///< wall time of the key and the load (from_cache), s
   /// One line for a log, e.g. "display surface decimated 350768 -> 100002 triangles in 1.9 s".
@@ -72,6 +88,44 @@ struct DecimationReport {
 [[nodiscard]] EmbeddedSurface display_surface_of_grid(const Model& model, const VoxelGrid& grid, SurfaceMethod method,
                                                       const DecimationSettings& settings, DecimationReport* report,
                                                       SurfaceCache* cache, const IsoSurfaceSettings& iso = {});
+
+/// A quick stand-in for decimate_surface's surface, to show while it runs (the probe app's
+/// first start of an organ, where the decimation takes 10 s): the rest surface clustered on a
+/// uniform grid of bins sized for about `settings.target_triangles` triangles
+/// (vtkQuadricClustering, Lindstrom 2000), each bin's vertex the one of `full`'s vertices in it
+/// that best fits the bin's quadric, so every vertex keeps its embedding row of `full` (it moves
+/// exactly as the full surface does there). Not closed or manifold in general, and coarser than
+/// decimate_surface's (a bin of about 1.3 mm at 1 mm voxels): for the seconds until that one is
+/// ready. `full` itself when decimate_surface would keep it. `report->preview` is set.
+/// Throws vx::Error when `full` does not belong to `model` or VTK fails.
+[[nodiscard]] EmbeddedSurface preview_surface(const Model& model, const EmbeddedSurface& full,
+                                              const DecimationSettings& settings = {},
+                                              DecimationReport* report = nullptr);
+
+/// display_surface_of_grid in two parts, for an app that opens before the decimation ends.
+struct StagedDisplaySurface {
+  /// The display surface when it is final (loaded from the cache, or small enough to show
+  /// whole), else preview_surface's stand-in for it.
+  EmbeddedSurface shown;
+  /// Of `shown`: from_cache, decimated, or preview (with the full surface's build_s).
+  DecimationReport report;
+  /// Empty when `shown` is final. Else the decimation still to do: the full surface built again
+  /// (it is not kept meanwhile: 80 MB on the folded organ) and decimated, offered to the cache
+  /// under display_surface_of_grid's key (the next start loads it): the same surface
+  /// display_surface_of_grid returns, bit for bit. Runs on any thread (no VTK global state: its
+  /// messages are caught per filter); holds what it needs (the model, the grid, the cache);
+  /// throws DecimationCancelled when `settings.cancel` turns true.
+  std::function<EmbeddedSurface(DecimationReport*)> finish;
+};
+
+/// The display surface of display_surface_of_grid, staged: loaded from `cache` (may be null)
+/// when it holds it, else the full surface built here and the decimation left to
+/// StagedDisplaySurface::finish, with a preview to show meanwhile. Throws vx::Error.
+[[nodiscard]] StagedDisplaySurface stage_display_surface_of_grid(std::shared_ptr<const Model> model,
+                                                                 const VoxelGrid& grid, SurfaceMethod method,
+                                                                 const DecimationSettings& settings,
+                                                                 std::shared_ptr<SurfaceCache> cache,
+                                                                 const IsoSurfaceSettings& iso = {});
 
 /// Distances between two triangle meshes (LPS mm): every vertex of each to the nearest point on
 /// the other's triangles (vtkStaticCellLocator). `max_mm` is the symmetric vertex-sampled

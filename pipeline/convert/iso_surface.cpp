@@ -95,10 +95,13 @@ TriangleMesh extract_iso_surface(const VoxelGrid& grid, const Volume* hu, const 
         }
   }
 
-  const VtkMessageCapture vtk_messages;
+  // each filter watched on its own, not through VTK's global output window: this may run on a
+  // thread beside a window's rendering (the probe app's display surface, decimate_surface.h)
+  vtkNew<VtkFilterWatch> vtk_messages;
   vtkSmartPointer<vtkPolyData> contour;
   if (use_hu) {
     vtkNew<vtkFlyingEdges3D> fe;
+    vtk_messages->watch(fe);
     fe->SetInputData(image);
     fe->SetValue(0, settings.iso_hu);
     fe->ComputeNormalsOff();
@@ -108,6 +111,7 @@ TriangleMesh extract_iso_surface(const VoxelGrid& grid, const Volume* hu, const 
     contour = fe->GetOutput();
   } else {
     vtkNew<vtkDiscreteFlyingEdges3D> fe;
+    vtk_messages->watch(fe);
     fe->SetInputData(image);
     fe->SetValue(0, 1.0);
     fe->ComputeNormalsOff();
@@ -120,6 +124,7 @@ TriangleMesh extract_iso_surface(const VoxelGrid& grid, const Volume* hu, const 
   if (settings.smoothing_iterations > 0) {
     // windowed sinc: a low-pass filter on the vertex positions that barely shrinks the shape
     vtkNew<vtkWindowedSincPolyDataFilter> ws;
+    vtk_messages->watch(ws);
     ws->SetInputData(contour);
     ws->SetNumberOfIterations(settings.smoothing_iterations);
     ws->SetPassBand(settings.pass_band);
@@ -130,8 +135,8 @@ TriangleMesh extract_iso_surface(const VoxelGrid& grid, const Volume* hu, const 
     ws->Update();
     smooth = ws->GetOutput();
   }
-  if (!vtk_messages.errors().empty())
-    throw Error("VTK could not make the iso-surface: " + vtk_messages.first_error("unknown error"));
+  if (!vtk_messages->errors.empty())
+    throw Error("VTK could not make the iso-surface: " + vtk_messages->first_error("unknown error"));
 
   TriangleMesh mesh;
   const vtkIdType np = smooth->GetNumberOfPoints();

@@ -4,10 +4,13 @@
 /// XML parsers, executives, compressors, render windows), so a failure becomes one clear
 /// vx::Error instead of VTK's log on stderr. Internal to the pipeline (VTK includes).
 
+#include <vtkAlgorithm.h>
+#include <vtkCommand.h>
 #include <vtkLogger.h>
 #include <vtkOutputWindow.h>
 #include <vtkSmartPointer.h>
 
+#include <atomic>
 #include <string>
 #include <vector>
 
@@ -67,6 +70,38 @@ class VtkMessageCapture {
   vtkSmartPointer<vtkOutputWindow> previous_;
   vtkLogger::Verbosity log_level_;
   vtkSmartPointer<Window> window_;
+};
+
+/// Watches VTK filters without VTK's global output window, so it may be used on any thread
+/// (a display surface decimated beside a window's rendering): collects the errors of the
+/// filters it watches (their ErrorEvent, which VTK then does not print) and, while they run,
+/// sets their abort flag once `cancel` turns true (their ProgressEvent).
+class VtkFilterWatch : public vtkCommand {
+ public:
+  static VtkFilterWatch* New() { return new VtkFilterWatch; }
+  /// Watches `filter` from now on; `cancel` may be null (never).
+  void watch(vtkAlgorithm* filter, const std::atomic<bool>* cancel = nullptr) {
+    cancel_ = cancel;
+    filter->AddObserver(vtkCommand::ErrorEvent, this);
+    filter->AddObserver(vtkCommand::ProgressEvent, this);
+  }
+  void Execute(vtkObject* caller, unsigned long event, void* data) override {
+    if (event == vtkCommand::ErrorEvent) {
+      errors.push_back(VtkMessageCapture::clean(static_cast<const char*>(data)));
+    } else if (event == vtkCommand::ProgressEvent && cancel_ && cancel_->load(std::memory_order_relaxed)) {
+      if (auto* a = vtkAlgorithm::SafeDownCast(caller)) a->SetAbortExecute(1);
+      cancelled = true;
+    }
+  }
+  /// The first error, or `fallback` when there was none.
+  [[nodiscard]] std::string first_error(const std::string& fallback) const {
+    return errors.empty() ? fallback : errors.front();
+  }
+  std::vector<std::string> errors;
+  bool cancelled{false};
+
+ private:
+  const std::atomic<bool>* cancel_{nullptr};
 };
 
 }  // namespace vx

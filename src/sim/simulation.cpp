@@ -298,6 +298,15 @@ const Eigen::Matrix3Xd& Simulation::surface_vertices() {
   return surface_frame_.vertices;
 }
 
+void Simulation::set_surface(std::shared_ptr<const EmbeddedSurface> surface) {
+  if (surface && surface->model_nodes != physics_->model->num_nodes())
+    throw Error("simulation: the new surface is embedded in a model of " + std::to_string(surface->model_nodes) +
+                " nodes, this one has " + std::to_string(physics_->model->num_nodes()));
+  settings_.surface = std::move(surface);
+  surface_frame_ = SurfaceFrame{};
+  surface_step_ = -1;
+}
+
 void Simulation::copy_frame(SimulationFrame& out, bool with_positions) {
   if (settings_.surface) (void)surface_vertices();
   out.time_s = state_.time_s;
@@ -309,7 +318,11 @@ void Simulation::copy_frame(SimulationFrame& out, bool with_positions) {
   if (settings_.surface) {
     out.surface_vertices = surface_frame_.vertices;
     out.surface_normals = surface_frame_.normals;
+  } else {
+    out.surface_vertices.resize(3, 0);
+    out.surface_normals.resize(3, 0);
   }
+  out.surface = settings_.surface;
   out.probes = outputs_;
 }
 

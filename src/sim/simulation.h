@@ -109,6 +109,9 @@ struct SimulationFrame {
   Eigen::Matrix3Xd positions;         ///< 3 x nodes, mm (3 x 0 when not asked for: copy_frame)
   Eigen::Matrix3Xd surface_vertices;  ///< 3 x V (empty without a surface), mm
   Eigen::Matrix3Xd surface_normals;   ///< 3 x V
+  /// The surface those vertices deform (its triangles; null without one): a display that holds
+  /// another (Simulation::set_surface swapped it) takes this one's triangles
+  std::shared_ptr<const EmbeddedSurface> surface;
   std::vector<ProbeOutput> probes;
 };
 
@@ -189,6 +192,11 @@ class Simulation {
   /// surface is stale. Throws vx::Error when the simulation has no surface.
   const Eigen::Matrix3Xd& surface_vertices();
   [[nodiscard]] bool has_surface() const { return bool(settings_.surface); }
+  /// Deforms `surface` from now on instead of the one it had (a display surface refined while
+  /// the simulation runs: the probe app's first start of an organ); the next surface_vertices()
+  /// or frame deforms it. Null: no surface from now on. Throws vx::Error when it is embedded in
+  /// a model of another node count (the simulation keeps its surface then).
+  void set_surface(std::shared_ptr<const EmbeddedSurface> surface);
 
   /// Live input for probe `i` (a `live` probe); applied from the next step on.
   /// Throws vx::Error for a bad index or a probe that is not live.

@@ -108,3 +108,61 @@ TEST(SimulationExchange, AFrameOnlyWhenAskedAndTakenOnce) {
   sim.step();
   EXPECT_LT(sim.probe(0).pose.velocity_mm_s.z(), 0.0);
 }
+
+// The display surface swapped while the simulation runs (the probe app's preview replaced by the
+// decimated surface: SimulationExchange::offer_surface, Simulation::set_surface): the frame of the
+// publish after the offer deforms the new surface and carries it (its triangles for the view);
+// the ones before carry the old. A surface of another model is refused and the old one kept.
+TEST(SimulationExchange, AnOfferedSurfaceIsDeformedFromTheNextPublishOnAndTheFrameCarriesIt) {
+  auto phys = physics_of(block_model(6, 6, 4), 10.0);
+  const Model& model = *phys->model;
+  // the top face as two triangles, then as a fan of four around its centre
+  Eigen::Matrix3Xd two(3, 4), four(3, 5);
+  two << 0, 6, 6, 0, 0, 0, 6, 6, 4, 4, 4, 4;
+  Eigen::Matrix3Xi two_t(3, 2), four_t(3, 4);
+  two_t << 0, 0, 1, 2, 2, 3;
+  four << 0, 6, 6, 0, 3, 0, 0, 6, 6, 3, 4, 4, 4, 4, 4;
+  four_t << 0, 1, 2, 3, 1, 2, 3, 0, 4, 4, 4, 4;
+  auto first = std::make_shared<const EmbeddedSurface>(embed_surface(model, two, two_t, SurfaceMethod::iso));
+  auto second = std::make_shared<const EmbeddedSurface>(embed_surface(model, four, four_t, SurfaceMethod::iso));
+  SimulationSettings settings = live_press_settings(*phys);
+  settings.surface = first;
+  Simulation sim(phys, settings);
+  SimulationExchange exchange(sim);
+  SimulationFrame frame;
+  exchange.request_frame(false);
+  sim.step();
+  exchange.publish(sim);
+  ASSERT_TRUE(exchange.take_frame(frame));
+  EXPECT_EQ(frame.surface, first);
+  EXPECT_EQ(frame.surface_vertices.cols(), 4);
+
+  exchange.offer_surface(second);
+  EXPECT_EQ(exchange.surfaces_taken(), 0);  // not before the physics publishes
+  exchange.request_frame(false);
+  sim.step();
+  exchange.publish(sim);
+  EXPECT_EQ(exchange.surfaces_taken(), 1);
+  ASSERT_TRUE(exchange.take_frame(frame));
+  EXPECT_EQ(frame.surface, second);
+  ASSERT_EQ(frame.surface_vertices.cols(), 5);
+  ASSERT_EQ(frame.surface_normals.cols(), 5);
+  Eigen::Matrix3Xd expected;
+  deform_vertices(*second, sim.state().positions, expected);
+  EXPECT_LT((frame.surface_vertices - expected).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_EQ(sim.surface_vertices().cols(), 5);
+
+  // a surface of another model: refused, the simulation keeps its own
+  auto other_model = block_model(5, 5, 4);
+  auto other = std::make_shared<const EmbeddedSurface>(embed_surface(*other_model, two, two_t, SurfaceMethod::iso));
+  EXPECT_THROW(sim.set_surface(other), Error);
+  EXPECT_EQ(sim.surface_vertices().cols(), 5);
+  // and none: frames without a surface
+  sim.set_surface(nullptr);
+  exchange.request_frame(false);
+  sim.step();
+  exchange.publish(sim);
+  ASSERT_TRUE(exchange.take_frame(frame));
+  EXPECT_EQ(frame.surface, nullptr);
+  EXPECT_EQ(frame.surface_vertices.cols(), 0);
+}

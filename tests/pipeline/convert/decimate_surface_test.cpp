@@ -153,6 +153,56 @@ TEST(DecimateSurface, StaysWithinHalfAMillimetreOfTheFullSurfaceAtOneMillimetreV
   EXPECT_GT(dist.max_mm, 0.1);  // it did change the surface
 }
 
+// The preview the probe app shows while it decimates (preview_surface): near the target, on the
+// full surface (its vertices are full-surface vertices that move as those do), outward, its
+// volume and its distance to the full surface within a bin.
+TEST(DecimateSurface, APreviewIsNearTheTargetOnTheFullSurfaceAndOutward) {
+  const Folded& f = folded();
+  DecimationSettings settings;
+  settings.target_triangles = f.full.num_triangles() * 2 / 7;
+  DecimationReport report;
+  const EmbeddedSurface p = preview_surface(f.model, f.full, settings, &report);
+  EXPECT_TRUE(report.preview);
+  EXPECT_FALSE(report.decimated);
+  EXPECT_EQ(report.triangles_after, p.num_triangles());
+  EXPECT_EQ(report.embedding, "the full surface's");
+  EXPECT_EQ(p.validate(), "");
+  EXPECT_GT(p.num_triangles(), settings.target_triangles / 2);
+  EXPECT_LT(p.num_triangles(), 1.2 * settings.target_triangles);
+  // under any motion each vertex is where the full surface's vertex at its rest point is
+  Eigen::Matrix3Xd wavy = f.model.rest_positions;
+  for (Eigen::Index n = 0; n < wavy.cols(); ++n)
+    wavy(2, n) += 2.0 * std::sin(0.3 * wavy(0, n)) * std::cos(0.2 * wavy(1, n));
+  SurfaceFrame full_frame, frame;
+  deform(f.full, wavy, full_frame);
+  deform(p, wavy, frame);
+  std::map<std::array<double, 3>, int> full_at;
+  for (int w = 0; w < f.full.num_vertices(); ++w)
+    full_at[{f.full.rest_vertices(0, w), f.full.rest_vertices(1, w), f.full.rest_vertices(2, w)}] = w;
+  for (int v = 0; v < p.num_vertices(); ++v) {
+    const auto it = full_at.find({p.rest_vertices(0, v), p.rest_vertices(1, v), p.rest_vertices(2, v)});
+    ASSERT_NE(it, full_at.end()) << v;
+    EXPECT_LT((frame.vertices.col(v) - full_frame.vertices.col(it->second)).norm(), 1e-12);
+  }
+  // outward, the volume kept and the shape within about a bin (the bins' size in the report)
+  const double v_full = enclosed_volume_mm3(f.full.rest_vertices, f.full.triangles);
+  const double v = enclosed_volume_mm3(p.rest_vertices, p.triangles);
+  const MeshDistance dist = mesh_distance_mm(p.rest_vertices, p.triangles, f.full.rest_vertices, f.full.triangles);
+  std::printf(
+      "[ figures  ] preview %d -> %d triangles (target %d; %s) in %.3f s, volume %.1f -> %.1f mm3, distance "
+      "max %.3f mm, mean %.4f mm\n",
+      f.full.num_triangles(), p.num_triangles(), settings.target_triangles, report.method.c_str(),
+      report.decimate_s + report.embed_s, v_full, v, dist.max_mm, dist.mean_mm);
+  EXPECT_GT(v, 0.0);
+  EXPECT_NEAR(v, v_full, 0.03 * v_full);
+  EXPECT_LT(dist.max_a_to_b_mm, 1e-6);  // its vertices are on the full surface
+  EXPECT_LT(dist.mean_mm, 0.25);
+  // a surface small enough is kept as it is
+  DecimationSettings big;
+  big.target_triangles = f.full.num_triangles();
+  EXPECT_EQ(preview_surface(f.model, f.full, big).num_triangles(), f.full.num_triangles());
+}
+
 TEST(DecimateSurface, SmallSurfacesAndTargetZeroAreKept) {
   const Folded& f = folded();
   DecimationReport report;

@@ -6,11 +6,16 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <array>
+#include <atomic>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <map>
+#include <memory>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "convert/decimate_surface.h"
@@ -159,6 +164,86 @@ TEST_F(SurfaceCacheTest, ADamagedFileIsRemovedAndTheSurfaceBuiltAgain) {
   std::string why;
   EXPECT_FALSE(read_surface_cache_file(bytes.data(), bytes.size() / 2, SurfaceKey{h.value(), 1, 1}, &why));
   EXPECT_FALSE(why.empty());
+}
+
+// The probe app's first start (stage_display_surface_of_grid): a preview at once, every vertex
+// one of the full surface's; the decimation left to `finish` is display_surface_of_grid's
+// surface bit for bit and is kept under its key, so the next start loads it, final, with nothing
+// left to do. A decimation cancelled before it ends throws and keeps nothing.
+TEST_F(SurfaceCacheTest, AStagedSurfaceShowsAPreviewThenKeepsTheSurfaceTheLoadingWouldHaveMade) {
+  const EmbeddedSurface whole = display_surface_of_grid(model_, grid_, SurfaceMethod::iso, settings_, nullptr, nullptr);
+  const EmbeddedSurface full = make_surface(model_, grid_, nullptr, SurfaceMethod::iso);
+  auto model = std::make_shared<const Model>(model_);
+  auto c = std::make_shared<SurfaceCache>([&] {
+    SurfaceCacheSettings s;
+    s.folder = dir_ / "cache";
+    s.min_seconds = 0.0;
+    return s;
+  }());
+
+  // cancelled: thrown, nothing kept
+  std::atomic<bool> stop{true};
+  DecimationSettings cancelled = settings_;
+  cancelled.cancel = &stop;
+  StagedDisplaySurface first = stage_display_surface_of_grid(model, grid_, SurfaceMethod::iso, cancelled, c);
+  ASSERT_TRUE(first.finish);
+  EXPECT_THROW((void)first.finish(nullptr), DecimationCancelled);
+  EXPECT_TRUE(files().empty());
+
+  StagedDisplaySurface staged = stage_display_surface_of_grid(model, grid_, SurfaceMethod::iso, settings_, c);
+  ASSERT_TRUE(staged.finish) << "a first start leaves the decimation to do";
+  EXPECT_TRUE(staged.report.preview);
+  EXPECT_FALSE(staged.report.from_cache);
+  EXPECT_EQ(staged.report.triangles_before, full.num_triangles());
+  EXPECT_EQ(staged.report.triangles_after, staged.shown.num_triangles());
+  EXPECT_GT(staged.report.build_s, 0.0);
+  const EmbeddedSurface& preview = staged.shown;
+  EXPECT_EQ(preview.validate(), "");
+  EXPECT_EQ(preview.model_nodes, model_.num_nodes());
+  EXPECT_LT(preview.num_triangles(), full.num_triangles());
+  // each preview vertex is a full-surface vertex with that vertex's embedding row
+  const auto row = [](const EmbeddedSurface& s, int v) {
+    const auto b = std::size_t(s.embed_offsets[std::size_t(v)]), e = std::size_t(s.embed_offsets[std::size_t(v) + 1]);
+    return std::make_pair(std::vector<std::int32_t>(s.embed_nodes.begin() + b, s.embed_nodes.begin() + e),
+                          std::vector<double>(s.embed_weights.begin() + b, s.embed_weights.begin() + e));
+  };
+  std::map<std::array<double, 3>, int> full_at;
+  for (int w = 0; w < full.num_vertices(); ++w)
+    full_at[{full.rest_vertices(0, w), full.rest_vertices(1, w), full.rest_vertices(2, w)}] = w;
+  for (int v = 0; v < preview.num_vertices(); ++v) {
+    const auto it =
+        full_at.find({preview.rest_vertices(0, v), preview.rest_vertices(1, v), preview.rest_vertices(2, v)});
+    ASSERT_NE(it, full_at.end()) << "preview vertex " << v << " is not a vertex of the full surface";
+    EXPECT_EQ(row(preview, v), row(full, it->second));
+  }
+  EXPECT_TRUE(files().empty()) << "the preview is not kept";
+
+  // the decimation, on another thread as the app runs it
+  DecimationReport report;
+  EmbeddedSurface decimated;
+  std::thread([&] { decimated = staged.finish(&report); }).join();
+  EXPECT_TRUE(report.decimated);
+  EXPECT_FALSE(report.preview);
+  expect_same_surface(decimated, whole);
+  EXPECT_EQ(c->counters().stored, 1);
+  ASSERT_EQ(files().size(), 1u);
+
+  // the next start: the final surface from the cache, nothing left to do; the same key as
+  // display_surface_of_grid's
+  StagedDisplaySurface second = stage_display_surface_of_grid(model, grid_, SurfaceMethod::iso, settings_, c);
+  EXPECT_FALSE(second.finish);
+  EXPECT_TRUE(second.report.from_cache);
+  expect_same_surface(second.shown, whole);
+  DecimationReport loaded;
+  (void)display_surface_of_grid(model_, grid_, SurfaceMethod::iso, settings_, &loaded, c.get());
+  EXPECT_TRUE(loaded.from_cache);
+  // a surface small enough is final at once, without a preview
+  DecimationSettings big = settings_;
+  big.target_triangles = full.num_triangles();
+  StagedDisplaySurface small = stage_display_surface_of_grid(model, grid_, SurfaceMethod::iso, big, nullptr);
+  EXPECT_FALSE(small.finish);
+  EXPECT_FALSE(small.report.preview);
+  EXPECT_EQ(small.shown.num_triangles(), full.num_triangles());
 }
 
 TEST_F(SurfaceCacheTest, ADecimationOfAGivenSurfaceIsKeptByThatSurface) {
