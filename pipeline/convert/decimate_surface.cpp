@@ -92,7 +92,7 @@ std::string DecimationReport::summary() const {
   if (preview)
     return fmt::format(
         "display surface: a preview of {} triangles ({} vertices, {}) of the {} in {:.2f} s, shown "
-        "while the decimation runs in the background",
+        "until the decimation, in the background, replaces it",
         triangles_after, vertices_after, method, triangles_before, decimate_s + embed_s);
   if (!decimated && !from_cache) return fmt::format("display surface: {} triangles (not decimated)", triangles_before);
   if (from_cache)
@@ -342,6 +342,7 @@ StagedDisplaySurface stage_display_surface_of_grid(std::shared_ptr<const Model> 
   // (make_surface gives the same surface each time: SurfaceCacheTest)
   auto kept_grid = std::make_shared<const VoxelGrid>(grid);
   staged.finish = [model, kept_grid, method, iso, settings, cache, key](DecimationReport* report) {
+    if (cancelled(settings)) throw DecimationCancelled();  // the iso-surface itself cannot be stopped
     const auto t = std::chrono::steady_clock::now();
     const EmbeddedSurface again = make_surface(*model, *kept_grid, nullptr, method, iso);
     return decimate_and_keep(*model, again, seconds_since(t), settings, report, cache.get(), key);
