@@ -248,10 +248,9 @@ void ProbeView::Impl::update_hud_text() {
   }
   status->SetInput(warn.c_str());
   status->SetVisibility(!warn.empty());
-  // the warnings go under the HUD's lines
+  // the warnings go under the HUD's lines (all of them: the solver's and the display's notes too)
   const int* size = window->GetSize();
-  const int lines =
-      4 + std::min(h.probes, 2) + (setup.output_line.empty() ? 0 : 1) + (setup.physics_line.empty() ? 0 : 1);
+  const int lines = 1 + int(std::count(text.begin(), text.end(), '\n'));
   status->SetDisplayPosition(10, std::max(240, size[1]) - 10 - lines * 19 - 8);
 }
 
