@@ -335,7 +335,14 @@ StagedDisplaySurface stage_display_surface_of_grid(std::shared_ptr<const Model> 
     staged.shown = decimate_and_keep(*model, full, build_s, settings, &staged.report, cache.get(), key);
     return staged;
   }
-  staged.shown = preview_surface(*model, full, settings, &staged.report);
+  try {
+    staged.shown = preview_surface(*model, full, settings, &staged.report);
+  } catch (const Error&) {
+    // no preview (VTK left no triangles: a target of a few triangles): decimated now, as
+    // display_surface_of_grid does
+    staged.shown = decimate_and_keep(*model, full, build_s, settings, &staged.report, cache.get(), key);
+    return staged;
+  }
   staged.report.build_s = build_s;
   // the full surface is built again when the decimation runs, not kept meanwhile: 80 MB on the
   // folded organ (its embedding), which would otherwise sit on top of the factorisation's peak
@@ -383,8 +390,9 @@ EmbeddedSurface preview_surface(const Model& model, const EmbeddedSurface& full,
   const auto run = [&] {
     double b[6];
     input->GetBounds(b);
+    // at most 2,048 bins along an axis (a bin of 0.1 mm over 20 cm)
     const auto divisions = [&](int axis) {
-      return std::max(1, int(std::ceil((b[2 * axis + 1] - b[2 * axis]) / h)) + 1);
+      return int(std::clamp(std::ceil((b[2 * axis + 1] - b[2 * axis]) / h) + 1.0, 1.0, 2048.0));
     };
     cluster->SetNumberOfDivisions(divisions(0), divisions(1), divisions(2));
     cluster->Update();
@@ -392,7 +400,7 @@ EmbeddedSurface preview_surface(const Model& model, const EmbeddedSurface& full,
   };
   const double first = run();
   if (first > 1.15 * target || first < 0.7 * target) {
-    h *= std::sqrt(first / target);
+    h *= first > 0 ? std::sqrt(first / target) : 0.5;  // none left: bins of half the size
     (void)run();
   }
   vtkPolyData* out = cluster->GetOutput();

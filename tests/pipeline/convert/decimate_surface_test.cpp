@@ -197,10 +197,16 @@ TEST(DecimateSurface, APreviewIsNearTheTargetOnTheFullSurfaceAndOutward) {
   EXPECT_NEAR(v, v_full, 0.03 * v_full);
   EXPECT_LT(dist.max_a_to_b_mm, 1e-6);  // its vertices are on the full surface
   EXPECT_LT(dist.mean_mm, 0.25);
-  // a surface small enough is kept as it is
+  // a surface small enough is kept as it is; a target of a few triangles still gives some
   DecimationSettings big;
   big.target_triangles = f.full.num_triangles();
   EXPECT_EQ(preview_surface(f.model, f.full, big).num_triangles(), f.full.num_triangles());
+  DecimationSettings few;
+  few.target_triangles = 3;
+  const EmbeddedSurface tiny = preview_surface(f.model, f.full, few);
+  EXPECT_GT(tiny.num_triangles(), 0);
+  EXPECT_LT(tiny.num_triangles(), 100);
+  EXPECT_EQ(tiny.validate(), "");
 }
 
 TEST(DecimateSurface, SmallSurfacesAndTargetZeroAreKept) {
