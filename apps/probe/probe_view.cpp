@@ -293,10 +293,7 @@ void ProbeView::replace_surface(const Eigen::Matrix3Xd& rest_vertices, const Eig
   v.setup.surface_vertices = rest_vertices;
   v.setup.surface_triangles = triangles;
   v.set_tissue_mesh();
-  ++v.surfaces_replaced;
 }
-
-int ProbeView::surfaces_replaced() const { return impl_->surfaces_replaced; }
 
 void ProbeView::update_geometry(const Eigen::Matrix3Xd& surface_vertices, const Eigen::Matrix3Xd& surface_normals,
                                 const Eigen::Matrix3Xd& node_positions,

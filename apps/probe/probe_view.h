@@ -140,8 +140,6 @@ class ProbeView {
   /// display surface once it is ready. The next update_geometry must have V vertices. Throws
   /// vx::Error when it has no vertices or triangles.
   void replace_surface(const Eigen::Matrix3Xd& rest_vertices, const Eigen::Matrix3Xi& triangles);
-  /// Surfaces replaced so far.
-  [[nodiscard]] int surfaces_replaced() const;
   /// Appends samples to the force plot (times increasing; older than the window are dropped).
   void add_plot_samples(const std::vector<PlotSample>& samples);
   /// Clears the force plot (after a reset).

@@ -151,7 +151,6 @@ struct ProbeView::Impl {
 
   // rates
   std::int64_t frames{0};
-  int surfaces_replaced{0};      ///< replace_surface calls
   std::int64_t input_events{0};  // window events (keys, mouse, resize, expose) so far
   RateMeter fps{0.5};
 

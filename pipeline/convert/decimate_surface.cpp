@@ -412,34 +412,39 @@ EmbeddedSurface preview_surface(const Model& model, const EmbeddedSurface& full,
   locator->SetDataSet(input);
   locator->BuildLocator();
   const vtkIdType np = out->GetNumberOfPoints();
-  std::vector<std::int32_t> full_id(std::size_t(np), -1);
-  std::vector<int> new_id(std::size_t(np), -1);
+  std::vector<std::int32_t> full_id(std::size_t(np), -1);  // per output point, found once
+  std::vector<int> new_id(std::size_t(np), -1);            // per output point, once a kept triangle uses it
   std::vector<Eigen::Vector3i> tris;
   tris.reserve(std::size_t(out->GetNumberOfPolys()));
-  std::vector<std::int32_t> source;
+  std::vector<std::int32_t> source;  // per preview vertex: its vertex of `full`
   vtkCellArray* polys = out->GetPolys();
   polys->InitTraversal();
   vtkIdType npts = 0;
   const vtkIdType* pts = nullptr;
   while (polys->GetNextCell(npts, pts)) {
     if (npts != 3) continue;
-    Eigen::Vector3i tri;
+    std::int32_t f[3];
     for (int k = 0; k < 3; ++k) {
-      const auto p = std::size_t(pts[k]);
-      if (new_id[p] < 0) {
+      std::int32_t& id = full_id[std::size_t(pts[k])];
+      if (id < 0) {
         double x[3];
         out->GetPoint(pts[k], x);
-        const vtkIdType f = locator->FindClosestPoint(x);
-        if (f < 0) throw Error("display surface preview: a clustered point has no input point");
-        new_id[p] = int(source.size());
-        source.push_back(std::int32_t(f));
+        const vtkIdType found = locator->FindClosestPoint(x);
+        if (found < 0) throw Error("display surface preview: a clustered point has no input point");
+        id = std::int32_t(found);
       }
-      tri[k] = new_id[p];
+      f[k] = id;
     }
-    if (source[std::size_t(tri[0])] == source[std::size_t(tri[1])] ||
-        source[std::size_t(tri[1])] == source[std::size_t(tri[2])] ||
-        source[std::size_t(tri[2])] == source[std::size_t(tri[0])])
-      continue;
+    if (f[0] == f[1] || f[1] == f[2] || f[2] == f[0]) continue;  // degenerate: its points stay out
+    Eigen::Vector3i tri;
+    for (int k = 0; k < 3; ++k) {
+      int& id = new_id[std::size_t(pts[k])];
+      if (id < 0) {
+        id = int(source.size());
+        source.push_back(f[k]);
+      }
+      tri[k] = id;
+    }
     tris.push_back(tri);
   }
   Eigen::Matrix3Xd vertices(3, Eigen::Index(source.size()));

@@ -130,18 +130,20 @@ TEST(SimulationExchange, AnOfferedSurfaceIsDeformedFromTheNextPublishOnAndTheFra
   Simulation sim(phys, settings);
   SimulationExchange exchange(sim);
   SimulationFrame frame;
-  exchange.request_frame(false);
-  sim.step();
-  exchange.publish(sim);
+  // a display's frame: asked for (the surface only), one step, published
+  const auto step_and_publish = [&] {
+    exchange.request_frame(false);
+    sim.step();
+    exchange.publish(sim);
+  };
+  step_and_publish();
   ASSERT_TRUE(exchange.take_frame(frame));
   EXPECT_EQ(frame.surface, first);
   EXPECT_EQ(frame.surface_vertices.cols(), 4);
 
   exchange.offer_surface(second);
   EXPECT_EQ(exchange.surfaces_taken(), 0);  // not before the physics publishes
-  exchange.request_frame(false);
-  sim.step();
-  exchange.publish(sim);
+  step_and_publish();
   EXPECT_EQ(exchange.surfaces_taken(), 1);
   ASSERT_TRUE(exchange.take_frame(frame));
   EXPECT_EQ(frame.surface, second);
@@ -159,9 +161,7 @@ TEST(SimulationExchange, AnOfferedSurfaceIsDeformedFromTheNextPublishOnAndTheFra
   EXPECT_EQ(sim.surface_vertices().cols(), 5);
   // and none: frames without a surface
   sim.set_surface(nullptr);
-  exchange.request_frame(false);
-  sim.step();
-  exchange.publish(sim);
+  step_and_publish();
   ASSERT_TRUE(exchange.take_frame(frame));
   EXPECT_EQ(frame.surface, nullptr);
   EXPECT_EQ(frame.surface_vertices.cols(), 0);
