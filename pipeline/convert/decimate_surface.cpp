@@ -98,10 +98,10 @@ std::string DecimationReport::summary() const {
   if (from_cache)
     return fmt::format("display surface {} -> {} triangles ({} -> {} vertices): loaded from the cache in {:.2f} s",
                        triangles_before, triangles_after, vertices_before, vertices_after, cache_s);
-  return fmt::format("display surface decimated {} -> {} triangles ({} -> {} vertices; {}) in {:.2f} s; embedding: {} "
-                     "({:.2f} s)",
-                     triangles_before, triangles_after, vertices_before, vertices_after, method, decimate_s, embedding,
-                     embed_s);
+  return fmt::format(
+      "display surface decimated {} -> {} triangles ({} -> {} vertices; {}) in {:.2f} s; embedding: {} "
+      "({:.2f} s)",
+      triangles_before, triangles_after, vertices_before, vertices_after, method, decimate_s, embedding, embed_s);
 }
 
 EmbeddedSurface decimate_surface(const Model& model, const EmbeddedSurface& full, const DecimationSettings& settings,
@@ -212,7 +212,8 @@ EmbeddedSurface decimate_surface(const Model& model, const EmbeddedSurface& full
     vertices.col(v) = Eigen::Vector3d(x[0], x[1], x[2]);
     if (ids && ids->GetNumberOfValues() == np) {
       const vtkIdType f = ids->GetValue(p);
-      if (f >= 0 && f < full.num_vertices() && full.rest_vertices.col(f) == vertices.col(v)) source[std::size_t(v)] = int(f);
+      if (f >= 0 && f < full.num_vertices() && full.rest_vertices.col(f) == vertices.col(v))
+        source[std::size_t(v)] = int(f);
     }
   }
   const bool all_kept = std::none_of(source.begin(), source.end(), [](std::int32_t f) { return f < 0; });
@@ -470,7 +471,8 @@ MeshDistance mesh_distance_mm(const Eigen::Matrix3Xd& a_vertices, const Eigen::M
   MeshDistance d;
   double sum = 0.0;
   // the largest and summed distance of the vertices of `from` to the triangles of `to`
-  const auto one_way = [&sum](const Eigen::Matrix3Xd& from, const Eigen::Matrix3Xd& to_v, const Eigen::Matrix3Xi& to_t) {
+  const auto one_way = [&sum](const Eigen::Matrix3Xd& from, const Eigen::Matrix3Xd& to_v,
+                              const Eigen::Matrix3Xi& to_t) {
     vtkSmartPointer<vtkPolyData> to = to_poly(to_v, to_t);
     vtkNew<vtkStaticCellLocator> locator;
     locator->SetDataSet(to);

@@ -45,19 +45,19 @@ class DecimationCancelled : public Error {
 
 /// What decimate_surface did.
 struct DecimationReport {
-  bool decimated{false};        ///< false: the surface was kept (small enough, 2D, or target 0)
+  bool decimated{false};  ///< false: the surface was kept (small enough, 2D, or target 0)
   int triangles_before{0};
   int triangles_after{0};
   int vertices_before{0};
   int vertices_after{0};
-  double decimate_s{0.0};       ///< wall time of the VTK decimation
-  double embed_s{0.0};          ///< wall time of embedding the decimated vertices
-  std::string method;           ///< the VTK filter that made it
-  std::string embedding;        ///< "the full surface's" (kept vertices) or "embed_surface" (moved ones)
-  bool from_cache{false};       ///< loaded from the display surface cache (io/surface_cache.h)
-  bool preview{false};          ///< preview_surface's quick stand-in, the decimation still to come
-  double build_s{0.0};          ///< display_surface_of_grid: wall time of building the full surface, s
-  double cache_s{0.0};          ///< wall time of the key and the load (from_cache), s
+  double decimate_s{0.0};  ///< wall time of the VTK decimation
+  double embed_s{0.0};     ///< wall time of embedding the decimated vertices
+  std::string method;      ///< the VTK filter that made it
+  std::string embedding;   ///< "the full surface's" (kept vertices) or "embed_surface" (moved ones)
+  bool from_cache{false};  ///< loaded from the display surface cache (io/surface_cache.h)
+  bool preview{false};     ///< preview_surface's quick stand-in, the decimation still to come
+  double build_s{0.0};     ///< display_surface_of_grid: wall time of building the full surface, s
+  double cache_s{0.0};     ///< wall time of the key and the load (from_cache), s
   /// One line for a log, e.g. "display surface decimated 350768 -> 100002 triangles in 1.9 s".
   [[nodiscard]] std::string summary() const;
 };

@@ -2,8 +2,8 @@
 
 #include <vtkCellArray.h>
 #include <vtkDiscreteFlyingEdges3D.h>
-#include <vtkFlyingEdges3D.h>
 #include <vtkFloatArray.h>
+#include <vtkFlyingEdges3D.h>
 #include <vtkImageData.h>
 #include <vtkNew.h>
 #include <vtkPointData.h>
@@ -48,11 +48,12 @@ TriangleMesh extract_iso_surface(const VoxelGrid& grid, const Volume* hu, const 
   Eigen::Vector3i hu_offset = Eigen::Vector3i::Zero();
   if (use_hu) {
     if (std::int64_t(hu->hu.size()) != hu->geometry.voxel_count())
-      throw Error("cannot make an iso-surface: the HU volume holds " + std::to_string(hu->hu.size()) +
-                  " values for " + std::to_string(hu->geometry.voxel_count()) + " voxels");
+      throw Error("cannot make an iso-surface: the HU volume holds " + std::to_string(hu->hu.size()) + " values for " +
+                  std::to_string(hu->geometry.voxel_count()) + " voxels");
     if (!voxel_offset(geo, hu->geometry, hu_offset))
-      throw Error("cannot make an iso-surface from HU values: the volume was resampled for the model (its voxels "
-                  "differ from the model's); use the binary iso-surface (no HU iso value) or keep the voxel size");
+      throw Error(
+          "cannot make an iso-surface from HU values: the volume was resampled for the model (its voxels "
+          "differ from the model's); use the binary iso-surface (no HU iso value) or keep the voxel size");
   }
   if (settings.smoothing_iterations < 0 || !(settings.pass_band > 0 && settings.pass_band <= 2))
     throw Error("iso-surface smoothing: iterations must be >= 0 and the pass band in (0, 2]");

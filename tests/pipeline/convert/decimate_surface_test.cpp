@@ -7,8 +7,8 @@
 #include <Eigen/Geometry>
 #include <array>
 #include <chrono>
-#include <map>
 #include <cmath>
+#include <map>
 
 #include "base/error.h"
 #include "convert/iso_surface.h"
@@ -90,8 +90,10 @@ TEST(DecimateSurface, ReachesTheTargetAndStaysClosedAndOutward) {
   const double v = enclosed_volume_mm3(d.rest_vertices, d.triangles);
   EXPECT_GT(v, 0.0);
   EXPECT_NEAR(v, v_full, 0.005 * v_full);  // measured -0.25 %
-  std::printf("[ figures  ] %d -> %d triangles (target %d) in %.3f s (decimate %.3f s, embed %.3f s), volume %.1f -> %.1f mm3\n",
-              f.full.num_triangles(), d.num_triangles(), target, seconds, report.decimate_s, report.embed_s, v_full, v);
+  std::printf(
+      "[ figures  ] %d -> %d triangles (target %d) in %.3f s (decimate %.3f s, embed %.3f s), volume %.1f -> %.1f "
+      "mm3\n",
+      f.full.num_triangles(), d.num_triangles(), target, seconds, report.decimate_s, report.embed_s, v_full, v);
 }
 
 TEST(DecimateSurface, DecimatedVerticesMoveExactlyAffinely) {
@@ -112,7 +114,8 @@ TEST(DecimateSurface, DecimatedVerticesMoveExactlyAffinely) {
   // under any motion each decimated vertex is where the full surface's vertex at the same rest
   // point is (it keeps that vertex's embedding row)
   Eigen::Matrix3Xd wavy = f.model.rest_positions;
-  for (Eigen::Index n = 0; n < wavy.cols(); ++n) wavy(2, n) += 2.0 * std::sin(0.3 * wavy(0, n)) * std::cos(0.2 * wavy(1, n));
+  for (Eigen::Index n = 0; n < wavy.cols(); ++n)
+    wavy(2, n) += 2.0 * std::sin(0.3 * wavy(0, n)) * std::cos(0.2 * wavy(1, n));
   SurfaceFrame full_frame;
   deform(f.full, wavy, full_frame);
   deform(d, wavy, frame);
@@ -142,9 +145,10 @@ TEST(DecimateSurface, StaysWithinHalfAMillimetreOfTheFullSurfaceAtOneMillimetreV
   settings.target_triangles = f.full.num_triangles() * 2 / 7;
   const EmbeddedSurface d = decimate_surface(f.model, f.full, settings);
   const MeshDistance dist = mesh_distance_mm(d.rest_vertices, d.triangles, f.full.rest_vertices, f.full.triangles);
-  std::printf("[ figures  ] distance decimated <-> full: max %.3f mm (decimated to full %.3f, full to decimated %.3f), "
-              "mean %.4f mm\n",
-              dist.max_mm, dist.max_a_to_b_mm, dist.max_b_to_a_mm, dist.mean_mm);
+  std::printf(
+      "[ figures  ] distance decimated <-> full: max %.3f mm (decimated to full %.3f, full to decimated %.3f), "
+      "mean %.4f mm\n",
+      dist.max_mm, dist.max_a_to_b_mm, dist.max_b_to_a_mm, dist.mean_mm);
   // measured max 0.415 mm (at sulci opening to the side), mean 0.027 mm; the kept vertices lie
   // on the full surface
   EXPECT_LT(dist.max_mm, 0.5);
@@ -236,5 +240,6 @@ TEST(MeshDistance, OfAShiftedMeshIsTheShift) {
   EXPECT_LE(d.max_mm, 0.2 + 1e-9);
   EXPECT_GT(d.max_mm, 0.19);  // the flat tops are 0.2 mm apart
   EXPECT_GT(d.mean_mm, 0.0);
-  EXPECT_EQ(mesh_distance_mm(f.full.rest_vertices, f.full.triangles, f.full.rest_vertices, f.full.triangles).max_mm, 0.0);
+  EXPECT_EQ(mesh_distance_mm(f.full.rest_vertices, f.full.triangles, f.full.rest_vertices, f.full.triangles).max_mm,
+            0.0);
 }
