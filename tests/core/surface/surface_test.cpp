@@ -10,6 +10,7 @@
 #include <cmath>
 #include <numbers>
 #include <random>
+#include <string>
 
 #include "base/error.h"
 #include "model/gradational_builder.h"
@@ -381,6 +382,49 @@ TEST(SurfaceEmbedding, FarPointsAreRejected) {
   Eigen::Matrix3Xd p(3, 1);
   p.col(0) = m.grid.index_to_lps(Eigen::Vector3d(1, 1, 1));  // about 13 voxels from the ball
   EXPECT_THROW((void)embed_surface(m, p, Eigen::Matrix3Xi(3, 0), SurfaceMethod::iso), Error);
+  // one far point after thousands of good ones (its lattice points weighed in a later chunk,
+  // on another thread): the same refusal, not a crash or a partial embedding
+  const EmbeddedSurface paper = make_voxel_surface(m, g, true);
+  Eigen::Matrix3Xd many = probe_points(m, paper, 0.3, 9000, 4);
+  many.col(many.cols() - 1) = p.col(0);
+  try {
+    (void)embed_surface(m, many, Eigen::Matrix3Xi(3, 0), SurfaceMethod::iso);
+    ADD_FAILURE() << "a point 13 voxels from the tissue was embedded";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("more than 8 voxels from any tissue"), std::string::npos) << e.what();
+  }
+}
+
+TEST(SurfaceEmbedding, EachRowIsThePointsOwnEmbeddingOnAnyThreadCount) {
+  // embed_surface weighs the lattice points all the vertices use once, in parallel chunks, then
+  // each vertex from them: a vertex's row must be what embedding that vertex alone gives, bit
+  // for bit, and the whole the same on one thread and on two (chunks of 4,096 points and
+  // vertices: this mesh has several of each)
+  const VoxelGrid g = ball_grid(40, 16.0);
+  const Model m = build_model(g);
+  const EmbeddedSurface paper = make_voxel_surface(m, g, true);
+  const Eigen::Matrix3Xd p = probe_points(m, paper, 0.4, 12000, 9);
+  ASSERT_GT(p.cols(), 3 * 4096);
+  const int threads = omp_get_max_threads();
+  omp_set_num_threads(1);
+  const EmbeddedSurface one = embed_surface(m, p, Eigen::Matrix3Xi(3, 0), SurfaceMethod::iso);
+  omp_set_num_threads(std::max(threads, 2));
+  const EmbeddedSurface two = embed_surface(m, p, Eigen::Matrix3Xi(3, 0), SurfaceMethod::iso);
+  omp_set_num_threads(threads);
+  EXPECT_EQ(one.embed_offsets, two.embed_offsets);
+  EXPECT_EQ(one.embed_nodes, two.embed_nodes);
+  EXPECT_EQ(one.embed_weights, two.embed_weights);
+  for (int v = 0; v < p.cols(); v += 97) {
+    SCOPED_TRACE(v);
+    const EmbeddedSurface alone = embed_surface(m, p.col(v), Eigen::Matrix3Xi(3, 0), SurfaceMethod::iso);
+    const auto b = std::size_t(two.embed_offsets[std::size_t(v)]),
+               e = std::size_t(two.embed_offsets[std::size_t(v) + 1]);
+    ASSERT_EQ(alone.embed_offsets.back(), std::int32_t(e - b));
+    for (std::size_t k = 0; k < e - b; ++k) {
+      EXPECT_EQ(alone.embed_nodes[k], two.embed_nodes[b + k]);
+      EXPECT_EQ(alone.embed_weights[k], two.embed_weights[b + k]);
+    }
+  }
 }
 
 TEST(SurfaceDeform, SameResultForAnyThreadCountAndNoReallocation) {
