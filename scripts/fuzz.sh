@@ -40,7 +40,7 @@ if grep -qs '^VOXELASTIC_SANITIZE:BOOL=ON$' "$build_dir/CMakeCache.txt" &&
   echo "fuzz: the targets of the sanitized build in $build_dir/ (scripts/sanitize.sh) ..."
 else
   cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=None -DCMAKE_C_COMPILER=clang-14 -DCMAKE_CXX_COMPILER=clang++-14 \
-    -DCMAKE_CXX_FLAGS="-O1 -g" -DCMAKE_C_FLAGS="-O1 -g" "${launcher[@]}" \
+    -DCMAKE_CXX_FLAGS="-O1" -DCMAKE_C_FLAGS="-O1" "${launcher[@]}" \
     -DVOXELASTIC_FUZZ=ON -DVOXELASTIC_BUILD_TESTS=OFF -DVOXELASTIC_BUILD_APPS=OFF >"$build_dir.configure.log" 2>&1 || {
     cat "$build_dir.configure.log" >&2
     echo "fuzz: cmake configure failed (log above)" >&2

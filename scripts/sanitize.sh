@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The non-slow tests under AddressSanitizer + UndefinedBehaviorSanitizer (clang-14, -O1), in
+# The non-slow tests under AddressSanitizer + UndefinedBehaviorSanitizer (clang-14, -O1, line tables), in
 # their own build folder (build-asan). CI runs this after scripts/test.sh; extra arguments go
 # to ctest (e.g. -R volume_io). Any memory error, leak of our own or undefined behaviour fails
 # the test that hit it. The libFuzzer targets are built here too (fuzz/), so that CI's smoke
@@ -19,7 +19,7 @@ if ! command -v clang++-14 >/dev/null 2>&1; then
   exit 1
 fi
 cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=None -DCMAKE_C_COMPILER=clang-14 -DCMAKE_CXX_COMPILER=clang++-14 \
-  -DCMAKE_CXX_FLAGS="-O1 -g" -DCMAKE_C_FLAGS="-O1 -g" "${launcher[@]}" \
+  -DCMAKE_CXX_FLAGS="-O1" -DCMAKE_C_FLAGS="-O1" "${launcher[@]}" \
   -DVOXELASTIC_SANITIZE=ON -DVOXELASTIC_FUZZ=ON -DVOXELASTIC_BUILD_MICROBENCH=OFF -DVOXELASTIC_BUILD_SLOW_TESTS=OFF >"$build_dir.configure.log" 2>&1 || {
   cat "$build_dir.configure.log" >&2
   echo "sanitize: cmake configure failed (log above)" >&2

@@ -27,7 +27,7 @@ if [ ! -f "$archer" ]; then
   exit 1
 fi
 cmake -S . -B "$build_dir" -DCMAKE_BUILD_TYPE=None -DCMAKE_C_COMPILER=clang-14 -DCMAKE_CXX_COMPILER=clang++-14 \
-  -DCMAKE_CXX_FLAGS="-O1 -g" -DCMAKE_C_FLAGS="-O1 -g" "${launcher[@]}" \
+  -DCMAKE_CXX_FLAGS="-O1" -DCMAKE_C_FLAGS="-O1" "${launcher[@]}" \
   -DVOXELASTIC_TSAN=ON -DVOXELASTIC_BUILD_MICROBENCH=OFF -DVOXELASTIC_BUILD_SLOW_TESTS=OFF >"$build_dir.configure.log" 2>&1 || {
   cat "$build_dir.configure.log" >&2
   echo "tsan: cmake configure failed (log above)" >&2
