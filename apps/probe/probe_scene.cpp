@@ -265,6 +265,9 @@ ProbeScene load_probe_scene(const std::filesystem::path& input, const DefaultSce
   if (built_display && built_display->from_cache)
     scene.notes.push_back(
         fmt::format("surface: {} ({} triangles)", to_string(scene.surface->method), built_display->triangles_before));
+  else if (built_display && built_display->preview_blocks > 0)
+    scene.notes.push_back(fmt::format("surface: {} (about {} triangles, built and decimated in the background)",
+                                      to_string(scene.surface->method), built_display->triangles_before));
   else if (built_display)
     scene.notes.push_back(fmt::format("surface: {} ({} triangles, built in {:.2f} s)", to_string(scene.surface->method),
                                       built_display->triangles_before, built_display->build_s));

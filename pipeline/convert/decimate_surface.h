@@ -56,6 +56,10 @@ struct DecimationReport {
   std::string embedding;   ///< "the full surface's" (kept vertices) or "embed_surface" (moved ones)
   bool from_cache{false};  ///< loaded from the display surface cache (io/surface_cache.h)
   bool preview{false};     ///< preview_surface's quick stand-in, the decimation still to come
+  /// a preview made without the full surface (stage_display_surface_of_grid on a large
+  /// iso-surface): extract_coarse_iso_surface on blocks of this many voxels a side; 0: not so.
+  /// triangles_before is then the full surface's estimate (two per tissue voxel face).
+  int preview_blocks{0};
   double build_s{0.0};     ///< display_surface_of_grid: wall time of building the full surface, s
   double cache_s{0.0};     ///< wall time of the key and the load (from_cache), s
   /// One line for a log, e.g. "display surface decimated 350768 -> 100002 triangles in 1.9 s".
@@ -119,8 +123,13 @@ struct StagedDisplaySurface {
 };
 
 /// The display surface of display_surface_of_grid, staged: loaded from `cache` (may be null)
-/// when it holds it, else the full surface built here and the decimation left to
-/// StagedDisplaySurface::finish, with a preview to show meanwhile. Throws vx::Error.
+/// when it holds it, else the decimation left to StagedDisplaySurface::finish, with a preview to
+/// show meanwhile. The preview: for an iso-surface estimated at more than 4 times the target
+/// (two triangles per tissue voxel face), extract_coarse_iso_surface on blocks of
+/// floor(sqrt(estimate / target)) voxels, embedded and clustered to the target (preview_surface)
+/// when above 1.5 times it, so the full surface is not built on the way (0.9-1 s of the folded organ's first
+/// start with a display); else the full surface built here and preview_surface of it (or the
+/// full surface itself, final, when small enough). Throws vx::Error.
 [[nodiscard]] StagedDisplaySurface stage_display_surface_of_grid(std::shared_ptr<const Model> model,
                                                                  const VoxelGrid& grid, SurfaceMethod method,
                                                                  const DecimationSettings& settings,

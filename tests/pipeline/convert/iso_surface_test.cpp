@@ -8,8 +8,10 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 
 #include "base/error.h"
+#include "convert/decimate_surface.h"
 #include "convert/phantom.h"
 #include "io/surface_io.h"
 #include "model/gradational_builder.h"
@@ -67,6 +69,46 @@ TEST(IsoSurface, SphereIsClosedOutwardAndClose) {
   const SurfaceAccuracy a = measure_surface_accuracy(mesh.vertices_mm, mesh.triangles, p.shape, 1.0);
   EXPECT_LT(a.mean_distance_voxels, 0.2) << a.summary();
   EXPECT_NEAR(a.volume_error_percent, 0.0, 3.0) << a.summary();
+}
+
+TEST(IsoSurface, ACoarseSurfaceIsTheShapeOnBlocksWithAboutTheSquareFewerTriangles) {
+  // extract_coarse_iso_surface: the tissue averaged on blocks of f^3 voxels, contoured at half
+  const Phantom p = phantom("sphere", 48);
+  const TriangleMesh full = extract_iso_surface(p.grid);
+  for (int f : {1, 2, 3}) {
+    SCOPED_TRACE(f);
+    const TriangleMesh coarse = extract_coarse_iso_surface(p.grid, f);
+    const MeshTopology topo = mesh_topology(coarse.triangles, int(coarse.vertices_mm.cols()));
+    EXPECT_TRUE(topo.closed_and_oriented());
+    EXPECT_EQ(topo.euler_characteristic, 2);
+    const double ratio = double(coarse.triangles.cols()) / double(full.triangles.cols());
+    EXPECT_GT(ratio, 0.7 / (f * f));
+    EXPECT_LT(ratio, 1.3 / (f * f));
+    const SurfaceAccuracy a = measure_surface_accuracy(coarse.vertices_mm, coarse.triangles, p.shape, 1.0);
+    std::cout << "blocks of " << f << ": " << coarse.triangles.cols() << " triangles (" << ratio << " of the full), "
+              << a.summary() << "\n";
+    // (measured: mean 0.03, 0.07, 0.22 voxel; volume -0.3, -1.1, -4.0 %: the smoothing rounds
+    // the coarser steps off)
+    EXPECT_LT(a.mean_distance_voxels, 0.1 + 0.15 * f) << a.summary();
+    EXPECT_NEAR(a.volume_error_percent, 0.0, 1.5 * f) << a.summary();
+  }
+  // on a grid of anisotropic voxels turned in space and moved: where the full surface is
+  GridGeometry geo = p.grid.geometry();
+  geo.spacing_mm = {0.7, 0.9, 1.2};
+  geo.origin_mm = {-120.0, 35.0, 410.0};
+  geo.direction = Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, -2, 0.5).normalized()).toRotationMatrix();
+  VoxelGrid turned(geo);
+  turned.data() = p.grid.data();
+  const TriangleMesh turned_full = extract_iso_surface(turned);
+  const TriangleMesh turned_coarse = extract_coarse_iso_surface(turned, 2);
+  const MeshDistance d = mesh_distance_mm(turned_coarse.vertices_mm, turned_coarse.triangles, turned_full.vertices_mm,
+                                          turned_full.triangles);
+  EXPECT_LT(d.mean_mm, 0.3) << "mean " << d.mean_mm << " mm";
+  EXPECT_LT(d.max_mm, 1.2) << "largest " << d.max_mm << " mm";
+  EXPECT_GT(enclosed_volume_mm3(turned_coarse.vertices_mm, turned_coarse.triangles), 0.0) << "outward";
+  // refused: no block size, no tissue
+  EXPECT_THROW((void)extract_coarse_iso_surface(p.grid, 0), Error);
+  EXPECT_THROW((void)extract_coarse_iso_surface(VoxelGrid(p.grid.geometry()), 2), Error);
 }
 
 TEST(IsoSurface, TorusHasGenusOne) {
