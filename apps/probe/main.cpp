@@ -3,6 +3,8 @@
 #include <fmt/core.h>
 #include <CLI/CLI.hpp>
 
+#include <malloc.h>
+
 #include <cstdio>
 #include <exception>
 #include <string>
@@ -20,6 +22,13 @@ int main(int argc, char** argv) {
   // log's on stderr (the region check, the factor cache's writer); block-buffered into a file
   // shared with stderr, a line was cut where the buffer filled
   std::setvbuf(stdout, nullptr, _IOLBF, 0);
+  // glibc's malloc serves a block above its threshold with mmap and returns it to the system when
+  // freed; by default the threshold grows to the size of each such block freed (up to 32 MB), so
+  // after the loading frees its buffers of a few MB (the surface's embedding), later blocks of
+  // that size come from the heap and their memory is not given back. A fixed threshold (the
+  // default's starting value) keeps them apart: the folded organ's first start peaked at 1.83
+  // GB with it, 2.01-2.16 GB without (the probe's 2 GB budget; steps as fast, 8.5 against 8.9 ms)
+  mallopt(M_MMAP_THRESHOLD, 128 * 1024);
   AppOptions o;
   std::string control = "rate", device = "auto", size = "1280x800", surface = "iso", shaping;
 
