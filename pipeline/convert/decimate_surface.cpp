@@ -384,13 +384,26 @@ StagedDisplaySurface stage_display_surface_of_grid(std::shared_ptr<const Model> 
   }
   const std::int64_t estimate = method == SurfaceMethod::iso && !model->is_2d() ? 2 * tissue_faces(grid) : 0;
   const int target = settings.target_triangles;
+  bool coarse = false;
   if (target > 0 && estimate > 4 * std::int64_t(target)) {
     // a large surface: a preview from the voxels on coarser blocks, not the full surface
     const int blocks = int(std::sqrt(double(estimate) / double(target)));
-    staged.shown = coarse_preview(*model, grid, blocks, settings, iso, &staged.report);
-    staged.report.triangles_before = int(std::min<std::int64_t>(estimate, std::numeric_limits<int>::max()));
-    staged.report.build_s = seconds_since(t0) - staged.report.decimate_s - staged.report.embed_s;
-  } else {
+    try {
+      staged.shown = coarse_preview(*model, grid, blocks, settings, iso, &staged.report);
+      // tissue thinner than half a block (a sheet) leaves little or nothing at the half level:
+      // then the preview clustered from the full surface, as for a smaller one
+      coarse = double(staged.shown.num_triangles()) >= 0.25 * double(estimate) / double(blocks * blocks);
+    } catch (const Error&) {
+      coarse = false;  // VTK failed on the blocks: the same
+    }
+    if (coarse) {
+      staged.report.triangles_before = int(std::min<std::int64_t>(estimate, std::numeric_limits<int>::max()));
+      staged.report.build_s = seconds_since(t0) - staged.report.decimate_s - staged.report.embed_s;
+    } else {
+      staged.report = DecimationReport{};
+    }
+  }
+  if (!coarse) {
     EmbeddedSurface full = make_surface(*model, grid, nullptr, method, iso);
     const double build_s = seconds_since(t0);
     if (kept_whole(*model, full, settings)) {

@@ -127,9 +127,10 @@ struct StagedDisplaySurface {
 /// show meanwhile. The preview: for an iso-surface estimated at more than 4 times the target
 /// (two triangles per tissue voxel face), extract_coarse_iso_surface on blocks of
 /// floor(sqrt(estimate / target)) voxels, embedded and clustered to the target (preview_surface)
-/// when above 1.5 times it, so the full surface is not built on the way (0.9-1 s of the folded organ's first
-/// start with a display); else the full surface built here and preview_surface of it (or the
-/// full surface itself, final, when small enough). Throws vx::Error.
+/// when above 1.5 times it, so the full surface is not built on the way (0.9-1 s of the folded
+/// organ's first start with a display). Else, or when the blocks leave under a quarter of the
+/// triangles they should (tissue thinner than half a block), the full surface built here and
+/// preview_surface of it (or the full surface itself, final, when small enough). Throws vx::Error.
 [[nodiscard]] StagedDisplaySurface stage_display_surface_of_grid(std::shared_ptr<const Model> model,
                                                                  const VoxelGrid& grid, SurfaceMethod method,
                                                                  const DecimationSettings& settings,

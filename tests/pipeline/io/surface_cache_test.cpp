@@ -273,6 +273,24 @@ TEST_F(SurfaceCacheTest, AStagedSurfaceShowsAPreviewThenKeepsTheSurfaceTheLoadin
   DecimationReport loaded;
   (void)display_surface_of_grid(model_, grid_, SurfaceMethod::iso, settings_, &loaded, c.get());
   EXPECT_TRUE(loaded.from_cache);
+  // a sheet one voxel thick: on blocks of 4 no block is half tissue, so nothing is left at the
+  // half level; the preview is clustered from the full surface instead
+  {
+    GridGeometry g;
+    g.dims = Eigen::Vector3i(66, 66, 3);
+    VoxelGrid sheet(g);
+    for (int j = 1; j < 65; ++j)
+      for (int i = 1; i < 65; ++i) sheet.set(i, j, 1, 1);
+    auto sheet_model = std::make_shared<const Model>(build_model(sheet));
+    DecimationSettings few = settings_;
+    few.target_triangles = 1000;
+    const StagedDisplaySurface thin =
+        stage_display_surface_of_grid(sheet_model, sheet, SurfaceMethod::iso, few, nullptr);
+    EXPECT_TRUE(thin.report.preview);
+    EXPECT_EQ(thin.report.preview_blocks, 0);
+    EXPECT_GT(thin.shown.num_triangles(), few.target_triangles / 2);
+    EXPECT_EQ(thin.shown.validate(), "");
+  }
   // a surface small enough is final at once, without a preview
   DecimationSettings big = settings_;
   big.target_triangles = full.num_triangles();
