@@ -196,7 +196,7 @@ TriangleMesh extract_coarse_iso_surface(const VoxelGrid& grid, int factor, const
   image->SetOrigin(first.x(), first.y(), first.z());
   image->AllocateScalars(VTK_FLOAT, 1);
   auto* out = static_cast<float*>(image->GetScalarPointer());
-  std::fill(out, out + std::size_t(n.prod()), 0.0f);
+  std::fill(out, out + std::size_t(n.x()) * std::size_t(n.y()) * std::size_t(n.z()), 0.0f);
   const float share = 1.0f / float(factor * factor * factor);
   for (int k = lo.z(); k < hi.z(); ++k)
     for (int j = lo.y(); j < hi.y(); ++j)

@@ -781,7 +781,9 @@ double corner_weight(const Eigen::Vector3d& t, int c) {
 class UsedLatticePoints {
  public:
   UsedLatticePoints(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi)
-      : lo_(lo), dims_((hi - lo).array() + 1), bits_(std::size_t((std::int64_t(dims_.prod()) + 63) / 64), 0) {}
+      : lo_(lo),
+        dims_((hi - lo).array() + 1),
+        bits_(std::size_t((std::int64_t(dims_.x()) * dims_.y() * dims_.z() + 63) / 64), 0) {}
   void mark(const Eigen::Vector3i& a) {
     const std::int64_t i = index(a);
     bits_[std::size_t(i >> 6)] |= std::uint64_t(1) << (i & 63);
