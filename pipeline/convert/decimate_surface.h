@@ -60,8 +60,8 @@ struct DecimationReport {
   /// iso-surface): extract_coarse_iso_surface on blocks of this many voxels a side; 0: not so.
   /// triangles_before is then the full surface's estimate (two per tissue voxel face).
   int preview_blocks{0};
-  double build_s{0.0};     ///< display_surface_of_grid: wall time of building the full surface, s
-  double cache_s{0.0};     ///< wall time of the key and the load (from_cache), s
+  double build_s{0.0};  ///< display_surface_of_grid: wall time of building the full surface, s
+  double cache_s{0.0};  ///< wall time of the key and the load (from_cache), s
   /// One line for a log, e.g. "display surface decimated 350768 -> 100002 triangles in 1.9 s".
   [[nodiscard]] std::string summary() const;
 };

@@ -10,6 +10,7 @@
 #include <limits>
 #include <unordered_map>
 
+#include "base/content_hash.h"
 #include "base/error.h"
 #include "base/huge_pages.h"
 #include "base/parallel.h"
@@ -123,12 +124,13 @@ std::vector<std::int32_t> element_shapes(const Model& m) {
   std::vector<std::uint64_t> hash(count);
   parallel_for(ne, 1024, 0, [&](std::int64_t e0, std::int64_t e1) {
     for (int e = int(e0); e < int(e1); ++e) {
-      std::uint64_t h = 1469598103934665603ull ^ std::uint64_t(m.element_level[std::size_t(e)]);
+      ContentHash h;
+      h.add_value(std::int32_t(m.element_level[std::size_t(e)]));
       for (int j = m.element_offsets[e]; j < m.element_offsets[e + 1]; ++j) {
         const Eigen::Vector3i d = m.node_lattice.col(m.element_vertices[j]) - m.element_anchor.col(e);
-        for (int k = 0; k < 3; ++k) h = (h ^ std::uint64_t(std::uint32_t(d[k]))) * 1099511628211ull;
+        h.add(d.data(), sizeof(int) * 3);
       }
-      hash[std::size_t(e)] = h;
+      hash[std::size_t(e)] = h.value();
     }
   });
   std::vector<std::int32_t> of(count);

@@ -116,7 +116,7 @@ const std::map<std::string, std::vector<std::string>> kRoomOrder{
      {"rigid_sums", "element_gradient", "element_modes", "element_batch_layout", "material", "vertex_weights",
       "calibration_key", "physics_model", "calibrated_fields", "rotation_fit", "element_pass", "element_law", "element_batches",
       "elements", "calibration", "physics_model_key"}},
-    {"src/surface", {"surface", "slice_surface"}},
+    {"src/surface", {"lattice_lookup", "surface embed_surface", "slice_surface"}},
     {"src/sim",
      {"integrator_kind", "time_step", "state", "step_report", "contact_constraint",
       "sparse_factor sparse_factor_solve sparse_factor_sweeps sparse_factor_file", "contact_active_set", "projective_solver",

@@ -96,7 +96,8 @@ double affine_energy_ratio(const Model& m, const Material& mat, const Eigen::Mat
   const double mu = shear_modulus_n_mm2(mat.youngs_modulus_kpa, mat.poisson_ratio);
   const double lambda = lame_lambda_n_mm2(mat.youngs_modulus_kpa, mat.poisson_ratio);
   const Eigen::Matrix3d e = 0.5 * (eps + eps.transpose());
-  const double continuum = (mu * (e.array() * e.array()).sum() + 0.5 * lambda * e.trace() * e.trace()) * m.total_volume_mm3();
+  const double continuum =
+      (mu * (e.array() * e.array()).sum() + 0.5 * lambda * e.trace() * e.trace()) * m.total_volume_mm3();
   return discrete / continuum;
 }
 

@@ -63,7 +63,8 @@ Eigen::Matrix3Xd affine_nodes(const Model& m, const Eigen::Matrix3d& A, const Ei
 double min_triangle_area(const Eigen::Matrix3Xd& x, const Eigen::Matrix3Xi& tris) {
   double lo = INFINITY;
   for (int t = 0; t < tris.cols(); ++t)
-    lo = std::min(lo, 0.5 * (x.col(tris(1, t)) - x.col(tris(0, t))).cross(x.col(tris(2, t)) - x.col(tris(0, t))).norm());
+    lo =
+        std::min(lo, 0.5 * (x.col(tris(1, t)) - x.col(tris(0, t))).cross(x.col(tris(2, t)) - x.col(tris(0, t))).norm());
   return lo;
 }
 
@@ -112,7 +113,8 @@ TEST(Surface, ConcaveStepIsSpannedByOneFlatFace) {
   int diagonal = 0;
   for (int t = 0; t < s.num_triangles(); ++t) {
     const Eigen::Vector3d a = s.rest_vertices.col(s.triangles(0, t));
-    const Eigen::Vector3d n = (s.rest_vertices.col(s.triangles(1, t)) - a).cross(s.rest_vertices.col(s.triangles(2, t)) - a);
+    const Eigen::Vector3d n =
+        (s.rest_vertices.col(s.triangles(1, t)) - a).cross(s.rest_vertices.col(s.triangles(2, t)) - a);
     if (n.normalized().isApprox(Eigen::Vector3d(1, 1, 0).normalized(), 1e-12)) ++diagonal;
   }
   EXPECT_EQ(diagonal, 2);
@@ -207,7 +209,8 @@ TEST(Surface, PaperSurfaceTradesAnOutwardBiasForSmootherNormals) {
     }
     for (int t = 0; t < s.num_triangles(); ++t)
       sample((s.rest_vertices.col(s.triangles(0, t)) + s.rest_vertices.col(s.triangles(1, t)) +
-              s.rest_vertices.col(s.triangles(2, t))) / 3.0);
+              s.rest_vertices.col(s.triangles(2, t))) /
+             3.0);
     const double samples = double(s.num_vertices() + s.num_triangles());
     f.mean /= samples;
     f.bias /= samples;
@@ -237,9 +240,9 @@ TEST(Surface, NoisyShapesGiveClosedOrientedSurfaces) {
       SCOPED_TRACE("seed " + std::to_string(seed) + (hide ? " paper" : " staircase"));
       expect_closed(s);
       EXPECT_NEAR(enclosed_volume_mm3(s.rest_vertices, s.triangles), double(g.count()) + fill_voxels(r), 1e-9);
-      if (hide) std::printf("seed %u: steps %lld corners %lld whole %lld dropped %lld\n", seed,
-                            (long long)r.filled_steps, (long long)r.filled_corners, (long long)r.filled_voxels,
-                            (long long)r.dropped_fills);
+      if (hide)
+        std::printf("seed %u: steps %lld corners %lld whole %lld dropped %lld\n", seed, (long long)r.filled_steps,
+                    (long long)r.filled_corners, (long long)r.filled_voxels, (long long)r.dropped_fills);
     }
   }
 }
@@ -267,8 +270,8 @@ TEST(Surface, MirroredAndAnisotropicGeometryKeepsTheSurfaceOutward) {
   VoxelSurfaceReport r;
   const EmbeddedSurface s = make_voxel_surface(m, h, true, &r);
   expect_closed(s);
-  EXPECT_NEAR(enclosed_volume_mm3(s.rest_vertices, s.triangles), (double(h.count()) + fill_voxels(r)) * geo.voxel_volume_mm3(),
-              1e-6);
+  EXPECT_NEAR(enclosed_volume_mm3(s.rest_vertices, s.triangles),
+              (double(h.count()) + fill_voxels(r)) * geo.voxel_volume_mm3(), 1e-6);
 }
 
 TEST(Surface, GridMustMatchTheModel) {
@@ -477,7 +480,8 @@ TEST(SurfaceDeform, IndentationInvertsNoTriangle) {
     x.col(i) += 3.0 * std::exp(-d2 / (2 * 4.0 * 4.0)) * down;
   }
   const EmbeddedSurface paper = make_voxel_surface(m, g, true);
-  const EmbeddedSurface offset = embed_surface(m, probe_points(m, paper, 0.4, 0, 1), paper.triangles, SurfaceMethod::iso);
+  const EmbeddedSurface offset =
+      embed_surface(m, probe_points(m, paper, 0.4, 0, 1), paper.triangles, SurfaceMethod::iso);
   for (const EmbeddedSurface* s : {&paper, &offset}) {
     Eigen::Matrix3Xd v, nv;
     deform(*s, x, v, nv);

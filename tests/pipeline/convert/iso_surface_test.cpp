@@ -163,7 +163,8 @@ TEST(IsoSurface, IndentationInvertsNoTriangle) {
       inverted += !(c > 0);
     }
     EXPECT_EQ(inverted, 0) << to_string(m);
-    std::printf("%s: %d triangles, lowest cos(rest, indented triangle normal) %.3f\n", to_string(m), s.num_triangles(), worst);
+    std::printf("%s: %d triangles, lowest cos(rest, indented triangle normal) %.3f\n", to_string(m), s.num_triangles(),
+                worst);
     // the top went down by about the bump depth
     double top_z = 1e9;
     for (int i = 0; i < s.num_vertices(); ++i)
