@@ -79,9 +79,14 @@ struct AppControls {
   /// goes, and the display's turn").
   std::atomic<bool> display_turn{false};
 
+  /// Work in the background the session no longer wants once it quits (the solver being built:
+  /// IntegratorSettings::stop_background); turned true by request_quit().
+  std::shared_ptr<std::atomic<bool>> stop_background{std::make_shared<std::atomic<bool>>(false)};
+
   /// The first reason given wins.
   void request_quit(const std::string& why) {
     std::lock_guard lock(mutex_);
+    stop_background->store(true);
     if (!quit.exchange(true)) reason_ = why;
   }
   [[nodiscard]] std::string quit_reason() const {
@@ -158,6 +163,8 @@ struct PhysicsReport {
   /// (IntegratorSettings::factor_in_background): being built now; when it was taken (wall time
   /// since the open, us; < 0: not yet or never built so); the wall time steps waited for it, us.
   std::atomic<bool> solver_pending{false};
+  /// The quit found a step waiting for that solver (a tool had reached the tissue): the wait stopped.
+  std::atomic<bool> quit_while_waiting{false};
   std::atomic<std::int64_t> solver_ready_us{-1};
   std::atomic<std::int64_t> factor_wait_us{0};
 

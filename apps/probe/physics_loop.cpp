@@ -8,6 +8,7 @@
 #include <stdexcept>
 #include <thread>
 
+#include "base/error.h"
 #include "haptics/device_side.h"
 #include "sim/projective_solver.h"
 #include "sim/simulation.h"
@@ -43,6 +44,10 @@ void PhysicsLoop::tick() {
     int steps = 0;
     try {
       steps = advance(now, elapsed);
+    } catch (const Cancelled&) {
+      // the session quits while a step waited for the solver being built (AppControls::request_quit
+      // stopped it): no fault, the next tick ends the run
+      s_.physics.quit_while_waiting.store(true);
     } catch (const std::exception& e) {
       // the step may have left the solver half done: it refactors
       recover(fmt::format("the step threw: {}", e.what()), true);

@@ -5,7 +5,11 @@
 
 #include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <csignal>
+#include <cstdio>
+#include <cstdlib>
+#include <future>
 #include <limits>
 #include <memory>
 #include <string>
@@ -44,10 +48,28 @@ extern "C" void on_interrupt(int) { g_interrupted.store(true); }
 /// The app: opens the scene, the input and the outputs, starts the physics and device threads
 /// (physics_loop.h, device_loop.h), runs the GUI loop (gui_loop.h) on this thread, and reports.
 /// What the loops share is `AppShared` (app_shared.h).
+/// What a session that ended leaves running: the solver being built in the background, asked
+/// to stop (IntegratorCache::abandon_pending), and the factor cache it may offer its factor to.
+struct LeftRunning {
+  std::future<IntegratorCache::SolverPtr> solver;
+  double solver_age_s{0.0};  ///< how long it had been building at the end, s
+  std::shared_ptr<FactorCache> factor_cache;
+};
+
 class App {
  public:
   App(const AppOptions& options, ProbeScene scene) : options_(options), scene_(std::move(scene)) {}
   int run();
+  /// After run(): what is still building in the background, handed over so that the App's end
+  /// does not wait for it.
+  [[nodiscard]] LeftRunning leave_running() {
+    LeftRunning left;
+    if (!sim_ || !sim_->solver_pending()) return left;
+    left.solver_age_s = sim_->solver_pending_s();
+    left.solver = sim_->abandon_pending_solver();
+    left.factor_cache = scene_.simulation.integrator.factor_cache;
+    return left;
+  }
 
  private:
   void say(const std::string& line) const {
@@ -81,6 +103,8 @@ class App {
   void soak_summary();
 
   const AppOptions& options_;
+  /// Turned true by a quit: the solver's build in the background stops (IntegratorSettings::stop_background).
+  std::shared_ptr<std::atomic<bool>> stop_background_{std::make_shared<std::atomic<bool>>(false)};
   ProbeScene scene_;
   std::unique_ptr<Simulation> sim_;
   std::unique_ptr<DeviceSide> device_side_;  ///< after sim_: it detaches from it first
@@ -199,6 +223,8 @@ void App::start_simulation() {
   // the session starts while the solver is factored beside it, the tissue at rest meanwhile
   scene_.simulation.integrator.factor_in_background = options_.background_factor;
   scene_.simulation.integrator.factor_in_background_delay_s = options_.test_factor_delay_s;
+  // a quit stops it (AppControls::request_quit), and no step waits for it past the quit
+  scene_.simulation.integrator.stop_background = stop_background_;
   std::optional<DeviceForceSettings>& dev = scene_.device_side.device;
   local_ = options_.force_shaping.value_or(dev ? dev->shaping : ForceShaping::paper) == ForceShaping::local;
   if (local_ && !dev) dev = DeviceForceSettings{};
@@ -215,6 +241,7 @@ void App::start_simulation() {
   if (probes_ > kMaxSticks)
     say(fmt::format("note: the scene has {} probes; the app drives the first {}", probes_, kMaxSticks));
   shared_ = std::make_unique<AppShared>(options_, *sim_, *device_side_);
+  shared_->controls.stop_background = stop_background_;
   shared_->region_check = scene_.region_check;
   shared_->accuracy_status = scene_.accuracy_status;
   shared_->display_surface = scene_.surface;
@@ -405,7 +432,10 @@ void App::summary(double wall_s) {
                       1e-6 * double(ready_us), scene_.load_s + 1e-6 * double(ready_us), waited_s,
                       waited_s > 0 ? " (a tool reached the tissue before it was ready)" : ""));
     else if (r.solver_pending.load())
-      say("solver: still being factored in the background at the end (the tissue rested all the run)");
+      say(r.quit_while_waiting.load()
+              ? "solver: still being factored in the background at the end (a tool had reached the tissue: the "
+                "physics waited for it until the quit)"
+              : "solver: still being factored in the background at the end (the tissue rested all the run)");
   }
   if (shared_->share_cores)
     say(fmt::format(
@@ -581,6 +611,38 @@ int App::run() {
   return finish(view_.get(), std::move(error));
 }
 
+/// The end of a session that leaves a solver building (App::leave_running): a build that stops
+/// within a moment (it was between stages) ends as any thread; one still in METIS or the numeric
+/// factorisation, which cannot be cut short and take seconds on an organ, is not waited for.
+/// The factor cache is closed first (a factor it is writing is finished, none is begun), then
+/// the process ends with `code`.
+int end_left_running(LeftRunning left, int code, bool quiet) {
+  if (!left.solver.valid()) return code;
+  const auto say = [&](const std::string& line) {
+    if (!quiet) fmt::print("{}\n", line);
+  };
+  if (left.solver.wait_for(std::chrono::milliseconds(250)) == std::future_status::ready) {
+    try {
+      (void)left.solver.get();
+      say("solver: its build in the background ended with the session (not used)");
+    } catch (const Cancelled& e) {
+      say(fmt::format("solver: the quit stopped its build in the background: {} (nothing of it kept)", e.what()));
+    } catch (const std::exception& e) {
+      say(fmt::format("solver: its build in the background failed at the end: {}", e.what()));
+    }
+    return code;
+  }
+  if (left.factor_cache) left.factor_cache->close();
+  say(fmt::format(
+      "solver: left unfinished at the quit, {:.1f} s into its build, in a stage that cannot be cut short (the "
+      "assembly, METIS's order or CHOLMOD's factorisation); nothing of it is kept: the next start of this organ "
+      "factors again",
+      left.solver_age_s));
+  std::fflush(stdout);
+  std::fflush(stderr);
+  std::_Exit(code);
+}
+
 }  // namespace
 
 int run_probe_app(const AppOptions& options) {
@@ -612,8 +674,14 @@ int run_probe_app(const AppOptions& options) {
   scene.load_s = seconds(SteadyClock::now() - load_start);
   if (!options.quiet)
     for (const auto& n : scene.notes) fmt::print("{}\n", n);
-  App app(options, std::move(scene));
-  return app.run();
+  int code = 0;
+  LeftRunning left;
+  {
+    App app(options, std::move(scene));
+    code = app.run();
+    left = app.leave_running();
+  }  // (the threads, the window, the device and the caches' writes ended here)
+  return end_left_running(std::move(left), code, options.quiet);
 }
 
 }  // namespace vx::probe

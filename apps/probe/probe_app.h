@@ -17,6 +17,9 @@
 namespace vx::probe {
 
 /// Runs the app; returns the exit code. Throws vx::Error for bad input found before the run.
+/// A session that quits while its solver is still being factored in the background (METIS or the
+/// numeric factorisation, which cannot be cut short) does not wait for it: once every output is
+/// written and the factor cache closed, the process ends here with the exit code (std::_Exit).
 [[nodiscard]] int run_probe_app(const AppOptions& options);
 
 }  // namespace vx::probe

@@ -61,6 +61,10 @@ class FolderFactorCache final : public FactorCache {
   /// Orders are kept when finding them took at least min_factor_s, as factors are.
   bool load_order(const FactorKey& pattern, std::vector<int>& order) override;
   void store_order(const FactorKey& pattern, const SparseFactor& factor) override;
+  void close() override {
+    folder_.close();
+    orders_.close();
+  }
 
   [[nodiscard]] const FactorCacheSettings& settings() const { return settings_; }
   /// The file of `key`.

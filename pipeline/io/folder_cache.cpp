@@ -59,6 +59,12 @@ void FolderCache::wait_for_writes() {
   for (std::thread& t : writes) t.join();
 }
 
+void FolderCache::close() {
+  wait_for_writes();
+  std::lock_guard lock(mutex_);  // (a store() under way holds it to its end)
+  closed_ = true;
+}
+
 void FolderCache::store_beside(Offer offer, Writer write, const char* thread_name, int nice) {
   if (offer.seconds < offer.min_seconds) {  // skipped: nothing to write
     store(offer, write);
@@ -128,7 +134,7 @@ bool FolderCache::load(const std::string& name, const std::string& detail, const
 
 void FolderCache::store(const Offer& offer, const Writer& write) {
   std::lock_guard lock(mutex_);
-  if (offer.seconds < offer.min_seconds) {
+  if (closed_ || offer.seconds < offer.min_seconds) {
     ++counters_.skipped;
     return;
   }

@@ -116,6 +116,10 @@ class FolderCache {
   /// (0: the caller's; a real-time run goes first), and returns at once; `write` must own or
   /// share what it writes. Written here when no thread can be had, or when it would be skipped.
   void store_beside(Offer offer, Writer write, const char* thread_name, int nice);
+  /// No store from now on (each is skipped); returns once the stores begun have ended. For a
+  /// process that ends without waiting for a thread that may still offer one (its file is never
+  /// left half written).
+  void close();
 
  private:
   /// Waits for the writes begun so far (a load, the destructor).
@@ -129,6 +133,7 @@ class FolderCache {
   mutable std::mutex mutex_;
   Counters counters_;
   bool complained_{false};
+  bool closed_{false};  ///< close(): stores are skipped (locked)
   std::mutex writes_mutex_;
   std::vector<std::thread> writes_;  ///< store_beside's threads (joined by wait_for_writes)
 };

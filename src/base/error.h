@@ -1,7 +1,8 @@
 #pragma once
 /// @file error.h
-/// The one exception type for bad input at the edges (files, options, scenes).
-/// Programmer errors are asserts; numeric trouble during a step is a flag in the state.
+/// The exception type for bad input at the edges (files, options, scenes), and the one for work
+/// stopped because its caller asked (Cancelled). Programmer errors are asserts; numeric trouble
+/// during a step is a flag in the state.
 
 #include <stdexcept>
 #include <string>
@@ -12,6 +13,13 @@ namespace vx {
 class Error : public std::runtime_error {
  public:
   explicit Error(const std::string& message) : std::runtime_error(message) {}
+};
+
+/// Work that stopped because its caller asked it to (a cancel flag turned true): not a failure,
+/// and nothing it would have kept was kept. The message says what stopped, and where.
+class Cancelled : public std::runtime_error {
+ public:
+  explicit Cancelled(const std::string& message) : std::runtime_error(message) {}
 };
 
 }  // namespace vx

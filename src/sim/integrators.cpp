@@ -454,10 +454,15 @@ class ImplicitIntegrator final : public SteppingIntegrator {
         auto factor_cache = settings_.factor_cache;
         const int threads = settings_.threads;
         const double delay_s = settings_.factor_in_background_delay_s;
-        cache.pending = std::async(std::launch::async, [physics, fixed, setup, factor_cache, threads, delay_s] {
+        // stopped by its own flag (a cache dropped) or by the caller's (a session that quits)
+        auto own = std::make_shared<std::atomic<bool>>(false);
+        std::shared_ptr<const std::atomic<bool>> callers = settings_.stop_background;
+        auto stop = [own, callers] { return own->load() || (callers && callers->load()); };
+        cache.pending = std::async(std::launch::async, [physics, fixed, setup, factor_cache, threads, delay_s, stop] {
           if (delay_s > 0) std::this_thread::sleep_for(std::chrono::duration<double>(delay_s));
-          return new_solver(physics, fixed, setup, factor_cache.get(), threads);
+          return new_solver(physics, fixed, setup, factor_cache.get(), threads, stop);
         });
+        cache.pending_stop = std::move(own);
         cache.pending_fixed_version = s.fixed_version;
         cache.pending_since_s =
             std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
@@ -491,7 +496,13 @@ class ImplicitIntegrator final : public SteppingIntegrator {
       }
     }
     const auto t0 = std::chrono::steady_clock::now();
+    // (a caller that stops the build, a session that quits, is not kept waiting by this step)
+    if (const auto& callers = settings_.stop_background; !ready && callers)
+      while (cache.pending.wait_for(std::chrono::milliseconds(20)) != std::future_status::ready)
+        if (callers->load())
+          throw Cancelled("the step waiting for the solver being built in the background was stopped");
     cache.solver = cache.pending.get();  // (the future is empty from here, whatever it threw)
+    cache.pending_stop.reset();
     if (!ready) rep.factor_wait_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     cache.fixed_version = cache.pending_fixed_version;
     took_solver(*cache.solver, rep);
@@ -501,8 +512,9 @@ class ImplicitIntegrator final : public SteppingIntegrator {
 
   static IntegratorCache::SolverPtr new_solver(std::shared_ptr<const PhysicsModel> physics,
                                                const std::vector<std::uint8_t>& fixed, const ProjectiveSetup& setup,
-                                               FactorCache* factor_cache, int threads) {
-    return {new ProjectiveSolver(std::move(physics), fixed, setup, factor_cache, threads),
+                                               FactorCache* factor_cache, int threads,
+                                               const std::function<bool()>& stop = {}) {
+    return {new ProjectiveSolver(std::move(physics), fixed, setup, factor_cache, threads, stop),
             [](ProjectiveSolver* p) { delete p; }};
   }
 

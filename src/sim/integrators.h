@@ -21,6 +21,7 @@
 /// Units: dt in s, positions mm, velocities mm/s, forces N, masses N*s^2/mm (material.h).
 
 #include <Eigen/Core>
+#include <atomic>
 #include <cstdint>
 #include <limits>
 #include <memory>
@@ -138,8 +139,13 @@ struct IntegratorSettings {
   /// model factors (the probe app; docs/model.md section 7, "A solver built while the tissue rests").
   bool factor_in_background{false};
   /// Tests: extra wall time on building a solver in the background (stands for a large model's
-  /// factorisation), s.
+  /// factorisation: it cannot be stopped), s.
   double factor_in_background_delay_s{0.0};
+  /// The caller's word that a solver being built in the background is not wanted any more (a
+  /// session that quits; null: never): once true, the build stops at its next stage (Cancelled,
+  /// ProjectiveSolver's constructor) and keeps nothing, and a step waiting for it throws Cancelled
+  /// within 20 ms instead of waiting on. Its own stop (IntegratorCache::pending_stop) is apart.
+  std::shared_ptr<const std::atomic<bool>> stop_background;
   /// implicit: where factors are looked up before and kept after a factorisation (by the
   /// content of the matrix: sparse_factor.h); null: every solver factors. Shared, not owned by
   /// one integrator: pipeline/io/factor_cache.h keeps one in a folder.

@@ -17,14 +17,14 @@ namespace vx {
 
 ProjectiveSolver::ProjectiveSolver(std::shared_ptr<const PhysicsModel> physics,
                                    const std::vector<std::uint8_t>& node_fixed, const ProjectiveSetup& setup,
-                                   FactorCache* factor_cache, int threads)
+                                   FactorCache* factor_cache, int threads, const std::function<bool()>& stop)
     : physics_(std::move(physics)), setup_(setup) {
   const PhysicsModel& p = *physics_;
   const int nn = p.num_nodes(), ne = p.num_elements();
   if (int(node_fixed.size()) != nn) throw Error("projective solver: node_fixed has the wrong size");
   numbering_ = number_nodes(node_fixed);
   if (!setup_.inertia) check_held();
-  assemble_and_factor(factor_cache, threads);
+  assemble_and_factor(factor_cache, threads, stop);
   // buffers of a solve
   const int nf = num_free(), nc = int(numbering_.fixed_nodes.size());
   const std::int64_t entries = p.num_vertex_entries();
@@ -232,7 +232,13 @@ double projective_centring_weight(const PhysicsModel& p, int e, const Projective
 
 /// Assembles M/dt^2 + sum_e (K_e + kappa_e (diag(w) - w w^T / W)), split into free-free (factored)
 /// and free-fixed, with kappa_e = k_v,e (+ c_e / dt): the volume and damping terms.
-void ProjectiveSolver::assemble_and_factor(FactorCache* cache, int threads) {
+void ProjectiveSolver::assemble_and_factor(FactorCache* cache, int threads, const std::function<bool()>& stop) {
+  const auto stop_at = [&](const char* where) {
+    if (stop && stop())
+      throw Cancelled("the implicit solver's set-up (" + std::to_string(num_free()) + " free nodes) was stopped " +
+                      where);
+  };
+  stop_at("before it began");
   const PhysicsModel& p = *physics_;
   const int ne = p.num_elements(), nf = num_free();
   centring_weight_.resize(std::size_t(ne));
@@ -243,12 +249,14 @@ void ProjectiveSolver::assemble_and_factor(FactorCache* cache, int threads) {
     // fixed nodes with it: a factor found needs nothing else
     key = projective_matrix_key(p, numbering_, setup_, threads, &a_free_fixed_);
     key.single = setup_.single_precision_sweeps && key.backend == std::uint8_t(SparseFactor::Backend::cholmod);
+    stop_at("after the matrix's key, before the factor cache");
     if (cache->load(key, factor_) && factor_.size() == nf) {
       if (setup_.single_precision_sweeps) factor_.use_single_precision_sweeps();  // a file of doubles: converted
       return;
     }
     factor_ = SparseFactor();  // none, or not this matrix's after all: factor it
   }
+  stop_at("before the assembly");
   SparseFactor::Matrix a;
   assemble_projective_matrix(p, numbering_, setup_, a, &a_free_fixed_, threads);
   // the order kept for this pattern (the model and its support; another material, step or
@@ -260,11 +268,12 @@ void ProjectiveSolver::assemble_and_factor(FactorCache* cache, int threads) {
     pattern = SparseFactor::pattern_key(a);
     if (!cache->load_order(pattern, order) || int(order.size()) != nf) order.clear();
   }
-  if (!factor_.compute(a, SparseFactor::Backend::automatic, order))
+  if (!factor_.compute(a, SparseFactor::Backend::automatic, order, stop))
     throw Error("implicit integrator: the system matrix could not be factored (" + std::to_string(nf) +
                 " free nodes); is a part of the model held by nothing?");
   // before the cache keeps it: the file holds the values the sweeps read (half the bytes)
   if (setup_.single_precision_sweeps) factor_.use_single_precision_sweeps();
+  stop_at("before the factor cache kept its factor");  // (a factor stopped is not kept)
   if (cache) cache->store(key, factor_);
   if (ordered && order.empty()) cache->store_order(pattern, factor_);
 }

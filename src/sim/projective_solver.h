@@ -29,6 +29,7 @@
 #include <Eigen/Cholesky>
 #include <Eigen/Core>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <utility>
 #include <vector>
@@ -141,9 +142,13 @@ class ProjectiveSolver {
   /// the matrix cannot be factored, or (static) when a part of the model holds no fixed node.
   /// `factor_cache` (may be null; used during the constructor only): the factor is loaded from
   /// it when it holds the matrix's, and offered to it when computed (SparseFactor::compute).
-  /// `threads`: for the factor key (0: OpenMP's default).
+  /// `threads`: for the factor key (0: OpenMP's default). `stop` (may be empty): asked between
+  /// the stages (the key, the cache's load, the assembly, the order, the numeric factorisation,
+  /// before the cache's store); true throws Cancelled (base/error.h) and nothing is stored. A
+  /// stage asked to stop runs to its end first (METIS and CHOLMOD cannot be cut short).
   ProjectiveSolver(std::shared_ptr<const PhysicsModel> physics, const std::vector<std::uint8_t>& node_fixed,
-                   const ProjectiveSetup& setup, FactorCache* factor_cache = nullptr, int threads = 0);
+                   const ProjectiveSetup& setup, FactorCache* factor_cache = nullptr, int threads = 0,
+                   const std::function<bool()>& stop = {});
   ProjectiveSolver(const ProjectiveSolver&) = delete;
   ProjectiveSolver& operator=(const ProjectiveSolver&) = delete;
 
@@ -250,7 +255,7 @@ class ProjectiveSolver {
 
  private:
   void check_held() const;
-  void assemble_and_factor(FactorCache* cache, int threads);
+  void assemble_and_factor(FactorCache* cache, int threads, const std::function<bool()>& stop);
   void record_start_shape(const Eigen::Matrix3Xd& x, int threads);
   ElementPassStats local_step(SimState& state, const Eigen::Matrix3Xd& x, const RotationFitSettings& fit, int threads);
   /// Calls fn(chunk, first, last) over the elements a solve computes: all, or the region's

@@ -176,6 +176,12 @@ class Simulation {
   /// (IntegratorSettings::factor_in_background); for how long so far, s (0: not being built).
   [[nodiscard]] bool solver_pending() const { return state_.integrator_cache.pending.valid(); }
   [[nodiscard]] double solver_pending_s() const { return state_.integrator_cache.pending_age_s(); }
+  /// Stops the solver being built in the background and hands it over, for a caller that ends the
+  /// run and will not wait for it (IntegratorCache::abandon_pending; an empty future without one).
+  /// Not while a step runs.
+  [[nodiscard]] std::future<IntegratorCache::SolverPtr> abandon_pending_solver() {
+    return state_.integrator_cache.abandon_pending();
+  }
   [[nodiscard]] const std::shared_ptr<const PhysicsModel>& shared_physics() const { return physics_; }
 
   [[nodiscard]] int num_probes() const { return int(drivers_.size()); }

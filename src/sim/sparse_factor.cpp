@@ -181,15 +181,27 @@ FactorKey SparseFactor::pattern_key(const Matrix& a) {
   return k;
 }
 
-bool SparseFactor::compute(const Matrix& a, Backend backend, std::span<const int> order) {
+bool SparseFactor::compute(const Matrix& a, Backend backend, std::span<const int> order,
+                           const std::function<bool()>& stop) {
   const auto t0 = std::chrono::steady_clock::now();
   reset();
   if (backend == Backend::automatic || !available(backend)) backend = best_backend();
+  const char* stopped = nullptr;  // where a stop was asked (then the factor is empty)
+  const auto asked = [&](const char* where) {
+    if (!stopped && stop && stop()) stopped = where;
+    return stopped != nullptr;
+  };
   bool ok = false;
-  switch (backend) {
-    case Backend::cholmod: ok = compute_cholmod(a, order); break;
-    case Backend::eigen_metis: ok = compute_eigen(a, true); break;
-    default: ok = compute_eigen(a, false); break;
+  if (!asked("before it began")) {
+    switch (backend) {
+      case Backend::cholmod: ok = compute_cholmod(a, order, asked); break;
+      case Backend::eigen_metis: ok = compute_eigen(a, true); break;
+      default: ok = compute_eigen(a, false); break;
+    }
+  }
+  if (asked("at its end")) {
+    reset();
+    throw Cancelled("the factorisation of a " + std::to_string(a.rows()) + "-row matrix was stopped " + stopped);
   }
   factor_s_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   if (!ok) {
@@ -282,7 +294,8 @@ bool SparseFactor::compute_eigen(const Matrix& a, bool metis) {
   return ok;
 }
 
-bool SparseFactor::compute_cholmod(const Matrix& a_in, std::span<const int> order) {
+bool SparseFactor::compute_cholmod(const Matrix& a_in, std::span<const int> order,
+                                   const std::function<bool(const char*)>& stop) {
 #ifdef VOXELASTIC_HAVE_CHOLMOD
   if (!order.empty() && order.size() != std::size_t(a_in.rows()))
     throw Error("SparseFactor: an order of " + std::to_string(order.size()) + " rows for a matrix of " +
@@ -317,13 +330,19 @@ bool SparseFactor::compute_cholmod(const Matrix& a_in, std::span<const int> orde
   view.packed = 1;
   // CHOLMOD checks a given order is a permutation (a null factor if not) and postorders it (an
   // order() is postordered already: it comes back the same)
+  // (asked again after the lock, which another factorisation may have held)
+  if (stop("before the order")) {
+    cholmod_finish(&cm);
+    return false;
+  }
   const auto t0 = std::chrono::steady_clock::now();
   cholmod_factor* l =
       given ? cholmod_analyze_p(&view, const_cast<int*>(order.data()), nullptr, 0, &cm) : cholmod_analyze(&view, &cm);
   order_s_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   order_given_ = given;
-  bool ok = l != nullptr;
+  bool ok = l != nullptr && !stop("after the order, before the numeric factorisation");
   if (ok) ok = cholmod_factorize(&view, l, &cm) && cm.status == CHOLMOD_OK && l->minor == l->n;
+  if (ok) ok = !stop("after the numeric factorisation");
   // keep the supernodal L L^T: its blocks as they are
   if (ok) ok = l->is_super && l->is_ll;
   if (ok) {
@@ -355,6 +374,7 @@ bool SparseFactor::compute_cholmod(const Matrix& a_in, std::span<const int> orde
 #else
   (void)a_in;
   (void)order;
+  (void)stop;
   return false;
 #endif
 }

@@ -27,6 +27,7 @@
 #include <Eigen/Core>
 #include <Eigen/SparseCore>
 #include <cstdint>
+#include <functional>
 #include <iosfwd>
 #include <memory>
 #include <span>
@@ -133,6 +134,9 @@ class FactorCache {
     (void)pattern;
     (void)factor;
   }
+  /// No store from now on; returns once a store begun has ended. For a process that ends
+  /// without waiting for a factorisation still under way (a session that quits).
+  virtual void close() {}
 };
 
 class SparseFactor {
@@ -164,7 +168,11 @@ class SparseFactor {
   /// definite (a part of the model held by nothing, a NaN). `order` (CHOLMOD only; empty: METIS's)
   /// is the fill-reducing order to factor in, order[k] the row that comes k-th: an order() kept
   /// from a matrix of the same pattern (the order cache: METIS's time saved, the same factor).
-  [[nodiscard]] bool compute(const Matrix& a, Backend backend = Backend::automatic, std::span<const int> order = {});
+  /// `stop` (may be empty): asked between the stages (CHOLMOD: before the order, between it and
+  /// the numeric factorisation, and after it); true throws Cancelled (base/error.h) and leaves
+  /// this factor empty. The stages themselves (METIS, the numeric factorisation) run to their end.
+  [[nodiscard]] bool compute(const Matrix& a, Backend backend = Backend::automatic, std::span<const int> order = {},
+                             const std::function<bool()>& stop = {});
   /// Writes the factor in a binary form (native byte order; a header, the arrays each at a
   /// 64-byte boundary, a checksum): what read() reads back on this machine, with its values in
   /// the precision the sweeps read (use_single_precision_sweeps()). Throws vx::Error when the
@@ -380,7 +388,8 @@ class SparseFactor {
   void finish();
   bool index_supernodes();
   bool compute_eigen(const Matrix& a, bool metis);
-  bool compute_cholmod(const Matrix& a, std::span<const int> order);
+  /// `stop(where)`: true once a stop was asked (compute(): the CHOLMOD memory is given back first).
+  bool compute_cholmod(const Matrix& a, std::span<const int> order, const std::function<bool(const char*)>& stop);
 
   int size_{0};
   Backend backend_{Backend::automatic};

@@ -74,15 +74,41 @@ void SimState::free_all_nodes() {
   ++fixed_version;
 }
 
+namespace {
+/// Asks a pending build to stop (before its future is dropped, which waits for it).
+void ask_stop(const IntegratorCache& c) {
+  if (c.pending.valid() && c.pending_stop) c.pending_stop->store(true);
+}
+}  // namespace
+
 IntegratorCache::IntegratorCache() = default;
-IntegratorCache::~IntegratorCache() = default;
+IntegratorCache::~IntegratorCache() { ask_stop(*this); }
 IntegratorCache::IntegratorCache(const IntegratorCache&) {}
 IntegratorCache& IntegratorCache::operator=(const IntegratorCache& other) {
   if (this != &other) *this = IntegratorCache();
   return *this;
 }
 IntegratorCache::IntegratorCache(IntegratorCache&&) noexcept = default;
-IntegratorCache& IntegratorCache::operator=(IntegratorCache&&) noexcept = default;
+IntegratorCache& IntegratorCache::operator=(IntegratorCache&& other) noexcept {
+  if (this == &other) return *this;
+  ask_stop(*this);
+  solver = std::move(other.solver);
+  fixed_version = other.fixed_version;
+  contact_epoch = other.contact_epoch;
+  next_step = other.next_step;
+  next_time_s = other.next_time_s;
+  pending = std::move(other.pending);
+  pending_stop = std::move(other.pending_stop);
+  pending_fixed_version = other.pending_fixed_version;
+  pending_since_s = other.pending_since_s;
+  return *this;
+}
+
+std::future<IntegratorCache::SolverPtr> IntegratorCache::abandon_pending() {
+  ask_stop(*this);
+  pending_stop.reset();
+  return std::move(pending);
+}
 
 double IntegratorCache::pending_age_s() const {
   if (!pending.valid()) return 0.0;

@@ -7,6 +7,7 @@
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <atomic>
 #include <cstdint>
 #include <future>
 #include <memory>
@@ -72,13 +73,19 @@ struct IntegratorCache {
   double next_time_s{0.0};             ///< ... and at this time
   /// A solver being built on a thread of its own while the tissue rests
   /// (IntegratorSettings::factor_in_background); valid() until a step takes it. Destroying a
-  /// cache that holds one waits for it to finish (a factorisation cannot be cut short).
+  /// cache that holds one asks it to stop (`pending_stop`) and waits for the stage it is in to
+  /// end (METIS and the numeric factorisation cannot be cut short; abandon_pending() does not wait).
   std::future<SolverPtr> pending;
+  /// The pending build's own stop, asked by the destructor and abandon_pending() (null: none).
+  std::shared_ptr<std::atomic<bool>> pending_stop;
   std::uint64_t pending_fixed_version{0};  ///< SimState::fixed_version the pending solver is built for
   double pending_since_s{0.0};             ///< steady-clock seconds when it was started (pending_age_s())
 
   /// Wall time since the pending solver was started, s (0 without one).
   [[nodiscard]] double pending_age_s() const;
+  /// Asks the pending build to stop and hands it over (an empty future without one): its holder
+  /// decides whether to wait for it. It stops at its next stage and keeps nothing (Cancelled).
+  [[nodiscard]] std::future<SolverPtr> abandon_pending();
 
   IntegratorCache();
   ~IntegratorCache();

@@ -4,6 +4,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -447,6 +448,57 @@ TEST_F(ProbeApp, TheSolverIsFactoredInTheBackgroundWhileTheTissueRests) {
   ASSERT_EQ(off.code, 0) << off.out << off.err;
   EXPECT_EQ(off.out.find("solver: "), std::string::npos) << off.out;
   EXPECT_EQ(off.out.find("factoring in the background"), std::string::npos) << off.out;
+}
+
+// A session that quits while its solver is still being factored in the background does not wait
+// for the factorisation (on an organ METIS and CHOLMOD take 10 s or more and cannot be cut short:
+// --test-factor-delay stands for them, 60 s here). Resting (a --duration quit) and with a step
+// waiting for the solver (the tool within reach, a SIGINT quit): the final lines are written, the
+// process ends within seconds with its exit code, and the factor cache keeps nothing, half-written
+// or whole.
+TEST_F(ProbeApp, AQuitDoesNotWaitForTheSolverBeingFactored) {
+  const fs::path scene = dir_ / "rest.json", cache = dir_ / "factors";
+  std::ofstream(scene) << R"({
+    "object": {"box_mm": {"min": [0, 0, 0], "max": [32, 32, 32]}, "voxel_mm": 2},
+    "material": {"youngs_modulus_kpa": 10, "damping": 0.2},
+    "integrator": {"type": "implicit", "dt_s": 0.03, "iterations": 1, "region_radius_mm": 20},
+    "fixed": ["z_min"],
+    "probes": [{"name": "ball", "shape": "sphere", "radius_mm": 4,
+                "live": {"start_mm": [16, 16, 39], "speed_mm_s": 10, "max_speed_mm_s": 50}}],
+    "duration_s": 10
+  })";
+  std::ofstream(dir_ / "press.joy") << "sticks 1\n0 0 0 0.3\n30 0 0 0.3\n";
+  const std::string args =
+      q(scene) + " --headless --force-shaping local --test-factor-delay 60 --factor-cache " + q(cache);
+  const auto timed = [&](const std::string& a, const std::string& env) {
+    const auto t0 = std::chrono::steady_clock::now();
+    RunResult r = run(a, env);
+    return std::make_pair(r, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+  };
+  const auto [rest, rest_s] = timed(args + " --duration 1", "");
+  ASSERT_EQ(rest.code, 0) << rest.out << rest.err;
+  EXPECT_LT(rest_s, 30.0) << "the quit waited for the factorisation (60 s)\n" << rest.out;
+  EXPECT_NE(rest.out.find("stopped: simulated 1.00 s (--duration)"), std::string::npos) << rest.out;
+  EXPECT_NE(rest.out.find("solver: still being factored in the background at the end"), std::string::npos) << rest.out;
+  EXPECT_NE(rest.out.find("solver: left unfinished at the quit"), std::string::npos) << rest.out;
+  // the tool within reach from about 0.7 s: that step waits for the solver, so simulated time stops
+  // and only an interrupt (the window closed, Ctrl-C) ends the session
+  const auto [waiting, waiting_s] =
+      timed(args + " --duration 20 --virtual-joystick " + q(dir_ / "press.joy"), "timeout --preserve-status -s INT 4");
+  ASSERT_EQ(waiting.code, 0) << waiting.out << waiting.err;
+  EXPECT_LT(waiting_s, 30.0) << "the waiting step held the quit until the factorisation (60 s)\n" << waiting.out;
+  EXPECT_NE(waiting.out.find("stopped: interrupted"), std::string::npos) << waiting.out;
+  EXPECT_NE(waiting.out.find("(a tool had reached the tissue: the physics waited for it until the quit)"),
+            std::string::npos)
+      << waiting.out;
+  EXPECT_NE(waiting.out.find("solver: left unfinished at the quit"), std::string::npos) << waiting.out;
+  EXPECT_NE(waiting.out.find("faults: 0 physics fault(s)"), std::string::npos) << "the stopped wait is no fault\n"
+                                                                               << waiting.out;
+  // nothing kept: no factor, no order, no temporary file
+  std::vector<std::string> kept;
+  if (fs::exists(cache))
+    for (const auto& e : fs::directory_iterator(cache)) kept.push_back(e.path().filename().string());
+  EXPECT_TRUE(kept.empty()) << kept.front();
 }
 
 // A scene with regional solves on a weak support (the column of scene_test's region tests, held

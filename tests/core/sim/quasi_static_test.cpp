@@ -7,9 +7,13 @@
 #include <omp.h>
 
 #include <algorithm>
+#include <atomic>
+#include <chrono>
 #include <cmath>
 #include <cstring>
+#include <future>
 #include <iostream>
+#include <set>
 #include <thread>
 #include <utility>
 
@@ -771,6 +775,88 @@ TEST(RegionalSolve, ASolverBuiltInTheBackgroundWhileTheTissueRestsPressesTheSame
   EXPECT_EQ(first.sleeps, 1);
   ASSERT_EQ(first.forces.size(), waited.forces.size());
   EXPECT_LT(off, 1e-9 * peak);
+}
+
+TEST(RegionalSolve, ASolverBuildAskedToStopStopsAtItsNextStageAndKeepsNothing) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "needs CHOLMOD (supernodal)";
+  // the solver's set-up asks its stop between every two stages: the key, the cache's look-up, the
+  // assembly, CHOLMOD's order and numeric factorisation, the cache's store. A stop that turns true
+  // at the k-th question throws Cancelled there, names the stage, and the factor cache keeps
+  // nothing; asked one question more than there are, the solver is built and kept
+  const auto p = make_physics_model(ball(16), tissue(0.2));
+  const std::vector<std::uint8_t> fixed(std::size_t(p->num_nodes()), 0);
+  ProjectiveSetup setup;
+  setup.time_step_s = 0.03;
+  std::vector<std::string> stages;
+  int built_at = -1;
+  for (int k = 0; k < 20 && built_at < 0; ++k) {
+    testing::MemoryFactorCache cache;
+    int asked = 0;
+    try {
+      ProjectiveSolver solver(p, fixed, setup, &cache, 1, [&] { return asked++ >= k; });
+      built_at = k;
+      EXPECT_EQ(cache.files.size(), 1u) << "the factor built is kept";
+      EXPECT_GT(solver.factor_nonzeros(), 0);
+    } catch (const Cancelled& e) {
+      stages.emplace_back(e.what());
+      EXPECT_EQ(asked, k + 1) << "it stopped at the first true answer: " << e.what();
+      EXPECT_TRUE(cache.files.empty()) << "a build stopped keeps nothing: " << e.what();
+      EXPECT_NE(stages.back().find("was stopped "), std::string::npos) << e.what();
+    }
+  }
+  for (const std::string& st : stages) std::cout << "  " << st << "\n";
+  EXPECT_EQ(built_at, int(stages.size()));
+  // the implicit solver's three (begun, after the key, before the assembly), the factorisation's
+  // five (begun, before the order, after it, after the numeric factorisation, at its end) and the
+  // store's one, each a stage of its own
+  EXPECT_EQ(stages.size(), 9u);
+  EXPECT_EQ(std::set<std::string>(stages.begin(), stages.end()).size(), stages.size());
+  EXPECT_NE(stages.at(4).find("before the order"), std::string::npos) << stages.at(4);
+  EXPECT_NE(stages.back().find("before the factor cache kept its factor"), std::string::npos) << stages.back();
+}
+
+TEST(RegionalSolve, ASolverBuildInTheBackgroundIsStoppedByItsCallerAndAbandoned) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "needs CHOLMOD (supernodal)";
+  // factor_in_background with a build that takes 2 s more than it does (the delay stands for a
+  // large model's order and factorisation, which cannot be cut short) and the caller's stop
+  // (IntegratorSettings::stop_background, a session that quits):
+  // - a step that must wait for the solver (the tool within reach) throws Cancelled once the
+  //   stop is asked, instead of waiting the build out, and the build stays pending;
+  // - abandon_pending() hands it over asked to stop: it ends with Cancelled as it leaves its
+  //   delay, the simulation has no build pending any more, and nothing is kept
+  const auto p = make_physics_model(ball(24), tissue(0.2));
+  const Model& m = *p->model;
+  const Eigen::Vector3d c = 0.5 * (m.rest_positions.rowwise().minCoeff() + m.rest_positions.rowwise().maxCoeff());
+  const double ztop = m.rest_positions.row(2).maxCoeff();
+  SimulationSettings ss = regional_ball_press(m);
+  ss.integrator.factor_in_background = true;
+  ss.integrator.factor_in_background_delay_s = 2.0;
+  auto cache = std::make_shared<testing::MemoryFactorCache>();
+  ss.integrator.factor_cache = cache;
+  auto stop = std::make_shared<std::atomic<bool>>(false);
+  ss.integrator.stop_background = stop;
+  ss.probes.front().path = {{0.0, {c.x(), c.y(), ztop + 6.0}}, {0.5, {c.x(), c.y(), ztop - 1.5}}};
+  Simulation sim(p, ss);
+  sim.step();
+  ASSERT_TRUE(sim.solver_pending());
+  stop->store(true);
+  const auto t0 = std::chrono::steady_clock::now();
+  bool cancelled = false;
+  try {
+    for (int k = 0; k < 25 && !cancelled; ++k) sim.step();  // the tool reaches the tissue within 0.5 s
+  } catch (const Cancelled& e) {
+    cancelled = true;
+    EXPECT_NE(std::string(e.what()).find("waiting for the solver"), std::string::npos) << e.what();
+  }
+  const double waited_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  EXPECT_TRUE(cancelled) << "a step within reach waited for the solver";
+  EXPECT_LT(waited_s, 1.5) << "the step waited the build out (2 s)";
+  EXPECT_TRUE(sim.solver_pending()) << "the build is left to its owner";
+  std::future<IntegratorCache::SolverPtr> left = sim.abandon_pending_solver();
+  EXPECT_FALSE(sim.solver_pending());
+  ASSERT_TRUE(left.valid());
+  EXPECT_THROW((void)left.get(), Cancelled);
+  EXPECT_TRUE(cache->files.empty());
 }
 
 }  // namespace

@@ -192,6 +192,33 @@ TEST_F(FactorCacheTest, AFactorWrittenInTheBackgroundOutlivesItsSolverAndIsFound
   EXPECT_LT((a * x2 - b).norm(), 1e-10 * b.norm());
 }
 
+TEST_F(FactorCacheTest, AClosedCacheFinishesTheWriteBegunAndBeginsNoOther) {
+  // close() (a process about to end without waiting for a factorisation still under way): the
+  // write begun in the background is whole on disk when it returns, and a factor offered after it
+  // is not written at all (so no file is ever left half written), while loads still work
+  const SparseFactor::Matrix a = grid_matrix(16), b = grid_matrix(12);
+  FactorCacheSettings s = settings();
+  s.background_writes = true;
+  s.writer_nice = 0;
+  FolderFactorCache cache(s);
+  SparseFactor fa, fb;
+  ASSERT_TRUE(fa.compute(a));
+  ASSERT_TRUE(fb.compute(b));
+  cache.store(key_of(a), fa);  // written beside
+  cache.close();
+  const std::vector<fs::path> after_close = files(s.folder);
+  ASSERT_EQ(after_close.size(), 1u) << "the write begun is finished, with no temporary beside it";
+  EXPECT_EQ(after_close[0], cache.file_of(key_of(a)));
+  cache.store(key_of(b), fb);
+  cache.store_order(SparseFactor::pattern_key(b), fb);
+  EXPECT_EQ(files(s.folder), after_close) << "nothing is written once closed";
+  EXPECT_EQ(cache.counters().stored, 1);
+  FolderFactorCache again(s);
+  SparseFactor g;
+  EXPECT_TRUE(again.load(key_of(a), g));
+  EXPECT_FALSE(again.load(key_of(b), g));
+}
+
 TEST_F(FactorCacheTest, ADamagedFileIsRemovedAndTheFactorComputed) {
   const SparseFactor::Matrix a = grid_matrix(10);
   FolderFactorCache cache(settings());
