@@ -291,6 +291,42 @@ TEST_F(SurfaceCacheTest, AStagedSurfaceShowsAPreviewThenKeepsTheSurfaceTheLoadin
     EXPECT_GT(thin.shown.num_triangles(), few.target_triangles / 2);
     EXPECT_EQ(thin.shown.validate(), "");
   }
+  // the same sheet carrying a block of 12 x 12 x 12 voxels: on blocks of 4 the block is contoured
+  // (so VTK does not fail), the sheet is not, and the blocks give under a quarter of the triangles
+  // they should: the threshold, not the exception, sends it to the preview clustered from the
+  // full surface
+  {
+    GridGeometry g;
+    g.dims = Eigen::Vector3i(66, 66, 16);
+    VoxelGrid sheet(g);
+    for (int j = 1; j < 65; ++j)
+      for (int i = 1; i < 65; ++i) sheet.set(i, j, 1, 1);
+    for (int k = 2; k < 14; ++k)
+      for (int j = 40; j < 52; ++j)
+        for (int i = 40; i < 52; ++i) sheet.set(i, j, k, 1);
+    std::int64_t faces = 0;  // the estimate's tissue voxel faces, counted here
+    for (int k = 0; k < 16; ++k)
+      for (int j = 0; j < 66; ++j)
+        for (int i = 0; i < 66; ++i)
+          if (sheet.at(i, j, k))
+            for (const auto& [di, dj, dk] : {std::array{1, 0, 0}, std::array{-1, 0, 0}, std::array{0, 1, 0},
+                                             std::array{0, -1, 0}, std::array{0, 0, 1}, std::array{0, 0, -1}})
+              faces += !sheet.at(i + di, j + dj, k + dk);
+    DecimationSettings few = settings_;
+    few.target_triangles = 1000;
+    const int blocks = int(std::sqrt(2.0 * double(faces) / few.target_triangles));
+    ASSERT_EQ(blocks, 4);
+    const TriangleMesh on_blocks = extract_coarse_iso_surface(sheet, blocks);
+    EXPECT_GT(on_blocks.triangles.cols(), 0) << "the block is contoured: no exception";
+    EXPECT_LT(double(on_blocks.triangles.cols()), 0.25 * 2.0 * double(faces) / (blocks * blocks));
+    auto sheet_model = std::make_shared<const Model>(build_model(sheet));
+    const StagedDisplaySurface thin =
+        stage_display_surface_of_grid(sheet_model, sheet, SurfaceMethod::iso, few, nullptr);
+    EXPECT_TRUE(thin.report.preview);
+    EXPECT_EQ(thin.report.preview_blocks, 0);
+    EXPECT_GT(thin.shown.num_triangles(), few.target_triangles / 2);
+    EXPECT_EQ(thin.shown.validate(), "");
+  }
   // a surface small enough is final at once, without a preview
   DecimationSettings big = settings_;
   big.target_triangles = full.num_triangles();
