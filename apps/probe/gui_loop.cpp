@@ -269,6 +269,7 @@ bool GuiLoop::show_frame(ProbeView& view, SteadyClock::time_point now) {
     }
     last_render_ = now;
     last_render_s_ = seconds(SteadyClock::now() - now);
+    if (first_frame_s_ < 0) first_frame_s_ = seconds(SteadyClock::now() - s_.start);
     if (turn) {
       ++display_turns_;
       display_turns_s_ += last_render_s_;

@@ -59,6 +59,8 @@ class GuiLoop {
   /// never: the run ended first).
   [[nodiscard]] bool opened_with_preview() const { return opened_with_preview_; }
   [[nodiscard]] double surface_replaced_s() const { return surface_replaced_s_; }
+  /// When the first frame was on screen (its render ended), s since the open (-1: none drawn).
+  [[nodiscard]] double first_frame_s() const { return first_frame_s_; }
   /// Soak: memory and the device's rate per second (soak.h).
   [[nodiscard]] const SoakMonitor& soak() const { return soak_; }
 
@@ -109,6 +111,7 @@ class GuiLoop {
   int preview_triangles_{0};
   bool opened_with_preview_{false};
   double surface_replaced_s_{-1.0};
+  double first_frame_s_{-1.0};  ///< first_frame_s()
   bool window_closed_{false};
   bool warned_behind_{false};
   std::string region_status_;       ///< the region check's warning for the HUD (empty: none)

@@ -321,7 +321,9 @@ std::unique_ptr<ProbeView> App::open_view(const IoLines& lines) {
   setup.title = scene_.name;
   setup.surface_vertices = scene_.surface->rest_vertices;
   setup.surface_triangles = scene_.surface->triangles;
-  setup.levels = std::make_shared<const LevelCells>(make_level_cells(*scene_.model));
+  // the elements view's cells when it is first shown (`l`, --levels): 1.1 s on the folded organ,
+  // which came before the first frame
+  setup.make_levels = [model = scene_.model] { return std::make_shared<const LevelCells>(make_level_cells(*model)); };
   for (int p = 0; p < probes_; ++p) {
     setup.probes.push_back(scene_.simulation.probes[std::size_t(p)].geometry);
     setup.probe_names.push_back(scene_.simulation.probes[std::size_t(p)].name);
@@ -565,8 +567,9 @@ int App::finish(ProbeView* view, std::string error) {
     // over the run since the open, as the device's line; the HUD's rate (its last half second) apart
     say(fmt::format(
         "display: {} frames in {:.1f} s since the open ({:.1f} frames/s; {:.1f} frames/s over its last "
-        "half second) ({})",
+        "half second; the first on screen {:.2f} s after the open) ({})",
         view->frames(), wall_s, wall_s > 0 ? double(view->frames()) / wall_s : 0.0, view->frames_per_s(),
+        gui_loop_->first_frame_s(),
         (gui_nice_ ? fmt::format("nice {}, below the physics", kGuiNice) : std::string("default priority")) +
             (view->software_gl() ? fmt::format("; software OpenGL on {} thread(s): LP_NUM_THREADS", render_threads_)
                                  : std::string()) +

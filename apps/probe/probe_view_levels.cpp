@@ -20,6 +20,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 
 #include "base/error.h"
 #include "io/element_faces.h"
@@ -133,6 +134,16 @@ void ProbeView::Impl::build_levels() {
 }
 
 void ProbeView::Impl::set_levels(bool on) {
+  if (on && !level_actor && !setup.levels && setup.make_levels) {
+    // the first show: the cells made now (ViewSetup::make_levels)
+    try {
+      setup.levels = setup.make_levels();
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "voxelastic-probe: warning: the elements view cannot be shown: %s\n", e.what());
+    }
+    setup.make_levels = nullptr;  // (asked once)
+    build_levels();
+  }
   levels_on = on && level_actor;
   if (!level_actor) return;
   level_actor->SetVisibility(levels_on);

@@ -153,7 +153,12 @@ TEST(ProbeView, RendersUpdatesAndWritesScreenshots) {
   setup.title = "test";
   setup.surface_vertices = surface.rest_vertices;
   setup.surface_triangles = surface.triangles;
-  setup.levels = std::make_shared<const LevelCells>(make_level_cells(model));
+  // the elements view's cells made when it is first shown, once
+  int levels_made = 0;
+  setup.make_levels = [&] {
+    ++levels_made;
+    return std::make_shared<const LevelCells>(make_level_cells(model));
+  };
   vx::ProbeGeometry tool;
   tool.shape = vx::ProbeShape::capsule;
   tool.radius_mm = 3.0;
@@ -179,8 +184,14 @@ TEST(ProbeView, RendersUpdatesAndWritesScreenshots) {
   Eigen::Matrix3Xd verts = surface.rest_vertices, normals;
   vx::compute_vertex_normals(surface, verts, normals);
   EXPECT_FALSE(view.shows_levels());  // the frames need no node positions
+  EXPECT_EQ(levels_made, 0) << "the elements view's cells are not made before it is shown";
   view.toggle_levels();
   EXPECT_TRUE(view.shows_levels());  // now they do
+  view.toggle_levels();
+  EXPECT_FALSE(view.shows_levels());
+  view.toggle_levels();
+  EXPECT_TRUE(view.shows_levels());
+  EXPECT_EQ(levels_made, 1) << "made at the first show only";
   for (int f = 0; f < 5; ++f) {
     verts.row(2).array() -= 0.1;
     ASSERT_TRUE(view.process_events());
