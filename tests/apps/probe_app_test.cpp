@@ -89,6 +89,22 @@ class ProbeApp : public ::testing::Test {
     return read_log(csv, nullptr);
   }
 
+  // rest.json in dir_: the fast configuration's regional solves on a 32 mm block (2 mm voxels)
+  // held at its base, a live ball 3 mm above its top (the tissue at rest at the open)
+  [[nodiscard]] fs::path resting_block_scene() const {
+    const fs::path scene = dir_ / "rest.json";
+    std::ofstream(scene) << R"({
+      "object": {"box_mm": {"min": [0, 0, 0], "max": [32, 32, 32]}, "voxel_mm": 2},
+      "material": {"youngs_modulus_kpa": 10, "damping": 0.2},
+      "integrator": {"type": "implicit", "dt_s": 0.03, "iterations": 1, "region_radius_mm": 20},
+      "fixed": ["z_min"],
+      "probes": [{"name": "ball", "shape": "sphere", "radius_mm": 4,
+                  "live": {"start_mm": [16, 16, 39], "speed_mm_s": 10, "max_speed_mm_s": 50}}],
+      "duration_s": 10
+    })";
+    return scene;
+  }
+
   fs::path dir_;
 };
 
@@ -408,16 +424,7 @@ TEST_F(ProbeApp, StartUpIsReportedAsStartUp) {
 // The tool reaches the tissue before the solver is ready: that step waits for it, and the press
 // is felt. --no-background-factor factors in the first step, as the start-up.
 TEST_F(ProbeApp, TheSolverIsFactoredInTheBackgroundWhileTheTissueRests) {
-  const fs::path scene = dir_ / "rest.json";
-  std::ofstream(scene) << R"({
-    "object": {"box_mm": {"min": [0, 0, 0], "max": [32, 32, 32]}, "voxel_mm": 2},
-    "material": {"youngs_modulus_kpa": 10, "damping": 0.2},
-    "integrator": {"type": "implicit", "dt_s": 0.03, "iterations": 1, "region_radius_mm": 20},
-    "fixed": ["z_min"],
-    "probes": [{"name": "ball", "shape": "sphere", "radius_mm": 4,
-                "live": {"start_mm": [16, 16, 39], "speed_mm_s": 10, "max_speed_mm_s": 50}}],
-    "duration_s": 10
-  })";
+  const fs::path scene = resting_block_scene();
   // down at 3 mm/s from the open: within reach after about 0.7 s, 2 to 3 mm deep by the solver
   std::ofstream(dir_ / "press.joy") << "sticks 1\n0 0 0 0.3\n5 0 0 0.3\n";
   const std::string args = q(scene) + " --headless --force-shaping local --virtual-joystick " + q(dir_ / "press.joy") +
@@ -457,16 +464,7 @@ TEST_F(ProbeApp, TheSolverIsFactoredInTheBackgroundWhileTheTissueRests) {
 // process ends within seconds with its exit code, and the factor cache keeps nothing, half-written
 // or whole.
 TEST_F(ProbeApp, AQuitDoesNotWaitForTheSolverBeingFactored) {
-  const fs::path scene = dir_ / "rest.json", cache = dir_ / "factors";
-  std::ofstream(scene) << R"({
-    "object": {"box_mm": {"min": [0, 0, 0], "max": [32, 32, 32]}, "voxel_mm": 2},
-    "material": {"youngs_modulus_kpa": 10, "damping": 0.2},
-    "integrator": {"type": "implicit", "dt_s": 0.03, "iterations": 1, "region_radius_mm": 20},
-    "fixed": ["z_min"],
-    "probes": [{"name": "ball", "shape": "sphere", "radius_mm": 4,
-                "live": {"start_mm": [16, 16, 39], "speed_mm_s": 10, "max_speed_mm_s": 50}}],
-    "duration_s": 10
-  })";
+  const fs::path scene = resting_block_scene(), cache = dir_ / "factors";
   std::ofstream(dir_ / "press.joy") << "sticks 1\n0 0 0 0.3\n30 0 0 0.3\n";
   const std::string args =
       q(scene) + " --headless --force-shaping local --test-factor-delay 60 --factor-cache " + q(cache);

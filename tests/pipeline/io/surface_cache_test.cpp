@@ -171,6 +171,16 @@ TEST_F(SurfaceCacheTest, ADamagedFileIsRemovedAndTheSurfaceBuiltAgain) {
 // one of the full surface's; the decimation left to `finish` is display_surface_of_grid's
 // surface bit for bit and is kept under its key, so the next start loads it, final, with nothing
 // left to do. A decimation cancelled before it ends throws and keeps nothing.
+// A sheet one voxel thick, 64 x 64 voxels, at k = 1 of a grid 66 x 66 x `nz`.
+VoxelGrid voxel_sheet(int nz) {
+  GridGeometry g;
+  g.dims = Eigen::Vector3i(66, 66, nz);
+  VoxelGrid sheet(g);
+  for (int j = 1; j < 65; ++j)
+    for (int i = 1; i < 65; ++i) sheet.set(i, j, 1, 1);
+  return sheet;
+}
+
 TEST_F(SurfaceCacheTest, AStagedSurfaceShowsAPreviewThenKeepsTheSurfaceTheLoadingWouldHaveMade) {
   const EmbeddedSurface whole = display_surface_of_grid(model_, grid_, SurfaceMethod::iso, settings_, nullptr, nullptr);
   const EmbeddedSurface full = make_surface(model_, grid_, nullptr, SurfaceMethod::iso);
@@ -275,32 +285,24 @@ TEST_F(SurfaceCacheTest, AStagedSurfaceShowsAPreviewThenKeepsTheSurfaceTheLoadin
   EXPECT_TRUE(loaded.from_cache);
   // a sheet one voxel thick: on blocks of 4 no block is half tissue, so nothing is left at the
   // half level; the preview is clustered from the full surface instead
-  {
-    GridGeometry g;
-    g.dims = Eigen::Vector3i(66, 66, 3);
-    VoxelGrid sheet(g);
-    for (int j = 1; j < 65; ++j)
-      for (int i = 1; i < 65; ++i) sheet.set(i, j, 1, 1);
+  DecimationSettings few = settings_;
+  few.target_triangles = 1000;
+  const auto expect_clustered_from_full = [&](const VoxelGrid& sheet) {
     auto sheet_model = std::make_shared<const Model>(build_model(sheet));
-    DecimationSettings few = settings_;
-    few.target_triangles = 1000;
     const StagedDisplaySurface thin =
         stage_display_surface_of_grid(sheet_model, sheet, SurfaceMethod::iso, few, nullptr);
     EXPECT_TRUE(thin.report.preview);
     EXPECT_EQ(thin.report.preview_blocks, 0);
     EXPECT_GT(thin.shown.num_triangles(), few.target_triangles / 2);
     EXPECT_EQ(thin.shown.validate(), "");
-  }
+  };
+  expect_clustered_from_full(voxel_sheet(3));
   // the same sheet carrying a block of 12 x 12 x 12 voxels: on blocks of 4 the block is contoured
   // (so VTK does not fail), the sheet is not, and the blocks give under a quarter of the triangles
   // they should: the threshold, not the exception, sends it to the preview clustered from the
   // full surface
   {
-    GridGeometry g;
-    g.dims = Eigen::Vector3i(66, 66, 16);
-    VoxelGrid sheet(g);
-    for (int j = 1; j < 65; ++j)
-      for (int i = 1; i < 65; ++i) sheet.set(i, j, 1, 1);
+    VoxelGrid sheet = voxel_sheet(16);
     for (int k = 2; k < 14; ++k)
       for (int j = 40; j < 52; ++j)
         for (int i = 40; i < 52; ++i) sheet.set(i, j, k, 1);
@@ -312,20 +314,12 @@ TEST_F(SurfaceCacheTest, AStagedSurfaceShowsAPreviewThenKeepsTheSurfaceTheLoadin
             for (const auto& [di, dj, dk] : {std::array{1, 0, 0}, std::array{-1, 0, 0}, std::array{0, 1, 0},
                                              std::array{0, -1, 0}, std::array{0, 0, 1}, std::array{0, 0, -1}})
               faces += !sheet.at(i + di, j + dj, k + dk);
-    DecimationSettings few = settings_;
-    few.target_triangles = 1000;
     const int blocks = int(std::sqrt(2.0 * double(faces) / few.target_triangles));
     ASSERT_EQ(blocks, 4);
     const TriangleMesh on_blocks = extract_coarse_iso_surface(sheet, blocks);
     EXPECT_GT(on_blocks.triangles.cols(), 0) << "the block is contoured: no exception";
     EXPECT_LT(double(on_blocks.triangles.cols()), 0.25 * 2.0 * double(faces) / (blocks * blocks));
-    auto sheet_model = std::make_shared<const Model>(build_model(sheet));
-    const StagedDisplaySurface thin =
-        stage_display_surface_of_grid(sheet_model, sheet, SurfaceMethod::iso, few, nullptr);
-    EXPECT_TRUE(thin.report.preview);
-    EXPECT_EQ(thin.report.preview_blocks, 0);
-    EXPECT_GT(thin.shown.num_triangles(), few.target_triangles / 2);
-    EXPECT_EQ(thin.shown.validate(), "");
+    expect_clustered_from_full(sheet);
   }
   // a surface small enough is final at once, without a preview
   DecimationSettings big = settings_;
