@@ -60,6 +60,12 @@ std::string GuiLoop::run(const FixedRateThread& physics, const FixedRateThread& 
   return {};
 }
 
+void GuiLoop::prime(const FixedRateThread& device) {
+  const auto now = SteadyClock::now();
+  device_rate_.sample(device.ticks(), now);
+  update_rate_.sample(s_.physics.updates.load(), now);
+}
+
 SteadyClock::time_point GuiLoop::measure(const FixedRateThread& device) {
   const auto now = SteadyClock::now();
   device_rate_.sample(device.ticks(), now);

@@ -40,6 +40,11 @@ class GuiLoop {
   static constexpr double kBehindDuty = 0.12;
 
   GuiLoop(AppShared& shared, ProbeView* view, KeyboardStick& keyboard);
+  /// The rates' first samples (device ticks, physics updates), taken before the window opens so
+  /// that the first frame's rates span the opening (about a second on an organ), not nothing.
+  void prime(const FixedRateThread& device);
+  /// The window, once open (null: headless).
+  void set_view(ProbeView* view) { view_ = view; }
   /// Runs until a quit; returns the error that ended it ("" for none). `interrupted` is polled
   /// (Ctrl-C, SIGTERM).
   [[nodiscard]] std::string run(const FixedRateThread& physics, const FixedRateThread& device,

@@ -381,13 +381,15 @@ std::string App::run_loops(const IoLines& lines) {
   // inherited by the threads this one creates: the window is opened after the lowering, so a
   // software renderer's threads (Mesa llvmpipe under Xvfb) run at the display's priority too,
   // not at the physics')
+  gui_loop_ = std::make_unique<GuiLoop>(*shared_, nullptr, keyboard_);
   if (!options_.headless) {
     gui_nice_ = set_this_thread_nice(kGuiNice);
     // and a software renderer's threads keep off the physics' cores (display.h)
     render_threads_ = limit_software_render_threads(omp_get_num_procs(), physics_threads_);
+    gui_loop_->prime(device);  // (the first frame's rates over the window's opening)
     view_ = open_view(lines);
+    gui_loop_->set_view(view_.get());
   }
-  gui_loop_ = std::make_unique<GuiLoop>(*shared_, view_.get(), keyboard_);
   std::string error = gui_loop_->run(physics, device, g_interrupted);
 
   // stop: device first (no more writes), then physics (its last step ends the run's interval)

@@ -71,6 +71,8 @@ struct StartupReport {
 /// The line the HUD and the console show for the physics: while starting, the start-up; then
 /// the steps per second and the factor over the last `window_s` of wall time, e.g.
 /// "physics 34 steps/s (0.52x real time, last 1 s)"; `tissue`: "(tissue 0.52x real time, ...)".
+/// Before the window spans any wall time (the display's first pass after the start-up) no rate is
+/// given: "steps/s: measuring (tissue real time: measuring)", not a 0x of an empty interval.
 [[nodiscard]] std::string describe_physics_rate(const RateWindow& w, double window_s, bool tissue);
 
 }  // namespace vx::probe

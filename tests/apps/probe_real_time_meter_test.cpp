@@ -74,4 +74,8 @@ TEST(RealTimeMeter, StartUpIsWordedAsStartUpAndRatesNameTheirWindow) {
   EXPECT_EQ(vx::probe::describe_physics_rate(w, 1.0, false), "13 steps/s (0.25x real time, last 1 s)");
   w.full = false;
   EXPECT_EQ(vx::probe::describe_physics_rate(w, 1.0, true), "13 steps/s (tissue 0.25x real time, last 2.0 s)");
+  // no interval yet (one sample, the display's first pass after the start-up): no 0x of nothing
+  const RateWindow empty{0.0, 0.0, 0, false};
+  EXPECT_EQ(vx::probe::describe_physics_rate(empty, 1.0, true), "steps/s: measuring (tissue real time: measuring)");
+  EXPECT_EQ(vx::probe::describe_physics_rate(empty, 1.0, false), "steps/s: measuring (real time: measuring)");
 }
