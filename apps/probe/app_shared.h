@@ -81,12 +81,12 @@ struct AppControls {
 
   /// Work in the background the session no longer wants once it quits (the solver being built:
   /// IntegratorSettings::stop_background); turned true by request_quit().
-  std::shared_ptr<std::atomic<bool>> stop_background{std::make_shared<std::atomic<bool>>(false)};
+  std::shared_ptr<std::atomic<bool>> stop_background;  ///< (null: none)
 
   /// The first reason given wins.
   void request_quit(const std::string& why) {
     std::lock_guard lock(mutex_);
-    stop_background->store(true);
+    if (stop_background) stop_background->store(true);
     if (!quit.exchange(true)) reason_ = why;
   }
   [[nodiscard]] std::string quit_reason() const {

@@ -45,9 +45,6 @@ namespace {
 std::atomic<bool> g_interrupted{false};
 extern "C" void on_interrupt(int) { g_interrupted.store(true); }
 
-/// The app: opens the scene, the input and the outputs, starts the physics and device threads
-/// (physics_loop.h, device_loop.h), runs the GUI loop (gui_loop.h) on this thread, and reports.
-/// What the loops share is `AppShared` (app_shared.h).
 /// What a session that ended leaves running: the solver being built in the background, asked
 /// to stop (IntegratorCache::abandon_pending), and the factor cache it may offer its factor to.
 struct LeftRunning {
@@ -56,6 +53,9 @@ struct LeftRunning {
   std::shared_ptr<FactorCache> factor_cache;
 };
 
+/// The app: opens the scene, the input and the outputs, starts the physics and device threads
+/// (physics_loop.h, device_loop.h), runs the GUI loop (gui_loop.h) on this thread, and reports.
+/// What the loops share is `AppShared` (app_shared.h).
 class App {
  public:
   App(const AppOptions& options, ProbeScene scene) : options_(options), scene_(std::move(scene)) {}

@@ -48,10 +48,10 @@ struct LevelCells {
 
 /// What the view shows that does not change during a run.
 struct ViewSetup {
-  std::string title;                            ///< shown in the HUD and the window title
-  Eigen::Matrix3Xd surface_vertices;            ///< 3 x V at rest, LPS mm
-  Eigen::Matrix3Xi surface_triangles;           ///< 3 x T, counter-clockwise seen from outside
-  std::shared_ptr<const LevelCells> levels;     ///< optional: the elements view, made now
+  std::string title;                         ///< shown in the HUD and the window title
+  Eigen::Matrix3Xd surface_vertices;         ///< 3 x V at rest, LPS mm
+  Eigen::Matrix3Xi surface_triangles;        ///< 3 x T, counter-clockwise seen from outside
+  std::shared_ptr<const LevelCells> levels;  ///< optional: the elements view, made now
   /// optional: the elements view's cells, made the first time it is shown (a second on an organ,
   /// which a session that never shows it does not pay before its first frame); `levels` first
   std::function<std::shared_ptr<const LevelCells>()> make_levels;

@@ -51,8 +51,7 @@ std::string StartupReport::preparing(double elapsed_s, std::optional<double> pro
 
 std::string describe_physics_rate(const RateWindow& w, double window_s, bool tissue) {
   if (!(w.wall_s > 0)) return fmt::format("steps/s: measuring ({}real time: measuring)", tissue ? "tissue " : "");
-  const std::string span =
-      w.full ? fmt::format("last {:g} s", window_s) : fmt::format("last {:.1f} s", w.wall_s);
+  const std::string span = w.full ? fmt::format("last {:g} s", window_s) : fmt::format("last {:.1f} s", w.wall_s);
   return fmt::format("{:.0f} steps/s ({}{:.2f}x real time, {})", w.steps_per_s(), tissue ? "tissue " : "", w.factor(),
                      span);
 }

@@ -26,10 +26,10 @@ struct RateSample {
 
 /// The figures between two samples.
 struct RateWindow {
-  double wall_s{0.0};       ///< wall seconds elapsed
-  double sim_s{0.0};        ///< simulated seconds advanced
-  std::int64_t steps{0};    ///< physics steps made
-  bool full{false};         ///< the samples span the whole window asked for
+  double wall_s{0.0};     ///< wall seconds elapsed
+  double sim_s{0.0};      ///< simulated seconds advanced
+  std::int64_t steps{0};  ///< physics steps made
+  bool full{false};       ///< the samples span the whole window asked for
   /// Simulated over wall seconds (0 for an empty interval).
   [[nodiscard]] double factor() const { return wall_s > 0 ? sim_s / wall_s : 0.0; }
   [[nodiscard]] double steps_per_s() const { return wall_s > 0 ? double(steps) / wall_s : 0.0; }
