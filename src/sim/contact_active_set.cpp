@@ -53,8 +53,10 @@ void ContactActiveSet::bind(const std::vector<int>& free_index, const std::vecto
   free_index_ = &free_index;
   free_nodes_ = &free_nodes;
   const int nf = num_free();
-  unconstrained_.resize(nf, 3);
-  trial_.resize(3, Eigen::Index(free_index.size()));
+  // written (zeros) so that their pages are mapped here, with the solver's other buffers
+  // (ProjectiveSolver's constructor), not at the first contact solve
+  unconstrained_.setZero(nf, 3);
+  trial_.setZero(3, Eigen::Index(free_index.size()));
   column_slot_.assign(std::size_t(nf), -1);
   slot_free_.clear();
   slot_last_used_.clear();

@@ -25,16 +25,18 @@ ProjectiveSolver::ProjectiveSolver(std::shared_ptr<const PhysicsModel> physics,
   numbering_ = number_nodes(node_fixed);
   if (!setup_.inertia) check_held();
   assemble_and_factor(factor_cache, threads, stop);
-  // buffers of a solve
   const int nf = num_free(), nc = int(numbering_.fixed_nodes.size());
   const std::int64_t entries = p.num_vertex_entries();
-  targets_.resize(3, entries);
-  start_offsets_.resize(3, entries);
+  // buffers of a solve, written here (zeros) so that their pages are mapped now: a solver built in
+  // the background while the tissue rests (the probe app) would otherwise take the first touch of
+  // about 75 MB on the folded organ (page faults) in its first solve, the tool's first touch
+  targets_.setZero(3, entries);
+  start_offsets_.setZero(3, entries);
   damping_rotations_.assign(std::size_t(ne), Eigen::Quaterniond::Identity());
-  rhs_const_.resize(nf, 3);
-  rhs_.resize(nf, 3);
-  rhs_previous_.resize(nf, 3);
-  solution_.resize(nf, 3);
+  rhs_const_.setZero(nf, 3);
+  rhs_.setZero(nf, 3);
+  rhs_previous_.setZero(nf, 3);
+  solution_.setZero(nf, 3);
   fixed_positions_.setZero(nc, 3);  // solve() compares against the last (fixed_still)
   element_chunk_stats_.assign(std::size_t(chunk_count(ne, kElementGrain)), ElementPassStats{});
   free_chunk_sums_.assign(2 * std::size_t(chunk_count(nf, kNodeGrain)), 0.0);
