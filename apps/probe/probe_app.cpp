@@ -225,6 +225,8 @@ void App::start_simulation() {
   scene_.simulation.integrator.factor_in_background_delay_s = options_.test_factor_delay_s;
   // a quit stops it (AppControls::request_quit), and no step waits for it past the quit
   scene_.simulation.integrator.stop_background = stop_background_;
+  // the solver's build beside the physics, told apart from it (it inherits its nice, 2)
+  scene_.simulation.integrator.background_thread_start = [] { (void)set_this_thread_name("vx-factor"); };
   std::optional<DeviceForceSettings>& dev = scene_.device_side.device;
   local_ = options_.force_shaping.value_or(dev ? dev->shaping : ForceShaping::paper) == ForceShaping::local;
   if (local_ && !dev) dev = DeviceForceSettings{};

@@ -458,10 +458,13 @@ class ImplicitIntegrator final : public SteppingIntegrator {
         auto own = std::make_shared<std::atomic<bool>>(false);
         std::shared_ptr<const std::atomic<bool>> callers = settings_.stop_background;
         auto stop = [own, callers] { return own->load() || (callers && callers->load()); };
-        cache.pending = std::async(std::launch::async, [physics, fixed, setup, factor_cache, threads, delay_s, stop] {
-          if (delay_s > 0) std::this_thread::sleep_for(std::chrono::duration<double>(delay_s));
-          return new_solver(physics, fixed, setup, factor_cache.get(), threads, stop);
-        });
+        auto on_start = settings_.background_thread_start;
+        cache.pending =
+            std::async(std::launch::async, [physics, fixed, setup, factor_cache, threads, delay_s, stop, on_start] {
+              if (on_start) on_start();
+              if (delay_s > 0) std::this_thread::sleep_for(std::chrono::duration<double>(delay_s));
+              return new_solver(physics, fixed, setup, factor_cache.get(), threads, stop);
+            });
         cache.pending_stop = std::move(own);
         cache.pending_fixed_version = s.fixed_version;
         cache.pending_since_s =

@@ -23,6 +23,7 @@
 #include <Eigen/Core>
 #include <atomic>
 #include <cstdint>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <string>
@@ -146,6 +147,10 @@ struct IntegratorSettings {
   /// ProjectiveSolver's constructor) and keeps nothing, and a step waiting for it throws Cancelled
   /// within 20 ms instead of waiting on. Its own stop (IntegratorCache::pending_stop) is apart.
   std::shared_ptr<const std::atomic<bool>> stop_background;
+  /// Called first on the thread that builds a solver in the background (null: nothing): the
+  /// caller names it, so that `top -H`, `perf` and `gdb` tell it from the thread it was started
+  /// from (the probe app: "vx-factor", where it was "vx-physics" like the physics).
+  std::function<void()> background_thread_start;
   /// implicit: where factors are looked up before and kept after a factorisation (by the
   /// content of the matrix: sparse_factor.h); null: every solver factors. Shared, not owned by
   /// one integrator: pipeline/io/factor_cache.h keeps one in a folder.

@@ -823,7 +823,8 @@ TEST(RegionalSolve, ASolverBuildInTheBackgroundIsStoppedByItsCallerAndAbandoned)
   // - a step that must wait for the solver (the tool within reach) throws Cancelled once the
   //   stop is asked, instead of waiting the build out, and the build stays pending;
   // - abandon_pending() hands it over asked to stop: it ends with Cancelled as it leaves its
-  //   delay, the simulation has no build pending any more, and nothing is kept
+  //   delay, the simulation has no build pending any more, and nothing is kept;
+  // - the caller's hook (IntegratorSettings::background_thread_start) runs on the build's thread
   const auto p = make_physics_model(ball(24), tissue(0.2));
   const Model& m = *p->model;
   const Eigen::Vector3d c = 0.5 * (m.rest_positions.rowwise().minCoeff() + m.rest_positions.rowwise().maxCoeff());
@@ -835,10 +836,16 @@ TEST(RegionalSolve, ASolverBuildInTheBackgroundIsStoppedByItsCallerAndAbandoned)
   ss.integrator.factor_cache = cache;
   auto stop = std::make_shared<std::atomic<bool>>(false);
   ss.integrator.stop_background = stop;
+  // the caller's hook runs first on the build's own thread (the probe app names it there)
+  std::promise<std::thread::id> started_on;
+  ss.integrator.background_thread_start = [&started_on] { started_on.set_value(std::this_thread::get_id()); };
   ss.probes.front().path = {{0.0, {c.x(), c.y(), ztop + 6.0}}, {0.5, {c.x(), c.y(), ztop - 1.5}}};
   Simulation sim(p, ss);
   sim.step();
   ASSERT_TRUE(sim.solver_pending());
+  std::future<std::thread::id> hook = started_on.get_future();
+  ASSERT_EQ(hook.wait_for(std::chrono::seconds(1)), std::future_status::ready) << "the hook did not run in its delay";
+  EXPECT_NE(hook.get(), std::this_thread::get_id());
   stop->store(true);
   const auto t0 = std::chrono::steady_clock::now();
   bool cancelled = false;
