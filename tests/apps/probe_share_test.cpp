@@ -36,6 +36,20 @@ class ProbeShare : public ::testing::Test {
   vx::testing::RunResult run(const std::string& args) const {
     return vx::testing::run_binary(kBinary, "block.json --headless --threads 2 " + args, dir_, dir_);
   }
+  /// run(), again (at most 3 runs in all) while the session says its physics fell behind real time
+  /// (the final line's "could not keep real time": a lag of 50 ms or more was dropped). These
+  /// steps take 1.5 ms of each 30 ms even under AddressSanitizer, so such a lag is the thread not
+  /// scheduled at all, which the rule answers as it should (behind real time: every thread again)
+  /// and which is not what is measured here. Seen once in CI's ASan run beside another session
+  /// of the app (0.71x over one second): 30 of 167 steps on one thread and 3 changes.
+  vx::testing::RunResult run_in_real_time(const std::string& args) const {
+    vx::testing::RunResult r;
+    for (int attempt = 0; attempt < 3; ++attempt) {
+      r = run(args);
+      if (r.code != 0 || r.out.find("could not keep real time") == std::string::npos) break;
+    }
+    return r;
+  }
   fs::path dir_;
 };
 
@@ -49,7 +63,7 @@ TEST_F(ProbeShare, ThePhysicsSharesTheCoresWhileItRunsWellAheadOrOneThreadIsAsFa
       R"(physics threads: 2, the cores shared: (\d+) of (\d+) steps on one thread \(ahead of real time )"
       R"(without the others, or as fast: (\d+) of (\d+) trials kept\), (\d+) changes)");
   std::smatch m;
-  vx::testing::RunResult r = run("--duration 5");
+  vx::testing::RunResult r = run_in_real_time("--duration 5");
   ASSERT_EQ(r.code, 0) << r.out << r.err;
   ASSERT_TRUE(std::regex_search(r.out, m, line)) << r.out;
   // down at the end of the first window of 2 s of wall time: the last 3 of 5 s, 99 of 167 steps
@@ -61,7 +75,7 @@ TEST_F(ProbeShare, ThePhysicsSharesTheCoresWhileItRunsWellAheadOrOneThreadIsAsFa
   // 20 ms of sleep per 30 ms step: 67 % of real time or more, over 45 % in all. The trial takes
   // one thread at the end of the first window (2 s) and keeps it: the last 1 of 3 s, 33 of 100
   // steps (31 read)
-  r = run("--duration 3 --test-step-delay 0.02");
+  r = run_in_real_time("--duration 3 --test-step-delay 0.02");
   ASSERT_EQ(r.code, 0) << r.out << r.err;
   ASSERT_TRUE(std::regex_search(r.out, m, line)) << r.out;
   EXPECT_NEAR(std::stod(m[1]), 0.33 * std::stod(m[2]), 0.06 * std::stod(m[2])) << r.out;
