@@ -79,7 +79,9 @@ class PhysicsLoop {
   bool started_{false};
   double sim_target_s_{0.0};
   double lag_dropped_s_{0.0};
-  double lag_s_{0.0};  ///< behind real time after the last tick's steps (before a drop), s
+  /// the last tick's target (real time at its start) less where its steps left the simulation
+  /// (before a drop; their own wall time not in it), s
+  double lag_s_{0.0};
   bool have_targets_{false};
   double step_cost_s_{0.0};  ///< wall time of one step (mean)
   double step_delay_s_{0.0};

@@ -24,8 +24,10 @@ bool ThreadShare::window_full(double now_s, double busy_s, double sim_s, double 
   return now_s - window_start_s_ >= wall_s && std::max(window_sim_s_, window_busy_s_) >= min_s;
 }
 
-int ThreadShare::after_steps(double now_s, double busy_s, double sim_s, double lag_s) {
+int ThreadShare::after_steps(double now_s, double busy_s, double sim_s, double target_lag_s) {
   if (most_ == 1 || sim_s <= 0.0) return threads();
+  // behind real time now: the tick's target was real time at its start, before its steps
+  const double lag_s = target_lag_s + busy_s;
   switch (mode_) {
     case Mode::kAhead:
       // one thread falls behind: back to all of them

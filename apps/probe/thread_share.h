@@ -62,10 +62,14 @@ class ThreadShare {
   /// `most`: the threads the physics was given (>= 1; 1: nothing to share).
   explicit ThreadShare(int most);
 
-  /// After a tick whose steps took `busy_s` of wall time and advanced the simulation by `sim_s`,
-  /// leaving it `lag_s` behind real time (ticks without steps need no call), at `now_s` (wall
-  /// time, any fixed origin): the threads for the next steps.
-  int after_steps(double now_s, double busy_s, double sim_s, double lag_s);
+  /// After a tick whose steps took `busy_s` of wall time and advanced the simulation by `sim_s`
+  /// (ticks without steps need no call), at `now_s` (wall time, any fixed origin): the threads
+  /// for the next steps. `target_lag_s`: real time at the tick's start (the simulated time the
+  /// tick aimed for) less where its steps left the simulation (< 0: ahead). The steps' own wall
+  /// time is added to it: behind real time now, so that one slow step (a large organ's first
+  /// touch, 0.3 s, on one thread) is a lag at once and the steps after it (the region's set-up,
+  /// 0.25 s) run on every thread, not one tick later on one.
+  int after_steps(double now_s, double busy_s, double sim_s, double target_lag_s);
 
   [[nodiscard]] int threads() const { return mode_ == Mode::kAll ? most_ : 1; }
   [[nodiscard]] Mode mode() const { return mode_; }

@@ -15,6 +15,8 @@ constexpr double kDt = 0.03;  // s: the fast configuration's step
 // Steps of kDt against a wall clock: a step starts when it is due (its simulated time in real
 // time) or, when the physics lags, at once, and costs cost(t, threads) s of wall time; the lag is
 // how far the wall clock is past the next step's due time (as PhysicsLoop::advance catches up).
+// Each step is a tick, handed over as PhysicsLoop hands its ticks: the target's lag (the wall
+// clock at the step's start less the next step's due time), the step's wall time apart.
 // Runs `seconds` of wall time on.
 struct Clocked {
   ThreadShare share;
@@ -39,7 +41,7 @@ struct Clocked {
       if (threads == 1) ++steps_on_one;
       if (mode == ThreadShare::Mode::kAhead) max_lag_on_one = std::max(max_lag_on_one, lag);
       if (mode == ThreadShare::Mode::kTrial) ++steps_on_trial;
-      (void)share.after_steps(wall, c, kDt, lag);
+      (void)share.after_steps(wall, c, kDt, (wall - c) - due);
     }
   }
 };
@@ -117,6 +119,21 @@ TEST(ThreadShare, APressBringsTheThreadsBackWithinTheLag) {
   // it came back as soon as the lag passed kRiseLag_s: one step later at most
   EXPECT_GT(r.max_lag_on_one, ThreadShare::kRiseLag_s);
   EXPECT_LE(r.max_lag_on_one, ThreadShare::kRiseLag_s + 0.5 * kDt + 1e-12);
+}
+
+// Ahead on one thread at rest (a tissue asleep: 1 ms a step), a tick whose one step took 0.3 s
+// (the folded organ's first touch on one thread) and left the simulation where the tick aimed
+// (its target's lag 0: the step's own wall time is not in it): every thread for the next steps,
+// at once. The steps that come after it (the region's set-up, 0.25 s on one thread) no longer
+// wait for the next tick to find the lag. A step of 45 ms is not a lag (a burst: the test below).
+TEST(ThreadShare, OneSlowStepIsALagAtOnce) {
+  ThreadShare s(2);
+  double t = 0.0;
+  for (int k = 0; k < 100; ++k, t += kDt) (void)s.after_steps(t, 0.001, kDt, -0.5 * kDt);  // 3 s at rest
+  ASSERT_EQ(s.mode(), ThreadShare::Mode::kAhead);
+  EXPECT_EQ(s.after_steps(t, 0.045, kDt, 0.0), 1);  // 45 ms: within kRiseLag_s
+  EXPECT_EQ(s.after_steps(t + 0.3, 0.3, kDt, 0.0), 2);
+  EXPECT_EQ(s.mode(), ThreadShare::Mode::kAll);
 }
 
 TEST(ThreadShare, ABurstItCatchesUpWithKeepsOneThread) {
