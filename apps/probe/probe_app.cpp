@@ -214,6 +214,9 @@ void App::start_simulation() {
   physics_threads_ = given;
   const bool share = options_.share_cores && given > 1;
   scene_.simulation.integrator.threads = share ? 0 : given;
+  // the step that wakes a resting tissue (the tool's first touch: 0.3 s on the folded organ) on
+  // every thread, though the share had the physics ahead on one while it rested
+  scene_.simulation.integrator.wake_threads = share ? given : 0;
   // the second start of the same organ loads its factor instead of computing it (io/factor_cache.h)
   scene_.simulation.integrator.factor_cache = make_factor_cache(options_.factor_cache);
   // a session's memory flat: the contact solve's cache resident from the start, not filling as

@@ -37,6 +37,27 @@ inline bool leave_parallel_work_to_others() {
   return release_openmp_workers();
 }
 
+/// The calling thread's OpenMP setting (omp_set_num_threads) at another count for a scope, then
+/// back as it was: the loops asked for 0 threads (OpenMP's default) and Eigen follow it.
+class ScopedThreads {
+ public:
+  ScopedThreads() = default;
+  ScopedThreads(const ScopedThreads&) = delete;
+  ScopedThreads& operator=(const ScopedThreads&) = delete;
+  ~ScopedThreads() {
+    if (before_ > 0) omp_set_num_threads(before_);
+  }
+  /// From now to the end of the scope: `threads` (> 0; else nothing changes).
+  void set(int threads) {
+    if (threads <= 0) return;
+    if (before_ == 0) before_ = omp_get_max_threads();
+    omp_set_num_threads(threads);
+  }
+
+ private:
+  int before_{0};  ///< the setting to restore (0: not changed)
+};
+
 /// Number of chunks parallel_for cuts [0, n) into.
 [[nodiscard]] inline std::int64_t chunk_count(std::int64_t n, std::int64_t grain) {
   grain = std::max<std::int64_t>(1, grain);

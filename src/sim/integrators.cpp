@@ -292,9 +292,11 @@ class ImplicitIntegrator final : public SteppingIntegrator {
     const int threads = settings_.threads;
     const double dt = settings_.time_step_s;
     const bool regional = settings_.region_radius_mm > 0 && contact_;
+    rep.threads = resolve_threads(threads);
     ProjectiveSolver* built = solver_for(s, rep, regional);
     // at rest while its solver is built on a thread of its own (factor_in_background)
     if (!built) return sleep_step(s, rep);
+    ScopedThreads wake;
     ProjectiveSolver& solver = *built;
     solver.set_region_diagnostics(settings_.region_solve_far_field, settings_.region_refresh_on_move,
                                   settings_.region_visit_still_far_field);
@@ -303,6 +305,14 @@ class ImplicitIntegrator final : public SteppingIntegrator {
     if (regional) {
       // (a solver taken from the background finds the tissue as it was built for: still asleep)
       if (asleep_ && still_at_rest(s, rep.refactored && !rep.factored_in_background)) return sleep_step(s, rep);
+      if (asleep_) {
+        // the wake: on wake_threads (the loops asked for 0 follow this thread's setting)
+        rep.woke = true;
+        if (threads == 0) {
+          wake.set(settings_.wake_threads);
+          rep.threads = resolve_threads(0);
+        }
+      }
       asleep_ = false;
       update_region(s, solver, rep.refactored);
       // while the tissue may move and no tool touches, a full solve now and then lets the far

@@ -139,6 +139,13 @@ struct IntegratorSettings {
   /// solver is ready: the tissue starts asleep either way. For a session that starts while a large
   /// model factors (the probe app; docs/model.md section 7, "A solver built while the tissue rests").
   bool factor_in_background{false};
+  /// implicit with a region, `threads` 0 (each calling thread's own OpenMP setting): the step
+  /// that wakes a sleeping tissue (a tool's first touch after a rest: a full solve and the
+  /// region's set-up, about 0.3 s on the folded organ on one thread) runs on this many threads,
+  /// whatever the caller's setting is then. For the probe app, which steps on one thread while
+  /// the tissue rests ahead of real time and learns of a slow step only after it
+  /// (apps/probe/thread_share.h). 0: the caller's setting. The same bits on any count.
+  int wake_threads{0};
   /// Tests: extra wall time on building a solver in the background (stands for a large model's
   /// factorisation: it cannot be stopped), s.
   double factor_in_background_delay_s{0.0};

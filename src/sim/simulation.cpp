@@ -171,6 +171,10 @@ StepStatus Simulation::step() {
   }
   counters_.factor_wait_s += report.factor_wait_s;
   counters_.steps_at_rest += report.asleep ? 1 : 0;
+  if (report.woke) {
+    ++counters_.wakes;
+    counters_.last_wake_threads = report.threads;
+  }
   counters_.iterations += report.iterations;
   if (report.fell_asleep != SleepCause::none) {
     ++counters_.sleeps;

@@ -89,6 +89,10 @@ struct SimulationCounters {
   double last_sleep_offset_mm{-1.0};
   double last_release_offset_mm{0.0};  ///< its largest displacement from its rest shape when let go, mm (0: unknown)
   SleepCause last_sleep_cause{SleepCause::none};
+  /// ... steps that woke it (a tool's first touch after a rest), and the threads the last of them
+  /// ran on (IntegratorSettings::wake_threads)
+  std::int64_t wakes{0};
+  int last_wake_threads{0};
   /// implicit: system matrices factored (or loaded from the factor cache), and their wall time, s
   std::int64_t factorisations{0};
   std::int64_t factors_from_cache{0};

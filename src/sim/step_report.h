@@ -55,6 +55,10 @@ struct StepReport {
   std::int64_t region_elements{0};  ///< implicit with a region: elements computed (0: all)
   std::int64_t region_nodes{0};     ///< implicit with a region: free nodes solved for (0: all)
   bool asleep{false};               ///< implicit with a region: the tissue was at rest, nothing computed
+  bool woke{false};                 ///< implicit with a region: the tissue slept before this step and not in it
+  /// implicit: the threads the step's parallel loops were given (threads 0: the calling
+  /// thread's OpenMP setting then; IntegratorSettings::wake_threads for a step that wakes)
+  int threads{0};
   SleepCause fell_asleep{SleepCause::none};  ///< implicit with a region: the tissue fell asleep after this step
   double sleep_offset_mm{-1.0};              ///< ... its largest node displacement from its rest shape then, mm (before
                                              ///< it was put there); < 0: not known (gravity or a load)

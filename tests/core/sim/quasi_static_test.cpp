@@ -698,6 +698,59 @@ TEST(RegionalSolve, ATissueAtRestSleepsUntilAToolComesBack) {
   EXPECT_NEAR(on.second_force_n, off.second_force_n, 0.03 * off.second_force_n);
 }
 
+// The probe app steps on one thread while the tissue rests ahead of real time (threads 0: the
+// physics thread's own OpenMP setting, 1 then), and the tool's first touch wakes it in a step of
+// about 0.3 s on the folded organ. That step runs on wake_threads (2 here), the steps before and
+// after it on the caller's setting, which is as it was after the step; the same bits as with the
+// wake on the caller's one thread.
+TEST(RegionalSolve, TheStepThatWakesATissueRunsOnItsWakeThreads) {
+  if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "needs CHOLMOD (supernodal)";
+  const auto p = make_physics_model(ball(24), tissue(0.2));
+  const Model& m = *p->model;
+  const Eigen::Vector3d c = 0.5 * (m.rest_positions.rowwise().minCoeff() + m.rest_positions.rowwise().maxCoeff());
+  const double ztop = m.rest_positions.row(2).maxCoeff();
+  struct Run {
+    SimulationCounters counters;
+    Eigen::Matrix3Xd positions;
+    int setting_after{0};
+    std::vector<int> threads_seen;  ///< omp_get_max_threads() after each step
+  };
+  const auto run = [&](int wake_threads) {
+    Run r;
+    // on a thread of its own: its OpenMP setting is its own (as the app's physics thread's)
+    std::thread([&] {
+      omp_set_num_threads(1);
+      SimulationSettings ss = regional_ball_press(m);
+      ss.integrator.threads = 0;
+      ss.integrator.wake_threads = wake_threads;
+      ss.probes.front().path = {{0.0, {c.x(), c.y(), ztop + 6.0}}, {0.5, {c.x(), c.y(), ztop - 1.5}}};
+      Simulation sim(p, ss);
+      while (sim.time_s() < 0.6 - 1e-9 && !sim.failed()) {
+        sim.step();
+        r.threads_seen.push_back(omp_get_max_threads());
+      }
+      EXPECT_FALSE(sim.failed()) << sim.state().message;
+      r.counters = sim.counters();
+      r.positions = sim.state().positions;
+      r.setting_after = omp_get_max_threads();
+    }).join();
+    return r;
+  };
+  const Run woke2 = run(2), woke1 = run(0);
+  EXPECT_GT(woke2.counters.steps_at_rest, 3);  // asleep while the tool came down
+  EXPECT_EQ(woke2.counters.wakes, 1);
+  EXPECT_EQ(woke2.counters.last_wake_threads, 2);
+  EXPECT_EQ(woke1.counters.wakes, 1);
+  EXPECT_EQ(woke1.counters.last_wake_threads, 1);
+  // the caller's setting is its own again after the step that woke, and was never left changed
+  EXPECT_EQ(woke2.setting_after, 1);
+  for (const int t : woke2.threads_seen) EXPECT_EQ(t, 1);
+  ASSERT_EQ(woke1.positions.size(), woke2.positions.size());
+  EXPECT_EQ(
+      std::memcmp(woke1.positions.data(), woke2.positions.data(), sizeof(double) * std::size_t(woke1.positions.size())),
+      0);
+}
+
 TEST(RegionalSolve, ASolverBuiltInTheBackgroundWhileTheTissueRestsPressesTheSame) {
   if (!SparseFactor::available(SparseFactor::Backend::cholmod)) GTEST_SKIP() << "needs CHOLMOD (supernodal)";
   // factor_in_background: the first step starts the factorisation on a thread of its own and
