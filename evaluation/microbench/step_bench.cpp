@@ -8,6 +8,8 @@
 // sweep/<full or regional>/<kernel>/n: the implicit solver's factor solved with the column
 //   sweeps against the gathered ones on each instruction set (sim/sparse_factor.h), side by side.
 // assembly/<threads>/n: the implicit solver's matrix assembled on one thread and on two.
+// unit_columns/<alone or together>/n: 64 unit columns of a simplicial factor (a contact patch's,
+//   haptics/local_compliance.cpp) one at a time and kUnitLanes at a time, side by side.
 //   voxelastic_bench_step [--benchmark_filter=...]   (OMP_NUM_THREADS sets the threads)
 // Targets (issue): explicit step of the 128^3 sphere (~19k elements, ~270k entries) < 1 ms on
 // 2 cores; ns/entry flat from 32^3 to 256^3; implicit 128^3 at dt = 1 ms in real time.
@@ -243,6 +245,51 @@ void sweep(benchmark::State& bs, bool regional, const SweepVariant& v, int n) {
   bs.counters["widest_supernode"] = f.widest_supernode();
 }
 
+/// Unit columns of a sphere's implicit matrix factored as the probe app's contact patches are
+/// (Eigen's simplicial LDL^T on an AMD ordering, haptics/local_compliance.cpp): the 64 rows
+/// nearest the sphere's highest node (a contact's), solved one at a time (solve_unit) or
+/// together (solve_units), as a new contact's columns are.
+void unit_columns(benchmark::State& bs, bool together, int n) {
+  static std::map<int, std::unique_ptr<SparseFactor>> cache;
+  const auto& physics = sphere(n);
+  const Model& model = *physics->model;
+  const NodeNumbering numbering = number_nodes(sphere_state(physics).node_fixed);
+  auto& f = cache[n];
+  if (!f) {
+    ProjectiveSetup setup;
+    setup.time_step_s = 0.03;
+    setup.damping = true;
+    Eigen::SparseMatrix<double> a;
+    assemble_projective_matrix(*physics, numbering, setup, a, nullptr);
+    f = std::make_unique<SparseFactor>();
+    if (!f->compute(a, SparseFactor::Backend::eigen_amd))
+      throw Error("unit column benchmark: the sphere's matrix did not factor");
+  }
+  const int rows = f->size();
+  Eigen::Index highest = 0;
+  model.rest_positions.row(2).maxCoeff(&highest);
+  const Eigen::Vector3d top = model.rest_positions.col(highest);
+  std::vector<std::pair<double, int>> by_distance;
+  for (int i = 0; i < rows; ++i)
+    by_distance.emplace_back((model.rest_positions.col(numbering.free_nodes[std::size_t(i)]) - top).norm(), i);
+  std::sort(by_distance.begin(), by_distance.end());
+  std::vector<int> contact;
+  for (std::size_t k = 0; k < std::min<std::size_t>(64, by_distance.size()); ++k)
+    contact.push_back(by_distance[k].second);
+  std::vector<double> out(contact.size() * std::size_t(rows));
+  for (auto _ : bs) {
+    if (together) {
+      f->solve_units(contact.data(), int(contact.size()), out.data(), std::size_t(rows));
+    } else {
+      for (std::size_t k = 0; k < contact.size(); ++k) f->solve_unit(contact[k], out.data() + k * std::size_t(rows));
+    }
+    benchmark::DoNotOptimize(out.data());
+  }
+  bs.counters["rows"] = rows;
+  bs.counters["columns"] = double(contact.size());
+  bs.counters["factor_nonzeros"] = double(f->nonzeros());
+}
+
 /// The implicit solver's matrix assembled (the first start's share before the ordering and the
 /// factorisation) on `threads`.
 void assembly(benchmark::State& bs, int threads, int n) {
@@ -351,6 +398,15 @@ int main(int argc, char** argv) {
             ->UseRealTime()
             ->MinTime(0.5);
       }
+  // a contact patch's unit columns one at a time and together, interleaved per size
+  for (int n : {32, 64})
+    for (const bool together : {false, true})
+      benchmark::RegisterBenchmark(
+          (std::string("unit_columns/") + (together ? "together" : "alone") + "/" + std::to_string(n)).c_str(),
+          [together, n](benchmark::State& bs) { unit_columns(bs, together, n); })
+          ->Unit(benchmark::kMillisecond)
+          ->UseRealTime()
+          ->MinTime(0.5);
   // the implicit solver's assembly on one thread and on two, interleaved per size
   for (int n : {64, 128, 256})
     for (const int threads : {1, 2})

@@ -153,16 +153,20 @@ bool PatchCompliance::compute(const std::vector<std::int32_t>& nodes, double rad
     ++cache_restarts_;
   }
   const std::size_t np = patch_nodes_.size();
+  // the missing columns take the next slots, solved together (SparseFactor::solve_units: one pass
+  // over the patch's factor for every kUnitLanes; the slide of the folded organ's press solves about
+  // 300, 7 ms each one at a time)
+  const int first_slot = cached_columns();
   for (int a = 0; a < m; ++a) {
     const int k = patch_index_[std::size_t(nodes[std::size_t(a)])];
     if (column_slot_[std::size_t(k)] < 0) {
-      const int slot = cached_columns();
-      factor_.solve_unit(k, columns_.data() + std::size_t(slot) * np);
-      column_slot_[std::size_t(k)] = slot;
+      column_slot_[std::size_t(k)] = cached_columns();
       slot_column_.push_back(k);
-      ++columns_solved_;
     }
   }
+  const int solved = cached_columns() - first_slot;
+  factor_.solve_units(slot_column_.data() + first_slot, solved, columns_.data() + std::size_t(first_slot) * np, np);
+  columns_solved_ += solved;
   for (int a = 0; a < m; ++a) {
     const double* col =
         columns_.data() + std::size_t(column_slot_[std::size_t(patch_index_[std::size_t(nodes[std::size_t(a)])])]) * np;

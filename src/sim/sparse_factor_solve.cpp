@@ -54,6 +54,35 @@ void SparseFactor::solve_unit(int i, double* out) {
   for (int k = 0; k < n; ++k) out[k] = w[perm_[std::size_t(k)]];
 }
 
+void SparseFactor::solve_units(const int* rows, int count, double* out, std::size_t stride) {
+  constexpr int K = kUnitLanes;
+  const int n = size_;
+  for (int a0 = 0; a0 < count; a0 += K) {
+    const int lanes = std::min(K, count - a0);
+    // a lone column, or the supernodal factor (the whole model's: a few columns, sweeps of its own)
+    if (lanes == 1 || supernodal_) {
+      for (int c = 0; c < lanes; ++c) solve_unit(rows[a0 + c], out + std::size_t(a0 + c) * stride);
+      continue;
+    }
+    work_units_.resize(std::size_t(K) * std::size_t(n));
+    double* w = work_units_.data();
+    std::fill(work_units_.begin(), work_units_.end(), 0.0);
+    // the forward pass from the first of the lanes' columns: a lane whose own column comes later
+    // carries zeros until it (x - val * 0 is x), so every lane ends as solve_unit's column
+    int first = n;
+    for (int c = 0; c < lanes; ++c) {
+      const int j = perm_[std::size_t(rows[a0 + c])];
+      w[std::size_t(K) * std::size_t(j) + std::size_t(c)] = 1.0;
+      first = std::min(first, j);
+    }
+    solve_in_place<K>(w, first);
+    for (int c = 0; c < lanes; ++c) {
+      double* o = out + std::size_t(a0 + c) * stride;
+      for (int k = 0; k < n; ++k) o[k] = w[std::size_t(K) * std::size_t(perm_[std::size_t(k)]) + std::size_t(c)];
+    }
+  }
+}
+
 template <int K>
 void SparseFactor::solve_in_place(double* w, int first) const {
   const int n = size_;
@@ -438,5 +467,6 @@ void SparseFactor::add_forward_fields(const std::vector<double>& w, int m, const
 
 template void SparseFactor::solve_in_place<1>(double*, int) const;
 template void SparseFactor::solve_in_place<3>(double*, int) const;
+template void SparseFactor::solve_in_place<SparseFactor::kUnitLanes>(double*, int) const;
 
 }  // namespace vx

@@ -147,6 +147,41 @@ TEST(SparseFactor, BackendsAgreeOnTheSameMatrix) {
     GTEST_SKIP() << "one sparse backend in this build (no METIS, no CHOLMOD): nothing compared";
 }
 
+// solve_units (the probe app's contact patches): the columns of several rows solved together are
+// solve_unit's, value for value, whatever their order, their count against the lanes, a row given
+// twice, and on every backend (the supernodal one solves them one at a time)
+TEST(SparseFactor, UnitColumnsSolvedTogetherAreTheOnesSolvedAlone) {
+  const SparseFactor::Matrix a = block_matrix();
+  const int nn = int(a.rows());
+  // two full passes of kUnitLanes and one of one; out of order (the first lane of a pass not its
+  // earliest row in the factor's order), a row given twice
+  std::vector<int> rows;
+  for (int k = 0; k < 2 * SparseFactor::kUnitLanes; ++k) rows.push_back(((nn - 1 - 37 * k) % nn + nn) % nn);
+  rows.push_back(rows[3]);
+  ASSERT_EQ(rows.size(), std::size_t(2 * SparseFactor::kUnitLanes + 1));
+  for (const std::size_t stride : {std::size_t(nn), std::size_t(nn) + 5}) {
+    for (auto backend : backends()) {
+      SparseFactor f;
+      ASSERT_TRUE(f.compute(a, backend)) << SparseFactor::to_string(backend);
+      std::vector<double> together(stride * rows.size(), -1.0), alone(static_cast<std::size_t>(nn));
+      f.solve_units(rows.data(), int(rows.size()), together.data(), stride);
+      for (std::size_t r = 0; r < rows.size(); ++r) {
+        f.solve_unit(rows[r], alone.data());
+        const double* got = together.data() + r * stride;
+        for (int k = 0; k < nn; ++k)
+          ASSERT_EQ(got[k], alone[std::size_t(k)])
+              << SparseFactor::to_string(backend) << ": row " << rows[r] << " (lane " << r << "), entry " << k;
+        // A x = e_row: a column of the inverse, not only the same as solve_unit's
+        const Eigen::VectorXd ax = a * Eigen::Map<const Eigen::VectorXd>(got, nn);
+        EXPECT_NEAR(ax(rows[r]), 1.0, 1e-9);
+        EXPECT_NEAR(ax.norm(), 1.0, 1e-9);
+        // the gap between columns (a stride longer than a column) is left as it was
+        for (std::size_t k = std::size_t(nn); k < stride && r + 1 < rows.size(); ++k) EXPECT_EQ(got[k], -1.0);
+      }
+    }
+  }
+}
+
 TEST(SparseFactor, AFactorReadBackSolvesBitForBitAsTheOneComputed) {
   const SparseFactor::Matrix a = block_matrix();
   const int n = int(a.rows());
