@@ -182,10 +182,12 @@ void element_pass(benchmark::State& bs, ElementKernel kernel, SimdLevel simd, in
       double(fit_iterations) / double(std::max<std::int64_t>(1, passes)) / model.num_elements();
 }
 
-/// The implicit solver's factor of a sphere (30 ms steps, damped, the lowest cap fixed), once per size.
-SparseFactor& sphere_factor(int n) {
-  static std::map<int, std::unique_ptr<SparseFactor>> cache;
-  auto& f = cache[n];
+/// The implicit solver's factor of a sphere (30 ms steps, damped, the lowest cap fixed), once per
+/// size: the solver's own, or (`as_patch`) factored as the probe app's contact patches are
+/// (Eigen's simplicial LDL^T on an AMD ordering, haptics/local_compliance.cpp).
+SparseFactor& sphere_factor(int n, bool as_patch = false) {
+  static std::map<std::pair<int, bool>, std::unique_ptr<SparseFactor>> cache;
+  auto& f = cache[{n, as_patch}];
   if (!f) {
     const auto& physics = sphere(n);
     const SimState s = sphere_state(physics);
@@ -196,7 +198,8 @@ SparseFactor& sphere_factor(int n) {
     Eigen::SparseMatrix<double> a;
     assemble_projective_matrix(*physics, numbering, setup, a, nullptr);
     f = std::make_unique<SparseFactor>();
-    if (!f->compute(a)) throw Error("sweep benchmark: the sphere's matrix did not factor");
+    if (!(as_patch ? f->compute(a, SparseFactor::Backend::eigen_amd) : f->compute(a)))
+      throw Error("step benchmark: the sphere's matrix did not factor");
   }
   return *f;
 }
@@ -245,27 +248,15 @@ void sweep(benchmark::State& bs, bool regional, const SweepVariant& v, int n) {
   bs.counters["widest_supernode"] = f.widest_supernode();
 }
 
-/// Unit columns of a sphere's implicit matrix factored as the probe app's contact patches are
-/// (Eigen's simplicial LDL^T on an AMD ordering, haptics/local_compliance.cpp): the 64 rows
-/// nearest the sphere's highest node (a contact's), solved one at a time (solve_unit) or
+/// Unit columns of a sphere's implicit matrix factored as the probe app's contact patches are: the
+/// 64 rows nearest the sphere's highest node (a contact's), solved one at a time (solve_unit) or
 /// together (solve_units), as a new contact's columns are.
 void unit_columns(benchmark::State& bs, bool together, int n) {
-  static std::map<int, std::unique_ptr<SparseFactor>> cache;
+  SparseFactor& f = sphere_factor(n, true);
   const auto& physics = sphere(n);
   const Model& model = *physics->model;
   const NodeNumbering numbering = number_nodes(sphere_state(physics).node_fixed);
-  auto& f = cache[n];
-  if (!f) {
-    ProjectiveSetup setup;
-    setup.time_step_s = 0.03;
-    setup.damping = true;
-    Eigen::SparseMatrix<double> a;
-    assemble_projective_matrix(*physics, numbering, setup, a, nullptr);
-    f = std::make_unique<SparseFactor>();
-    if (!f->compute(a, SparseFactor::Backend::eigen_amd))
-      throw Error("unit column benchmark: the sphere's matrix did not factor");
-  }
-  const int rows = f->size();
+  const int rows = f.size();
   Eigen::Index highest = 0;
   model.rest_positions.row(2).maxCoeff(&highest);
   const Eigen::Vector3d top = model.rest_positions.col(highest);
@@ -279,15 +270,15 @@ void unit_columns(benchmark::State& bs, bool together, int n) {
   std::vector<double> out(contact.size() * std::size_t(rows));
   for (auto _ : bs) {
     if (together) {
-      f->solve_units(contact.data(), int(contact.size()), out.data(), std::size_t(rows));
+      f.solve_units(contact.data(), int(contact.size()), out.data(), std::size_t(rows));
     } else {
-      for (std::size_t k = 0; k < contact.size(); ++k) f->solve_unit(contact[k], out.data() + k * std::size_t(rows));
+      for (std::size_t k = 0; k < contact.size(); ++k) f.solve_unit(contact[k], out.data() + k * std::size_t(rows));
     }
     benchmark::DoNotOptimize(out.data());
   }
   bs.counters["rows"] = rows;
   bs.counters["columns"] = double(contact.size());
-  bs.counters["factor_nonzeros"] = double(f->nonzeros());
+  bs.counters["factor_nonzeros"] = double(f.nonzeros());
 }
 
 /// The implicit solver's matrix assembled (the first start's share before the ordering and the
