@@ -486,8 +486,8 @@ class SparseFactor {
   std::vector<std::uint8_t> in_closure_;  ///< factored positions: 1 in the closure
   SweepKernel sweep_kernel_{default_sweep_kernel()};
   SimdLevel sweep_simd_{best_simd_level()};
-  std::vector<double> work3_;  ///< n x 3, row-major, permuted order
-  std::vector<double> work1_;  ///< n, permuted order
+  std::vector<double> work3_;       ///< n x 3, row-major, permuted order
+  std::vector<double> work1_;       ///< n, permuted order
   std::vector<double> work_units_;  ///< kUnitLanes x n, permuted order, interleaved (solve_units)
 };
 
