@@ -5,6 +5,7 @@
 #include <sstream>
 
 #include "base/error.h"
+#include "base/parallel.h"
 
 namespace vx {
 
@@ -174,14 +175,29 @@ void DeviceSide::build_local_contact(int q, LocalContactModel& m) {
     local_candidates_.push_back({n, len, 0.0, f / len});
   }
   // every node that may collide (the folded organ's 274,533 surface nodes), on the physics'
-  // thread after each update: the far ones out by a squared distance to a ball round the tool
-  Eigen::Vector3d point, normal, centre;
+  // thread after each update while its other threads wait: the far ones out by a squared distance
+  // to a ball round the tool, in chunks on the physics' threads, each chunk's finds appended in
+  // chunk order (the same candidates, in the same order, on any thread count)
+  Eigen::Vector3d centre;
   const double reach = probe_bounding_ball(g, anchor, centre) + margin, reach2 = reach * reach;
-  for (const std::int32_t n : sim_.contact_solver().nodes()) {
-    if ((x.col(n) - centre).squaredNorm() >= reach2 || a.listed[std::size_t(n)]) continue;
-    const double d = probe_signed_distance(g, anchor, x.col(n), &point, &normal);
-    if (d < margin) local_candidates_.push_back({n, 0.0, std::max(0.0, d), normal});
-  }
+  const std::vector<std::int32_t>& surface = sim_.contact_solver().nodes();
+  const std::int64_t chunks = chunk_count(std::int64_t(surface.size()), kLocalScanGrain);
+  if (local_found_.size() < std::size_t(chunks)) local_found_.resize(std::size_t(chunks));
+  parallel_for_chunks(std::int64_t(surface.size()), kLocalScanGrain, 0,
+                      [&](std::int64_t c, std::int64_t b, std::int64_t e) {
+                        std::vector<LocalCandidate>& found = local_found_[std::size_t(c)];
+                        found.clear();
+                        Eigen::Vector3d point, normal;
+                        for (std::int64_t k = b; k < e; ++k) {
+                          const std::int32_t n = surface[std::size_t(k)];
+                          if ((x.col(n) - centre).squaredNorm() >= reach2 || a.listed[std::size_t(n)]) continue;
+                          const double d = probe_signed_distance(g, anchor, x.col(n), &point, &normal);
+                          if (d < margin) found.push_back({n, 0.0, std::max(0.0, d), normal});
+                        }
+                      });
+  for (std::int64_t c = 0; c < chunks; ++c)
+    local_candidates_.insert(local_candidates_.end(), local_found_[std::size_t(c)].begin(),
+                             local_found_[std::size_t(c)].end());
   // too many: the largest forces, then the smallest gaps
   if (int(local_candidates_.size()) > lc.max_nodes) {
     std::stable_sort(local_candidates_.begin(), local_candidates_.end(),

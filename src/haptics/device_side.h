@@ -123,6 +123,10 @@ class DeviceSide final : public StepListener {
   /// publishes them (settings.local_contact; else does nothing). Call it at the end of each
   /// physics update (after a chunk of steps). Allocates when the candidates grow.
   void publish_local_contact();
+  /// Surface nodes per chunk of the local models' scan for candidates (build_local_contact): the
+  /// chunks on the calling thread's OpenMP threads, their finds in chunk order (the same model on
+  /// any thread count). The folded organ's 274,533 surface nodes: 135 chunks.
+  static constexpr std::int64_t kLocalScanGrain = 2048;
   /// Builds probe `i`'s local contact model into `out` without publishing it (tests, tools).
   void build_local_contact(int i, LocalContactModel& out);
   [[nodiscard]] bool has_local_contact() const { return settings_.local_contact.has_value(); }
@@ -172,6 +176,9 @@ class DeviceSide final : public StepListener {
     Eigen::Vector3d normal;
   };
   std::vector<LocalCandidate> local_candidates_;
+  /// each chunk's finds of the surface's scan for candidates (kept: no allocation once the
+  /// largest contact has been seen)
+  std::vector<std::vector<LocalCandidate>> local_found_;
   Eigen::MatrixXd local_g_;
 
   // shared with other threads

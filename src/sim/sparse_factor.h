@@ -272,8 +272,8 @@ class SparseFactor {
   void solve_unit(int i, double* out);
   /// out + a * stride = A^-1 e_rows[a] for a < count: solve_unit's columns, the same values, on a
   /// simplicial factor kUnitLanes at a time (one pass over the factor for each kUnitLanes
-  /// columns, where the passes are memory-bound: the probe app's contact patches, issue 25).
-  /// Allocation-free after its first call.
+  /// columns, where the passes are memory-bound: the probe app's contact patches, issue 25), the
+  /// passes on the caller's OpenMP threads. Allocation-free after its first call on as many threads.
   void solve_units(const int* rows, int count, double* out, std::size_t stride);
   static constexpr int kUnitLanes = 8;
 
@@ -488,7 +488,7 @@ class SparseFactor {
   SimdLevel sweep_simd_{best_simd_level()};
   std::vector<double> work3_;       ///< n x 3, row-major, permuted order
   std::vector<double> work1_;       ///< n, permuted order
-  std::vector<double> work_units_;  ///< kUnitLanes x n, permuted order, interleaved (solve_units)
+  std::vector<double> work_units_;  ///< per thread kUnitLanes x n, permuted order, interleaved (solve_units)
 };
 
 }  // namespace vx

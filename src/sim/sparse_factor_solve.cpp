@@ -57,16 +57,27 @@ void SparseFactor::solve_unit(int i, double* out) {
 void SparseFactor::solve_units(const int* rows, int count, double* out, std::size_t stride) {
   constexpr int K = kUnitLanes;
   const int n = size_;
-  for (int a0 = 0; a0 < count; a0 += K) {
-    const int lanes = std::min(K, count - a0);
-    // a lone column, or the supernodal factor (the whole model's: a few columns, sweeps of its own)
-    if (lanes == 1 || supernodal_) {
-      for (int c = 0; c < lanes; ++c) solve_unit(rows[a0 + c], out + std::size_t(a0 + c) * stride);
-      continue;
+  if (count <= 0) return;
+  // the supernodal factor (the whole model's: a few columns, sweeps of its own), one at a time
+  if (supernodal_) {
+    for (int a = 0; a < count; ++a) solve_unit(rows[a], out + std::size_t(a) * stride);
+    return;
+  }
+  // the passes (kUnitLanes columns each) on the caller's threads, each thread with its own lanes'
+  // buffer: a pass writes only its own columns, so the values do not depend on the thread count
+  const std::int64_t passes = chunk_count(count, K);
+  const int threads = int(std::min<std::int64_t>(resolve_threads(0), passes));
+  const std::size_t lanes_size = std::size_t(K) * std::size_t(n);
+  if (work_units_.size() < std::size_t(threads) * lanes_size) work_units_.resize(std::size_t(threads) * lanes_size);
+  parallel_for_chunks(count, K, threads, [&](std::int64_t, std::int64_t a0, std::int64_t a1) {
+    const int lanes = int(a1 - a0);
+    // a lone column: solve_unit's own pass (at most one chunk is short: the last)
+    if (lanes == 1) {
+      solve_unit(rows[a0], out + std::size_t(a0) * stride);
+      return;
     }
-    work_units_.resize(std::size_t(K) * std::size_t(n));
-    double* w = work_units_.data();
-    std::fill(work_units_.begin(), work_units_.end(), 0.0);
+    double* w = work_units_.data() + std::size_t(omp_get_thread_num()) * lanes_size;
+    std::fill(w, w + lanes_size, 0.0);
     // the forward pass from the first of the lanes' columns: a lane whose own column comes later
     // carries zeros until it (x - val * 0 is x), so every lane ends as solve_unit's column
     int first = n;
@@ -80,7 +91,7 @@ void SparseFactor::solve_units(const int* rows, int count, double* out, std::siz
       double* o = out + std::size_t(a0 + c) * stride;
       for (int k = 0; k < n; ++k) o[k] = w[std::size_t(K) * std::size_t(perm_[std::size_t(k)]) + std::size_t(c)];
     }
-  }
+  });
 }
 
 template <int K>

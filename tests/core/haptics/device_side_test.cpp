@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "base/error.h"
+#include "base/parallel.h"
 #include "support/sim_helpers.h"
 
 using namespace vx;
@@ -249,4 +250,69 @@ TEST(DeviceSide, LocalContactModelsAcrossThreads) {
   EXPECT_GT(in_contact, 0);
   std::printf("%zu of %d updates taken by the device thread, %d in contact; last force %.4f N\n", seen.size(), kUpdates,
               in_contact, published[kUpdates].z());
+}
+
+// The local model's scan of the surface for candidates runs in chunks on the physics' threads:
+// a tool that touches nodes of several chunks gets the same model, node for node and bit for bit,
+// on one thread and on two (the chunks' finds appended in chunk order).
+TEST(DeviceSide, TheLocalModelIsTheSameOnOneThreadAndOnTwo) {
+  auto phys = physics_of(block_model(48, 48, 16), 5.0);
+  SimulationSettings s;
+  s.integrator.kind = IntegratorKind::implicit;
+  s.integrator.time_step_s = 0.01;
+  s.integrator.threads = 1;
+  s.fixed_nodes = nodes_on_face(*phys->model, BoxFace::z_min);
+  ProbeSettings probe;
+  probe.name = "tool";
+  probe.geometry.radius_mm = 12;
+  probe.drive = ProbeDrive::live;
+  probe.start_mm = {24, 24, 28.5};  // over the top face's centre, 0.5 mm above it
+  s.probes = {probe};
+  DeviceSideSettings ds;
+  ds.local_contact = LocalContactSettings{};
+  ds.local_contact->margin_mm = 2.0;
+  Simulation sim(phys, s);
+  DeviceSide side(sim, ds);
+  const std::vector<std::int32_t>& surface = sim.contact_solver().nodes();
+  ASSERT_GE(std::int64_t(surface.size()), 2 * DeviceSide::kLocalScanGrain);  // a scan that forks
+  LocalContactModel one, two;
+  {
+    ScopedThreads scope;
+    scope.set(1);
+    side.build_local_contact(0, one);
+  }
+  {
+    ScopedThreads scope;
+    scope.set(2);
+    side.build_local_contact(0, two);
+  }
+  ASSERT_GT(one.size(), 20);
+  // the candidates come from more than one chunk of the scan
+  std::vector<std::int64_t> chunk_of(std::size_t(phys->num_nodes()), -1);
+  for (std::size_t k = 0; k < surface.size(); ++k)
+    chunk_of[std::size_t(surface[k])] = std::int64_t(k) / DeviceSide::kLocalScanGrain;
+  std::int64_t lo = 1 << 30, hi = -1;
+  for (const std::int32_t n : one.node) {
+    ASSERT_GE(chunk_of[std::size_t(n)], 0) << "node " << n << " is not a surface node";
+    lo = std::min(lo, chunk_of[std::size_t(n)]);
+    hi = std::max(hi, chunk_of[std::size_t(n)]);
+  }
+  EXPECT_LT(lo, hi);
+  // fewer candidates than the model holds, so none was dropped: they come in the scan's order
+  ASSERT_LT(one.size(), ds.local_contact->max_nodes);
+  std::vector<std::int64_t> at(std::size_t(phys->num_nodes()), -1);
+  for (std::size_t k = 0; k < surface.size(); ++k) at[std::size_t(surface[k])] = std::int64_t(k);
+  for (int k = 1; k < one.size(); ++k)
+    EXPECT_LT(at[std::size_t(one.node[std::size_t(k - 1)])], at[std::size_t(one.node[std::size_t(k)])]) << k;
+  // every candidate is within the margin of the tool (a ball 0.5 mm above the face: its nodes at
+  // a gap of 0.5 to 2 mm)
+  for (int k = 0; k < one.size(); ++k) {
+    EXPECT_GE(one.gap_mm[k], 0.5 - 1e-9);
+    EXPECT_LT(one.gap_mm[k], 2.0);
+  }
+  EXPECT_EQ(one.node, two.node);
+  EXPECT_EQ(one.point_mm, two.point_mm);
+  EXPECT_EQ(one.normal, two.normal);
+  EXPECT_EQ(one.gap_mm, two.gap_mm);
+  EXPECT_EQ(one.compliance, two.compliance);
 }

@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "base/content_hash.h"
+#include "base/parallel.h"
 #include "model/gradational_builder.h"
 #include "physics/calibration.h"
 #include "physics/physics_model.h"
@@ -159,26 +160,33 @@ TEST(SparseFactor, UnitColumnsSolvedTogetherAreTheOnesSolvedAlone) {
   for (int k = 0; k < 2 * SparseFactor::kUnitLanes; ++k) rows.push_back(((nn - 1 - 37 * k) % nn + nn) % nn);
   rows.push_back(rows[3]);
   ASSERT_EQ(rows.size(), std::size_t(2 * SparseFactor::kUnitLanes + 1));
+  // the passes on one thread and on two (each its own lanes' buffer), the same bits
   for (const std::size_t stride : {std::size_t(nn), std::size_t(nn) + 5}) {
-    for (auto backend : backends()) {
-      SparseFactor f;
-      ASSERT_TRUE(f.compute(a, backend)) << SparseFactor::to_string(backend);
-      std::vector<double> together(stride * rows.size(), -1.0), alone(static_cast<std::size_t>(nn));
-      f.solve_units(rows.data(), int(rows.size()), together.data(), stride);
-      for (std::size_t r = 0; r < rows.size(); ++r) {
-        f.solve_unit(rows[r], alone.data());
-        const double* got = together.data() + r * stride;
-        for (int k = 0; k < nn; ++k)
-          ASSERT_EQ(got[k], alone[std::size_t(k)])
-              << SparseFactor::to_string(backend) << ": row " << rows[r] << " (lane " << r << "), entry " << k;
-        // A x = e_row: a column of the inverse, not only the same as solve_unit's
-        const Eigen::VectorXd ax = a * Eigen::Map<const Eigen::VectorXd>(got, nn);
-        EXPECT_NEAR(ax(rows[r]), 1.0, 1e-9);
-        EXPECT_NEAR(ax.norm(), 1.0, 1e-9);
-        // the gap between columns (a stride longer than a column) is left as it was
-        for (std::size_t k = std::size_t(nn); k < stride && r + 1 < rows.size(); ++k) EXPECT_EQ(got[k], -1.0);
+    for (auto backend : backends())
+      for (const int threads : {1, 2}) {
+        SparseFactor f;
+        ASSERT_TRUE(f.compute(a, backend)) << SparseFactor::to_string(backend);
+        std::vector<double> together(stride * rows.size(), -1.0), alone(static_cast<std::size_t>(nn));
+        {
+          ScopedThreads scope;
+          scope.set(threads);
+          f.solve_units(rows.data(), int(rows.size()), together.data(), stride);
+        }
+        for (std::size_t r = 0; r < rows.size(); ++r) {
+          f.solve_unit(rows[r], alone.data());
+          const double* got = together.data() + r * stride;
+          for (int k = 0; k < nn; ++k)
+            ASSERT_EQ(got[k], alone[std::size_t(k)])
+                << SparseFactor::to_string(backend) << " on " << threads << " thread(s): row " << rows[r] << " (lane "
+                << r << "), entry " << k;
+          // A x = e_row: a column of the inverse, not only the same as solve_unit's
+          const Eigen::VectorXd ax = a * Eigen::Map<const Eigen::VectorXd>(got, nn);
+          EXPECT_NEAR(ax(rows[r]), 1.0, 1e-9);
+          EXPECT_NEAR(ax.norm(), 1.0, 1e-9);
+          // the gap between columns (a stride longer than a column) is left as it was
+          for (std::size_t k = std::size_t(nn); k < stride && r + 1 < rows.size(); ++k) EXPECT_EQ(got[k], -1.0);
+        }
       }
-    }
   }
 }
 
